@@ -1,0 +1,303 @@
+//! The validated fleet: what every other crate reads. Built only by the loaders in this crate,
+//! so holding a [`Fleet`] means it passed validation.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use hetcomm_core::{ModuleId, SystemId};
+
+/// A validated fleet configuration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Fleet {
+    /// Optional human name of the fleet.
+    pub name: Option<String>,
+    /// The file it was loaded from (None when built from a string).
+    pub source: Option<PathBuf>,
+    /// Systems, sorted by id.
+    pub systems: Vec<SystemDef>,
+    /// Modules, sorted by id.
+    pub modules: Vec<ModuleDef>,
+    /// Transport instances, in file order. The communication table refers to them by index.
+    pub transports: Vec<TransportDef>,
+    /// (source, destination) → index into `transports`; a missing pair is `X` (no traffic).
+    pub table: BTreeMap<(SystemId, SystemId), usize>,
+}
+
+/// One system (robot or virtual environment).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SystemDef {
+    /// Numeric id (on the wire).
+    pub id: SystemId,
+    /// Friendly name (unique).
+    pub name: String,
+}
+
+/// One module kind; the same id on every system.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ModuleDef {
+    /// Numeric id (on the wire).
+    pub id: ModuleId,
+    /// Name (unique).
+    pub name: String,
+    /// The module's inbox bound and overflow policy.
+    pub inbox: InboxConfig,
+}
+
+/// How big a module's inbox is and what happens when it is full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InboxConfig {
+    /// Most messages held at once.
+    pub capacity: usize,
+    /// What to do with a message that arrives when the inbox is full.
+    pub overflow: OverflowPolicy,
+}
+
+impl Default for InboxConfig {
+    fn default() -> Self {
+        InboxConfig {
+            capacity: 1024,
+            overflow: OverflowPolicy::DropOldest,
+        }
+    }
+}
+
+/// Overflow policy of a full inbox. Every drop is counted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OverflowPolicy {
+    /// Evict the oldest queued message of the lowest priority present (at or below the new
+    /// message's priority) to make room; if every queued message outranks the new one, the new
+    /// one is dropped instead.
+    DropOldest,
+    /// Drop the arriving message.
+    DropNewest,
+    /// Make the delivering side wait for room up to `timeout`, then drop the arriving message.
+    Block {
+        /// Longest wait.
+        timeout: Duration,
+    },
+}
+
+/// Whether a transport instance confirms delivery.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeliveryMode {
+    /// The receiving router acknowledges; the sender retransmits until acknowledged or the
+    /// attempt budget is spent. Outcome: delivered or failed.
+    Acknowledged,
+    /// Fire and forget (after retrying local transport errors). Outcome: sent without
+    /// confirmation, or failed.
+    Unacknowledged,
+}
+
+/// The transport kinds hetcomm knows. Whether one is compiled into a program is decided when
+/// the fleet is opened, not here.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum TransportKind {
+    /// Between systems of one process.
+    Inproc,
+    /// UDP datagrams.
+    Udp,
+    /// TCP streams.
+    Tcp,
+    /// ROS 1 topics through a ROS master.
+    Ros1,
+    /// Bluetooth Classic RFCOMM.
+    Bluetooth,
+    /// Zenoh.
+    Zenoh,
+    /// MQTT through a broker.
+    Mqtt,
+    /// DDS.
+    Dds,
+    /// A wrapper that emulates a radio link (loss, latency, range, …) over another transport.
+    Emulated,
+}
+
+impl TransportKind {
+    /// Every kind, in documentation order.
+    pub const ALL: [TransportKind; 9] = [
+        TransportKind::Inproc,
+        TransportKind::Udp,
+        TransportKind::Tcp,
+        TransportKind::Ros1,
+        TransportKind::Bluetooth,
+        TransportKind::Zenoh,
+        TransportKind::Mqtt,
+        TransportKind::Dds,
+        TransportKind::Emulated,
+    ];
+
+    /// The name used in fleet files (`kind = "…"`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TransportKind::Inproc => "inproc",
+            TransportKind::Udp => "udp",
+            TransportKind::Tcp => "tcp",
+            TransportKind::Ros1 => "ros1",
+            TransportKind::Bluetooth => "bluetooth",
+            TransportKind::Zenoh => "zenoh",
+            TransportKind::Mqtt => "mqtt",
+            TransportKind::Dds => "dds",
+            TransportKind::Emulated => "emulated",
+        }
+    }
+
+    /// Parses a fleet-file kind name.
+    pub fn parse(s: &str) -> Option<TransportKind> {
+        Self::ALL.into_iter().find(|k| k.as_str() == s)
+    }
+}
+
+impl std::fmt::Display for TransportKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A named transport instance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransportDef {
+    /// Its name in the fleet file (for a letter of a legacy table, the letter itself).
+    pub name: String,
+    /// One byte written into each frame's "communication type" field: the table letter when
+    /// the transport was named by one, else the first byte of the name.
+    pub tag: u8,
+    /// The kind.
+    pub kind: TransportKind,
+    /// Acknowledged or not.
+    pub delivery: DeliveryMode,
+    /// Transmission attempts before a send is reported failed (the thesis used 3).
+    pub attempts: u32,
+    /// Kind-specific settings.
+    pub settings: TransportSettings,
+}
+
+/// Kind-specific settings, checked against each kind's schema.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TransportSettings {
+    /// `inproc`: none.
+    Inproc,
+    /// `udp` / `tcp`: where each system listens.
+    Ip(IpSettings),
+    /// `ros1`.
+    Ros1(Ros1Settings),
+    /// `bluetooth`.
+    Bluetooth(BluetoothSettings),
+    /// `emulated`.
+    Emulated(EmulatedSettings),
+    /// Kinds whose settings are not modelled yet (`zenoh`, `mqtt`, `dds`): the raw keys,
+    /// stringified.
+    Raw(BTreeMap<String, String>),
+}
+
+/// Settings of `udp` and `tcp` transports.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct IpSettings {
+    /// Each system's listening endpoint, `host:port` (port 0: pick a free port).
+    pub endpoints: BTreeMap<SystemId, String>,
+    /// Largest message accepted for sending, bytes (None: the codec's limit).
+    pub max_message_bytes: Option<usize>,
+}
+
+/// Settings of a `ros1` transport.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Ros1Settings {
+    /// The master's XML-RPC URI, e.g. `http://127.0.0.1:11311`.
+    pub master_uri: String,
+    /// Optional topic namespace prepended to each system's topic.
+    pub namespace: Option<String>,
+}
+
+/// A Bluetooth device address, `XX:XX:XX:XX:XX:XX`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BdAddr(pub [u8; 6]);
+
+impl std::fmt::Display for BdAddr {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let b = self.0;
+        write!(
+            f,
+            "{:02X}:{:02X}:{:02X}:{:02X}:{:02X}:{:02X}",
+            b[0], b[1], b[2], b[3], b[4], b[5]
+        )
+    }
+}
+
+/// Settings of a `bluetooth` transport.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BluetoothSettings {
+    /// RFCOMM channel (1–30).
+    pub channel: u8,
+    /// Each system's adapter address.
+    pub addresses: BTreeMap<SystemId, BdAddr>,
+}
+
+/// Settings of an `emulated` transport: a built-in profile, overridden key by key. The model
+/// keys (`loss_percent`, `latency_ms`, …) are kept as given; the emulation layer interprets
+/// them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmulatedSettings {
+    /// The transport it wraps (a name in `transports`), or None for a private in-process link.
+    pub over: Option<String>,
+    /// Built-in profile name (`wired`, `wifi`, `bluetooth-classic`), if any.
+    pub profile: Option<String>,
+    /// Seed for the emulation's random choices.
+    pub seed: u64,
+    /// Model parameters, by key, as numbers.
+    pub params: BTreeMap<String, f64>,
+}
+
+impl Fleet {
+    /// The system with this friendly name.
+    pub fn system_by_name(&self, name: &str) -> Option<&SystemDef> {
+        self.systems.iter().find(|s| s.name == name)
+    }
+
+    /// The system with this id.
+    pub fn system(&self, id: SystemId) -> Option<&SystemDef> {
+        self.systems.iter().find(|s| s.id == id)
+    }
+
+    /// The module with this name.
+    pub fn module_by_name(&self, name: &str) -> Option<&ModuleDef> {
+        self.modules.iter().find(|m| m.name == name)
+    }
+
+    /// The module with this id.
+    pub fn module(&self, id: ModuleId) -> Option<&ModuleDef> {
+        self.modules.iter().find(|m| m.id == id)
+    }
+
+    /// The transport that carries traffic from `src` to `dst`, or None for `X`.
+    pub fn route(&self, src: SystemId, dst: SystemId) -> Option<&TransportDef> {
+        self.table.get(&(src, dst)).map(|&i| &self.transports[i])
+    }
+
+    /// The transport with this name.
+    pub fn transport(&self, name: &str) -> Option<&TransportDef> {
+        self.transports.iter().find(|t| t.name == name)
+    }
+
+    /// One line: systems, modules, and pairs per transport — what `hetcomm validate` prints.
+    pub fn summary(&self) -> String {
+        let mut per: Vec<(String, usize)> = self
+            .transports
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (t.name.clone(), self.table.values().filter(|&&j| j == i).count()))
+            .collect();
+        per.retain(|(_, n)| *n > 0);
+        let pairs = per
+            .iter()
+            .map(|(name, n)| format!("{name}: {n}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        format!(
+            "{} systems, {} modules, {} pairs ({})",
+            self.systems.len(),
+            self.modules.len(),
+            self.table.len(),
+            if pairs.is_empty() { "no traffic".to_string() } else { pairs }
+        )
+    }
+}

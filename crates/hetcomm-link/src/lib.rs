@@ -1,0 +1,140 @@
+//! # hetcomm-link — the transport seam
+//!
+//! A [`Link`] moves whole frames (already encoded by the router) between systems. Every
+//! transport — in-process, UDP, TCP, ROS 1, Bluetooth, emulated radios — implements this one
+//! trait and declares its [`LinkCaps`], which the router reads (it never asks "which kind are
+//! you?"). Frames a link receives go to the [`FrameSink`] it was opened with.
+//!
+//! This crate holds the trait, the in-process link ([`inproc`]) and the [`conformance`] suite
+//! that every transport runs. Transports with heavy dependencies live in their own crates.
+//!
+//! ```
+//! use std::sync::Arc;
+//! use hetcomm_core::SystemId;
+//! use hetcomm_link::{inproc::InprocHub, conformance::CollectSink, Link};
+//!
+//! let hub = InprocHub::new();
+//! let sink_b = CollectSink::new();
+//! let a = hub.open(SystemId(0), CollectSink::new());
+//! let _b = hub.open(SystemId(1), sink_b.clone());
+//! a.send(SystemId(1), b"frame").unwrap();
+//! assert_eq!(sink_b.frames()[0].bytes, b"frame");
+//! ```
+
+pub mod conformance;
+pub mod inproc;
+
+use std::sync::Arc;
+
+use hetcomm_core::SystemId;
+
+/// What a link can do; the router adapts to it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinkCaps {
+    /// Largest frame (header + payload) one `send` accepts.
+    pub max_frame: usize,
+    /// Largest frame carried without the link splitting it (its datagram/MTU size); equal to
+    /// `max_frame` on links that never split.
+    pub mtu: usize,
+    /// Frames that were accepted arrive unless the peer is gone (no silent loss in transit).
+    pub reliable: bool,
+    /// Frames from one sender to one receiver arrive in the order they were sent.
+    pub ordered: bool,
+    /// The link can reach every peer with one send (the router does not use this yet).
+    pub broadcast: bool,
+}
+
+/// Where a frame came from, as far as the link can tell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Peer {
+    /// The link knows which fleet system sent it (e.g. a connection from a known address).
+    System(SystemId),
+    /// The link cannot tell; the router relies on the frame header alone.
+    Unknown,
+}
+
+/// Receives the frames a link reads. Called on the link's receive thread (or, for the
+/// in-process link, on the sender's thread): must not block for long.
+pub trait FrameSink: Send + Sync + 'static {
+    /// One complete frame, as sent. The bytes are only borrowed for the call.
+    fn on_frame(&self, frame: &[u8], from: Peer);
+}
+
+/// Why a link could not take a frame.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LinkError {
+    /// The destination has no endpoint on this link, or cannot be reached now.
+    #[error("peer {peer} unreachable: {reason}")]
+    Unreachable {
+        /// The destination system.
+        peer: SystemId,
+        /// What went wrong, e.g. "connection refused".
+        reason: String,
+    },
+    /// The frame is larger than [`LinkCaps::max_frame`].
+    #[error("frame of {len} bytes exceeds this link's limit of {max} bytes")]
+    TooLarge {
+        /// The frame's length.
+        len: usize,
+        /// The link's limit.
+        max: usize,
+    },
+    /// The link's queue towards that peer is full (the frame was not taken).
+    #[error("link to {peer} is congested: {reason}")]
+    Congested {
+        /// The destination system.
+        peer: SystemId,
+        /// What is full.
+        reason: String,
+    },
+    /// The link was closed.
+    #[error("link closed")]
+    Closed,
+    /// An operating-system error.
+    #[error("i/o error: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// A transport endpoint of one system. Sending is on the caller's thread; receiving is the
+/// link's own business (a thread, a callback, or synchronous delivery for in-process).
+pub trait Link: Send + Sync {
+    /// What this link can do.
+    fn caps(&self) -> LinkCaps;
+
+    /// Puts one frame on the link towards system `to`. `Ok` means the transport accepted it,
+    /// not that it arrived.
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError>;
+
+    /// Counters kept by the link (frames, drops, reconnects, …), for tools and tests.
+    fn stats(&self) -> LinkStats {
+        LinkStats::default()
+    }
+}
+
+/// Counters a link may keep. Links fill in what applies to them.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Frames accepted by `send`.
+    pub frames_sent: u64,
+    /// Frames handed to the sink.
+    pub frames_received: u64,
+    /// Frames dropped on receive (malformed, unknown sender, reassembly failure, …).
+    pub frames_dropped: u64,
+    /// Times a connection to a peer was (re)established.
+    pub connects: u64,
+    /// Bytes currently held for reassembly or queued.
+    pub buffered_bytes: u64,
+}
+
+impl<L: Link + ?Sized> Link for Arc<L> {
+    fn caps(&self) -> LinkCaps {
+        (**self).caps()
+    }
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        (**self).send(to, frame)
+    }
+    fn stats(&self) -> LinkStats {
+        (**self).stats()
+    }
+}
