@@ -96,7 +96,10 @@ pub struct Header {
     /// A number the sender picks anew each time its process starts, so that a restarted
     /// sender's sequence numbers are not mistaken for duplicates.
     pub incarnation: u32,
-    /// Sequence number within (origin, incarnation); starts at 1.
+    /// Sequence number within (origin, incarnation, destination system); starts at 1. One
+    /// counter per destination lets a receiver see a gap-free stream from each sender (for
+    /// in-order delivery) while (origin, seq) still names a message uniquely at its receiver.
+    /// An acknowledgement echoes the acknowledged frame's sequence number.
     pub seq: u64,
     /// The user message type.
     pub message_type: MessageType,

@@ -1,0 +1,53 @@
+//! # hetcomm-router — the sans-IO heart
+//!
+//! One [`Router`] per system. It turns module sends into frames for links, frames from links
+//! into deliveries for module inboxes, and keeps every send's promise: exactly one
+//! [`Outcome`] per send — delivered (acknowledged by the receiving router), sent without
+//! confirmation, or failed with the reason and the number of attempts.
+//!
+//! It reads no clock and touches no socket: every input carries `now`, and the driver (the real
+//! runtime in the `hetcomm` crate, or the virtual-time simulator) performs the outputs:
+//!
+//! | call | when |
+//! |---|---|
+//! | [`Router::send`] | a module sends |
+//! | [`Router::poll_transmit`] | after any input: frames to put on links |
+//! | [`Router::transmit_result`] | after a link took (or refused) a frame from `poll_transmit` |
+//! | [`Router::handle_frame`] | a link received a frame |
+//! | [`Router::poll_delivery`] | after `handle_frame`: messages for local module inboxes |
+//! | [`Router::delivery_result`] | after the inbox took (or refused) a delivery that wants an ack |
+//! | [`Router::poll_timeout`] / [`Router::handle_timeout`] | arm a timer / when it fires |
+//! | [`Router::poll_event`] | after any input: outcomes of sends |
+//!
+//! Reliability is end to end: the sender keeps an acknowledged frame until the destination
+//! router says the message is in the module's inbox, retransmitting after a timeout derived from
+//! the measured round-trip time (RFC 6298 estimator, Karn's rule, exponential backoff) until the
+//! attempt budget is spent. Receivers suppress duplicates by (origin, incarnation, sequence).
+//!
+//! ```
+//! use hetcomm_core::*;
+//! use hetcomm_router::*;
+//!
+//! let route = Route { link: 0, tag: b'R', acknowledged: true, attempts: 3, max_frame: 1 << 20 };
+//! let mut a = Router::<()>::new(RouterConfig::new(SystemId(0), 1, vec![(SystemId(1), route)]));
+//! let mut b = Router::<()>::new(RouterConfig::new(SystemId(1), 2, vec![(SystemId(0), route)]));
+//! let now = Time::ZERO;
+//! let to = Address { system: SystemId(1), module: ModuleId(2) };
+//! a.send(now, SendRequest::new(ModuleId(1), to, MessageType(7), b"hi"), ()).unwrap();
+//! let tx = a.poll_transmit().unwrap();
+//! b.handle_frame(now, tx.link, &tx.frame);
+//! a.transmit_result(now, tx, Ok(()));
+//! let d = b.poll_delivery().unwrap();
+//! assert_eq!(d.payload, b"hi");
+//! b.delivery_result(now, d.token.unwrap(), wire::AckStatus::Delivered);
+//! let ack = b.poll_transmit().unwrap();
+//! a.handle_frame(now, ack.link, &ack.frame);
+//! assert!(matches!(a.poll_event(), Some(Event::Outcome { outcome: Outcome::Delivered { attempts: 1, .. }, .. })));
+//! ```
+
+mod dedup;
+mod router;
+mod rtt;
+
+pub use router::*;
+pub use rtt::RttEstimator;

@@ -1,0 +1,795 @@
+//! The router state machine.
+
+use std::collections::{BTreeSet, HashMap, VecDeque};
+use std::time::Duration;
+
+use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
+use hetcomm_core::{Address, FrameKind, Header, MessageType, ModuleId, Priority, SystemId, Time};
+
+use crate::dedup::Dedup;
+use crate::rtt::RttEstimator;
+
+/// How traffic from this system to one destination system is carried.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Route {
+    /// Index of the link (the driver's numbering).
+    pub link: usize,
+    /// The transport's one-byte tag written into each frame (the table letter).
+    pub tag: u8,
+    /// Whether the receiver must acknowledge.
+    pub acknowledged: bool,
+    /// Transmission attempts before the send fails (at least 1).
+    pub attempts: u32,
+    /// Largest frame the link takes.
+    pub max_frame: usize,
+}
+
+/// Retransmission timing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Timing {
+    /// Retransmission timeout before the first RTT sample.
+    pub initial_rto: Duration,
+    /// Lower bound of the timeout.
+    pub min_rto: Duration,
+    /// Upper bound of the timeout (also of the backed-off timeout).
+    pub max_rto: Duration,
+    /// Factor the timeout grows by after each unanswered attempt.
+    pub backoff: f64,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing {
+            initial_rto: Duration::from_millis(100),
+            min_rto: Duration::from_millis(2),
+            max_rto: Duration::from_secs(5),
+            backoff: 2.0,
+        }
+    }
+}
+
+/// Everything a router needs to know, built by the driver from the fleet.
+#[derive(Clone, Debug)]
+pub struct RouterConfig {
+    /// This system.
+    pub local: SystemId,
+    /// A number new to each start of this system's process (see [`Header::incarnation`]).
+    pub incarnation: u32,
+    /// Routes from this system, by destination. A destination without a route is `X`.
+    pub routes: Vec<(SystemId, Route)>,
+    /// Every system of the fleet: frames claiming another origin are dropped.
+    pub known_systems: BTreeSet<SystemId>,
+    /// Retransmission timing.
+    pub timing: Timing,
+    /// Sequence numbers remembered per sender beyond the contiguous prefix.
+    pub dedup_window: usize,
+}
+
+impl RouterConfig {
+    /// A configuration with default timing; the known systems are `local` and the route
+    /// destinations.
+    pub fn new(local: SystemId, incarnation: u32, routes: Vec<(SystemId, Route)>) -> Self {
+        let mut known: BTreeSet<SystemId> = routes.iter().map(|(s, _)| *s).collect();
+        known.insert(local);
+        RouterConfig {
+            local,
+            incarnation,
+            routes,
+            known_systems: known,
+            timing: Timing::default(),
+            dedup_window: 4096,
+        }
+    }
+}
+
+/// What a module asks to send.
+#[derive(Clone, Copy, Debug)]
+pub struct SendRequest<'a> {
+    /// The sending module.
+    pub from: ModuleId,
+    /// The destination module and system.
+    pub to: Address,
+    /// The payload's message type.
+    pub message_type: MessageType,
+    /// Receive priority.
+    pub priority: Priority,
+    /// Encoded payload.
+    pub payload: &'a [u8],
+    /// Marks the frame as one copy of a broadcast.
+    pub broadcast: bool,
+}
+
+impl<'a> SendRequest<'a> {
+    /// A point-to-point request with normal priority.
+    pub fn new(from: ModuleId, to: Address, message_type: MessageType, payload: &'a [u8]) -> Self {
+        SendRequest {
+            from,
+            to,
+            message_type,
+            priority: Priority::NORMAL,
+            payload,
+            broadcast: false,
+        }
+    }
+}
+
+/// A send refused before anything was transmitted.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SendError {
+    /// The communication table says `X` for this pair.
+    #[error("no traffic allowed from system {from} to system {to}: the communication table says X for this pair")]
+    NoRoute {
+        /// Sending system.
+        from: SystemId,
+        /// Destination system.
+        to: SystemId,
+    },
+    /// The message does not fit the link.
+    #[error("message of {len} bytes (with header) exceeds the {max}-byte limit of the transport to system {to}")]
+    TooLarge {
+        /// Frame length.
+        len: usize,
+        /// The limit.
+        max: usize,
+        /// Destination system.
+        to: SystemId,
+    },
+}
+
+/// Names one send: the destination and the sequence number the router gave it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SendId {
+    /// Destination system.
+    pub to: SystemId,
+    /// Sequence number within (this incarnation, destination).
+    pub seq: u64,
+}
+
+/// Why a send failed.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FailReason {
+    /// Every attempt went out but no acknowledgement came back.
+    #[error("no acknowledgement")]
+    NoAcknowledgement,
+    /// The link could not reach the peer on the last attempt.
+    #[error("peer unreachable: {0}")]
+    Unreachable(String),
+    /// The destination module's inbox was full and refused the message.
+    #[error("destination inbox full")]
+    InboxFull,
+    /// The destination system does not host that module.
+    #[error("destination system has no such module")]
+    UnknownModule,
+    /// The link refused the frame for another reason.
+    #[error("transport error: {0}")]
+    Link(String),
+    /// The router was shut down with the send unresolved.
+    #[error("shut down before an outcome")]
+    Shutdown,
+}
+
+/// The one result every send ends with.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// The destination router put the message into the module's inbox and said so.
+    Delivered {
+        /// Transmissions it took.
+        attempts: u32,
+        /// From the first transmission to the acknowledgement.
+        latency: Duration,
+    },
+    /// The transport took the frame; it cannot confirm delivery (unacknowledged mode).
+    Sent {
+        /// Transmissions it took (more than one if the transport refused earlier ones).
+        attempts: u32,
+    },
+    /// Given up.
+    Failed {
+        /// Why.
+        reason: FailReason,
+        /// Transmissions made.
+        attempts: u32,
+    },
+}
+
+impl Outcome {
+    /// Delivered, or sent without confirmation.
+    pub fn is_success(&self) -> bool {
+        !matches!(self, Outcome::Failed { .. })
+    }
+
+    /// Transmissions made.
+    pub fn attempts(&self) -> u32 {
+        match *self {
+            Outcome::Delivered { attempts, .. }
+            | Outcome::Sent { attempts }
+            | Outcome::Failed { attempts, .. } => attempts,
+        }
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Outcome::Delivered { attempts, latency } => {
+                write!(f, "delivered (attempts: {attempts}, {} µs)", latency.as_micros())
+            }
+            Outcome::Sent { attempts } => {
+                write!(f, "sent without confirmation (attempts: {attempts})")
+            }
+            Outcome::Failed { reason, attempts } => {
+                write!(f, "failed: {reason} (attempts: {attempts})")
+            }
+        }
+    }
+}
+
+/// A frame for the driver to put on a link. Hand it back through
+/// [`Router::transmit_result`] if [`Transmit::send`] is set.
+#[derive(Debug)]
+pub struct Transmit {
+    /// Which link.
+    pub link: usize,
+    /// Destination system.
+    pub to: SystemId,
+    /// The encoded frame.
+    pub frame: Vec<u8>,
+    /// The send this frame belongs to (None for acknowledgements, which need no result).
+    pub send: Option<SendId>,
+}
+
+/// Why a link refused a frame, as the router needs to know it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TransmitError {
+    /// The peer cannot be reached now (retried while attempts remain).
+    Unreachable(String),
+    /// The frame can never fit (not retried).
+    TooLarge(String),
+    /// Anything else (retried while attempts remain).
+    Other(String),
+}
+
+/// A message for a local module's inbox.
+#[derive(Debug)]
+pub struct Delivery {
+    /// The envelope header.
+    pub header: Header,
+    /// The encoded payload.
+    pub payload: Vec<u8>,
+    /// The link it arrived on.
+    pub link: usize,
+    /// Present when the sender wants an acknowledgement: report what the inbox did through
+    /// [`Router::delivery_result`].
+    pub token: Option<DeliveryToken>,
+}
+
+/// Names a delivery awaiting its inbox's verdict.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct DeliveryToken(u64);
+
+/// Something the driver should know.
+#[derive(Debug)]
+pub enum Event<T> {
+    /// A send ended.
+    Outcome {
+        /// Which send.
+        id: SendId,
+        /// The token given to [`Router::send`].
+        token: T,
+        /// How it ended.
+        outcome: Outcome,
+    },
+}
+
+/// Counters of everything the router did and dropped.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RouterStats {
+    /// Sends accepted.
+    pub sends: u64,
+    /// Frames handed out for transmission (first attempts and retransmissions).
+    pub transmissions: u64,
+    /// Retransmissions after a timeout or a link error.
+    pub retransmissions: u64,
+    /// Sends that ended delivered.
+    pub delivered: u64,
+    /// Sends that ended sent without confirmation.
+    pub sent_unconfirmed: u64,
+    /// Sends that ended failed.
+    pub failed: u64,
+    /// Messages handed to local inboxes.
+    pub received: u64,
+    /// Acknowledgements sent.
+    pub acks_sent: u64,
+    /// Acknowledgements received for a pending send.
+    pub acks_received: u64,
+    /// Acknowledgements for nothing pending (late duplicates): ignored.
+    pub stale_acks: u64,
+    /// Duplicate data frames suppressed.
+    pub duplicates: u64,
+    /// Frames that failed to decode (truncated, bad version, bad checksum, …).
+    pub malformed: u64,
+    /// Frames from a system not in the fleet.
+    pub unknown_origin: u64,
+    /// Frames addressed to another system.
+    pub misrouted: u64,
+}
+
+impl RouterStats {
+    /// Sends accepted but not yet ended.
+    pub fn in_flight(&self) -> u64 {
+        self.sends - self.delivered - self.sent_unconfirmed - self.failed
+    }
+}
+
+/// One unresolved send.
+struct Pending<T> {
+    token: T,
+    route: Route,
+    /// The frame; `None` while the driver holds it in a [`Transmit`].
+    frame: Option<Vec<u8>>,
+    attempts: u32,
+    first_sent: Option<Time>,
+    /// When to retransmit (acknowledged sends that are on the wire).
+    deadline: Option<Time>,
+    last_error: Option<TransmitError>,
+}
+
+struct PendingDelivery {
+    origin: SystemId,
+    incarnation: u32,
+    seq: u64,
+    link: usize,
+    ack_header: Header,
+}
+
+/// The per-system routing and reliability state machine. `T` is an opaque token the driver
+/// attaches to each send and gets back with its outcome.
+pub struct Router<T> {
+    config: RouterConfig,
+    routes: HashMap<SystemId, Route>,
+    next_seq: HashMap<SystemId, u64>,
+    rtt: HashMap<SystemId, RttEstimator>,
+    pending: HashMap<SendId, Pending<T>>,
+    /// Retransmission deadlines, possibly stale (checked against `Pending::deadline`).
+    timers: BTreeSet<(Time, SendId)>,
+    transmits: VecDeque<TransmitItem>,
+    deliveries: VecDeque<Delivery>,
+    awaiting: HashMap<DeliveryToken, PendingDelivery>,
+    next_token: u64,
+    events: VecDeque<Event<T>>,
+    dedup: Dedup,
+    stats: RouterStats,
+}
+
+enum TransmitItem {
+    Send(SendId),
+    Ack { link: usize, to: SystemId, frame: Vec<u8> },
+}
+
+impl<T> Router<T> {
+    /// A router for `config.local`.
+    pub fn new(config: RouterConfig) -> Self {
+        let routes = config.routes.iter().copied().collect();
+        let dedup = Dedup::new(config.dedup_window);
+        Router {
+            config,
+            routes,
+            next_seq: HashMap::new(),
+            rtt: HashMap::new(),
+            pending: HashMap::new(),
+            timers: BTreeSet::new(),
+            transmits: VecDeque::new(),
+            deliveries: VecDeque::new(),
+            awaiting: HashMap::new(),
+            next_token: 0,
+            events: VecDeque::new(),
+            dedup,
+            stats: RouterStats::default(),
+        }
+    }
+
+    /// This system.
+    pub fn local(&self) -> SystemId {
+        self.config.local
+    }
+
+    /// The route to `to`, if the table allows traffic.
+    pub fn route(&self, to: SystemId) -> Option<Route> {
+        self.routes.get(&to).copied()
+    }
+
+    /// Destinations this system may send to, ascending.
+    pub fn destinations(&self) -> Vec<SystemId> {
+        let mut d: Vec<_> = self.routes.keys().copied().collect();
+        d.sort_unstable();
+        d
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &RouterStats {
+        &self.stats
+    }
+
+    /// The smoothed round-trip time to `to`, once measured.
+    pub fn srtt(&self, to: SystemId) -> Option<Duration> {
+        self.rtt.get(&to).and_then(|r| r.srtt())
+    }
+
+    /// Accepts a send: assigns its sequence number and queues its frame. Its outcome arrives
+    /// later through [`Router::poll_event`].
+    pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
+        let to = req.to.system;
+        let route = self.routes.get(&to).copied().ok_or(SendError::NoRoute {
+            from: self.config.local,
+            to,
+        })?;
+        let len = HEADER_LEN + req.payload.len();
+        let max = route.max_frame.min(HEADER_LEN + wire::MAX_PAYLOAD);
+        if len > max {
+            return Err(SendError::TooLarge { len, max, to });
+        }
+        let seq = self.next_seq.entry(to).or_insert(0);
+        *seq += 1;
+        let id = SendId { to, seq: *seq };
+        let mut flags = 0;
+        if route.acknowledged {
+            flags |= FLAG_ACK_REQUESTED;
+        }
+        if req.broadcast {
+            flags |= FLAG_BROADCAST;
+        }
+        let header = Header {
+            kind: FrameKind::Data,
+            flags,
+            priority: req.priority,
+            transport: route.tag,
+            source: Address {
+                system: self.config.local,
+                module: req.from,
+            },
+            destination: req.to,
+            incarnation: self.config.incarnation,
+            seq: id.seq,
+            message_type: req.message_type,
+            timestamp: now,
+        };
+        let frame = wire::encode(&header, req.payload);
+        self.pending.insert(
+            id,
+            Pending {
+                token,
+                route,
+                frame: Some(frame),
+                attempts: 0,
+                first_sent: None,
+                deadline: None,
+                last_error: None,
+            },
+        );
+        self.transmits.push_back(TransmitItem::Send(id));
+        self.stats.sends += 1;
+        Ok(id)
+    }
+
+    /// The next frame to put on a link.
+    pub fn poll_transmit(&mut self) -> Option<Transmit> {
+        while let Some(item) = self.transmits.pop_front() {
+            match item {
+                TransmitItem::Ack { link, to, frame } => {
+                    return Some(Transmit {
+                        link,
+                        to,
+                        frame,
+                        send: None,
+                    })
+                }
+                TransmitItem::Send(id) => {
+                    // A send may have ended (acknowledged) while queued for retransmission.
+                    let Some(p) = self.pending.get_mut(&id) else {
+                        continue;
+                    };
+                    let Some(frame) = p.frame.take() else {
+                        continue;
+                    };
+                    p.attempts += 1;
+                    self.stats.transmissions += 1;
+                    if p.attempts > 1 {
+                        self.stats.retransmissions += 1;
+                    }
+                    return Some(Transmit {
+                        link: p.route.link,
+                        to: id.to,
+                        frame,
+                        send: Some(id),
+                    });
+                }
+            }
+        }
+        None
+    }
+
+    /// Reports what the link did with a frame from [`Router::poll_transmit`], handing the
+    /// frame back (the router keeps it for retransmission).
+    pub fn transmit_result(&mut self, now: Time, tx: Transmit, result: Result<(), TransmitError>) {
+        let Some(id) = tx.send else { return };
+        let Some(attempts) = self.pending.get(&id).map(|p| p.attempts) else {
+            return; // already ended (an ack overtook the result)
+        };
+        let rto = self.rto_for(id.to, attempts);
+        let Some(p) = self.pending.get_mut(&id) else {
+            return;
+        };
+        p.frame = Some(tx.frame);
+        match result {
+            Ok(()) => {
+                p.first_sent.get_or_insert(now);
+                if p.route.acknowledged {
+                    let deadline = now + rto;
+                    p.deadline = Some(deadline);
+                    self.timers.insert((deadline, id));
+                } else {
+                    let attempts = p.attempts;
+                    self.finish(id, Outcome::Sent { attempts });
+                }
+            }
+            Err(TransmitError::TooLarge(reason)) => {
+                let attempts = p.attempts;
+                self.finish(
+                    id,
+                    Outcome::Failed {
+                        reason: FailReason::Link(reason),
+                        attempts,
+                    },
+                );
+            }
+            Err(err) => {
+                if p.attempts < p.route.attempts {
+                    p.last_error = Some(err);
+                    self.transmits.push_back(TransmitItem::Send(id));
+                } else {
+                    let attempts = p.attempts;
+                    let reason = match err {
+                        TransmitError::Unreachable(r) => FailReason::Unreachable(r),
+                        TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
+                    };
+                    self.finish(id, Outcome::Failed { reason, attempts });
+                }
+            }
+        }
+    }
+
+    /// The timeout for the given attempt: the destination's RTO, backed off per earlier attempt.
+    fn rto_for(&self, to: SystemId, attempt: u32) -> Duration {
+        let t = self.config.timing;
+        let base = self
+            .rtt
+            .get(&to)
+            .map(|r| r.rto())
+            .unwrap_or(t.initial_rto);
+        let factor = t.backoff.max(1.0).powi(attempt.saturating_sub(1).min(30) as i32);
+        base.mul_f64(factor).min(t.max_rto).max(t.min_rto)
+    }
+
+    fn finish(&mut self, id: SendId, outcome: Outcome) {
+        if let Some(p) = self.pending.remove(&id) {
+            match outcome {
+                Outcome::Delivered { .. } => self.stats.delivered += 1,
+                Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
+                Outcome::Failed { .. } => self.stats.failed += 1,
+            }
+            self.events.push_back(Event::Outcome {
+                id,
+                token: p.token,
+                outcome,
+            });
+        }
+    }
+
+    /// Handles a frame a link received. Bad frames are counted and dropped.
+    pub fn handle_frame(&mut self, now: Time, link: usize, bytes: &[u8]) {
+        let frame = match wire::decode(bytes) {
+            Ok(f) => f,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        let h = frame.header;
+        if !self.config.known_systems.contains(&h.source.system) {
+            self.stats.unknown_origin += 1;
+            return;
+        }
+        if h.destination.system != self.config.local {
+            self.stats.misrouted += 1;
+            return;
+        }
+        match h.kind {
+            FrameKind::Ack => self.handle_ack(now, &h, frame.payload),
+            FrameKind::Data => self.handle_data(link, &h, frame.payload),
+        }
+    }
+
+    fn handle_ack(&mut self, now: Time, h: &Header, payload: &[u8]) {
+        let status = match payload {
+            [b] => AckStatus::from_u8(*b),
+            _ => None,
+        };
+        let Some(status) = status else {
+            self.stats.malformed += 1;
+            return;
+        };
+        let id = SendId {
+            to: h.source.system,
+            seq: h.seq,
+        };
+        let matches = h.incarnation == self.config.incarnation
+            && self.pending.get(&id).is_some_and(|p| p.first_sent.is_some());
+        if !matches {
+            self.stats.stale_acks += 1;
+            return;
+        }
+        self.stats.acks_received += 1;
+        let p = &self.pending[&id];
+        let attempts = p.attempts;
+        let latency = now.saturating_since(p.first_sent.unwrap_or(now));
+        if attempts == 1 {
+            // Karn: only unambiguous samples.
+            let t = self.config.timing;
+            self.rtt
+                .entry(id.to)
+                .or_insert_with(|| RttEstimator::new(t.initial_rto, t.min_rto, t.max_rto))
+                .sample(latency);
+        }
+        let outcome = match status {
+            AckStatus::Delivered => Outcome::Delivered { attempts, latency },
+            AckStatus::InboxFull => Outcome::Failed {
+                reason: FailReason::InboxFull,
+                attempts,
+            },
+            AckStatus::UnknownModule => Outcome::Failed {
+                reason: FailReason::UnknownModule,
+                attempts,
+            },
+        };
+        self.finish(id, outcome);
+    }
+
+    fn handle_data(&mut self, link: usize, h: &Header, payload: &[u8]) {
+        let origin = h.source.system;
+        let ack_header = Header {
+            kind: FrameKind::Ack,
+            flags: 0,
+            priority: h.priority,
+            transport: h.transport,
+            source: h.destination,
+            destination: h.source,
+            incarnation: h.incarnation,
+            seq: h.seq,
+            message_type: h.message_type,
+            timestamp: h.timestamp,
+        };
+        if self.dedup.contains(origin, h.incarnation, h.seq) {
+            self.stats.duplicates += 1;
+            // The earlier acknowledgement may have been lost: say it again.
+            if h.ack_requested() && !self.awaiting.values().any(|d| {
+                d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
+            }) {
+                self.queue_ack(link, ack_header, AckStatus::Delivered);
+            }
+            return;
+        }
+        self.dedup.insert(origin, h.incarnation, h.seq);
+        self.stats.received += 1;
+        let token = if h.ack_requested() {
+            let token = DeliveryToken(self.next_token);
+            self.next_token += 1;
+            self.awaiting.insert(
+                token,
+                PendingDelivery {
+                    origin,
+                    incarnation: h.incarnation,
+                    seq: h.seq,
+                    link,
+                    ack_header,
+                },
+            );
+            Some(token)
+        } else {
+            None
+        };
+        self.deliveries.push_back(Delivery {
+            header: *h,
+            payload: payload.to_vec(),
+            link,
+            token,
+        });
+    }
+
+    fn queue_ack(&mut self, link: usize, header: Header, status: AckStatus) {
+        let frame = wire::encode(&header, &[status as u8]);
+        self.stats.acks_sent += 1;
+        self.transmits.push_back(TransmitItem::Ack {
+            link,
+            to: header.destination.system,
+            frame,
+        });
+    }
+
+    /// The next message for a local module.
+    pub fn poll_delivery(&mut self) -> Option<Delivery> {
+        self.deliveries.pop_front()
+    }
+
+    /// Reports what the destination inbox did with a delivery that carried a token; the
+    /// router acknowledges accordingly. A refused message is forgotten by the duplicate filter,
+    /// so a retransmission may try again.
+    pub fn delivery_result(&mut self, _now: Time, token: DeliveryToken, status: AckStatus) {
+        let Some(d) = self.awaiting.remove(&token) else {
+            return;
+        };
+        if status != AckStatus::Delivered {
+            self.dedup.remove(d.origin, d.incarnation, d.seq);
+            self.stats.received -= 1;
+        }
+        self.queue_ack(d.link, d.ack_header, status);
+    }
+
+    /// When [`Router::handle_timeout`] should next be called.
+    pub fn poll_timeout(&self) -> Option<Time> {
+        self.timers.first().map(|(t, _)| *t)
+    }
+
+    /// Retransmits or fails sends whose acknowledgement is overdue.
+    pub fn handle_timeout(&mut self, now: Time) {
+        while let Some(&(deadline, id)) = self.timers.first() {
+            if deadline > now {
+                break;
+            }
+            self.timers.pop_first();
+            let Some(p) = self.pending.get_mut(&id) else {
+                continue;
+            };
+            if p.deadline != Some(deadline) {
+                continue; // superseded
+            }
+            p.deadline = None;
+            if p.attempts < p.route.attempts {
+                self.transmits.push_back(TransmitItem::Send(id));
+            } else {
+                let attempts = p.attempts;
+                let reason = match p.last_error.take() {
+                    // Never on the wire after the last error: say why.
+                    Some(TransmitError::Unreachable(r)) if p.first_sent.is_none() => {
+                        FailReason::Unreachable(r)
+                    }
+                    _ => FailReason::NoAcknowledgement,
+                };
+                self.finish(id, Outcome::Failed { reason, attempts });
+            }
+        }
+    }
+
+    /// The next outcome.
+    pub fn poll_event(&mut self) -> Option<Event<T>> {
+        self.events.pop_front()
+    }
+
+    /// Fails every unresolved send with [`FailReason::Shutdown`] (their outcomes appear in
+    /// [`Router::poll_event`]).
+    pub fn shutdown(&mut self) {
+        let ids: Vec<SendId> = self.pending.keys().copied().collect();
+        for id in ids {
+            let attempts = self.pending[&id].attempts;
+            self.finish(
+                id,
+                Outcome::Failed {
+                    reason: FailReason::Shutdown,
+                    attempts,
+                },
+            );
+        }
+        self.timers.clear();
+    }
+}
