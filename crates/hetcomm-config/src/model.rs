@@ -31,6 +31,9 @@ pub struct SystemDef {
     pub id: SystemId,
     /// Friendly name (unique).
     pub name: String,
+    /// The modules this system hosts, sorted by id; None means every module of the fleet
+    /// (the fleet file's `modules = [...]` long form is the only way to narrow it).
+    pub modules: Option<Vec<ModuleId>>,
 }
 
 /// One module kind; the same id on every system.

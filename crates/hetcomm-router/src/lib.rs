@@ -34,13 +34,13 @@
 //! let now = Time::ZERO;
 //! let to = Address { system: SystemId(1), module: ModuleId(2) };
 //! a.send(now, SendRequest::new(ModuleId(1), to, MessageType(7), b"hi"), ()).unwrap();
-//! let tx = a.poll_transmit().unwrap();
+//! let tx = a.poll_transmit(now).unwrap();
 //! b.handle_frame(now, tx.link, &tx.frame);
 //! a.transmit_result(now, tx, Ok(()));
 //! let d = b.poll_delivery().unwrap();
 //! assert_eq!(d.payload, b"hi");
 //! b.delivery_result(now, d.token.unwrap(), wire::AckStatus::Delivered);
-//! let ack = b.poll_transmit().unwrap();
+//! let ack = b.poll_transmit(now).unwrap();
 //! a.handle_frame(now, ack.link, &ack.frame);
 //! assert!(matches!(a.poll_event(), Some(Event::Outcome { outcome: Outcome::Delivered { attempts: 1, .. }, .. })));
 //! ```

@@ -333,7 +333,7 @@ struct Pending<T> {
     first_sent: Option<Time>,
     /// When to retransmit (acknowledged sends that are on the wire).
     deadline: Option<Time>,
-    last_error: Option<TransmitError>,
+    
 }
 
 struct PendingDelivery {
@@ -465,7 +465,6 @@ impl<T> Router<T> {
                 attempts: 0,
                 first_sent: None,
                 deadline: None,
-                last_error: None,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -473,8 +472,10 @@ impl<T> Router<T> {
         Ok(id)
     }
 
-    /// The next frame to put on a link.
-    pub fn poll_transmit(&mut self) -> Option<Transmit> {
+    /// The next frame to put on a link. `now` is when the driver hands it to the link: an
+    /// acknowledgement may come back before [`Router::transmit_result`] is called (an
+    /// in-process link delivers synchronously), and is accepted.
+    pub fn poll_transmit(&mut self, now: Time) -> Option<Transmit> {
         while let Some(item) = self.transmits.pop_front() {
             match item {
                 TransmitItem::Ack { link, to, frame } => {
@@ -494,6 +495,7 @@ impl<T> Router<T> {
                         continue;
                     };
                     p.attempts += 1;
+                    p.first_sent.get_or_insert(now);
                     self.stats.transmissions += 1;
                     if p.attempts > 1 {
                         self.stats.retransmissions += 1;
@@ -524,7 +526,6 @@ impl<T> Router<T> {
         p.frame = Some(tx.frame);
         match result {
             Ok(()) => {
-                p.first_sent.get_or_insert(now);
                 if p.route.acknowledged {
                     let deadline = now + rto;
                     p.deadline = Some(deadline);
@@ -546,7 +547,6 @@ impl<T> Router<T> {
             }
             Err(err) => {
                 if p.attempts < p.route.attempts {
-                    p.last_error = Some(err);
                     self.transmits.push_back(TransmitItem::Send(id));
                 } else {
                     let attempts = p.attempts;
@@ -625,7 +625,7 @@ impl<T> Router<T> {
             seq: h.seq,
         };
         let matches = h.incarnation == self.config.incarnation
-            && self.pending.get(&id).is_some_and(|p| p.first_sent.is_some());
+            && self.pending.get(&id).is_some_and(|p| p.attempts > 0);
         if !matches {
             self.stats.stale_acks += 1;
             return;
@@ -759,13 +759,7 @@ impl<T> Router<T> {
                 self.transmits.push_back(TransmitItem::Send(id));
             } else {
                 let attempts = p.attempts;
-                let reason = match p.last_error.take() {
-                    // Never on the wire after the last error: say why.
-                    Some(TransmitError::Unreachable(r)) if p.first_sent.is_none() => {
-                        FailReason::Unreachable(r)
-                    }
-                    _ => FailReason::NoAcknowledgement,
-                };
+                let reason = FailReason::NoAcknowledgement;
                 self.finish(id, Outcome::Failed { reason, attempts });
             }
         }

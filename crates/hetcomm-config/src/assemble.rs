@@ -1,0 +1,781 @@
+//! The checks shared by the TOML loader and the legacy-only loader: both first turn their
+//! files into the located "raw" parts below, then [`finish`] resolves names, letters and the
+//! table into a [`Fleet`]. Keeping one path means a legacy table gets exactly the same
+//! validation whether it is loaded alone or through a fleet file's `[legacy]` section.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::path::PathBuf;
+use std::rc::Rc;
+
+use hetcomm_core::{ModuleId, SystemId};
+
+use crate::error::{ConfigErrors, Diag, Loc};
+use crate::legacy::check_id;
+use crate::model::*;
+use crate::suggest;
+
+/// One `<id> <name>` line of a legacy id file.
+pub(crate) struct IdLine {
+    pub id: u16,
+    pub id_loc: Loc,
+    pub name: String,
+    pub name_loc: Loc,
+}
+
+/// A reference to a system as written: a name (fleet file) or an id token (legacy files).
+pub(crate) struct Label {
+    pub text: String,
+    pub loc: Loc,
+    /// True when `text` must be a numeric id (legacy files), false when it is a name (a
+    /// numeric id is still accepted if no system has that name).
+    pub by_id: bool,
+}
+
+/// One table cell as written.
+pub(crate) struct RawCell {
+    pub text: String,
+    pub loc: Loc,
+}
+
+/// A communication table before its systems and letters are resolved.
+pub(crate) struct RawTable {
+    pub header_loc: Loc,
+    pub columns: Vec<Label>,
+    pub rows: Vec<(Label, Vec<RawCell>)>,
+}
+
+/// One `<id> <address>` entry (legacy file) or `name = "address"` entry (fleet file).
+pub(crate) struct BtLine {
+    pub key: Label,
+    pub addr: String,
+    pub addr_loc: Loc,
+}
+
+/// A system before duplicate checks.
+pub(crate) struct SysSpec {
+    pub id: u16,
+    pub id_loc: Loc,
+    pub name: String,
+    pub name_loc: Loc,
+    /// The `modules = [...]` list, names with their locations.
+    pub modules: Option<Vec<(String, Loc)>>,
+}
+
+/// A module before duplicate checks.
+pub(crate) struct ModSpec {
+    pub id: u16,
+    pub id_loc: Loc,
+    pub name: String,
+    pub inbox: InboxConfig,
+}
+
+/// Where a Bluetooth transport's addresses came from, so a missing one can be fixed in the
+/// right place.
+#[derive(Clone)]
+pub(crate) enum AddrSource {
+    /// `addresses = { … }` in the fleet file.
+    Inline,
+    /// A file in the Table 3 format.
+    File(Rc<str>),
+}
+
+/// A transport before letters and the table are resolved.
+pub(crate) struct TransportSpec {
+    pub name: String,
+    pub name_loc: Loc,
+    pub kind: Option<TransportKind>,
+    pub delivery: DeliveryMode,
+    pub attempts: u32,
+    pub letter: Option<(u8, Loc)>,
+    /// None when the transport had errors; it still counts as defined so the table does not
+    /// report it a second time as unknown.
+    pub settings: Option<TransportSettings>,
+    /// The `over` name of an emulated transport, with its location.
+    pub over: Option<(String, Loc)>,
+    pub addr_source: AddrSource,
+}
+
+/// One `[letters]` entry.
+pub(crate) struct LetterSpec {
+    pub letter: u8,
+    pub letter_loc: Loc,
+    pub target: String,
+    pub target_loc: Loc,
+}
+
+/// The addresses of a legacy Bluetooth file, for the implicit `B` transport.
+pub(crate) struct LegacyBt {
+    pub addresses: BTreeMap<SystemId, BdAddr>,
+    pub file: Rc<str>,
+}
+
+/// Everything a loader gathered, ready for [`finish`].
+pub(crate) struct Parts {
+    pub name: Option<String>,
+    pub source: Option<PathBuf>,
+    pub systems: Systems,
+    pub modules: Vec<ModuleDef>,
+    pub transports: Vec<TransportSpec>,
+    pub letters: Vec<LetterSpec>,
+    pub table: Option<RawTable>,
+    pub legacy_bt: Option<LegacyBt>,
+    /// Where to report "B needs addresses" when no cell location is better.
+    pub fallback: Loc,
+}
+
+/// The fleet's systems after duplicate checks, with name and id lookups.
+pub(crate) struct Systems {
+    pub list: Vec<SysSpec>,
+}
+
+/// The modules the thesis's framework uses, for fleets that do not list their own.
+pub(crate) const DEFAULT_MODULES: [(&str, u16); 4] =
+    [("Sense", 0), ("Plan", 1), ("Act", 2), ("World", 3)];
+
+/// The valid Bluetooth address shape, quoted in help texts.
+const BDADDR_HELP: &str =
+    "write six two-digit hex bytes separated by colons, e.g. 68:A3:C4:4A:B3:BA";
+
+impl Systems {
+    /// Checks ids and names for duplicates (reporting the later one) and sorts by id.
+    pub fn new(mut list: Vec<SysSpec>, diag: &mut Diag) -> Systems {
+        let mut ids: HashMap<u16, usize> = HashMap::new();
+        let mut names: HashMap<&str, usize> = HashMap::new();
+        let mut keep = vec![true; list.len()];
+        for (i, s) in list.iter().enumerate() {
+            if s.name.is_empty() {
+                diag.err_help(&s.name_loc, "a system name cannot be empty", "give the system a name, e.g. `Alpha`");
+            }
+            if let Some(&j) = ids.get(&s.id) {
+                let first = &list[j];
+                diag.err_help(
+                    &s.id_loc,
+                    format!("duplicate system id {}: `{}` and `{}` both use it", s.id, first.name, s.name),
+                    format!("give each system its own id (`{}` has it at {})", first.name, at(&first.id_loc)),
+                );
+                keep[i] = false;
+            } else {
+                ids.insert(s.id, i);
+            }
+            if let Some(&j) = names.get(s.name.as_str()) {
+                let first = &list[j];
+                diag.err_help(
+                    &s.name_loc,
+                    format!("duplicate system name `{}`: ids {} and {} both use it", s.name, first.id, s.id),
+                    format!("give each system its own name (the first is at {})", at(&first.name_loc)),
+                );
+                keep[i] = false;
+            } else {
+                names.insert(&s.name, i);
+            }
+        }
+        let mut it = keep.into_iter();
+        list.retain(|_| it.next().unwrap_or(false));
+        list.sort_by_key(|s| s.id);
+        Systems { list }
+    }
+
+    fn by_name(&self, name: &str) -> Option<SystemId> {
+        self.list.iter().find(|s| s.name == name).map(|s| SystemId(s.id))
+    }
+
+    fn has_id(&self, id: u16) -> bool {
+        self.list.iter().any(|s| s.id == id)
+    }
+
+    /// The name of a system, for messages.
+    pub fn name(&self, id: SystemId) -> &str {
+        self.list
+            .iter()
+            .find(|s| s.id == id.0)
+            .map_or("?", |s| s.name.as_str())
+    }
+
+    fn names(&self) -> Vec<&str> {
+        self.list.iter().map(|s| s.name.as_str()).collect()
+    }
+
+    /// Resolves a written system reference, reporting an unknown one. `context` says where it
+    /// was written ("the table's columns"); `extra` are other words that are valid at that
+    /// spot, so a typo of them is suggested too.
+    pub fn resolve(&self, label: &Label, context: &str, extra: &[&str], diag: &mut Diag) -> Option<SystemId> {
+        if label.by_id {
+            let id = check_id(diag, &label.text, &label.loc, "system", "a system id")?;
+            if self.has_id(id) {
+                return Some(SystemId(id));
+            }
+            let known: Vec<String> = self.list.iter().map(|s| s.id.to_string()).collect();
+            diag.err_help(
+                &label.loc,
+                format!("unknown system id {id} in {context}"),
+                if known.is_empty() {
+                    "no systems are defined".to_string()
+                } else {
+                    format!("known system ids: {}", known.join(", "))
+                },
+            );
+            return None;
+        }
+        if let Some(id) = self.by_name(&label.text) {
+            return Some(id);
+        }
+        // A numeric key is taken as an id, so `addresses = { 1 = "…" }` works like Table 3.
+        if let Ok(id) = label.text.parse::<u16>() {
+            if self.has_id(id) && label.text.bytes().all(|b| b.is_ascii_digit()) {
+                return Some(SystemId(id));
+            }
+        }
+        let mut cands = self.names();
+        cands.extend_from_slice(extra);
+        diag.err_help(
+            &label.loc,
+            format!("unknown system `{}` in {context}", label.text),
+            suggest::help(&label.text, &cands, "known systems"),
+        );
+        None
+    }
+}
+
+/// "file:line:column", for help texts that point at a second place.
+pub(crate) fn at(loc: &Loc) -> String {
+    format!("{}:{}:{}", loc.file, loc.line, loc.column)
+}
+
+/// Checks module ids for duplicates and sorts by id.
+pub(crate) fn modules(mut list: Vec<ModSpec>, diag: &mut Diag) -> Vec<ModuleDef> {
+    let mut seen: HashMap<u16, usize> = HashMap::new();
+    let mut keep = vec![true; list.len()];
+    for (i, m) in list.iter().enumerate() {
+        if let Some(&j) = seen.get(&m.id) {
+            let first = &list[j];
+            diag.err_help(
+                &m.id_loc,
+                format!("duplicate module id {}: `{}` and `{}` both use it", m.id, first.name, m.name),
+                format!("give each module its own id (`{}` has it at {})", first.name, at(&first.id_loc)),
+            );
+            keep[i] = false;
+        } else {
+            seen.insert(m.id, i);
+        }
+    }
+    let mut it = keep.into_iter();
+    list.retain(|_| it.next().unwrap_or(false));
+    list.sort_by_key(|m| m.id);
+    list.into_iter()
+        .map(|m| ModuleDef {
+            id: ModuleId(m.id),
+            name: m.name,
+            inbox: m.inbox,
+        })
+        .collect()
+}
+
+/// Parses `XX:XX:XX:XX:XX:XX` (hex digits in either case).
+pub(crate) fn parse_bdaddr(s: &str) -> Option<BdAddr> {
+    let mut out = [0u8; 6];
+    let mut parts = s.split(':');
+    for byte in &mut out {
+        let p = parts.next()?;
+        if p.len() != 2 || !p.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return None;
+        }
+        *byte = u8::from_str_radix(p, 16).ok()?;
+    }
+    parts.next().is_none().then_some(BdAddr(out))
+}
+
+/// Resolves Bluetooth address entries: known systems, well-formed and unique addresses.
+pub(crate) fn bt_addresses(lines: Vec<BtLine>, systems: &Systems, context: &str, diag: &mut Diag) -> BTreeMap<SystemId, BdAddr> {
+    let mut out = BTreeMap::new();
+    let mut by_addr: HashMap<BdAddr, SystemId> = HashMap::new();
+    for l in lines {
+        let sys = systems.resolve(&l.key, context, &[], diag);
+        let Some(addr) = parse_bdaddr(&l.addr) else {
+            diag.err_help(&l.addr_loc, format!("malformed Bluetooth address `{}`", l.addr), BDADDR_HELP);
+            continue;
+        };
+        let Some(sys) = sys else { continue };
+        if out.contains_key(&sys) {
+            diag.err_help(
+                &l.key.loc,
+                format!("system `{}` has two Bluetooth addresses", systems.name(sys)),
+                "keep one address per system",
+            );
+            continue;
+        }
+        if let Some(&other) = by_addr.get(&addr) {
+            diag.err_help(
+                &l.addr_loc,
+                format!("Bluetooth address {addr} is already used by system `{}`", systems.name(other)),
+                "each system has its own adapter; check for a copy-paste slip",
+            );
+            continue;
+        }
+        by_addr.insert(addr, sys);
+        out.insert(sys, addr);
+    }
+    out
+}
+
+/// The ROS master URI when the file gives none: the environment's, as ROS tools do.
+pub(crate) fn default_master_uri() -> String {
+    std::env::var("ROS_MASTER_URI")
+        .ok()
+        .filter(|s| !s.trim().is_empty())
+        .unwrap_or_else(|| "http://localhost:11311".to_string())
+}
+
+/// Resolves the table, letters and transport cross-references, and builds the [`Fleet`].
+pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
+    let Parts {
+        name,
+        source,
+        systems,
+        modules,
+        mut transports,
+        letters,
+        table,
+        legacy_bt,
+        fallback,
+    } = p;
+
+    // Letters: from transports' own `letter` first (file order), then [letters]. A letter may
+    // be given twice only if both agree.
+    let mut letter_map: BTreeMap<u8, (usize, Loc)> = BTreeMap::new();
+    let mut tag_of: Vec<Option<u8>> = transports.iter().map(|t| t.letter.as_ref().map(|l| l.0)).collect();
+    for (i, t) in transports.iter().enumerate() {
+        if let Some((l, loc)) = &t.letter {
+            define_letter(&mut letter_map, *l, i, loc, &transports, &mut diag);
+        }
+    }
+    for l in &letters {
+        let Some(i) = transports.iter().position(|t| t.name == l.target) else {
+            let names: Vec<&str> = transports.iter().map(|t| t.name.as_str()).collect();
+            diag.err_help(
+                &l.target_loc,
+                format!("letter `{}` maps to `{}`, which is not a transport", l.letter as char, l.target),
+                suggest::help(&l.target, &names, "defined transports"),
+            );
+            continue;
+        };
+        define_letter(&mut letter_map, l.letter, i, &l.letter_loc, &transports, &mut diag);
+        tag_of[i].get_or_insert(l.letter);
+    }
+
+    // Emulated transports must wrap a defined, non-emulated-cycle transport.
+    check_over(&transports, &mut diag);
+
+    // The table.
+    let mut pairs: BTreeMap<(SystemId, SystemId), usize> = BTreeMap::new();
+    let mut pair_locs: Vec<((SystemId, SystemId), usize, Loc)> = Vec::new();
+    if let Some(table) = table {
+        let cols: Vec<Option<SystemId>> = table
+            .columns
+            .iter()
+            .map(|c| systems.resolve(c, "the table's columns", &[], &mut diag))
+            .collect();
+        let rows: Vec<Option<SystemId>> = table
+            .rows
+            .iter()
+            .map(|(r, _)| systems.resolve(r, "the table's rows", &["columns"], &mut diag))
+            .collect();
+        // With an unresolved label, "no matching row/column" would only repeat that error.
+        let cols_ok = cols.iter().all(Option::is_some);
+        let rows_ok = rows.iter().all(Option::is_some);
+        let mut seen = BTreeSet::new();
+        for (c, label) in cols.iter().zip(&table.columns) {
+            if let Some(id) = c {
+                if !seen.insert(*id) {
+                    diag.err_help(
+                        &label.loc,
+                        format!("column `{}` appears twice", label.text),
+                        "list each system once among the columns",
+                    );
+                }
+            }
+        }
+        let col_set = seen;
+        let mut row_set = BTreeSet::new();
+        for (r, (label, _)) in rows.iter().zip(&table.rows) {
+            if let Some(id) = r {
+                if !row_set.insert(*id) {
+                    diag.err_help(
+                        &label.loc,
+                        format!("row `{}` appears twice", label.text),
+                        "give each system one row",
+                    );
+                } else if cols_ok && !col_set.contains(id) {
+                    diag.err_help(
+                        &label.loc,
+                        format!("row `{}` has no matching column", label.text),
+                        "the table is square: add this system to the columns too",
+                    );
+                }
+            }
+        }
+        for (c, label) in cols.iter().zip(&table.columns) {
+            if let Some(id) = c {
+                if rows_ok && !row_set.contains(id) {
+                    diag.err_help(
+                        &label.loc,
+                        format!("column `{}` has no matching row", label.text),
+                        format!("the table is square: add a row for `{}`", label.text),
+                    );
+                }
+            }
+        }
+        if table.columns.is_empty() && !table.rows.is_empty() {
+            diag.err_help(&table.header_loc, "the table has rows but no columns", "list the destination systems as columns");
+        }
+        let mut implicit: HashMap<&'static str, usize> = HashMap::new();
+        let mut b_reported = false;
+        for (r, (label, cells)) in rows.iter().zip(&table.rows) {
+            if cells.len() != table.columns.len() {
+                diag.err_help(
+                    &label.loc,
+                    format!(
+                        "row `{}` has {} cells but there are {} columns",
+                        label.text,
+                        cells.len(),
+                        table.columns.len()
+                    ),
+                    "give every row one cell per column, in column order (X for no traffic)",
+                );
+                continue;
+            }
+            let Some(src) = *r else { continue };
+            for (cell, c) in cells.iter().zip(&cols) {
+                let Some(dst) = *c else { continue };
+                if cell.text == "X" {
+                    continue;
+                }
+                if src == dst {
+                    let n = systems.name(src);
+                    diag.err_help(
+                        &cell.loc,
+                        format!("system `{n}` cannot send to itself: its own cell is `{}`", cell.text),
+                        format!("write X in row `{}`, column `{}`", label.text, label.text),
+                    );
+                    continue;
+                }
+                let resolved = resolve_cell(
+                    cell,
+                    &letter_map,
+                    &mut transports,
+                    &mut tag_of,
+                    &mut implicit,
+                    legacy_bt.as_ref(),
+                    &mut b_reported,
+                    &mut diag,
+                );
+                if let Some(i) = resolved {
+                    pairs.insert((src, dst), i);
+                    pair_locs.push(((src, dst), i, cell.loc.clone()));
+                }
+            }
+        }
+    }
+    check_addresses(&pair_locs, &transports, &systems, &mut diag);
+
+    // Systems' module lists.
+    let mut system_defs = Vec::new();
+    for s in &systems.list {
+        let mods = s.modules.as_ref().map(|list| {
+            let mut ids = Vec::new();
+            for (m, loc) in list {
+                match modules.iter().find(|d| &d.name == m) {
+                    Some(d) if ids.contains(&d.id) => diag.err_help(
+                        loc,
+                        format!("module `{m}` is listed twice for system `{}`", s.name),
+                        "list each module once",
+                    ),
+                    Some(d) => ids.push(d.id),
+                    None => {
+                        let names: Vec<&str> = modules.iter().map(|d| d.name.as_str()).collect();
+                        diag.err_help(
+                            loc,
+                            format!("unknown module `{m}` in the modules of system `{}`", s.name),
+                            suggest::help(m, &names, "known modules"),
+                        );
+                    }
+                }
+            }
+            ids.sort();
+            ids
+        });
+        system_defs.push(SystemDef {
+            id: SystemId(s.id),
+            name: s.name.clone(),
+            modules: mods,
+        });
+    }
+
+    if !diag.errors.is_empty() {
+        return Err(ConfigErrors(diag.errors));
+    }
+    let mut defs = Vec::new();
+    for (t, tag) in transports.into_iter().zip(tag_of) {
+        let (Some(kind), Some(settings)) = (t.kind, t.settings) else {
+            // Only reachable with errors recorded, which returned above; reported rather than
+            // panicking in case a loader ever forgets to record one.
+            return Err(ConfigErrors(vec![crate::ConfigError {
+                file: fallback.file.to_string(),
+                line: t.name_loc.line,
+                column: t.name_loc.column,
+                message: format!("transport `{}` is incomplete", t.name),
+                help: None,
+            }]));
+        };
+        defs.push(TransportDef {
+            tag: tag.unwrap_or_else(|| t.name.as_bytes().first().copied().unwrap_or(b'?')),
+            name: t.name,
+            kind,
+            delivery: t.delivery,
+            attempts: t.attempts,
+            settings,
+        });
+    }
+    Ok(Fleet {
+        name,
+        source,
+        systems: system_defs,
+        modules,
+        transports: defs,
+        table: pairs,
+    })
+}
+
+/// Records that `letter` means transport `i`, reporting a conflicting earlier definition.
+fn define_letter(
+    map: &mut BTreeMap<u8, (usize, Loc)>,
+    letter: u8,
+    i: usize,
+    loc: &Loc,
+    transports: &[TransportSpec],
+    diag: &mut Diag,
+) {
+    match map.get(&letter) {
+        Some((j, first)) if *j != i => diag.err_help(
+            loc,
+            format!(
+                "letter `{}` is defined twice: for `{}` and for `{}`",
+                letter as char, transports[*j].name, transports[i].name
+            ),
+            format!("keep one definition (the first is at {})", at(first)),
+        ),
+        Some(_) => {}
+        None => {
+            map.insert(letter, (i, loc.clone()));
+        }
+    }
+}
+
+/// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
+/// None when it names nothing usable (already reported).
+#[allow(clippy::too_many_arguments)]
+fn resolve_cell(
+    cell: &RawCell,
+    letter_map: &BTreeMap<u8, (usize, Loc)>,
+    transports: &mut Vec<TransportSpec>,
+    tag_of: &mut Vec<Option<u8>>,
+    implicit: &mut HashMap<&'static str, usize>,
+    legacy_bt: Option<&LegacyBt>,
+    b_reported: &mut bool,
+    diag: &mut Diag,
+) -> Option<usize> {
+    let text = cell.text.as_str();
+    if let [b] = text.as_bytes() {
+        if let Some((i, _)) = letter_map.get(b) {
+            return Some(*i);
+        }
+    }
+    if let Some(i) = transports.iter().position(|t| t.name == text) {
+        return Some(i);
+    }
+    let key: &'static str = match text {
+        "R" => "R",
+        "B" => "B",
+        _ => {
+            let mut cands: Vec<&str> = transports.iter().map(|t| t.name.as_str()).collect();
+            let letters: Vec<String> = letter_map.keys().map(|&b| (b as char).to_string()).collect();
+            cands.extend(letters.iter().map(String::as_str));
+            cands.push("R");
+            if legacy_bt.is_some() {
+                cands.push("B");
+            }
+            cands.push("X");
+            let help = match suggest::closest(text, &cands) {
+                Some(c) => format!("did you mean `{c}`?"),
+                None => format!(
+                    "defined transports and letters: {}; a new letter needs a [letters] entry, e.g. `{} = \"<transport>\"`",
+                    cands.join(", "),
+                    if text.chars().count() == 1 { text } else { "Q" }
+                ),
+            };
+            diag.err_help(&cell.loc, format!("`{text}` names no transport or letter"), help);
+            return None;
+        }
+    };
+    if let Some(&i) = implicit.get(key) {
+        return Some(i);
+    }
+    let settings = if key == "R" {
+        TransportSettings::Ros1(Ros1Settings {
+            master_uri: default_master_uri(),
+            namespace: None,
+        })
+    } else {
+        let Some(bt) = legacy_bt else {
+            if !*b_reported {
+                *b_reported = true;
+                diag.err_help(
+                    &cell.loc,
+                    "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
+                    "add `bluetooth = \"bt.txt\"` (the Table 3 format) under [legacy], or map B to a transport in [letters]",
+                );
+            }
+            return None;
+        };
+        TransportSettings::Bluetooth(BluetoothSettings {
+            channel: 1,
+            addresses: bt.addresses.clone(),
+        })
+    };
+    let kind = if key == "R" { TransportKind::Ros1 } else { TransportKind::Bluetooth };
+    transports.push(TransportSpec {
+        name: key.to_string(),
+        name_loc: cell.loc.clone(),
+        kind: Some(kind),
+        delivery: DeliveryMode::Acknowledged,
+        attempts: 3,
+        letter: None,
+        settings: Some(settings),
+        over: None,
+        addr_source: match legacy_bt {
+            Some(bt) => AddrSource::File(bt.file.clone()),
+            None => AddrSource::Inline,
+        },
+    });
+    tag_of.push(Some(key.as_bytes()[0]));
+    let i = transports.len() - 1;
+    implicit.insert(key, i);
+    Some(i)
+}
+
+/// Checks every emulated transport's `over`: it names a transport, not itself, and the chain
+/// of wrappers ends.
+fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
+    let index = |n: &str| transports.iter().position(|t| t.name == n);
+    for (i, t) in transports.iter().enumerate() {
+        let Some((over, loc)) = &t.over else { continue };
+        let Some(j) = index(over) else {
+            let names: Vec<&str> = transports
+                .iter()
+                .filter(|o| o.name != t.name)
+                .map(|o| o.name.as_str())
+                .collect();
+            diag.err_help(
+                loc,
+                format!("transport `{}` wraps `{over}`, which is not a transport", t.name),
+                suggest::help(over, &names, "defined transports"),
+            );
+            continue;
+        };
+        if j == i {
+            diag.err_help(
+                loc,
+                format!("transport `{}` cannot wrap itself", t.name),
+                "name another transport in `over`, or remove `over` for a private in-process link",
+            );
+            continue;
+        }
+        // Walk the chain; report a loop once, at the first transport of it in file order.
+        let mut chain = vec![i];
+        let mut cur = j;
+        loop {
+            if cur == i {
+                if chain.iter().all(|&k| k >= i) {
+                    let names: Vec<&str> = chain
+                        .iter()
+                        .chain(std::iter::once(&i))
+                        .map(|&k| transports[k].name.as_str())
+                        .collect();
+                    diag.err_help(
+                        loc,
+                        format!("transports wrap each other in a loop: {}", names.join(" → ")),
+                        "the last wrapper in a chain must wrap a transport without `over`",
+                    );
+                }
+                break;
+            }
+            if chain.contains(&cur) {
+                break; // a loop further down, reported from its own members
+            }
+            chain.push(cur);
+            match transports[cur].over.as_ref().and_then(|(n, _)| index(n)) {
+                Some(next) => cur = next,
+                None => break,
+            }
+        }
+    }
+}
+
+/// Checks that every system at either end of a pair has an endpoint / address on each
+/// transport carrying the pair (including the ones an emulated transport wraps). Each missing
+/// (transport, system) is reported once, at the first cell needing it.
+fn check_addresses(
+    pairs: &[((SystemId, SystemId), usize, Loc)],
+    transports: &[TransportSpec],
+    systems: &Systems,
+    diag: &mut Diag,
+) {
+    let mut reported = BTreeSet::new();
+    for &((src, dst), first, ref loc) in pairs {
+        let mut cur = Some(first);
+        let mut seen = BTreeSet::new();
+        while let Some(i) = cur {
+            if !seen.insert(i) {
+                break;
+            }
+            let t = &transports[i];
+            for sys in [src, dst] {
+                let sname = systems.name(sys);
+                let (missing, what, help) = match &t.settings {
+                    Some(TransportSettings::Ip(ip)) => (
+                        !ip.endpoints.contains_key(&sys),
+                        "endpoint",
+                        format!("add `{sname} = \"host:port\"` to `endpoints` of transport `{}`", t.name),
+                    ),
+                    Some(TransportSettings::Bluetooth(bt)) => (
+                        !bt.addresses.contains_key(&sys),
+                        "Bluetooth address",
+                        match &t.addr_source {
+                            AddrSource::File(f) => format!("add a line `{} XX:XX:XX:XX:XX:XX` to {f}", sys.0),
+                            AddrSource::Inline => format!(
+                                "add `{sname} = \"XX:XX:XX:XX:XX:XX\"` to `addresses` of transport `{}`",
+                                t.name
+                            ),
+                        },
+                    ),
+                    _ => (false, "", String::new()),
+                };
+                if missing && reported.insert((i, sys)) {
+                    diag.err_help(
+                        loc,
+                        format!(
+                            "transport `{}` carries `{}` → `{}` but has no {what} for `{sname}`",
+                            t.name,
+                            systems.name(src),
+                            systems.name(dst)
+                        ),
+                        help,
+                    );
+                }
+            }
+            cur = t
+                .over
+                .as_ref()
+                .and_then(|(n, _)| transports.iter().position(|o| &o.name == n));
+        }
+    }
+}

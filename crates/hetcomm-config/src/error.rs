@@ -1,0 +1,129 @@
+//! Located errors, and the small position bookkeeping shared by the TOML and legacy parsers.
+
+use std::fmt;
+use std::rc::Rc;
+
+/// One problem found in a fleet file or a legacy file: where it is, what is wrong (quoting the
+/// offending value) and, when there is one, how to fix it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConfigError {
+    /// The file the problem is in, as the user named it (the origin given to
+    /// [`parse_str`](crate::parse_str), or a path).
+    pub file: String,
+    /// 1-based line of the offending token.
+    pub line: usize,
+    /// 1-based column (in characters) of the offending token.
+    pub column: usize,
+    /// What is wrong, quoting the offending value.
+    pub message: String,
+    /// What would fix it, if we can tell.
+    pub help: Option<String>,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}:{}:{}: {}",
+            self.file, self.line, self.column, self.message
+        )?;
+        if let Some(help) = &self.help {
+            write!(f, "\n  help: {help}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// Every problem found in one load, in the order found (loading does not stop at the first
+/// one, so a user can fix a file in one pass). Never empty when returned by this crate.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConfigErrors(pub Vec<ConfigError>);
+
+impl fmt::Display for ConfigErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, e) in self.0.iter().enumerate() {
+            if i > 0 {
+                f.write_str("\n")?;
+            }
+            write!(f, "{e}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for ConfigErrors {}
+
+/// A position in some file. The file name is shared because thousands of tokens point into
+/// the same few files.
+#[derive(Clone, Debug)]
+pub(crate) struct Loc {
+    pub file: Rc<str>,
+    pub line: usize,
+    pub column: usize,
+}
+
+impl Loc {
+    /// The start of a file: used when a problem concerns a whole file (it cannot be read, it
+    /// defines nothing).
+    pub fn start(file: &Rc<str>) -> Loc {
+        Loc {
+            file: file.clone(),
+            line: 1,
+            column: 1,
+        }
+    }
+}
+
+/// Collects errors so that every loader keeps going after the first one.
+#[derive(Default)]
+pub(crate) struct Diag {
+    pub errors: Vec<ConfigError>,
+}
+
+impl Diag {
+    /// Records one error at `loc`.
+    pub fn err(&mut self, loc: &Loc, message: impl Into<String>, help: Option<String>) {
+        self.errors.push(ConfigError {
+            file: loc.file.to_string(),
+            line: loc.line,
+            column: loc.column,
+            message: message.into(),
+            help,
+        });
+    }
+
+    /// Records one error whose fix we can describe.
+    pub fn err_help(&mut self, loc: &Loc, message: impl Into<String>, help: impl Into<String>) {
+        self.err(loc, message, Some(help.into()));
+    }
+}
+
+/// Turns byte offsets into 1-based line and character columns.
+pub(crate) struct LineIndex {
+    starts: Vec<usize>,
+}
+
+impl LineIndex {
+    /// Indexes the line starts of `text`.
+    pub fn new(text: &str) -> LineIndex {
+        let mut starts = vec![0];
+        starts.extend(text.match_indices('\n').map(|(i, _)| i + 1));
+        LineIndex { starts }
+    }
+
+    /// The line and column of byte `offset` in `text`.
+    pub fn locate(&self, text: &str, offset: usize) -> (usize, usize) {
+        let offset = offset.min(text.len());
+        let line = self.starts.partition_point(|&s| s <= offset).max(1);
+        let start = self.starts[line - 1];
+        // Columns count characters, not bytes, so that editors agree with us on non-ASCII
+        // names; if the offset were ever inside a character, fall back to bytes.
+        let column = text
+            .get(start..offset)
+            .map_or(offset - start, |s| s.chars().count())
+            + 1;
+        (line, column)
+    }
+}

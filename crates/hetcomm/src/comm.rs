@@ -1,0 +1,344 @@
+//! Opening systems: [`Comm`] is one system of a fleet; [`LocalFleet`] is every system of a
+//! fleet in this process.
+
+use std::collections::{BTreeSet, HashMap};
+use std::path::Path;
+use std::sync::{Arc, RwLock};
+
+use hetcomm_config::{DeliveryMode, Fleet};
+use hetcomm_core::{Message, SystemId, TypeRegistry, TypeRegistryError};
+use hetcomm_link::LinkStats;
+use hetcomm_router::{Route, Router, RouterConfig, RouterStats};
+
+use crate::error::OpenError;
+use crate::inbox::InboxStats;
+use crate::module::Module;
+use crate::runtime::{Directory, SystemCore, WallClock};
+use crate::transports::{open_link, Hubs};
+
+/// Shuts its system down when the last [`Comm`] or [`Module`] handle goes.
+pub(crate) struct SystemHandle {
+    pub core: Arc<SystemCore>,
+    pub fleet: Arc<Fleet>,
+}
+
+impl Drop for SystemHandle {
+    fn drop(&mut self) {
+        self.core.shutdown();
+    }
+}
+
+/// One opened system of a fleet: the autonomy code's handle to the communication layer.
+/// Cheap to clone; the system closes when the last handle (including [`Module`]s) is dropped.
+///
+/// ```
+/// # use hetcomm::*;
+/// let fleet = hetcomm::config::parse_str(r#"
+///     [systems]
+///     Alpha = 0
+///     Charlie = 1
+///     [modules]
+///     Plan = 0
+///     [transports.wired]
+///     kind = "inproc"
+///     [table]
+///     columns = ["Alpha", "Charlie"]
+///     Alpha = ["X", "wired"]
+///     Charlie = ["wired", "X"]
+/// "#, "doc.toml", None).unwrap();
+/// let local = LocalFleet::open(fleet).unwrap();
+/// let alpha = local.system("Alpha").unwrap().module("Plan").unwrap();
+/// let charlie = local.system("Charlie").unwrap().module("Plan").unwrap();
+/// let outcome = alpha.send_raw("Charlie", "Plan", MessageType(9), &[0xc0], Default::default()).unwrap().wait();
+/// assert!(matches!(outcome, Outcome::Delivered { .. }));
+/// assert!(charlie.has_message());
+/// ```
+#[derive(Clone)]
+pub struct Comm {
+    pub(crate) handle: Arc<SystemHandle>,
+}
+
+/// Everything counted about one system.
+#[derive(Clone, Debug)]
+pub struct SystemStats {
+    /// Router counters (sends, outcomes, retransmissions, drops).
+    pub router: RouterStats,
+    /// Per module: (name, inbox counters).
+    pub inboxes: Vec<(String, InboxStats)>,
+    /// Per link: (transport name, counters).
+    pub links: Vec<(String, LinkStats)>,
+    /// Callback invocations that panicked or could not decode their message.
+    pub callback_failures: u64,
+}
+
+impl Comm {
+    /// Loads a fleet file and opens one system of it.
+    pub fn open(path: impl AsRef<Path>, system: &str) -> Result<Comm, OpenError> {
+        let path = path.as_ref();
+        let fleet = hetcomm_config::load(path)?;
+        let key = std::fs::canonicalize(path)
+            .unwrap_or_else(|_| path.to_path_buf())
+            .display()
+            .to_string();
+        Self::open_fleet_with(
+            Arc::new(fleet),
+            system,
+            &Hubs::for_fleet_key(&key),
+            Default::default(),
+        )
+    }
+
+    /// Opens one system of an already loaded fleet. In-process transports of systems opened
+    /// this way meet only if they share `fleet.source` (the same file).
+    pub fn open_fleet(fleet: &Fleet, system: &str) -> Result<Comm, OpenError> {
+        let key = fleet
+            .source
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| format!("{:?}", fleet.name));
+        Self::open_fleet_with(
+            Arc::new(fleet.clone()),
+            system,
+            &Hubs::for_fleet_key(&key),
+            Default::default(),
+        )
+    }
+
+    pub(crate) fn open_fleet_with(
+        fleet: Arc<Fleet>,
+        system: &str,
+        hubs: &Hubs,
+        registry: Arc<RwLock<TypeRegistry>>,
+    ) -> Result<Comm, OpenError> {
+        let directory = Arc::new(directory(&fleet));
+        let me = fleet
+            .system_by_name(system)
+            .ok_or_else(|| OpenError::UnknownSystem {
+                name: system.to_string(),
+                known: fleet
+                    .systems
+                    .iter()
+                    .map(|s| s.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?
+            .id;
+        // The links this system needs: every transport that carries traffic from or to it.
+        let mut used: Vec<usize> = fleet
+            .table
+            .iter()
+            .filter(|((s, d), _)| *s == me || *d == me)
+            .map(|(_, &t)| t)
+            .collect::<BTreeSet<_>>()
+            .into_iter()
+            .collect();
+        used.sort_unstable();
+        let link_index: HashMap<usize, usize> =
+            used.iter().enumerate().map(|(i, &t)| (t, i)).collect();
+
+        let modules = fleet.modules.iter().map(|m| (m.id, m.inbox)).collect();
+        // The router is built after the links (it needs their frame limits), so start with a
+        // placeholder that has no routes, and swap it in before any traffic can flow.
+        let incarnation = new_incarnation();
+        let core = SystemCore::new(
+            me,
+            directory,
+            registry,
+            modules,
+            Router::new(RouterConfig::new(me, incarnation, vec![])),
+            Arc::new(WallClock),
+        );
+        let mut links = Vec::with_capacity(used.len());
+        for (i, &t) in used.iter().enumerate() {
+            links.push(open_link(&fleet, &fleet.transports[t], me, core.sink(i), hubs)?);
+        }
+        let routes: Vec<(SystemId, Route)> = fleet
+            .table
+            .iter()
+            .filter(|((s, _), _)| *s == me)
+            .map(|(&(_, dst), &t)| {
+                let def = &fleet.transports[t];
+                let link = link_index[&t];
+                (
+                    dst,
+                    Route {
+                        link,
+                        tag: def.tag,
+                        acknowledged: def.delivery == DeliveryMode::Acknowledged,
+                        attempts: def.attempts.max(1),
+                        max_frame: links[link].caps().max_frame,
+                    },
+                )
+            })
+            .collect();
+        let mut config = RouterConfig::new(me, incarnation, routes);
+        config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        *core.router() = Router::new(config);
+        core.start(links).map_err(|e| OpenError::Transport {
+            transport: "(timer)".into(),
+            system: system.to_string(),
+            reason: e.to_string(),
+        })?;
+        Ok(Comm {
+            handle: Arc::new(SystemHandle { core, fleet }),
+        })
+    }
+
+    /// This system's friendly name.
+    pub fn name(&self) -> &str {
+        &self.handle.core.name
+    }
+
+    /// This system's id.
+    pub fn id(&self) -> SystemId {
+        self.handle.core.id
+    }
+
+    /// The fleet it belongs to.
+    pub fn fleet(&self) -> &Fleet {
+        &self.handle.fleet
+    }
+
+    /// A handle to one of this system's modules.
+    pub fn module(&self, name: &str) -> Result<Module, OpenError> {
+        let core = &self.handle.core;
+        let module = core
+            .directory
+            .module_ids
+            .get(name)
+            .and_then(|id| core.modules.get(id))
+            .ok_or_else(|| OpenError::UnknownModule {
+                name: name.to_string(),
+                known: self
+                    .handle
+                    .fleet
+                    .modules
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
+        Ok(Module {
+            sys: self.handle.clone(),
+            core: module.clone(),
+        })
+    }
+
+    /// Registers a message type; fails if another type already has its id. Sending,
+    /// receiving or subscribing to a type registers it too.
+    pub fn register<M: Message>(&self) -> Result<(), TypeRegistryError> {
+        self.handle
+            .core
+            .registry
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .register::<M>()
+    }
+
+    /// Counters for this system.
+    pub fn stats(&self) -> SystemStats {
+        let core = &self.handle.core;
+        let router = core.router().stats().clone();
+        let mut inboxes: Vec<(String, InboxStats)> = core
+            .modules
+            .values()
+            .map(|m| (m.name.to_string(), m.inbox.stats()))
+            .collect();
+        inboxes.sort_by(|a, b| a.0.cmp(&b.0));
+        let links = core
+            .links()
+            .iter()
+            .enumerate()
+            .map(|(i, l)| (format!("link {i}"), l.stats()))
+            .collect();
+        let callback_failures = core
+            .modules
+            .values()
+            .map(|m| m.callback_failures.load(std::sync::atomic::Ordering::Relaxed))
+            .sum();
+        SystemStats {
+            router,
+            inboxes,
+            links,
+            callback_failures,
+        }
+    }
+}
+
+fn directory(fleet: &Fleet) -> Directory {
+    Directory {
+        systems: fleet
+            .systems
+            .iter()
+            .map(|s| (s.id, Arc::from(s.name.as_str())))
+            .collect(),
+        system_ids: fleet.systems.iter().map(|s| (s.name.clone(), s.id)).collect(),
+        modules: fleet
+            .modules
+            .iter()
+            .map(|m| (m.id, Arc::from(m.name.as_str())))
+            .collect(),
+        module_ids: fleet.modules.iter().map(|m| (m.name.clone(), m.id)).collect(),
+    }
+}
+
+/// A number that differs between starts of a process (time mixed with the process id), so a
+/// restarted sender's sequence numbers are not taken for duplicates.
+fn new_incarnation() -> u32 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static COUNTER: AtomicU32 = AtomicU32::new(0);
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let mixed = (t.as_nanos() as u64)
+        ^ ((std::process::id() as u64) << 32)
+        ^ (COUNTER.fetch_add(1, Ordering::Relaxed) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    (mixed ^ (mixed >> 32)) as u32
+}
+
+/// Every system of a fleet, opened in this process (the in-process transport connects them).
+pub struct LocalFleet {
+    systems: Vec<Comm>,
+}
+
+impl LocalFleet {
+    /// Opens every system of `fleet`.
+    pub fn open(fleet: Fleet) -> Result<LocalFleet, OpenError> {
+        let fleet = Arc::new(fleet);
+        let hubs = Hubs::default();
+        let registry = Arc::new(RwLock::new(TypeRegistry::new()));
+        let systems = fleet
+            .systems
+            .iter()
+            .map(|s| Comm::open_fleet_with(fleet.clone(), &s.name, &hubs, registry.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(LocalFleet { systems })
+    }
+
+    /// Loads a fleet file and opens every system of it.
+    pub fn open_file(path: impl AsRef<Path>) -> Result<LocalFleet, OpenError> {
+        Self::open(hetcomm_config::load(path.as_ref())?)
+    }
+
+    /// One system by name.
+    pub fn system(&self, name: &str) -> Result<Comm, OpenError> {
+        self.systems
+            .iter()
+            .find(|c| c.name() == name)
+            .cloned()
+            .ok_or_else(|| OpenError::UnknownSystem {
+                name: name.to_string(),
+                known: self
+                    .systems
+                    .iter()
+                    .map(|c| c.name().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })
+    }
+
+    /// Every system, by id.
+    pub fn systems(&self) -> &[Comm] {
+        &self.systems
+    }
+}

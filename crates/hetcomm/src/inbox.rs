@@ -1,0 +1,350 @@
+//! A module's inbox: bounded, ordered by priority then arrival, with an explicit overflow
+//! policy and exact drop counters.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::{Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use hetcomm_config::{InboxConfig, OverflowPolicy};
+use hetcomm_core::{Header, MessageType};
+
+/// One queued message.
+#[derive(Clone, Debug)]
+pub(crate) struct Entry {
+    pub header: Header,
+    pub payload: Vec<u8>,
+    pub received_at: hetcomm_core::Time,
+}
+
+/// Counters of one inbox.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InboxStats {
+    /// Messages accepted into the inbox.
+    pub accepted: u64,
+    /// Messages taken out by the module (or its callbacks).
+    pub taken: u64,
+    /// Queued messages evicted to make room (`drop-oldest`).
+    pub dropped_oldest: u64,
+    /// Arriving messages refused because the inbox was full (`drop-newest`, or `drop-oldest`
+    /// when everything queued outranks the newcomer).
+    pub dropped_newest: u64,
+    /// Arriving messages refused after waiting for room (`block`).
+    pub dropped_after_wait: u64,
+    /// Messages queued now.
+    pub len: usize,
+    /// The bound.
+    pub capacity: usize,
+}
+
+impl InboxStats {
+    /// Every message lost to overflow, whatever the policy.
+    pub fn dropped(&self) -> u64 {
+        self.dropped_oldest + self.dropped_newest + self.dropped_after_wait
+    }
+}
+
+#[derive(Default)]
+struct State {
+    /// Priority → FIFO. Highest key is served first.
+    queues: BTreeMap<u8, VecDeque<Entry>>,
+    len: usize,
+    stats: InboxStats,
+    closed: bool,
+}
+
+impl State {
+    fn push(&mut self, e: Entry) {
+        self.queues.entry(e.header.priority.0).or_default().push_back(e);
+        self.len += 1;
+        self.stats.accepted += 1;
+    }
+
+    fn front(&self) -> Option<&Entry> {
+        self.queues.values().next_back().and_then(|q| q.front())
+    }
+
+    fn pop(&mut self) -> Option<Entry> {
+        let (&prio, q) = self.queues.iter_mut().next_back()?;
+        let e = q.pop_front();
+        if q.is_empty() {
+            self.queues.remove(&prio);
+        }
+        if e.is_some() {
+            self.len -= 1;
+            self.stats.taken += 1;
+        }
+        e
+    }
+
+    /// Evicts the oldest message of the lowest priority at or below `prio`.
+    fn evict_for(&mut self, prio: u8) -> bool {
+        let Some((&lowest, q)) = self.queues.iter_mut().next() else {
+            return false;
+        };
+        if lowest > prio {
+            return false;
+        }
+        q.pop_front();
+        if q.is_empty() {
+            self.queues.remove(&lowest);
+        }
+        self.len -= 1;
+        self.stats.dropped_oldest += 1;
+        true
+    }
+}
+
+/// Why a push was refused.
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) enum PushError {
+    Full,
+    Closed,
+}
+
+pub(crate) struct Inbox {
+    config: InboxConfig,
+    state: Mutex<State>,
+    not_empty: Condvar,
+    not_full: Condvar,
+}
+
+impl Inbox {
+    pub(crate) fn new(config: InboxConfig) -> Self {
+        let capacity = config.capacity.max(1);
+        Inbox {
+            config: InboxConfig { capacity, ..config },
+            state: Mutex::new(State {
+                stats: InboxStats {
+                    capacity,
+                    ..InboxStats::default()
+                },
+                ..State::default()
+            }),
+            not_empty: Condvar::new(),
+            not_full: Condvar::new(),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Puts a message in, applying the overflow policy.
+    pub(crate) fn push(&self, e: Entry) -> Result<(), PushError> {
+        let mut s = self.lock();
+        if s.closed {
+            return Err(PushError::Closed);
+        }
+        if s.len >= self.config.capacity {
+            match self.config.overflow {
+                OverflowPolicy::DropOldest => {
+                    if !s.evict_for(e.header.priority.0) {
+                        s.stats.dropped_newest += 1;
+                        return Err(PushError::Full);
+                    }
+                }
+                OverflowPolicy::DropNewest => {
+                    s.stats.dropped_newest += 1;
+                    return Err(PushError::Full);
+                }
+                OverflowPolicy::Block { timeout } => {
+                    let deadline = Instant::now() + timeout;
+                    while s.len >= self.config.capacity && !s.closed {
+                        let left = deadline.saturating_duration_since(Instant::now());
+                        if left.is_zero() {
+                            s.stats.dropped_after_wait += 1;
+                            return Err(PushError::Full);
+                        }
+                        s = self
+                            .not_full
+                            .wait_timeout(s, left)
+                            .unwrap_or_else(|e| e.into_inner())
+                            .0;
+                    }
+                    if s.closed {
+                        return Err(PushError::Closed);
+                    }
+                }
+            }
+        }
+        s.push(e);
+        drop(s);
+        self.not_empty.notify_one();
+        Ok(())
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.lock().len
+    }
+
+    pub(crate) fn next_type(&self) -> Option<MessageType> {
+        self.lock().front().map(|e| e.header.message_type)
+    }
+
+    /// Takes the front message if `accept` agrees (it sees the header), without waiting.
+    /// `Ok(None)`: empty. `Err(header)`: refused, left in place.
+    pub(crate) fn try_take(
+        &self,
+        accept: impl Fn(&Header) -> bool,
+    ) -> Result<Option<Entry>, Header> {
+        let mut s = self.lock();
+        self.take_locked(&mut s, &accept)
+    }
+
+    fn take_locked(
+        &self,
+        s: &mut State,
+        accept: &impl Fn(&Header) -> bool,
+    ) -> Result<Option<Entry>, Header> {
+        match s.front() {
+            None => Ok(None),
+            Some(e) if !accept(&e.header) => Err(e.header),
+            Some(_) => {
+                let e = s.pop();
+                self.not_full.notify_one();
+                Ok(e)
+            }
+        }
+    }
+
+    /// Like [`Inbox::try_take`], waiting up to `timeout` (None: forever) for a message.
+    /// `Ok(None)` after the timeout or when the inbox is closed and empty.
+    pub(crate) fn take_timeout(
+        &self,
+        accept: impl Fn(&Header) -> bool,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Entry>, Header> {
+        let deadline = timeout.map(|t| Instant::now() + t);
+        let mut s = self.lock();
+        loop {
+            if s.len > 0 || s.closed {
+                return self.take_locked(&mut s, &accept);
+            }
+            s = match deadline {
+                None => self.not_empty.wait(s).unwrap_or_else(|e| e.into_inner()),
+                Some(d) => {
+                    let left = d.saturating_duration_since(Instant::now());
+                    if left.is_zero() {
+                        return Ok(None);
+                    }
+                    self.not_empty
+                        .wait_timeout(s, left)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0
+                }
+            };
+        }
+    }
+
+    pub(crate) fn stats(&self) -> InboxStats {
+        let s = self.lock();
+        InboxStats { len: s.len, ..s.stats }
+    }
+
+    /// Wakes every waiter; later pushes fail and waits return what is left.
+    pub(crate) fn close(&self) {
+        self.lock().closed = true;
+        self.not_empty.notify_all();
+        self.not_full.notify_all();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hetcomm_core::{Address, ModuleId, Priority, SystemId};
+
+    fn entry(prio: u8, tag: u8) -> Entry {
+        let a = Address {
+            system: SystemId(0),
+            module: ModuleId(0),
+        };
+        let mut header = Header::data(a, a, MessageType(1));
+        header.priority = Priority(prio);
+        Entry {
+            header,
+            payload: vec![tag],
+            received_at: hetcomm_core::Time::ZERO,
+        }
+    }
+
+    fn inbox(capacity: usize, overflow: OverflowPolicy) -> Inbox {
+        Inbox::new(InboxConfig { capacity, overflow })
+    }
+
+    fn drain(i: &Inbox) -> Vec<u8> {
+        let mut out = vec![];
+        while let Ok(Some(e)) = i.try_take(|_| true) {
+            out.push(e.payload[0]);
+        }
+        out
+    }
+
+    #[test]
+    fn priority_then_arrival() {
+        let i = inbox(10, OverflowPolicy::DropNewest);
+        for (p, t) in [(1, 1), (5, 2), (1, 3), (9, 4), (5, 5)] {
+            i.push(entry(p, t)).unwrap();
+        }
+        assert_eq!(drain(&i), vec![4, 2, 5, 1, 3]);
+    }
+
+    #[test]
+    fn drop_oldest_evicts_lowest_priority_oldest() {
+        let i = inbox(3, OverflowPolicy::DropOldest);
+        for (p, t) in [(5, 1), (1, 2), (1, 3)] {
+            i.push(entry(p, t)).unwrap();
+        }
+        i.push(entry(1, 4)).unwrap(); // evicts 2
+        assert_eq!(i.push(entry(0, 5)), Err(PushError::Full)); // everything outranks it
+        let s = i.stats();
+        assert_eq!((s.dropped_oldest, s.dropped_newest), (1, 1));
+        assert_eq!(drain(&i), vec![1, 3, 4]);
+    }
+
+    #[test]
+    fn drop_newest_refuses() {
+        let i = inbox(2, OverflowPolicy::DropNewest);
+        for t in 0..5 {
+            let _ = i.push(entry(1, t));
+        }
+        assert_eq!(i.stats().dropped_newest, 3);
+        assert_eq!(drain(&i), vec![0, 1]);
+    }
+
+    #[test]
+    fn block_waits_for_room_then_gives_up() {
+        let i = std::sync::Arc::new(inbox(
+            1,
+            OverflowPolicy::Block {
+                timeout: Duration::from_millis(20),
+            },
+        ));
+        i.push(entry(1, 0)).unwrap();
+        assert_eq!(i.push(entry(1, 1)), Err(PushError::Full));
+        assert_eq!(i.stats().dropped_after_wait, 1);
+        // With a consumer making room, a blocked push succeeds.
+        let patient = std::sync::Arc::new(inbox(
+            1,
+            OverflowPolicy::Block {
+                timeout: Duration::from_secs(10),
+            },
+        ));
+        patient.push(entry(1, 0)).unwrap();
+        let p2 = patient.clone();
+        let pusher = std::thread::spawn(move || p2.push(entry(1, 1)));
+        let first = patient.take_timeout(|_| true, Some(Duration::from_secs(10)));
+        assert_eq!(first.unwrap().unwrap().payload, vec![0]);
+        assert_eq!(pusher.join().unwrap(), Ok(()));
+        assert_eq!(drain(&patient), vec![1]);
+        assert_eq!(patient.stats().dropped(), 0);
+    }
+
+    #[test]
+    fn refused_take_leaves_message() {
+        let i = inbox(4, OverflowPolicy::DropNewest);
+        i.push(entry(1, 7)).unwrap();
+        assert!(i.try_take(|_| false).is_err());
+        assert_eq!(i.len(), 1);
+    }
+}

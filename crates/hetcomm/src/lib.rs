@@ -1,0 +1,77 @@
+//! # hetcomm — a heterogeneous communication layer for teams of robots
+//!
+//! Autonomy code sends user-defined messages to modules of other robots (or to a virtual
+//! environment); a fleet file decides, per ordered pair of systems, which transport carries
+//! them. Moving a robot from simulation to hardware changes the fleet file, never this code.
+//!
+//! ```
+//! use hetcomm::{LocalFleet, Message, Outcome};
+//! use serde::{Deserialize, Serialize};
+//!
+//! #[derive(Serialize, Deserialize, Message, Debug, PartialEq)]
+//! #[message(id = 0)]
+//! struct Command(u8);
+//!
+//! let fleet = hetcomm::config::parse_str(r#"
+//!     [systems]
+//!     Alpha = 0
+//!     Charlie = 1
+//!     [modules]
+//!     Plan = 0
+//!     Act = 1
+//!     [transports.wired]
+//!     kind = "inproc"
+//!     [table]
+//!     columns = ["Alpha", "Charlie"]
+//!     Alpha   = ["X", "wired"]
+//!     Charlie = ["wired", "X"]
+//! "#, "fleet.toml", None).unwrap();
+//! let fleet = LocalFleet::open(fleet).unwrap();
+//! let plan = fleet.system("Alpha").unwrap().module("Plan").unwrap();
+//! let act = fleet.system("Charlie").unwrap().module("Act").unwrap();
+//!
+//! let ticket = plan.send("Charlie", "Act", &Command(1)).unwrap();
+//! assert!(matches!(ticket.wait(), Outcome::Delivered { attempts: 1, .. }));
+//! let got = act.recv::<Command>().unwrap();
+//! assert_eq!(got.message, Command(1));
+//! assert_eq!(&*got.envelope.source_system, "Alpha");
+//! ```
+//!
+//! Layers, bottom up: `hetcomm-core` (ids, envelope, wire codec), `hetcomm-config` (fleet
+//! file), `hetcomm-link` (the `Link` trait and transports), `hetcomm-router` (sans-IO routing
+//! and reliability), and this crate: the runtime that drives them with real time and threads,
+//! and the API above.
+
+mod comm;
+mod error;
+mod inbox;
+mod module;
+mod received;
+mod runtime;
+mod ticket;
+mod transports;
+
+pub use comm::{Comm, LocalFleet, SystemStats};
+pub use error::{OpenError, RecvError, SendError};
+pub use inbox::InboxStats;
+pub use module::{Module, SendOptions};
+pub use received::{Envelope, RawMessage, Received};
+pub use runtime::{Clock, WallClock};
+pub use ticket::{BroadcastTicket, Ticket};
+
+pub use hetcomm_core::{
+    payload, wire, Address, Header, Message, MessageId, MessageType, ModuleId, Priority, SystemId,
+    Time, TypeRegistryError,
+};
+pub use hetcomm_derive::Message;
+pub use hetcomm_router::{FailReason, Outcome, RouterStats};
+
+/// The fleet file: loading, validation and the validated model.
+pub mod config {
+    pub use hetcomm_config::*;
+}
+
+/// Links: the transport trait, the in-process link and the conformance suite.
+pub mod link {
+    pub use hetcomm_link::*;
+}

@@ -1,0 +1,342 @@
+//! The autonomy developer's API: one [`Module`] of one system sends, broadcasts, polls and
+//! subscribes. It is the thesis's Table 5 (`Send`, `CheckForMessage`, `GetNextMessageType`,
+//! `GetMessage`) plus callbacks, priorities, timeouts and outcomes.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use hetcomm_core::{payload, Address, Message, MessageType, Priority};
+use hetcomm_router::SendRequest;
+
+use crate::comm::SystemHandle;
+use crate::error::{RecvError, SendError};
+use crate::inbox::{Entry, InboxStats};
+use crate::received::{RawMessage, Received};
+use crate::runtime::{raw_message, ModuleCore};
+use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket};
+
+/// Per-send options.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SendOptions {
+    /// Receive priority at the destination (default [`Priority::NORMAL`]).
+    pub priority: Priority,
+}
+
+impl SendOptions {
+    /// Options with the given priority.
+    pub fn priority(priority: u8) -> Self {
+        SendOptions {
+            priority: Priority(priority),
+        }
+    }
+}
+
+/// A module (Sense, Plan, Act, …) of an opened system. Cheap to clone and `Send + Sync`: use
+/// it from whichever thread runs the module.
+#[derive(Clone)]
+pub struct Module {
+    pub(crate) sys: Arc<SystemHandle>,
+    pub(crate) core: Arc<ModuleCore>,
+}
+
+impl Module {
+    /// This module's name.
+    pub fn name(&self) -> &str {
+        &self.core.name
+    }
+
+    /// This module's address.
+    pub fn address(&self) -> Address {
+        Address {
+            system: self.sys.core.id,
+            module: self.core.id,
+        }
+    }
+
+    fn check_type<M: Message>(&self) -> Result<(), hetcomm_core::TypeRegistryError> {
+        let registry = &self.sys.core.registry;
+        let known = registry
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(M::TYPE)
+            .map(|t| t.name == M::NAME);
+        match known {
+            Some(true) => Ok(()),
+            _ => registry
+                .write()
+                .unwrap_or_else(|e| e.into_inner())
+                .register::<M>(),
+        }
+    }
+
+    fn resolve(&self, system: &str, module: &str) -> Result<Address, SendError> {
+        let dir = &self.sys.core.directory;
+        let system = *dir
+            .system_ids
+            .get(system)
+            .ok_or_else(|| SendError::UnknownSystem(system.to_string()))?;
+        let module = *dir
+            .module_ids
+            .get(module)
+            .ok_or_else(|| SendError::UnknownModule(module.to_string()))?;
+        Ok(Address { system, module })
+    }
+
+    /// Sends `msg` to `module` of `system` (friendly names). Returns at once with a
+    /// [`Ticket`] for the outcome; errors here mean nothing was sent (unknown name, `X` pair,
+    /// too large, type id conflict).
+    pub fn send<M: Message>(&self, system: &str, module: &str, msg: &M) -> Result<Ticket, SendError> {
+        self.send_with(system, module, msg, SendOptions::default())
+    }
+
+    /// [`Module::send`] with options (priority).
+    pub fn send_with<M: Message>(
+        &self,
+        system: &str,
+        module: &str,
+        msg: &M,
+        opts: SendOptions,
+    ) -> Result<Ticket, SendError> {
+        self.check_type::<M>()?;
+        let to = self.resolve(system, module)?;
+        let payload = payload::encode(msg)?;
+        self.send_encoded(to, M::TYPE, &payload, opts, false)
+    }
+
+    /// Sends an already-encoded payload (tools, other-language bindings).
+    pub fn send_raw(
+        &self,
+        system: &str,
+        module: &str,
+        message_type: MessageType,
+        payload: &[u8],
+        opts: SendOptions,
+    ) -> Result<Ticket, SendError> {
+        let to = self.resolve(system, module)?;
+        self.send_encoded(to, message_type, payload, opts, false)
+    }
+
+    fn send_encoded(
+        &self,
+        to: Address,
+        message_type: MessageType,
+        payload: &[u8],
+        opts: SendOptions,
+        broadcast: bool,
+    ) -> Result<Ticket, SendError> {
+        let core = &self.sys.core;
+        if core.is_closed() {
+            return Err(SendError::Closed);
+        }
+        let slot = Arc::new(OutcomeSlot::default());
+        let req = SendRequest {
+            from: self.core.id,
+            to,
+            message_type,
+            priority: opts.priority,
+            payload,
+            broadcast,
+        };
+        let mut router = core.router();
+        match router.send(core.clock.now(), req, slot.clone()) {
+            Ok(_) => {}
+            Err(e) => {
+                drop(router);
+                let dir = &core.directory;
+                return Err(match e {
+                    hetcomm_router::SendError::NoRoute { from, to } => SendError::NoRoute {
+                        from: dir.system_name(from).to_string(),
+                        to: dir.system_name(to).to_string(),
+                    },
+                    hetcomm_router::SendError::TooLarge { len, max, to } => SendError::TooLarge {
+                        to: dir.system_name(to).to_string(),
+                        len,
+                        max,
+                    },
+                    other => SendError::UnknownSystem(other.to_string()),
+                });
+            }
+        }
+        core.pump(router);
+        Ok(Ticket {
+            slot,
+            destination: core.directory.system_name(to.system).to_string(),
+        })
+    }
+
+    /// Sends `msg` to `module` on every other system this one may talk to (the thesis's
+    /// "All"). Systems whose pair is `X` are skipped. One outcome per destination.
+    pub fn broadcast<M: Message>(&self, module: &str, msg: &M) -> Result<BroadcastTicket, SendError> {
+        self.broadcast_with(module, msg, SendOptions::default())
+    }
+
+    /// [`Module::broadcast`] with options.
+    pub fn broadcast_with<M: Message>(
+        &self,
+        module: &str,
+        msg: &M,
+        opts: SendOptions,
+    ) -> Result<BroadcastTicket, SendError> {
+        self.check_type::<M>()?;
+        let payload = payload::encode(msg)?;
+        self.broadcast_raw(module, M::TYPE, &payload, opts)
+    }
+
+    /// Broadcasts an already-encoded payload.
+    pub fn broadcast_raw(
+        &self,
+        module: &str,
+        message_type: MessageType,
+        payload: &[u8],
+        opts: SendOptions,
+    ) -> Result<BroadcastTicket, SendError> {
+        let module_id = *self
+            .sys
+            .core
+            .directory
+            .module_ids
+            .get(module)
+            .ok_or_else(|| SendError::UnknownModule(module.to_string()))?;
+        let destinations = self.sys.core.router().destinations();
+        let mut tickets = Vec::with_capacity(destinations.len());
+        for system in destinations {
+            let to = Address {
+                system,
+                module: module_id,
+            };
+            tickets.push(self.send_encoded(to, message_type, payload, opts, true)?);
+        }
+        Ok(BroadcastTicket { tickets })
+    }
+
+    /// Whether a message is waiting (the thesis's `CheckForMessage`).
+    pub fn has_message(&self) -> bool {
+        self.core.inbox.len() > 0
+    }
+
+    /// Messages waiting.
+    pub fn pending(&self) -> usize {
+        self.core.inbox.len()
+    }
+
+    /// The type of the message `recv` would return next (`GetNextMessageType`).
+    pub fn next_type(&self) -> Option<MessageType> {
+        self.core.inbox.next_type()
+    }
+
+    fn decode<M: Message>(&self, e: Entry) -> Result<Received<M>, RecvError> {
+        let raw = raw_message(&self.sys.core.directory, e);
+        let message = payload::decode::<M>(&raw.payload)?;
+        Ok(Received {
+            message,
+            envelope: raw.envelope,
+        })
+    }
+
+    fn wrong_type<M: Message>(&self, found: MessageType) -> RecvError {
+        let found_name = self
+            .sys
+            .core
+            .registry
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(found)
+            .map(|t| t.name.clone())
+            .unwrap_or_else(|| "unregistered".into());
+        RecvError::WrongType {
+            expected: M::TYPE,
+            expected_name: M::NAME,
+            found,
+            found_name,
+        }
+    }
+
+    /// Takes the next message if there is one and it is an `M` (`GetMessage`). A message of
+    /// another type is an error and stays in the inbox.
+    pub fn try_recv<M: Message>(&self) -> Result<Option<Received<M>>, RecvError> {
+        self.check_type::<M>()?;
+        match self.core.inbox.try_take(|h| h.message_type == M::TYPE) {
+            Ok(Some(e)) => self.decode(e).map(Some),
+            Ok(None) => Ok(None),
+            Err(h) => Err(self.wrong_type::<M>(h.message_type)),
+        }
+    }
+
+    /// Waits for the next message, which must be an `M`.
+    pub fn recv<M: Message>(&self) -> Result<Received<M>, RecvError> {
+        self.recv_inner(None)
+    }
+
+    /// Waits up to `timeout` for the next message, which must be an `M`.
+    pub fn recv_timeout<M: Message>(&self, timeout: Duration) -> Result<Received<M>, RecvError> {
+        self.recv_inner(Some(timeout))
+    }
+
+    fn recv_inner<M: Message>(&self, timeout: Option<Duration>) -> Result<Received<M>, RecvError> {
+        self.check_type::<M>()?;
+        match self
+            .core
+            .inbox
+            .take_timeout(|h| h.message_type == M::TYPE, timeout)
+        {
+            Ok(Some(e)) => self.decode(e),
+            Ok(None) if self.sys.core.is_closed() => Err(RecvError::Closed),
+            Ok(None) => Err(RecvError::Timeout(timeout.unwrap_or_default())),
+            Err(h) => Err(self.wrong_type::<M>(h.message_type)),
+        }
+    }
+
+    /// Takes the next message of any type, undecoded, without waiting.
+    pub fn try_recv_raw(&self) -> Option<RawMessage> {
+        match self.core.inbox.try_take(|_| true) {
+            Ok(Some(e)) => Some(raw_message(&self.sys.core.directory, e)),
+            _ => None,
+        }
+    }
+
+    /// Waits up to `timeout` (None: forever) for the next message of any type, undecoded.
+    pub fn recv_raw_timeout(&self, timeout: Option<Duration>) -> Result<RawMessage, RecvError> {
+        match self.core.inbox.take_timeout(|_| true, timeout) {
+            Ok(Some(e)) => Ok(raw_message(&self.sys.core.directory, e)),
+            _ if self.sys.core.is_closed() => Err(RecvError::Closed),
+            _ => Err(RecvError::Timeout(timeout.unwrap_or_default())),
+        }
+    }
+
+    /// Calls `f` for every `M` that arrives from now on, instead of queueing it for polling.
+    /// Callbacks of one module run one at a time, in arrival order (priority first), on that
+    /// module's callback thread; a slow callback delays only this module's callbacks. A message
+    /// that fails to decode, or a callback that panics, is counted in
+    /// [`crate::SystemStats::callback_failures`].
+    pub fn on<M: Message>(&self, f: impl Fn(Received<M>) + Send + Sync + 'static) -> Result<(), RecvError> {
+        self.check_type::<M>()?;
+        let failures = self.sys.core.clone();
+        let module = self.core.id;
+        let cb = Arc::new(move |raw: RawMessage| match payload::decode::<M>(&raw.payload) {
+            Ok(message) => f(Received {
+                message,
+                envelope: raw.envelope,
+            }),
+            Err(_) => {
+                if let Some(m) = failures.modules.get(&module) {
+                    m.callback_failures
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            }
+        });
+        self.core
+            .set_callback(Some(M::TYPE), cb, self.sys.core.directory.clone());
+        Ok(())
+    }
+
+    /// Calls `f` for every message of a type without its own callback, undecoded.
+    pub fn on_any(&self, f: impl Fn(RawMessage) + Send + Sync + 'static) {
+        self.core
+            .set_callback(None, Arc::new(f), self.sys.core.directory.clone());
+    }
+
+    /// This module's inbox counters.
+    pub fn inbox_stats(&self) -> InboxStats {
+        self.core.inbox.stats()
+    }
+}

@@ -1,0 +1,478 @@
+//! The real-time driver: one [`SystemCore`] per opened system drives its sans-IO router with
+//! the wall clock. Sends run on the caller's thread up to the link's send call; frames run on
+//! the link's receive thread (or the sender's thread for in-process links); a timer thread per
+//! system handles retransmission deadlines; callbacks run on a thread per module.
+
+use std::collections::HashMap;
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, RwLock, Weak};
+use std::thread::JoinHandle;
+
+use hetcomm_config::InboxConfig;
+use hetcomm_core::wire::AckStatus;
+use hetcomm_core::{MessageType, ModuleId, SystemId, Time, TypeRegistry};
+use hetcomm_link::{FrameSink, Link, LinkError, Peer};
+use hetcomm_router::{Delivery, Event, Router, TransmitError};
+
+use crate::inbox::{Entry, Inbox, PushError};
+use crate::received::{Envelope, RawMessage};
+use crate::ticket::OutcomeSlot;
+
+/// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
+/// clock under the simulator.
+pub trait Clock: Send + Sync + 'static {
+    /// The current time.
+    fn now(&self) -> Time;
+}
+
+/// The wall clock: microseconds since the UNIX epoch.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WallClock;
+
+impl Clock for WallClock {
+    fn now(&self) -> Time {
+        Time::now_wall()
+    }
+}
+
+/// Friendly names of the fleet's systems and modules, shared by every system of a process.
+#[derive(Debug)]
+pub(crate) struct Directory {
+    pub systems: HashMap<SystemId, Arc<str>>,
+    pub system_ids: HashMap<String, SystemId>,
+    pub modules: HashMap<ModuleId, Arc<str>>,
+    pub module_ids: HashMap<String, ModuleId>,
+}
+
+impl Directory {
+    pub(crate) fn system_name(&self, id: SystemId) -> Arc<str> {
+        self.systems
+            .get(&id)
+            .cloned()
+            .unwrap_or_else(|| Arc::from(format!("#{id}")))
+    }
+    pub(crate) fn module_name(&self, id: ModuleId) -> Arc<str> {
+        self.modules
+            .get(&id)
+            .cloned()
+            .unwrap_or_else(|| Arc::from(format!("#{id}")))
+    }
+}
+
+pub(crate) type Callback = Arc<dyn Fn(RawMessage) + Send + Sync>;
+
+/// One module of one system: its inbox, its callbacks and their thread.
+pub(crate) struct ModuleCore {
+    pub id: ModuleId,
+    pub name: Arc<str>,
+    pub inbox: Inbox,
+    callback_inbox: Inbox,
+    callbacks: RwLock<HashMap<MessageType, Callback>>,
+    callback_any: RwLock<Option<Callback>>,
+    has_callbacks: AtomicBool,
+    dispatcher: Mutex<Option<JoinHandle<()>>>,
+    /// Callback invocations that panicked or failed to decode.
+    pub callback_failures: AtomicU64,
+}
+
+impl ModuleCore {
+    fn new(id: ModuleId, name: Arc<str>, inbox: InboxConfig) -> Self {
+        ModuleCore {
+            id,
+            name,
+            inbox: Inbox::new(inbox),
+            callback_inbox: Inbox::new(inbox),
+            callbacks: RwLock::new(HashMap::new()),
+            callback_any: RwLock::new(None),
+            has_callbacks: AtomicBool::new(false),
+            dispatcher: Mutex::new(None),
+            callback_failures: AtomicU64::new(0),
+        }
+    }
+
+    fn wants_callback(&self, ty: MessageType) -> bool {
+        self.has_callbacks.load(Ordering::Acquire)
+            && (self
+                .callbacks
+                .read()
+                .unwrap_or_else(|e| e.into_inner())
+                .contains_key(&ty)
+                || self
+                    .callback_any
+                    .read()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .is_some())
+    }
+
+    /// Registers a callback for one type (or every type when `ty` is None) and starts the
+    /// module's callback thread on first use.
+    pub(crate) fn set_callback(
+        self: &Arc<Self>,
+        ty: Option<MessageType>,
+        cb: Callback,
+        directory: Arc<Directory>,
+    ) {
+        match ty {
+            Some(ty) => {
+                self.callbacks
+                    .write()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .insert(ty, cb);
+            }
+            None => *self.callback_any.write().unwrap_or_else(|e| e.into_inner()) = Some(cb),
+        }
+        self.has_callbacks.store(true, Ordering::Release);
+        let mut dispatcher = self.dispatcher.lock().unwrap_or_else(|e| e.into_inner());
+        if dispatcher.is_none() {
+            let module = Arc::downgrade(self);
+            let name = format!("hetcomm-cb-{}", self.name);
+            let spawned = std::thread::Builder::new()
+                .name(name)
+                .spawn(move || dispatch_callbacks(module, directory));
+            // Spawning only fails when the OS is out of threads; then callbacks stay queued
+            // and counted as failures rather than the process aborting.
+            match spawned {
+                Ok(handle) => *dispatcher = Some(handle),
+                Err(_) => {
+                    self.callback_failures.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+
+    fn close(&self) {
+        self.inbox.close();
+        self.callback_inbox.close();
+        let handle = self
+            .dispatcher
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some(h) = handle {
+            if h.thread().id() != std::thread::current().id() {
+                let _ = h.join();
+            }
+        }
+    }
+}
+
+fn dispatch_callbacks(module: Weak<ModuleCore>, directory: Arc<Directory>) {
+    loop {
+        let Some(m) = module.upgrade() else { return };
+        let entry = match m.callback_inbox.take_timeout(|_| true, None) {
+            Ok(Some(e)) => e,
+            _ => return, // closed and drained
+        };
+        let ty = entry.header.message_type;
+        let cb = m
+            .callbacks
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&ty)
+            .cloned()
+            .or_else(|| {
+                m.callback_any
+                    .read()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .clone()
+            });
+        let Some(cb) = cb else { continue };
+        let raw = raw_message(&directory, entry);
+        // A panicking callback must not take the dispatcher (and every later message) down.
+        if std::panic::catch_unwind(AssertUnwindSafe(|| cb(raw))).is_err() {
+            m.callback_failures.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
+    RawMessage {
+        envelope: Envelope {
+            header: e.header,
+            source_system: directory.system_name(e.header.source.system),
+            source_module: directory.module_name(e.header.source.module),
+            received_at: e.received_at,
+        },
+        payload: e.payload,
+    }
+}
+
+#[derive(Default)]
+struct TimerState {
+    deadline: Option<Time>,
+    shutdown: bool,
+}
+
+#[derive(Default)]
+struct Timer {
+    state: Mutex<TimerState>,
+    wake: Condvar,
+}
+
+impl Timer {
+    fn arm(&self, next: Option<Time>) {
+        let Some(next) = next else { return };
+        let mut s = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if s.deadline.is_none_or(|d| next < d) {
+            s.deadline = Some(next);
+            self.wake.notify_one();
+        }
+    }
+}
+
+/// One opened system.
+pub(crate) struct SystemCore {
+    pub id: SystemId,
+    pub name: Arc<str>,
+    pub directory: Arc<Directory>,
+    pub registry: Arc<RwLock<TypeRegistry>>,
+    pub modules: HashMap<ModuleId, Arc<ModuleCore>>,
+    pub clock: Arc<dyn Clock>,
+    router: Mutex<Router<Arc<OutcomeSlot>>>,
+    links: OnceLock<Vec<Arc<dyn Link>>>,
+    timer: Timer,
+    timer_thread: Mutex<Option<JoinHandle<()>>>,
+    closed: AtomicBool,
+}
+
+impl SystemCore {
+    pub(crate) fn new(
+        id: SystemId,
+        directory: Arc<Directory>,
+        registry: Arc<RwLock<TypeRegistry>>,
+        modules: Vec<(ModuleId, InboxConfig)>,
+        router: Router<Arc<OutcomeSlot>>,
+        clock: Arc<dyn Clock>,
+    ) -> Arc<Self> {
+        let modules = modules
+            .into_iter()
+            .map(|(mid, inbox)| {
+                let name = directory.module_name(mid);
+                (mid, Arc::new(ModuleCore::new(mid, name, inbox)))
+            })
+            .collect();
+        Arc::new(SystemCore {
+            id,
+            name: directory.system_name(id),
+            directory,
+            registry,
+            modules,
+            clock,
+            router: Mutex::new(router),
+            links: OnceLock::new(),
+            timer: Timer::default(),
+            timer_thread: Mutex::new(None),
+            closed: AtomicBool::new(false),
+        })
+    }
+
+    /// Installs the links (once) and starts the timer thread.
+    pub(crate) fn start(self: &Arc<Self>, links: Vec<Arc<dyn Link>>) -> std::io::Result<()> {
+        let _ = self.links.set(links);
+        let weak = Arc::downgrade(self);
+        let handle = std::thread::Builder::new()
+            .name(format!("hetcomm-timer-{}", self.name))
+            .spawn(move || run_timer(weak))?;
+        *self.timer_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
+        Ok(())
+    }
+
+    pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
+        self.router.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub(crate) fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
+    }
+
+    pub(crate) fn links(&self) -> &[Arc<dyn Link>] {
+        self.links.get().map(|v| v.as_slice()).unwrap_or(&[])
+    }
+
+    /// A sink for link `index`: frames it receives enter this system's router.
+    pub(crate) fn sink(self: &Arc<Self>, index: usize) -> Arc<dyn FrameSink> {
+        Arc::new(SystemSink {
+            core: Arc::downgrade(self),
+            link: index,
+        })
+    }
+
+    /// Performs everything the router asks for, until it has nothing more: frames onto links,
+    /// deliveries into inboxes, outcomes into tickets, and the timer re-armed. The router lock
+    /// is never held while a link or an inbox is called (an in-process link re-enters
+    /// another system's router on this same thread).
+    pub(crate) fn pump<'a>(&'a self, mut router: MutexGuard<'a, Router<Arc<OutcomeSlot>>>) {
+        loop {
+            let mut transmits = Vec::new();
+            let now = self.clock.now();
+            while let Some(t) = router.poll_transmit(now) {
+                transmits.push(t);
+            }
+            let mut deliveries = Vec::new();
+            while let Some(d) = router.poll_delivery() {
+                deliveries.push(d);
+            }
+            let mut events = Vec::new();
+            while let Some(e) = router.poll_event() {
+                events.push(e);
+            }
+            let next = router.poll_timeout();
+            drop(router);
+            self.timer.arm(next);
+            if transmits.is_empty() && deliveries.is_empty() && events.is_empty() {
+                return;
+            }
+            for Event::Outcome { token, outcome, .. } in events {
+                token.complete(outcome);
+            }
+            let mut delivery_results = Vec::new();
+            for d in deliveries {
+                let token = d.token;
+                let status = self.deliver(d);
+                if let Some(token) = token {
+                    delivery_results.push((token, status));
+                }
+            }
+            let links = self.links();
+            let mut transmit_results = Vec::new();
+            for tx in transmits {
+                let result = match links.get(tx.link) {
+                    Some(link) => link.send(tx.to, &tx.frame).map_err(transmit_error),
+                    None => Err(TransmitError::Other("no such link".into())),
+                };
+                if tx.send.is_some() {
+                    transmit_results.push((tx, result));
+                }
+            }
+            if delivery_results.is_empty() && transmit_results.is_empty() {
+                // Nothing fed back; but new timers may have been armed above.
+                return;
+            }
+            router = self.router();
+            let now = self.clock.now();
+            for (token, status) in delivery_results {
+                router.delivery_result(now, token, status);
+            }
+            for (tx, result) in transmit_results {
+                router.transmit_result(now, tx, result);
+            }
+        }
+    }
+
+    /// Puts a delivery into its module's inbox (or callback queue).
+    fn deliver(&self, d: Delivery) -> AckStatus {
+        let Some(module) = self.modules.get(&d.header.destination.module) else {
+            return AckStatus::UnknownModule;
+        };
+        let entry = Entry {
+            header: d.header,
+            payload: d.payload,
+            received_at: self.clock.now(),
+        };
+        let inbox = if module.wants_callback(d.header.message_type) {
+            &module.callback_inbox
+        } else {
+            &module.inbox
+        };
+        match inbox.push(entry) {
+            Ok(()) => AckStatus::Delivered,
+            Err(PushError::Full) | Err(PushError::Closed) => AckStatus::InboxFull,
+        }
+    }
+
+    /// Stops the timer, fails unresolved sends, closes inboxes and drops the links.
+    pub(crate) fn shutdown(&self) {
+        if self.closed.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        {
+            let mut s = self.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+            s.shutdown = true;
+            self.timer.wake.notify_all();
+        }
+        let handle = self
+            .timer_thread
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some(h) = handle {
+            if h.thread().id() != std::thread::current().id() {
+                let _ = h.join();
+            }
+        }
+        let mut router = self.router();
+        router.shutdown();
+        while let Some(Event::Outcome { token, outcome, .. }) = router.poll_event() {
+            token.complete(outcome);
+        }
+        drop(router);
+        for m in self.modules.values() {
+            m.close();
+        }
+    }
+}
+
+fn transmit_error(e: LinkError) -> TransmitError {
+    match e {
+        LinkError::Unreachable { .. } => TransmitError::Unreachable(e.to_string()),
+        LinkError::TooLarge { .. } => TransmitError::TooLarge(e.to_string()),
+        other => TransmitError::Other(other.to_string()),
+    }
+}
+
+struct SystemSink {
+    core: Weak<SystemCore>,
+    link: usize,
+}
+
+impl FrameSink for SystemSink {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        let Some(core) = self.core.upgrade() else { return };
+        if core.is_closed() {
+            return;
+        }
+        let mut router = core.router();
+        router.handle_frame(core.clock.now(), self.link, frame);
+        core.pump(router);
+    }
+}
+
+fn run_timer(core: Weak<SystemCore>) {
+    loop {
+        let Some(c) = core.upgrade() else { return };
+        let mut s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+        if s.shutdown {
+            return;
+        }
+        let now = c.clock.now();
+        match s.deadline {
+            Some(d) if d <= now => {
+                s.deadline = None;
+                drop(s);
+                let mut router = c.router();
+                router.handle_timeout(now);
+                c.pump(router);
+            }
+            Some(d) => {
+                let wait = d.saturating_since(now);
+                let _ = c.timer.wake.wait_timeout(s, wait);
+            }
+            None => {
+                // Hold only a weak reference while idle so the system can be dropped.
+                drop(s);
+                let timer_wait = {
+                    let s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+                    if s.shutdown || s.deadline.is_some() {
+                        continue;
+                    }
+                    c.timer
+                        .wake
+                        .wait_timeout(s, std::time::Duration::from_millis(200))
+                        .map(|_| ())
+                };
+                let _ = timer_wait;
+            }
+        }
+    }
+}
