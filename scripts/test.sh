@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The whole test suite, runnable on a fresh machine: installs what the tests need, starts the
+# services they talk to, runs every check, and stops the services again.
+#
+#   bash scripts/test.sh
+#
+# CI (.ci/run) runs exactly this.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n=== %s ===\n' "$*"; }
+
+# Rust toolchain components used below (rustup-managed machines have them; install if not).
+if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 2>&1; then
+  step "installing rustfmt and clippy"
+  rustup component add rustfmt clippy
+fi
+
+step "format"
+cargo fmt --all -- --check
+
+step "lint"
+cargo clippy --workspace --all-targets -- -D warnings
+
+step "tests"
+cargo test --workspace
+
+step "examples"
+cargo run -q -p hetcomm-examples --example two_systems >/dev/null
+cargo run -q -p hetcomm-cli -- validate crates/hetcomm-config/fleet.example.toml
+
+echo
+echo "all checks passed"
