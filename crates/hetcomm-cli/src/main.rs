@@ -2,9 +2,11 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 
+mod poke;
 mod relay;
 
 /// hetcomm: a heterogeneous communication layer and test harness for teams of robots.
@@ -47,6 +49,61 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         commands: u8,
     },
+    /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
+    Listen {
+        /// The fleet file.
+        fleet: PathBuf,
+        /// The system to listen as (its endpoint is opened by this command).
+        #[arg(long = "as", value_name = "SYSTEM")]
+        system: String,
+        /// Only this module (default: every module).
+        #[arg(long)]
+        module: Option<String>,
+        /// Exit after this many messages.
+        #[arg(long)]
+        count: Option<usize>,
+        /// Exit after this many seconds.
+        #[arg(long)]
+        timeout: Option<f64>,
+        /// One JSON object per line instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Send one message from a system of a live fleet and print its outcome (like
+    /// `rostopic pub`). Exits 0 when delivered (or sent), 1 when it failed.
+    Send {
+        /// The fleet file.
+        fleet: PathBuf,
+        /// The system to send as (its endpoint is opened by this command).
+        #[arg(long = "as", value_name = "SYSTEM")]
+        system: String,
+        /// Sending module (default: the fleet's first module).
+        #[arg(long)]
+        from_module: Option<String>,
+        /// Destination system, or `All` to broadcast.
+        #[arg(long)]
+        to: String,
+        /// Destination module.
+        #[arg(long)]
+        module: String,
+        /// Message type id.
+        #[arg(long = "type")]
+        message_type: u32,
+        /// The payload as JSON (encoded as the language-neutral MessagePack payload).
+        #[arg(long)]
+        json: String,
+        /// Priority (0–255, default 100).
+        #[arg(long, default_value_t = 100)]
+        priority: u8,
+        /// Longest wait for the outcome, seconds.
+        #[arg(long, default_value_t = 10.0)]
+        timeout: f64,
+    },
+}
+
+fn secs(s: f64) -> anyhow::Result<Duration> {
+    Duration::try_from_secs_f64(s)
+        .map_err(|_| anyhow::anyhow!("{s} is not a valid number of seconds"))
 }
 
 fn main() -> ExitCode {
@@ -73,7 +130,9 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 (None, Some(ids), Some(table)) => {
                     hetcomm::config::load_legacy(&ids, &table, bluetooth.as_deref())
                 }
-                _ => anyhow::bail!("give a fleet file, or --ids and --table (and optionally --bluetooth)"),
+                _ => anyhow::bail!(
+                    "give a fleet file, or --ids and --table (and optionally --bluetooth)"
+                ),
             };
             match result {
                 Ok(fleet) => {
@@ -89,6 +148,52 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
         Command::GenerateConfig => {
             print!("{}", hetcomm::config::EXAMPLE_FLEET);
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Listen {
+            fleet,
+            system,
+            module,
+            count,
+            timeout,
+            json,
+        } => {
+            poke::listen(poke::ListenArgs {
+                fleet: &fleet,
+                system: &system,
+                module: module.as_deref(),
+                count,
+                timeout: timeout.map(secs).transpose()?,
+                json,
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Send {
+            fleet,
+            system,
+            from_module,
+            to,
+            module,
+            message_type,
+            json,
+            priority,
+            timeout,
+        } => {
+            let ok = poke::send(poke::SendArgs {
+                fleet: &fleet,
+                system: &system,
+                from_module: from_module.as_deref(),
+                to: &to,
+                module: &module,
+                message_type,
+                json: &json,
+                priority,
+                timeout: secs(timeout)?,
+            })?;
+            Ok(if ok {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
         }
         Command::Demo { fleet, commands } => {
             relay::run(fleet.as_deref(), commands)?;

@@ -55,7 +55,10 @@ pub fn run(fleet: Option<&Path>, commands: u8) -> anyhow::Result<()> {
             .send("Tango", "Act", &r.message)
             .map(|t| t.wait().to_string())
             .unwrap_or_else(|e| format!("refused: {e}"));
-        println!("  Charlie got {:?} from {}, forwarded: {outcome}", r.message, r.envelope.source_system);
+        println!(
+            "  Charlie got {:?} from {}, forwarded: {outcome}",
+            r.message, r.envelope.source_system
+        );
     })?;
 
     println!("Alpha → Charlie → Tango, {commands} commands, in-process transport");
@@ -71,7 +74,10 @@ pub fn run(fleet: Option<&Path>, commands: u8) -> anyhow::Result<()> {
             "  Tango got {:?} from {} ({} µs after Charlie forwarded it)",
             got.message,
             got.envelope.source_system,
-            got.envelope.received_at.as_micros().saturating_sub(got.envelope.timestamp().as_micros())
+            got.envelope
+                .received_at
+                .as_micros()
+                .saturating_sub(got.envelope.timestamp().as_micros())
         );
     }
     let stats = fleet.system("Charlie")?.stats().router;

@@ -46,7 +46,10 @@ impl CollectSink {
 
     /// Everything received so far.
     pub fn frames(&self) -> Vec<Received> {
-        self.frames.lock().unwrap_or_else(|e| e.into_inner()).clone()
+        self.frames
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
     }
 
     /// Waits until at least `n` frames arrived or `timeout` passed; returns how many arrived.
@@ -144,7 +147,11 @@ pub fn preserves_sizes(h: &mut dyn Harness) {
     }
     for r in sb.frames() {
         let index = u32::from_le_bytes([r.bytes[1], r.bytes[2], r.bytes[3], r.bytes[4]]) as usize;
-        assert_eq!(r.bytes, frame(3, index as u32, sizes[index]), "frame {index} corrupted");
+        assert_eq!(
+            r.bytes,
+            frame(3, index as u32, sizes[index]),
+            "frame {index} corrupted"
+        );
     }
 }
 
@@ -167,7 +174,11 @@ pub fn many_frames_respect_caps(h: &mut dyn Harness) {
         }
     }
     if caps.reliable {
-        assert_eq!(sb.wait_for(N as usize, WAIT), N as usize, "reliable link lost frames");
+        assert_eq!(
+            sb.wait_for(N as usize, WAIT),
+            N as usize,
+            "reliable link lost frames"
+        );
     } else {
         sb.wait_for(N as usize, Duration::from_millis(500));
     }
@@ -185,7 +196,10 @@ pub fn many_frames_respect_caps(h: &mut dyn Harness) {
     assert_eq!(sorted.len(), got.len(), "link duplicated frames");
     assert!(got.iter().all(|&i| i < N), "link invented frames");
     if caps.ordered {
-        assert!(got.windows(2).all(|w| w[0] < w[1]), "ordered link reordered frames");
+        assert!(
+            got.windows(2).all(|w| w[0] < w[1]),
+            "ordered link reordered frames"
+        );
     }
 }
 
@@ -198,7 +212,10 @@ pub fn unknown_destination_is_an_error(h: &mut dyn Harness) {
         matches!(result, Err(LinkError::Unreachable { .. })),
         "send to unknown system: {result:?}"
     );
-    assert!(started.elapsed() < WAIT, "send to unknown system took too long");
+    assert!(
+        started.elapsed() < WAIT,
+        "send to unknown system took too long"
+    );
 }
 
 /// A frame over `max_frame` is refused with `TooLarge` (skipped for links whose limit is over
@@ -211,7 +228,10 @@ pub fn oversize_frame_is_refused(h: &mut dyn Harness) {
         return;
     }
     let result = a.send(B, &vec![0u8; max + 1]);
-    assert!(matches!(result, Err(LinkError::TooLarge { .. })), "oversize: {result:?}");
+    assert!(
+        matches!(result, Err(LinkError::TooLarge { .. })),
+        "oversize: {result:?}"
+    );
 }
 
 /// After the receiver's endpoint is dropped and opened again, frames flow again (sends in
@@ -229,7 +249,10 @@ pub fn traffic_resumes_after_peer_restart(h: &mut dyn Harness) {
     let deadline = Instant::now() + WAIT;
     let mut i = 2;
     while sb2.frames().is_empty() {
-        assert!(Instant::now() < deadline, "traffic did not resume after restart");
+        assert!(
+            Instant::now() < deadline,
+            "traffic did not resume after restart"
+        );
         let _ = a.send(B, &frame(6, i, 32));
         i += 1;
         sb2.wait_for(1, Duration::from_millis(50));

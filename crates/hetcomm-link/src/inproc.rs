@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::sync::{Arc, RwLock};
 
-use hetcomm_core::{wire::MAX_PAYLOAD, wire::HEADER_LEN, SystemId};
+use hetcomm_core::{wire::HEADER_LEN, wire::MAX_PAYLOAD, SystemId};
 
 use crate::{FrameSink, Link, LinkCaps, LinkError, Peer};
 
@@ -64,7 +64,10 @@ impl Link for InprocLink {
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         let max = self.caps().max_frame;
         if frame.len() > max {
-            return Err(LinkError::TooLarge { len: frame.len(), max });
+            return Err(LinkError::TooLarge {
+                len: frame.len(),
+                max,
+            });
         }
         // Clone the sink out so the hub lock is not held while the receiver runs.
         let sink = self

@@ -22,6 +22,7 @@
 //! ```
 
 pub mod conformance;
+pub mod emulation;
 pub mod inproc;
 
 use std::sync::Arc;

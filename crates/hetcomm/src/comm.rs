@@ -20,6 +20,8 @@ use crate::transports::{open_link, Hubs};
 pub(crate) struct SystemHandle {
     pub core: Arc<SystemCore>,
     pub fleet: Arc<Fleet>,
+    /// Per link: (transport name, where it listens, if it does).
+    pub endpoints: Vec<(String, Option<String>)>,
 }
 
 impl Drop for SystemHandle {
@@ -149,8 +151,11 @@ impl Comm {
             Arc::new(WallClock),
         );
         let mut links = Vec::with_capacity(used.len());
+        let mut endpoints = Vec::with_capacity(used.len());
         for (i, &t) in used.iter().enumerate() {
-            links.push(open_link(&fleet, &fleet.transports[t], me, core.sink(i), hubs)?);
+            let opened = open_link(&fleet, &fleet.transports[t], me, core.sink(i), hubs)?;
+            links.push(opened.link);
+            endpoints.push((fleet.transports[t].name.clone(), opened.local_address));
         }
         let routes: Vec<(SystemId, Route)> = fleet
             .table
@@ -180,7 +185,11 @@ impl Comm {
             reason: e.to_string(),
         })?;
         Ok(Comm {
-            handle: Arc::new(SystemHandle { core, fleet }),
+            handle: Arc::new(SystemHandle {
+                core,
+                fleet,
+                endpoints,
+            }),
         })
     }
 
@@ -192,6 +201,12 @@ impl Comm {
     /// This system's id.
     pub fn id(&self) -> SystemId {
         self.handle.core.id
+    }
+
+    /// The transports this system has open: (transport name, where it listens — e.g.
+    /// `udp://127.0.0.1:40123` —, or None for transports without an address).
+    pub fn endpoints(&self) -> &[(String, Option<String>)] {
+        &self.handle.endpoints
     }
 
     /// The fleet it belongs to.
@@ -248,13 +263,16 @@ impl Comm {
         let links = core
             .links()
             .iter()
-            .enumerate()
-            .map(|(i, l)| (format!("link {i}"), l.stats()))
+            .zip(&self.handle.endpoints)
+            .map(|(l, (name, _))| (name.clone(), l.stats()))
             .collect();
         let callback_failures = core
             .modules
             .values()
-            .map(|m| m.callback_failures.load(std::sync::atomic::Ordering::Relaxed))
+            .map(|m| {
+                m.callback_failures
+                    .load(std::sync::atomic::Ordering::Relaxed)
+            })
             .sum();
         SystemStats {
             router,
@@ -272,13 +290,21 @@ fn directory(fleet: &Fleet) -> Directory {
             .iter()
             .map(|s| (s.id, Arc::from(s.name.as_str())))
             .collect(),
-        system_ids: fleet.systems.iter().map(|s| (s.name.clone(), s.id)).collect(),
+        system_ids: fleet
+            .systems
+            .iter()
+            .map(|s| (s.name.clone(), s.id))
+            .collect(),
         modules: fleet
             .modules
             .iter()
             .map(|m| (m.id, Arc::from(m.name.as_str())))
             .collect(),
-        module_ids: fleet.modules.iter().map(|m| (m.name.clone(), m.id)).collect(),
+        module_ids: fleet
+            .modules
+            .iter()
+            .map(|m| (m.name.clone(), m.id))
+            .collect(),
     }
 }
 

@@ -62,7 +62,9 @@ pub enum SendError {
     #[error("no module named `{0}` in the fleet")]
     UnknownModule(String),
     /// The communication table says `X` for this pair.
-    #[error("no traffic allowed from `{from}` to `{to}`: the communication table says X for this pair")]
+    #[error(
+        "no traffic allowed from `{from}` to `{to}`: the communication table says X for this pair"
+    )]
     NoRoute {
         /// Sending system.
         from: String,

@@ -54,7 +54,10 @@ struct State {
 
 impl State {
     fn push(&mut self, e: Entry) {
-        self.queues.entry(e.header.priority.0).or_default().push_back(e);
+        self.queues
+            .entry(e.header.priority.0)
+            .or_default()
+            .push_back(e);
         self.len += 1;
         self.stats.accepted += 1;
     }
@@ -238,7 +241,10 @@ impl Inbox {
 
     pub(crate) fn stats(&self) -> InboxStats {
         let s = self.lock();
-        InboxStats { len: s.len, ..s.stats }
+        InboxStats {
+            len: s.len,
+            ..s.stats
+        }
     }
 
     /// Wakes every waiter; later pushes fail and waits return what is left.

@@ -85,7 +85,12 @@ impl Module {
     /// Sends `msg` to `module` of `system` (friendly names). Returns at once with a
     /// [`Ticket`] for the outcome; errors here mean nothing was sent (unknown name, `X` pair,
     /// too large, type id conflict).
-    pub fn send<M: Message>(&self, system: &str, module: &str, msg: &M) -> Result<Ticket, SendError> {
+    pub fn send<M: Message>(
+        &self,
+        system: &str,
+        module: &str,
+        msg: &M,
+    ) -> Result<Ticket, SendError> {
         self.send_with(system, module, msg, SendOptions::default())
     }
 
@@ -166,7 +171,11 @@ impl Module {
 
     /// Sends `msg` to `module` on every other system this one may talk to (the thesis's
     /// "All"). Systems whose pair is `X` are skipped. One outcome per destination.
-    pub fn broadcast<M: Message>(&self, module: &str, msg: &M) -> Result<BroadcastTicket, SendError> {
+    pub fn broadcast<M: Message>(
+        &self,
+        module: &str,
+        msg: &M,
+    ) -> Result<BroadcastTicket, SendError> {
         self.broadcast_with(module, msg, SendOptions::default())
     }
 
@@ -308,22 +317,27 @@ impl Module {
     /// module's callback thread; a slow callback delays only this module's callbacks. A message
     /// that fails to decode, or a callback that panics, is counted in
     /// [`crate::SystemStats::callback_failures`].
-    pub fn on<M: Message>(&self, f: impl Fn(Received<M>) + Send + Sync + 'static) -> Result<(), RecvError> {
+    pub fn on<M: Message>(
+        &self,
+        f: impl Fn(Received<M>) + Send + Sync + 'static,
+    ) -> Result<(), RecvError> {
         self.check_type::<M>()?;
         let failures = self.sys.core.clone();
         let module = self.core.id;
-        let cb = Arc::new(move |raw: RawMessage| match payload::decode::<M>(&raw.payload) {
-            Ok(message) => f(Received {
-                message,
-                envelope: raw.envelope,
-            }),
-            Err(_) => {
-                if let Some(m) = failures.modules.get(&module) {
-                    m.callback_failures
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let cb = Arc::new(
+            move |raw: RawMessage| match payload::decode::<M>(&raw.payload) {
+                Ok(message) => f(Received {
+                    message,
+                    envelope: raw.envelope,
+                }),
+                Err(_) => {
+                    if let Some(m) = failures.modules.get(&module) {
+                        m.callback_failures
+                            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    }
                 }
-            }
-        });
+            },
+        );
         self.core
             .set_callback(Some(M::TYPE), cb, self.sys.core.directory.clone());
         Ok(())

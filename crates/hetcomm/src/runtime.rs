@@ -428,7 +428,9 @@ struct SystemSink {
 
 impl FrameSink for SystemSink {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
-        let Some(core) = self.core.upgrade() else { return };
+        let Some(core) = self.core.upgrade() else {
+            return;
+        };
         if core.is_closed() {
             return;
         }

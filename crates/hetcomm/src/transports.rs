@@ -3,10 +3,13 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use hetcomm_config::{Fleet, TransportDef, TransportKind};
+use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::inproc::InprocHub;
 use hetcomm_link::{FrameSink, Link};
+use hetcomm_link_ip::stream::StreamConfig;
+use hetcomm_link_ip::tcp::TcpLink;
+use hetcomm_link_ip::udp::{UdpConfig, UdpLink};
 
 use crate::error::OpenError;
 
@@ -40,6 +43,12 @@ impl Hubs {
     }
 }
 
+/// An opened link and where it listens (for tools to print).
+pub(crate) struct OpenedLink {
+    pub link: Arc<dyn Link>,
+    pub local_address: Option<String>,
+}
+
 /// Opens transport `t` for system `local`, delivering what it receives to `sink`.
 pub(crate) fn open_link(
     fleet: &Fleet,
@@ -47,16 +56,63 @@ pub(crate) fn open_link(
     local: SystemId,
     sink: Arc<dyn FrameSink>,
     hubs: &Hubs,
-) -> Result<Arc<dyn Link>, OpenError> {
+) -> Result<OpenedLink, OpenError> {
     let system = fleet
         .system(local)
         .map(|s| s.name.clone())
         .unwrap_or_else(|| local.to_string());
-    let _ = &system;
-    match t.kind {
-        TransportKind::Inproc => Ok(Arc::new(hubs.hub(&t.name).open(local, sink))),
-        kind => Err(unavailable(t, kind)),
+    let failed = |reason: String| OpenError::Transport {
+        transport: t.name.clone(),
+        system: system.clone(),
+        reason,
+    };
+    match (&t.kind, &t.settings) {
+        (TransportKind::Inproc, _) => Ok(OpenedLink {
+            link: Arc::new(hubs.hub(&t.name).open(local, sink)),
+            local_address: None,
+        }),
+        (TransportKind::Udp, TransportSettings::Ip(ip)) => {
+            let mut config = if all_loopback(&ip.endpoints) {
+                // Loopback has a 64 KiB MTU: fewer, larger datagrams.
+                UdpConfig::loopback()
+            } else {
+                UdpConfig::default()
+            };
+            if let Some(max) = ip.max_message_bytes {
+                config.max_message_bytes = Some(max);
+            }
+            let link = UdpLink::bind(local, &ip.endpoints, sink, config)
+                .map_err(|e| failed(e.to_string()))?;
+            let local_address = Some(format!("udp://{}", link.local_addr()));
+            Ok(OpenedLink {
+                link: Arc::new(link),
+                local_address,
+            })
+        }
+        (TransportKind::Tcp, TransportSettings::Ip(ip)) => {
+            let mut config = StreamConfig::default();
+            if let Some(max) = ip.max_message_bytes {
+                config.max_message_bytes = Some(max);
+            }
+            let link = TcpLink::bind(local, &ip.endpoints, sink, config)
+                .map_err(|e| failed(e.to_string()))?;
+            let local_address = Some(format!("tcp://{}", link.local_addr()));
+            Ok(OpenedLink {
+                link: Arc::new(link),
+                local_address,
+            })
+        }
+        (kind, _) => Err(unavailable(t, *kind)),
     }
+}
+
+fn all_loopback(endpoints: &std::collections::BTreeMap<SystemId, String>) -> bool {
+    use std::net::ToSocketAddrs;
+    endpoints.values().all(|e| {
+        e.to_socket_addrs()
+            .map(|mut addrs| addrs.all(|a| a.ip().is_loopback()))
+            .unwrap_or(false)
+    })
 }
 
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {

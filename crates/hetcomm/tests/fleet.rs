@@ -4,9 +4,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use hetcomm::{
-    FailReason, LocalFleet, Message, Outcome, RecvError, SendError, SendOptions,
-};
+use hetcomm::{FailReason, LocalFleet, Message, Outcome, RecvError, SendError, SendOptions};
 use serde::{Deserialize, Serialize};
 
 #[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
@@ -31,7 +29,9 @@ const NAMES: [&str; 5] = ["Alpha", "Bravo", "Charlie", "Delta", "Tango"];
 /// Five systems; every pair on `wired` except Alpha ↔ Tango, which is X. `extra` is appended
 /// to the [modules] / transport sections.
 fn fleet_text(act_module: &str, delivery: &str) -> String {
-    let mut table = String::from("[table]\ncolumns = [\"Alpha\", \"Bravo\", \"Charlie\", \"Delta\", \"Tango\"]\n");
+    let mut table = String::from(
+        "[table]\ncolumns = [\"Alpha\", \"Bravo\", \"Charlie\", \"Delta\", \"Tango\"]\n",
+    );
     for (i, row) in NAMES.iter().enumerate() {
         let cells: Vec<String> = NAMES
             .iter()
@@ -86,7 +86,10 @@ fn point_to_point_lands_in_the_right_inbox() {
         .send("Charlie", "Act", &Command { code: 1 })
         .unwrap()
         .wait();
-    assert!(matches!(outcome, Outcome::Delivered { attempts: 1, .. }), "{outcome:?}");
+    assert!(
+        matches!(outcome, Outcome::Delivered { attempts: 1, .. }),
+        "{outcome:?}"
+    );
     for name in NAMES {
         let sys = f.system(name).unwrap();
         let act = sys.module("Act").unwrap();
@@ -109,22 +112,41 @@ fn point_to_point_lands_in_the_right_inbox() {
 fn broadcast_reaches_every_allowed_system_once() {
     let f = default_fleet();
     let plan = f.system("Bravo").unwrap().module("Plan").unwrap();
-    let outcomes = plan.broadcast("Act", &Wheels { left: 1.0, right: 1.0 }).unwrap().wait();
+    let outcomes = plan
+        .broadcast(
+            "Act",
+            &Wheels {
+                left: 1.0,
+                right: 1.0,
+            },
+        )
+        .unwrap()
+        .wait();
     let mut dests: Vec<&str> = outcomes.iter().map(|(d, _)| d.as_str()).collect();
     dests.sort_unstable();
     assert_eq!(dests, vec!["Alpha", "Charlie", "Delta", "Tango"]);
-    assert!(outcomes.iter().all(|(_, o)| matches!(o, Outcome::Delivered { .. })));
+    assert!(outcomes
+        .iter()
+        .all(|(_, o)| matches!(o, Outcome::Delivered { .. })));
     for name in ["Alpha", "Charlie", "Delta", "Tango"] {
         let act = f.system(name).unwrap().module("Act").unwrap();
         let got = act.try_recv::<Wheels>().unwrap().expect(name);
         assert!(got.envelope.is_broadcast());
         assert!(!act.has_message(), "{name} got two copies");
     }
-    assert!(!f.system("Bravo").unwrap().module("Act").unwrap().has_message());
+    assert!(!f
+        .system("Bravo")
+        .unwrap()
+        .module("Act")
+        .unwrap()
+        .has_message());
 
     // From Alpha, Tango is X: the broadcast skips it.
     let alpha = f.system("Alpha").unwrap().module("Plan").unwrap();
-    let outcomes = alpha.broadcast("Plan", &Command { code: 0 }).unwrap().wait();
+    let outcomes = alpha
+        .broadcast("Plan", &Command { code: 0 })
+        .unwrap()
+        .wait();
     assert_eq!(outcomes.len(), 3);
     assert!(outcomes.iter().all(|(d, _)| d != "Tango"));
 }
@@ -157,9 +179,14 @@ fn polling_order_is_priority_then_arrival() {
     let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
     let act = f.system("Delta").unwrap().module("Act").unwrap();
     for (code, prio) in [(1, 10), (2, 200), (3, 10), (4, 100), (5, 200), (6, 100)] {
-        plan.send_with("Delta", "Act", &Command { code }, SendOptions::priority(prio))
-            .unwrap()
-            .wait();
+        plan.send_with(
+            "Delta",
+            "Act",
+            &Command { code },
+            SendOptions::priority(prio),
+        )
+        .unwrap()
+        .wait();
     }
     let order: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap())
         .map(|r| r.message.code)
@@ -172,9 +199,16 @@ fn wrong_type_recv_errors_and_keeps_the_message() {
     let f = default_fleet();
     let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
     let act = f.system("Bravo").unwrap().module("Act").unwrap();
-    plan.send("Bravo", "Act", &Wheels { left: -10.0, right: 10.0 })
-        .unwrap()
-        .wait();
+    plan.send(
+        "Bravo",
+        "Act",
+        &Wheels {
+            left: -10.0,
+            right: 10.0,
+        },
+    )
+    .unwrap()
+    .wait();
     let err = act.try_recv::<Command>().unwrap_err();
     assert!(matches!(err, RecvError::WrongType { .. }), "{err}");
     assert_eq!(
@@ -187,7 +221,13 @@ fn wrong_type_recv_errors_and_keeps_the_message() {
     ));
     assert_eq!(act.pending(), 1);
     let got = act.recv::<Wheels>().unwrap();
-    assert_eq!(got.message, Wheels { left: -10.0, right: 10.0 });
+    assert_eq!(
+        got.message,
+        Wheels {
+            left: -10.0,
+            right: 10.0
+        }
+    );
 }
 
 #[test]
@@ -216,7 +256,9 @@ fn callbacks_fire_once_per_message() {
     let (s, c) = (seen.clone(), calls.clone());
     let (done_tx, done_rx) = std::sync::mpsc::channel();
     act.on::<Wheels>(move |r| {
-        s.lock().unwrap().push((r.envelope.source_system.to_string(), r.message.left));
+        s.lock()
+            .unwrap()
+            .push((r.envelope.source_system.to_string(), r.message.left));
         if c.fetch_add(1, Ordering::SeqCst) + 1 == 40 {
             done_tx.send(()).unwrap();
         }
@@ -229,7 +271,15 @@ fn callbacks_fire_once_per_message() {
             let plan = f.system(name).unwrap().module("Plan").unwrap();
             std::thread::spawn(move || {
                 for i in 0..10 {
-                    let o = plan.send("Charlie", "Act", &Wheels { left: i as f64, right: 0.0 })
+                    let o = plan
+                        .send(
+                            "Charlie",
+                            "Act",
+                            &Wheels {
+                                left: i as f64,
+                                right: 0.0,
+                            },
+                        )
                         .unwrap()
                         .wait();
                     assert!(matches!(o, Outcome::Delivered { .. }));
@@ -240,17 +290,32 @@ fn callbacks_fire_once_per_message() {
     for h in handles {
         h.join().unwrap();
     }
-    done_rx.recv_timeout(Duration::from_secs(10)).expect("callbacks");
+    done_rx
+        .recv_timeout(Duration::from_secs(10))
+        .expect("callbacks");
     assert_eq!(calls.load(Ordering::SeqCst), 40);
     let seen = seen.lock().unwrap();
     for name in ["Alpha", "Bravo", "Delta", "Tango"] {
-        let lefts: Vec<f64> = seen.iter().filter(|(s, _)| s == name).map(|(_, l)| *l).collect();
-        assert_eq!(lefts, (0..10).map(|i| i as f64).collect::<Vec<_>>(), "{name}");
+        let lefts: Vec<f64> = seen
+            .iter()
+            .filter(|(s, _)| s == name)
+            .map(|(_, l)| *l)
+            .collect();
+        assert_eq!(
+            lefts,
+            (0..10).map(|i| i as f64).collect::<Vec<_>>(),
+            "{name}"
+        );
     }
     // Callback messages do not also land in the polling inbox; other types still do.
     assert!(!act.has_message());
-    f.system("Alpha").unwrap().module("Plan").unwrap()
-        .send("Charlie", "Act", &Command { code: 0 }).unwrap().wait();
+    f.system("Alpha")
+        .unwrap()
+        .module("Plan")
+        .unwrap()
+        .send("Charlie", "Act", &Command { code: 0 })
+        .unwrap()
+        .wait();
     assert_eq!(act.next_type(), Some(Command::TYPE));
 }
 
@@ -258,9 +323,17 @@ fn callbacks_fire_once_per_message() {
 fn unacknowledged_transport_reports_sent_without_confirmation() {
     let f = open("2", "unacknowledged");
     let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
-    let o = plan.send("Bravo", "Act", &Command { code: 1 }).unwrap().wait();
+    let o = plan
+        .send("Bravo", "Act", &Command { code: 1 })
+        .unwrap()
+        .wait();
     assert_eq!(o, Outcome::Sent { attempts: 1 });
-    assert!(f.system("Bravo").unwrap().module("Act").unwrap().has_message());
+    assert!(f
+        .system("Bravo")
+        .unwrap()
+        .module("Act")
+        .unwrap()
+        .has_message());
 }
 
 #[test]
@@ -270,20 +343,32 @@ fn unreachable_peer_is_retried_then_reported() {
     let fleet = hetcomm::config::parse_str(&text, "five.toml", None).unwrap();
     let alpha = hetcomm::Comm::open_fleet(&fleet, "Alpha").unwrap();
     let plan = alpha.module("Plan").unwrap();
-    let o = plan.send("Bravo", "Act", &Command { code: 1 }).unwrap().wait();
+    let o = plan
+        .send("Bravo", "Act", &Command { code: 1 })
+        .unwrap()
+        .wait();
     match o {
-        Outcome::Failed { reason: FailReason::Unreachable(why), attempts: 3 } => {
+        Outcome::Failed {
+            reason: FailReason::Unreachable(why),
+            attempts: 3,
+        } => {
             assert!(why.contains("unreachable"), "{why}")
         }
         other => panic!("expected unreachable after 3 attempts, got {other:?}"),
     }
     let stats = alpha.stats().router;
-    assert_eq!((stats.transmissions, stats.retransmissions, stats.failed), (3, 2, 1));
+    assert_eq!(
+        (stats.transmissions, stats.retransmissions, stats.failed),
+        (3, 2, 1)
+    );
     assert_eq!(stats.in_flight(), 0);
 }
 
 fn overflow_fleet(policy: &str) -> LocalFleet {
-    open(&format!("{{ id = 2, inbox_capacity = 3, overflow = \"{policy}\" }}"), "acknowledged")
+    open(
+        &format!("{{ id = 2, inbox_capacity = 3, overflow = \"{policy}\" }}"),
+        "acknowledged",
+    )
 }
 
 #[test]
@@ -294,11 +379,24 @@ fn overflow_drop_newest_refuses_and_counts() {
     let outcomes: Vec<Outcome> = (0..5)
         .map(|code| plan.send("Bravo", "Act", &Command { code }).unwrap().wait())
         .collect();
-    assert!(outcomes[..3].iter().all(|o| matches!(o, Outcome::Delivered { .. })));
-    assert!(outcomes[3..].iter().all(|o| matches!(o, Outcome::Failed { reason: FailReason::InboxFull, .. })), "{outcomes:?}");
+    assert!(outcomes[..3]
+        .iter()
+        .all(|o| matches!(o, Outcome::Delivered { .. })));
+    assert!(
+        outcomes[3..].iter().all(|o| matches!(
+            o,
+            Outcome::Failed {
+                reason: FailReason::InboxFull,
+                ..
+            }
+        )),
+        "{outcomes:?}"
+    );
     let s = act.inbox_stats();
     assert_eq!((s.dropped_newest, s.dropped_oldest, s.len), (2, 0, 3));
-    let codes: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap()).map(|r| r.message.code).collect();
+    let codes: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap())
+        .map(|r| r.message.code)
+        .collect();
     assert_eq!(codes, vec![0, 1, 2]);
 }
 
@@ -313,14 +411,19 @@ fn overflow_drop_oldest_evicts_and_counts() {
     }
     let s = act.inbox_stats();
     assert_eq!((s.dropped_oldest, s.dropped_newest, s.len), (4, 0, 3));
-    let codes: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap()).map(|r| r.message.code).collect();
+    let codes: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap())
+        .map(|r| r.message.code)
+        .collect();
     assert_eq!(codes, vec![4, 5, 6]);
 }
 
 #[test]
 fn overflow_block_makes_the_sender_wait() {
-    let text = fleet_text("{ id = 2, inbox_capacity = 2, overflow = \"block\" }", "acknowledged")
-        .replace("[modules]", "[inbox]\nblock_timeout_ms = 50\n\n[modules]");
+    let text = fleet_text(
+        "{ id = 2, inbox_capacity = 2, overflow = \"block\" }",
+        "acknowledged",
+    )
+    .replace("[modules]", "[inbox]\nblock_timeout_ms = 50\n\n[modules]");
     let fleet = hetcomm::config::parse_str(&text, "five.toml", None).unwrap();
     let f = LocalFleet::open(fleet).unwrap();
     let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
@@ -330,18 +433,40 @@ fn overflow_block_makes_the_sender_wait() {
     }
     // Full, nobody reading: the third send waits ~50 ms, then fails as inbox full.
     let started = std::time::Instant::now();
-    let o = plan.send("Bravo", "Act", &Command { code: 2 }).unwrap().wait();
-    assert!(matches!(o, Outcome::Failed { reason: FailReason::InboxFull, .. }), "{o:?}");
+    let o = plan
+        .send("Bravo", "Act", &Command { code: 2 })
+        .unwrap()
+        .wait();
+    assert!(
+        matches!(
+            o,
+            Outcome::Failed {
+                reason: FailReason::InboxFull,
+                ..
+            }
+        ),
+        "{o:?}"
+    );
     assert!(started.elapsed() >= Duration::from_millis(50));
     assert_eq!(act.inbox_stats().dropped_after_wait, 1);
     // With a reader making room, a waiting sender gets through.
     let reader = {
         let act = act.clone();
         std::thread::spawn(move || {
-            (0..3).map(|_| act.recv_timeout::<Command>(Duration::from_secs(10)).unwrap().message.code).collect::<Vec<_>>()
+            (0..3)
+                .map(|_| {
+                    act.recv_timeout::<Command>(Duration::from_secs(10))
+                        .unwrap()
+                        .message
+                        .code
+                })
+                .collect::<Vec<_>>()
         })
     };
-    let o = plan.send("Bravo", "Act", &Command { code: 3 }).unwrap().wait();
+    let o = plan
+        .send("Bravo", "Act", &Command { code: 3 })
+        .unwrap()
+        .wait();
     assert!(matches!(o, Outcome::Delivered { .. }), "{o:?}");
     assert_eq!(reader.join().unwrap(), vec![0, 1, 3]);
     assert_eq!(act.inbox_stats().dropped(), 1);
@@ -359,7 +484,11 @@ fn recv_timeout_times_out_and_blocking_recv_wakes() {
         let act = act.clone();
         std::thread::spawn(move || act.recv::<Command>().unwrap().message)
     };
-    f.system("Charlie").unwrap().module("Plan").unwrap()
-        .send("Delta", "Act", &Command { code: 9 }).unwrap();
+    f.system("Charlie")
+        .unwrap()
+        .module("Plan")
+        .unwrap()
+        .send("Delta", "Act", &Command { code: 9 })
+        .unwrap();
     assert_eq!(waiter.join().unwrap(), Command { code: 9 });
 }

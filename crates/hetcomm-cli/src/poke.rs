@@ -1,0 +1,183 @@
+//! `hetcomm listen` and `hetcomm send`: poking at a live fleet, as `rostopic echo` / `pub` do
+//! for ROS.
+
+use std::path::Path;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use hetcomm::{Comm, MessageType, Outcome, RawMessage, SendOptions};
+
+/// Options of `hetcomm listen`.
+pub struct ListenArgs<'a> {
+    pub fleet: &'a Path,
+    pub system: &'a str,
+    pub module: Option<&'a str>,
+    pub count: Option<usize>,
+    pub timeout: Option<Duration>,
+    pub json: bool,
+}
+
+/// Prints every message arriving at a system (all modules, or one), until `count` messages or
+/// `timeout`, then a line of counters on stderr.
+pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
+    let comm = Comm::open(args.fleet, args.system)
+        .with_context(|| format!("opening `{}` of {}", args.system, args.fleet.display()))?;
+    let modules: Vec<String> = match args.module {
+        Some(m) => vec![m.to_string()],
+        None => comm
+            .fleet()
+            .modules
+            .iter()
+            .map(|m| m.name.clone())
+            .collect(),
+    };
+    let (tx, rx) = mpsc::channel::<(String, RawMessage)>();
+    for name in &modules {
+        let module = comm.module(name)?;
+        let tx = tx.clone();
+        let name = name.clone();
+        module.on_any(move |raw| {
+            let _ = tx.send((name.clone(), raw));
+        });
+    }
+    drop(tx);
+    let endpoints: Vec<String> = comm
+        .endpoints()
+        .iter()
+        .map(|(t, a)| format!("{t} {}", a.as_deref().unwrap_or("(in-process)")))
+        .collect();
+    eprintln!(
+        "listening as {} (modules: {}) on {}",
+        comm.name(),
+        modules.join(", "),
+        endpoints.join(", ")
+    );
+    let deadline = args.timeout.map(|t| Instant::now() + t);
+    let mut seen = 0usize;
+    while args.count.is_none_or(|c| seen < c) {
+        let wait = match deadline {
+            Some(d) => d.saturating_duration_since(Instant::now()),
+            None => Duration::from_secs(3600),
+        };
+        if wait.is_zero() {
+            break;
+        }
+        match rx.recv_timeout(wait) {
+            Ok((module, raw)) => {
+                seen += 1;
+                println!("{}", describe(&module, &raw, args.json));
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) if deadline.is_none() => continue,
+            Err(_) => break,
+        }
+    }
+    let s = comm.stats();
+    let dropped_links: u64 = s.links.iter().map(|(_, l)| l.frames_dropped).sum();
+    eprintln!(
+        "received {seen} messages; router: {} received, {} duplicates, {} malformed, {} unknown origin, {} misrouted; links dropped {dropped_links}",
+        s.router.received, s.router.duplicates, s.router.malformed, s.router.unknown_origin, s.router.misrouted
+    );
+    Ok(())
+}
+
+fn describe(module: &str, raw: &RawMessage, json: bool) -> String {
+    let e = &raw.envelope;
+    let payload = hetcomm::payload::to_json(&raw.payload);
+    if json {
+        serde_json::json!({
+            "to_module": module,
+            "from_system": &*e.source_system,
+            "from_module": &*e.source_module,
+            "id": { "origin": e.id().origin.0, "seq": e.id().seq },
+            "type": e.message_type().0,
+            "priority": e.priority().0,
+            "timestamp_us": e.timestamp().as_micros(),
+            "received_us": e.received_at.as_micros(),
+            "broadcast": e.is_broadcast(),
+            "size": raw.payload.len(),
+            "payload": payload,
+            "payload_hex": if payload.is_none() { Some(hex(&raw.payload)) } else { None },
+        })
+        .to_string()
+    } else {
+        let body = payload
+            .map(|p| p.to_string())
+            .unwrap_or_else(|| format!("hex:{}", hex(&raw.payload)));
+        format!(
+            "{}.{} -> {module}  type={} prio={} ts={}us size={}{}  {body}",
+            e.source_system,
+            e.source_module,
+            e.message_type(),
+            e.priority(),
+            e.timestamp().as_micros(),
+            raw.payload.len(),
+            if e.is_broadcast() { " broadcast" } else { "" },
+        )
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Options of `hetcomm send`.
+pub struct SendArgs<'a> {
+    pub fleet: &'a Path,
+    pub system: &'a str,
+    pub from_module: Option<&'a str>,
+    pub to: &'a str,
+    pub module: &'a str,
+    pub message_type: u32,
+    pub json: &'a str,
+    pub priority: u8,
+    pub timeout: Duration,
+}
+
+/// Sends one message (payload given as JSON, encoded as the language-neutral payload) and
+/// prints its outcome. `--to All` broadcasts. Returns whether every outcome was a success.
+pub fn send(args: SendArgs<'_>) -> anyhow::Result<bool> {
+    let value: serde_json::Value =
+        serde_json::from_str(args.json).context("--json is not valid JSON")?;
+    let payload = hetcomm::payload::from_json(&value)?;
+    let comm = Comm::open(args.fleet, args.system)
+        .with_context(|| format!("opening `{}` of {}", args.system, args.fleet.display()))?;
+    let from = match args.from_module {
+        Some(m) => m.to_string(),
+        None => comm
+            .fleet()
+            .modules
+            .first()
+            .map(|m| m.name.clone())
+            .context("the fleet has no modules")?,
+    };
+    let module = comm.module(&from)?;
+    let opts = SendOptions::priority(args.priority);
+    let ty = MessageType(args.message_type);
+    let tickets = if args.to == "All" {
+        module
+            .broadcast_raw(args.module, ty, &payload, opts)?
+            .tickets()
+            .to_vec()
+    } else {
+        vec![module.send_raw(args.to, args.module, ty, &payload, opts)?]
+    };
+    let mut ok = true;
+    for t in tickets {
+        let outcome = t.wait_timeout(args.timeout);
+        match outcome {
+            Some(o) => {
+                ok &= o.is_success();
+                println!("{}: {o}", t.destination());
+                if let Outcome::Failed { .. } = o {
+                    ok = false;
+                }
+            }
+            None => {
+                ok = false;
+                println!("{}: no outcome within {:?}", t.destination(), args.timeout);
+            }
+        }
+    }
+    Ok(ok)
+}

@@ -1,0 +1,1052 @@
+//! UDP: one socket per system, bound to its endpoint; sends go out with `send_to` on the
+//! caller's thread, a receive thread hands frames to the sink. Unreliable and unordered, as
+//! declared in its [`LinkCaps`].
+//!
+//! # Datagram format
+//!
+//! A frame no longer than the datagram payload size ([`UdpConfig::datagram_payload`], the
+//! link's `mtu`) travels as one datagram holding exactly the frame, with nothing added (wire
+//! frames start with `"HC"`). Larger frames are split into fragments, each one datagram that
+//! starts with this 20-byte fragment header (integers little-endian):
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 2 | magic `"HF"` |
+//! | 2 | 1 | version, 1 |
+//! | 3 | 1 | reserved, 0 |
+//! | 4 | 2 | sending system's [`SystemId`] |
+//! | 6 | 2 | fragment index, `0..count` |
+//! | 8 | 2 | fragment count, ≥ 1 |
+//! | 10 | 2 | reserved, 0 |
+//! | 12 | 4 | fragmented-message id (u32, per sender, wraps) |
+//! | 16 | 4 | total frame length in bytes (u32) |
+//!
+//! followed by that fragment's piece of the frame. Pieces are cut evenly: with
+//! `chunk = ceil(total / count)`, fragment `i` holds bytes `i*chunk .. min((i+1)*chunk, total)`.
+//! The receiver derives every piece's position and exact length from `total` and `count`
+//! alone, so a fragment whose length is not the expected one is rejected, and fragments can
+//! never overlap or leave gaps.
+//!
+//! A frame that fits one datagram but happens to start with `"HF"` is sent as a one-fragment
+//! message, so any byte string round-trips unambiguously.
+//!
+//! # Reassembly
+//!
+//! Fragments are collected per (source address, sender, message id). A message completes when
+//! every fragment arrived; a message still incomplete [`UdpConfig::reassembly_timeout`] after
+//! its first fragment is dropped and counted (a single lost piece loses the whole message —
+//! the router retries). The bytes held for incomplete messages are bounded by
+//! [`UdpConfig::reassembly_limit_bytes`]: to start a new message over the limit, the oldest
+//! incomplete messages are dropped (and counted) first. [`LinkStats::buffered_bytes`] reports
+//! the bytes held.
+//!
+//! # Bad input
+//!
+//! A datagram starting with `"HF"` whose header is malformed (truncated, wrong version,
+//! non-zero reserved bytes, index ≥ count, total of 0 or above `max_frame`, count larger than
+//! the total or inconsistent with it, a piece of the wrong length, or disagreeing with earlier
+//! fragments of the same message) is dropped and counted. Any other datagram is a whole frame:
+//! the link does not look inside frames (the router's decoder checks them).
+//!
+//! # Identity
+//!
+//! The source address names the sender: a datagram from a fleet endpoint is labelled
+//! [`Peer::System`]. A datagram from any other address is still handed up, labelled
+//! [`Peer::Unknown`], and counted in [`UdpStats::from_unknown_address`]: a fleet system bound
+//! to `0.0.0.0` on a multi-homed robot may send from an address other than the one in the fleet
+//! file, and the router checks the frame header's source anyway. A fragment whose sender field
+//! disagrees with the fleet system at its source address is dropped.
+//!
+//! # Datagram size
+//!
+//! The default payload of 1472 bytes fits an Ethernet MTU of 1500 minus the IPv4 (20) and UDP
+//! (8) headers, so no fragment relies on IP fragmentation. On loopback (or a network known to
+//! carry jumbo datagrams) [`UdpConfig::loopback`] uses 65000, close to the IPv4 limit of 65507,
+//! which cuts a 1 MiB message into 17 datagrams instead of 723. The socket buffers are raised
+//! to [`UdpConfig::socket_buffer_bytes`] (the kernel may cap it, e.g. at `net.core.rmem_max`) so
+//! a burst of fragments is not dropped by the receiving socket.
+
+use std::collections::{BTreeMap, HashMap};
+use std::io::{self, IoSlice};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::SystemId;
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+
+use crate::OpenError;
+
+/// Magic of a fragment header: `"HF"`.
+pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
+/// Version of the fragment header.
+pub const FRAGMENT_VERSION: u8 = 1;
+/// Size of the fragment header.
+pub const FRAGMENT_HEADER_LEN: usize = 20;
+/// The largest UDP payload over IPv4.
+pub const MAX_DATAGRAM_PAYLOAD: usize = 65_507;
+/// The default datagram payload: an Ethernet MTU of 1500 minus IPv4 and UDP headers.
+pub const DEFAULT_DATAGRAM_PAYLOAD: usize = 1472;
+/// The datagram payload [`UdpConfig::loopback`] uses.
+pub const LOOPBACK_DATAGRAM_PAYLOAD: usize = 65_000;
+
+/// Tunables of a [`UdpLink`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct UdpConfig {
+    /// Largest datagram payload sent, bytes: the link's `mtu` (default
+    /// [`DEFAULT_DATAGRAM_PAYLOAD`]; from `FRAGMENT_HEADER_LEN + 1` up to
+    /// [`MAX_DATAGRAM_PAYLOAD`]).
+    pub datagram_payload: usize,
+    /// Largest message payload accepted, bytes; `None`: the codec's limit. Frames may be this
+    /// plus the 48-byte header.
+    pub max_message_bytes: Option<usize>,
+    /// Most bytes held for incomplete messages at once (default 32 MiB).
+    pub reassembly_limit_bytes: usize,
+    /// How long after its first fragment an incomplete message is dropped (default 2 s).
+    pub reassembly_timeout: Duration,
+    /// Send and receive socket buffer size requested from the kernel (default 4 MiB).
+    pub socket_buffer_bytes: usize,
+}
+
+impl Default for UdpConfig {
+    fn default() -> Self {
+        UdpConfig {
+            datagram_payload: DEFAULT_DATAGRAM_PAYLOAD,
+            max_message_bytes: None,
+            reassembly_limit_bytes: 32 * 1024 * 1024,
+            reassembly_timeout: Duration::from_secs(2),
+            socket_buffer_bytes: 4 * 1024 * 1024,
+        }
+    }
+}
+
+impl UdpConfig {
+    /// The defaults with [`LOOPBACK_DATAGRAM_PAYLOAD`]-byte datagrams, for systems on one host.
+    pub fn loopback() -> Self {
+        UdpConfig {
+            datagram_payload: LOOPBACK_DATAGRAM_PAYLOAD,
+            ..UdpConfig::default()
+        }
+    }
+
+    /// The largest frame accepted: header plus `max_message_bytes` (capped by the codec's
+    /// limit, by what the reassembly buffer can hold and by 65535 fragments).
+    pub fn max_frame(&self) -> usize {
+        let by_message = HEADER_LEN
+            + self
+                .max_message_bytes
+                .unwrap_or(MAX_PAYLOAD)
+                .min(MAX_PAYLOAD);
+        let by_fragments =
+            usize::from(u16::MAX) * self.datagram_payload.saturating_sub(FRAGMENT_HEADER_LEN);
+        by_message
+            .min(self.reassembly_limit_bytes)
+            .min(by_fragments)
+            .max(self.datagram_payload.min(by_message))
+    }
+
+    fn check(&self) -> Result<(), OpenError> {
+        if !(FRAGMENT_HEADER_LEN + 1..=MAX_DATAGRAM_PAYLOAD).contains(&self.datagram_payload) {
+            return Err(OpenError::BadConfig {
+                field: "datagram_payload",
+                reason: format!(
+                    "{} is outside {}..={MAX_DATAGRAM_PAYLOAD}",
+                    self.datagram_payload,
+                    FRAGMENT_HEADER_LEN + 1
+                ),
+            });
+        }
+        if self.reassembly_timeout.is_zero() {
+            return Err(OpenError::BadConfig {
+                field: "reassembly_timeout",
+                reason: "must be longer than zero".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Counters of a [`UdpLink`]; [`Link::stats`] reports the subset [`LinkStats`] has.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct UdpStats {
+    /// Frames fully handed to the socket by `send`.
+    pub frames_sent: u64,
+    /// Fragment datagrams sent (0 while every frame fits one datagram).
+    pub fragments_sent: u64,
+    /// Frames handed to the sink.
+    pub frames_received: u64,
+    /// Everything dropped on receive: bad datagrams plus incomplete messages given up.
+    pub frames_dropped: u64,
+    /// Malformed fragment datagrams dropped.
+    pub bad_datagrams: u64,
+    /// Incomplete messages dropped because their time ran out.
+    pub reassembly_timeouts: u64,
+    /// Incomplete messages dropped to make room (or refused for being over the limit).
+    pub reassembly_evictions: u64,
+    /// Frames received from an address that is no fleet endpoint (handed up as
+    /// [`Peer::Unknown`]).
+    pub from_unknown_address: u64,
+    /// Bytes held for incomplete messages now.
+    pub buffered_bytes: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    frames_sent: AtomicU64,
+    fragments_sent: AtomicU64,
+    frames_received: AtomicU64,
+    bad_datagrams: AtomicU64,
+    reassembly_timeouts: AtomicU64,
+    reassembly_evictions: AtomicU64,
+    from_unknown_address: AtomicU64,
+    buffered_bytes: AtomicU64,
+}
+
+fn add(c: &AtomicU64, n: u64) {
+    c.fetch_add(n, Ordering::Relaxed);
+}
+
+/// A parsed fragment header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FragmentHeader {
+    /// The sending system.
+    pub sender: SystemId,
+    /// This fragment's index.
+    pub index: u16,
+    /// How many fragments the message has.
+    pub count: u16,
+    /// The message id, unique per sender until it wraps.
+    pub message_id: u32,
+    /// The whole frame's length.
+    pub total: u32,
+}
+
+impl FragmentHeader {
+    /// Encodes the header.
+    pub fn encode(&self) -> [u8; FRAGMENT_HEADER_LEN] {
+        let mut h = [0u8; FRAGMENT_HEADER_LEN];
+        h[0..2].copy_from_slice(&FRAGMENT_MAGIC);
+        h[2] = FRAGMENT_VERSION;
+        h[4..6].copy_from_slice(&self.sender.0.to_le_bytes());
+        h[6..8].copy_from_slice(&self.index.to_le_bytes());
+        h[8..10].copy_from_slice(&self.count.to_le_bytes());
+        h[12..16].copy_from_slice(&self.message_id.to_le_bytes());
+        h[16..20].copy_from_slice(&self.total.to_le_bytes());
+        h
+    }
+
+    /// The byte range of fragment `index` within the frame, derived from `total` and `count`.
+    fn piece_range(&self) -> std::ops::Range<usize> {
+        let (total, count) = (self.total as usize, usize::from(self.count));
+        let chunk = total.div_ceil(count);
+        let start = usize::from(self.index) * chunk;
+        start..(start + chunk).min(total)
+    }
+}
+
+/// Why a fragment datagram was rejected.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FragmentError {
+    /// Shorter than the fragment header.
+    #[error("fragment of {len} bytes is shorter than the {FRAGMENT_HEADER_LEN}-byte header")]
+    Truncated {
+        /// Bytes received.
+        len: usize,
+    },
+    /// Wrong version or non-zero reserved bytes.
+    #[error("fragment header version {version} or reserved bytes not understood")]
+    BadHeader {
+        /// The version byte found.
+        version: u8,
+    },
+    /// Index, count and total do not fit together.
+    #[error("fragment {index} of {count} for a {total}-byte frame is impossible (limit {max})")]
+    BadGeometry {
+        /// Declared index.
+        index: u16,
+        /// Declared count.
+        count: u16,
+        /// Declared total.
+        total: u32,
+        /// The receiver's `max_frame`.
+        max: usize,
+    },
+    /// The piece is not as long as `total` and `count` say.
+    #[error("fragment {index} carries {found} bytes, expected {expected}")]
+    BadLength {
+        /// Declared index.
+        index: u16,
+        /// Bytes carried.
+        found: usize,
+        /// Bytes expected.
+        expected: usize,
+    },
+    /// Count or total differ from earlier fragments of the same message.
+    #[error("fragment disagrees with earlier fragments of message {message_id}")]
+    Inconsistent {
+        /// The message id.
+        message_id: u32,
+    },
+    /// The sender field names another system than the one at the source address.
+    #[error("fragment claims sender {claimed} but comes from system {actual}'s address")]
+    WrongSender {
+        /// The sender field.
+        claimed: SystemId,
+        /// The system at the source address.
+        actual: SystemId,
+    },
+}
+
+/// Parses and checks a fragment datagram (which starts with [`FRAGMENT_MAGIC`]) against
+/// `max_frame`; returns the header and the piece.
+pub fn parse_fragment(
+    datagram: &[u8],
+    max_frame: usize,
+) -> Result<(FragmentHeader, &[u8]), FragmentError> {
+    if datagram.len() < FRAGMENT_HEADER_LEN {
+        return Err(FragmentError::Truncated {
+            len: datagram.len(),
+        });
+    }
+    let d = datagram;
+    let version = d[2];
+    if d[0..2] != FRAGMENT_MAGIC || version != FRAGMENT_VERSION || d[3] != 0 || d[10..12] != [0, 0]
+    {
+        return Err(FragmentError::BadHeader { version });
+    }
+    let u16_at = |at: usize| u16::from_le_bytes([d[at], d[at + 1]]);
+    let h = FragmentHeader {
+        sender: SystemId(u16_at(4)),
+        index: u16_at(6),
+        count: u16_at(8),
+        message_id: u32::from_le_bytes([d[12], d[13], d[14], d[15]]),
+        total: u32::from_le_bytes([d[16], d[17], d[18], d[19]]),
+    };
+    let (total, count) = (h.total as usize, usize::from(h.count));
+    // Every piece must be non-empty: (count - 1) full chunks must leave bytes for the last.
+    let geometry_ok = count >= 1
+        && h.index < h.count
+        && total >= 1
+        && total <= max_frame
+        && count <= total
+        && (count - 1) * total.div_ceil(count) < total;
+    if !geometry_ok {
+        return Err(FragmentError::BadGeometry {
+            index: h.index,
+            count: h.count,
+            total: h.total,
+            max: max_frame,
+        });
+    }
+    let piece = &d[FRAGMENT_HEADER_LEN..];
+    let expected = h.piece_range().len();
+    if piece.len() != expected {
+        return Err(FragmentError::BadLength {
+            index: h.index,
+            found: piece.len(),
+            expected,
+        });
+    }
+    Ok((h, piece))
+}
+
+type MessageKey = (SocketAddr, SystemId, u32);
+
+struct Partial {
+    total: u32,
+    count: u16,
+    started: Instant,
+    buf: Vec<u8>,
+    have: Vec<bool>,
+    missing: usize,
+}
+
+/// What [`Reassembler::on_fragment`] made of a fragment.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Reassembly {
+    /// The message is complete: here is the frame.
+    Complete(Vec<u8>),
+    /// More fragments are needed (or this one was a duplicate).
+    Pending,
+    /// The fragment could not be used; `dropped` incomplete messages were given up with it.
+    Rejected {
+        /// Why.
+        error: FragmentError,
+        /// Incomplete messages dropped as a consequence (an inconsistent message).
+        dropped: usize,
+    },
+}
+
+/// Bounded, time-limited reassembly of fragmented messages; sans-IO (time is passed in), so it
+/// is tested without sockets.
+pub struct Reassembler {
+    limit_bytes: usize,
+    timeout: Duration,
+    max_frame: usize,
+    partials: HashMap<MessageKey, Partial>,
+    held: usize,
+    evictions: u64,
+}
+
+impl Reassembler {
+    /// A reassembler holding at most `limit_bytes` for incomplete messages, giving each
+    /// `timeout` from its first fragment, accepting frames up to `max_frame`.
+    pub fn new(limit_bytes: usize, timeout: Duration, max_frame: usize) -> Reassembler {
+        Reassembler {
+            limit_bytes,
+            timeout,
+            max_frame,
+            partials: HashMap::new(),
+            held: 0,
+            evictions: 0,
+        }
+    }
+
+    /// Bytes held for incomplete messages.
+    pub fn held_bytes(&self) -> usize {
+        self.held
+    }
+
+    /// Incomplete messages held.
+    pub fn pending(&self) -> usize {
+        self.partials.len()
+    }
+
+    /// Incomplete messages dropped (or refused) for lack of room so far.
+    pub fn evictions(&self) -> u64 {
+        self.evictions
+    }
+
+    /// Takes one fragment datagram from `src`, whose fleet system (if known) is `src_system`.
+    pub fn on_fragment(
+        &mut self,
+        datagram: &[u8],
+        src: SocketAddr,
+        src_system: Option<SystemId>,
+        now: Instant,
+    ) -> Reassembly {
+        let reject = |error| Reassembly::Rejected { error, dropped: 0 };
+        let (h, piece) = match parse_fragment(datagram, self.max_frame) {
+            Ok(x) => x,
+            Err(e) => return reject(e),
+        };
+        if let Some(actual) = src_system {
+            if actual != h.sender {
+                return reject(FragmentError::WrongSender {
+                    claimed: h.sender,
+                    actual,
+                });
+            }
+        }
+        if h.count == 1 {
+            return Reassembly::Complete(piece.to_vec());
+        }
+        let key = (src, h.sender, h.message_id);
+        if let Some(p) = self.partials.get(&key) {
+            if p.total != h.total || p.count != h.count {
+                self.remove(&key);
+                return Reassembly::Rejected {
+                    error: FragmentError::Inconsistent {
+                        message_id: h.message_id,
+                    },
+                    dropped: 1,
+                };
+            }
+        } else {
+            let need = h.total as usize;
+            if need > self.limit_bytes {
+                self.evictions += 1;
+                return Reassembly::Pending;
+            }
+            while self.held + need > self.limit_bytes {
+                let oldest = self
+                    .partials
+                    .iter()
+                    .min_by_key(|(_, p)| p.started)
+                    .map(|(k, _)| *k);
+                match oldest {
+                    Some(k) => {
+                        self.remove(&k);
+                        self.evictions += 1;
+                    }
+                    None => break,
+                }
+            }
+            self.held += need;
+            self.partials.insert(
+                key,
+                Partial {
+                    total: h.total,
+                    count: h.count,
+                    started: now,
+                    buf: vec![0; need],
+                    have: vec![false; usize::from(h.count)],
+                    missing: usize::from(h.count),
+                },
+            );
+        }
+        let Some(p) = self.partials.get_mut(&key) else {
+            return Reassembly::Pending;
+        };
+        let i = usize::from(h.index);
+        if p.have[i] {
+            return Reassembly::Pending; // a duplicate datagram
+        }
+        p.have[i] = true;
+        p.missing -= 1;
+        p.buf[h.piece_range()].copy_from_slice(piece);
+        if p.missing > 0 {
+            return Reassembly::Pending;
+        }
+        match self.partials.remove(&key) {
+            Some(p) => {
+                self.held -= p.buf.len();
+                Reassembly::Complete(p.buf)
+            }
+            None => Reassembly::Pending,
+        }
+    }
+
+    /// Drops incomplete messages whose time ran out; returns how many.
+    pub fn expire(&mut self, now: Instant) -> usize {
+        let timeout = self.timeout;
+        let expired: Vec<MessageKey> = self
+            .partials
+            .iter()
+            .filter(|(_, p)| now.saturating_duration_since(p.started) >= timeout)
+            .map(|(k, _)| *k)
+            .collect();
+        for k in &expired {
+            self.remove(k);
+        }
+        expired.len()
+    }
+
+    fn remove(&mut self, key: &MessageKey) {
+        if let Some(p) = self.partials.remove(key) {
+            self.held -= p.buf.len();
+        }
+    }
+}
+
+struct Shared {
+    closing: AtomicBool,
+    counters: Counters,
+}
+
+/// A system's UDP endpoint; see the module docs.
+pub struct UdpLink {
+    local: SystemId,
+    socket: Arc<UdpSocket>,
+    local_addr: SocketAddr,
+    peers: BTreeMap<SystemId, SocketAddr>,
+    config: UdpConfig,
+    next_message_id: AtomicU32,
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl UdpLink {
+    /// Binds `local`'s endpoint from `endpoints` (port 0 picks a free port; see
+    /// [`UdpLink::local_addr`]) and starts the receive thread. The other entries are the peers;
+    /// they are resolved now, since their addresses also identify senders.
+    pub fn bind(
+        local: SystemId,
+        endpoints: &BTreeMap<SystemId, String>,
+        sink: Arc<dyn FrameSink>,
+        config: UdpConfig,
+    ) -> Result<UdpLink, OpenError> {
+        let endpoint = endpoints
+            .get(&local)
+            .ok_or(OpenError::NoLocalEndpoint { system: local })?;
+        let socket = UdpSocket::bind(endpoint.as_str()).map_err(|source| OpenError::Bind {
+            endpoint: endpoint.clone(),
+            source,
+        })?;
+        UdpLink::with_socket(local, socket, endpoints, sink, config)
+    }
+
+    /// Starts the link on an already-bound `socket` (tests bind port 0 for every system first).
+    /// `local`'s own entry in `endpoints`, if any, is not used.
+    pub fn with_socket(
+        local: SystemId,
+        socket: UdpSocket,
+        endpoints: &BTreeMap<SystemId, String>,
+        sink: Arc<dyn FrameSink>,
+        config: UdpConfig,
+    ) -> Result<UdpLink, OpenError> {
+        config.check()?;
+        let local_addr = socket.local_addr()?;
+        let mut peers = BTreeMap::new();
+        for (&id, endpoint) in endpoints.iter().filter(|(id, _)| **id != local) {
+            peers.insert(id, resolve(id, endpoint, local_addr.is_ipv4())?);
+        }
+        // Best effort: the kernel may cap these (net.core.rmem_max / wmem_max).
+        let sock = socket2::SockRef::from(&socket);
+        let _ = sock.set_recv_buffer_size(config.socket_buffer_bytes);
+        let _ = sock.set_send_buffer_size(config.socket_buffer_bytes);
+        // The receive thread wakes at least this often to expire incomplete messages and to
+        // notice shutdown should the wake-up datagram be lost.
+        let tick = (config.reassembly_timeout / 4)
+            .clamp(Duration::from_millis(10), Duration::from_millis(250));
+        socket.set_read_timeout(Some(tick))?;
+        let socket = Arc::new(socket);
+        let shared = Arc::new(Shared {
+            closing: AtomicBool::new(false),
+            counters: Counters::default(),
+        });
+        let receiver = Receiver {
+            socket: socket.clone(),
+            shared: shared.clone(),
+            sink,
+            senders: peers.iter().map(|(id, addr)| (*addr, *id)).collect(),
+            reassembler: Reassembler::new(
+                config.reassembly_limit_bytes,
+                config.reassembly_timeout,
+                config.max_frame(),
+            ),
+        };
+        let thread = std::thread::Builder::new()
+            .name(format!("hetcomm-udp-rx-{local}"))
+            .spawn(move || receiver.run())?;
+        Ok(UdpLink {
+            local,
+            socket,
+            local_addr,
+            peers,
+            config,
+            // Start from a value tied to the clock so that a restarted sender is unlikely to
+            // reuse the ids of its previous incarnation's half-delivered messages.
+            next_message_id: AtomicU32::new(clock_seed()),
+            shared,
+            thread: Some(thread),
+        })
+    }
+
+    /// The address the socket is bound to (with the real port when the endpoint said 0).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// All counters, including those [`LinkStats`] has no field for.
+    pub fn udp_stats(&self) -> UdpStats {
+        let c = &self.shared.counters;
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        let bad = get(&c.bad_datagrams);
+        let timeouts = get(&c.reassembly_timeouts);
+        let evictions = get(&c.reassembly_evictions);
+        UdpStats {
+            frames_sent: get(&c.frames_sent),
+            fragments_sent: get(&c.fragments_sent),
+            frames_received: get(&c.frames_received),
+            frames_dropped: bad + timeouts + evictions,
+            bad_datagrams: bad,
+            reassembly_timeouts: timeouts,
+            reassembly_evictions: evictions,
+            from_unknown_address: get(&c.from_unknown_address),
+            buffered_bytes: get(&c.buffered_bytes),
+        }
+    }
+
+    fn send_error(&self, to: SystemId, addr: SocketAddr, e: io::Error) -> LinkError {
+        const ENOBUFS: i32 = 105;
+        if e.kind() == io::ErrorKind::WouldBlock || e.raw_os_error() == Some(ENOBUFS) {
+            return LinkError::Congested {
+                peer: to,
+                reason: format!("socket send buffer full sending to {addr}: {e}"),
+            };
+        }
+        match e.kind() {
+            io::ErrorKind::ConnectionRefused
+            | io::ErrorKind::HostUnreachable
+            | io::ErrorKind::NetworkUnreachable
+            | io::ErrorKind::AddrNotAvailable
+            | io::ErrorKind::NetworkDown => LinkError::Unreachable {
+                peer: to,
+                reason: format!("send_to {addr} failed: {e}"),
+            },
+            _ => LinkError::Io(e),
+        }
+    }
+}
+
+fn clock_seed() -> u32 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos() ^ (d.as_secs() as u32).rotate_left(16))
+        .unwrap_or(0);
+    nanos ^ std::process::id().rotate_left(8)
+}
+
+fn resolve(id: SystemId, endpoint: &str, prefer_v4: bool) -> Result<SocketAddr, OpenError> {
+    let bad = |reason: String| OpenError::BadEndpoint {
+        system: id,
+        endpoint: endpoint.to_string(),
+        reason,
+    };
+    let addrs: Vec<SocketAddr> = endpoint
+        .to_socket_addrs()
+        .map_err(|e| bad(e.to_string()))?
+        .collect();
+    addrs
+        .iter()
+        .find(|a| a.is_ipv4() == prefer_v4)
+        .or(addrs.first())
+        .copied()
+        .ok_or_else(|| bad("resolves to no address".into()))
+}
+
+impl Link for UdpLink {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: self.config.max_frame(),
+            mtu: self.config.datagram_payload,
+            reliable: false,
+            ordered: false,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let max = self.config.max_frame();
+        if frame.len() > max {
+            return Err(LinkError::TooLarge {
+                len: frame.len(),
+                max,
+            });
+        }
+        let Some(&addr) = self.peers.get(&to) else {
+            let reason = if to == self.local {
+                "it is this system itself".to_string()
+            } else {
+                format!("system {to} has no endpoint on this udp link")
+            };
+            return Err(LinkError::Unreachable { peer: to, reason });
+        };
+        let counters = &self.shared.counters;
+        let mtu = self.config.datagram_payload;
+        if frame.len() <= mtu && !frame.starts_with(&FRAGMENT_MAGIC) {
+            self.socket
+                .send_to(frame, addr)
+                .map_err(|e| self.send_error(to, addr, e))?;
+            add(&counters.frames_sent, 1);
+            return Ok(());
+        }
+        let piece_max = mtu - FRAGMENT_HEADER_LEN;
+        let count = frame.len().div_ceil(piece_max).max(1);
+        let count = u16::try_from(count).map_err(|_| LinkError::TooLarge {
+            len: frame.len(),
+            max,
+        })?;
+        let total = u32::try_from(frame.len()).map_err(|_| LinkError::TooLarge {
+            len: frame.len(),
+            max,
+        })?;
+        let message_id = self.next_message_id.fetch_add(1, Ordering::Relaxed);
+        let dest = socket2::SockAddr::from(addr);
+        let sock = socket2::SockRef::from(&*self.socket);
+        for index in 0..count {
+            let h = FragmentHeader {
+                sender: self.local,
+                index,
+                count,
+                message_id,
+                total,
+            };
+            let head = h.encode();
+            let piece = &frame[h.piece_range()];
+            sock.send_to_vectored(&[IoSlice::new(&head), IoSlice::new(piece)], &dest)
+                .map_err(|e| self.send_error(to, addr, e))?;
+            add(&counters.fragments_sent, 1);
+        }
+        add(&counters.frames_sent, 1);
+        Ok(())
+    }
+
+    fn stats(&self) -> LinkStats {
+        let s = self.udp_stats();
+        LinkStats {
+            frames_sent: s.frames_sent,
+            frames_received: s.frames_received,
+            frames_dropped: s.frames_dropped,
+            connects: 0,
+            buffered_bytes: s.buffered_bytes,
+        }
+    }
+}
+
+impl Drop for UdpLink {
+    fn drop(&mut self) {
+        self.shared.closing.store(true, Ordering::SeqCst);
+        // Wake the receive thread with an empty datagram to ourselves; the read timeout is the
+        // fallback should it be lost.
+        let mut me = self.local_addr;
+        if me.ip().is_unspecified() {
+            me.set_ip(match me.ip() {
+                IpAddr::V4(_) => Ipv4Addr::LOCALHOST.into(),
+                IpAddr::V6(_) => Ipv6Addr::LOCALHOST.into(),
+            });
+        }
+        let _ = self.socket.send_to(&[], me);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The receive thread's state.
+struct Receiver {
+    socket: Arc<UdpSocket>,
+    shared: Arc<Shared>,
+    sink: Arc<dyn FrameSink>,
+    senders: HashMap<SocketAddr, SystemId>,
+    reassembler: Reassembler,
+}
+
+impl Receiver {
+    fn run(mut self) {
+        // Large enough for any UDP datagram, so nothing is silently truncated.
+        let mut buf = vec![0u8; 65_536];
+        let mut consecutive_errors = 0u32;
+        while !self.shared.closing.load(Ordering::SeqCst) {
+            match self.socket.recv_from(&mut buf) {
+                Ok((n, src)) => {
+                    consecutive_errors = 0;
+                    if self.shared.closing.load(Ordering::SeqCst) {
+                        break;
+                    }
+                    self.on_datagram(&buf[..n], src);
+                }
+                Err(e) => match e.kind() {
+                    io::ErrorKind::WouldBlock
+                    | io::ErrorKind::TimedOut
+                    | io::ErrorKind::Interrupted
+                    // Some platforms report an earlier send's ICMP error on the next receive.
+                    | io::ErrorKind::ConnectionRefused
+                    | io::ErrorKind::ConnectionReset => {}
+                    _ => {
+                        // An unexpected, possibly persistent error: pause a little so it cannot
+                        // spin a core, and keep serving.
+                        consecutive_errors = consecutive_errors.saturating_add(1);
+                        if consecutive_errors > 3 {
+                            std::thread::sleep(Duration::from_millis(10));
+                        }
+                    }
+                },
+            }
+            let c = &self.shared.counters;
+            let expired = self.reassembler.expire(Instant::now());
+            add(&c.reassembly_timeouts, expired as u64);
+            c.buffered_bytes
+                .store(self.reassembler.held_bytes() as u64, Ordering::Relaxed);
+        }
+    }
+
+    fn on_datagram(&mut self, d: &[u8], src: SocketAddr) {
+        let c = &self.shared.counters;
+        let system = self.senders.get(&src).copied();
+        let from = match system {
+            Some(id) => Peer::System(id),
+            None => Peer::Unknown,
+        };
+        if !d.starts_with(&FRAGMENT_MAGIC) {
+            self.deliver(d, from);
+            return;
+        }
+        let evictions_before = self.reassembler.evictions();
+        let outcome = self.reassembler.on_fragment(d, src, system, Instant::now());
+        add(
+            &c.reassembly_evictions,
+            self.reassembler.evictions() - evictions_before,
+        );
+        match outcome {
+            Reassembly::Complete(frame) => self.deliver(&frame, from),
+            Reassembly::Pending => {}
+            Reassembly::Rejected { dropped, .. } => {
+                add(&c.bad_datagrams, 1);
+                add(&c.reassembly_evictions, dropped as u64);
+            }
+        }
+    }
+
+    fn deliver(&self, frame: &[u8], from: Peer) {
+        let c = &self.shared.counters;
+        if from == Peer::Unknown {
+            add(&c.from_unknown_address, 1);
+        }
+        // Counted first so that whoever the sink wakes sees the counter already updated.
+        add(&c.frames_received, 1);
+        self.sink.on_frame(frame, from);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SRC: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 9);
+
+    fn fragments(frame: &[u8], piece_max: usize, id: u32) -> Vec<Vec<u8>> {
+        let count = frame.len().div_ceil(piece_max) as u16;
+        (0..count)
+            .map(|index| {
+                let h = FragmentHeader {
+                    sender: SystemId(1),
+                    index,
+                    count,
+                    message_id: id,
+                    total: frame.len() as u32,
+                };
+                let mut d = h.encode().to_vec();
+                d.extend_from_slice(&frame[h.piece_range()]);
+                d
+            })
+            .collect()
+    }
+
+    fn reassembler() -> Reassembler {
+        Reassembler::new(1000, Duration::from_secs(2), 10_000)
+    }
+
+    #[test]
+    fn out_of_order_fragments_reassemble() {
+        let frame: Vec<u8> = (0..=255).cycle().take(1001).collect();
+        let mut frags = fragments(&frame, 100, 7);
+        frags.reverse();
+        let mut r = Reassembler::new(1 << 20, Duration::from_secs(2), 10_000);
+        let now = Instant::now();
+        let mut out = None;
+        for f in &frags {
+            match r.on_fragment(f, SRC, Some(SystemId(1)), now) {
+                Reassembly::Complete(v) => out = Some(v),
+                Reassembly::Pending => {}
+                other => panic!("{other:?}"),
+            }
+        }
+        assert_eq!(out.as_deref(), Some(&frame[..]));
+        assert_eq!(r.held_bytes(), 0);
+    }
+
+    #[test]
+    fn pieces_are_even_and_never_empty() {
+        for total in 1..300u32 {
+            for count in 1..=total.min(40) as u16 {
+                let h = FragmentHeader {
+                    sender: SystemId(0),
+                    index: 0,
+                    count,
+                    message_id: 0,
+                    total,
+                };
+                let chunk = (total as usize).div_ceil(count as usize);
+                let valid = (count as usize - 1) * chunk < total as usize;
+                let mut d = h.encode().to_vec();
+                d.extend(std::iter::repeat_n(0, h.piece_range().len()));
+                assert_eq!(
+                    parse_fragment(&d, 1 << 20).is_ok(),
+                    valid,
+                    "{total}/{count}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn absurd_headers_are_rejected() {
+        let good = &fragments(&[1u8; 300], 100, 1)[0];
+        assert!(parse_fragment(good, 1000).is_ok());
+        assert!(matches!(
+            parse_fragment(&good[..10], 1000),
+            Err(FragmentError::Truncated { .. })
+        ));
+        let mut d = good.clone();
+        d[2] = 2;
+        assert!(matches!(
+            parse_fragment(&d, 1000),
+            Err(FragmentError::BadHeader { .. })
+        ));
+        let mut d = good.clone();
+        d[8..10].copy_from_slice(&0u16.to_le_bytes());
+        assert!(matches!(
+            parse_fragment(&d, 1000),
+            Err(FragmentError::BadGeometry { .. })
+        ));
+        let mut d = good.clone();
+        d[16..20].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(
+            parse_fragment(&d, 1000),
+            Err(FragmentError::BadGeometry { .. })
+        ));
+        let mut d = good.clone();
+        d[6..8].copy_from_slice(&3u16.to_le_bytes());
+        assert!(matches!(
+            parse_fragment(&d, 1000),
+            Err(FragmentError::BadGeometry { .. })
+        ));
+        let mut d = good.clone();
+        d.push(0);
+        assert!(matches!(
+            parse_fragment(&d, 1000),
+            Err(FragmentError::BadLength { .. })
+        ));
+    }
+
+    #[test]
+    fn missing_fragment_times_out_and_frees_memory() {
+        let mut r = reassembler();
+        let frags = fragments(&[5u8; 500], 100, 3);
+        let t0 = Instant::now();
+        for f in &frags[1..] {
+            assert_eq!(r.on_fragment(f, SRC, None, t0), Reassembly::Pending);
+        }
+        assert_eq!(r.held_bytes(), 500);
+        assert_eq!(r.expire(t0 + Duration::from_secs(1)), 0);
+        assert_eq!(r.expire(t0 + Duration::from_secs(2)), 1);
+        assert_eq!(r.held_bytes(), 0);
+        // The late first fragment starts a new, hopeless message rather than resurrecting it.
+        assert_eq!(r.on_fragment(&frags[0], SRC, None, t0), Reassembly::Pending);
+    }
+
+    #[test]
+    fn limit_evicts_the_oldest() {
+        let mut r = reassembler();
+        let t0 = Instant::now();
+        let a = fragments(&[1u8; 600], 100, 1);
+        let b = fragments(&[2u8; 600], 100, 2);
+        r.on_fragment(&a[0], SRC, None, t0);
+        r.on_fragment(&b[0], SRC, None, t0 + Duration::from_millis(1));
+        assert_eq!(r.pending(), 1);
+        assert_eq!(r.evictions(), 1);
+        assert_eq!(r.held_bytes(), 600);
+        // Over the whole limit: refused outright.
+        let big = fragments(&[3u8; 1500], 100, 3);
+        assert_eq!(r.on_fragment(&big[0], SRC, None, t0), Reassembly::Pending);
+        assert_eq!(r.evictions(), 2);
+        assert_eq!(r.pending(), 1);
+    }
+
+    #[test]
+    fn inconsistent_and_misattributed_fragments_are_rejected() {
+        let mut r = reassembler();
+        let t0 = Instant::now();
+        let a = fragments(&[1u8; 300], 100, 1);
+        let b = fragments(&[1u8; 400], 100, 1); // same id, different total
+        assert_eq!(r.on_fragment(&a[0], SRC, None, t0), Reassembly::Pending);
+        assert!(matches!(
+            r.on_fragment(&b[1], SRC, None, t0),
+            Reassembly::Rejected { dropped: 1, .. }
+        ));
+        assert_eq!(r.held_bytes(), 0);
+        assert!(matches!(
+            r.on_fragment(&a[0], SRC, Some(SystemId(2)), t0),
+            Reassembly::Rejected {
+                error: FragmentError::WrongSender { .. },
+                ..
+            }
+        ));
+    }
+}

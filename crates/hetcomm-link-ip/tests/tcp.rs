@@ -1,0 +1,282 @@
+//! TCP link behaviour beyond the conformance suite: hostile input, peer restarts, unreachable
+//! peers, slow peers and shutdown. Real sockets on 127.0.0.1, port 0 only.
+
+mod common;
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::time::{Duration, Instant};
+
+use common::{wait_until, TcpHarness, DEADLINE};
+use hetcomm_core::SystemId;
+use hetcomm_link::conformance::CollectSink;
+use hetcomm_link::{Link, LinkError, Peer};
+use hetcomm_link_ip::stream::{encode_hello, StreamConfig, RECORD_MAGIC, STREAM_VERSION};
+use hetcomm_link_ip::TcpLink;
+
+const A: SystemId = SystemId(1);
+const B: SystemId = SystemId(2);
+
+/// Waits until the server closes `s` (a read returns end-of-stream or an error).
+fn assert_closed_by_peer(s: &mut TcpStream) {
+    s.set_read_timeout(Some(DEADLINE)).unwrap();
+    let started = Instant::now();
+    let mut buf = [0u8; 64];
+    loop {
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(_) => {}
+        }
+    }
+    assert!(
+        started.elapsed() < DEADLINE,
+        "the link did not close the connection"
+    );
+}
+
+fn record(frame: &[u8]) -> Vec<u8> {
+    let mut r = RECORD_MAGIC.to_vec();
+    r.extend_from_slice(&[STREAM_VERSION, 0]);
+    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    r.extend_from_slice(frame);
+    r
+}
+
+#[test]
+fn garbage_closes_only_that_connection() {
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let sink_b = CollectSink::new();
+    let a = h.open_tcp(A, CollectSink::new());
+    let b = h.open_tcp(B, sink_b.clone());
+
+    // Garbage instead of a hello.
+    let mut raw = TcpStream::connect(b.local_addr()).unwrap();
+    raw.write_all(b"GET / HTTP/1.1\r\n\r\n").unwrap();
+    assert_closed_by_peer(&mut raw);
+    wait_until("rejected hello counted", DEADLINE, || {
+        b.stream_stats().rejected_connections == 1
+    });
+
+    // A valid hello and record, then garbage where the next record header should be.
+    let mut raw = TcpStream::connect(b.local_addr()).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    raw.write_all(&record(b"fine")).unwrap();
+    raw.write_all(b"\xde\xad\xbe\xef garbage").unwrap();
+    assert_closed_by_peer(&mut raw);
+    assert_eq!(sink_b.wait_for(1, DEADLINE), 1);
+    assert_eq!(sink_b.frames()[0].bytes, b"fine");
+    assert_eq!(sink_b.frames()[0].from, Peer::System(A));
+
+    // A record announcing more than the limit is refused before anything is allocated.
+    let mut raw = TcpStream::connect(b.local_addr()).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    let mut huge = RECORD_MAGIC.to_vec();
+    huge.extend_from_slice(&[STREAM_VERSION, 0]);
+    huge.extend_from_slice(&u32::MAX.to_le_bytes());
+    raw.write_all(&huge).unwrap();
+    assert_closed_by_peer(&mut raw);
+    wait_until("3 drops counted", DEADLINE, || {
+        b.stats().frames_dropped == 3
+    });
+
+    // The listener still serves well-behaved peers.
+    a.send(B, b"after the garbage").unwrap();
+    assert_eq!(sink_b.wait_for(2, DEADLINE), 2);
+    assert_eq!(sink_b.frames()[1].bytes, b"after the garbage");
+    assert_eq!(b.stats().frames_received, 2);
+}
+
+#[test]
+fn hello_from_a_system_outside_the_fleet_is_refused() {
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let sink_b = CollectSink::new();
+    let b = h.open_tcp(B, sink_b.clone());
+    let mut raw = TcpStream::connect(b.local_addr()).unwrap();
+    raw.write_all(&encode_hello(SystemId(77))).unwrap();
+    // Written before the link has read the hello, so the write itself succeeds.
+    let _ = raw.write_all(&record(b"sneaky"));
+    assert_closed_by_peer(&mut raw);
+    wait_until("rejection counted", DEADLINE, || {
+        b.stream_stats().rejected_connections == 1
+    });
+    assert_eq!(b.stats().frames_dropped, 1);
+    assert_eq!(b.stats().frames_received, 0);
+    assert!(sink_b.frames().is_empty());
+}
+
+#[test]
+fn traffic_resumes_after_the_peer_restarts_on_the_same_port() {
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let a = h.open_tcp(A, CollectSink::new());
+    let sink_b1 = CollectSink::new();
+    let b = h.open_tcp(B, sink_b1.clone());
+    a.send(B, b"before").unwrap();
+    assert_eq!(sink_b1.wait_for(1, DEADLINE), 1);
+    drop(b);
+
+    // During the outage sends fail as unreachable (the first one may still be taken by the
+    // kernel before the reset is noticed), and none of them blocks.
+    let deadline = Instant::now() + DEADLINE;
+    let reason = loop {
+        assert!(
+            Instant::now() < deadline,
+            "sends to a dead peer kept succeeding"
+        );
+        let started = Instant::now();
+        let result = a.send(B, b"during");
+        assert!(
+            started.elapsed() < Duration::from_secs(3),
+            "send blocked during the outage"
+        );
+        match result {
+            Ok(()) => std::thread::yield_now(),
+            Err(LinkError::Unreachable { peer, reason }) => {
+                assert_eq!(peer, B);
+                break reason;
+            }
+            Err(e) => panic!("unexpected error during outage: {e}"),
+        }
+    };
+    assert!(!reason.is_empty());
+    // Now the backoff is running or the connect is refused: unreachable, immediately.
+    let started = Instant::now();
+    let again = a.send(B, b"during");
+    assert!(
+        matches!(again, Err(LinkError::Unreachable { .. })),
+        "{again:?}"
+    );
+    assert!(started.elapsed() < Duration::from_secs(1));
+
+    let sink_b2 = CollectSink::new();
+    let _b2 = h.open_tcp(B, sink_b2.clone());
+    let deadline = Instant::now() + DEADLINE;
+    while sink_b2.frames().is_empty() {
+        assert!(Instant::now() < deadline, "traffic did not resume");
+        let _ = a.send(B, b"after");
+        sink_b2.wait_for(1, Duration::from_millis(20));
+    }
+    assert_eq!(sink_b2.frames()[0].bytes, b"after");
+    assert_eq!(sink_b2.frames()[0].from, Peer::System(A));
+    assert!(a.stats().connects >= 2, "{:?}", a.stats());
+}
+
+#[test]
+fn connect_to_a_closed_port_fails_fast_and_backs_off() {
+    let closed = TcpListener::bind("127.0.0.1:0").unwrap();
+    let closed_addr = closed.local_addr().unwrap().to_string();
+    drop(closed);
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let endpoints = [
+        (A, listener.local_addr().unwrap().to_string()),
+        (B, closed_addr),
+    ]
+    .into();
+    let config = StreamConfig {
+        backoff_initial: Duration::from_secs(5),
+        ..StreamConfig::default()
+    };
+    let a = TcpLink::with_listener(A, listener, &endpoints, CollectSink::new(), config).unwrap();
+
+    let started = Instant::now();
+    let err = a.send(B, b"x").unwrap_err();
+    assert!(
+        started.elapsed() < Duration::from_secs(1),
+        "connect to a closed port was slow"
+    );
+    let text = err.to_string();
+    assert!(
+        matches!(err, LinkError::Unreachable { peer: B, .. }),
+        "{text}"
+    );
+    assert!(
+        text.contains("unreachable") && text.contains("refused"),
+        "{text}"
+    );
+
+    let err = a.send(B, b"x").unwrap_err().to_string();
+    assert!(
+        err.contains("reconnecting in") && err.contains("after: ") && err.contains("refused"),
+        "{err}"
+    );
+    assert_eq!(a.stats().connects, 0);
+}
+
+#[test]
+fn a_peer_that_stops_reading_makes_send_fail_within_the_write_timeout() {
+    // A "peer" that accepts the connection but never reads from it.
+    let stuck = TcpListener::bind("127.0.0.1:0").unwrap();
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let endpoints = [
+        (A, listener.local_addr().unwrap().to_string()),
+        (B, stuck.local_addr().unwrap().to_string()),
+    ]
+    .into();
+    let config = StreamConfig {
+        write_timeout: Duration::from_millis(300),
+        ..StreamConfig::default()
+    };
+    let a = TcpLink::with_listener(A, listener, &endpoints, CollectSink::new(), config).unwrap();
+    let big = vec![7u8; 16 * 1024 * 1024];
+    let started = Instant::now();
+    let mut result = Ok(());
+    // Kernel buffers take the first frames; within a few the send must hit the timeout.
+    for _ in 0..8 {
+        result = a.send(B, &big);
+        if result.is_err() {
+            break;
+        }
+    }
+    let _conn = stuck.accept().unwrap();
+    assert!(
+        matches!(result, Err(LinkError::Congested { peer: B, .. })),
+        "{result:?}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(8),
+        "send blocked too long"
+    );
+    assert_eq!(a.stream_stats().write_failures, 1);
+}
+
+#[test]
+fn dropping_the_link_closes_accepted_connections_and_returns() {
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let b = h.open_tcp(B, CollectSink::new());
+    let mut raw = TcpStream::connect(b.local_addr()).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    wait_until("connection accepted", DEADLINE, || {
+        b.stream_stats().accepted == 1
+    });
+    let started = Instant::now();
+    drop(b);
+    assert!(started.elapsed() < Duration::from_secs(2), "drop was slow");
+    assert_closed_by_peer(&mut raw);
+}
+
+#[test]
+fn bind_reports_the_real_port_and_oversize_is_refused() {
+    let endpoints = [(A, "127.0.0.1:0".to_string())].into();
+    let config = StreamConfig {
+        max_message_bytes: Some(100),
+        ..StreamConfig::default()
+    };
+    let a = TcpLink::bind(A, &endpoints, CollectSink::new(), config).unwrap();
+    assert_ne!(a.local_addr().port(), 0);
+    assert_eq!(a.caps().max_frame, 148);
+    assert!(matches!(
+        a.send(B, &[0; 149]),
+        Err(LinkError::TooLarge { len: 149, max: 148 })
+    ));
+    assert!(matches!(
+        a.send(B, &[0; 148]),
+        Err(LinkError::Unreachable { .. })
+    ));
+    assert!(matches!(
+        a.send(A, b"me"),
+        Err(LinkError::Unreachable { .. })
+    ));
+    assert!(matches!(
+        TcpLink::bind(B, &endpoints, CollectSink::new(), StreamConfig::default()),
+        Err(hetcomm_link_ip::OpenError::NoLocalEndpoint { system: B })
+    ));
+}
