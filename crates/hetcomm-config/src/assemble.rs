@@ -126,6 +126,8 @@ pub(crate) struct Parts {
 /// The fleet's systems after duplicate checks, with name and id lookups.
 pub(crate) struct Systems {
     pub list: Vec<SysSpec>,
+    /// Names dropped as duplicates: already reported, so references to them stay quiet.
+    rejected: Vec<String>,
 }
 
 /// The modules the thesis's framework uses, for fleets that do not list their own.
@@ -144,14 +146,25 @@ impl Systems {
         let mut keep = vec![true; list.len()];
         for (i, s) in list.iter().enumerate() {
             if s.name.is_empty() {
-                diag.err_help(&s.name_loc, "a system name cannot be empty", "give the system a name, e.g. `Alpha`");
+                diag.err_help(
+                    &s.name_loc,
+                    "a system name cannot be empty",
+                    "give the system a name, e.g. `Alpha`",
+                );
             }
             if let Some(&j) = ids.get(&s.id) {
                 let first = &list[j];
                 diag.err_help(
                     &s.id_loc,
-                    format!("duplicate system id {}: `{}` and `{}` both use it", s.id, first.name, s.name),
-                    format!("give each system its own id (`{}` has it at {})", first.name, at(&first.id_loc)),
+                    format!(
+                        "duplicate system id {}: `{}` and `{}` both use it",
+                        s.id, first.name, s.name
+                    ),
+                    format!(
+                        "give each system its own id (`{}` has it at {})",
+                        first.name,
+                        at(&first.id_loc)
+                    ),
                 );
                 keep[i] = false;
             } else {
@@ -161,22 +174,37 @@ impl Systems {
                 let first = &list[j];
                 diag.err_help(
                     &s.name_loc,
-                    format!("duplicate system name `{}`: ids {} and {} both use it", s.name, first.id, s.id),
-                    format!("give each system its own name (the first is at {})", at(&first.name_loc)),
+                    format!(
+                        "duplicate system name `{}`: ids {} and {} both use it",
+                        s.name, first.id, s.id
+                    ),
+                    format!(
+                        "give each system its own name (the first is at {})",
+                        at(&first.name_loc)
+                    ),
                 );
                 keep[i] = false;
             } else {
                 names.insert(&s.name, i);
             }
         }
+        let rejected = list
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| !**k)
+            .map(|(s, _)| s.name.clone())
+            .collect();
         let mut it = keep.into_iter();
         list.retain(|_| it.next().unwrap_or(false));
         list.sort_by_key(|s| s.id);
-        Systems { list }
+        Systems { list, rejected }
     }
 
     fn by_name(&self, name: &str) -> Option<SystemId> {
-        self.list.iter().find(|s| s.name == name).map(|s| SystemId(s.id))
+        self.list
+            .iter()
+            .find(|s| s.name == name)
+            .map(|s| SystemId(s.id))
     }
 
     fn has_id(&self, id: u16) -> bool {
@@ -198,7 +226,13 @@ impl Systems {
     /// Resolves a written system reference, reporting an unknown one. `context` says where it
     /// was written ("the table's columns"); `extra` are other words that are valid at that
     /// spot, so a typo of them is suggested too.
-    pub fn resolve(&self, label: &Label, context: &str, extra: &[&str], diag: &mut Diag) -> Option<SystemId> {
+    pub fn resolve(
+        &self,
+        label: &Label,
+        context: &str,
+        extra: &[&str],
+        diag: &mut Diag,
+    ) -> Option<SystemId> {
         if label.by_id {
             let id = check_id(diag, &label.text, &label.loc, "system", "a system id")?;
             if self.has_id(id) {
@@ -219,6 +253,9 @@ impl Systems {
         if let Some(id) = self.by_name(&label.text) {
             return Some(id);
         }
+        if self.rejected.contains(&label.text) {
+            return None;
+        }
         // A numeric key is taken as an id, so `addresses = { 1 = "…" }` works like Table 3.
         if let Ok(id) = label.text.parse::<u16>() {
             if self.has_id(id) && label.text.bytes().all(|b| b.is_ascii_digit()) {
@@ -236,6 +273,15 @@ impl Systems {
     }
 }
 
+/// "1 cell", "2 cells".
+fn plural(n: usize, word: &str) -> String {
+    if n == 1 {
+        format!("1 {word}")
+    } else {
+        format!("{n} {word}s")
+    }
+}
+
 /// "file:line:column", for help texts that point at a second place.
 pub(crate) fn at(loc: &Loc) -> String {
     format!("{}:{}:{}", loc.file, loc.line, loc.column)
@@ -250,8 +296,15 @@ pub(crate) fn modules(mut list: Vec<ModSpec>, diag: &mut Diag) -> Vec<ModuleDef>
             let first = &list[j];
             diag.err_help(
                 &m.id_loc,
-                format!("duplicate module id {}: `{}` and `{}` both use it", m.id, first.name, m.name),
-                format!("give each module its own id (`{}` has it at {})", first.name, at(&first.id_loc)),
+                format!(
+                    "duplicate module id {}: `{}` and `{}` both use it",
+                    m.id, first.name, m.name
+                ),
+                format!(
+                    "give each module its own id (`{}` has it at {})",
+                    first.name,
+                    at(&first.id_loc)
+                ),
             );
             keep[i] = false;
         } else {
@@ -285,13 +338,22 @@ pub(crate) fn parse_bdaddr(s: &str) -> Option<BdAddr> {
 }
 
 /// Resolves Bluetooth address entries: known systems, well-formed and unique addresses.
-pub(crate) fn bt_addresses(lines: Vec<BtLine>, systems: &Systems, context: &str, diag: &mut Diag) -> BTreeMap<SystemId, BdAddr> {
+pub(crate) fn bt_addresses(
+    lines: Vec<BtLine>,
+    systems: &Systems,
+    context: &str,
+    diag: &mut Diag,
+) -> BTreeMap<SystemId, BdAddr> {
     let mut out = BTreeMap::new();
     let mut by_addr: HashMap<BdAddr, SystemId> = HashMap::new();
     for l in lines {
         let sys = systems.resolve(&l.key, context, &[], diag);
         let Some(addr) = parse_bdaddr(&l.addr) else {
-            diag.err_help(&l.addr_loc, format!("malformed Bluetooth address `{}`", l.addr), BDADDR_HELP);
+            diag.err_help(
+                &l.addr_loc,
+                format!("malformed Bluetooth address `{}`", l.addr),
+                BDADDR_HELP,
+            );
             continue;
         };
         let Some(sys) = sys else { continue };
@@ -306,7 +368,10 @@ pub(crate) fn bt_addresses(lines: Vec<BtLine>, systems: &Systems, context: &str,
         if let Some(&other) = by_addr.get(&addr) {
             diag.err_help(
                 &l.addr_loc,
-                format!("Bluetooth address {addr} is already used by system `{}`", systems.name(other)),
+                format!(
+                    "Bluetooth address {addr} is already used by system `{}`",
+                    systems.name(other)
+                ),
                 "each system has its own adapter; check for a copy-paste slip",
             );
             continue;
@@ -342,7 +407,10 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     // Letters: from transports' own `letter` first (file order), then [letters]. A letter may
     // be given twice only if both agree.
     let mut letter_map: BTreeMap<u8, (usize, Loc)> = BTreeMap::new();
-    let mut tag_of: Vec<Option<u8>> = transports.iter().map(|t| t.letter.as_ref().map(|l| l.0)).collect();
+    let mut tag_of: Vec<Option<u8>> = transports
+        .iter()
+        .map(|t| t.letter.as_ref().map(|l| l.0))
+        .collect();
     for (i, t) in transports.iter().enumerate() {
         if let Some((l, loc)) = &t.letter {
             define_letter(&mut letter_map, *l, i, loc, &transports, &mut diag);
@@ -353,12 +421,22 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             let names: Vec<&str> = transports.iter().map(|t| t.name.as_str()).collect();
             diag.err_help(
                 &l.target_loc,
-                format!("letter `{}` maps to `{}`, which is not a transport", l.letter as char, l.target),
+                format!(
+                    "letter `{}` maps to `{}`, which is not a transport",
+                    l.letter as char, l.target
+                ),
                 suggest::help(&l.target, &names, "defined transports"),
             );
             continue;
         };
-        define_letter(&mut letter_map, l.letter, i, &l.letter_loc, &transports, &mut diag);
+        define_letter(
+            &mut letter_map,
+            l.letter,
+            i,
+            &l.letter_loc,
+            &transports,
+            &mut diag,
+        );
         tag_of[i].get_or_insert(l.letter);
     }
 
@@ -368,7 +446,17 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     // The table.
     let mut pairs: BTreeMap<(SystemId, SystemId), usize> = BTreeMap::new();
     let mut pair_locs: Vec<((SystemId, SystemId), usize, Loc)> = Vec::new();
-    if let Some(table) = table {
+    if let Some(table) = table.as_ref().filter(|t| {
+        let empty = t.columns.is_empty() && !t.rows.is_empty();
+        if empty {
+            diag.err_help(
+                &t.header_loc,
+                "the table has rows but no columns",
+                "list the destination systems as columns",
+            );
+        }
+        !empty
+    }) {
         let cols: Vec<Option<SystemId>> = table
             .columns
             .iter()
@@ -424,26 +512,28 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
                 }
             }
         }
-        if table.columns.is_empty() && !table.rows.is_empty() {
-            diag.err_help(&table.header_loc, "the table has rows but no columns", "list the destination systems as columns");
-        }
         let mut implicit: HashMap<&'static str, usize> = HashMap::new();
         let mut b_reported = false;
         for (r, (label, cells)) in rows.iter().zip(&table.rows) {
+            let Some(src) = *r else { continue };
             if cells.len() != table.columns.len() {
                 diag.err_help(
                     &label.loc,
                     format!(
-                        "row `{}` has {} cells but there are {} columns",
+                        "row `{}` has {} but there {} {}",
                         label.text,
-                        cells.len(),
-                        table.columns.len()
+                        plural(cells.len(), "cell"),
+                        if table.columns.len() == 1 {
+                            "is"
+                        } else {
+                            "are"
+                        },
+                        plural(table.columns.len(), "column"),
                     ),
                     "give every row one cell per column, in column order (X for no traffic)",
                 );
                 continue;
             }
-            let Some(src) = *r else { continue };
             for (cell, c) in cells.iter().zip(&cols) {
                 let Some(dst) = *c else { continue };
                 if cell.text == "X" {
@@ -453,7 +543,10 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
                     let n = systems.name(src);
                     diag.err_help(
                         &cell.loc,
-                        format!("system `{n}` cannot send to itself: its own cell is `{}`", cell.text),
+                        format!(
+                            "system `{n}` cannot send to itself: its own cell is `{}`",
+                            cell.text
+                        ),
                         format!("write X in row `{}`, column `{}`", label.text, label.text),
                     );
                     continue;
@@ -511,7 +604,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     }
 
     if !diag.errors.is_empty() {
-        return Err(ConfigErrors(diag.errors));
+        return Err(diag.into_sorted());
     }
     let mut defs = Vec::new();
     for (t, tag) in transports.into_iter().zip(tag_of) {
@@ -597,7 +690,10 @@ fn resolve_cell(
         "B" => "B",
         _ => {
             let mut cands: Vec<&str> = transports.iter().map(|t| t.name.as_str()).collect();
-            let letters: Vec<String> = letter_map.keys().map(|&b| (b as char).to_string()).collect();
+            let letters: Vec<String> = letter_map
+                .keys()
+                .map(|&b| (b as char).to_string())
+                .collect();
             cands.extend(letters.iter().map(String::as_str));
             cands.push("R");
             if legacy_bt.is_some() {
@@ -612,7 +708,11 @@ fn resolve_cell(
                     if text.chars().count() == 1 { text } else { "Q" }
                 ),
             };
-            diag.err_help(&cell.loc, format!("`{text}` names no transport or letter"), help);
+            diag.err_help(
+                &cell.loc,
+                format!("`{text}` names no transport or letter"),
+                help,
+            );
             return None;
         }
     };
@@ -641,7 +741,11 @@ fn resolve_cell(
             addresses: bt.addresses.clone(),
         })
     };
-    let kind = if key == "R" { TransportKind::Ros1 } else { TransportKind::Bluetooth };
+    let kind = if key == "R" {
+        TransportKind::Ros1
+    } else {
+        TransportKind::Bluetooth
+    };
     transports.push(TransportSpec {
         name: key.to_string(),
         name_loc: cell.loc.clone(),
@@ -676,7 +780,10 @@ fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
                 .collect();
             diag.err_help(
                 loc,
-                format!("transport `{}` wraps `{over}`, which is not a transport", t.name),
+                format!(
+                    "transport `{}` wraps `{over}`, which is not a transport",
+                    t.name
+                ),
                 suggest::help(over, &names, "defined transports"),
             );
             continue;
@@ -702,7 +809,10 @@ fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
                         .collect();
                     diag.err_help(
                         loc,
-                        format!("transports wrap each other in a loop: {}", names.join(" → ")),
+                        format!(
+                            "transports wrap each other in a loop: {}",
+                            names.join(" → ")
+                        ),
                         "the last wrapper in a chain must wrap a transport without `over`",
                     );
                 }

@@ -94,6 +94,21 @@ impl Diag {
         });
     }
 
+    /// The errors ordered by position: files in the order they first had an error, then line
+    /// and column, so a user can fix a file top to bottom. Checks run in dependency order
+    /// (systems before the table that names them), which is not the order of the text.
+    pub fn into_sorted(self) -> ConfigErrors {
+        let mut files: Vec<String> = Vec::new();
+        for e in &self.errors {
+            if !files.contains(&e.file) {
+                files.push(e.file.clone());
+            }
+        }
+        let mut errors = self.errors;
+        errors.sort_by_key(|e| (files.iter().position(|f| *f == e.file), e.line, e.column));
+        ConfigErrors(errors)
+    }
+
     /// Records one error whose fix we can describe.
     pub fn err_help(&mut self, loc: &Loc, message: impl Into<String>, help: impl Into<String>) {
         self.err(loc, message, Some(help.into()));

@@ -48,8 +48,11 @@ pub(crate) const ROS1_KEYS: [&str; 2] = ["master_uri", "namespace"];
 pub(crate) const BLUETOOTH_KEYS: [&str; 3] = ["channel", "addresses", "addresses_file"];
 /// Non-numeric keys of `emulated` transports besides the common ones.
 pub(crate) const EMULATED_KEYS: [&str; 3] = ["profile", "over", "seed"];
-/// Numeric model parameters of `emulated` transports.
-pub const EMULATED_PARAMS: [&str; 20] = [
+/// Numeric model parameters an `emulated` transport accepts (kept in
+/// `EmulatedSettings::params`; the emulation layer interprets them and documents their units
+/// in docs/emulation.md). The last four were added by the emulation layer beyond the
+/// original list, so a fleet file may use every key that layer understands.
+pub const EMULATED_PARAMS: [&str; 24] = [
     "loss_percent",
     "burst_loss_percent",
     "burst_length_mean",
@@ -70,6 +73,10 @@ pub const EMULATED_PARAMS: [&str; 20] = [
     "outage_start_ms",
     "outage_duration_ms",
     "outage_period_ms",
+    "delay_tail_ms",
+    "preserve_order",
+    "reorder_delay_ms",
+    "margin_slope_db",
 ];
 /// Built-in emulation profiles.
 pub(crate) const PROFILES: [&str; 3] = ["wired", "wifi", "bluetooth-classic"];
@@ -103,7 +110,12 @@ struct P<'a> {
 }
 
 /// Parses and validates a fleet file's text.
-pub(crate) fn parse(text: &str, origin: &str, base_dir: Option<&Path>, source: Option<PathBuf>) -> Result<Fleet, ConfigErrors> {
+pub(crate) fn parse(
+    text: &str,
+    origin: &str,
+    base_dir: Option<&Path>,
+    source: Option<PathBuf>,
+) -> Result<Fleet, ConfigErrors> {
     let mut p = P {
         file: Rc::from(origin),
         text,
@@ -117,8 +129,18 @@ pub(crate) fn parse(text: &str, origin: &str, base_dir: Option<&Path>, source: O
             let loc = p.at(e.span(), &Loc::start(&p.file));
             // toml_edit's message may span lines ("invalid string\nexpected …"); one line
             // keeps our "file:line:col: message" shape.
-            let msg = e.message().lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join("; ");
-            p.diag.err_help(&loc, format!("TOML syntax error: {msg}"), "fix the TOML syntax at this spot; see docs/config.md for the file format");
+            let msg = e
+                .message()
+                .lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty())
+                .collect::<Vec<_>>()
+                .join("; ");
+            p.diag.err_help(
+                &loc,
+                format!("TOML syntax error: {msg}"),
+                "fix the TOML syntax at this spot; see docs/config.md for the file format",
+            );
             return Err(ConfigErrors(p.diag.errors));
         }
     };
@@ -128,7 +150,10 @@ pub(crate) fn parse(text: &str, origin: &str, base_dir: Option<&Path>, source: O
 
 /// Quotes a key for a dotted path when it is not a bare key.
 fn key_part(k: &str) -> String {
-    if !k.is_empty() && k.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-') {
+    if !k.is_empty()
+        && k.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
         k.to_string()
     } else {
         format!("{k:?}")
@@ -193,22 +218,33 @@ impl P<'_> {
     /// "string `\"one\"`" or "a table": what was found instead of what was expected.
     fn found(&self, item: &Item) -> String {
         match item {
-            Item::Value(Value::InlineTable(_)) | Item::Table(_) | Item::ArrayOfTables(_) | Item::None => {
-                type_name(item).to_string()
-            }
+            Item::Value(Value::InlineTable(_))
+            | Item::Table(_)
+            | Item::ArrayOfTables(_)
+            | Item::None => type_name(item).to_string(),
             _ => format!("{} `{}`", type_name(item), self.raw(item)),
         }
     }
 
     fn wrong_type(&mut self, loc: &Loc, path: &str, expected: &str, item: &Item, help: &str) {
         let found = self.found(item);
-        self.diag.err_help(loc, format!("`{path}` must be {expected}, found {found}"), help);
+        self.diag.err_help(
+            loc,
+            format!("`{path}` must be {expected}, found {found}"),
+            help,
+        );
     }
 
     fn table<'t>(&mut self, item: &'t Item, path: &str, loc: &Loc) -> Option<&'t dyn TableLike> {
         let t = item.as_table_like();
         if t.is_none() {
-            self.wrong_type(loc, path, "a table", item, "write it as a [section] or an inline table `{ key = value }`");
+            self.wrong_type(
+                loc,
+                path,
+                "a table",
+                item,
+                "write it as a [section] or an inline table `{ key = value }`",
+            );
         }
         t
     }
@@ -230,7 +266,15 @@ impl P<'_> {
     }
 
     /// An integer in `min..=max`, reporting either kind of problem.
-    fn int_in(&mut self, item: &Item, path: &str, loc: &Loc, min: i64, max: i64, help: &str) -> Option<i64> {
+    fn int_in(
+        &mut self,
+        item: &Item,
+        path: &str,
+        loc: &Loc,
+        min: i64,
+        max: i64,
+        help: &str,
+    ) -> Option<i64> {
         let v = self.int(item, path, loc, help)?;
         if v < min || v > max {
             // Huge maxima are type limits, not advice: only mention them when exceeded.
@@ -239,7 +283,8 @@ impl P<'_> {
             } else {
                 format!("from {min} to {max}")
             };
-            self.diag.err_help(loc, format!("`{path}` must be {range}, found {v}"), help);
+            self.diag
+                .err_help(loc, format!("`{path}` must be {range}, found {v}"), help);
             return None;
         }
         Some(v)
@@ -252,14 +297,21 @@ impl P<'_> {
         match u16::try_from(v) {
             Ok(id) => Some(id),
             Err(_) => {
-                self.diag.err_help(loc, format!("{what} id {v} is out of range"), help);
+                self.diag
+                    .err_help(loc, format!("{what} id {v} is out of range"), help);
                 None
             }
         }
     }
 
     /// Reports keys of `t` not in `allowed`, suggesting the nearest.
-    fn unknown_keys(&mut self, t: &dyn TableLike, allowed: &[&str], section: Option<&str>, fallback: &Loc) {
+    fn unknown_keys(
+        &mut self,
+        t: &dyn TableLike,
+        allowed: &[&str],
+        section: Option<&str>,
+        fallback: &Loc,
+    ) {
         for (k, _) in t.iter() {
             if allowed.contains(&k) {
                 continue;
@@ -278,7 +330,14 @@ impl P<'_> {
     }
 
     /// One of a fixed set of words (kinds, policies, profiles), reporting anything else.
-    fn choice(&mut self, item: &Item, path: &str, loc: &Loc, what: (&str, &str), options: &[&str]) -> Option<usize> {
+    fn choice(
+        &mut self,
+        item: &Item,
+        path: &str,
+        loc: &Loc,
+        what: (&str, &str),
+        options: &[&str],
+    ) -> Option<usize> {
         let (what, plural) = what;
         let list = options.join(", ");
         let s = self.string(item, path, loc, &format!("one of: {list}"))?;
@@ -289,7 +348,8 @@ impl P<'_> {
             Some(c) => format!("did you mean `{c}`? valid {plural}: {list}"),
             None => format!("valid {plural}: {list}"),
         };
-        self.diag.err_help(loc, format!("unknown {what} `{s}`"), help);
+        self.diag
+            .err_help(loc, format!("unknown {what} `{s}`"), help);
         None
     }
 
@@ -300,8 +360,13 @@ impl P<'_> {
 
         let name = get("name").and_then(|item| {
             let loc = self.vloc(item, &top);
-            self.string(item, "name", &loc, "write the fleet's name in quotes, e.g. `name = \"demo\"`")
-                .map(str::to_string)
+            self.string(
+                item,
+                "name",
+                &loc,
+                "write the fleet's name in quotes, e.g. `name = \"demo\"`",
+            )
+            .map(str::to_string)
         });
 
         // [legacy] first: it decides where systems and the table come from.
@@ -312,7 +377,12 @@ impl P<'_> {
                 self.unknown_keys(t, &LEGACY_KEYS, Some("legacy"), &loc);
                 for (k, v) in t.iter() {
                     let vl = self.vloc(v, &loc);
-                    let Some(s) = self.string(v, &format!("legacy.{k}"), &vl, "write a path in quotes, relative to the fleet file") else {
+                    let Some(s) = self.string(
+                        v,
+                        &format!("legacy.{k}"),
+                        &vl,
+                        "write a path in quotes, relative to the fleet file",
+                    ) else {
                         continue;
                     };
                     let path = match self.base_dir {
@@ -422,7 +492,12 @@ impl P<'_> {
                     let kl = self.kloc(t, k, &loc);
                     let vl = self.vloc(v, &kl);
                     let letter = self.letter(k, &kl);
-                    let target = self.string(v, &format!("letters.{}", key_part(k)), &vl, "write the transport's name in quotes, e.g. `R = \"wired\"`");
+                    let target = self.string(
+                        v,
+                        &format!("letters.{}", key_part(k)),
+                        &vl,
+                        "write the transport's name in quotes, e.g. `R = \"wired\"`",
+                    );
                     if let (Some(letter), Some(target)) = (letter, target) {
                         letters.push(LetterSpec {
                             letter,
@@ -505,20 +580,37 @@ impl P<'_> {
             let path = format!("systems.{}", key_part(name));
             let (id, modules) = if v.is_integer() || !v.is_table_like() {
                 if !v.is_integer() {
-                    self.wrong_type(&vl, &path, "an id or a table `{ id = …, modules = […] }`", v, "write `Name = 0` or `Name = { id = 0, modules = [\"Plan\"] }`");
+                    self.wrong_type(
+                        &vl,
+                        &path,
+                        "an id or a table `{ id = …, modules = […] }`",
+                        v,
+                        "write `Name = 0` or `Name = { id = 0, modules = [\"Plan\"] }`",
+                    );
                     continue;
                 }
-                (self.id16(v, &path, &vl, "system").map(|id| (id, vl.clone())), None)
+                (
+                    self.id16(v, &path, &vl, "system")
+                        .map(|id| (id, vl.clone())),
+                    None,
+                )
             } else {
-                let Some(st) = v.as_table_like() else { continue };
+                let Some(st) = v.as_table_like() else {
+                    continue;
+                };
                 self.unknown_keys(st, &SYSTEM_KEYS, Some(&path), &vl);
                 let id = match st.get("id") {
                     Some(i) => {
                         let il = self.vloc(i, &vl);
-                        self.id16(i, &format!("{path}.id"), &il, "system").map(|id| (id, il))
+                        self.id16(i, &format!("{path}.id"), &il, "system")
+                            .map(|id| (id, il))
                     }
                     None => {
-                        self.diag.err_help(&vl, format!("system `{name}` has no `id`"), "add `id = <number>`");
+                        self.diag.err_help(
+                            &vl,
+                            format!("system `{name}` has no `id`"),
+                            "add `id = <number>`",
+                        );
                         None
                     }
                 };
@@ -544,7 +636,13 @@ impl P<'_> {
     /// An array of strings with their locations.
     fn name_list(&mut self, item: &Item, path: &str, loc: &Loc) -> Option<Vec<(String, Loc)>> {
         let Some(arr) = item.as_array() else {
-            self.wrong_type(loc, path, "an array of module names", item, "e.g. `modules = [\"Plan\", \"Act\"]`");
+            self.wrong_type(
+                loc,
+                path,
+                "an array of module names",
+                item,
+                "e.g. `modules = [\"Plan\", \"Act\"]`",
+            );
             return None;
         };
         let mut out = Vec::new();
@@ -553,8 +651,16 @@ impl P<'_> {
             match v.as_str() {
                 Some(s) => out.push((s.to_string(), vl)),
                 None => {
-                    let found = format!("{} `{}`", type_name(&Item::Value(v.clone())), v.span().and_then(|r| self.text.get(r)).unwrap_or("").trim());
-                    self.diag.err_help(&vl, format!("`{path}` must list names in quotes, found {found}"), "e.g. `modules = [\"Plan\", \"Act\"]`");
+                    let found = format!(
+                        "{} `{}`",
+                        type_name(&Item::Value(v.clone())),
+                        v.span().and_then(|r| self.text.get(r)).unwrap_or("").trim()
+                    );
+                    self.diag.err_help(
+                        &vl,
+                        format!("`{path}` must list names in quotes, found {found}"),
+                        "e.g. `modules = [\"Plan\", \"Act\"]`",
+                    );
                 }
             }
         }
@@ -562,23 +668,50 @@ impl P<'_> {
     }
 
     /// Reads capacity / overflow / block_timeout_ms over `base`.
-    fn inbox_fields(&mut self, t: &dyn TableLike, path: &str, cap_key: &str, base: InboxDefaults, loc: &Loc) -> InboxDefaults {
+    fn inbox_fields(
+        &mut self,
+        t: &dyn TableLike,
+        path: &str,
+        cap_key: &str,
+        base: InboxDefaults,
+        loc: &Loc,
+    ) -> InboxDefaults {
         let mut out = base;
         if let Some(v) = t.get(cap_key) {
             let vl = self.vloc(v, loc);
-            if let Some(c) = self.int_in(v, &format!("{path}.{cap_key}"), &vl, 1, i64::MAX, "an inbox holds at least one message, e.g. 1024") {
+            if let Some(c) = self.int_in(
+                v,
+                &format!("{path}.{cap_key}"),
+                &vl,
+                1,
+                i64::MAX,
+                "an inbox holds at least one message, e.g. 1024",
+            ) {
                 out.capacity = usize::try_from(c).unwrap_or(usize::MAX);
             }
         }
         if let Some(v) = t.get("overflow") {
             let vl = self.vloc(v, loc);
-            if let Some(i) = self.choice(v, &format!("{path}.overflow"), &vl, ("overflow policy", "overflow policies"), &OVERFLOWS) {
+            if let Some(i) = self.choice(
+                v,
+                &format!("{path}.overflow"),
+                &vl,
+                ("overflow policy", "overflow policies"),
+                &OVERFLOWS,
+            ) {
                 out.overflow = i;
             }
         }
         if let Some(v) = t.get("block_timeout_ms") {
             let vl = self.vloc(v, loc);
-            if let Some(ms) = self.int_in(v, &format!("{path}.block_timeout_ms"), &vl, 0, i64::MAX, "a wait in milliseconds, e.g. 100") {
+            if let Some(ms) = self.int_in(
+                v,
+                &format!("{path}.block_timeout_ms"),
+                &vl,
+                0,
+                i64::MAX,
+                "a wait in milliseconds, e.g. 100",
+            ) {
                 out.timeout_ms = ms.unsigned_abs();
             }
         }
@@ -600,18 +733,36 @@ impl P<'_> {
                 let id = match mt.get("id") {
                     Some(i) => {
                         let il = self.vloc(i, &vl);
-                        self.id16(i, &format!("{path}.id"), &il, "module").map(|id| (id, il))
+                        self.id16(i, &format!("{path}.id"), &il, "module")
+                            .map(|id| (id, il))
                     }
                     None => {
-                        self.diag.err_help(&vl, format!("module `{name}` has no `id`"), "add `id = <number>`");
+                        self.diag.err_help(
+                            &vl,
+                            format!("module `{name}` has no `id`"),
+                            "add `id = <number>`",
+                        );
                         None
                     }
                 };
-                (id, self.inbox_fields(mt, &path, "inbox_capacity", defaults, &vl))
+                (
+                    id,
+                    self.inbox_fields(mt, &path, "inbox_capacity", defaults, &vl),
+                )
             } else if v.is_integer() {
-                (self.id16(v, &path, &vl, "module").map(|id| (id, vl.clone())), defaults)
+                (
+                    self.id16(v, &path, &vl, "module")
+                        .map(|id| (id, vl.clone())),
+                    defaults,
+                )
             } else {
-                self.wrong_type(&vl, &path, "an id or a table `{ id = …, inbox_capacity = … }`", v, "write `Name = 1` or `Name = { id = 1, inbox_capacity = 64 }`");
+                self.wrong_type(
+                    &vl,
+                    &path,
+                    "an id or a table `{ id = …, inbox_capacity = … }`",
+                    v,
+                    "write `Name = 1` or `Name = { id = 1, inbox_capacity = 64 }`",
+                );
                 continue;
             };
             if let Some((id, id_loc)) = id {
@@ -641,7 +792,13 @@ impl P<'_> {
         }
     }
 
-    fn transport(&mut self, name: &str, item: &Item, nloc: &Loc, systems: &Systems) -> Option<TransportSpec> {
+    fn transport(
+        &mut self,
+        name: &str,
+        item: &Item,
+        nloc: &Loc,
+        systems: &Systems,
+    ) -> Option<TransportSpec> {
         let path = format!("transports.{}", key_part(name));
         let tloc = self.vloc(item, nloc);
         let t = self.table(item, &path, &tloc)?;
@@ -664,15 +821,27 @@ impl P<'_> {
             Some(v) => {
                 let vl = self.vloc(v, &tloc);
                 let names: Vec<&str> = TransportKind::ALL.iter().map(|k| k.as_str()).collect();
-                self.choice(v, &format!("{path}.kind"), &vl, ("transport kind", "transport kinds"), &names)
-                    .map(|i| TransportKind::ALL[i])
+                self.choice(
+                    v,
+                    &format!("{path}.kind"),
+                    &vl,
+                    ("transport kind", "transport kinds"),
+                    &names,
+                )
+                .map(|i| TransportKind::ALL[i])
             }
         };
         let delivery = match t.get("delivery") {
             None => DeliveryMode::Acknowledged,
             Some(v) => {
                 let vl = self.vloc(v, &tloc);
-                match self.choice(v, &format!("{path}.delivery"), &vl, ("delivery mode", "delivery modes"), &DELIVERIES) {
+                match self.choice(
+                    v,
+                    &format!("{path}.delivery"),
+                    &vl,
+                    ("delivery mode", "delivery modes"),
+                    &DELIVERIES,
+                ) {
                     Some(1) => DeliveryMode::Unacknowledged,
                     _ => DeliveryMode::Acknowledged,
                 }
@@ -682,13 +851,25 @@ impl P<'_> {
             None => 3,
             Some(v) => {
                 let vl = self.vloc(v, &tloc);
-                self.int_in(v, &format!("{path}.attempts"), &vl, 1, i64::from(u32::MAX), "attempts counts the first transmission too; the thesis used 3")
-                    .map_or(3, |a| u32::try_from(a).unwrap_or(3))
+                self.int_in(
+                    v,
+                    &format!("{path}.attempts"),
+                    &vl,
+                    1,
+                    i64::from(u32::MAX),
+                    "attempts counts the first transmission too; the thesis used 3",
+                )
+                .map_or(3, |a| u32::try_from(a).unwrap_or(3))
             }
         };
         let letter = t.get("letter").and_then(|v| {
             let vl = self.vloc(v, &tloc);
-            let s = self.string(v, &format!("{path}.letter"), &vl, "write one letter in quotes, e.g. `letter = \"R\"`")?;
+            let s = self.string(
+                v,
+                &format!("{path}.letter"),
+                &vl,
+                "write one letter in quotes, e.g. `letter = \"R\"`",
+            )?;
             self.letter(s, &vl).map(|b| (b, vl))
         });
         let mut spec = TransportSpec {
@@ -714,7 +895,10 @@ impl P<'_> {
             TransportKind::Emulated => &EMULATED_KEYS,
             TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds => &[],
         };
-        let raw_kind = matches!(kind, TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds);
+        let raw_kind = matches!(
+            kind,
+            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds
+        );
         if !raw_kind {
             let mut allowed: Vec<&str> = COMMON_KEYS.iter().chain(extra).copied().collect();
             if kind == TransportKind::Emulated {
@@ -738,8 +922,15 @@ impl P<'_> {
                 };
                 let max_message_bytes = t.get("max_message_bytes").and_then(|v| {
                     let vl = self.vloc(v, &tloc);
-                    self.int_in(v, &format!("{path}.max_message_bytes"), &vl, 1, i64::MAX, "a size in bytes, e.g. 1048576")
-                        .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
+                    self.int_in(
+                        v,
+                        &format!("{path}.max_message_bytes"),
+                        &vl,
+                        1,
+                        i64::MAX,
+                        "a size in bytes, e.g. 1048576",
+                    )
+                    .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
                 });
                 TransportSettings::Ip(IpSettings {
                     endpoints,
@@ -751,37 +942,70 @@ impl P<'_> {
                     None => assemble::default_master_uri(),
                     Some(v) => {
                         let vl = self.vloc(v, &tloc);
-                        let help = "write the master's XML-RPC URI, e.g. \"http://127.0.0.1:11311\"";
-                        let s = self.string(v, &format!("{path}.master_uri"), &vl, help).unwrap_or_default();
+                        let help =
+                            "write the master's XML-RPC URI, e.g. \"http://127.0.0.1:11311\"";
+                        let s = self
+                            .string(v, &format!("{path}.master_uri"), &vl, help)
+                            .unwrap_or_default();
                         if !(s.starts_with("http://") || s.starts_with("https://")) && v.is_str() {
-                            self.diag.err_help(&vl, format!("`{path}.master_uri` must be an http:// URI, found `{s}`"), help);
+                            self.diag.err_help(
+                                &vl,
+                                format!("`{path}.master_uri` must be an http:// URI, found `{s}`"),
+                                help,
+                            );
                         }
                         s.to_string()
                     }
                 };
                 let namespace = t.get("namespace").and_then(|v| {
                     let vl = self.vloc(v, &tloc);
-                    self.string(v, &format!("{path}.namespace"), &vl, "write a ROS namespace in quotes, e.g. \"/hetcomm\"")
-                        .map(str::to_string)
+                    self.string(
+                        v,
+                        &format!("{path}.namespace"),
+                        &vl,
+                        "write a ROS namespace in quotes, e.g. \"/hetcomm\"",
+                    )
+                    .map(str::to_string)
                 });
-                TransportSettings::Ros1(Ros1Settings { master_uri, namespace })
+                TransportSettings::Ros1(Ros1Settings {
+                    master_uri,
+                    namespace,
+                })
             }
             TransportKind::Bluetooth => {
                 let channel = t.get("channel").map_or(1, |v| {
                     let vl = self.vloc(v, &tloc);
-                    self.int_in(v, &format!("{path}.channel"), &vl, 1, 30, "RFCOMM channels are 1 to 30")
-                        .map_or(1, |c| u8::try_from(c).unwrap_or(1))
+                    self.int_in(
+                        v,
+                        &format!("{path}.channel"),
+                        &vl,
+                        1,
+                        30,
+                        "RFCOMM channels are 1 to 30",
+                    )
+                    .map_or(1, |c| u8::try_from(c).unwrap_or(1))
                 });
                 let addresses = match (t.get("addresses"), t.get("addresses_file")) {
                     (Some(_), Some(f)) => {
                         let fl = self.vloc(f, &tloc);
-                        self.diag.err_help(&fl, format!("transport `{name}` has both `addresses` and `addresses_file`"), "keep one of them");
+                        self.diag.err_help(
+                            &fl,
+                            format!("transport `{name}` has both `addresses` and `addresses_file`"),
+                            "keep one of them",
+                        );
                         BTreeMap::new()
                     }
-                    (Some(a), None) => self.addresses(a, &format!("{path}.addresses"), &tloc, systems),
+                    (Some(a), None) => {
+                        self.addresses(a, &format!("{path}.addresses"), &tloc, systems)
+                    }
                     (None, Some(f)) => {
                         let fl = self.vloc(f, &tloc);
-                        match self.string(f, &format!("{path}.addresses_file"), &fl, "write a path in quotes, relative to the fleet file") {
+                        match self.string(
+                            f,
+                            &format!("{path}.addresses_file"),
+                            &fl,
+                            "write a path in quotes, relative to the fleet file",
+                        ) {
                             Some(s) => {
                                 let p = match self.base_dir {
                                     Some(d) => d.join(s),
@@ -795,8 +1019,17 @@ impl P<'_> {
                                 spec.addr_source = AddrSource::File(lp.display.clone());
                                 match self.read_legacy(&lp) {
                                     Some(text) => {
-                                        let lines = legacy::parse_bluetooth(&lp.display, &text, &mut self.diag);
-                                        assemble::bt_addresses(lines, systems, &lp.display, &mut self.diag)
+                                        let lines = legacy::parse_bluetooth(
+                                            &lp.display,
+                                            &text,
+                                            &mut self.diag,
+                                        );
+                                        assemble::bt_addresses(
+                                            lines,
+                                            systems,
+                                            &lp.display,
+                                            &mut self.diag,
+                                        )
                                     }
                                     None => BTreeMap::new(),
                                 }
@@ -831,21 +1064,45 @@ impl P<'_> {
         Some(spec)
     }
 
-    fn emulated(&mut self, t: &dyn TableLike, path: &str, tloc: &Loc, spec: &mut TransportSpec) -> TransportSettings {
+    fn emulated(
+        &mut self,
+        t: &dyn TableLike,
+        path: &str,
+        tloc: &Loc,
+        spec: &mut TransportSpec,
+    ) -> TransportSettings {
         let profile = t.get("profile").and_then(|v| {
             let vl = self.vloc(v, tloc);
-            self.choice(v, &format!("{path}.profile"), &vl, ("profile", "profiles"), &PROFILES)
-                .map(|i| PROFILES[i].to_string())
+            self.choice(
+                v,
+                &format!("{path}.profile"),
+                &vl,
+                ("profile", "profiles"),
+                &PROFILES,
+            )
+            .map(|i| PROFILES[i].to_string())
         });
         spec.over = t.get("over").and_then(|v| {
             let vl = self.vloc(v, tloc);
-            self.string(v, &format!("{path}.over"), &vl, "write the wrapped transport's name in quotes")
-                .map(|s| (s.to_string(), vl))
+            self.string(
+                v,
+                &format!("{path}.over"),
+                &vl,
+                "write the wrapped transport's name in quotes",
+            )
+            .map(|s| (s.to_string(), vl))
         });
         let seed = t.get("seed").map_or(0, |v| {
             let vl = self.vloc(v, tloc);
-            self.int_in(v, &format!("{path}.seed"), &vl, 0, i64::MAX, "a whole number, e.g. 1")
-                .map_or(0, i64::unsigned_abs)
+            self.int_in(
+                v,
+                &format!("{path}.seed"),
+                &vl,
+                0,
+                i64::MAX,
+                "a whole number, e.g. 1",
+            )
+            .map_or(0, i64::unsigned_abs)
         });
         let mut params = BTreeMap::new();
         for (k, v) in t.iter() {
@@ -858,7 +1115,13 @@ impl P<'_> {
                 Some(Value::Integer(i)) => *i.value() as f64,
                 Some(Value::Float(f)) => *f.value(),
                 _ => {
-                    self.wrong_type(&vl, &kpath, "a number", v, "write a number without quotes, e.g. 5.0");
+                    self.wrong_type(
+                        &vl,
+                        &kpath,
+                        "a number",
+                        v,
+                        "write a number without quotes, e.g. 5.0",
+                    );
                     continue;
                 }
             };
@@ -880,7 +1143,11 @@ impl P<'_> {
                 } else {
                     "0 or more"
                 };
-                self.diag.err_help(&vl, format!("`{kpath}` must be {want}, found {}", self.raw(v)), "see docs/config.md for each parameter's unit");
+                self.diag.err_help(
+                    &vl,
+                    format!("`{kpath}` must be {want}, found {}", self.raw(v)),
+                    "see docs/config.md for each parameter's unit",
+                );
                 continue;
             }
             params.insert(k.to_string(), n);
@@ -894,7 +1161,13 @@ impl P<'_> {
     }
 
     /// `endpoints = { System = "host:port", … }`.
-    fn endpoints(&mut self, item: &Item, path: &str, tloc: &Loc, systems: &Systems) -> BTreeMap<hetcomm_core::SystemId, String> {
+    fn endpoints(
+        &mut self,
+        item: &Item,
+        path: &str,
+        tloc: &Loc,
+        systems: &Systems,
+    ) -> BTreeMap<hetcomm_core::SystemId, String> {
         let mut out = BTreeMap::new();
         let loc = self.vloc(item, tloc);
         let Some(t) = self.table(item, path, &loc) else {
@@ -908,11 +1181,15 @@ impl P<'_> {
             let Some(s) = self.string(v, &format!("{path}.{}", key_part(k)), &vl, help) else {
                 continue;
             };
-            let ok = s
-                .rsplit_once(':')
-                .is_some_and(|(h, p)| !h.is_empty() && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()) && p.parse::<u16>().is_ok());
+            let ok = s.rsplit_once(':').is_some_and(|(h, p)| {
+                !h.is_empty()
+                    && !p.is_empty()
+                    && p.bytes().all(|b| b.is_ascii_digit())
+                    && p.parse::<u16>().is_ok()
+            });
             if !ok {
-                self.diag.err_help(&vl, format!("malformed endpoint `{s}` for `{k}`"), help);
+                self.diag
+                    .err_help(&vl, format!("malformed endpoint `{s}` for `{k}`"), help);
                 continue;
             }
             if let Some(sys) = sys {
@@ -923,7 +1200,13 @@ impl P<'_> {
     }
 
     /// `addresses = { System = "XX:XX:XX:XX:XX:XX", … }`.
-    fn addresses(&mut self, item: &Item, path: &str, tloc: &Loc, systems: &Systems) -> BTreeMap<hetcomm_core::SystemId, BdAddr> {
+    fn addresses(
+        &mut self,
+        item: &Item,
+        path: &str,
+        tloc: &Loc,
+        systems: &Systems,
+    ) -> BTreeMap<hetcomm_core::SystemId, BdAddr> {
         let loc = self.vloc(item, tloc);
         let Some(t) = self.table(item, path, &loc) else {
             return BTreeMap::new();
@@ -932,7 +1215,12 @@ impl P<'_> {
         for (k, v) in t.iter() {
             let kl = self.kloc(t, k, &loc);
             let vl = self.vloc(v, &kl);
-            if let Some(s) = self.string(v, &format!("{path}.{}", key_part(k)), &vl, "write the address in quotes, e.g. \"68:A3:C4:4A:B3:BA\"") {
+            if let Some(s) = self.string(
+                v,
+                &format!("{path}.{}", key_part(k)),
+                &vl,
+                "write the address in quotes, e.g. \"68:A3:C4:4A:B3:BA\"",
+            ) {
                 lines.push(BtLine {
                     key: label(k, &kl),
                     addr: s.to_string(),
@@ -948,40 +1236,71 @@ impl P<'_> {
         let loc = self.vloc(item, top);
         let t = self.table(item, "table", &loc)?;
         let mut columns = Vec::new();
-        match t.get("columns") {
-            Some(c) => {
-                let cl = self.vloc(c, &loc);
-                match c.as_array() {
-                    Some(arr) => {
-                        for v in arr.iter() {
-                            let vl = self.at(v.span(), &cl);
-                            match v {
-                                Value::String(s) => columns.push(label(s.value(), &vl)),
-                                Value::Integer(i) => columns.push(Label {
-                                    text: i.value().to_string(),
-                                    loc: vl,
-                                    by_id: true,
-                                }),
-                                other => {
-                                    let found = format!("{} `{}`", type_name(&Item::Value(other.clone())), other.span().and_then(|r| self.text.get(r)).unwrap_or("").trim());
-                                    self.diag.err_help(&vl, format!("`table.columns` must list system names, found {found}"), "e.g. `columns = [\"Alpha\", \"Charlie\"]`");
-                                }
-                            }
-                        }
-                    }
-                    None => self.wrong_type(&cl, "table.columns", "an array of system names", c, "e.g. `columns = [\"Alpha\", \"Charlie\"]`"),
-                }
-            }
-            None => {
-                if t.iter().next().is_some() {
+        let Some(c) = t.get("columns") else {
+            // A typo of `columns` would otherwise read as a row of an unknown system.
+            let mut typo = false;
+            for (k, _) in t.iter() {
+                if suggest::closest(k, &["columns"]).is_some() {
+                    let kl = self.kloc(t, k, &loc);
                     self.diag.err_help(
-                        &loc,
-                        "the table has no `columns`",
-                        "add `columns = [\"Alpha\", …]`: the destination systems, in cell order",
+                        &kl,
+                        format!("unknown key `{k}` in `table`"),
+                        "did you mean `columns`?",
                     );
-                    return None;
+                    typo = true;
                 }
             }
+            if !typo && t.iter().next().is_some() {
+                self.diag.err_help(
+                    &loc,
+                    "the table has no `columns`",
+                    "add `columns = [\"Alpha\", …]`: the destination systems, in cell order",
+                );
+            }
+            return None;
+        };
+        let cl = self.vloc(c, &loc);
+        let Some(arr) = c.as_array() else {
+            self.wrong_type(
+                &cl,
+                "table.columns",
+                "an array of system names",
+                c,
+                "e.g. `columns = [\"Alpha\", \"Charlie\"]`",
+            );
+            return None; // without columns, every row would be reported as ragged
+        };
+        let mut columns_ok = true;
+        for v in arr.iter() {
+            let vl = self.at(v.span(), &cl);
+            match v {
+                Value::String(s) => columns.push(label(s.value(), &vl)),
+                Value::Integer(i) => columns.push(Label {
+                    text: i.value().to_string(),
+                    loc: vl,
+                    by_id: true,
+                }),
+                other => {
+                    let found = format!(
+                        "{} `{}`",
+                        type_name(&Item::Value(other.clone())),
+                        other
+                            .span()
+                            .and_then(|r| self.text.get(r))
+                            .unwrap_or("")
+                            .trim()
+                    );
+                    self.diag.err_help(
+                        &vl,
+                        format!("`table.columns` must list system names, found {found}"),
+                        "e.g. `columns = [\"Alpha\", \"Charlie\"]`",
+                    );
+                    columns_ok = false;
+                }
+            }
+        }
+        if !columns_ok {
+            return None;
         }
         let mut rows = Vec::new();
         for (k, v) in t.iter() {
@@ -992,7 +1311,13 @@ impl P<'_> {
             let vl = self.vloc(v, &kl);
             let path = format!("table.{}", key_part(k));
             let Some(arr) = v.as_array() else {
-                self.wrong_type(&vl, &path, "an array of cells", v, "e.g. `Alpha = [\"X\", \"wired\"]`: one transport name, letter or X per column");
+                self.wrong_type(
+                    &vl,
+                    &path,
+                    "an array of cells",
+                    v,
+                    "e.g. `Alpha = [\"X\", \"wired\"]`: one transport name, letter or X per column",
+                );
                 continue;
             };
             let mut cells = Vec::new();
@@ -1004,8 +1329,16 @@ impl P<'_> {
                         loc: cl,
                     }),
                     None => {
-                        let found = format!("{} `{}`", type_name(&Item::Value(c.clone())), c.span().and_then(|r| self.text.get(r)).unwrap_or("").trim());
-                        self.diag.err_help(&cl, format!("`{path}` cells must be strings, found {found}"), "write a transport name, a letter or \"X\" in quotes");
+                        let found = format!(
+                            "{} `{}`",
+                            type_name(&Item::Value(c.clone())),
+                            c.span().and_then(|r| self.text.get(r)).unwrap_or("").trim()
+                        );
+                        self.diag.err_help(
+                            &cl,
+                            format!("`{path}` cells must be strings, found {found}"),
+                            "write a transport name, a letter or \"X\" in quotes",
+                        );
                         // A placeholder keeps the row's length right for the shape checks.
                         cells.push(RawCell {
                             text: "X".to_string(),

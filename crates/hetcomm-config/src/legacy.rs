@@ -84,7 +84,13 @@ pub(crate) fn id_token(s: &str) -> IdTok {
 }
 
 /// Reports a bad id token and returns the id if it was fine.
-pub(crate) fn check_id(diag: &mut Diag, text: &str, loc: &Loc, what: &str, line_form: &str) -> Option<u16> {
+pub(crate) fn check_id(
+    diag: &mut Diag,
+    text: &str,
+    loc: &Loc,
+    what: &str,
+    line_form: &str,
+) -> Option<u16> {
     match id_token(text) {
         IdTok::Ok(v) => Some(v),
         IdTok::OutOfRange => {
@@ -128,7 +134,13 @@ pub(crate) fn parse_ids(file: &Rc<str>, text: &str, diag: &mut Diag) -> Vec<IdLi
     let mut out = Vec::new();
     for line in rest {
         let id_tok = &line.toks[0];
-        let Some(id) = check_id(diag, id_tok.text, &id_tok.loc, "system", "`<id> <name>`, e.g. `0 Alpha`") else {
+        let Some(id) = check_id(
+            diag,
+            id_tok.text,
+            &id_tok.loc,
+            "system",
+            "`<id> <name>`, e.g. `0 Alpha`",
+        ) else {
             continue;
         };
         let Some(name_tok) = line.toks.get(1) else {

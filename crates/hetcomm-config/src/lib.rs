@@ -58,8 +58,8 @@ mod assemble;
 mod error;
 mod fleet_toml;
 mod legacy;
-mod suggest;
 pub mod model;
+mod suggest;
 
 use std::path::Path;
 use std::rc::Rc;
@@ -100,7 +100,11 @@ pub fn parse_str(text: &str, origin: &str, base_dir: Option<&Path>) -> Result<Fl
 /// their thesis meanings: `R` is ROS 1 (master from `ROS_MASTER_URI`, else
 /// `http://localhost:11311`) and `B` is Bluetooth with the given addresses; modules are the
 /// defaults (Sense = 0, Plan = 1, Act = 2, World = 3) with default inboxes.
-pub fn load_legacy(ids: &Path, table: &Path, bluetooth: Option<&Path>) -> Result<Fleet, ConfigErrors> {
+pub fn load_legacy(
+    ids: &Path,
+    table: &Path,
+    bluetooth: Option<&Path>,
+) -> Result<Fleet, ConfigErrors> {
     let mut diag = Diag::default();
     let ids_name: Rc<str> = Rc::from(ids.display().to_string());
     let table_name: Rc<str> = Rc::from(table.display().to_string());
@@ -108,7 +112,11 @@ pub fn load_legacy(ids: &Path, table: &Path, bluetooth: Option<&Path>) -> Result
     let read = |p: &Path, name: &Rc<str>, diag: &mut Diag| match std::fs::read_to_string(p) {
         Ok(t) => Some(t),
         Err(e) => {
-            diag.err_help(&Loc::start(name), format!("cannot read `{name}`: {e}"), "check the path");
+            diag.err_help(
+                &Loc::start(name),
+                format!("cannot read `{name}`: {e}"),
+                "check the path",
+            );
             None
         }
     };

@@ -287,7 +287,12 @@ impl Fleet {
             .transports
             .iter()
             .enumerate()
-            .map(|(i, t)| (t.name.clone(), self.table.values().filter(|&&j| j == i).count()))
+            .map(|(i, t)| {
+                (
+                    t.name.clone(),
+                    self.table.values().filter(|&&j| j == i).count(),
+                )
+            })
             .collect();
         per.retain(|(_, n)| *n > 0);
         let pairs = per
@@ -300,7 +305,11 @@ impl Fleet {
             self.systems.len(),
             self.modules.len(),
             self.table.len(),
-            if pairs.is_empty() { "no traffic".to_string() } else { pairs }
+            if pairs.is_empty() {
+                "no traffic".to_string()
+            } else {
+                pairs
+            }
         )
     }
 }

@@ -65,7 +65,10 @@ mod tests {
         assert_eq!(closest("endpoint", &c), Some("endpoints"));
         assert_eq!(closest("KIND", &c), Some("kind"));
         assert_eq!(closest("zzzzzz", &c), None);
-        assert_eq!(help("endpont", &c, "valid keys"), "did you mean `endpoints`?");
+        assert_eq!(
+            help("endpont", &c, "valid keys"),
+            "did you mean `endpoints`?"
+        );
         assert_eq!(
             help("zzz", &c, "valid keys"),
             "valid keys: kind, endpoints, max_message_bytes"

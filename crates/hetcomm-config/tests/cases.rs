@@ -37,7 +37,10 @@ fn invalid_cases_fail_with_their_pinned_messages() {
             Err(e) => {
                 let got = e.to_string();
                 if got != want {
-                    failures.push(format!("{}:\n--- want\n{want}\n--- got\n{got}", f.display()));
+                    failures.push(format!(
+                        "{}:\n--- want\n{want}\n--- got\n{got}",
+                        f.display()
+                    ));
                 }
             }
         }

@@ -6,7 +6,7 @@ use std::path::Path;
 use hetcomm_config::*;
 
 #[test]
-fn all_errors_are_collected_in_file_order() {
+fn all_errors_are_collected_and_sorted_by_position() {
     let text = "\
 [systems]
 Alpha = 0
@@ -21,14 +21,17 @@ endpoints = { Alpha = \"nowhere\", Bravo = \"127.0.0.1:1\" }
 atempts = 2
 ";
     let e = parse_str(text, "multi.toml", None).unwrap_err();
-    let lines: Vec<String> = e.0.iter().map(|e| format!("{}:{}: {}", e.line, e.column, e.message)).collect();
+    let lines: Vec<String> =
+        e.0.iter()
+            .map(|e| format!("{}:{}: {}", e.line, e.column, e.message))
+            .collect();
     assert_eq!(
         lines,
         [
             "3:9: duplicate system id 0: `Alpha` and `Bravo` both use it",
             "6:12: `inbox.capacity` must be at least 1, found 0",
-            "11:1: unknown key `atempts` in `transports.lan`",
             "10:23: malformed endpoint `nowhere` for `Alpha`",
+            "11:1: unknown key `atempts` in `transports.lan`",
         ]
     );
     assert!(e.0.iter().all(|e| e.file == "multi.toml"));
@@ -44,10 +47,16 @@ fn display_shapes() {
         help: None,
     };
     assert_eq!(one.to_string(), "f.toml:3:7: bad");
-    let two = ConfigError { help: Some("fix it".into()), ..one.clone() };
+    let two = ConfigError {
+        help: Some("fix it".into()),
+        ..one.clone()
+    };
     assert_eq!(two.to_string(), "f.toml:3:7: bad\n  help: fix it");
     let all = ConfigErrors(vec![two, one]);
-    assert_eq!(all.to_string(), "f.toml:3:7: bad\n  help: fix it\nf.toml:3:7: bad");
+    assert_eq!(
+        all.to_string(),
+        "f.toml:3:7: bad\n  help: fix it\nf.toml:3:7: bad"
+    );
     let _: &dyn std::error::Error = &all;
 }
 
@@ -55,26 +64,49 @@ fn display_shapes() {
 fn missing_files_are_errors_not_panics() {
     let e = load(Path::new("tests/no-such-fleet.toml")).unwrap_err();
     assert_eq!(e.0.len(), 1);
-    assert!(e.0[0].message.starts_with("cannot read the fleet file: "), "{e}");
+    assert!(
+        e.0[0].message.starts_with("cannot read the fleet file: "),
+        "{e}"
+    );
     assert_eq!((e.0[0].line, e.0[0].column), (1, 1));
 
-    let e = load_legacy(Path::new("tests/nope-ids.txt"), Path::new("tests/nope-table.txt"), None).unwrap_err();
+    let e = load_legacy(
+        Path::new("tests/nope-ids.txt"),
+        Path::new("tests/nope-table.txt"),
+        None,
+    )
+    .unwrap_err();
     assert_eq!(e.0.len(), 2, "{e}");
     assert_eq!(e.0[0].file, "tests/nope-ids.txt");
     assert_eq!(e.0[1].file, "tests/nope-table.txt");
 
-    let e = parse_str("[legacy]\nids = \"missing.txt\"\n", "m.toml", Some(Path::new("tests"))).unwrap_err();
+    let e = parse_str(
+        "[legacy]\nids = \"missing.txt\"\n",
+        "m.toml",
+        Some(Path::new("tests")),
+    )
+    .unwrap_err();
     assert_eq!((e.0[0].line, e.0[0].column), (2, 7));
-    assert!(e.0[0].message.starts_with("cannot read `tests/missing.txt`: "), "{e}");
+    assert!(
+        e.0[0]
+            .message
+            .starts_with("cannot read `tests/missing.txt`: "),
+        "{e}"
+    );
 }
 
 #[test]
 fn legacy_b_without_addresses_is_reported_at_the_cell() {
     let dir = Path::new("tests/fixtures");
-    let e = load_legacy(&dir.join("table16-ids.txt"), &dir.join("table17-table.txt"), None).unwrap_err();
+    let e = load_legacy(
+        &dir.join("table16-ids.txt"),
+        &dir.join("table17-table.txt"),
+        None,
+    )
+    .unwrap_err();
     assert_eq!(
         e.to_string(),
-        "tests/fixtures/table17-table.txt:2:8: letter `B` means a Bluetooth transport, which needs \
+        "tests/fixtures/table17-table.txt:2:7: letter `B` means a Bluetooth transport, which needs \
          Bluetooth addresses, but none are given\n  help: add `bluetooth = \"bt.txt\"` (the Table 3 \
          format) under [legacy], or map B to a transport in [letters]"
     );
@@ -124,5 +156,8 @@ fn loops_of_emulated_transports_are_reported_once() {
                 [transports.b]\nkind = \"emulated\"\nover = \"a\"\n";
     let e = parse_str(text, "loop.toml", None).unwrap_err();
     assert_eq!(e.0.len(), 1, "{e}");
-    assert_eq!(e.0[0].message, "transports wrap each other in a loop: a → b → a");
+    assert_eq!(
+        e.0[0].message,
+        "transports wrap each other in a loop: a → b → a"
+    );
 }

@@ -44,53 +44,124 @@ fn pairs_of(f: &Fleet, name: &str) -> Vec<(u16, u16)> {
 
 #[test]
 fn tables_1_2_3_load() {
-    let f = legacy("table01-ids.txt", "table02-table.txt", "table03-bluetooth.txt");
+    let f = legacy(
+        "table01-ids.txt",
+        "table02-table.txt",
+        "table03-bluetooth.txt",
+    );
     let names: Vec<&str> = f.systems.iter().map(|s| s.name.as_str()).collect();
-    assert_eq!(names, ["Vehicle1", "Vehicle2", "Vehicle3", "Vehicle4", "Virtual Environment"]);
+    assert_eq!(
+        names,
+        [
+            "Vehicle1",
+            "Vehicle2",
+            "Vehicle3",
+            "Vehicle4",
+            "Virtual Environment"
+        ]
+    );
     assert_eq!(f.table.len(), 20);
-    assert_eq!(pairs_of(&f, "B"), [(1, 2), (1, 3), (2, 1), (2, 3), (3, 1), (3, 2)]);
+    assert_eq!(
+        pairs_of(&f, "B"),
+        [(1, 2), (1, 3), (2, 1), (2, 3), (3, 1), (3, 2)]
+    );
     assert_eq!(pairs_of(&f, "R").len(), 14);
     let r = f.transport("R").expect("implicit R");
     assert_eq!((r.kind, r.tag, r.attempts), (TransportKind::Ros1, b'R', 3));
     assert_eq!(
         r.settings,
-        TransportSettings::Ros1(Ros1Settings { master_uri: expected_master(), namespace: None })
+        TransportSettings::Ros1(Ros1Settings {
+            master_uri: expected_master(),
+            namespace: None
+        })
     );
     let b = f.transport("B").expect("implicit B");
-    assert_eq!((b.kind, b.tag, b.delivery), (TransportKind::Bluetooth, b'B', DeliveryMode::Acknowledged));
-    let TransportSettings::Bluetooth(bt) = &b.settings else { panic!("not bluetooth") };
+    assert_eq!(
+        (b.kind, b.tag, b.delivery),
+        (TransportKind::Bluetooth, b'B', DeliveryMode::Acknowledged)
+    );
+    let TransportSettings::Bluetooth(bt) = &b.settings else {
+        panic!("not bluetooth")
+    };
     assert_eq!(bt.channel, 1);
     assert_eq!(bt.addresses.len(), 4);
     assert_eq!(bt.addresses[&SystemId(1)].to_string(), "68:A3:C4:4A:B3:BA");
-    assert_eq!(f.modules.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(), ["Sense", "Plan", "Act", "World"]);
+    assert_eq!(
+        f.modules
+            .iter()
+            .map(|m| m.name.as_str())
+            .collect::<Vec<_>>(),
+        ["Sense", "Plan", "Act", "World"]
+    );
     assert!(f.route(SystemId(0), SystemId(0)).is_none());
 }
 
 #[test]
 fn tables_6_7_8_load() {
-    let f = legacy("table06-ids.txt", "table07-table.txt", "table08-bluetooth.txt");
+    let f = legacy(
+        "table06-ids.txt",
+        "table07-table.txt",
+        "table08-bluetooth.txt",
+    );
     assert_eq!(f.systems.len(), 6);
-    assert_eq!(f.system(SystemId(3)).map(|s| s.name.as_str()), Some("VirtualEnv"));
+    assert_eq!(
+        f.system(SystemId(3)).map(|s| s.name.as_str()),
+        Some("VirtualEnv")
+    );
     assert_eq!(pairs_of(&f, "B"), [(1, 2), (2, 1)]);
-    assert_eq!(pairs_of(&f, "R"), [(0, 1), (0, 3), (1, 0), (1, 4), (2, 5), (3, 0), (4, 1), (5, 2)]);
+    assert_eq!(
+        pairs_of(&f, "R"),
+        [
+            (0, 1),
+            (0, 3),
+            (1, 0),
+            (1, 4),
+            (2, 5),
+            (3, 0),
+            (4, 1),
+            (5, 2)
+        ]
+    );
     assert_eq!(f.summary(), "6 systems, 4 modules, 10 pairs (R: 8, B: 2)");
 }
 
 #[test]
 fn tables_16_17_18_load_with_crlf_and_lower_case_addresses() {
-    let f = legacy("table16-ids.txt", "table17-table.txt", "table18-bluetooth.txt");
-    assert_eq!(f.system(SystemId(2)).map(|s| s.name.as_str()), Some("Delta"));
+    let f = legacy(
+        "table16-ids.txt",
+        "table17-table.txt",
+        "table18-bluetooth.txt",
+    );
+    assert_eq!(
+        f.system(SystemId(2)).map(|s| s.name.as_str()),
+        Some("Delta")
+    );
     assert_eq!(pairs_of(&f, "B"), [(0, 2), (1, 0), (2, 1)]);
     assert_eq!(pairs_of(&f, "R"), [(0, 1), (1, 2), (2, 0)]);
-    let TransportSettings::Bluetooth(bt) = &f.transport("B").expect("B").settings else { panic!() };
-    assert_eq!(bt.addresses[&SystemId(0)], BdAddr([0x68, 0xA3, 0xC4, 0x4A, 0xB3, 0xBA]));
+    let TransportSettings::Bluetooth(bt) = &f.transport("B").expect("B").settings else {
+        panic!()
+    };
+    assert_eq!(
+        bt.addresses[&SystemId(0)],
+        BdAddr([0x68, 0xA3, 0xC4, 0x4A, 0xB3, 0xBA])
+    );
 }
 
 #[test]
 fn legacy_sections_match_load_legacy() {
     for (toml, ids, table, bt) in [
-        ("section-3.5.toml", "table01-ids.txt", "table02-table.txt", "table03-bluetooth.txt"),
-        ("section-5.1.1.toml", "table06-ids.txt", "table07-table.txt", "table08-bluetooth.txt"),
+        (
+            "section-3.5.toml",
+            "table01-ids.txt",
+            "table02-table.txt",
+            "table03-bluetooth.txt",
+        ),
+        (
+            "section-5.1.1.toml",
+            "table06-ids.txt",
+            "table07-table.txt",
+            "table08-bluetooth.txt",
+        ),
     ] {
         let a = load_ok(&format!("tests/fixtures/{toml}"));
         let b = legacy(ids, table, bt);
@@ -114,7 +185,10 @@ fn legacy_section_with_explicit_ros_transport() {
             namespace: Some("/reliability".into())
         })
     );
-    assert!(f.transport("R").is_none(), "R resolves to `ros`, no implicit transport");
+    assert!(
+        f.transport("R").is_none(),
+        "R resolves to `ros`, no implicit transport"
+    );
     assert_eq!(pairs_of(&f, "ros"), [(0, 1), (1, 2), (2, 0)]);
     assert_eq!(pairs_of(&f, "B"), [(0, 2), (1, 0), (2, 1)]);
 }
@@ -126,7 +200,9 @@ fn letters_remap_legacy_tables() {
     assert_eq!(f.transport("wired").map(|t| t.tag), Some(b'R'));
     let sim = f.transport("sim-bt").expect("sim-bt");
     assert_eq!(sim.tag, b'B');
-    let TransportSettings::Emulated(e) = &sim.settings else { panic!() };
+    let TransportSettings::Emulated(e) = &sim.settings else {
+        panic!()
+    };
     assert_eq!(e.over.as_deref(), Some("wired"));
     assert_eq!(e.profile.as_deref(), Some("bluetooth-classic"));
     assert_eq!(e.seed, 0);
@@ -140,47 +216,93 @@ fn every_key_reaches_the_model() {
     // Systems sorted by id, module lists resolved and sorted.
     let ids: Vec<u16> = f.systems.iter().map(|s| s.id.0).collect();
     assert_eq!(ids, [0, 1, 7]);
-    assert_eq!(f.system_by_name("Bravo").and_then(|s| s.modules.clone()), Some(vec![ModuleId(1), ModuleId(2)]));
-    assert_eq!(f.system_by_name("Alpha").map(|s| s.modules.clone()), Some(None));
+    assert_eq!(
+        f.system_by_name("Bravo").and_then(|s| s.modules.clone()),
+        Some(vec![ModuleId(1), ModuleId(2)])
+    );
+    assert_eq!(
+        f.system_by_name("Alpha").map(|s| s.modules.clone()),
+        Some(None)
+    );
     // Modules: [inbox] defaults, the long form overrides.
     let plan = f.module_by_name("Plan").expect("Plan");
-    assert_eq!(plan.inbox, InboxConfig { capacity: 16, overflow: OverflowPolicy::DropNewest });
+    assert_eq!(
+        plan.inbox,
+        InboxConfig {
+            capacity: 16,
+            overflow: OverflowPolicy::DropNewest
+        }
+    );
     let act = f.module(ModuleId(2)).expect("Act");
     assert_eq!(
         act.inbox,
-        InboxConfig { capacity: 16, overflow: OverflowPolicy::Block { timeout: Duration::from_millis(250) } }
+        InboxConfig {
+            capacity: 16,
+            overflow: OverflowPolicy::Block {
+                timeout: Duration::from_millis(250)
+            }
+        }
     );
     // Transports in file order.
     let names: Vec<&str> = f.transports.iter().map(|t| t.name.as_str()).collect();
-    assert_eq!(names, ["wired", "lan", "ros", "radio", "sim", "z", "q", "d"]);
+    assert_eq!(
+        names,
+        ["wired", "lan", "ros", "radio", "sim", "z", "q", "d"]
+    );
     let wired = &f.transports[0];
-    assert_eq!((wired.tag, wired.delivery, wired.attempts), (b'w', DeliveryMode::Unacknowledged, 1));
-    let TransportSettings::Ip(ip) = &f.transports[1].settings else { panic!() };
+    assert_eq!(
+        (wired.tag, wired.delivery, wired.attempts),
+        (b'w', DeliveryMode::Unacknowledged, 1)
+    );
+    let TransportSettings::Ip(ip) = &f.transports[1].settings else {
+        panic!()
+    };
     assert_eq!(ip.endpoints[&SystemId(7)], "10.0.0.7:7402");
     assert_eq!(ip.endpoints[&SystemId(1)], "[::1]:7401");
     assert_eq!(ip.max_message_bytes, None);
     assert_eq!(f.transports[2].tag, b'R');
     let radio = f.transport("radio").expect("radio");
     assert_eq!(radio.tag, b'B', "named by [letters] B");
-    let TransportSettings::Bluetooth(bt) = &radio.settings else { panic!() };
+    let TransportSettings::Bluetooth(bt) = &radio.settings else {
+        panic!()
+    };
     assert_eq!(bt.channel, 3);
     assert_eq!(bt.addresses[&SystemId(0)].to_string(), "08:ED:B9:B2:12:7A");
-    assert!(bt.addresses.contains_key(&SystemId(1)), "numeric key taken as an id");
-    let TransportSettings::Emulated(e) = &f.transport("sim").expect("sim").settings else { panic!() };
+    assert!(
+        bt.addresses.contains_key(&SystemId(1)),
+        "numeric key taken as an id"
+    );
+    let TransportSettings::Emulated(e) = &f.transport("sim").expect("sim").settings else {
+        panic!()
+    };
     assert_eq!(e.seed, 42);
     assert_eq!(e.params.get("loss_percent"), Some(&1.0));
     assert_eq!(e.params.get("tx_power_dbm"), Some(&-3.5));
     assert_eq!(e.params.len(), 3);
-    let TransportSettings::Raw(z) = &f.transport("z").expect("z").settings else { panic!() };
+    let TransportSettings::Raw(z) = &f.transport("z").expect("z").settings else {
+        panic!()
+    };
     assert_eq!(z.get("mode").map(String::as_str), Some("peer"));
-    assert_eq!(z.get("connect").map(String::as_str), Some("[\"tcp/10.0.0.1:7447\"]"));
+    assert_eq!(
+        z.get("connect").map(String::as_str),
+        Some("[\"tcp/10.0.0.1:7447\"]")
+    );
     assert_eq!(z.get("limits").map(String::as_str), Some("{ frames = 8 }"));
     assert!(!z.contains_key("kind"));
     assert_eq!(f.transport("d").map(|t| t.kind), Some(TransportKind::Dds));
     // The table.
-    assert_eq!(f.route(SystemId(0), SystemId(1)).map(|t| t.name.as_str()), Some("radio"));
-    assert_eq!(f.route(SystemId(1), SystemId(7)).map(|t| t.name.as_str()), Some("ros"));
-    assert_eq!(f.route(SystemId(7), SystemId(0)).map(|t| t.name.as_str()), Some("lan"));
+    assert_eq!(
+        f.route(SystemId(0), SystemId(1)).map(|t| t.name.as_str()),
+        Some("radio")
+    );
+    assert_eq!(
+        f.route(SystemId(1), SystemId(7)).map(|t| t.name.as_str()),
+        Some("ros")
+    );
+    assert_eq!(
+        f.route(SystemId(7), SystemId(0)).map(|t| t.name.as_str()),
+        Some("lan")
+    );
     assert_eq!(f.table.len(), 6);
 }
 
@@ -193,13 +315,28 @@ fn example_fleet_parses() {
     assert_eq!(f.name.as_deref(), Some("leader-follower"));
     assert_eq!(f.systems.len(), 4);
     assert_eq!(f.module_by_name("Act").map(|m| m.inbox.capacity), Some(64));
-    assert_eq!(f.module_by_name("Plan").map(|m| m.inbox.overflow), Some(OverflowPolicy::DropOldest));
+    assert_eq!(
+        f.module_by_name("Plan").map(|m| m.inbox.overflow),
+        Some(OverflowPolicy::DropOldest)
+    );
     assert_eq!(f.transport("wired").map(|t| t.tag), Some(b'W'));
-    assert_eq!(f.transport("sim-bt").map(|t| (t.kind, t.tag)), Some((TransportKind::Emulated, b'B')));
-    assert_eq!(f.route(SystemId(1), SystemId(2)).map(|t| t.name.as_str()), Some("sim-bt"));
-    assert_eq!(f.route(SystemId(0), SystemId(1)).map(|t| t.name.as_str()), Some("lan"));
+    assert_eq!(
+        f.transport("sim-bt").map(|t| (t.kind, t.tag)),
+        Some((TransportKind::Emulated, b'B'))
+    );
+    assert_eq!(
+        f.route(SystemId(1), SystemId(2)).map(|t| t.name.as_str()),
+        Some("sim-bt")
+    );
+    assert_eq!(
+        f.route(SystemId(0), SystemId(1)).map(|t| t.name.as_str()),
+        Some("lan")
+    );
     assert_eq!(f.source, None);
-    assert_eq!(f.summary(), "4 systems, 4 modules, 10 pairs (wired: 6, lan: 2, sim-bt: 2)");
+    assert_eq!(
+        f.summary(),
+        "4 systems, 4 modules, 10 pairs (wired: 6, lan: 2, sim-bt: 2)"
+    );
 }
 
 #[test]
