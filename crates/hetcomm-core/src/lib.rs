@@ -31,4 +31,4 @@ pub mod wire;
 pub use ids::{Address, MessageId, MessageType, ModuleId, Priority, SystemId};
 pub use message::{Message, TypeInfo, TypeRegistry, TypeRegistryError};
 pub use time::Time;
-pub use wire::{DecodeError, Frame, FrameKind, Header};
+pub use wire::{AckStatus, DecodeError, Frame, FrameKind, Header};

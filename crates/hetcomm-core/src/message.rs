@@ -75,7 +75,13 @@ impl TypeRegistry {
                 new: name.to_string(),
             }),
             None => {
-                self.by_id.insert(id, TypeInfo { id, name: name.to_string() });
+                self.by_id.insert(
+                    id,
+                    TypeInfo {
+                        id,
+                        name: name.to_string(),
+                    },
+                );
                 Ok(())
             }
         }

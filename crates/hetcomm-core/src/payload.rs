@@ -30,7 +30,10 @@ pub enum PayloadError {
 }
 
 /// Encodes a value (appending to `out`).
-pub fn encode_into<T: Serialize + ?Sized>(value: &T, out: &mut Vec<u8>) -> Result<(), PayloadError> {
+pub fn encode_into<T: Serialize + ?Sized>(
+    value: &T,
+    out: &mut Vec<u8>,
+) -> Result<(), PayloadError> {
     let mut ser = rmp_serde::Serializer::new(out).with_struct_map();
     value.serialize(&mut ser)?;
     Ok(())
@@ -140,16 +143,36 @@ mod tests {
 
     #[test]
     fn structs_are_maps_by_field_name() {
-        let bytes = encode(&Wheels { left: -10.0, right: 10.0 }).unwrap();
-        assert_eq!(to_json(&bytes).unwrap(), serde_json::json!({"left": -10.0, "right": 10.0}));
-        assert_eq!(decode::<Wheels>(&bytes).unwrap(), Wheels { left: -10.0, right: 10.0 });
+        let bytes = encode(&Wheels {
+            left: -10.0,
+            right: 10.0,
+        })
+        .unwrap();
+        assert_eq!(
+            to_json(&bytes).unwrap(),
+            serde_json::json!({"left": -10.0, "right": 10.0})
+        );
+        assert_eq!(
+            decode::<Wheels>(&bytes).unwrap(),
+            Wheels {
+                left: -10.0,
+                right: 10.0
+            }
+        );
     }
 
     #[test]
     fn trailing_bytes_are_rejected() {
-        let mut bytes = encode(&Wheels { left: 1.0, right: 1.0 }).unwrap();
+        let mut bytes = encode(&Wheels {
+            left: 1.0,
+            right: 1.0,
+        })
+        .unwrap();
         bytes.push(0xc0);
-        assert!(matches!(decode::<Wheels>(&bytes), Err(PayloadError::Trailing { extra: 1, .. })));
+        assert!(matches!(
+            decode::<Wheels>(&bytes),
+            Err(PayloadError::Trailing { extra: 1, .. })
+        ));
         assert!(to_json(&bytes).is_none());
     }
 
@@ -157,6 +180,12 @@ mod tests {
     fn json_round_trip() {
         let json = serde_json::json!({"left": 1.5, "right": 2.5});
         let bytes = from_json(&json).unwrap();
-        assert_eq!(decode::<Wheels>(&bytes).unwrap(), Wheels { left: 1.5, right: 2.5 });
+        assert_eq!(
+            decode::<Wheels>(&bytes).unwrap(),
+            Wheels {
+                left: 1.5,
+                right: 2.5
+            }
+        );
     }
 }

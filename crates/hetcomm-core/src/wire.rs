@@ -202,7 +202,9 @@ pub enum DecodeError {
         present: usize,
     },
     /// The CRC-32 does not match: the frame was corrupted.
-    #[error("checksum mismatch at offset 44: frame says {declared:#010x}, computed {computed:#010x}")]
+    #[error(
+        "checksum mismatch at offset 44: frame says {declared:#010x}, computed {computed:#010x}"
+    )]
     BadChecksum {
         /// The checksum in the frame.
         declared: u32,
@@ -362,18 +364,20 @@ mod tests {
             any::<u32>(),
             any::<u64>(),
         )
-            .prop_map(|(kind, flags, prio, transport, (ss, sm, ds, dm), inc, seq, ty, ts)| Header {
-                kind,
-                flags,
-                priority: Priority(prio),
-                transport,
-                source: (SystemId(ss), ModuleId(sm)).into(),
-                destination: (SystemId(ds), ModuleId(dm)).into(),
-                incarnation: inc,
-                seq,
-                message_type: MessageType(ty),
-                timestamp: Time(ts),
-            })
+            .prop_map(
+                |(kind, flags, prio, transport, (ss, sm, ds, dm), inc, seq, ty, ts)| Header {
+                    kind,
+                    flags,
+                    priority: Priority(prio),
+                    transport,
+                    source: (SystemId(ss), ModuleId(sm)).into(),
+                    destination: (SystemId(ds), ModuleId(dm)).into(),
+                    incarnation: inc,
+                    seq,
+                    message_type: MessageType(ty),
+                    timestamp: Time(ts),
+                },
+            )
     }
 
     proptest! {
@@ -417,17 +421,33 @@ mod tests {
 
     #[test]
     fn oversized_length_is_rejected_before_allocation() {
-        let mut frame = encode(&Header::data(Address::from((SystemId(0), ModuleId(0))), Address::from((SystemId(1), ModuleId(0))), MessageType(1)), b"");
+        let mut frame = encode(
+            &Header::data(
+                Address::from((SystemId(0), ModuleId(0))),
+                Address::from((SystemId(1), ModuleId(0))),
+                MessageType(1),
+            ),
+            b"",
+        );
         frame[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
         assert_eq!(
             peek_frame_len(&frame),
-            Err(DecodeError::TooLong { declared: u32::MAX as u64 })
+            Err(DecodeError::TooLong {
+                declared: u32::MAX as u64
+            })
         );
     }
 
     #[test]
     fn wrong_version_is_named() {
-        let mut frame = encode(&Header::data(Address::from((SystemId(0), ModuleId(0))), Address::from((SystemId(1), ModuleId(0))), MessageType(1)), b"x");
+        let mut frame = encode(
+            &Header::data(
+                Address::from((SystemId(0), ModuleId(0))),
+                Address::from((SystemId(1), ModuleId(0))),
+                MessageType(1),
+            ),
+            b"x",
+        );
         frame[2] = 9;
         assert_eq!(decode(&frame), Err(DecodeError::BadVersion { found: 9 }));
     }

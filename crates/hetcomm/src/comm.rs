@@ -7,14 +7,47 @@ use std::sync::{Arc, RwLock};
 
 use hetcomm_config::{DeliveryMode, Fleet};
 use hetcomm_core::{Message, SystemId, TypeRegistry, TypeRegistryError};
+
 use hetcomm_link::LinkStats;
 use hetcomm_router::{Route, Router, RouterConfig, RouterStats};
 
 use crate::error::OpenError;
 use crate::inbox::InboxStats;
 use crate::module::Module;
-use crate::runtime::{Directory, SystemCore, WallClock};
+use crate::runtime::{Clock, Directory, SystemCore, WallClock};
+use crate::sim::SimNet;
 use crate::transports::{open_link, Hubs};
+
+/// How systems are opened: with real links and the wall clock, or inside a simulation.
+#[derive(Clone)]
+pub(crate) struct OpenEnv {
+    pub hubs: Hubs,
+    pub registry: Arc<RwLock<TypeRegistry>>,
+    pub clock: Arc<dyn Clock>,
+    /// Present under simulation: every link is a simulated one.
+    pub sim: Option<Arc<SimNet>>,
+    /// Shared by the emulated links of one process, so distance-dependent loss sees the
+    /// positions a virtual environment publishes.
+    pub positions: hetcomm_link::emulation::PositionTable,
+    /// The instant emulated links count their outage schedules from.
+    pub epoch: std::time::Instant,
+    /// Retransmission timing override.
+    pub timing: Option<hetcomm_router::Timing>,
+}
+
+impl OpenEnv {
+    pub(crate) fn real(hubs: Hubs) -> Self {
+        OpenEnv {
+            hubs,
+            registry: Default::default(),
+            clock: Arc::new(WallClock),
+            sim: None,
+            positions: Default::default(),
+            epoch: std::time::Instant::now(),
+            timing: None,
+        }
+    }
+}
 
 /// Shuts its system down when the last [`Comm`] or [`Module`] handle goes.
 pub(crate) struct SystemHandle {
@@ -85,8 +118,7 @@ impl Comm {
         Self::open_fleet_with(
             Arc::new(fleet),
             system,
-            &Hubs::for_fleet_key(&key),
-            Default::default(),
+            &OpenEnv::real(Hubs::for_fleet_key(&key)),
         )
     }
 
@@ -101,16 +133,14 @@ impl Comm {
         Self::open_fleet_with(
             Arc::new(fleet.clone()),
             system,
-            &Hubs::for_fleet_key(&key),
-            Default::default(),
+            &OpenEnv::real(Hubs::for_fleet_key(&key)),
         )
     }
 
     pub(crate) fn open_fleet_with(
         fleet: Arc<Fleet>,
         system: &str,
-        hubs: &Hubs,
-        registry: Arc<RwLock<TypeRegistry>>,
+        env: &OpenEnv,
     ) -> Result<Comm, OpenError> {
         let directory = Arc::new(directory(&fleet));
         let me = fleet
@@ -141,19 +171,24 @@ impl Comm {
         let modules = fleet.modules.iter().map(|m| (m.id, m.inbox)).collect();
         // The router is built after the links (it needs their frame limits), so start with a
         // placeholder that has no routes, and swap it in before any traffic can flow.
-        let incarnation = new_incarnation();
+        let incarnation = match &env.sim {
+            // Deterministic under simulation: the same seed gives the same frames.
+            Some(net) => net.incarnation(me),
+            None => new_incarnation(),
+        };
         let core = SystemCore::new(
             me,
             directory,
-            registry,
+            env.registry.clone(),
             modules,
             Router::new(RouterConfig::new(me, incarnation, vec![])),
-            Arc::new(WallClock),
+            env.clock.clone(),
+            env.sim.is_some(),
         );
         let mut links = Vec::with_capacity(used.len());
         let mut endpoints = Vec::with_capacity(used.len());
         for (i, &t) in used.iter().enumerate() {
-            let opened = open_link(&fleet, &fleet.transports[t], me, core.sink(i), hubs)?;
+            let opened = open_link(&fleet, t, me, core.sink(i), env)?;
             links.push(opened.link);
             endpoints.push((fleet.transports[t].name.clone(), opened.local_address));
         }
@@ -178,8 +213,11 @@ impl Comm {
             .collect();
         let mut config = RouterConfig::new(me, incarnation, routes);
         config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        if let Some(timing) = env.timing {
+            config.timing = timing;
+        }
         *core.router() = Router::new(config);
-        core.start(links).map_err(|e| OpenError::Transport {
+        core.start(links, env.sim.is_none()).map_err(|e| OpenError::Transport {
             transport: "(timer)".into(),
             system: system.to_string(),
             reason: e.to_string(),
@@ -325,20 +363,31 @@ fn new_incarnation() -> u32 {
 /// Every system of a fleet, opened in this process (the in-process transport connects them).
 pub struct LocalFleet {
     systems: Vec<Comm>,
+    positions: hetcomm_link::emulation::PositionTable,
 }
 
 impl LocalFleet {
     /// Opens every system of `fleet`.
     pub fn open(fleet: Fleet) -> Result<LocalFleet, OpenError> {
-        let fleet = Arc::new(fleet);
-        let hubs = Hubs::default();
-        let registry = Arc::new(RwLock::new(TypeRegistry::new()));
+        Self::open_in(Arc::new(fleet), OpenEnv::real(Hubs::default()))
+    }
+
+    pub(crate) fn open_in(fleet: Arc<Fleet>, env: OpenEnv) -> Result<LocalFleet, OpenError> {
         let systems = fleet
             .systems
             .iter()
-            .map(|s| Comm::open_fleet_with(fleet.clone(), &s.name, &hubs, registry.clone()))
+            .map(|s| Comm::open_fleet_with(fleet.clone(), &s.name, &env))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(LocalFleet { systems })
+        Ok(LocalFleet {
+            systems,
+            positions: env.positions.clone(),
+        })
+    }
+
+    /// Where systems are, for distance-dependent emulated links: a virtual environment sets
+    /// positions here while the fleet runs.
+    pub fn positions(&self) -> &hetcomm_link::emulation::PositionTable {
+        &self.positions
     }
 
     /// Loads a fleet file and opens every system of it.

@@ -48,6 +48,7 @@ mod inbox;
 mod module;
 mod received;
 mod runtime;
+pub mod sim;
 mod ticket;
 mod transports;
 

@@ -71,6 +71,9 @@ pub(crate) struct ModuleCore {
     callbacks: RwLock<HashMap<MessageType, Callback>>,
     callback_any: RwLock<Option<Callback>>,
     has_callbacks: AtomicBool,
+    /// Under simulation callbacks run on the simulator's thread, at the delivery, so runs are
+    /// repeatable; otherwise on the module's callback thread.
+    inline_callbacks: bool,
     dispatcher: Mutex<Option<JoinHandle<()>>>,
     /// Callback invocations that panicked or failed to decode.
     pub callback_failures: AtomicU64,
@@ -86,6 +89,7 @@ impl ModuleCore {
             callbacks: RwLock::new(HashMap::new()),
             callback_any: RwLock::new(None),
             has_callbacks: AtomicBool::new(false),
+            inline_callbacks: false,
             dispatcher: Mutex::new(None),
             callback_failures: AtomicU64::new(0),
         }
@@ -123,6 +127,9 @@ impl ModuleCore {
             None => *self.callback_any.write().unwrap_or_else(|e| e.into_inner()) = Some(cb),
         }
         self.has_callbacks.store(true, Ordering::Release);
+        if self.inline_callbacks {
+            return;
+        }
         let mut dispatcher = self.dispatcher.lock().unwrap_or_else(|e| e.into_inner());
         if dispatcher.is_none() {
             let module = Arc::downgrade(self);
@@ -157,6 +164,31 @@ impl ModuleCore {
     }
 }
 
+impl ModuleCore {
+    /// Runs the callback registered for this entry's type (or the catch-all).
+    fn run_callback(&self, directory: &Directory, entry: Entry) {
+        let ty = entry.header.message_type;
+        let cb = self
+            .callbacks
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&ty)
+            .cloned()
+            .or_else(|| {
+                self.callback_any
+                    .read()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .clone()
+            });
+        let Some(cb) = cb else { return };
+        let raw = raw_message(directory, entry);
+        // A panicking callback must not take the dispatcher (and every later message) down.
+        if std::panic::catch_unwind(AssertUnwindSafe(|| cb(raw))).is_err() {
+            self.callback_failures.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
 fn dispatch_callbacks(module: Weak<ModuleCore>, directory: Arc<Directory>) {
     loop {
         let Some(m) = module.upgrade() else { return };
@@ -164,25 +196,7 @@ fn dispatch_callbacks(module: Weak<ModuleCore>, directory: Arc<Directory>) {
             Ok(Some(e)) => e,
             _ => return, // closed and drained
         };
-        let ty = entry.header.message_type;
-        let cb = m
-            .callbacks
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(&ty)
-            .cloned()
-            .or_else(|| {
-                m.callback_any
-                    .read()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .clone()
-            });
-        let Some(cb) = cb else { continue };
-        let raw = raw_message(&directory, entry);
-        // A panicking callback must not take the dispatcher (and every later message) down.
-        if std::panic::catch_unwind(AssertUnwindSafe(|| cb(raw))).is_err() {
-            m.callback_failures.fetch_add(1, Ordering::Relaxed);
-        }
+        m.run_callback(&directory, entry);
     }
 }
 
@@ -244,12 +258,15 @@ impl SystemCore {
         modules: Vec<(ModuleId, InboxConfig)>,
         router: Router<Arc<OutcomeSlot>>,
         clock: Arc<dyn Clock>,
+        inline_callbacks: bool,
     ) -> Arc<Self> {
         let modules = modules
             .into_iter()
             .map(|(mid, inbox)| {
                 let name = directory.module_name(mid);
-                (mid, Arc::new(ModuleCore::new(mid, name, inbox)))
+                let mut module = ModuleCore::new(mid, name, inbox);
+                module.inline_callbacks = inline_callbacks;
+                (mid, Arc::new(module))
             })
             .collect();
         Arc::new(SystemCore {
@@ -267,15 +284,35 @@ impl SystemCore {
         })
     }
 
-    /// Installs the links (once) and starts the timer thread.
-    pub(crate) fn start(self: &Arc<Self>, links: Vec<Arc<dyn Link>>) -> std::io::Result<()> {
+    /// Installs the links (once) and, unless a simulator drives time, starts the timer
+    /// thread.
+    pub(crate) fn start(
+        self: &Arc<Self>,
+        links: Vec<Arc<dyn Link>>,
+        timer_thread: bool,
+    ) -> std::io::Result<()> {
         let _ = self.links.set(links);
+        if !timer_thread {
+            return Ok(());
+        }
         let weak = Arc::downgrade(self);
         let handle = std::thread::Builder::new()
             .name(format!("hetcomm-timer-{}", self.name))
             .spawn(move || run_timer(weak))?;
         *self.timer_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
         Ok(())
+    }
+
+    /// The router's next retransmission deadline.
+    pub(crate) fn next_deadline(&self) -> Option<Time> {
+        self.router().poll_timeout()
+    }
+
+    /// Runs due retransmission timers (the simulator's timer thread).
+    pub(crate) fn fire_timers(&self) {
+        let mut router = self.router();
+        router.handle_timeout(self.clock.now());
+        self.pump(router);
     }
 
     pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
@@ -370,7 +407,12 @@ impl SystemCore {
             payload: d.payload,
             received_at: self.clock.now(),
         };
-        let inbox = if module.wants_callback(d.header.message_type) {
+        let wants_callback = module.wants_callback(d.header.message_type);
+        if wants_callback && module.inline_callbacks {
+            module.run_callback(&self.directory, entry);
+            return AckStatus::Delivered;
+        }
+        let inbox = if wants_callback {
             &module.callback_inbox
         } else {
             &module.inbox

@@ -6,7 +6,10 @@ use std::sync::{Arc, Mutex, OnceLock};
 use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::inproc::InprocHub;
+use hetcomm_link::emulation::{EmulatedLink, LinkModel};
 use hetcomm_link::{FrameSink, Link};
+
+use crate::comm::OpenEnv;
 use hetcomm_link_ip::stream::StreamConfig;
 use hetcomm_link_ip::tcp::TcpLink;
 use hetcomm_link_ip::udp::{UdpConfig, UdpLink};
@@ -49,14 +52,23 @@ pub(crate) struct OpenedLink {
     pub local_address: Option<String>,
 }
 
-/// Opens transport `t` for system `local`, delivering what it receives to `sink`.
+/// Opens transport number `index` of the fleet for system `local`, delivering what it
+/// receives to `sink`.
 pub(crate) fn open_link(
     fleet: &Fleet,
-    t: &TransportDef,
+    index: usize,
     local: SystemId,
     sink: Arc<dyn FrameSink>,
-    hubs: &Hubs,
+    env: &OpenEnv,
 ) -> Result<OpenedLink, OpenError> {
+    let t = &fleet.transports[index];
+    if let Some(net) = &env.sim {
+        return Ok(OpenedLink {
+            link: net.open(index, local, sink),
+            local_address: None,
+        });
+    }
+    let hubs = &env.hubs;
     let system = fleet
         .system(local)
         .map(|s| s.name.clone())
@@ -100,6 +112,27 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address,
+            })
+        }
+        (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
+            // The link it wraps: another transport of the fleet, or a private in-process hub.
+            let inner: Arc<dyn Link> = match &settings.over {
+                Some(over) => {
+                    let over_index = fleet
+                        .transports
+                        .iter()
+                        .position(|o| &o.name == over)
+                        .ok_or_else(|| failed(format!("wrapped transport `{over}` not found")))?;
+                    open_link(fleet, over_index, local, sink, env)?.link
+                }
+                None => Arc::new(hubs.hub(&format!("emulated:{}", t.name)).open(local, sink)),
+            };
+            let model = LinkModel::from_settings(settings).map_err(|e| failed(e.to_string()))?;
+            let link = EmulatedLink::with_epoch(inner, local, model, env.positions.clone(), env.epoch)
+                .map_err(|e| failed(e.to_string()))?;
+            Ok(OpenedLink {
+                link: Arc::new(link),
+                local_address: None,
             })
         }
         (kind, _) => Err(unavailable(t, *kind)),

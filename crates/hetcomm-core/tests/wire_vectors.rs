@@ -1,0 +1,761 @@
+//! The language-neutral wire test vectors in `docs/wire-vectors.json`.
+//!
+//! * `valid_vectors_decode_and_re_encode`: every valid vector decodes to exactly the header
+//!   fields and payload the file states (read from the JSON, not from the generator), and
+//!   encoding that header and payload again gives the identical bytes.
+//! * `invalid_vectors_are_rejected_with_the_named_error`: every invalid vector is rejected with
+//!   the `DecodeError` variant the file names.
+//! * `committed_vectors_match_the_generator`: the committed file is byte-for-byte what
+//!   `generate()` produces, so the file cannot drift from the code.
+//!
+//! Regenerate the file after an intended change with
+//! `cargo test -p hetcomm-core -- --ignored regenerate_wire_vectors`.
+
+use std::path::PathBuf;
+
+use hetcomm_core::wire::{self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::{
+    payload, AckStatus, Address, DecodeError, FrameKind, Header, MessageType, ModuleId, Priority,
+    SystemId, Time,
+};
+use serde::Serialize;
+use serde_json::Value;
+
+fn vectors_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/wire-vectors.json")
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex(s: &str) -> Vec<u8> {
+    s.as_bytes()
+        .chunks(2)
+        .map(|pair| {
+            let digits = std::str::from_utf8(pair).expect("ASCII hex");
+            assert_eq!(digits.len(), 2, "odd-length hex string");
+            u8::from_str_radix(digits, 16).expect("hex digit")
+        })
+        .collect()
+}
+
+fn addr(system: u16, module: u16) -> Address {
+    Address {
+        system: SystemId(system),
+        module: ModuleId(module),
+    }
+}
+
+/// The name of a decode error's variant, as the vectors spell it.
+fn error_name(e: &DecodeError) -> &'static str {
+    match e {
+        DecodeError::TooShort { .. } => "TooShort",
+        DecodeError::BadMagic { .. } => "BadMagic",
+        DecodeError::BadVersion { .. } => "BadVersion",
+        DecodeError::BadKind { .. } => "BadKind",
+        DecodeError::BadFlags { .. } => "BadFlags",
+        DecodeError::TooLong { .. } => "TooLong",
+        DecodeError::LengthMismatch { .. } => "LengthMismatch",
+        DecodeError::BadChecksum { .. } => "BadChecksum",
+        _ => "Unknown",
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The generator
+// ---------------------------------------------------------------------------------------------
+
+#[derive(Serialize)]
+struct Wheels {
+    left: f64,
+    right: f64,
+}
+
+#[derive(Serialize)]
+enum Mode {
+    Explore,
+}
+
+#[derive(Serialize)]
+enum Goal {
+    Waypoint { x: f64, y: f64 },
+}
+
+/// A payload that exercises most shapes: string, tuple, vector, options, enums, bytes, map.
+#[derive(Serialize)]
+struct Status {
+    name: String,
+    pose: (f64, f64, f32),
+    battery: Option<f32>,
+    fault: Option<String>,
+    mode: Mode,
+    goal: Goal,
+    tags: Vec<String>,
+    #[serde(with = "serde_bytes")]
+    raw: Vec<u8>,
+    counters: std::collections::BTreeMap<String, u64>,
+    uptime_us: u64,
+    temperature: i8,
+}
+
+/// One valid vector, fields in the order the file shows them.
+#[derive(Serialize)]
+struct ValidVector {
+    name: String,
+    description: String,
+    frame_hex: String,
+    header: HeaderOut,
+    payload_hex: String,
+    payload_json: Value,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    ack_status: Option<AckStatus>,
+}
+
+/// The header as the file shows it: every field as a plain number.
+#[derive(Serialize)]
+struct HeaderOut {
+    kind: u8,
+    flags: u8,
+    priority: u8,
+    transport: u8,
+    source: AddressOut,
+    destination: AddressOut,
+    incarnation: u32,
+    seq: u64,
+    message_type: u32,
+    timestamp: u64,
+    payload_len: usize,
+}
+
+#[derive(Serialize)]
+struct AddressOut {
+    system: u16,
+    module: u16,
+}
+
+impl From<Address> for AddressOut {
+    fn from(a: Address) -> Self {
+        AddressOut {
+            system: a.system.0,
+            module: a.module.0,
+        }
+    }
+}
+
+/// One invalid vector.
+#[derive(Serialize)]
+struct InvalidVector {
+    name: String,
+    description: String,
+    frame_hex: String,
+    error: String,
+}
+
+/// The whole file.
+#[derive(Serialize)]
+struct VectorFile {
+    format: &'static str,
+    generated_by: &'static str,
+    valid: Vec<ValidVector>,
+    invalid: Vec<InvalidVector>,
+}
+
+fn valid(name: &str, description: &str, h: Header, payload: &[u8]) -> ValidVector {
+    let frame = wire::encode(&h, payload);
+    let (payload_json, ack_status) = match h.kind {
+        FrameKind::Ack => (
+            Value::Null,
+            Some(AckStatus::from_u8(payload[0]).expect("ack vectors carry a valid status")),
+        ),
+        FrameKind::Data => (payload::to_json(payload).unwrap_or(Value::Null), None),
+    };
+    ValidVector {
+        name: name.into(),
+        description: description.into(),
+        frame_hex: hex(&frame),
+        header: HeaderOut {
+            kind: h.kind as u8,
+            flags: h.flags,
+            priority: h.priority.0,
+            transport: h.transport,
+            source: h.source.into(),
+            destination: h.destination.into(),
+            incarnation: h.incarnation,
+            seq: h.seq,
+            message_type: h.message_type.0,
+            timestamp: h.timestamp.0,
+            payload_len: payload.len(),
+        },
+        payload_hex: hex(payload),
+        payload_json,
+        ack_status,
+    }
+}
+
+/// Rewrites the CRC field so that the frame's only defect is the one the caller made.
+fn fix_crc(frame: &mut [u8]) {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&frame[..44]);
+    h.update(&[0; 4]);
+    h.update(&frame[48..]);
+    let crc = h.finalize();
+    frame[44..48].copy_from_slice(&crc.to_le_bytes());
+}
+
+fn invalid(name: &str, description: &str, frame: &[u8], error: &str) -> InvalidVector {
+    InvalidVector {
+        name: name.into(),
+        description: description.into(),
+        frame_hex: hex(frame),
+        error: error.into(),
+    }
+}
+
+/// The data frame of the worked example in `docs/wire-format.md`.
+fn wheels_header() -> Header {
+    Header {
+        kind: FrameKind::Data,
+        flags: FLAG_ACK_REQUESTED,
+        priority: Priority::NORMAL,
+        transport: b'R',
+        source: addr(1, 2),
+        destination: addr(3, 4),
+        incarnation: 0x1234_5678,
+        seq: 1,
+        message_type: MessageType(1),
+        timestamp: Time(1_700_000_000_000_000),
+    }
+}
+
+fn ack_of(data: &Header) -> Header {
+    Header {
+        kind: FrameKind::Ack,
+        flags: 0,
+        priority: data.priority,
+        transport: data.transport,
+        source: data.destination,
+        destination: data.source,
+        incarnation: data.incarnation,
+        seq: data.seq,
+        message_type: data.message_type,
+        timestamp: data.timestamp,
+    }
+}
+
+/// Builds the whole vector file.
+fn generate() -> VectorFile {
+    let wheels = payload::encode(&Wheels {
+        left: -10.0,
+        right: 10.0,
+    })
+    .expect("encodes");
+    let wheels_h = wheels_header();
+
+    let status = Status {
+        name: "scout-1".into(),
+        pose: (1.5, -2.25, 0.5),
+        battery: Some(0.75),
+        fault: None,
+        mode: Mode::Explore,
+        goal: Goal::Waypoint { x: 10.0, y: -3.5 },
+        tags: vec!["lidar".into(), "gps".into()],
+        raw: vec![0x00, 0x7f, 0x80, 0xff],
+        counters: [("rx".to_string(), 300u64), ("tx".to_string(), 70_000)].into(),
+        uptime_us: 5_000_000_000,
+        temperature: -12,
+    };
+    let status_payload = payload::encode(&status).expect("encodes");
+
+    let broadcast_h = Header {
+        kind: FrameKind::Data,
+        flags: FLAG_ACK_REQUESTED | FLAG_BROADCAST,
+        priority: Priority(150),
+        transport: b'U',
+        source: addr(2, 1),
+        destination: addr(5, 3),
+        incarnation: 7,
+        seq: 42,
+        message_type: MessageType(20),
+        timestamp: Time(123_456_789),
+    };
+    let empty_h = Header {
+        kind: FrameKind::Data,
+        flags: 0,
+        priority: Priority::LOWEST,
+        transport: 0,
+        source: addr(0, 0),
+        destination: addr(1, 0),
+        incarnation: 0,
+        seq: 1,
+        message_type: MessageType(0),
+        timestamp: Time::ZERO,
+    };
+    let max_priority_h = Header {
+        priority: Priority::HIGHEST,
+        flags: FLAG_ACK_REQUESTED,
+        transport: b'W',
+        seq: 2,
+        timestamp: Time(1_700_000_000_250_000),
+        ..wheels_h
+    };
+    let large_h = Header {
+        kind: FrameKind::Data,
+        flags: 0,
+        priority: Priority(254),
+        transport: 0xff,
+        source: addr(u16::MAX, u16::MAX - 1),
+        destination: addr(u16::MAX - 2, u16::MAX - 3),
+        incarnation: u32::MAX,
+        seq: u64::MAX,
+        message_type: MessageType(u32::MAX),
+        timestamp: Time(u64::MAX),
+    };
+    let large_payload = payload::encode(&(u64::MAX, i64::MIN, u32::MAX)).expect("encodes");
+
+    let mut valid_vectors = vec![
+        valid(
+            "data_struct_wheels",
+            "The worked example of docs/wire-format.md: Wheels { left: -10.0, right: 10.0 }, \
+             message type 1, from (1, 2) to (3, 4), acknowledgement requested.",
+            wheels_h,
+            &wheels,
+        ),
+        valid(
+            "data_struct_many_shapes",
+            "A struct payload using string, tuple, Option (Some and None), unit and struct enum \
+             variants, Vec<String>, serde_bytes (bin), a map, a large u64 and a negative i8.",
+            Header {
+                seq: 3,
+                message_type: MessageType(2),
+                ..wheels_h
+            },
+            &status_payload,
+        ),
+        valid(
+            "data_broadcast_ack_requested",
+            "One copy of a broadcast with an acknowledgement requested (flags 0x03). The \
+             payload is the string \"hello\".",
+            broadcast_h,
+            &payload::encode("hello").expect("encodes"),
+        ),
+    ];
+    for (status, name) in [
+        (AckStatus::Delivered, "ack_delivered"),
+        (AckStatus::InboxFull, "ack_inbox_full"),
+        (AckStatus::UnknownModule, "ack_unknown_module"),
+    ] {
+        valid_vectors.push(valid(
+            name,
+            &format!(
+                "An acknowledgement of data_struct_wheels with status {} ({status:?}): source \
+                 and destination swapped, incarnation and seq echoed (priority, transport, \
+                 message type and timestamp too, as the router does); the one-byte payload is \
+                 the status.",
+                status as u8
+            ),
+            ack_of(&wheels_h),
+            &[status as u8],
+        ));
+    }
+    valid_vectors.extend([
+        valid(
+            "ack_of_broadcast",
+            "An acknowledgement (delivered) of data_broadcast_ack_requested's copy.",
+            ack_of(&broadcast_h),
+            &[AckStatus::Delivered as u8],
+        ),
+        valid(
+            "data_empty_payload",
+            "A data frame with no payload bytes at all (payload_len 0): all-zero ids, lowest \
+             priority, no flags. payload_json is null because zero bytes are not a \
+             MessagePack value.",
+            empty_h,
+            &[],
+        ),
+        valid(
+            "data_nil_payload",
+            "A data frame whose payload is the single MessagePack nil (a unit value or None).",
+            Header { seq: 2, ..empty_h },
+            &payload::encode(&()).expect("encodes"),
+        ),
+        valid(
+            "data_max_priority",
+            "Priority 255 (the highest), transport tag 'W'.",
+            max_priority_h,
+            &payload::encode(&Wheels {
+                left: 0.0,
+                right: 0.0,
+            })
+            .expect("encodes"),
+        ),
+        valid(
+            "data_large_ids",
+            "Every id field near or at its maximum: systems and modules 65532..65535, \
+             incarnation, seq, message type and timestamp all-ones. The payload is the array \
+             [u64::MAX, i64::MIN, u32::MAX]. (JavaScript readers need a big-integer JSON \
+             parser for this vector.)",
+            large_h,
+            &large_payload,
+        ),
+    ]);
+
+    let good = wire::encode(&wheels_h, &wheels);
+    let mut invalid_vectors = vec![
+        invalid("empty", "No bytes at all.", &[], "TooShort"),
+        invalid(
+            "truncated_header",
+            "The first 47 bytes of data_struct_wheels: one byte short of a header.",
+            &good[..HEADER_LEN - 1],
+            "TooShort",
+        ),
+    ];
+    let mut truncated = good[..good.len() - 1].to_vec();
+    fix_crc(&mut truncated);
+    invalid_vectors.push(invalid(
+        "truncated_payload",
+        "data_struct_wheels without its last payload byte (CRC recomputed): the header \
+         declares 30 payload bytes, 29 are present.",
+        &truncated,
+        "LengthMismatch",
+    ));
+    let mut trailing = good.clone();
+    trailing.push(0xc0);
+    fix_crc(&mut trailing);
+    invalid_vectors.push(invalid(
+        "trailing_byte",
+        "data_struct_wheels followed by one extra byte (CRC recomputed over all of it): a \
+         frame is exactly header plus declared payload.",
+        &trailing,
+        "LengthMismatch",
+    ));
+    let mutations: [(&str, &str, usize, u8, &str); 8] = [
+        (
+            "bad_magic",
+            "Magic \"hC\" instead of \"HC\".",
+            0,
+            b'h',
+            "BadMagic",
+        ),
+        (
+            "bad_magic_second_byte",
+            "Magic \"HX\".",
+            1,
+            b'X',
+            "BadMagic",
+        ),
+        ("bad_version_0", "Version 0.", 2, 0, "BadVersion"),
+        (
+            "bad_version_2",
+            "Version 2, from a future codec.",
+            2,
+            2,
+            "BadVersion",
+        ),
+        (
+            "bad_kind",
+            "Frame kind 2, which version 1 does not define.",
+            3,
+            2,
+            "BadKind",
+        ),
+        ("bad_kind_high", "Frame kind 255.", 3, 0xff, "BadKind"),
+        (
+            "unknown_flag_bit",
+            "Flags 0x05: bit 2 is not defined.",
+            4,
+            0x05,
+            "BadFlags",
+        ),
+        ("unknown_flag_high_bit", "Flags 0x80.", 4, 0x80, "BadFlags"),
+    ];
+    for (name, description, offset, byte, error) in mutations {
+        let mut frame = good.clone();
+        frame[offset] = byte;
+        fix_crc(&mut frame);
+        invalid_vectors.push(invalid(
+            name,
+            &format!(
+                "data_struct_wheels with byte {offset} changed (CRC recomputed). {description}"
+            ),
+            &frame,
+            error,
+        ));
+    }
+    let mut oversized = good[..HEADER_LEN].to_vec();
+    oversized[40..44].copy_from_slice(&((MAX_PAYLOAD + 1) as u32).to_le_bytes());
+    fix_crc(&mut oversized);
+    invalid_vectors.push(invalid(
+        "oversized_length",
+        "A lone header declaring MAX_PAYLOAD + 1 = 16777217 payload bytes (CRC recomputed): \
+         rejected from the header alone, before waiting for or allocating the payload.",
+        &oversized,
+        "TooLong",
+    ));
+    let mut max_len = good[..HEADER_LEN].to_vec();
+    max_len[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
+    fix_crc(&mut max_len);
+    invalid_vectors.push(invalid(
+        "length_all_ones",
+        "A lone header declaring 0xffffffff payload bytes (CRC recomputed).",
+        &max_len,
+        "TooLong",
+    ));
+    let mut mismatch = good.clone();
+    mismatch[40..44].copy_from_slice(&31u32.to_le_bytes());
+    fix_crc(&mut mismatch);
+    invalid_vectors.push(invalid(
+        "length_mismatch",
+        "data_struct_wheels with its payload length field raised from 30 to 31 (CRC \
+         recomputed).",
+        &mismatch,
+        "LengthMismatch",
+    ));
+    let mut bad_crc = good.clone();
+    bad_crc[44] ^= 0x01;
+    invalid_vectors.push(invalid(
+        "bad_checksum",
+        "data_struct_wheels with the lowest bit of its CRC field flipped.",
+        &bad_crc,
+        "BadChecksum",
+    ));
+    let mut flipped = good.clone();
+    flipped[HEADER_LEN + 5] ^= 0x80;
+    invalid_vectors.push(invalid(
+        "payload_bit_flip",
+        "data_struct_wheels with one payload bit flipped and the CRC left alone.",
+        &flipped,
+        "BadChecksum",
+    ));
+    let mut zero_crc = good.clone();
+    zero_crc[44..48].copy_from_slice(&[0; 4]);
+    invalid_vectors.push(invalid(
+        "checksum_zero",
+        "data_struct_wheels with a zero CRC field: the CRC is never optional.",
+        &zero_crc,
+        "BadChecksum",
+    ));
+    let mut reserved = good.clone();
+    reserved[7] = 1;
+    invalid_vectors.push(invalid(
+        "reserved_byte_set_without_crc_fix",
+        "data_struct_wheels with reserved byte 7 set to 1 and the CRC left alone. (Version 1 \
+         decoders ignore the reserved byte's value, so this is caught only by the CRC.)",
+        &reserved,
+        "BadChecksum",
+    ));
+    // Order of checks: two defects, the earlier check wins.
+    let mut two = good.clone();
+    two[2] = 9;
+    two[44] ^= 0xff;
+    invalid_vectors.push(invalid(
+        "order_version_before_checksum",
+        "Version 9 and a wrong CRC: the version check comes first.",
+        &two,
+        "BadVersion",
+    ));
+    let mut two = good[..HEADER_LEN].to_vec();
+    two[0] = b'X';
+    two[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
+    invalid_vectors.push(invalid(
+        "order_magic_before_length",
+        "Bad magic and an oversized length: the magic check comes first.",
+        &two,
+        "BadMagic",
+    ));
+    let mut two = good.clone();
+    two[3] = 7;
+    two.push(0);
+    invalid_vectors.push(invalid(
+        "order_length_before_kind",
+        "Kind 7 and a trailing byte: the length check comes before the kind check.",
+        &two,
+        "LengthMismatch",
+    ));
+    let mut two = good.clone();
+    two[3] = 7;
+    two[4] = 0x10;
+    invalid_vectors.push(invalid(
+        "order_kind_before_flags",
+        "Kind 7 and flags 0x10 (CRC not fixed): the kind check comes before the flags check, \
+         both before the CRC.",
+        &two,
+        "BadKind",
+    ));
+
+    VectorFile {
+        format: "hetcomm wire format version 1; see docs/wire-format.md",
+        generated_by: "cargo test -p hetcomm-core -- --ignored regenerate_wire_vectors",
+        valid: valid_vectors,
+        invalid: invalid_vectors,
+    }
+}
+
+fn generate_text() -> String {
+    let mut text = serde_json::to_string_pretty(&generate()).expect("json serializes");
+    text.push('\n');
+    text
+}
+
+fn load() -> Value {
+    let path = vectors_path();
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    serde_json::from_str(&text).expect("wire-vectors.json is valid JSON")
+}
+
+// ---------------------------------------------------------------------------------------------
+// The checks
+// ---------------------------------------------------------------------------------------------
+
+fn num(v: &Value, key: &str) -> u64 {
+    v[key]
+        .as_u64()
+        .unwrap_or_else(|| panic!("field {key} is not an unsigned integer in {v}"))
+}
+
+fn json_addr(v: &Value) -> Address {
+    addr(num(v, "system") as u16, num(v, "module") as u16)
+}
+
+#[test]
+fn valid_vectors_decode_and_re_encode() {
+    let file = load();
+    let vectors = file["valid"].as_array().expect("valid is an array");
+    assert!(vectors.len() >= 10, "expected at least 10 valid vectors");
+    for v in vectors {
+        let name = v["name"].as_str().expect("name");
+        let bytes = unhex(v["frame_hex"].as_str().expect("frame_hex"));
+        let frame = wire::decode(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(
+            wire::peek_frame_len(&bytes),
+            Ok(bytes.len()),
+            "{name}: peek_frame_len"
+        );
+
+        let j = &v["header"];
+        let h = frame.header;
+        assert_eq!(h.kind as u64, num(j, "kind"), "{name}: kind");
+        assert_eq!(h.flags as u64, num(j, "flags"), "{name}: flags");
+        assert_eq!(h.priority.0 as u64, num(j, "priority"), "{name}: priority");
+        assert_eq!(h.transport as u64, num(j, "transport"), "{name}: transport");
+        assert_eq!(h.source, json_addr(&j["source"]), "{name}: source");
+        assert_eq!(
+            h.destination,
+            json_addr(&j["destination"]),
+            "{name}: destination"
+        );
+        assert_eq!(
+            h.incarnation as u64,
+            num(j, "incarnation"),
+            "{name}: incarnation"
+        );
+        assert_eq!(h.seq, num(j, "seq"), "{name}: seq");
+        assert_eq!(
+            h.message_type.0 as u64,
+            num(j, "message_type"),
+            "{name}: message_type"
+        );
+        assert_eq!(h.timestamp.0, num(j, "timestamp"), "{name}: timestamp");
+        assert_eq!(
+            frame.payload.len() as u64,
+            num(j, "payload_len"),
+            "{name}: payload_len"
+        );
+
+        assert_eq!(
+            hex(frame.payload),
+            v["payload_hex"].as_str().expect("payload_hex"),
+            "{name}: payload bytes"
+        );
+        match h.kind {
+            FrameKind::Ack => {
+                assert_eq!(
+                    frame.payload.len(),
+                    1,
+                    "{name}: an ack carries one status byte"
+                );
+                let status = AckStatus::from_u8(frame.payload[0]).expect("known status");
+                assert_eq!(
+                    serde_json::to_value(status).unwrap(),
+                    v["ack_status"],
+                    "{name}"
+                );
+                assert_eq!(v["payload_json"], Value::Null, "{name}: payload_json");
+            }
+            FrameKind::Data => {
+                let json = payload::to_json(frame.payload).unwrap_or(Value::Null);
+                assert_eq!(json, v["payload_json"], "{name}: payload_json");
+            }
+        }
+
+        let again = wire::encode(&h, frame.payload);
+        assert_eq!(hex(&again), hex(&bytes), "{name}: re-encoding differs");
+    }
+}
+
+#[test]
+fn invalid_vectors_are_rejected_with_the_named_error() {
+    let file = load();
+    let vectors = file["invalid"].as_array().expect("invalid is an array");
+    assert!(vectors.len() >= 8, "expected at least 8 invalid vectors");
+    for v in vectors {
+        let name = v["name"].as_str().expect("name");
+        let bytes = unhex(v["frame_hex"].as_str().expect("frame_hex"));
+        let expected = v["error"].as_str().expect("error");
+        match wire::decode(&bytes) {
+            Ok(_) => panic!("{name}: decoded, expected {expected}"),
+            Err(e) => assert_eq!(error_name(&e), expected, "{name}: {e}"),
+        }
+        // What the header alone tells a stream reader must agree with the full decode.
+        if let Err(e) = wire::peek_frame_len(&bytes) {
+            assert_eq!(error_name(&e), expected, "{name}: peek_frame_len said {e}");
+        }
+    }
+}
+
+#[test]
+fn every_error_variant_has_a_vector() {
+    let file = load();
+    let named: Vec<&str> = file["invalid"]
+        .as_array()
+        .expect("invalid is an array")
+        .iter()
+        .map(|v| v["error"].as_str().expect("error"))
+        .collect();
+    for variant in [
+        "TooShort",
+        "BadMagic",
+        "BadVersion",
+        "BadKind",
+        "BadFlags",
+        "TooLong",
+        "LengthMismatch",
+        "BadChecksum",
+    ] {
+        assert!(named.contains(&variant), "no invalid vector for {variant}");
+    }
+}
+
+#[test]
+fn committed_vectors_match_the_generator() {
+    let path = vectors_path();
+    let committed = std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    assert!(
+        committed == generate_text(),
+        "{} differs from what the generator produces: if the change is intended, run \
+         `cargo test -p hetcomm-core -- --ignored regenerate_wire_vectors` and review the diff",
+        path.display()
+    );
+}
+
+/// Writes `docs/wire-vectors.json` from [`generate`].
+#[test]
+#[ignore = "writes docs/wire-vectors.json; run on purpose after an intended change"]
+fn regenerate_wire_vectors() {
+    let path = vectors_path();
+    std::fs::write(&path, generate_text())
+        .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
+    println!("wrote {}", path.display());
+}

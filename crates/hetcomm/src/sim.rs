@@ -1,0 +1,429 @@
+//! Virtual-time simulation: a whole fleet in one thread, driven by the same routers and the
+//! same runtime code as the real thing, with every link replaced by a simulated one. Time only
+//! moves when [`SimFleet::run_until`] moves it, so a run is faster than real time and
+//! bit-for-bit repeatable for a seed.
+//!
+//! What each transport becomes under simulation: an `emulated` transport applies its link
+//! model ([`hetcomm_link::emulation::LinkModel`]: loss, latency, bandwidth, range, outages) in
+//! virtual time; every other kind becomes an ideal link that delivers at the same virtual
+//! instant (still as a separate event, after the sender's call returns).
+//!
+//! Autonomy code runs between calls to [`SimFleet::run_until`] (polling with `try_recv` /
+//! `has_message`, reading outcomes with [`crate::Ticket::try_outcome`]) or in callbacks, which
+//! run on the simulator's thread at the moment of delivery. Blocking calls (`recv`,
+//! `Ticket::wait`) would wait for time that never passes: don't use them under simulation.
+
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
+
+use hetcomm_config::{Fleet, TransportKind, TransportSettings};
+use hetcomm_core::{SystemId, Time};
+use hetcomm_link::emulation::{DropReason, LinkModel, PositionTable, Verdict};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, Peer};
+
+use crate::comm::{Comm, LocalFleet, OpenEnv};
+use crate::error::OpenError;
+use crate::runtime::{Clock, SystemCore};
+use crate::transports::Hubs;
+
+/// A clock that only the simulator moves.
+#[derive(Debug, Default)]
+pub struct VirtualClock(AtomicU64);
+
+impl VirtualClock {
+    fn set(&self, t: Time) {
+        self.0.store(t.as_micros(), Ordering::SeqCst);
+    }
+}
+
+impl Clock for VirtualClock {
+    fn now(&self) -> Time {
+        Time(self.0.load(Ordering::SeqCst))
+    }
+}
+
+/// How an emulated link's losses look to the sender under simulation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LossVisibility {
+    /// Lost frames vanish silently, as on a real radio: only acknowledgements reveal them.
+    #[default]
+    Silent,
+    /// The transport tells the sender a frame was lost (the send call fails), as the thesis's
+    /// Bluetooth driver reported failed transmissions; the router then retries.
+    Reported,
+}
+
+/// Options of a simulation.
+#[derive(Clone, Debug)]
+pub struct SimOptions {
+    /// Seeds every emulated link (mixed with each transport's own `seed`).
+    pub seed: u64,
+    /// Whether lost frames are reported to the sender.
+    pub losses: LossVisibility,
+    /// Retransmission timing for every router (None: the defaults).
+    pub timing: Option<hetcomm_router::Timing>,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        SimOptions {
+            seed: 0,
+            losses: LossVisibility::Silent,
+            timing: None,
+        }
+    }
+}
+
+/// Frames the simulated network dropped, by reason.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SimNetStats {
+    /// Frames put on simulated links.
+    pub frames_sent: u64,
+    /// Frames delivered to a system (duplicates count twice).
+    pub frames_delivered: u64,
+    /// Drops, by reason name (`loss`, `burst-loss`, `out-of-range`, …).
+    pub dropped: BTreeMap<String, u64>,
+    /// Frames corrupted in flight (the receiver's checksum drops them).
+    pub corrupted: u64,
+}
+
+struct FrameEvent {
+    to: SystemId,
+    transport: usize,
+    frame: Vec<u8>,
+}
+
+/// The simulated network: pending frame arrivals, the link models and the endpoints.
+pub(crate) struct SimNet {
+    seed: u64,
+    losses: LossVisibility,
+    clock: Arc<VirtualClock>,
+    next_event: AtomicU64,
+    queue: Mutex<BinaryHeap<Reverse<(Time, u64)>>>,
+    events: Mutex<HashMap<u64, FrameEvent>>,
+    /// (transport index, system) → (sink, link index at that system).
+    sinks: RwLock<HashMap<(usize, SystemId), Arc<dyn FrameSink>>>,
+    models: Vec<Option<Mutex<LinkModel>>>,
+    positions: PositionTable,
+    stats: Mutex<SimNetStats>,
+}
+
+impl SimNet {
+    /// A deterministic incarnation per system and seed.
+    pub(crate) fn incarnation(&self, system: SystemId) -> u32 {
+        let x = self
+            .seed
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(system.0 as u64 + 1);
+        (x ^ (x >> 29)) as u32 | 1
+    }
+
+    fn push(&self, at: Time, ev: FrameEvent) {
+        let id = self.next_event.fetch_add(1, Ordering::Relaxed);
+        self.events
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(id, ev);
+        self.queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(Reverse((at, id)));
+    }
+
+    fn next_frame_time(&self) -> Option<Time> {
+        self.queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .peek()
+            .map(|Reverse((t, _))| *t)
+    }
+
+    fn pop_due(&self, now: Time) -> Option<FrameEvent> {
+        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        match q.peek() {
+            Some(Reverse((t, _))) if *t <= now => {
+                let Reverse((_, id)) = q.pop()?;
+                drop(q);
+                self.events
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .remove(&id)
+            }
+            _ => None,
+        }
+    }
+
+    /// Opens the simulated link of `transport` for `local`.
+    pub(crate) fn open(
+        self: &Arc<Self>,
+        transport: usize,
+        local: SystemId,
+        sink: Arc<dyn FrameSink>,
+    ) -> Arc<dyn Link> {
+        self.sinks
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert((transport, local), sink);
+        let max = hetcomm_core::wire::HEADER_LEN + hetcomm_core::wire::MAX_PAYLOAD;
+        let lossy = self.models[transport].is_some();
+        Arc::new(SimLink {
+            net: self.clone(),
+            transport,
+            local,
+            caps: LinkCaps {
+                max_frame: max,
+                mtu: max,
+                reliable: !lossy,
+                ordered: !lossy,
+                broadcast: false,
+            },
+        })
+    }
+
+    fn count_drop(&self, reason: DropReason) {
+        *self
+            .stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .dropped
+            .entry(format!("{reason:?}"))
+            .or_default() += 1;
+    }
+}
+
+struct SimLink {
+    net: Arc<SimNet>,
+    transport: usize,
+    local: SystemId,
+    caps: LinkCaps,
+}
+
+impl Link for SimLink {
+    fn caps(&self) -> LinkCaps {
+        self.caps
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let net = &self.net;
+        if !net
+            .sinks
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains_key(&(self.transport, to))
+        {
+            return Err(LinkError::Unreachable {
+                peer: to,
+                reason: "no such system in the simulation".into(),
+            });
+        }
+        net.stats.lock().unwrap_or_else(|e| e.into_inner()).frames_sent += 1;
+        let now = net.clock.now();
+        let Some(model) = &net.models[self.transport] else {
+            net.push(
+                now,
+                FrameEvent {
+                    to,
+                    transport: self.transport,
+                    frame: frame.to_vec(),
+                },
+            );
+            return Ok(());
+        };
+        let distance = net.positions.distance(self.local, to);
+        let verdict = model
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .on_frame(now, self.local, to, frame.len(), distance);
+        match verdict {
+            Verdict::Drop(reason) => {
+                net.count_drop(reason);
+                if reason == DropReason::Mtu {
+                    return Err(LinkError::TooLarge {
+                        len: frame.len(),
+                        max: frame.len() - 1,
+                    });
+                }
+                match net.losses {
+                    LossVisibility::Silent => Ok(()),
+                    LossVisibility::Reported => Err(LinkError::Unreachable {
+                        peer: to,
+                        reason: format!("transmission failed ({reason:?})"),
+                    }),
+                }
+            }
+            Verdict::Deliver { first, duplicate } => {
+                for d in std::iter::once(first).chain(duplicate) {
+                    let mut bytes = frame.to_vec();
+                    if let Some(flip) = d.corrupt {
+                        flip.apply(&mut bytes);
+                        net.stats.lock().unwrap_or_else(|e| e.into_inner()).corrupted += 1;
+                    }
+                    net.push(
+                        d.at,
+                        FrameEvent {
+                            to,
+                            transport: self.transport,
+                            frame: bytes,
+                        },
+                    );
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// A whole fleet in virtual time.
+pub struct SimFleet {
+    fleet: LocalFleet,
+    net: Arc<SimNet>,
+    cores: Vec<Arc<SystemCore>>,
+}
+
+impl SimFleet {
+    /// Opens every system of `fleet` on simulated links, at virtual time zero.
+    pub fn open(fleet: Fleet, options: SimOptions) -> Result<SimFleet, OpenError> {
+        let clock = Arc::new(VirtualClock::default());
+        let mut models = Vec::with_capacity(fleet.transports.len());
+        for t in &fleet.transports {
+            let model = match (&t.kind, &t.settings) {
+                (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
+                    let mut settings = settings.clone();
+                    settings.seed ^= options.seed.wrapping_mul(0x2545_F491_4F6C_DD1D);
+                    let model = LinkModel::from_settings(&settings).map_err(|e| {
+                        OpenError::Transport {
+                            transport: t.name.clone(),
+                            system: "(simulation)".into(),
+                            reason: e.to_string(),
+                        }
+                    })?;
+                    Some(Mutex::new(model))
+                }
+                _ => None,
+            };
+            models.push(model);
+        }
+        let positions = PositionTable::new();
+        let net = Arc::new(SimNet {
+            seed: options.seed,
+            losses: options.losses,
+            clock: clock.clone(),
+            next_event: AtomicU64::new(0),
+            queue: Mutex::new(BinaryHeap::new()),
+            events: Mutex::new(HashMap::new()),
+            sinks: RwLock::new(HashMap::new()),
+            models,
+            positions: positions.clone(),
+            stats: Mutex::new(SimNetStats::default()),
+        });
+        let env = OpenEnv {
+            hubs: Hubs::default(),
+            registry: Default::default(),
+            clock,
+            sim: Some(net.clone()),
+            positions,
+            epoch: std::time::Instant::now(),
+            timing: options.timing,
+        };
+        let fleet = LocalFleet::open_in(Arc::new(fleet), env)?;
+        let cores = fleet
+            .systems()
+            .iter()
+            .map(|c| c.handle.core.clone())
+            .collect();
+        Ok(SimFleet { fleet, net, cores })
+    }
+
+    /// The current virtual time.
+    pub fn now(&self) -> Time {
+        self.net.clock.now()
+    }
+
+    /// One system by name.
+    pub fn system(&self, name: &str) -> Result<Comm, OpenError> {
+        self.fleet.system(name)
+    }
+
+    /// Every system, by id.
+    pub fn systems(&self) -> &[Comm] {
+        self.fleet.systems()
+    }
+
+    /// Positions for distance-dependent links (a virtual environment updates them).
+    pub fn positions(&self) -> &PositionTable {
+        &self.net.positions
+    }
+
+    /// What the simulated network did.
+    pub fn net_stats(&self) -> SimNetStats {
+        let s = self
+            .net
+            .stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        s
+    }
+
+    /// Runs every frame arrival and timer due up to `until`, in time order (ties in the order
+    /// they were scheduled), then leaves the clock at `until`.
+    pub fn run_until(&self, until: Time) {
+        self.run(until);
+        if until > self.now() {
+            self.net.clock.set(until);
+        }
+    }
+
+    /// Runs until nothing is scheduled (every frame delivered, every timer fired, so every
+    /// send has ended) or until `limit`, whichever comes first; the clock stays at the last
+    /// event.
+    pub fn run_idle(&self, limit: Time) {
+        self.run(limit);
+    }
+
+    fn run(&self, until: Time) {
+        loop {
+            let next_frame = self.net.next_frame_time();
+            let next_timer = self.cores.iter().filter_map(|c| c.next_deadline()).min();
+            let next = match (next_frame, next_timer) {
+                (Some(a), Some(b)) => a.min(b),
+                (a, b) => match a.or(b) {
+                    Some(t) => t,
+                    None => break,
+                },
+            };
+            if next > until {
+                break;
+            }
+            let now = next.max(self.now());
+            self.net.clock.set(now);
+            if next_frame.is_some_and(|t| t <= now) {
+                while let Some(ev) = self.net.pop_due(now) {
+                    let sink = self
+                        .net
+                        .sinks
+                        .read()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .get(&(ev.transport, ev.to))
+                        .cloned();
+                    if let Some(sink) = sink {
+                        self.net
+                            .stats
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .frames_delivered += 1;
+                        sink.on_frame(&ev.frame, Peer::Unknown);
+                    }
+                }
+            } else {
+                for core in &self.cores {
+                    if core.next_deadline().is_some_and(|d| d <= now) {
+                        core.fire_timers();
+                    }
+                }
+            }
+        }
+    }
+}
