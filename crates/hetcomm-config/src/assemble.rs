@@ -86,6 +86,7 @@ pub(crate) struct TransportSpec {
     pub kind: Option<TransportKind>,
     pub delivery: DeliveryMode,
     pub attempts: u32,
+    pub ordered: bool,
     pub letter: Option<(u8, Loc)>,
     /// None when the transport had errors; it still counts as defined so the table does not
     /// report it a second time as unknown.
@@ -625,6 +626,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             kind,
             delivery: t.delivery,
             attempts: t.attempts,
+            ordered: t.ordered,
             settings,
         });
     }
@@ -752,6 +754,7 @@ fn resolve_cell(
         kind: Some(kind),
         delivery: DeliveryMode::Acknowledged,
         attempts: 3,
+        ordered: false,
         letter: None,
         settings: Some(settings),
         over: None,

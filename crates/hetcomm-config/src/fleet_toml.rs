@@ -39,7 +39,7 @@ pub(crate) const SYSTEM_KEYS: [&str; 2] = ["id", "modules"];
 /// Keys of `[legacy]`.
 pub(crate) const LEGACY_KEYS: [&str; 3] = ["ids", "table", "bluetooth"];
 /// Keys every transport accepts.
-pub(crate) const COMMON_KEYS: [&str; 4] = ["kind", "delivery", "attempts", "letter"];
+pub(crate) const COMMON_KEYS: [&str; 5] = ["kind", "delivery", "attempts", "letter", "ordered"];
 /// Keys of `udp` / `tcp` transports besides the common ones.
 pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
 /// Keys of `ros1` transports besides the common ones.
@@ -255,6 +255,14 @@ impl P<'_> {
             self.wrong_type(loc, path, "a string", item, help);
         }
         s
+    }
+
+    fn boolean(&mut self, item: &Item, path: &str, loc: &Loc, help: &str) -> Option<bool> {
+        let v = item.as_bool();
+        if v.is_none() {
+            self.wrong_type(loc, path, "true or false", item, help);
+        }
+        v
     }
 
     fn int(&mut self, item: &Item, path: &str, loc: &Loc, help: &str) -> Option<i64> {
@@ -862,6 +870,19 @@ impl P<'_> {
                 .map_or(3, |a| u32::try_from(a).unwrap_or(3))
             }
         };
+        let ordered = match t.get("ordered") {
+            None => false,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.boolean(
+                    v,
+                    &format!("{path}.ordered"),
+                    &vl,
+                    "write `ordered = true` to deliver each sender's messages in the order sent",
+                )
+                .unwrap_or(false)
+            }
+        };
         let letter = t.get("letter").and_then(|v| {
             let vl = self.vloc(v, &tloc);
             let s = self.string(
@@ -878,6 +899,7 @@ impl P<'_> {
             kind,
             delivery,
             attempts,
+            ordered,
             letter,
             settings: None,
             over: None,

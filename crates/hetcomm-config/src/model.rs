@@ -171,6 +171,9 @@ pub struct TransportDef {
     pub delivery: DeliveryMode,
     /// Transmission attempts before a send is reported failed (the thesis used 3).
     pub attempts: u32,
+    /// Receivers deliver each sender's messages carried by this transport in the order they
+    /// were sent (holding early arrivals until the gap fills or a hold timeout passes).
+    pub ordered: bool,
     /// Kind-specific settings.
     pub settings: TransportSettings,
 }

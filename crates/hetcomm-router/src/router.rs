@@ -1,6 +1,6 @@
 //! The router state machine.
 
-use std::collections::{BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::time::Duration;
 
 use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
@@ -35,6 +35,9 @@ pub struct Timing {
     pub max_rto: Duration,
     /// Factor the timeout grows by after each unanswered attempt.
     pub backoff: f64,
+    /// Under in-order delivery, how long an early message waits for a missing earlier one
+    /// before the gap is given up and delivery moves on.
+    pub hold_timeout: Duration,
 }
 
 impl Default for Timing {
@@ -44,6 +47,7 @@ impl Default for Timing {
             min_rto: Duration::from_millis(2),
             max_rto: Duration::from_secs(5),
             backoff: 2.0,
+            hold_timeout: Duration::from_secs(2),
         }
     }
 }
@@ -63,6 +67,8 @@ pub struct RouterConfig {
     pub timing: Timing,
     /// Sequence numbers remembered per sender beyond the contiguous prefix.
     pub dedup_window: usize,
+    /// Senders whose messages are delivered in the order sent (see [`Timing::hold_timeout`]).
+    pub ordered_sources: BTreeSet<SystemId>,
 }
 
 impl RouterConfig {
@@ -78,6 +84,7 @@ impl RouterConfig {
             known_systems: known,
             timing: Timing::default(),
             dedup_window: 4096,
+            ordered_sources: BTreeSet::new(),
         }
     }
 }
@@ -214,7 +221,11 @@ impl std::fmt::Display for Outcome {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Outcome::Delivered { attempts, latency } => {
-                write!(f, "delivered (attempts: {attempts}, {} µs)", latency.as_micros())
+                write!(
+                    f,
+                    "delivered (attempts: {attempts}, {} µs)",
+                    latency.as_micros()
+                )
             }
             Outcome::Sent { attempts } => {
                 write!(f, "sent without confirmation (attempts: {attempts})")
@@ -314,6 +325,10 @@ pub struct RouterStats {
     pub unknown_origin: u64,
     /// Frames addressed to another system.
     pub misrouted: u64,
+    /// Messages that arrived early and waited for an earlier one (in-order delivery).
+    pub held: u64,
+    /// Gaps given up after the hold timeout (in-order delivery moved past a missing message).
+    pub gaps_skipped: u64,
 }
 
 impl RouterStats {
@@ -333,7 +348,24 @@ struct Pending<T> {
     first_sent: Option<Time>,
     /// When to retransmit (acknowledged sends that are on the wire).
     deadline: Option<Time>,
-    
+}
+
+/// In-order delivery state for one (origin, incarnation).
+#[derive(Default)]
+struct OrderState {
+    /// The sequence number to deliver next.
+    next: u64,
+    /// Early arrivals, by sequence number.
+    held: BTreeMap<u64, Held>,
+    /// When the oldest early arrival gives up on the gap.
+    deadline: Option<Time>,
+}
+
+struct Held {
+    header: Header,
+    payload: Vec<u8>,
+    link: usize,
+    ack_header: Header,
 }
 
 struct PendingDelivery {
@@ -360,12 +392,17 @@ pub struct Router<T> {
     next_token: u64,
     events: VecDeque<Event<T>>,
     dedup: Dedup,
+    order: BTreeMap<(SystemId, u32), OrderState>,
     stats: RouterStats,
 }
 
 enum TransmitItem {
     Send(SendId),
-    Ack { link: usize, to: SystemId, frame: Vec<u8> },
+    Ack {
+        link: usize,
+        to: SystemId,
+        frame: Vec<u8>,
+    },
 }
 
 impl<T> Router<T> {
@@ -386,6 +423,7 @@ impl<T> Router<T> {
             next_token: 0,
             events: VecDeque::new(),
             dedup,
+            order: BTreeMap::new(),
             stats: RouterStats::default(),
         }
     }
@@ -563,12 +601,11 @@ impl<T> Router<T> {
     /// The timeout for the given attempt: the destination's RTO, backed off per earlier attempt.
     fn rto_for(&self, to: SystemId, attempt: u32) -> Duration {
         let t = self.config.timing;
-        let base = self
-            .rtt
-            .get(&to)
-            .map(|r| r.rto())
-            .unwrap_or(t.initial_rto);
-        let factor = t.backoff.max(1.0).powi(attempt.saturating_sub(1).min(30) as i32);
+        let base = self.rtt.get(&to).map(|r| r.rto()).unwrap_or(t.initial_rto);
+        let factor = t
+            .backoff
+            .max(1.0)
+            .powi(attempt.saturating_sub(1).min(30) as i32);
         base.mul_f64(factor).min(t.max_rto).max(t.min_rto)
     }
 
@@ -607,7 +644,7 @@ impl<T> Router<T> {
         }
         match h.kind {
             FrameKind::Ack => self.handle_ack(now, &h, frame.payload),
-            FrameKind::Data => self.handle_data(link, &h, frame.payload),
+            FrameKind::Data => self.handle_data(now, link, &h, frame.payload),
         }
     }
 
@@ -656,7 +693,7 @@ impl<T> Router<T> {
         self.finish(id, outcome);
     }
 
-    fn handle_data(&mut self, link: usize, h: &Header, payload: &[u8]) {
+    fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: &[u8]) {
         let origin = h.source.system;
         let ack_header = Header {
             kind: FrameKind::Ack,
@@ -670,27 +707,86 @@ impl<T> Router<T> {
             message_type: h.message_type,
             timestamp: h.timestamp,
         };
+        let key = (origin, h.incarnation);
         if self.dedup.contains(origin, h.incarnation, h.seq) {
             self.stats.duplicates += 1;
-            // The earlier acknowledgement may have been lost: say it again.
-            if h.ack_requested() && !self.awaiting.values().any(|d| {
+            // The earlier acknowledgement may have been lost: say it again, unless the first
+            // copy is still waiting for its inbox or its turn (its ack comes then).
+            let waiting = self.awaiting.values().any(|d| {
                 d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
-            }) {
+            }) || self
+                .order
+                .get(&key)
+                .is_some_and(|o| o.held.contains_key(&h.seq));
+            if h.ack_requested() && !waiting {
                 self.queue_ack(link, ack_header, AckStatus::Delivered);
             }
             return;
         }
         self.dedup.insert(origin, h.incarnation, h.seq);
+        if !self.config.ordered_sources.contains(&origin) {
+            self.accept(link, *h, payload.to_vec(), ack_header);
+            return;
+        }
+        let hold = self.config.timing.hold_timeout;
+        let state = self.order.entry(key).or_insert_with(|| OrderState {
+            next: 1,
+            ..OrderState::default()
+        });
+        if h.seq > state.next {
+            self.stats.held += 1;
+            state.held.insert(
+                h.seq,
+                Held {
+                    header: *h,
+                    payload: payload.to_vec(),
+                    link,
+                    ack_header,
+                },
+            );
+            state.deadline.get_or_insert(now + hold);
+            return;
+        }
+        if h.seq == state.next {
+            state.next += 1;
+        }
+        // In order (or older than a gap already given up): deliver, then whatever it unblocks.
+        self.accept(link, *h, payload.to_vec(), ack_header);
+        self.release_in_order(now, key);
+    }
+
+    /// Delivers held messages that are now next in line.
+    fn release_in_order(&mut self, now: Time, key: (SystemId, u32)) {
+        let hold = self.config.timing.hold_timeout;
+        let mut ready = Vec::new();
+        if let Some(state) = self.order.get_mut(&key) {
+            while let Some(held) = state.held.remove(&state.next) {
+                state.next += 1;
+                ready.push(held);
+            }
+            state.deadline = if state.held.is_empty() {
+                None
+            } else {
+                Some(now + hold)
+            };
+        }
+        for held in ready {
+            self.accept(held.link, held.header, held.payload, held.ack_header);
+        }
+    }
+
+    /// Hands a message to the driver for its inbox (with a token when it wants an ack).
+    fn accept(&mut self, link: usize, header: Header, payload: Vec<u8>, ack_header: Header) {
         self.stats.received += 1;
-        let token = if h.ack_requested() {
+        let token = if header.ack_requested() {
             let token = DeliveryToken(self.next_token);
             self.next_token += 1;
             self.awaiting.insert(
                 token,
                 PendingDelivery {
-                    origin,
-                    incarnation: h.incarnation,
-                    seq: h.seq,
+                    origin: header.source.system,
+                    incarnation: header.incarnation,
+                    seq: header.seq,
                     link,
                     ack_header,
                 },
@@ -700,8 +796,8 @@ impl<T> Router<T> {
             None
         };
         self.deliveries.push_back(Delivery {
-            header: *h,
-            payload: payload.to_vec(),
+            header,
+            payload,
             link,
             token,
         });
@@ -738,11 +834,32 @@ impl<T> Router<T> {
 
     /// When [`Router::handle_timeout`] should next be called.
     pub fn poll_timeout(&self) -> Option<Time> {
-        self.timers.first().map(|(t, _)| *t)
+        let retransmit = self.timers.first().map(|(t, _)| *t);
+        let hold = self.order.values().filter_map(|o| o.deadline).min();
+        match (retransmit, hold) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
-    /// Retransmits or fails sends whose acknowledgement is overdue.
+    /// Retransmits or fails sends whose acknowledgement is overdue, and moves in-order
+    /// delivery past gaps that waited longer than the hold timeout.
     pub fn handle_timeout(&mut self, now: Time) {
+        let overdue: Vec<(SystemId, u32)> = self
+            .order
+            .iter()
+            .filter(|(_, o)| o.deadline.is_some_and(|d| d <= now))
+            .map(|(k, _)| *k)
+            .collect();
+        for key in overdue {
+            if let Some(state) = self.order.get_mut(&key) {
+                if let Some(&first) = state.held.keys().next() {
+                    self.stats.gaps_skipped += 1;
+                    state.next = first;
+                }
+            }
+            self.release_in_order(now, key);
+        }
         while let Some(&(deadline, id)) = self.timers.first() {
             if deadline > now {
                 break;

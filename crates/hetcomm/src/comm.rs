@@ -213,6 +213,12 @@ impl Comm {
             .collect();
         let mut config = RouterConfig::new(me, incarnation, routes);
         config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        config.ordered_sources = fleet
+            .table
+            .iter()
+            .filter(|((_, d), &t)| *d == me && fleet.transports[t].ordered)
+            .map(|((s, _), _)| *s)
+            .collect();
         if let Some(timing) = env.timing {
             config.timing = timing;
         }
