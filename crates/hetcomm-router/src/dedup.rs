@@ -22,6 +22,11 @@ impl Seen {
         if seq <= self.floor {
             return;
         }
+        // The common case, in-order arrival with no gaps, touches no tree.
+        if seq == self.floor + 1 && self.above.is_empty() {
+            self.floor = seq;
+            return;
+        }
         self.above.insert(seq);
         // Slide the floor over a contiguous run.
         while self.above.first() == Some(&(self.floor + 1)) {

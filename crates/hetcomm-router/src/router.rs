@@ -712,12 +712,13 @@ impl<T> Router<T> {
             self.stats.duplicates += 1;
             // The earlier acknowledgement may have been lost: say it again, unless the first
             // copy is still waiting for its inbox or its turn (its ack comes then).
-            let waiting = self.awaiting.values().any(|d| {
-                d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
-            }) || self
-                .order
-                .get(&key)
-                .is_some_and(|o| o.held.contains_key(&h.seq));
+            let waiting =
+                self.awaiting.values().any(|d| {
+                    d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
+                }) || self
+                    .order
+                    .get(&key)
+                    .is_some_and(|o| o.held.contains_key(&h.seq));
             if h.ack_requested() && !waiting {
                 self.queue_ack(link, ack_header, AckStatus::Delivered);
             }

@@ -1,0 +1,61 @@
+//! Quick in-process hand-off figures: `cargo run --release -p hetcomm --example inproc_rate`.
+//! The benchmark suite (`hetcomm bench`) is the reference; this is a developer's probe.
+
+use std::time::Instant;
+
+use hetcomm::{LocalFleet, Message};
+use serde::{Deserialize, Serialize};
+
+#[derive(Serialize, Deserialize, Message)]
+#[message(id = 1)]
+struct Small {
+    a: u32,
+}
+
+fn fleet(delivery: &str) -> LocalFleet {
+    let text = format!(
+        r#"
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[inbox]
+capacity = 2000000
+[transports.t]
+kind = "inproc"
+delivery = "{delivery}"
+[table]
+columns = ["A", "B"]
+A = ["X", "t"]
+B = ["t", "X"]
+"#
+    );
+    LocalFleet::open(hetcomm::config::parse_str(&text, "probe.toml", None).unwrap()).unwrap()
+}
+
+fn main() {
+    for delivery in ["unacknowledged", "acknowledged"] {
+        let f = fleet(delivery);
+        let a = f.system("A").unwrap().module("M").unwrap();
+        let b = f.system("B").unwrap().module("M").unwrap();
+        let n = 1_000_000u32;
+        let start = Instant::now();
+        for i in 0..n {
+            let _ = a.send("B", "M", &Small { a: i }).unwrap();
+        }
+        let sent = start.elapsed();
+        let mut got = 0;
+        while b.try_recv::<Small>().unwrap().is_some() {
+            got += 1;
+        }
+        let total = start.elapsed();
+        println!(
+            "{delivery}: {n} sends in {:.3} s = {:.2} M msg/s (send side {:.0} ns/msg); received {got}, total {:.2} M msg/s",
+            sent.as_secs_f64(),
+            n as f64 / sent.as_secs_f64() / 1e6,
+            sent.as_nanos() as f64 / n as f64,
+            got as f64 / total.as_secs_f64() / 1e6
+        );
+    }
+}
