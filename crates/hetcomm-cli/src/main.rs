@@ -6,8 +6,9 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 
+mod demo;
+mod experiment;
 mod poke;
-mod relay;
 
 /// hetcomm: a heterogeneous communication layer and test harness for teams of robots.
 #[derive(Parser)]
@@ -38,16 +39,35 @@ enum Command {
     },
     /// Print a commented example fleet file.
     GenerateConfig,
-    /// Run systems of a fleet in this process exchanging messages: a relay chain
-    /// Alpha → Charlie → Tango on the embedded fleet, or on `--fleet`.
+    /// Run the thesis's leader–follower demonstration (§5.1): Alpha leads, Charlie and Tango
+    /// follow, virtual environments integrate their poses. Prints the command tables
+    /// (Tables 9–12) and pose tables (13–15), and writes CSV and PNG plots.
     Demo {
-        /// Fleet file to use instead of the embedded one (needs systems Alpha, Charlie,
-        /// Tango and modules Plan, Act).
-        #[arg(long)]
+        /// Seed of the emulated links.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder for tables, CSV and plots.
+        #[arg(long, default_value = "hetcomm-out/demo")]
+        out: PathBuf,
+        /// Fleet file to use instead of the embedded Tables 6–8 fleet (needs Alpha, Charlie,
+        /// Tango, their VEs, and modules Plan, Act, World).
+        #[arg(long, conflicts_with_all = ["r", "b"])]
         fleet: Option<PathBuf>,
-        /// Commands the leader sends.
-        #[arg(long, default_value_t = 5)]
-        commands: u8,
+        /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated
+        /// profiles), or ros1.
+        #[arg(long, default_value = "inproc")]
+        r: String,
+        /// What the table letter B means: inproc, wired, wifi, bluetooth-classic (emulated
+        /// profiles), or bluetooth (real RFCOMM; Table 8 addresses).
+        #[arg(long, default_value = "bluetooth-classic")]
+        b: String,
+        /// One virtual environment receiving every rover's Wheels through callbacks, instead
+        /// of one polling VE per rover.
+        #[arg(long)]
+        single_ve: bool,
+        /// Run in real time (about 15 s) instead of virtual time.
+        #[arg(long)]
+        realtime: bool,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     Listen {
@@ -98,6 +118,11 @@ enum Command {
         /// Longest wait for the outcome, seconds.
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
+    },
+    /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
+    Experiment {
+        #[command(subcommand)]
+        experiment: experiment::Experiment,
     },
 }
 
@@ -195,8 +220,25 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 ExitCode::FAILURE
             })
         }
-        Command::Demo { fleet, commands } => {
-            relay::run(fleet.as_deref(), commands)?;
+        Command::Experiment { experiment } => experiment::run(experiment),
+        Command::Demo {
+            seed,
+            out,
+            fleet,
+            r,
+            b,
+            single_ve,
+            realtime,
+        } => {
+            demo::run(demo::DemoArgs {
+                seed,
+                out: &out,
+                fleet: fleet.as_deref(),
+                r: &r,
+                b: &b,
+                single_ve,
+                realtime,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
     }

@@ -55,6 +55,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     );
     let deadline = args.timeout.map(|t| Instant::now() + t);
     let mut seen = 0usize;
+    let mut owed_acks = 0u64;
     while args.count.is_none_or(|c| seen < c) {
         let wait = match deadline {
             Some(d) => d.saturating_duration_since(Instant::now()),
@@ -66,12 +67,16 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         match rx.recv_timeout(wait) {
             Ok((module, raw)) => {
                 seen += 1;
+                if raw.envelope.header.ack_requested() {
+                    owed_acks += 1;
+                }
                 println!("{}", describe(&module, &raw, args.json));
             }
             Err(mpsc::RecvTimeoutError::Timeout) if deadline.is_none() => continue,
             Err(_) => break,
         }
     }
+    wait_for_acks(&comm, owed_acks, Duration::from_secs(1));
     let s = comm.stats();
     let dropped_links: u64 = s.links.iter().map(|(_, l)| l.frames_dropped).sum();
     eprintln!(
@@ -79,6 +84,26 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         s.router.received, s.router.duplicates, s.router.malformed, s.router.unknown_origin, s.router.misrouted
     );
     Ok(())
+}
+
+/// Waits (at most `limit`) until the acknowledgements of the `owed` messages printed are on
+/// the wire. The router acknowledges a message on the link's receive thread only after it is
+/// in the module's inbox, so the message can be printed — and with `--count` this process
+/// exit — before its acknowledgement went out; the sender would then report a failure for a
+/// message that arrived. This system sends nothing but acknowledgements, so every frame its
+/// links sent is one.
+fn wait_for_acks(comm: &Comm, owed: u64, limit: Duration) {
+    let give_up = Instant::now() + limit;
+    loop {
+        let s = comm.stats();
+        let on_wire: u64 = s.links.iter().map(|(_, l)| l.frames_sent).sum();
+        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent)
+            || Instant::now() >= give_up
+        {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }
 
 fn describe(module: &str, raw: &RawMessage, json: bool) -> String {

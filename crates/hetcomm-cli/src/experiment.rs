@@ -1,0 +1,225 @@
+//! `hetcomm experiment …`: the thesis's experiments, re-run in virtual time
+//! (`hetcomm-experiments`).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use clap::{Args, Subcommand, ValueEnum};
+use hetcomm_experiments::reliability::{self, LossModel, Mode, ReliabilityConfig};
+use hetcomm_experiments::report::{self, Format};
+use hetcomm_experiments::sweep::{self, SweepConfig};
+
+/// The experiments.
+#[derive(Subcommand)]
+pub enum Experiment {
+    /// The reliability analysis of the thesis (§5.2, Tables 16–20): Bravo, Charlie and Delta
+    /// each send one broadcast and five point-to-point messages per trial over the R and B
+    /// transports of Table 17, in virtual time. Two modes side by side: `thesis`
+    /// (unacknowledged, losses reported by the transport, 3 attempts) and `acknowledged`
+    /// (silent losses recovered by the routers' acknowledgements and retransmissions).
+    ///
+    /// Prints tables in the shape of Tables 19 and 20 and the delivery ratio next to the
+    /// thesis's 413 of 420, and writes reliability.json, summary.csv and tables.csv (and the
+    /// fleet used, under fleet/) into --out.
+    Reliability(ReliabilityArgs),
+}
+
+/// Which modes to run.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ModeArg {
+    /// Unacknowledged delivery, reported losses, 3 attempts (the thesis's situation).
+    Thesis,
+    /// Acknowledged delivery, silent losses, RTT-based retransmission.
+    Acknowledged,
+    /// Both, side by side.
+    Both,
+}
+
+/// What to print on stdout.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum FormatArg {
+    /// Tables.
+    Text,
+    /// summary.csv, a blank line, tables.csv (sweep: sweep.csv).
+    Csv,
+    /// One JSON object (the report plus wall_time_s and files).
+    Json,
+}
+
+/// Options of `hetcomm experiment reliability`.
+#[derive(Args)]
+pub struct ReliabilityArgs {
+    /// Fleet file to use instead of the built-in one (Tables 16–18 with R = emulated `wired`,
+    /// B = emulated `bluetooth-classic`; written to OUT/fleet/ as a starting point).
+    #[arg(long, value_name = "FILE")]
+    fleet: Option<PathBuf>,
+    /// Trials per mode.
+    #[arg(long, default_value_t = reliability::THESIS_TRIALS)]
+    trials: u32,
+    /// Base seed: the destinations, and each trial's simulation (seed + trial).
+    #[arg(long, default_value_t = ReliabilityConfig::default().seed)]
+    seed: u64,
+    /// Attempt budget of the acknowledged mode (first transmission included). The default
+    /// delivers every message even at 30% i.i.d. loss on B.
+    #[arg(long, default_value_t = reliability::DEFAULT_ATTEMPTS)]
+    attempts: u32,
+    /// I.i.d. loss on the B transport, percent (turns the profile's burst loss off).
+    #[arg(long, value_name = "PERCENT", conflicts_with = "burst_loss")]
+    loss: Option<f64>,
+    /// Gilbert–Elliott mean loss on the B transport, percent (needs --burst-length).
+    #[arg(long, value_name = "PERCENT", requires = "burst_length")]
+    burst_loss: Option<f64>,
+    /// Mean burst length of --burst-loss, frames (≥ 1).
+    #[arg(long, value_name = "FRAMES", requires = "burst_loss")]
+    burst_length: Option<f64>,
+    /// Which modes to run.
+    #[arg(long, value_enum, default_value_t = ModeArg::Both)]
+    mode: ModeArg,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "hetcomm-out/reliability")]
+    out: PathBuf,
+    /// What to print on stdout (files are always written).
+    #[arg(long, value_enum, default_value_t = FormatArg::Text)]
+    format: FormatArg,
+    /// Sweep the loss on B over 0, 5, …, 30%, i.i.d. and bursty (mean burst 3 frames), instead
+    /// of one run; writes sweep.csv, sweep.json and sweep.png.
+    #[arg(long, conflicts_with_all = ["loss", "burst_loss", "burst_length"])]
+    sweep: bool,
+}
+
+/// Runs an experiment subcommand.
+pub fn run(experiment: Experiment) -> anyhow::Result<ExitCode> {
+    match experiment {
+        Experiment::Reliability(args) => reliability_cmd(args),
+    }
+}
+
+fn config(args: &ReliabilityArgs) -> ReliabilityConfig {
+    let loss = match (args.loss, args.burst_loss, args.burst_length) {
+        (Some(percent), _, _) => LossModel::Iid { percent },
+        (None, Some(percent), Some(burst_length)) => LossModel::Bursty {
+            percent,
+            burst_length,
+        },
+        _ => LossModel::Profile,
+    };
+    ReliabilityConfig {
+        trials: args.trials,
+        seed: args.seed,
+        attempts: args.attempts,
+        modes: match args.mode {
+            ModeArg::Thesis => vec![Mode::Thesis],
+            ModeArg::Acknowledged => vec![Mode::Acknowledged],
+            ModeArg::Both => Mode::ALL.to_vec(),
+        },
+        loss,
+        ..ReliabilityConfig::default()
+    }
+}
+
+fn print_paths(to_stderr: bool, paths: &[PathBuf]) {
+    for p in paths {
+        if to_stderr {
+            eprintln!("wrote {}", p.display());
+        } else {
+            println!("wrote {}", p.display());
+        }
+    }
+}
+
+fn load(args: &ReliabilityArgs, out: &Path) -> anyhow::Result<hetcomm::config::Fleet> {
+    let path = match &args.fleet {
+        Some(path) => path.clone(),
+        None => reliability::write_default_fleet(&out.join("fleet"))?,
+    };
+    Ok(reliability::load_fleet(&path)?)
+}
+
+fn reliability_cmd(args: ReliabilityArgs) -> anyhow::Result<ExitCode> {
+    let start = Instant::now();
+    let config = config(&args);
+    reliability::validate(&config)?;
+    let fleet = load(&args, &args.out)?;
+    let format = match args.format {
+        FormatArg::Text => Format::Text,
+        FormatArg::Csv => Format::Csv,
+        FormatArg::Json => Format::Json,
+    };
+    if args.sweep {
+        let sweep_config = SweepConfig {
+            base: config,
+            ..SweepConfig::default()
+        };
+        let report = sweep::run(&fleet, &sweep_config)?;
+        let paths = sweep::write_files(&report, &args.out)?;
+        let wall = start.elapsed().as_secs_f64();
+        let ok = report
+            .points
+            .iter()
+            .all(|p| p.balanced && p.duplicates_delivered == 0);
+        match format {
+            Format::Text => {
+                print!("{}", sweep::text(&report));
+                println!("\nwall time: {wall:.3} s");
+                print_paths(false, &paths);
+            }
+            Format::Csv => {
+                print!("{}", sweep::csv(&report));
+                eprintln!("wall time: {wall:.3} s");
+                print_paths(true, &paths);
+            }
+            Format::Json => {
+                let mut value = serde_json::to_value(&report)?;
+                value["wall_time_s"] = serde_json::json!(wall);
+                value["files"] = serde_json::json!(paths);
+                println!("{}", serde_json::to_string_pretty(&value)?);
+            }
+        }
+        return Ok(exit(ok));
+    }
+    let report = reliability::run(&fleet, &config)?;
+    let mut paths = report::write_files(&report, &args.out)?;
+    if args.fleet.is_none() {
+        paths.push(args.out.join("fleet").join("fleet.toml"));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let ok = report
+        .modes
+        .iter()
+        .all(|m| m.accounting.balanced && m.duplicates_delivered == 0);
+    match format {
+        Format::Text => {
+            print!("{}", report::render(&report, format));
+            println!(
+                "wall time: {wall:.3} s for {} trials × {} mode(s)",
+                report.trials,
+                report.modes.len()
+            );
+            print_paths(false, &paths);
+        }
+        Format::Csv => {
+            print!("{}", report::render(&report, format));
+            eprintln!("wall time: {wall:.3} s");
+            print_paths(true, &paths);
+        }
+        Format::Json => {
+            let mut value = serde_json::to_value(&report)?;
+            value["wall_time_s"] = serde_json::json!(wall);
+            value["files"] = serde_json::json!(paths);
+            println!("{}", serde_json::to_string_pretty(&value)?);
+        }
+    }
+    Ok(exit(ok))
+}
+
+/// Exit status: 0, or 1 when an invariant broke (unbalanced accounting, a duplicate reached an
+/// inbox), which the output then shows.
+fn exit(ok: bool) -> ExitCode {
+    if ok {
+        ExitCode::SUCCESS
+    } else {
+        eprintln!("error: an invariant failed (accounting unbalanced or duplicates delivered)");
+        ExitCode::FAILURE
+    }
+}

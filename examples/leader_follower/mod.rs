@@ -1,0 +1,524 @@
+//! The thesis's leader–follower demonstration (§5.1), written the way a user would write it:
+//! the rovers' autonomy code and the virtual environment use only the public `hetcomm` API.
+//!
+//! - **Alpha** (leader): its Plan module follows a schedule in simulated seconds (straight,
+//!   turn left, straight, turn left, straight) and sends each `Command` to Charlie; its Act
+//!   module sends `Wheels` to its virtual environment at a fixed rate (Fig. 25).
+//! - **Charlie** (follower): Plan forwards each command to Tango and acts on it; Act reports
+//!   `Wheels` at the same rate and keeps the previous motion when no command arrives (Fig. 26).
+//! - **Tango** (follower): as Charlie, without forwarding.
+//! - **Virtual environments**: integrate each rover's pose from its `Wheels` with the
+//!   differential-drive model of `hetcomm-sim`, log poses, and publish positions for
+//!   range-dependent links. Either three VEs that poll (the thesis's layout) or one VE that
+//!   receives every rover's `Wheels` through callbacks (the improvement §5.1 asks for).
+//!
+//! [`run`] drives it all in virtual time (repeatable for a seed) or in real time.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use hetcomm::sim::{SimFleet, SimOptions};
+use hetcomm::{Comm, LocalFleet, Message, Module, Time};
+use hetcomm_sim::report::{self, CommandKind, CommandRecord};
+use hetcomm_sim::{Pose, PoseSample, Scenario, VirtualEnvironment};
+use serde::{Deserialize, Serialize};
+
+/// What the leader tells a follower to do (the thesis's Command message).
+#[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq, Eq)]
+#[message(id = 0)]
+pub struct Command {
+    /// 0 straight, 1 turn left, 2 stop.
+    pub code: u8,
+}
+
+/// A rover's wheel speeds, sent to its virtual environment (the thesis's Wheels message).
+#[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq)]
+#[message(id = 1)]
+pub struct Wheels {
+    /// Left wheel speed.
+    pub left: f64,
+    /// Right wheel speed.
+    pub right: f64,
+}
+
+/// Wheel speeds for a command code (Fig. 26): straight 1/1, left pivot −10/+10, stop 0/0.
+pub fn wheels_for(code: u8) -> Wheels {
+    match code {
+        1 => Wheels {
+            left: -10.0,
+            right: 10.0,
+        },
+        2 => Wheels {
+            left: 0.0,
+            right: 0.0,
+        },
+        _ => Wheels {
+            left: 1.0,
+            right: 1.0,
+        },
+    }
+}
+
+/// The fleet of Tables 6–8 as one self-contained file: `R` in-process, `B` the emulated
+/// `bluetooth-classic` radio. `fleet.toml` in this folder imports the thesis's own files and
+/// loads to the same fleet (a test checks it).
+pub const EMBEDDED_FLEET: &str = r#"
+name = "leader-follower"
+[systems]
+Alpha = 0
+Charlie = 1
+Tango = 2
+VirtualEnv = 3
+VirtualEnv2 = 4
+VirtualEnv3 = 5
+[modules]
+Plan = 0
+Act = 1
+World = 2
+[letters]
+R = "wired"
+B = "radio"
+[transports.wired]
+kind = "inproc"
+[transports.radio]
+kind = "emulated"
+profile = "bluetooth-classic"
+attempts = 8
+# The rovers carry Class 1 radios in open field (20 dBm, free-space exponent 2, -90 dBm
+# sensitivity: 50% loss at about 3 km); the profile's default short-range radio would lose
+# Charlie and Tango, who start ~55 m apart. The VE publishes positions, so range still applies.
+tx_power_dbm = 20.0
+path_loss_exponent = 2.0
+sensitivity_dbm = -90.0
+[table]
+columns     = ["Alpha", "Charlie", "Tango", "VirtualEnv", "VirtualEnv2", "VirtualEnv3"]
+Alpha       = ["X", "R", "X", "R", "X", "X"]
+Charlie     = ["R", "X", "B", "X", "R", "X"]
+Tango       = ["X", "B", "X", "X", "X", "R"]
+VirtualEnv  = ["R", "X", "X", "X", "X", "X"]
+VirtualEnv2 = ["X", "R", "X", "X", "X", "X"]
+VirtualEnv3 = ["X", "X", "R", "X", "X", "X"]
+"#;
+
+/// The single-VE variant's fleet (also in `fleet-single-ve.toml`).
+pub const EMBEDDED_SINGLE_VE_FLEET: &str = include_str!("fleet-single-ve.toml");
+
+/// How often rovers act and report their wheels, and VEs step (10 Hz).
+pub const CONTROL_PERIOD: Duration = Duration::from_millis(100);
+
+fn seconds_since(t0: Time, t: Time) -> f64 {
+    t.saturating_since(t0).as_secs_f64()
+}
+
+/// The leader's autonomy code: Plan follows the schedule, Act drives the wheels.
+pub struct Leader {
+    plan: Module,
+    act: Module,
+    name: String,
+    follower: String,
+    environment: String,
+    schedule: hetcomm_sim::Schedule,
+    last_t: Option<f64>,
+    wheels: Wheels,
+    /// Commands sent, for Table 9.
+    pub sent: Vec<CommandRecord>,
+}
+
+impl Leader {
+    /// The leader `comm`, commanding `follower`, reporting to `environment`.
+    pub fn new(
+        comm: &Comm,
+        follower: &str,
+        environment: &str,
+        schedule: hetcomm_sim::Schedule,
+    ) -> Result<Leader, hetcomm::OpenError> {
+        Ok(Leader {
+            plan: comm.module("Plan")?,
+            act: comm.module("Act")?,
+            name: comm.name().to_string(),
+            follower: follower.to_string(),
+            environment: environment.to_string(),
+            wheels: wheels_for(schedule.initial().code() as u8),
+            schedule,
+            last_t: None,
+            sent: Vec::new(),
+        })
+    }
+
+    /// One control step at `t_s` seconds into the scenario.
+    pub fn step(&mut self, t_s: f64) -> Result<(), hetcomm::SendError> {
+        // Plan: every command that fell due since the last step (none is ever skipped).
+        let after = self.last_t.unwrap_or(f64::NEG_INFINITY);
+        let due: Vec<_> = self.schedule.due_between(after, t_s).collect();
+        for entry in due {
+            let code = entry.command.code() as u8;
+            self.plan.send(&self.follower, "Plan", &Command { code })?;
+            self.sent.push(CommandRecord::new(
+                &self.name,
+                t_s,
+                code.into(),
+                CommandKind::Sent,
+            ));
+            self.wheels = wheels_for(code);
+        }
+        self.last_t = Some(t_s);
+        // Act: report the wheels at the control rate.
+        self.act.send(&self.environment, "World", &self.wheels)?;
+        Ok(())
+    }
+}
+
+/// A follower's autonomy code (Fig. 26): poll for commands, forward them, act on them.
+pub struct Follower {
+    plan: Module,
+    act: Module,
+    name: String,
+    next: Option<String>,
+    environment: String,
+    start: Time,
+    wheels: Wheels,
+    /// Commands received, for Tables 10 and 11.
+    pub received: Vec<CommandRecord>,
+}
+
+impl Follower {
+    /// A follower forwarding to `next` (if any), reporting to `environment`; `start` is the
+    /// scenario's time origin on this system's clock.
+    pub fn new(
+        comm: &Comm,
+        next: Option<&str>,
+        environment: &str,
+        start: Time,
+    ) -> Result<Follower, hetcomm::OpenError> {
+        Ok(Follower {
+            plan: comm.module("Plan")?,
+            act: comm.module("Act")?,
+            name: comm.name().to_string(),
+            next: next.map(str::to_string),
+            environment: environment.to_string(),
+            start,
+            wheels: wheels_for(0), // every rover starts driving straight
+            received: Vec::new(),
+        })
+    }
+
+    /// One control step.
+    pub fn step(&mut self) -> Result<(), Box<dyn std::error::Error>> {
+        while let Some(r) = self.plan.try_recv::<Command>()? {
+            let t = seconds_since(self.start, r.envelope.received_at);
+            self.received.push(CommandRecord::new(
+                &self.name,
+                t,
+                r.message.code.into(),
+                CommandKind::Received,
+            ));
+            if let Some(next) = &self.next {
+                self.plan.send(next, "Plan", &r.message)?;
+            }
+            self.wheels = wheels_for(r.message.code);
+        }
+        // No new command: keep the previous motion.
+        self.act.send(&self.environment, "World", &self.wheels)?;
+        Ok(())
+    }
+}
+
+/// A virtual environment: integrates the poses of the rovers that report to it.
+pub struct Environment {
+    world: Module,
+    start: Time,
+    env: Arc<Mutex<VirtualEnvironment>>,
+    callbacks: bool,
+}
+
+impl Environment {
+    /// A VE for `rovers` (name, starting pose). With `callbacks`, Wheels are applied the
+    /// moment they arrive; otherwise [`Environment::step`] polls for them.
+    pub fn new(
+        comm: &Comm,
+        scenario: &Scenario,
+        rovers: &[(String, Pose)],
+        start: Time,
+        callbacks: bool,
+    ) -> Result<Environment, Box<dyn std::error::Error>> {
+        let mut env = VirtualEnvironment::with_config(scenario.drive, scenario.ve_config)?;
+        for (name, pose) in rovers {
+            env.add_rover(name, *pose)?;
+            let (l, r) = hetcomm_sim::Command::Straight.wheels();
+            env.set_wheels(name, l, r)?;
+        }
+        let env = Arc::new(Mutex::new(env));
+        let world = comm.module("World")?;
+        if callbacks {
+            let env = env.clone();
+            world.on::<Wheels>(move |r| {
+                let t = seconds_since(start, r.envelope.received_at);
+                apply(&env, &r.envelope.source_system, t, r.message);
+            })?;
+        }
+        Ok(Environment {
+            world,
+            start,
+            env,
+            callbacks,
+        })
+    }
+
+    /// Applies waiting Wheels (when polling), then integrates up to `t_s`.
+    pub fn step(&self, t_s: f64) -> Result<(), Box<dyn std::error::Error>> {
+        if !self.callbacks {
+            while let Some(r) = self.world.try_recv::<Wheels>()? {
+                let t = seconds_since(self.start, r.envelope.received_at);
+                apply(&self.env, &r.envelope.source_system, t, r.message);
+            }
+        }
+        self.env
+            .lock()
+            .map_err(|_| "environment poisoned")?
+            .advance(t_s)?;
+        Ok(())
+    }
+
+    /// Current positions (rover name, x, y).
+    pub fn positions(&self) -> Vec<(String, f64, f64)> {
+        self.env
+            .lock()
+            .map(|e| {
+                e.positions()
+                    .map(|(n, x, y)| (n.to_string(), x, y))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Hands over the pose log.
+    pub fn take_log(&self) -> Vec<PoseSample> {
+        self.env
+            .lock()
+            .map(|mut e| e.take_log())
+            .unwrap_or_default()
+    }
+}
+
+/// Wheels take effect at the time they arrived.
+fn apply(env: &Mutex<VirtualEnvironment>, rover: &str, t_s: f64, w: Wheels) {
+    if let Ok(mut env) = env.lock() {
+        // Both can only fail on non-finite input, which the model then ignores.
+        let _ = env.advance(t_s);
+        let _ = env.set_wheels(rover, w.left, w.right);
+    }
+}
+
+/// The VE layout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// One VE per rover, polling (the thesis's Tables 6–7).
+    ThreeVe,
+    /// One VE for every rover, with callbacks.
+    SingleVe,
+}
+
+/// How to run the demonstration.
+#[derive(Clone, Debug)]
+pub struct DemoOptions {
+    /// Seed of the emulated links.
+    pub seed: u64,
+    /// VE layout.
+    pub layout: Layout,
+    /// A fleet to use instead of the embedded one.
+    pub fleet: Option<hetcomm::config::Fleet>,
+    /// Run in real time instead of virtual time.
+    pub realtime: bool,
+    /// Print a progress line while running.
+    pub progress: bool,
+}
+
+impl Default for DemoOptions {
+    fn default() -> Self {
+        DemoOptions {
+            seed: 1,
+            layout: Layout::ThreeVe,
+            fleet: None,
+            realtime: false,
+            progress: false,
+        }
+    }
+}
+
+/// What a run produced.
+#[derive(Clone, Debug)]
+pub struct DemoReport {
+    /// Commands sent by Alpha and received by Charlie and Tango (Tables 9–12).
+    pub commands: Vec<CommandRecord>,
+    /// Poses logged by the VEs (Tables 13–15), sorted by time then rover.
+    pub samples: Vec<PoseSample>,
+    /// Wall time the run took.
+    pub wall: Duration,
+    /// Simulated seconds.
+    pub simulated_s: f64,
+}
+
+/// Runs the demonstration.
+pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Error>> {
+    let fleet = match (&options.fleet, options.layout) {
+        (Some(f), _) => f.clone(),
+        (None, Layout::ThreeVe) => {
+            hetcomm::config::parse_str(EMBEDDED_FLEET, "<embedded leader-follower fleet>", None)?
+        }
+        (None, Layout::SingleVe) => hetcomm::config::parse_str(
+            EMBEDDED_SINGLE_VE_FLEET,
+            "<embedded single-VE fleet>",
+            None,
+        )?,
+    };
+    let scenario = Scenario::thesis();
+    let (sim, local) = if options.realtime {
+        (None, Some(LocalFleet::open(fleet.clone())?))
+    } else {
+        let opts = SimOptions {
+            seed: options.seed,
+            ..SimOptions::default()
+        };
+        (Some(SimFleet::open(fleet.clone(), opts)?), None)
+    };
+    let system = |name: &str| -> Result<Comm, hetcomm::OpenError> {
+        match (&sim, &local) {
+            (Some(s), _) => s.system(name),
+            (_, Some(l)) => l.system(name),
+            _ => unreachable!("one of the two is always open"),
+        }
+    };
+    let start = match &sim {
+        Some(s) => s.now(),
+        None => Time::now_wall(),
+    };
+    let single = options.layout == Layout::SingleVe;
+    let ve_of = |rover: &str| -> &'static str {
+        match (single, rover) {
+            (true, _) | (false, "Alpha") => "VirtualEnv",
+            (false, "Charlie") => "VirtualEnv2",
+            _ => "VirtualEnv3",
+        }
+    };
+    let mut leader = Leader::new(
+        &system("Alpha")?,
+        "Charlie",
+        ve_of("Alpha"),
+        scenario.schedule.clone(),
+    )?;
+    let mut charlie = Follower::new(&system("Charlie")?, Some("Tango"), ve_of("Charlie"), start)?;
+    let mut tango = Follower::new(&system("Tango")?, None, ve_of("Tango"), start)?;
+    let mut environments = Vec::new();
+    if single {
+        environments.push(Environment::new(
+            &system("VirtualEnv")?,
+            &scenario,
+            &scenario.start,
+            start,
+            true,
+        )?);
+    } else {
+        for (rover, pose) in &scenario.start {
+            let ve = system(ve_of(rover))?;
+            environments.push(Environment::new(
+                &ve,
+                &scenario,
+                &[(rover.clone(), *pose)],
+                start,
+                false,
+            )?);
+        }
+    }
+    let ids: Vec<(String, hetcomm::SystemId)> = fleet
+        .systems
+        .iter()
+        .map(|s| (s.name.clone(), s.id))
+        .collect();
+
+    let end_s = scenario.schedule.end_s() + 2.0;
+    let steps = (end_s / CONTROL_PERIOD.as_secs_f64()).round() as u64;
+    let wall = Instant::now();
+    for k in 0..=steps {
+        let t = k as f64 * CONTROL_PERIOD.as_secs_f64();
+        match &sim {
+            Some(s) => s.run_until(start + Duration::from_secs_f64(t)),
+            None => {
+                let due = wall + Duration::from_secs_f64(t);
+                std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            }
+        }
+        leader.step(t)?;
+        charlie.step()?;
+        tango.step()?;
+        for ve in &environments {
+            ve.step(t)?;
+            // Publish positions for range-dependent links.
+            for (name, x, y) in ve.positions() {
+                if let Some((_, id)) = ids.iter().find(|(n, _)| *n == name) {
+                    let positions = match (&sim, &local) {
+                        (Some(s), _) => s.positions(),
+                        (_, Some(l)) => l.positions(),
+                        _ => unreachable!(),
+                    };
+                    positions.set(*id, x, y);
+                }
+            }
+        }
+        if options.progress && (k % 10 == 0 || k == steps) {
+            let width = 30;
+            let done = (k as usize * width) / steps.max(1) as usize;
+            eprint!(
+                "\r[{}{}] {t:5.1} / {end_s:.1} s {}",
+                "#".repeat(done),
+                " ".repeat(width - done),
+                if options.realtime {
+                    "real time"
+                } else {
+                    "simulated"
+                }
+            );
+        }
+    }
+    if let Some(s) = &sim {
+        s.run_idle(start + Duration::from_secs_f64(end_s + 60.0));
+    }
+    if options.progress {
+        eprintln!();
+    }
+    let mut commands = leader.sent;
+    commands.extend(charlie.received);
+    commands.extend(tango.received);
+    let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
+    samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
+    Ok(DemoReport {
+        commands,
+        samples,
+        wall: wall.elapsed(),
+        simulated_s: end_s,
+    })
+}
+
+/// Writes tables, CSV and plots into `dir`; returns the files written.
+pub fn write_outputs(
+    report: &DemoReport,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    let mut files = report::write_tables(dir, &report.commands, &report.samples)?;
+    files.extend(report::plot::write_all(
+        dir,
+        &report.samples,
+        &report.commands,
+    )?);
+    Ok(files)
+}
+
+/// The tables in the shape of the thesis's Tables 9–15, as text.
+pub fn tables(report: &DemoReport) -> String {
+    format!(
+        "{}\n{}\n{}",
+        report::command_tables(&report.commands),
+        report::command_timing_matrix(&report.commands),
+        report::pose_tables(&report.samples)
+    )
+}
