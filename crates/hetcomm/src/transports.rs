@@ -5,8 +5,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
-use hetcomm_link::inproc::InprocHub;
 use hetcomm_link::emulation::{EmulatedLink, LinkModel};
+use hetcomm_link::inproc::InprocHub;
 use hetcomm_link::{FrameSink, Link};
 
 use crate::comm::OpenEnv;
@@ -128,11 +128,24 @@ pub(crate) fn open_link(
                 None => Arc::new(hubs.hub(&format!("emulated:{}", t.name)).open(local, sink)),
             };
             let model = LinkModel::from_settings(settings).map_err(|e| failed(e.to_string()))?;
-            let link = EmulatedLink::with_epoch(inner, local, model, env.positions.clone(), env.epoch)
-                .map_err(|e| failed(e.to_string()))?;
+            let link =
+                EmulatedLink::with_epoch(inner, local, model, env.positions.clone(), env.epoch)
+                    .map_err(|e| failed(e.to_string()))?;
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address: None,
+            })
+        }
+        #[cfg(feature = "bluetooth")]
+        (TransportKind::Bluetooth, TransportSettings::Bluetooth(bt)) => {
+            use hetcomm_link_bluetooth::BluetoothLink;
+            let config = BluetoothLink::default_config();
+            let link =
+                BluetoothLink::open(local, bt, sink, config).map_err(|e| failed(e.to_string()))?;
+            let local_address = Some(format!("rfcomm://[{}]:{}", link.device(), link.channel()));
+            Ok(OpenedLink {
+                link: Arc::new(link),
+                local_address,
             })
         }
         (kind, _) => Err(unavailable(t, *kind)),
@@ -151,7 +164,7 @@ fn all_loopback(endpoints: &std::collections::BTreeMap<SystemId, String>) -> boo
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {
     let hint = match kind {
         TransportKind::Ros1 => "map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without a ROS master",
-        TransportKind::Bluetooth => "use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio",
+        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio",
         _ => "choose `inproc` (one process) or another available kind in the fleet file",
     };
     OpenError::KindUnavailable {

@@ -1,0 +1,399 @@
+//! Helpers shared by the integration tests of the `hetcomm` binary: free ports, temporary
+//! fleet files, child processes that are killed on drop and whose output is read line by line
+//! with deadlines.
+//!
+//! Nothing here sleeps to wait for readiness: a listener is ready when it has printed its
+//! `listening as ...` line on stderr; everything else waits for output lines or exits, always
+//! bounded by the test's [`Deadline`].
+
+#![allow(dead_code)] // each test binary uses a different subset
+
+use std::io::{BufRead, BufReader, Read};
+use std::net::{TcpListener, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// The `hetcomm` binary under test.
+pub const HETCOMM: &str = env!("CARGO_BIN_EXE_hetcomm");
+
+/// A test's hard deadline: every wait is bounded by it, so no test can hang.
+#[derive(Clone, Copy, Debug)]
+pub struct Deadline(Instant);
+
+impl Deadline {
+    pub fn after(secs: u64) -> Deadline {
+        Deadline(Instant::now() + Duration::from_secs(secs))
+    }
+
+    /// Time left (zero once passed).
+    pub fn left(&self) -> Duration {
+        self.0.saturating_duration_since(Instant::now())
+    }
+
+    /// The earlier of this deadline and `d` from now.
+    pub fn within(&self, d: Duration) -> Deadline {
+        Deadline(self.0.min(Instant::now() + d))
+    }
+
+    pub fn passed(&self) -> bool {
+        self.left().is_zero()
+    }
+}
+
+/// A free UDP port on 127.0.0.1: bind port 0, read it, close. Another process could take the
+/// port between this and the child binding it; that tiny race is accepted in exchange for
+/// never using fixed ports.
+pub fn free_udp_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("bind udp port 0")
+        .port()
+}
+
+/// A free TCP port on 127.0.0.1 (same accepted race as [`free_udp_port`]).
+pub fn free_tcp_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("bind tcp port 0")
+        .port()
+}
+
+/// A free port for a transport kind (`udp` or `tcp`).
+pub fn free_port(kind: &str) -> u16 {
+    match kind {
+        "udp" => free_udp_port(),
+        "tcp" => free_tcp_port(),
+        other => panic!("no free-port rule for {other}"),
+    }
+}
+
+/// A directory under the system temp dir, removed on drop.
+pub struct TempDir(PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> TempDir {
+        use std::sync::atomic::{AtomicU32, Ordering};
+        static N: AtomicU32 = AtomicU32::new(0);
+        let path = std::env::temp_dir().join(format!(
+            "hetcomm-test-{tag}-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&path);
+        std::fs::create_dir_all(&path).expect("create temp dir");
+        TempDir(path)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+
+    /// Writes `name` in the directory and returns its path.
+    pub fn write(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.0.join(name);
+        std::fs::write(&p, text).expect("write temp file");
+        p
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A fleet file text: `systems` as (name, id, endpoint); modules Plan = 0 and Act = 1; one
+/// transport `net` of `kind` (`udp` / `tcp`) carrying every pair.
+pub fn fleet_text(kind: &str, systems: &[(&str, u16, String)]) -> String {
+    let mut s = String::from("name = \"test\"\n[systems]\n");
+    for (name, id, _) in systems {
+        s.push_str(&format!("{name} = {id}\n"));
+    }
+    s.push_str("\n[modules]\nPlan = 0\nAct = 1\n\n[transports.net]\n");
+    s.push_str(&format!("kind = \"{kind}\"\n"));
+    let eps: Vec<String> = systems
+        .iter()
+        .map(|(name, _, ep)| format!("{name} = \"{ep}\""))
+        .collect();
+    s.push_str(&format!(
+        "endpoints = {{ {} }}\n\n[table]\n",
+        eps.join(", ")
+    ));
+    let cols: Vec<String> = systems.iter().map(|(n, _, _)| format!("\"{n}\"")).collect();
+    s.push_str(&format!("columns = [{}]\n", cols.join(", ")));
+    for (i, (row, _, _)) in systems.iter().enumerate() {
+        let cells: Vec<&str> = (0..systems.len())
+            .map(|j| if i == j { "\"X\"" } else { "\"net\"" })
+            .collect();
+        s.push_str(&format!("{row} = [{}]\n", cells.join(", ")));
+    }
+    s
+}
+
+/// A fleet on 127.0.0.1 with a free port per system: (temp dir holding `fleet.toml`, its
+/// path, the ports by system in the order given).
+pub fn loopback_fleet(kind: &str, systems: &[(&str, u16)]) -> (TempDir, PathBuf, Vec<u16>) {
+    let ports: Vec<u16> = systems.iter().map(|_| free_port(kind)).collect();
+    let full: Vec<(&str, u16, String)> = systems
+        .iter()
+        .zip(&ports)
+        .map(|(&(n, id), p)| (n, id, format!("127.0.0.1:{p}")))
+        .collect();
+    let dir = TempDir::new(kind);
+    let path = dir.write("fleet.toml", &fleet_text(kind, &full));
+    (dir, path, ports)
+}
+
+/// One line of a child's output, or the end of that stream.
+enum Line {
+    Text(String),
+    Eof,
+}
+
+/// Reads `r` line by line on a thread; every line also goes to `log`.
+fn pump(r: impl Read + Send + 'static, log: Arc<Mutex<Vec<String>>>) -> Receiver<Line> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut r = BufReader::new(r);
+        let mut buf = Vec::new();
+        loop {
+            buf.clear();
+            match r.read_until(b'\n', &mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(_) => {
+                    let line = String::from_utf8_lossy(&buf)
+                        .trim_end_matches(['\n', '\r'])
+                        .to_string();
+                    log.lock().unwrap().push(line.clone());
+                    // Nobody may wait for lines any more: keep draining into the log.
+                    let _ = tx.send(Line::Text(line));
+                }
+            }
+        }
+        let _ = tx.send(Line::Eof);
+    });
+    rx
+}
+
+/// A child process that is killed (and reaped) when dropped, with its stdout and stderr read
+/// line by line in the background.
+pub struct ChildGuard {
+    pub name: String,
+    child: Child,
+    stdout: Receiver<Line>,
+    stderr: Receiver<Line>,
+    stdout_eof: bool,
+    stderr_eof: bool,
+    stdout_log: Arc<Mutex<Vec<String>>>,
+    stderr_log: Arc<Mutex<Vec<String>>>,
+    pub stdin: Option<ChildStdin>,
+}
+
+impl ChildGuard {
+    /// Spawns `cmd` with piped stdout/stderr (stdin null).
+    pub fn spawn(name: &str, mut cmd: Command) -> ChildGuard {
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let mut child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("spawn {name} ({cmd:?}): {e}"));
+        let stdout_log = Arc::new(Mutex::new(Vec::new()));
+        let stderr_log = Arc::new(Mutex::new(Vec::new()));
+        let stdout = pump(child.stdout.take().unwrap(), stdout_log.clone());
+        let stderr = pump(child.stderr.take().unwrap(), stderr_log.clone());
+        ChildGuard {
+            name: name.to_string(),
+            child,
+            stdout,
+            stderr,
+            stdout_eof: false,
+            stderr_eof: false,
+            stdout_log,
+            stderr_log,
+            stdin: None,
+        }
+    }
+
+    pub fn id(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Everything printed on stdout so far.
+    pub fn stdout_lines(&self) -> Vec<String> {
+        self.stdout_log.lock().unwrap().clone()
+    }
+
+    /// Everything printed on stderr so far.
+    pub fn stderr_lines(&self) -> Vec<String> {
+        self.stderr_log.lock().unwrap().clone()
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "{} (pid {})\n--- stdout:\n{}\n--- stderr:\n{}",
+            self.name,
+            self.child.id(),
+            self.stdout_lines().join("\n"),
+            self.stderr_lines().join("\n")
+        )
+    }
+
+    fn next_line(
+        rx: &Receiver<Line>,
+        eof: &mut bool,
+        deadline: Deadline,
+    ) -> Result<String, &'static str> {
+        if *eof {
+            return Err("stream ended");
+        }
+        match rx.recv_timeout(deadline.left()) {
+            Ok(Line::Text(l)) => Ok(l),
+            Ok(Line::Eof) | Err(RecvTimeoutError::Disconnected) => {
+                *eof = true;
+                Err("stream ended")
+            }
+            Err(RecvTimeoutError::Timeout) => Err("deadline passed"),
+        }
+    }
+
+    /// The next stdout line; panics with the child's output at the deadline or end of stream.
+    pub fn next_stdout(&mut self, deadline: Deadline) -> String {
+        match Self::next_line(&self.stdout, &mut self.stdout_eof, deadline) {
+            Ok(l) => l,
+            Err(why) => panic!("waiting for a stdout line: {why}: {}", self.describe()),
+        }
+    }
+
+    /// Skips stderr lines until one contains `needle`; returns it.
+    pub fn wait_stderr(&mut self, needle: &str, deadline: Deadline) -> String {
+        loop {
+            match Self::next_line(&self.stderr, &mut self.stderr_eof, deadline) {
+                Ok(l) if l.contains(needle) => return l,
+                Ok(_) => {}
+                Err(why) => panic!(
+                    "waiting for {needle:?} on stderr: {why}: {}",
+                    self.describe()
+                ),
+            }
+        }
+    }
+
+    /// Skips stdout lines until one contains `needle`; returns it.
+    pub fn wait_stdout(&mut self, needle: &str, deadline: Deadline) -> String {
+        loop {
+            match Self::next_line(&self.stdout, &mut self.stdout_eof, deadline) {
+                Ok(l) if l.contains(needle) => return l,
+                Ok(_) => {}
+                Err(why) => panic!(
+                    "waiting for {needle:?} on stdout: {why}: {}",
+                    self.describe()
+                ),
+            }
+        }
+    }
+
+    /// Waits for the child to exit and for both output streams to end; returns the status.
+    pub fn wait_exit(&mut self, deadline: Deadline) -> ExitStatus {
+        // Both pipes close when the child exits: read them to the end first (this also makes
+        // the logs complete), then reap.
+        while Self::next_line(&self.stdout, &mut self.stdout_eof, deadline).is_ok() {}
+        while Self::next_line(&self.stderr, &mut self.stderr_eof, deadline).is_ok() {}
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(s)) => return s,
+                Ok(None) if deadline.passed() => {
+                    panic!("{} did not exit in time: {}", self.name, self.describe())
+                }
+                // Output closed but not reaped yet: poll briefly (no blocking wait with a
+                // timeout in std).
+                Ok(None) => std::thread::sleep(Duration::from_millis(5)),
+                Err(e) => panic!("waiting for {}: {e}", self.name),
+            }
+        }
+    }
+
+    /// SIGKILL and reap.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+        if std::thread::panicking() {
+            eprintln!("=== child {}", self.describe());
+        }
+    }
+}
+
+/// `hetcomm listen FLEET --as SYSTEM ARGS...` (with a `--timeout` of its own so that even an
+/// orphaned listener ends), returned once it printed `listening as SYSTEM`.
+pub fn listen(fleet: &Path, system: &str, args: &[&str], deadline: Deadline) -> ChildGuard {
+    let mut cmd = Command::new(HETCOMM);
+    cmd.arg("listen")
+        .arg(fleet)
+        .args(["--as", system])
+        .args(args);
+    if !args.contains(&"--timeout") {
+        cmd.args(["--timeout", "60"]);
+    }
+    let mut child = ChildGuard::spawn(&format!("listen as {system}"), cmd);
+    child.wait_stderr(&format!("listening as {system} "), deadline);
+    child
+}
+
+/// What a finished `hetcomm send` printed.
+#[derive(Debug)]
+pub struct Finished {
+    pub status: ExitStatus,
+    pub stdout: Vec<String>,
+    pub stderr: Vec<String>,
+}
+
+/// Runs a command to completion within the deadline.
+pub fn run(name: &str, cmd: Command, deadline: Deadline) -> Finished {
+    let mut child = ChildGuard::spawn(name, cmd);
+    let status = child.wait_exit(deadline);
+    Finished {
+        status,
+        stdout: child.stdout_lines(),
+        stderr: child.stderr_lines(),
+    }
+}
+
+/// The `hetcomm send` command line: as `system` to `to`'s Act module, type 7.
+pub fn send_cmd(fleet: &Path, system: &str, to: &str, json: &str) -> Command {
+    let mut cmd = Command::new(HETCOMM);
+    cmd.arg("send")
+        .arg(fleet)
+        .args(["--as", system, "--to", to, "--module", "Act", "--type", "7"])
+        .args(["--json", json, "--timeout", "20"]);
+    cmd
+}
+
+/// Runs `hetcomm send` (see [`send_cmd`]) to completion.
+pub fn send(fleet: &Path, system: &str, to: &str, json: &str, deadline: Deadline) -> Finished {
+    run(
+        &format!("send as {system} to {to}"),
+        send_cmd(fleet, system, to, json),
+        deadline,
+    )
+}
+
+/// The counters line `hetcomm listen` prints on stderr when it exits.
+pub fn counters_line(child: &ChildGuard) -> String {
+    child
+        .stderr_lines()
+        .into_iter()
+        .find(|l| l.starts_with("received "))
+        .unwrap_or_else(|| panic!("no counters line: {:?}", child.stderr_lines()))
+}
