@@ -35,6 +35,10 @@ pub struct Timing {
     pub max_rto: Duration,
     /// Factor the timeout grows by after each unanswered attempt.
     pub backoff: f64,
+    /// After a link refuses a frame (peer unreachable, congested), how long before the next
+    /// attempt; doubles per attempt. A reconnecting link gets a chance to come back instead of
+    /// every attempt failing within the same millisecond.
+    pub link_retry: Duration,
     /// Under in-order delivery, how long an early message waits for a missing earlier one
     /// before the gap is given up and delivery moves on.
     pub hold_timeout: Duration,
@@ -47,6 +51,7 @@ impl Default for Timing {
             min_rto: Duration::from_millis(2),
             max_rto: Duration::from_secs(5),
             backoff: 2.0,
+            link_retry: Duration::from_millis(20),
             hold_timeout: Duration::from_secs(2),
         }
     }
@@ -585,7 +590,10 @@ impl<T> Router<T> {
             }
             Err(err) => {
                 if p.attempts < p.route.attempts {
-                    self.transmits.push_back(TransmitItem::Send(id));
+                    let factor = 1u32 << p.attempts.saturating_sub(1).min(16);
+                    let deadline = now + self.config.timing.link_retry * factor;
+                    p.deadline = Some(deadline);
+                    self.timers.insert((deadline, id));
                 } else {
                     let attempts = p.attempts;
                     let reason = match err {

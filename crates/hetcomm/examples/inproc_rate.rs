@@ -39,7 +39,10 @@ fn main() {
         let f = fleet(delivery);
         let a = f.system("A").unwrap().module("M").unwrap();
         let b = f.system("B").unwrap().module("M").unwrap();
-        let n = 1_000_000u32;
+        let n: u32 = std::env::var("N")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1_000_000);
         let start = Instant::now();
         for i in 0..n {
             let _ = a.send("B", "M", &Small { a: i }).unwrap();

@@ -223,11 +223,12 @@ impl Comm {
             config.timing = timing;
         }
         *core.router() = Router::new(config);
-        core.start(links, env.sim.is_none()).map_err(|e| OpenError::Transport {
-            transport: "(timer)".into(),
-            system: system.to_string(),
-            reason: e.to_string(),
-        })?;
+        core.start(links, env.sim.is_none())
+            .map_err(|e| OpenError::Transport {
+                transport: "(timer)".into(),
+                system: system.to_string(),
+                reason: e.to_string(),
+            })?;
         Ok(Comm {
             handle: Arc::new(SystemHandle {
                 core,

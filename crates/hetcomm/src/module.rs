@@ -349,6 +349,22 @@ impl Module {
             .set_callback(None, Arc::new(f), self.sys.core.directory.clone());
     }
 
+    /// Calls `f` for every message of type `message_type` that arrives from now on, undecoded,
+    /// instead of queueing it for polling: [`Module::on`] for types that are not Rust types
+    /// (other-language bindings, tools). Same threading as [`Module::on`]; replaces any
+    /// callback already set for that type. Messages of other types are not affected.
+    pub fn on_raw(
+        &self,
+        message_type: MessageType,
+        f: impl Fn(RawMessage) + Send + Sync + 'static,
+    ) {
+        self.core.set_callback(
+            Some(message_type),
+            Arc::new(f),
+            self.sys.core.directory.clone(),
+        );
+    }
+
     /// This module's inbox counters.
     pub fn inbox_stats(&self) -> InboxStats {
         self.core.inbox.stats()

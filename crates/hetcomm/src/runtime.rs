@@ -248,6 +248,9 @@ pub(crate) struct SystemCore {
     timer: Timer,
     timer_thread: Mutex<Option<JoinHandle<()>>>,
     closed: AtomicBool,
+    /// Frames being handled right now: shutdown lets them finish (their acknowledgements go
+    /// out) before it closes the links.
+    in_progress: std::sync::atomic::AtomicUsize,
 }
 
 impl SystemCore {
@@ -281,6 +284,7 @@ impl SystemCore {
             timer: Timer::default(),
             timer_thread: Mutex::new(None),
             closed: AtomicBool::new(false),
+            in_progress: std::sync::atomic::AtomicUsize::new(0),
         })
     }
 
@@ -427,6 +431,12 @@ impl SystemCore {
     pub(crate) fn shutdown(&self) {
         if self.closed.swap(true, Ordering::AcqRel) {
             return;
+        }
+        // Let frames already inside the router finish, so that a message just delivered is
+        // also acknowledged; bounded, since a frame's handling may be stuck on a full inbox.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
+        while self.in_progress.load(Ordering::Acquire) > 0 && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(1));
         }
         {
             let mut s = self.timer.state.lock().unwrap_or_else(|e| e.into_inner());

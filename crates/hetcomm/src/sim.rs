@@ -218,7 +218,10 @@ impl Link for SimLink {
                 reason: "no such system in the simulation".into(),
             });
         }
-        net.stats.lock().unwrap_or_else(|e| e.into_inner()).frames_sent += 1;
+        net.stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .frames_sent += 1;
         let now = net.clock.now();
         let Some(model) = &net.models[self.transport] else {
             net.push(
@@ -232,10 +235,13 @@ impl Link for SimLink {
             return Ok(());
         };
         let distance = net.positions.distance(self.local, to);
-        let verdict = model
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .on_frame(now, self.local, to, frame.len(), distance);
+        let verdict = model.lock().unwrap_or_else(|e| e.into_inner()).on_frame(
+            now,
+            self.local,
+            to,
+            frame.len(),
+            distance,
+        );
         match verdict {
             Verdict::Drop(reason) => {
                 net.count_drop(reason);
@@ -258,7 +264,10 @@ impl Link for SimLink {
                     let mut bytes = frame.to_vec();
                     if let Some(flip) = d.corrupt {
                         flip.apply(&mut bytes);
-                        net.stats.lock().unwrap_or_else(|e| e.into_inner()).corrupted += 1;
+                        net.stats
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .corrupted += 1;
                     }
                     net.push(
                         d.at,
@@ -292,13 +301,12 @@ impl SimFleet {
                 (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
                     let mut settings = settings.clone();
                     settings.seed ^= options.seed.wrapping_mul(0x2545_F491_4F6C_DD1D);
-                    let model = LinkModel::from_settings(&settings).map_err(|e| {
-                        OpenError::Transport {
+                    let model =
+                        LinkModel::from_settings(&settings).map_err(|e| OpenError::Transport {
                             transport: t.name.clone(),
                             system: "(simulation)".into(),
                             reason: e.to_string(),
-                        }
-                    })?;
+                        })?;
                     Some(Mutex::new(model))
                 }
                 _ => None,

@@ -93,7 +93,17 @@ fn run(seed: u64, loss: f64, attempts: u32, delivery: &str, n: u32) -> Run {
             let others: Vec<&str> = ["A", "B", "C"].into_iter().filter(|o| *o != name).collect();
             let to = others[rng.gen_range(0..2)];
             let plan = sim.system(name).unwrap().module("Plan").unwrap();
-            tickets.push(plan.send(to, "Plan", &Ping { from: name.into(), n: i }).unwrap());
+            tickets.push(
+                plan.send(
+                    to,
+                    "Plan",
+                    &Ping {
+                        from: name.into(),
+                        n: i,
+                    },
+                )
+                .unwrap(),
+            );
         }
         sim.run_until(sim.now() + Duration::from_millis(3));
     }
@@ -103,7 +113,11 @@ fn run(seed: u64, loss: f64, attempts: u32, delivery: &str, n: u32) -> Run {
         .map(|t| t.try_outcome().expect("every send ended"))
         .collect();
     let trace = trace.lock().unwrap().clone();
-    let duplicates = sim.systems().iter().map(|c| c.stats().router.duplicates).sum();
+    let duplicates = sim
+        .systems()
+        .iter()
+        .map(|c| c.stats().router.duplicates)
+        .sum();
     Run {
         received: trace.len(),
         trace,
@@ -127,7 +141,12 @@ fn same_seed_same_trace_different_seed_different_trace() {
     assert_eq!(hash(&a), hash(&b), "seed {s}: two runs differ");
     assert_eq!(a.trace, b.trace, "seed {s}");
     let c = run(s + 1, 20.0, 8, "acknowledged", 30);
-    assert_ne!(hash(&a), hash(&c), "seeds {s} and {} gave the same trace", s + 1);
+    assert_ne!(
+        hash(&a),
+        hash(&c),
+        "seeds {s} and {} gave the same trace",
+        s + 1
+    );
 }
 
 #[test]
@@ -135,7 +154,11 @@ fn acknowledged_delivery_recovers_30_percent_loss_exactly_once() {
     let s = seed(11);
     let r = run(s, 30.0, 15, "acknowledged", 100);
     let failed: Vec<_> = r.outcomes.iter().filter(|o| !o.is_success()).collect();
-    assert!(failed.is_empty(), "seed {s}: {} failed: {failed:?}", failed.len());
+    assert!(
+        failed.is_empty(),
+        "seed {s}: {} failed: {failed:?}",
+        failed.len()
+    );
     assert_eq!(r.received, 300, "seed {s}: delivered {} of 300", r.received);
     // Exactly once: no (receiver, sender, n) twice.
     let mut keys: Vec<String> = r
@@ -147,15 +170,26 @@ fn acknowledged_delivery_recovers_30_percent_loss_exactly_once() {
     keys.dedup();
     assert_eq!(keys.len(), 300, "seed {s}: a message was delivered twice");
     let retried = r.outcomes.iter().filter(|o| o.attempts() > 1).count();
-    assert!(retried > 50, "seed {s}: only {retried} sends needed retries at 30% loss");
-    assert!(r.duplicates > 0, "seed {s}: lost acks must cause suppressed duplicates");
+    assert!(
+        retried > 50,
+        "seed {s}: only {retried} sends needed retries at 30% loss"
+    );
+    assert!(
+        r.duplicates > 0,
+        "seed {s}: lost acks must cause suppressed duplicates"
+    );
 }
 
 #[test]
 fn unacknowledged_delivery_loses_silently_but_reports_sent() {
     let s = seed(3);
     let r = run(s, 30.0, 3, "unacknowledged", 100);
-    assert!(r.outcomes.iter().all(|o| matches!(o, Outcome::Sent { attempts: 1 })), "seed {s}");
+    assert!(
+        r.outcomes
+            .iter()
+            .all(|o| matches!(o, Outcome::Sent { attempts: 1 })),
+        "seed {s}"
+    );
     assert!(
         (150..=250).contains(&r.received),
         "seed {s}: {} of 300 arrived at 30% loss",
@@ -185,25 +219,56 @@ A = ["X", "radio"]
 B = ["radio", "X"]
 "#;
     let fleet = hetcomm::config::parse_str(text, "ordered.toml", None).unwrap();
-    let sim = SimFleet::open(fleet, SimOptions { seed: s, ..SimOptions::default() }).unwrap();
+    let sim = SimFleet::open(
+        fleet,
+        SimOptions {
+            seed: s,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
     let got = Arc::new(Mutex::new(Vec::new()));
     let g = got.clone();
-    sim.system("B").unwrap().module("Plan").unwrap()
+    sim.system("B")
+        .unwrap()
+        .module("Plan")
+        .unwrap()
         .on::<Ping>(move |r| g.lock().unwrap().push(r.message.n))
         .unwrap();
     let plan = sim.system("A").unwrap().module("Plan").unwrap();
     let tickets: Vec<Ticket> = (0..200)
         .map(|n| {
-            let t = plan.send("B", "Plan", &Ping { from: "A".into(), n }).unwrap();
+            let t = plan
+                .send(
+                    "B",
+                    "Plan",
+                    &Ping {
+                        from: "A".into(),
+                        n,
+                    },
+                )
+                .unwrap();
             sim.run_until(sim.now() + Duration::from_millis(1));
             t
         })
         .collect();
     sim.run_idle(Time::from_secs_f64(3600.0));
-    assert!(tickets.iter().all(|t| matches!(t.try_outcome(), Some(Outcome::Delivered { .. }))), "seed {s}");
+    assert!(
+        tickets
+            .iter()
+            .all(|t| matches!(t.try_outcome(), Some(Outcome::Delivered { .. }))),
+        "seed {s}"
+    );
     let got = got.lock().unwrap().clone();
-    assert_eq!(got, (0..200).collect::<Vec<_>>(), "seed {s}: out of order or missing");
+    assert_eq!(
+        got,
+        (0..200).collect::<Vec<_>>(),
+        "seed {s}: out of order or missing"
+    );
     let stats = sim.system("B").unwrap().stats().router;
-    assert!(stats.held > 0, "seed {s}: jitter should have made some arrive early");
+    assert!(
+        stats.held > 0,
+        "seed {s}: jitter should have made some arrive early"
+    );
     assert_eq!(stats.gaps_skipped, 0, "seed {s}");
 }
