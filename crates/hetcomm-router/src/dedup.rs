@@ -1,6 +1,8 @@
 //! Receive-side duplicate suppression by (origin, incarnation, sequence).
 
-use std::collections::{BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeSet, VecDeque};
+
+use rustc_hash::FxHashMap as HashMap;
 
 use hetcomm_core::SystemId;
 
@@ -65,7 +67,7 @@ impl Dedup {
     pub(crate) fn new(window: usize) -> Self {
         Dedup {
             window: window.max(1),
-            by_origin: HashMap::new(),
+            by_origin: HashMap::default(),
         }
     }
 

@@ -1,6 +1,9 @@
 //! The router state machine.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+// Keys are small integers chosen by us, not by an attacker: a fast hash is safe here.
+use rustc_hash::FxHashMap as HashMap;
 use std::time::Duration;
 
 use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
@@ -413,18 +416,18 @@ enum TransmitItem {
 impl<T> Router<T> {
     /// A router for `config.local`.
     pub fn new(config: RouterConfig) -> Self {
-        let routes = config.routes.iter().copied().collect();
+        let routes = config.routes.iter().copied().collect::<HashMap<_, _>>();
         let dedup = Dedup::new(config.dedup_window);
         Router {
             config,
             routes,
-            next_seq: HashMap::new(),
-            rtt: HashMap::new(),
-            pending: HashMap::new(),
+            next_seq: HashMap::default(),
+            rtt: HashMap::default(),
+            pending: HashMap::default(),
             timers: BTreeSet::new(),
             transmits: VecDeque::new(),
             deliveries: VecDeque::new(),
-            awaiting: HashMap::new(),
+            awaiting: HashMap::default(),
             next_token: 0,
             events: VecDeque::new(),
             dedup,

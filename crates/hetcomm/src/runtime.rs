@@ -3,7 +3,7 @@
 //! the link's receive thread (or the sender's thread for in-process links); a timer thread per
 //! system handles retransmission deadlines; callbacks run on a thread per module.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap as HashMap;
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, RwLock, Weak};
@@ -13,7 +13,8 @@ use hetcomm_config::InboxConfig;
 use hetcomm_core::wire::AckStatus;
 use hetcomm_core::{MessageType, ModuleId, SystemId, Time, TypeRegistry};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
-use hetcomm_router::{Delivery, Event, Router, TransmitError};
+use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitError};
+use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
 use crate::received::{Envelope, RawMessage};
@@ -86,7 +87,7 @@ impl ModuleCore {
             name,
             inbox: Inbox::new(inbox),
             callback_inbox: Inbox::new(inbox),
-            callbacks: RwLock::new(HashMap::new()),
+            callbacks: RwLock::new(HashMap::default()),
             callback_any: RwLock::new(None),
             has_callbacks: AtomicBool::new(false),
             inline_callbacks: false,
@@ -344,17 +345,23 @@ impl SystemCore {
     /// is never held while a link or an inbox is called (an in-process link re-enters
     /// another system's router on this same thread).
     pub(crate) fn pump<'a>(&'a self, mut router: MutexGuard<'a, Router<Arc<OutcomeSlot>>>) {
+        // One message usually makes one transmit, delivery or outcome per round: keep them on
+        // the stack.
+        let mut transmits: SmallVec<[Transmit; 4]> = SmallVec::new();
+        let mut deliveries: SmallVec<[Delivery; 2]> = SmallVec::new();
+        let mut events: SmallVec<[Event<Arc<OutcomeSlot>>; 4]> = SmallVec::new();
+        let mut delivery_results: SmallVec<[(DeliveryToken, AckStatus); 2]> = SmallVec::new();
+        let mut transmit_results: SmallVec<[(Transmit, Result<(), TransmitError>); 4]> =
+            SmallVec::new();
         loop {
-            let mut transmits = Vec::new();
+            // One clock read per round: the calls below are microseconds apart.
             let now = self.clock.now();
             while let Some(t) = router.poll_transmit(now) {
                 transmits.push(t);
             }
-            let mut deliveries = Vec::new();
             while let Some(d) = router.poll_delivery() {
                 deliveries.push(d);
             }
-            let mut events = Vec::new();
             while let Some(e) = router.poll_event() {
                 events.push(e);
             }
@@ -364,20 +371,18 @@ impl SystemCore {
             if transmits.is_empty() && deliveries.is_empty() && events.is_empty() {
                 return;
             }
-            for Event::Outcome { token, outcome, .. } in events {
+            for Event::Outcome { token, outcome, .. } in events.drain(..) {
                 token.complete(outcome);
             }
-            let mut delivery_results = Vec::new();
-            for d in deliveries {
+            for d in deliveries.drain(..) {
                 let token = d.token;
-                let status = self.deliver(d);
+                let status = self.deliver(d, now);
                 if let Some(token) = token {
                     delivery_results.push((token, status));
                 }
             }
             let links = self.links();
-            let mut transmit_results = Vec::new();
-            for tx in transmits {
+            for tx in transmits.drain(..) {
                 let result = match links.get(tx.link) {
                     Some(link) => link.send(tx.to, &tx.frame).map_err(transmit_error),
                     None => Err(TransmitError::Other("no such link".into())),
@@ -387,29 +392,28 @@ impl SystemCore {
                 }
             }
             if delivery_results.is_empty() && transmit_results.is_empty() {
-                // Nothing fed back; but new timers may have been armed above.
+                // Nothing to feed back (timers were armed above).
                 return;
             }
             router = self.router();
-            let now = self.clock.now();
-            for (token, status) in delivery_results {
+            for (token, status) in delivery_results.drain(..) {
                 router.delivery_result(now, token, status);
             }
-            for (tx, result) in transmit_results {
+            for (tx, result) in transmit_results.drain(..) {
                 router.transmit_result(now, tx, result);
             }
         }
     }
 
     /// Puts a delivery into its module's inbox (or callback queue).
-    fn deliver(&self, d: Delivery) -> AckStatus {
+    fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let Some(module) = self.modules.get(&d.header.destination.module) else {
             return AckStatus::UnknownModule;
         };
         let entry = Entry {
             header: d.header,
             payload: d.payload,
-            received_at: self.clock.now(),
+            received_at: now,
         };
         let wants_callback = module.wants_callback(d.header.message_type);
         if wants_callback && module.inline_callbacks {
