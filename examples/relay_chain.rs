@@ -48,6 +48,9 @@ const MISSION: [&str; 5] = [
 /// while the next system is not up yet, before giving up.
 const PATIENCE: Duration = Duration::from_secs(120);
 
+/// How long a follower stays after the last command.
+const LINGER: Duration = Duration::from_millis(500);
+
 fn main() -> ExitCode {
     let mut args = std::env::args().skip(1);
     let (Some(system), fleet) = (args.next(), args.next()) else {
@@ -152,6 +155,10 @@ fn follow(
         );
         each(&command, &from)?;
         if command.number >= command.of {
+            // Linger a moment before leaving, like TCP's TIME_WAIT: the acknowledgement of
+            // the last command leaves on a transport thread, and if it was lost the sender
+            // repeats the command, which this system's router answers again while it is open.
+            while act.recv_timeout::<Command>(LINGER).is_ok() {}
             return Ok(());
         }
     }
