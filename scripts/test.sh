@@ -28,6 +28,9 @@ cargo clippy -p hetcomm --features bluetooth --all-targets -- -D warnings
 step "tests"
 cargo test --workspace
 
+step "python bindings"
+bash scripts/test-python.sh
+
 step "examples"
 cargo run -q -p hetcomm-examples --example two_systems >/dev/null
 cargo run -q -p hetcomm-cli -- validate crates/hetcomm-config/fleet.example.toml

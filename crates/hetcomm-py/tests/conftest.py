@@ -1,0 +1,174 @@
+"""Shared helpers: fleets, free ports, the `hetcomm` CLI as a child process whose output is
+read line by line with deadlines (nothing sleeps to wait for readiness)."""
+
+from __future__ import annotations
+
+import os
+import queue
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional
+
+import pytest
+
+import hetcomm
+
+HERE = Path(__file__).resolve().parent
+ROOT = Path(os.environ.get("HETCOMM_ROOT", HERE.parents[2]))
+CLI = os.environ.get("HETCOMM_CLI", str(ROOT / "target" / "debug" / "hetcomm"))
+
+INPROC_FLEET = """
+name = "py-tests"
+[systems]
+Alpha = 0
+Charlie = 1
+Tango = 2
+Lonely = 3
+
+[modules]
+Plan = 0
+Act = 1
+World = 2
+
+[transports.wired]
+kind = "inproc"
+
+[table]
+columns = ["Alpha", "Charlie", "Tango", "Lonely"]
+Alpha   = ["X",     "wired",   "wired", "X"]
+Charlie = ["wired", "X",       "wired", "X"]
+Tango   = ["wired", "wired",   "X",     "X"]
+Lonely  = ["X",     "X",       "X",     "X"]
+"""
+
+
+@hetcomm.message(id=0)
+@dataclass
+class Command:
+    code: int
+
+
+@hetcomm.message(id=1)
+@dataclass
+class Wheels:
+    left: float
+    right: float
+
+
+@pytest.fixture
+def fleet():
+    with hetcomm.LocalFleet.from_toml(INPROC_FLEET, "py-tests.toml") as f:
+        yield f
+
+
+def free_port(kind: str) -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
+    try:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+    finally:
+        s.close()
+
+
+def ip_fleet(tmp_path: Path, kind: str, systems: List[str], name: str = "fleet.toml") -> Path:
+    """A fleet file where every pair of `systems` talks over one `kind` transport on loopback."""
+    lines = [f'name = "py-{kind}"', "[systems]"]
+    lines += [f"{s} = {i}" for i, s in enumerate(systems)]
+    lines += ["[modules]", "Plan = 0", "Act = 1", "World = 2"]
+    lines += ["[transports.lan]", f'kind = "{kind}"', "[transports.lan.endpoints]"]
+    lines += [f'{s} = "127.0.0.1:{free_port(kind)}"' for s in systems]
+    lines += ["[table]", "columns = [" + ", ".join(f'"{s}"' for s in systems) + "]"]
+    for s in systems:
+        row = ['"X"' if s == d else '"lan"' for d in systems]
+        lines.append(f"{s} = [" + ", ".join(row) + "]")
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+class Child:
+    """A child process; stdout and stderr lines are queued by reader threads."""
+
+    def __init__(self, args: List[str], **kw) -> None:
+        self.args = args
+        self.proc = subprocess.Popen(
+            args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1, **kw
+        )
+        self.out: "queue.Queue[Optional[str]]" = queue.Queue()
+        self.err: "queue.Queue[Optional[str]]" = queue.Queue()
+        self.stdout_lines: List[str] = []
+        self.stderr_lines: List[str] = []
+        for stream, q, keep in ((self.proc.stdout, self.out, self.stdout_lines), (self.proc.stderr, self.err, self.stderr_lines)):
+            threading.Thread(target=self._pump, args=(stream, q, keep), daemon=True).start()
+
+    @staticmethod
+    def _pump(stream, q, keep) -> None:
+        for line in stream:
+            keep.append(line.rstrip("\n"))
+            q.put(line.rstrip("\n"))
+        q.put(None)
+
+    def _next(self, q, timeout: float, what: str) -> str:
+        try:
+            line = q.get(timeout=timeout)
+        except queue.Empty:
+            raise AssertionError(f"no {what} line within {timeout}s from {self.args}; stderr so far: {self.stderr_lines}")
+        if line is None:
+            raise AssertionError(f"{self.args} closed its {what} (exit {self.proc.poll()}); stderr: {self.stderr_lines}")
+        return line
+
+    def next_stdout(self, timeout: float = 15.0) -> str:
+        return self._next(self.out, timeout, "stdout")
+
+    def next_stderr(self, timeout: float = 15.0) -> str:
+        return self._next(self.err, timeout, "stderr")
+
+    def wait_stdout(self, predicate, timeout: float = 15.0) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            line = self.next_stdout(max(0.01, deadline - time.monotonic()))
+            if predicate(line):
+                return line
+
+    def wait_stderr(self, predicate, timeout: float = 15.0) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            line = self.next_stderr(max(0.01, deadline - time.monotonic()))
+            if predicate(line):
+                return line
+
+    def wait(self, timeout: float = 15.0) -> int:
+        return self.proc.wait(timeout=timeout)
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+
+
+@pytest.fixture
+def children():
+    """Children started by a test; killed at its end whatever happens."""
+    started: List[Child] = []
+
+    def start(args: List[str], **kw) -> Child:
+        c = Child(args, **kw)
+        started.append(c)
+        return c
+
+    yield start
+    for c in started:
+        c.kill()
+
+
+def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
+    """Runs the `hetcomm` CLI to completion."""
+    return subprocess.run([CLI, *args], capture_output=True, text=True, timeout=timeout)
+
+
+PYTHON = sys.executable
