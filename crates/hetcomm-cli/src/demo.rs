@@ -72,6 +72,12 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         Some(path) => hetcomm::config::load(path)?,
         None => embedded_fleet(args.single_ve, args.r, args.b)?,
     };
+    // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`
+    // would never reach the ROS master: a real transport forces real time.
+    let realtime = args.realtime || (args.fleet.is_none() && args.r == "ros1");
+    if realtime && !args.realtime {
+        eprintln!("--r ros1 uses a real ROS master: running in real time (as with --realtime)");
+    }
     let layout = if args.single_ve {
         Layout::SingleVe
     } else {
@@ -84,7 +90,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         } else {
             "three polling VEs"
         },
-        if args.realtime {
+        if realtime {
             "real time"
         } else {
             "virtual time"
@@ -97,7 +103,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         seed: args.seed,
         layout,
         fleet: Some(fleet),
-        realtime: args.realtime,
+        realtime,
         progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;

@@ -176,7 +176,9 @@ impl RgbImage {
 }
 
 /// Registers the embedded font under the family plotters uses by default, once per process.
-fn ensure_font() {
+/// Other crates that draw with plotters' bitmap backend call this too, so one copy of the
+/// font serves every plot.
+pub fn ensure_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // The font is compiled in and checked by the tests, so this cannot fail in
