@@ -24,9 +24,13 @@ cargo clippy --workspace --all-targets -- -D warnings
 # Transports behind features: compiled and linted here even where they cannot run (this
 # kernel has no AF_BLUETOOTH; docs/bluetooth.md says what is and is not exercised).
 cargo clippy -p hetcomm --features bluetooth --all-targets -- -D warnings
+cargo clippy -p hetcomm --features ros1 --all-targets -- -D warnings
 
 step "tests"
 cargo test --workspace
+
+step "ROS 1 against a real master (installs ros-core when missing)"
+bash scripts/ros1-test.sh
 
 step "python bindings"
 bash scripts/test-python.sh

@@ -440,6 +440,9 @@ pub struct ModeReport {
     pub delivery_ratio_percent: f64,
     /// Messages that reached a module's inbox more than once (must be 0).
     pub duplicates_delivered: u64,
+    /// Messages a receiver got before an earlier message of the same sender (acknowledged
+    /// mode runs its transports with `ordered = true`, so this must be 0 there).
+    pub out_of_order: u64,
     /// Duplicate frames the receiving routers suppressed (retransmissions whose ack was lost).
     pub duplicates_suppressed: u64,
     /// Send-side accounting.
@@ -644,6 +647,8 @@ pub fn fleet_for_mode(
             Mode::Acknowledged => {
                 t.delivery = DeliveryMode::Acknowledged;
                 t.attempts = config.attempts;
+                // Each sender's messages reach each receiver in the order sent.
+                t.ordered = true;
             }
         }
         if config.loss == LossModel::Profile || t.tag != letter as u8 {
@@ -874,6 +879,7 @@ fn run_mode(
     let mut messages = 0u64;
     let mut received = 0u64;
     let mut duplicates_delivered = 0u64;
+    let mut out_of_order = 0u64;
     let mut duplicates_suppressed = 0u64;
     let mut acc = Accounting::default();
     let mut failure_reasons = BTreeMap::new();
@@ -1002,6 +1008,9 @@ fn run_mode(
 
         // Receive side.
         let mut seen: HashSet<(SystemId, SystemId, u8)> = HashSet::new();
+        // Per (sender, receiver): the index of the last message received, to check order
+        // (each sender sends index 0, the broadcast, then 1..=5).
+        let mut last_index: HashMap<(SystemId, SystemId), u8> = HashMap::new();
         for (me, m) in &receivers {
             while let Some(raw) = m.try_recv_raw() {
                 let from = raw.envelope.source().system;
@@ -1024,6 +1033,11 @@ fn run_mode(
                     continue;
                 }
                 received += 1;
+                if let Some(last) = last_index.insert((from, *me), index) {
+                    if index < last {
+                        out_of_order += 1;
+                    }
+                }
                 rows[row_of[me]].per_transport[col(from, *me)].receivals += 1;
                 let sent = sent_at
                     .get(&key)
@@ -1095,6 +1109,7 @@ fn run_mode(
             100.0 * received as f64 / messages as f64
         },
         duplicates_delivered,
+        out_of_order,
         duplicates_suppressed,
         accounting: acc,
         failure_reasons,

@@ -187,8 +187,8 @@ fn mode_text(out: &mut String, report: &ReliabilityReport, m: &ModeReport) {
     );
     let _ = writeln!(
         out,
-        "Duplicates delivered: {}   (duplicate frames suppressed by the receiving routers: {})",
-        m.duplicates_delivered, m.duplicates_suppressed
+        "Duplicates delivered: {}   (duplicate frames suppressed by the receiving routers: {}); out of order: {}",
+        m.duplicates_delivered, m.duplicates_suppressed, m.out_of_order
     );
     let reasons = if m.failure_reasons.is_empty() {
         String::new()

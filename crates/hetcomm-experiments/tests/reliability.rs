@@ -45,6 +45,10 @@ fn assert_exactly_once(m: &ModeReport, seed: u64, what: &str) {
     );
     assert_eq!(m.duplicates_delivered, 0, "{ctx}: duplicates delivered");
     assert_eq!(
+        m.out_of_order, 0,
+        "{ctx}: messages out of order (ordering is on)"
+    );
+    assert_eq!(
         m.accounting.failed, 0,
         "{ctx}: failed sends {:?}",
         m.failure_reasons

@@ -148,6 +148,26 @@ pub(crate) fn open_link(
                 local_address,
             })
         }
+        #[cfg(feature = "ros1")]
+        (TransportKind::Ros1, TransportSettings::Ros1(ros)) => {
+            use hetcomm_link_ros1::{Ros1Config, Ros1Link};
+            let names = fleet
+                .systems
+                .iter()
+                .map(|s| (s.id, s.name.clone()))
+                .collect();
+            let link = Ros1Link::open(local, &names, ros, sink, Ros1Config::default())
+                .map_err(|e| failed(e.to_string()))?;
+            let local_address = Some(format!(
+                "ros1://{}{}",
+                ros.master_uri.trim_start_matches("http://"),
+                link.topic()
+            ));
+            Ok(OpenedLink {
+                link: Arc::new(link),
+                local_address,
+            })
+        }
         (kind, _) => Err(unavailable(t, *kind)),
     }
 }
@@ -163,7 +183,7 @@ fn all_loopback(endpoints: &std::collections::BTreeMap<SystemId, String>) -> boo
 
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {
     let hint = match kind {
-        TransportKind::Ros1 => "map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without a ROS master",
+        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one",
         TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio",
         _ => "choose `inproc` (one process) or another available kind in the fleet file",
     };

@@ -1,0 +1,163 @@
+//! Test support: a real ROS master (`rosmaster --core`) on a free port, killed on drop.
+#![allow(dead_code)]
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::process::{Child, Command, Stdio};
+use std::sync::Once;
+use std::time::{Duration, Instant};
+
+/// How long a master may take to answer after it was started.
+const READY: Duration = Duration::from_secs(15);
+
+/// Points ROS at the loopback interface before anything reads the environment.
+pub fn ros_env() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        if std::env::var_os("ROS_HOSTNAME").is_none() && std::env::var_os("ROS_IP").is_none() {
+            std::env::set_var("ROS_HOSTNAME", "127.0.0.1");
+        }
+    });
+}
+
+/// Whether `rosmaster` is installed. When it is not, fails the test with instructions unless
+/// `HETCOMM_SKIP_ROS=1`, in which case it returns false and the test returns early.
+pub fn ros_available() -> bool {
+    ros_env();
+    let found = Command::new("rosmaster")
+        .arg("--help")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok();
+    if found {
+        return true;
+    }
+    if std::env::var("HETCOMM_SKIP_ROS").as_deref() == Ok("1") {
+        eprintln!("rosmaster not installed; skipped because HETCOMM_SKIP_ROS=1");
+        return false;
+    }
+    panic!(
+        "`rosmaster` is not installed: run `bash scripts/ros1-test.sh` (it installs ros-core, \
+         python3-rospy, python3-rostopic and ros-std-msgs, then runs these tests), \
+         or set HETCOMM_SKIP_ROS=1 to skip the ROS 1 tests"
+    );
+}
+
+/// A free TCP port on the loopback interface.
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("binding port 0")
+}
+
+/// A running `rosmaster --core -p PORT`.
+pub struct Master {
+    pub port: u16,
+    child: Option<Child>,
+    log_dir: std::path::PathBuf,
+}
+
+impl Master {
+    /// Starts a master on a free port and waits until it answers; None if ROS is not
+    /// installed and `HETCOMM_SKIP_ROS=1`.
+    pub fn start() -> Option<Master> {
+        if !ros_available() {
+            return None;
+        }
+        let port = free_port();
+        let log_dir =
+            std::env::temp_dir().join(format!("hetcomm-ros1-test-{}-{port}", std::process::id()));
+        let mut master = Master {
+            port,
+            child: None,
+            log_dir,
+        };
+        master.spawn();
+        Some(master)
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn uri(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    fn spawn(&mut self) {
+        let child = Command::new("rosmaster")
+            .args(["--core", "-p", &self.port.to_string()])
+            .env("ROS_HOSTNAME", "127.0.0.1")
+            .env("ROS_MASTER_URI", self.uri())
+            .env("ROS_LOG_DIR", &self.log_dir)
+            .env("ROS_HOME", &self.log_dir)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting rosmaster");
+        self.child = Some(child);
+        let deadline = Instant::now() + READY;
+        while !self.answers() {
+            if let Some(Ok(Some(status))) = self.child.as_mut().map(|c| c.try_wait()) {
+                panic!("rosmaster exited with {status} before answering");
+            }
+            assert!(
+                Instant::now() < deadline,
+                "rosmaster on port {} did not answer within {READY:?}",
+                self.port
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Whether the master answers an XML-RPC `getPid`.
+    pub fn answers(&self) -> bool {
+        let body = "<?xml version=\"1.0\"?><methodCall><methodName>getPid</methodName><params>\
+                    <param><value><string>/hetcomm_test</string></value></param></params></methodCall>";
+        let request = format!(
+            "POST / HTTP/1.0\r\nHost: 127.0.0.1\r\nContent-Type: text/xml\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        );
+        let Ok(mut s) = TcpStream::connect(("127.0.0.1", self.port)) else {
+            return false;
+        };
+        let _ = s.set_read_timeout(Some(Duration::from_secs(2)));
+        if s.write_all(request.as_bytes()).is_err() {
+            return false;
+        }
+        let mut response = String::new();
+        let _ = s.read_to_string(&mut response);
+        response.contains("200 OK") && response.contains("<int>")
+    }
+
+    /// Kills the master (as a crash would: nothing is unregistered).
+    pub fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Starts the master again on the same port, empty (as a restarted master is).
+    pub fn restart(&mut self) {
+        self.kill();
+        self.spawn();
+    }
+
+    /// Environment for ROS command-line tools talking to this master.
+    pub fn env(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("ROS_MASTER_URI", self.uri()),
+            ("ROS_HOSTNAME", "127.0.0.1".to_string()),
+            ("ROS_LOG_DIR", self.log_dir.display().to_string()),
+            ("ROS_HOME", self.log_dir.display().to_string()),
+        ]
+    }
+}
+
+impl Drop for Master {
+    fn drop(&mut self) {
+        self.kill();
+        let _ = std::fs::remove_dir_all(&self.log_dir);
+    }
+}

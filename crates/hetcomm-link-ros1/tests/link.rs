@@ -1,0 +1,344 @@
+//! The `ros1` link against a real ROS master: conformance, an unreachable master, a master
+//! restart, and `rostopic` seeing our frames.
+
+mod common;
+
+use std::collections::{BTreeMap, HashSet};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Condvar, Mutex, Weak};
+use std::time::{Duration, Instant};
+
+use common::Master;
+use hetcomm_config::Ros1Settings;
+use hetcomm_core::SystemId;
+use hetcomm_link::conformance::{self, CollectSink, Harness};
+use hetcomm_link::{FrameSink, Link, LinkError, Peer};
+use hetcomm_link_ros1::{MasterState, OpenError, Ros1Config, Ros1Link};
+
+const WAIT: Duration = Duration::from_secs(15);
+
+fn names(list: &[(u16, &str)]) -> BTreeMap<SystemId, String> {
+    list.iter()
+        .map(|&(id, n)| (SystemId(id), n.to_string()))
+        .collect()
+}
+
+fn settings(master: &Master, namespace: &str) -> Ros1Settings {
+    Ros1Settings {
+        master_uri: master.uri(),
+        namespace: Some(namespace.to_string()),
+    }
+}
+
+/// A 3-byte probe frame `EE src_lo src_hi` (conformance frames start with tags 1..=6).
+fn probe(from: SystemId) -> Vec<u8> {
+    let b = from.0.to_le_bytes();
+    vec![0xEE, b[0], b[1]]
+}
+
+/// Passes frames on to `inner`, except probes, which it records by sender.
+struct ProbeFilter {
+    inner: Arc<dyn FrameSink>,
+    seen: Mutex<HashSet<u16>>,
+    arrived: Condvar,
+}
+
+impl ProbeFilter {
+    fn wait_for(&self, from: SystemId, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut seen = self.seen.lock().unwrap();
+        while !seen.contains(&from.0) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            seen = self.arrived.wait_timeout(seen, left).unwrap().0;
+        }
+        true
+    }
+}
+
+impl FrameSink for ProbeFilter {
+    fn on_frame(&self, frame: &[u8], from: Peer) {
+        if frame.len() == 3 && frame[0] == 0xEE {
+            self.seen
+                .lock()
+                .unwrap()
+                .insert(u16::from_le_bytes([frame[1], frame[2]]));
+            self.arrived.notify_all();
+        } else {
+            self.inner.on_frame(frame, from);
+        }
+    }
+}
+
+/// Opens endpoints on a real master. ROS 1 connects a subscriber to a publisher
+/// asynchronously after registration (frames published before that are lost, as in any ROS
+/// program), so after opening an endpoint the harness exchanges probe frames with every live
+/// endpoint until both directions are connected; the checks then start on a connected graph.
+struct RosHarness {
+    master: Master,
+    systems: BTreeMap<SystemId, String>,
+    live: Vec<(SystemId, Weak<Ros1Link>, Arc<ProbeFilter>)>,
+}
+
+impl Harness for RosHarness {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        let filter = Arc::new(ProbeFilter {
+            inner: sink,
+            seen: Mutex::new(HashSet::new()),
+            arrived: Condvar::new(),
+        });
+        let link = Arc::new(
+            Ros1Link::open(
+                system,
+                &self.systems,
+                &settings(&self.master, "conformance"),
+                filter.clone(),
+                Ros1Config::default(),
+            )
+            .expect("open"),
+        );
+        self.live.retain(|(_, w, _)| w.strong_count() > 0);
+        for (peer, weak, peer_filter) in &self.live {
+            let Some(peer_link) = weak.upgrade() else {
+                continue;
+            };
+            let deadline = Instant::now() + WAIT;
+            loop {
+                let _ = link.send(*peer, &probe(system));
+                let _ = peer_link.send(system, &probe(*peer));
+                let ok = peer_filter.wait_for(system, Duration::from_millis(50))
+                    & filter.wait_for(*peer, Duration::from_millis(50));
+                if ok {
+                    break;
+                }
+                assert!(
+                    Instant::now() < deadline,
+                    "{system} and {peer} never connected"
+                );
+            }
+        }
+        self.live.push((system, Arc::downgrade(&link), filter));
+        Box::new(link)
+    }
+}
+
+#[test]
+fn conformance_on_a_real_master() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let mut h = RosHarness {
+        master,
+        systems: names(&[(1, "A"), (2, "B")]),
+        live: Vec::new(),
+    };
+    conformance::run_all(&mut h);
+}
+
+#[test]
+fn unreachable_master_fails_at_once_naming_the_uri() {
+    if !common::ros_available() {
+        return;
+    }
+    let port = common::free_port(); // nothing listens there
+    let uri = format!("http://127.0.0.1:{port}");
+    let started = Instant::now();
+    let result = Ros1Link::open(
+        SystemId(1),
+        &names(&[(1, "A"), (2, "B")]),
+        &Ros1Settings {
+            master_uri: uri.clone(),
+            namespace: None,
+        },
+        CollectSink::new(),
+        Ros1Config::default(),
+    );
+    let err = match result {
+        Ok(_) => panic!("opened without a master"),
+        Err(e) => e,
+    };
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "took {:?}",
+        started.elapsed()
+    );
+    assert!(
+        matches!(err, OpenError::MasterUnreachable { .. }),
+        "{err:?}"
+    );
+    let text = err.to_string();
+    assert!(text.contains(&uri), "{text}");
+}
+
+#[test]
+fn bad_names_are_refused() {
+    let err = hetcomm_link_ros1::topic_name(Some("ok"), "no-dash").unwrap_err();
+    assert!(matches!(err, OpenError::InvalidName { .. }));
+    assert_eq!(
+        hetcomm_link_ros1::topic_name(Some("/a/b/"), "Charlie").unwrap(),
+        "/a/b/Charlie"
+    );
+    assert_eq!(
+        hetcomm_link_ros1::topic_name(None, "Charlie").unwrap(),
+        "/Charlie"
+    );
+}
+
+/// Sends `frame` from `a` to `to` until `sink` holds a frame equal to it.
+fn until_arrives(a: &Ros1Link, to: SystemId, frame: &[u8], sink: &CollectSink) {
+    let deadline = Instant::now() + WAIT;
+    loop {
+        let _ = a.send(to, frame);
+        sink.wait_for(sink.frames().len() + 1, Duration::from_millis(100));
+        if sink.frames().iter().any(|r| r.bytes == frame) {
+            return;
+        }
+        assert!(Instant::now() < deadline, "frame to {to} never arrived");
+    }
+}
+
+fn wait_until(what: &str, mut cond: impl FnMut() -> bool) {
+    let deadline = Instant::now() + WAIT;
+    while !cond() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn master_restart_is_survived() {
+    let Some(mut master) = Master::start() else {
+        return;
+    };
+    let systems = names(&[(1, "A"), (2, "B"), (3, "C")]);
+    let config = Ros1Config {
+        supervise_interval: Duration::from_millis(200),
+        ..Ros1Config::default()
+    };
+    let open = |id: u16, sink: Arc<CollectSink>, m: &Master| {
+        Ros1Link::open(
+            SystemId(id),
+            &systems,
+            &settings(m, "restart"),
+            sink,
+            config.clone(),
+        )
+        .expect("open")
+    };
+    let (sa, sb) = (CollectSink::new(), CollectSink::new());
+    let a = open(1, sa.clone(), &master);
+    let b = open(2, sb.clone(), &master);
+    until_arrives(&a, SystemId(2), b"a->b before", &sb);
+    until_arrives(&b, SystemId(1), b"b->a before", &sa);
+    assert_eq!(a.stats().connects, 1);
+
+    // The master dies. Frames keep flowing over the TCPROS connections already made (the
+    // master only introduces nodes); the supervisor notices the master is gone.
+    master.kill();
+    wait_until("A to see the master gone", || {
+        matches!(a.master_state(), MasterState::Unreachable(_))
+    });
+    assert!(a.send(SystemId(2), b"a->b while down").is_ok());
+    until_arrives(&a, SystemId(2), b"a->b while down", &sb);
+
+    // An empty master comes back on the same port: both links re-register.
+    master.restart();
+    wait_until("both links to re-register", || {
+        a.stats().connects == 2
+            && b.stats().connects == 2
+            && a.master_state() == MasterState::Registered
+            && b.master_state() == MasterState::Registered
+    });
+    until_arrives(&a, SystemId(2), b"a->b after", &sb);
+    until_arrives(&b, SystemId(1), b"b->a after", &sa);
+
+    // A node that only the new master introduces reaches A and is reached by it: A's
+    // subscriber and publishers are registered with the new master.
+    let sc = CollectSink::new();
+    let c = open(3, sc.clone(), &master);
+    until_arrives(&c, SystemId(1), b"c->a", &sa);
+    until_arrives(&a, SystemId(3), b"a->c", &sc);
+}
+
+#[test]
+fn unknown_and_own_destinations_are_unreachable() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let a = Ros1Link::open(
+        SystemId(1),
+        &names(&[(1, "A"), (2, "B")]),
+        &settings(&master, "unknown"),
+        CollectSink::new(),
+        Ros1Config::default(),
+    )
+    .expect("open");
+    for to in [SystemId(7), SystemId(1)] {
+        let r = a.send(to, b"x");
+        assert!(matches!(r, Err(LinkError::Unreachable { .. })), "{r:?}");
+    }
+    assert!(
+        a.send(SystemId(2), b"x").is_ok(),
+        "no subscriber yet is not an error"
+    );
+}
+
+#[test]
+fn rostopic_sees_our_topics_and_frames() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let systems = names(&[(0, "Alpha"), (1, "Charlie")]);
+    let alpha = Ros1Link::open(
+        SystemId(0),
+        &systems,
+        &settings(&master, "hetcomm"),
+        CollectSink::new(),
+        Ros1Config::default(),
+    )
+    .expect("open Alpha");
+    let _charlie = Ros1Link::open(
+        SystemId(1),
+        &systems,
+        &settings(&master, "hetcomm"),
+        CollectSink::new(),
+        Ros1Config::default(),
+    )
+    .expect("open Charlie");
+
+    let list = Command::new("rostopic")
+        .arg("list")
+        .envs(master.env())
+        .output()
+        .expect("running rostopic list");
+    let list = String::from_utf8_lossy(&list.stdout);
+    assert!(list.lines().any(|l| l == "/hetcomm/Charlie"), "{list}");
+    assert!(list.lines().any(|l| l == "/hetcomm/Alpha"), "{list}");
+
+    let mut echo = Command::new("rostopic")
+        .args(["echo", "-n", "1", "/hetcomm/Charlie"])
+        .envs(master.env())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("running rostopic echo");
+    // A frame starts with the magic "HC" = 72, 67 and version 1.
+    let frame = [72u8, 67, 1, 0, 0, 100, 82, 0, 9, 9];
+    let deadline = Instant::now() + WAIT;
+    while echo.try_wait().expect("rostopic echo").is_none() {
+        if Instant::now() > deadline {
+            let _ = echo.kill();
+            panic!("rostopic echo saw nothing");
+        }
+        alpha.send(SystemId(1), &frame).expect("send");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = echo.wait_with_output().expect("rostopic output");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("data: [72, 67, 1, 0, 0, 100, 82, 0, 9, 9]"),
+        "{text}"
+    );
+}

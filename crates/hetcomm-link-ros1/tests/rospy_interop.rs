@@ -1,0 +1,112 @@
+//! Interoperability with rospy both ways: `examples/ros1/hetcomm_rospy.py` (run with
+//! /usr/bin/python3) builds an envelope by hand, publishes it on a hetcomm system's topic,
+//! and gets a reply from a hetcomm module.
+
+mod common;
+
+use std::process::Command;
+use std::time::Duration;
+
+use common::Master;
+use hetcomm::{Comm, Message};
+use serde::{Deserialize, Serialize};
+
+#[derive(Serialize, Deserialize, Message, Debug)]
+#[message(id = 7)]
+struct Text {
+    text: String,
+}
+
+#[test]
+fn rospy_sends_and_gets_a_reply_from_a_hetcomm_module() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("hetcomm-rospy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let fleet = dir.join("fleet.toml");
+    std::fs::write(
+        &fleet,
+        format!(
+            r#"
+[systems]
+Alpha = 1
+Rospy = 2
+
+[modules]
+Plan = 1
+Act = 2
+
+[transports.ros]
+kind = "ros1"
+master_uri = "{}"
+namespace = "interop"
+delivery = "unacknowledged"
+
+[table]
+columns = ["Alpha", "Rospy"]
+Alpha   = ["X",     "ros"]
+Rospy   = ["ros",   "X"]
+"#,
+            master.uri()
+        ),
+    )
+    .expect("writing fleet");
+    let alpha = Comm::open(&fleet, "Alpha").expect("open Alpha over ros1");
+    let act = alpha.module("Act").expect("module Act");
+
+    // The hetcomm side: answer the first Text with an echo to the sender's Plan module.
+    let replier = std::thread::spawn(move || {
+        let got = act
+            .recv_timeout::<Text>(Duration::from_secs(30))
+            .expect("a Text from rospy");
+        assert_eq!(&*got.envelope.source_system, "Rospy");
+        let reply = Text {
+            text: format!("echo: {}", got.message.text),
+        };
+        // Unacknowledged: rospy does not answer with ACK frames. Repeat a few times, since
+        // the rospy subscriber may connect to our publisher a moment after it published.
+        for _ in 0..50 {
+            act.send("Rospy", "Plan", &reply).expect("reply").wait();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        got.message.text
+    });
+
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../examples/ros1/hetcomm_rospy.py"
+    );
+    let out = Command::new("/usr/bin/python3")
+        .arg(script)
+        .args(["--namespace", "interop", "--to", "Alpha", "--to-id", "1"])
+        .args([
+            "--me",
+            "Rospy",
+            "--me-id",
+            "2",
+            "--text",
+            "hello from rospy",
+        ])
+        .args(["--timeout", "25"])
+        .envs(master.env())
+        .output()
+        .expect("running /usr/bin/python3 examples/ros1/hetcomm_rospy.py");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "rospy script failed: {}\nstdout: {stdout}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let reply: serde_json::Value = serde_json::from_str(stdout.trim()).expect("JSON reply");
+    assert_eq!(
+        reply["payload"]["text"], "echo: hello from rospy",
+        "{reply}"
+    );
+    assert_eq!(reply["source"][0], 1);
+    assert_eq!(reply["destination"], serde_json::json!([2, 1]));
+    assert_eq!(reply["message_type"], 7);
+    assert_eq!(replier.join().expect("replier"), "hello from rospy");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Tests of the `ros1` transport against a real ROS master.
+#
+# Installs the ROS 1 tools when `rosmaster` is missing (Debian packages: ros-core,
+# python3-rospy, python3-rostopic, ros-std-msgs; python3-msgpack for the rospy example), then
+# runs the transport crate's tests (conformance, master restart, rospy interop, rostopic) and
+# builds the facade and the CLI with `--features ros1`. Called by scripts/test.sh.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! command -v rosmaster >/dev/null 2>&1 || ! /usr/bin/python3 -c 'import rospy, msgpack' >/dev/null 2>&1; then
+    echo "== installing ROS 1 (ros-core, rospy, rostopic, std_msgs)"
+    SUDO=""
+    if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
+        ros-core python3-rospy python3-rostopic ros-std-msgs python3-msgpack >/dev/null
+fi
+
+# Nodes of this machine reach each other (and the test masters) over loopback.
+export ROS_HOSTNAME="${ROS_HOSTNAME:-127.0.0.1}"
+
+echo "== cargo test -p hetcomm-link-ros1"
+cargo test -p hetcomm-link-ros1
+
+echo "== facade and CLI with --features ros1"
+cargo test -p hetcomm --features ros1 --lib
+cargo build -p hetcomm-cli --features ros1
