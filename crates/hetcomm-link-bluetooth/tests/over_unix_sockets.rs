@@ -146,6 +146,13 @@ fn ends_on_different_channels_do_not_meet() {
         StreamConfig::default(),
     )
     .unwrap();
+    // The send queues behind a connector; its connect fails, and the next send reports why.
+    a.send(B, b"wrong channel").expect("queued");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while a.stream_stats().frames_lost_connecting < 1 {
+        assert!(std::time::Instant::now() < deadline, "connect never failed");
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
     match a.send(B, b"wrong channel") {
         Err(LinkError::Unreachable { reason, .. }) => {
             assert!(reason.contains("[E4:B3:18:09:09:06]:3"), "{reason}")

@@ -67,10 +67,15 @@
 //!
 //! # Failures and backpressure
 //!
-//! - The first send to a peer connects (within [`StreamConfig::connect_timeout`]). A failed
-//!   connect returns [`LinkError::Unreachable`] and starts an exponential backoff
-//!   ([`StreamConfig::backoff_initial`] doubling up to [`StreamConfig::backoff_max`]); sends
-//!   during the backoff fail at once with `Unreachable` and a reason such as
+//! - A send never waits for a connection to be made: the first send to a peer queues its
+//!   frame and starts a connector thread (connect within [`StreamConfig::connect_timeout`],
+//!   which for Bluetooth is seconds); later sends queue behind it, up to
+//!   [`StreamConfig::connect_queue_frames`] frames (then [`LinkError::Congested`]). When the
+//!   connection is up the queue is written in order. A failed connect drops the queued frames
+//!   (counted in [`StreamStats::frames_lost_connecting`]; the router's acknowledgements
+//!   retransmit them) and starts an exponential backoff ([`StreamConfig::backoff_initial`]
+//!   doubling up to [`StreamConfig::backoff_max`]); sends during the backoff fail at once with
+//!   `Unreachable` and a reason such as
 //!   `"reconnecting in 80 ms after: connection refused (os error 111)"`. A successful connect
 //!   resets the backoff.
 //! - A send blocks at most [`StreamConfig::write_timeout`] writing its frame. If the peer does
@@ -191,6 +196,8 @@ pub struct StreamConfig {
     pub backoff_initial: Duration,
     /// The backoff doubles per failed connect up to this (default 1 s).
     pub backoff_max: Duration,
+    /// Frames a peer's queue holds while its connection is being made (default 1024).
+    pub connect_queue_frames: usize,
     /// Largest message payload accepted, bytes; `None`: the codec's limit
     /// ([`MAX_PAYLOAD`]). Frames may be this plus the 48-byte header. Larger values than
     /// the codec's limit are capped to it.
@@ -205,6 +212,7 @@ impl Default for StreamConfig {
             hello_timeout: Duration::from_secs(5),
             backoff_initial: Duration::from_millis(10),
             backoff_max: Duration::from_secs(1),
+            connect_queue_frames: 1024,
             max_message_bytes: None,
         }
     }
@@ -240,6 +248,8 @@ pub struct StreamStats {
     pub rejected_connections: u64,
     /// Sends that failed after a connection was up (write errors and write timeouts).
     pub write_failures: u64,
+    /// Frames queued while connecting whose connection then failed (never sent).
+    pub frames_lost_connecting: u64,
 }
 
 #[derive(Default)]
@@ -251,6 +261,7 @@ struct Counters {
     accepted: AtomicU64,
     rejected_connections: AtomicU64,
     write_failures: AtomicU64,
+    frames_lost_connecting: AtomicU64,
 }
 
 fn bump(c: &AtomicU64) {
@@ -268,6 +279,10 @@ struct PeerEntry<T: StreamTransport> {
 struct PeerSlot<S> {
     conn: Option<S>,
     backoff: Option<Backoff>,
+    /// A connector thread is making the connection.
+    connecting: bool,
+    /// Frames waiting for that connection, in send order.
+    queue: std::collections::VecDeque<Vec<u8>>,
 }
 
 struct Backoff {
@@ -305,7 +320,7 @@ pub struct StreamLink<T: StreamTransport> {
     local: SystemId,
     shared: Arc<Shared<T>>,
     listener: Arc<T::Listener>,
-    peers: BTreeMap<SystemId, PeerEntry<T>>,
+    peers: Arc<BTreeMap<SystemId, PeerEntry<T>>>,
     accept_thread: Option<JoinHandle<()>>,
 }
 
@@ -328,6 +343,8 @@ impl<T: StreamTransport> StreamLink<T> {
                 let slot = PeerSlot {
                     conn: None,
                     backoff: None,
+                    connecting: false,
+                    queue: std::collections::VecDeque::new(),
                 };
                 (
                     id,
@@ -359,7 +376,7 @@ impl<T: StreamTransport> StreamLink<T> {
             local,
             shared,
             listener,
-            peers,
+            peers: Arc::new(peers),
             accept_thread: Some(accept_thread),
         })
     }
@@ -386,20 +403,96 @@ impl<T: StreamTransport> StreamLink<T> {
             accepted: get(&c.accepted),
             rejected_connections: get(&c.rejected_connections),
             write_failures: get(&c.write_failures),
+            frames_lost_connecting: get(&c.frames_lost_connecting),
         }
     }
 
-    /// Opens a connection to `addr` and sends the hello if the transport uses one.
-    fn connect(&self, addr: &T::Addr) -> io::Result<T::Socket> {
-        let cfg = &self.shared.config;
-        let mut socket = self.shared.transport.connect(addr, cfg.connect_timeout)?;
-        self.shared.transport.configure(&socket)?;
-        socket.set_write_timeout(Some(cfg.write_timeout))?;
-        if self.shared.transport.identity_mode() == IdentityMode::Hello {
-            socket.write_all(&encode_hello(self.local))?;
-        }
-        Ok(socket)
+    /// Starts a connector thread for `to` (its slot is already marked `connecting`).
+    fn start_connector(&self, to: SystemId) -> io::Result<()> {
+        let shared = self.shared.clone();
+        let peers = self.peers.clone();
+        let local = self.local;
+        std::thread::Builder::new()
+            .name(format!("hetcomm-{}-connect-{to}", T::NAME))
+            .spawn(move || {
+                if let Some(entry) = peers.get(&to) {
+                    run_connector(&shared, local, entry);
+                }
+            })
+            .map(|_| ())
     }
+}
+
+/// Opens a connection to `addr` and sends the hello if the transport uses one.
+fn connect<T: StreamTransport>(
+    shared: &Shared<T>,
+    local: SystemId,
+    addr: &T::Addr,
+) -> io::Result<T::Socket> {
+    let cfg = &shared.config;
+    let mut socket = shared.transport.connect(addr, cfg.connect_timeout)?;
+    shared.transport.configure(&socket)?;
+    socket.set_write_timeout(Some(cfg.write_timeout))?;
+    if shared.transport.identity_mode() == IdentityMode::Hello {
+        socket.write_all(&encode_hello(local))?;
+    }
+    Ok(socket)
+}
+
+/// The connector thread: makes the connection without holding the peer's lock (senders keep
+/// queueing meanwhile), then installs it and writes the queued frames in order, or drops them
+/// and starts the backoff.
+fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry: &PeerEntry<T>) {
+    let result = connect(shared, local, &entry.addr);
+    let mut slot = lock(&entry.slot);
+    slot.connecting = false;
+    if shared.closing.load(Ordering::SeqCst) {
+        return;
+    }
+    let error = match result {
+        Ok(mut socket) => {
+            bump(&shared.counters.connects);
+            let mut failed = None;
+            while let Some(frame) = slot.queue.pop_front() {
+                match write_record(&mut socket, &frame, shared.config.write_timeout) {
+                    Ok(()) => bump(&shared.counters.frames_sent),
+                    Err(e) => {
+                        bump(&shared.counters.write_failures);
+                        failed = Some(e);
+                        break;
+                    }
+                }
+            }
+            match failed {
+                None => {
+                    slot.conn = Some(socket);
+                    slot.backoff = None;
+                    return;
+                }
+                Some(e) => {
+                    let _ = socket.shutdown_both();
+                    e
+                }
+            }
+        }
+        Err(e) => e,
+    };
+    let lost = slot.queue.len() as u64;
+    slot.queue.clear();
+    shared
+        .counters
+        .frames_lost_connecting
+        .fetch_add(lost, Ordering::Relaxed);
+    let cfg = &shared.config;
+    let delay = match &slot.backoff {
+        Some(b) => (b.delay * 2).min(cfg.backoff_max),
+        None => cfg.backoff_initial,
+    };
+    slot.backoff = Some(Backoff {
+        retry_at: Instant::now() + delay,
+        delay,
+        reason: format!("{} connect to {} failed: {error}", T::NAME, entry.addr),
+    });
 }
 
 impl<T: StreamTransport> StreamLink<T> {
@@ -453,34 +546,26 @@ impl<T: StreamTransport> Link for StreamLink<T> {
                     });
                 }
             }
-            match self.connect(addr) {
-                Ok(socket) => {
-                    slot.conn = Some(socket);
-                    slot.backoff = None;
-                    bump(&self.shared.counters.connects);
-                }
-                Err(e) => {
-                    let cfg = &self.shared.config;
-                    let delay = match &slot.backoff {
-                        Some(b) => (b.delay * 2).min(cfg.backoff_max),
-                        None => cfg.backoff_initial,
-                    };
-                    let reason = e.to_string();
-                    slot.backoff = Some(Backoff {
-                        retry_at: Instant::now() + delay,
-                        delay,
-                        reason: reason.clone(),
-                    });
-                    return Err(LinkError::Unreachable {
-                        peer: to,
-                        reason: format!(
-                            "{} connect to {addr} failed: {reason}; retrying in {} ms",
-                            T::NAME,
-                            delay.as_millis()
-                        ),
-                    });
+            // Never wait for a connect on the caller's thread: queue behind a connector.
+            if slot.queue.len() >= self.shared.config.connect_queue_frames {
+                return Err(LinkError::Congested {
+                    peer: to,
+                    reason: format!(
+                        "{} frames already wait for the connection to {addr}",
+                        slot.queue.len()
+                    ),
+                });
+            }
+            slot.queue.push_back(frame.to_vec());
+            if !slot.connecting {
+                slot.connecting = true;
+                if let Err(e) = self.start_connector(to) {
+                    slot.connecting = false;
+                    slot.queue.clear();
+                    return Err(LinkError::Io(e));
                 }
             }
+            return Ok(());
         }
         let Some(socket) = slot.conn.as_mut() else {
             // Unreachable by construction (set just above); fail soft rather than panic.
