@@ -35,6 +35,9 @@ bash scripts/ros1-test.sh
 step "python bindings"
 bash scripts/test-python.sh
 
+step "benchmarks (smoke: every measurement briefly, no timing assertions)"
+cargo run -q -p hetcomm-bench -- --quick >/dev/null
+
 step "examples"
 cargo run -q -p hetcomm-examples --example two_systems >/dev/null
 cargo run -q -p hetcomm-cli -- validate crates/hetcomm-config/fleet.example.toml

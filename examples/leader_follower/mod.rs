@@ -332,6 +332,10 @@ pub struct DemoOptions {
     pub realtime: bool,
     /// Print a progress line while running.
     pub progress: bool,
+    /// Followers whose autonomy code runs in another process (e.g. the Python Tango in
+    /// `examples/python/`): not opened here; the fleet must carry their traffic over a network
+    /// transport. Real time only.
+    pub external: Vec<String>,
 }
 
 impl Default for DemoOptions {
@@ -342,6 +346,7 @@ impl Default for DemoOptions {
             fleet: None,
             realtime: false,
             progress: false,
+            external: Vec::new(),
         }
     }
 }
@@ -373,8 +378,27 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         )?,
     };
     let scenario = Scenario::thesis();
+    let leader_name = scenario.leader().unwrap_or("Alpha").to_string();
+    for name in &options.external {
+        if *name == leader_name
+            || fleet.system_by_name(name).is_none()
+            || name.starts_with("VirtualEnv")
+        {
+            return Err(format!("--external {name}: only a follower rover of the fleet (Charlie, Tango) can run elsewhere").into());
+        }
+    }
+    if !options.external.is_empty() && !options.realtime {
+        return Err("a follower running in another process needs real time: add --realtime".into());
+    }
+    let external = |name: &str| options.external.iter().any(|e| e == name);
     let (sim, local) = if options.realtime {
-        (None, Some(LocalFleet::open(fleet.clone())?))
+        let names: Vec<&str> = fleet
+            .systems
+            .iter()
+            .map(|s| s.name.as_str())
+            .filter(|n| !external(n))
+            .collect();
+        (None, Some(LocalFleet::open_systems(fleet.clone(), &names)?))
     } else {
         let opts = SimOptions {
             seed: options.seed,
@@ -407,8 +431,12 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         ve_of("Alpha"),
         scenario.schedule.clone(),
     )?;
-    let mut charlie = Follower::new(&system("Charlie")?, Some("Tango"), ve_of("Charlie"), start)?;
-    let mut tango = Follower::new(&system("Tango")?, None, ve_of("Tango"), start)?;
+    let mut followers = Vec::new();
+    for (name, next) in [("Charlie", Some("Tango")), ("Tango", None)] {
+        if !external(name) {
+            followers.push(Follower::new(&system(name)?, next, ve_of(name), start)?);
+        }
+    }
     let mut environments = Vec::new();
     if single {
         environments.push(Environment::new(
@@ -449,8 +477,9 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             }
         }
         leader.step(t)?;
-        charlie.step()?;
-        tango.step()?;
+        for follower in &mut followers {
+            follower.step()?;
+        }
         for ve in &environments {
             ve.step(t)?;
             // Publish positions for range-dependent links.
@@ -487,8 +516,9 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         eprintln!();
     }
     let mut commands = leader.sent;
-    commands.extend(charlie.received);
-    commands.extend(tango.received);
+    for follower in followers {
+        commands.extend(follower.received);
+    }
     let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
     samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
     Ok(DemoReport {

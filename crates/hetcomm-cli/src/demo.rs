@@ -14,6 +14,7 @@ pub struct DemoArgs<'a> {
     pub b: &'a str,
     pub single_ve: bool,
     pub realtime: bool,
+    pub external: Vec<String>,
 }
 
 /// A transport definition for a letter, from a short name.
@@ -104,6 +105,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         layout,
         fleet: Some(fleet),
         realtime,
+        external: args.external.clone(),
         progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;

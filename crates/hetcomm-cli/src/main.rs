@@ -68,6 +68,10 @@ enum Command {
         /// Run in real time (about 15 s) instead of virtual time.
         #[arg(long)]
         realtime: bool,
+        /// A follower whose autonomy code runs in another process (e.g. the Python Tango of
+        /// examples/python); needs --realtime and a fleet carrying its traffic over UDP/TCP.
+        #[arg(long, value_name = "SYSTEM")]
+        external: Vec<String>,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     Listen {
@@ -229,8 +233,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             b,
             single_ve,
             realtime,
+            external,
         } => {
             demo::run(demo::DemoArgs {
+                external,
                 seed,
                 out: &out,
                 fleet: fleet.as_deref(),

@@ -379,6 +379,34 @@ impl LocalFleet {
         Self::open_in(Arc::new(fleet), OpenEnv::real(Hubs::default()))
     }
 
+    /// Opens only the named systems of `fleet` in this process; the others run elsewhere
+    /// (their traffic must then use network transports). Unknown names are an error.
+    pub fn open_systems(fleet: Fleet, names: &[&str]) -> Result<LocalFleet, OpenError> {
+        for name in names {
+            if fleet.system_by_name(name).is_none() {
+                return Err(OpenError::UnknownSystem {
+                    name: name.to_string(),
+                    known: fleet
+                        .systems
+                        .iter()
+                        .map(|s| s.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                });
+            }
+        }
+        let fleet = Arc::new(fleet);
+        let env = OpenEnv::real(Hubs::default());
+        let systems = names
+            .iter()
+            .map(|name| Comm::open_fleet_with(fleet.clone(), name, &env))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(LocalFleet {
+            systems,
+            positions: env.positions.clone(),
+        })
+    }
+
     pub(crate) fn open_in(fleet: Arc<Fleet>, env: OpenEnv) -> Result<LocalFleet, OpenError> {
         let systems = fleet
             .systems

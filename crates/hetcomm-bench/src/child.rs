@@ -1,0 +1,306 @@
+//! The peer process: `hetcomm-bench __peer ROLE ARGS…` (the binary re-executes itself), and
+//! the parent's handle to it.
+//!
+//! Every role ends when its standard input closes (the parent dropping its handle), so a
+//! parent that fails half-way never leaves a peer behind. Echo roles answer each message with
+//! the same bytes; sink roles count what arrives and print `result COUNT BYTES ELAPSED_NS`.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, UdpSocket};
+use std::os::unix::net::UnixDatagram;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::raw::{recv_dgram_msg, send_dgram_msg, Dgram, Got};
+use crate::stats::SinkCounter;
+
+/// The message type of benchmark payloads.
+pub const DATA: hetcomm::MessageType = hetcomm::MessageType(1);
+/// The message type that ends a sink.
+pub const STOP: hetcomm::MessageType = hetcomm::MessageType(2);
+
+/// A running peer process.
+pub struct Peer {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    lines: Receiver<String>,
+}
+
+impl Peer {
+    /// Starts `hetcomm-bench __peer ARGS…` (or `program ARGS…` for an external peer).
+    pub fn spawn(program: Option<&Path>, args: &[String]) -> Result<Peer, String> {
+        let mut cmd = match program {
+            Some(p) => Command::new(p),
+            None => {
+                let exe = std::env::current_exe().map_err(|e| format!("current_exe: {e}"))?;
+                let mut c = Command::new(exe);
+                c.arg("__peer");
+                c
+            }
+        };
+        cmd.args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        let mut child = cmd.spawn().map_err(|e| format!("spawning peer: {e}"))?;
+        let stdin = child.stdin.take();
+        let stdout = child.stdout.take().ok_or("peer has no stdout")?;
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                match line {
+                    Ok(l) => {
+                        if tx.send(l).is_err() {
+                            break;
+                        }
+                    }
+                    Err(_) => break,
+                }
+            }
+        });
+        Ok(Peer {
+            child,
+            stdin,
+            lines: rx,
+        })
+    }
+
+    /// The next line the peer prints, waiting at most `timeout`.
+    pub fn line(&self, timeout: Duration) -> Result<String, String> {
+        self.lines
+            .recv_timeout(timeout)
+            .map_err(|_| format!("peer printed nothing within {timeout:?}"))
+    }
+
+    /// Waits for a line starting with `prefix` and returns the rest.
+    pub fn expect(&self, prefix: &str, timeout: Duration) -> Result<String, String> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let l = self.line(left)?;
+            if let Some(rest) = l.strip_prefix(prefix) {
+                return Ok(rest.trim().to_string());
+            }
+        }
+    }
+
+    /// Closes the peer's standard input: it finishes (a sink prints its result first).
+    pub fn close_input(&mut self) {
+        self.stdin.take();
+    }
+
+    /// Closes its input and waits up to `timeout` for it to exit, then kills it.
+    pub fn finish(mut self, timeout: Duration) {
+        self.close_input();
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Set when standard input closes.
+fn watch_stdin() -> Arc<AtomicBool> {
+    let closed = Arc::new(AtomicBool::new(false));
+    let flag = closed.clone();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 64];
+        let mut stdin = std::io::stdin();
+        while let Ok(n) = stdin.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+        }
+        flag.store(true, Ordering::SeqCst);
+    });
+    closed
+}
+
+fn say(line: &str) {
+    let mut out = std::io::stdout();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+fn arg<T: std::str::FromStr>(args: &[String], i: usize, what: &str) -> Result<T, String> {
+    args.get(i)
+        .ok_or(format!("missing {what}"))?
+        .parse()
+        .map_err(|_| format!("bad {what}: {:?}", args.get(i)))
+}
+
+/// Runs a peer role; returns the process exit status.
+pub fn run_peer(args: &[String]) -> Result<(), String> {
+    let role = args.first().ok_or("missing peer role")?.as_str();
+    let closed = watch_stdin();
+    // Exit when the parent goes away, whatever the role is doing.
+    {
+        let closed = closed.clone();
+        std::thread::spawn(move || loop {
+            if closed.load(Ordering::SeqCst) {
+                std::thread::sleep(Duration::from_secs(3));
+                std::process::exit(0);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        });
+    }
+    match role {
+        "udp-echo" | "udp-sink" => {
+            let size: usize = arg(args, 1, "size")?;
+            let sock = UdpSocket::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+            crate::raw::big_buffers(&sock);
+            let port = sock.local_addr().map_err(|e| e.to_string())?.port();
+            say(&format!("port {port}"));
+            dgram_role(Dgram::Udp(sock), role.ends_with("echo"), size, &closed)
+        }
+        "unix-echo" | "unix-sink" => {
+            let size: usize = arg(args, 1, "size")?;
+            let path: PathBuf = arg(args, 2, "socket path")?;
+            let sock = UnixDatagram::bind(&path).map_err(|e| e.to_string())?;
+            crate::raw::big_buffers(&sock);
+            say("ready");
+            dgram_role(Dgram::Unix(sock), role.ends_with("echo"), size, &closed)
+        }
+        "tcp-echo" | "tcp-sink" => {
+            let listener = TcpListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+            let port = listener.local_addr().map_err(|e| e.to_string())?.port();
+            say(&format!("port {port}"));
+            let (stream, _) = listener.accept().map_err(|e| e.to_string())?;
+            let _ = stream.set_nodelay(true);
+            tcp_role(stream, role.ends_with("echo"))
+        }
+        "hc-echo" | "hc-sink" => {
+            let fleet: PathBuf = arg(args, 1, "fleet file")?;
+            let comm = hetcomm::Comm::open(&fleet, "B").map_err(|e| e.to_string())?;
+            let m = comm.module("M").map_err(|e| e.to_string())?;
+            say("ready");
+            if role == "hc-echo" {
+                while !closed.load(Ordering::SeqCst) {
+                    if let Ok(msg) = m.recv_raw_timeout(Some(Duration::from_millis(50))) {
+                        let _ = m.send_raw("A", "M", DATA, &msg.payload, Default::default());
+                    }
+                }
+                Ok(())
+            } else {
+                let mut c = SinkCounter::default();
+                let mut last = Instant::now();
+                loop {
+                    match m.recv_raw_timeout(Some(Duration::from_millis(20))) {
+                        Ok(msg) if msg.envelope.message_type() == STOP => break,
+                        Ok(msg) => {
+                            c.add(msg.payload.len());
+                            last = Instant::now();
+                        }
+                        Err(_) => {
+                            let idle = last.elapsed();
+                            if (closed.load(Ordering::SeqCst) && idle > Duration::from_millis(300))
+                                || idle > Duration::from_secs(20)
+                            {
+                                break;
+                            }
+                        }
+                    }
+                }
+                say(&c.line());
+                Ok(())
+            }
+        }
+        other => Err(format!("unknown peer role {other}")),
+    }
+}
+
+fn dgram_role(sock: Dgram, echo: bool, size: usize, closed: &AtomicBool) -> Result<(), String> {
+    sock.set_read_timeout(Some(Duration::from_millis(20)));
+    let mut scratch = vec![0u8; 70_000];
+    let mut msg = vec![0u8; size];
+    if echo {
+        while !closed.load(Ordering::SeqCst) {
+            match recv_dgram_msg(&sock, size, &mut scratch, Some(&mut msg)) {
+                Got::Message(from) => {
+                    let _ = send_dgram_msg(&sock, &msg, from.as_ref());
+                }
+                Got::Stop | Got::Nothing => {}
+            }
+        }
+        return Ok(());
+    }
+    let mut c = SinkCounter::default();
+    let mut last = Instant::now();
+    let mut bytes_in_msg = 0usize;
+    loop {
+        match sock.recv_from(&mut scratch) {
+            Some((1, _)) => break,
+            Some((n, _)) => {
+                // Count whole messages: a message is complete when its last chunk arrives.
+                bytes_in_msg += n;
+                last = Instant::now();
+                if bytes_in_msg >= size {
+                    c.add(size);
+                    bytes_in_msg = 0;
+                }
+            }
+            None => {
+                let idle = last.elapsed();
+                if (closed.load(Ordering::SeqCst) && idle > Duration::from_millis(300))
+                    || idle > Duration::from_secs(20)
+                {
+                    break;
+                }
+            }
+        }
+    }
+    say(&c.line());
+    Ok(())
+}
+
+fn tcp_role(stream: std::net::TcpStream, echo: bool) -> Result<(), String> {
+    let mut writer = stream.try_clone().map_err(|e| e.to_string())?;
+    let mut reader = BufReader::with_capacity(256 * 1024, stream);
+    let mut c = SinkCounter::default();
+    let mut frame = Vec::new();
+    loop {
+        let mut len = [0u8; 4];
+        if reader.read_exact(&mut len).is_err() {
+            break;
+        }
+        let n = u32::from_le_bytes(len) as usize;
+        if n == 0 {
+            break;
+        }
+        frame.clear();
+        frame.extend_from_slice(&len);
+        frame.resize(4 + n, 0);
+        if reader.read_exact(&mut frame[4..]).is_err() {
+            break;
+        }
+        if echo {
+            if writer.write_all(&frame).is_err() {
+                break;
+            }
+        } else {
+            c.add(n);
+        }
+    }
+    if !echo {
+        say(&c.line());
+    }
+    Ok(())
+}

@@ -1,0 +1,349 @@
+//! hetcomm itself, through the public API only: a fleet file written to a temporary
+//! directory, `Comm::open` in this process (system A) and in a peer process (system B),
+//! `send_raw` with a payload of the given size, `recv_raw_timeout`. In-process runs use a
+//! `LocalFleet` and two threads.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use hetcomm::{Comm, LocalFleet, Module};
+
+use crate::child::{Peer, DATA, STOP};
+use crate::raw::TempDir;
+use crate::stats::{parse_sink_line, Latency, Recorder, SinkCounter, Throughput};
+
+/// A transport kind hetcomm is measured over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// `udp`.
+    Udp,
+    /// `tcp`.
+    Tcp,
+    /// `inproc` (one process, two threads).
+    Inproc,
+}
+
+impl Kind {
+    /// The fleet file's kind name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Udp => "udp",
+            Kind::Tcp => "tcp",
+            Kind::Inproc => "inproc",
+        }
+    }
+}
+
+/// The row name of a kind and delivery mode.
+pub fn path_name(kind: Kind, acked: bool) -> String {
+    format!(
+        "hetcomm-{}-{}",
+        kind.name(),
+        if acked { "ack" } else { "unack" }
+    )
+}
+
+fn free_port(kind: Kind) -> Result<u16, String> {
+    let port = match kind {
+        Kind::Udp => std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port()),
+        _ => std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port()),
+    };
+    port.map_err(|e| format!("finding a free port: {e}"))
+}
+
+/// The fleet file text: systems A and B, module M, one transport `t`.
+pub fn fleet_text(kind: Kind, acked: bool, ports: Option<(u16, u16)>) -> String {
+    let endpoints = match ports {
+        Some((a, b)) => format!("endpoints = {{ A = \"127.0.0.1:{a}\", B = \"127.0.0.1:{b}\" }}\n"),
+        None => String::new(),
+    };
+    format!(
+        r#"[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[inbox]
+capacity = 65536
+overflow = "block"
+block_timeout_ms = 1000
+[transports.t]
+kind = "{}"
+delivery = "{}"
+{endpoints}[table]
+columns = ["A", "B"]
+A = ["X", "t"]
+B = ["t", "X"]
+"#,
+        kind.name(),
+        if acked {
+            "acknowledged"
+        } else {
+            "unacknowledged"
+        }
+    )
+}
+
+/// System A of a two-process pair plus its peer process (system B in role `role`).
+struct Pair {
+    _dir: TempDir,
+    peer: Peer,
+    _comm: Comm,
+    m: Module,
+}
+
+fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
+    let dir = TempDir::new()?;
+    let ports = (free_port(kind)?, free_port(kind)?);
+    let path = dir.0.join("fleet.toml");
+    std::fs::write(&path, fleet_text(kind, acked, Some(ports)))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let peer = Peer::spawn(None, &[format!("hc-{role}"), path.display().to_string()])?;
+    peer.expect("ready", Duration::from_secs(20))?;
+    let comm = Comm::open(&path, "A").map_err(|e| e.to_string())?;
+    let m = comm.module("M").map_err(|e| e.to_string())?;
+    Ok(Pair {
+        _dir: dir,
+        peer,
+        _comm: comm,
+        m,
+    })
+}
+
+/// Round trips that may go unanswered before a measurement is abandoned.
+pub const MAX_LOST: u64 = 10;
+
+fn round_trips(m: &Module, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let msg = vec![7u8; size];
+    let mut rec = Recorder::new();
+    // Probe until the echo comes back (links may still be connecting).
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        m.send_raw("B", "M", DATA, &msg, Default::default())
+            .map_err(|e| e.to_string())?;
+        if m.recv_raw_timeout(Some(Duration::from_millis(200))).is_ok() {
+            break;
+        }
+        if Instant::now() > deadline {
+            return Err("no echo within 20 s".into());
+        }
+    }
+    while m.try_recv_raw().is_some() {}
+    for i in 0..warmup + iters {
+        let t = Instant::now();
+        m.send_raw("B", "M", DATA, &msg, Default::default())
+            .map_err(|e| e.to_string())?;
+        match m.recv_raw_timeout(Some(Duration::from_secs(1))) {
+            Ok(_) if i >= warmup => rec.record(t.elapsed()),
+            Ok(_) => {}
+            Err(_) => {
+                rec.lost();
+                if rec.summary().lost > MAX_LOST {
+                    return Err(format!("more than {MAX_LOST} round trips lost"));
+                }
+                while m.try_recv_raw().is_some() {}
+            }
+        }
+    }
+    Ok(rec.summary())
+}
+
+/// Ping-pong round trips between two processes (udp, tcp) or two threads (inproc).
+pub fn rtt(
+    kind: Kind,
+    acked: bool,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+) -> Result<Latency, String> {
+    if kind == Kind::Inproc {
+        return inproc_rtt(acked, size, warmup, iters);
+    }
+    let pair = open_pair(kind, acked, "echo")?;
+    let result = round_trips(&pair.m, size, warmup, iters);
+    let Pair { peer, .. } = pair;
+    peer.finish(Duration::from_secs(3));
+    result
+}
+
+/// One-way: A sends as fast as `send_raw` returns for `duration`; B counts.
+pub fn oneway(
+    kind: Kind,
+    acked: bool,
+    size: usize,
+    duration: Duration,
+) -> Result<Throughput, String> {
+    if kind == Kind::Inproc {
+        return inproc_oneway(acked, size, duration).map(|(t, _)| t);
+    }
+    let mut pair = open_pair(kind, acked, "sink")?;
+    let msg = vec![7u8; size];
+    // Make sure B is there: a first message, acknowledged or not, then the timed run.
+    let _ = pair.m.send_raw("B", "M", DATA, &msg, Default::default());
+    std::thread::sleep(Duration::from_millis(50));
+    let mut sent = 1u64;
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        for _ in 0..16 {
+            if pair
+                .m
+                .send_raw("B", "M", DATA, &msg, Default::default())
+                .is_ok()
+            {
+                sent += 1;
+            }
+        }
+    }
+    for _ in 0..3 {
+        let _ = pair.m.send_raw("B", "M", STOP, &[0], Default::default());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    pair.peer.close_input();
+    let line = pair.peer.expect("result", Duration::from_secs(40))?;
+    let Pair { peer, .. } = pair;
+    peer.finish(Duration::from_secs(3));
+    parse_sink_line(&line, sent).ok_or(format!("bad sink line {line:?}"))
+}
+
+fn local(acked: bool) -> Result<(LocalFleet, Module, Module), String> {
+    let text = fleet_text(Kind::Inproc, acked, None);
+    let fleet =
+        hetcomm::config::parse_str(&text, "bench-inproc.toml", None).map_err(|e| e.to_string())?;
+    let f = LocalFleet::open(fleet).map_err(|e| e.to_string())?;
+    let a = f
+        .system("A")
+        .and_then(|s| s.module("M"))
+        .map_err(|e| e.to_string())?;
+    let b = f
+        .system("B")
+        .and_then(|s| s.module("M"))
+        .map_err(|e| e.to_string())?;
+    Ok((f, a, b))
+}
+
+fn inproc_rtt(acked: bool, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let (_f, a, b) = local(acked)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let s2 = stop.clone();
+    let echo = std::thread::spawn(move || {
+        while !s2.load(Ordering::Relaxed) {
+            if let Ok(m) = b.recv_raw_timeout(Some(Duration::from_millis(20))) {
+                let _ = b.send_raw("A", "M", DATA, &m.payload, Default::default());
+            }
+        }
+    });
+    let r = round_trips(&a, size, warmup, iters);
+    stop.store(true, Ordering::Relaxed);
+    let _ = echo.join();
+    r
+}
+
+fn stamp(buf: &mut [u8], epoch: Instant) {
+    let ns = epoch.elapsed().as_nanos() as u64;
+    if buf.len() >= 8 {
+        buf[..8].copy_from_slice(&ns.to_le_bytes());
+    }
+}
+
+fn age_ns(buf: &[u8], epoch: Instant) -> Option<u64> {
+    let b: [u8; 8] = buf.get(..8)?.try_into().ok()?;
+    Some((epoch.elapsed().as_nanos() as u64).saturating_sub(u64::from_le_bytes(b)))
+}
+
+/// In-process one-way: one thread sends as fast as it can, another receives; each payload
+/// carries its send time, so the receiver also measures hand-off latency (queueing included).
+pub fn inproc_oneway(
+    acked: bool,
+    size: usize,
+    duration: Duration,
+) -> Result<(Throughput, Latency), String> {
+    let (_f, a, b) = local(acked)?;
+    let epoch = Instant::now();
+    let receiver = std::thread::spawn(move || {
+        let mut c = SinkCounter::default();
+        let mut rec = Recorder::new();
+        let mut idle = 0;
+        loop {
+            match b.recv_raw_timeout(Some(Duration::from_millis(50))) {
+                Ok(m) if m.envelope.message_type() == STOP => break,
+                Ok(m) => {
+                    if let Some(ns) = age_ns(&m.payload, epoch) {
+                        rec.record_ns(ns);
+                    }
+                    c.add(m.payload.len());
+                    idle = 0;
+                }
+                Err(_) => {
+                    idle += 1;
+                    if idle > 100 {
+                        break;
+                    }
+                }
+            }
+        }
+        (c, rec)
+    });
+    let mut msg = vec![7u8; size.max(8)];
+    let mut sent = 0u64;
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        for _ in 0..64 {
+            stamp(&mut msg, epoch);
+            if a.send_raw("B", "M", DATA, &msg, Default::default()).is_ok() {
+                sent += 1;
+            }
+        }
+    }
+    let _ = a.send_raw("B", "M", STOP, &[0], Default::default());
+    let (c, rec) = receiver.join().map_err(|_| "receiver thread panicked")?;
+    let t = parse_sink_line(&c.line(), sent).ok_or("no result")?;
+    Ok((t, rec.summary()))
+}
+
+/// In-process hand-off latency without queueing: one message at a time, the sender waits
+/// until the receiving thread has taken it before sending the next.
+pub fn inproc_paced_handoff(acked: bool, size: usize, count: u64) -> Result<Latency, String> {
+    let (_f, a, b) = local(acked)?;
+    let epoch = Instant::now();
+    let taken = Arc::new(AtomicU64::new(0));
+    let t2 = taken.clone();
+    let receiver = std::thread::spawn(move || {
+        let mut rec = Recorder::new();
+        loop {
+            match b.recv_raw_timeout(Some(Duration::from_millis(500))) {
+                Ok(m) if m.envelope.message_type() == STOP => break,
+                Ok(m) => {
+                    if let Some(ns) = age_ns(&m.payload, epoch) {
+                        rec.record_ns(ns);
+                    }
+                    t2.fetch_add(1, Ordering::Release);
+                }
+                Err(_) => break,
+            }
+        }
+        rec
+    });
+    let mut msg = vec![7u8; size.max(8)];
+    for i in 0..count {
+        stamp(&mut msg, epoch);
+        a.send_raw("B", "M", DATA, &msg, Default::default())
+            .map_err(|e| e.to_string())?;
+        let deadline = Instant::now() + Duration::from_secs(1);
+        while taken.load(Ordering::Acquire) <= i && Instant::now() < deadline {
+            std::hint::spin_loop();
+        }
+        // Let the receiver go back to waiting, so each hand-off includes its wake-up.
+        let pause = Instant::now();
+        while pause.elapsed() < Duration::from_micros(20) {
+            std::hint::spin_loop();
+        }
+    }
+    let _ = a.send_raw("B", "M", STOP, &[0], Default::default());
+    let rec = receiver.join().map_err(|_| "receiver thread panicked")?;
+    Ok(rec.summary())
+}

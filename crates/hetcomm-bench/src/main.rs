@@ -1,0 +1,364 @@
+//! `hetcomm-bench`: hetcomm's latency, throughput, scale and simulator speed, side by side
+//! with raw sockets, Zenoh and Cyclone DDS measured in the same run by the same code.
+//!
+//! ```text
+//! hetcomm-bench [--quick] [--json FILE] [--markdown FILE] [--zenoh-bin PATH]
+//!               [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|"unavailable: why"]
+//!               [--only SECTION[,SECTION…]]
+//! ```
+//!
+//! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`. `--quick` runs every
+//! measurement briefly (small payloads, few iterations) for CI: it checks that everything
+//! runs, never how fast. See `benchmarks/README.md`.
+
+mod child;
+mod ext;
+mod hc;
+mod raw;
+mod report;
+mod scale;
+mod stats;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use report::Row;
+
+/// Command-line options.
+#[derive(Debug, Default)]
+pub struct Options {
+    quick: bool,
+    json: Option<PathBuf>,
+    markdown: Option<PathBuf>,
+    zenoh_bin: Option<PathBuf>,
+    no_zenoh: bool,
+    no_ddsperf: bool,
+    reliability: Option<String>,
+    only: Option<Vec<String>>,
+}
+
+const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
+[--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
+[--only rtt,oneway,inproc,pinning,scale,sim]";
+
+fn parse(args: &[String]) -> Result<Options, String> {
+    let mut o = Options::default();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut val = |name: &str| it.next().cloned().ok_or(format!("{name} needs a value"));
+        match a.as_str() {
+            "--quick" => o.quick = true,
+            "--json" => o.json = Some(val("--json")?.into()),
+            "--markdown" => o.markdown = Some(val("--markdown")?.into()),
+            "--zenoh-bin" => o.zenoh_bin = Some(val("--zenoh-bin")?.into()),
+            "--no-zenoh" => o.no_zenoh = true,
+            "--no-ddsperf" => o.no_ddsperf = true,
+            "--reliability-wall" => o.reliability = Some(val("--reliability-wall")?),
+            "--only" => {
+                o.only = Some(
+                    val("--only")?
+                        .split(',')
+                        .map(|s| s.trim().to_string())
+                        .collect(),
+                )
+            }
+            "-h" | "--help" => return Err(USAGE.into()),
+            other => return Err(format!("unknown argument {other}\n{USAGE}")),
+        }
+    }
+    Ok(o)
+}
+
+/// Iteration counts and durations of one run.
+struct Plan {
+    sizes: Vec<usize>,
+    rtt_iters: fn(usize) -> (u64, u64),
+    oneway: Duration,
+    scale_ns: Vec<usize>,
+    sim_systems: usize,
+    sim_seconds: f64,
+    dds_seconds: f64,
+}
+
+fn plan(quick: bool) -> Plan {
+    if quick {
+        Plan {
+            sizes: vec![64],
+            rtt_iters: |_| (50, 300),
+            oneway: Duration::from_millis(100),
+            scale_ns: vec![10, 100],
+            sim_systems: 100,
+            sim_seconds: 1.0,
+            dds_seconds: 3.0,
+        }
+    } else {
+        Plan {
+            sizes: vec![64, 1024, 64 * 1024, 1024 * 1024],
+            rtt_iters: |size| match size {
+                s if s <= 1024 => (2_000, 20_000),
+                s if s <= 64 * 1024 => (500, 5_000),
+                _ => (50, 500),
+            },
+            oneway: Duration::from_secs(1),
+            scale_ns: vec![10, 100, 1000],
+            sim_systems: 1000,
+            sim_seconds: 10.0,
+            dds_seconds: 5.0,
+        }
+    }
+}
+
+/// Pins the calling thread (and so the threads and processes it starts) to `cpu`, or frees it
+/// to every CPU (`None`). Returns whether it worked.
+fn pin_thread(cpu: Option<usize>) -> bool {
+    // SAFETY: a zeroed cpu_set_t is valid; CPU_SET/sched_setaffinity get valid pointers.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+        match cpu {
+            Some(c) => libc::CPU_SET(c, &mut set),
+            None => (0..n.max(1)).for_each(|c| libc::CPU_SET(c, &mut set)),
+        }
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+    }
+}
+
+fn log(quick: bool, msg: &str) {
+    if !quick {
+        eprintln!("[{:>7.1}s] {msg}", start_time().elapsed().as_secs_f64());
+    } else {
+        eprintln!("{msg}");
+    }
+}
+
+fn start_time() -> Instant {
+    use std::sync::OnceLock;
+    static T: OnceLock<Instant> = OnceLock::new();
+    *T.get_or_init(Instant::now)
+}
+
+fn lat_row(
+    section: &'static str,
+    path: &str,
+    size: usize,
+    r: Result<stats::Latency, String>,
+) -> Row {
+    match r {
+        Ok(l) => Row::latency(section, path, size, &l),
+        Err(e) => Row::failed(section, path, size, &e),
+    }
+}
+
+fn tp_row(path: &str, size: usize, r: Result<stats::Throughput, String>) -> Row {
+    match r {
+        Ok(t) => Row::throughput(path, size, &t),
+        Err(e) => Row::failed("oneway", path, size, &e),
+    }
+}
+
+fn run(o: &Options) -> Vec<Row> {
+    let p = plan(o.quick);
+    let want = |s: &str| o.only.as_ref().is_none_or(|v| v.iter().any(|x| x == s));
+    let zenoh = if o.no_zenoh {
+        None
+    } else {
+        o.zenoh_bin.clone().or_else(ext::default_zenoh_bin)
+    };
+    let dds = !o.no_ddsperf && ext::ddsperf_available();
+    let mut rows = Vec::new();
+    let hc_paths = [
+        (hc::Kind::Udp, false),
+        (hc::Kind::Udp, true),
+        (hc::Kind::Tcp, false),
+        (hc::Kind::Tcp, true),
+        (hc::Kind::Inproc, false),
+        (hc::Kind::Inproc, true),
+    ];
+    let raws = [raw::RawKind::Udp, raw::RawKind::Tcp, raw::RawKind::Unix];
+
+    if want("rtt") {
+        for &size in &p.sizes {
+            let (warmup, iters) = (p.rtt_iters)(size);
+            for k in raws {
+                log(o.quick, &format!("rtt {} {size} B", k.name()));
+                rows.push(lat_row(
+                    "rtt",
+                    k.name(),
+                    size,
+                    raw::rtt(k, size, warmup, iters),
+                ));
+            }
+            for (k, acked) in hc_paths {
+                let name = hc::path_name(k, acked);
+                log(o.quick, &format!("rtt {name} {size} B"));
+                rows.push(lat_row(
+                    "rtt",
+                    &name,
+                    size,
+                    hc::rtt(k, acked, size, warmup, iters),
+                ));
+            }
+            if let Some(bin) = &zenoh {
+                log(o.quick, &format!("rtt zenoh-tcp {size} B"));
+                rows.push(lat_row(
+                    "rtt",
+                    "zenoh-tcp",
+                    size,
+                    ext::zenoh_rtt(bin, size, warmup, iters),
+                ));
+            }
+            if dds {
+                log(o.quick, &format!("rtt cyclone-ddsperf {size} B"));
+                rows.push(lat_row(
+                    "rtt",
+                    "cyclone-ddsperf",
+                    size,
+                    ext::ddsperf_rtt(size, p.dds_seconds),
+                ));
+            }
+        }
+    }
+    if want("oneway") {
+        for &size in &p.sizes {
+            for k in raws {
+                log(o.quick, &format!("oneway {} {size} B", k.name()));
+                rows.push(tp_row(k.name(), size, raw::oneway(k, size, p.oneway)));
+            }
+            for (k, acked) in hc_paths {
+                let name = hc::path_name(k, acked);
+                log(o.quick, &format!("oneway {name} {size} B"));
+                rows.push(tp_row(&name, size, hc::oneway(k, acked, size, p.oneway)));
+            }
+            if let Some(bin) = &zenoh {
+                log(o.quick, &format!("oneway zenoh-tcp {size} B"));
+                rows.push(tp_row(
+                    "zenoh-tcp",
+                    size,
+                    ext::zenoh_oneway(bin, size, p.oneway),
+                ));
+            }
+            if dds {
+                log(o.quick, &format!("oneway cyclone-ddsperf {size} B"));
+                rows.push(tp_row(
+                    "cyclone-ddsperf",
+                    size,
+                    ext::ddsperf_oneway(size, p.dds_seconds),
+                ));
+            }
+        }
+    }
+    if want("inproc") {
+        for acked in [false, true] {
+            let name = hc::path_name(hc::Kind::Inproc, acked);
+            log(o.quick, &format!("inproc hand-off {name}"));
+            match hc::inproc_oneway(acked, 64, p.oneway.max(Duration::from_millis(100))) {
+                Ok((t, l)) => {
+                    rows.push(Row::handoff(&name, "saturated", 64, Some(&t), &l));
+                }
+                Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
+            }
+            let n = if o.quick { 300 } else { 20_000 };
+            match hc::inproc_paced_handoff(acked, 64, n) {
+                Ok(l) => rows.push(Row::handoff(&name, "paced", 64, None, &l)),
+                Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
+            }
+        }
+    }
+    if want("pinning") {
+        let (warmup, iters) = (p.rtt_iters)(64);
+        for (label, cpu) in [("pinned-cpu0", Some(0)), ("unpinned", None)] {
+            for which in ["raw-udp", "hetcomm-udp-unack"] {
+                log(o.quick, &format!("pinning {which} {label}"));
+                let which_s = which.to_string();
+                let handle = std::thread::spawn(move || {
+                    if !pin_thread(cpu) {
+                        return Err("sched_setaffinity failed".to_string());
+                    }
+                    if which_s == "raw-udp" {
+                        raw::rtt(raw::RawKind::Udp, 64, warmup, iters)
+                    } else {
+                        hc::rtt(hc::Kind::Udp, false, 64, warmup, iters)
+                    }
+                });
+                let r = handle
+                    .join()
+                    .unwrap_or_else(|_| Err("thread panicked".into()));
+                let mut row = lat_row("pinning", &format!("{which} {label}"), 64, r);
+                row.note = label.to_string();
+                rows.push(row);
+            }
+        }
+    }
+    if want("scale") {
+        for &n in &p.scale_ns {
+            log(o.quick, &format!("scale {n} systems"));
+            let rounds = if o.quick { 5 } else { 50 };
+            rows.push(match scale::scale(n, rounds) {
+                Ok(s) => Row::scale(&s),
+                Err(e) => Row::failed("scale", &format!("{n} systems"), 0, &e),
+            });
+        }
+    }
+    if want("sim") {
+        log(o.quick, "sim leader-follower demo");
+        rows.push(match scale::leader_follower() {
+            Ok((sim, wall)) => Row::sim("leader-follower demo", 3, sim, wall, 0),
+            Err(e) => Row::failed("sim", "leader-follower demo", 0, &e),
+        });
+        log(o.quick, &format!("sim {}-system fleet", p.sim_systems));
+        let name = format!("{}-system star fleet", p.sim_systems);
+        rows.push(match scale::sim_fleet(p.sim_systems, p.sim_seconds) {
+            Ok(s) => Row::sim(&name, s.systems, s.simulated_s, s.wall_s, s.delivered),
+            Err(e) => Row::failed("sim", &name, 0, &e),
+        });
+    }
+    rows
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("__peer") {
+        match child::run_peer(&args[1..]) {
+            Ok(()) => std::process::exit(0),
+            Err(e) => {
+                eprintln!("hetcomm-bench peer: {e}");
+                std::process::exit(2);
+            }
+        }
+    }
+    let o = match parse(&args) {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(2);
+        }
+    };
+    start_time();
+    let rows = run(&o);
+    let ctx = report::Context {
+        quick: o.quick,
+        reliability: o.reliability.clone(),
+        wall_s: start_time().elapsed().as_secs_f64(),
+    };
+    print!("{}", report::table(&rows));
+    let mut ok = true;
+    if let Some(p) = &o.json {
+        if let Err(e) = std::fs::write(p, report::json(&rows, &ctx)) {
+            eprintln!("writing {}: {e}", p.display());
+            ok = false;
+        }
+    }
+    if let Some(p) = &o.markdown {
+        if let Err(e) = std::fs::write(p, report::markdown(&rows, &ctx)) {
+            eprintln!("writing {}: {e}", p.display());
+            ok = false;
+        }
+    }
+    let failed = rows.iter().filter(|r| r.error.is_some()).count();
+    eprintln!(
+        "hetcomm-bench: {} measurements, {failed} failed, {:.1} s",
+        rows.len(),
+        ctx.wall_s
+    );
+    std::process::exit(if ok && failed == 0 { 0 } else { 1 });
+}
