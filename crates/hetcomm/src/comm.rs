@@ -145,15 +145,7 @@ impl Comm {
         let directory = Arc::new(directory(&fleet));
         let me = fleet
             .system_by_name(system)
-            .ok_or_else(|| OpenError::UnknownSystem {
-                name: system.to_string(),
-                known: fleet
-                    .systems
-                    .iter()
-                    .map(|s| s.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            })?
+            .ok_or_else(|| unknown_system(system, fleet.systems.iter().map(|s| s.name.as_str())))?
             .id;
         // The links this system needs: every transport that carries traffic from or to it.
         let mut used: Vec<usize> = fleet
@@ -328,6 +320,14 @@ impl Comm {
     }
 }
 
+/// "No system named …", listing the fleet's systems.
+fn unknown_system<'a>(name: &str, known: impl Iterator<Item = &'a str>) -> OpenError {
+    OpenError::UnknownSystem {
+        name: name.to_string(),
+        known: known.collect::<Vec<_>>().join(", "),
+    }
+}
+
 fn directory(fleet: &Fleet) -> Directory {
     Directory {
         systems: fleet
@@ -384,15 +384,10 @@ impl LocalFleet {
     pub fn open_systems(fleet: Fleet, names: &[&str]) -> Result<LocalFleet, OpenError> {
         for name in names {
             if fleet.system_by_name(name).is_none() {
-                return Err(OpenError::UnknownSystem {
-                    name: name.to_string(),
-                    known: fleet
-                        .systems
-                        .iter()
-                        .map(|s| s.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                });
+                return Err(unknown_system(
+                    name,
+                    fleet.systems.iter().map(|s| s.name.as_str()),
+                ));
             }
         }
         let fleet = Arc::new(fleet);
@@ -436,15 +431,7 @@ impl LocalFleet {
             .iter()
             .find(|c| c.name() == name)
             .cloned()
-            .ok_or_else(|| OpenError::UnknownSystem {
-                name: name.to_string(),
-                known: self
-                    .systems
-                    .iter()
-                    .map(|c| c.name().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            })
+            .ok_or_else(|| unknown_system(name, self.systems.iter().map(|c| c.name())))
     }
 
     /// Every system, by id.

@@ -152,16 +152,7 @@ impl ModuleCore {
     fn close(&self) {
         self.inbox.close();
         self.callback_inbox.close();
-        let handle = self
-            .dispatcher
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
-        if let Some(h) = handle {
-            if h.thread().id() != std::thread::current().id() {
-                let _ = h.join();
-            }
-        }
+        join_unless_current(&self.dispatcher);
     }
 }
 
@@ -186,6 +177,17 @@ impl ModuleCore {
         // A panicking callback must not take the dispatcher (and every later message) down.
         if std::panic::catch_unwind(AssertUnwindSafe(|| cb(raw))).is_err() {
             self.callback_failures.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Joins a helper thread taken out of its slot, unless that thread is the caller (a system
+/// closed from its own callback or timer thread cannot wait for itself).
+fn join_unless_current(slot: &Mutex<Option<JoinHandle<()>>>) {
+    let handle = slot.lock().unwrap_or_else(|e| e.into_inner()).take();
+    if let Some(h) = handle {
+        if h.thread().id() != std::thread::current().id() {
+            let _ = h.join();
         }
     }
 }
@@ -447,16 +449,7 @@ impl SystemCore {
             s.shutdown = true;
             self.timer.wake.notify_all();
         }
-        let handle = self
-            .timer_thread
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
-        if let Some(h) = handle {
-            if h.thread().id() != std::thread::current().id() {
-                let _ = h.join();
-            }
-        }
+        join_unless_current(&self.timer_thread);
         let mut router = self.router();
         router.shutdown();
         while let Some(Event::Outcome { token, outcome, .. }) = router.poll_event() {
