@@ -492,3 +492,37 @@ fn recv_timeout_times_out_and_blocking_recv_wakes() {
         .unwrap();
     assert_eq!(waiter.join().unwrap(), Command { code: 9 });
 }
+
+#[test]
+fn a_kind_not_built_yet_fails_to_open_naming_it() {
+    let text = r#"
+[systems]
+A = 0
+B = 1
+[modules]
+Plan = 0
+[transports.z]
+kind = "zenoh"
+[table]
+columns = ["A", "B"]
+A = ["X", "z"]
+B = ["z", "X"]
+"#;
+    let fleet = hetcomm::config::parse_str(text, "z.toml", None).unwrap();
+    let err = match LocalFleet::open(fleet) {
+        Ok(_) => panic!("a zenoh transport opened"),
+        Err(e) => e,
+    };
+    assert!(
+        matches!(err, hetcomm::OpenError::KindUnavailable { .. }),
+        "{err}"
+    );
+    let text = err.to_string();
+    assert!(
+        text.starts_with(
+            "transport `z` is of kind `zenoh`, which is not available yet in this build"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("unknown variant"), "{text}");
+}
