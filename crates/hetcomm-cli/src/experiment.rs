@@ -86,6 +86,11 @@ pub struct ReliabilityArgs {
     /// of one run; writes sweep.csv, sweep.json and sweep.png.
     #[arg(long, conflicts_with_all = ["loss", "burst_loss", "burst_length"])]
     sweep: bool,
+    /// Run on the fleet's real transports in real time instead of the virtual-time simulator
+    /// (e.g. a --fleet mapping R to a `ros1` transport on a running master). Losses are then
+    /// what the real links do; they are not reported to the sender.
+    #[arg(long, conflicts_with = "sweep")]
+    realtime: bool,
 }
 
 /// Runs an experiment subcommand.
@@ -114,6 +119,7 @@ fn config(args: &ReliabilityArgs) -> ReliabilityConfig {
             ModeArg::Both => Mode::ALL.to_vec(),
         },
         loss,
+        realtime: args.realtime,
         ..ReliabilityConfig::default()
     }
 }

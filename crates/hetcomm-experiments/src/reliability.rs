@@ -31,7 +31,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use hetcomm::config::{DeliveryMode, Fleet, TransportSettings};
-use hetcomm::sim::{LossVisibility, SimFleet, SimOptions};
+use hetcomm::sim::{LossVisibility, SimFleet, SimNetStats, SimOptions};
+use hetcomm::{Comm, LocalFleet};
 use hetcomm::{FailReason, Message, Outcome, SystemId, Ticket, Time};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -205,6 +206,11 @@ pub struct ReliabilityConfig {
     pub point_to_point: u32,
     /// Longest virtual time a trial may run before its leftovers are counted as in flight.
     pub time_limit: Duration,
+    /// Run on the real transports with the wall clock (e.g. `R` on a ROS master) instead of
+    /// the virtual-time simulator. Losses are then whatever the real (or real-time emulated)
+    /// links do, and are never reported to the sender, so thesis mode retries only
+    /// transports that refuse a frame.
+    pub realtime: bool,
 }
 
 impl Default for ReliabilityConfig {
@@ -220,6 +226,7 @@ impl Default for ReliabilityConfig {
             spacing: Duration::from_millis(5),
             point_to_point: POINT_TO_POINT,
             time_limit: Duration::from_secs(120),
+            realtime: false,
         }
     }
 }
@@ -632,6 +639,78 @@ pub fn validate(config: &ReliabilityConfig) -> Result<(), ExperimentError> {
     Ok(())
 }
 
+/// What runs a trial: the virtual-time simulator, or the real transports in real time.
+enum Driver {
+    Sim(SimFleet),
+    Real {
+        fleet: LocalFleet,
+        start: std::time::Instant,
+    },
+}
+
+impl Driver {
+    fn system(&self, name: &str) -> Result<Comm, hetcomm::OpenError> {
+        match self {
+            Driver::Sim(sim) => sim.system(name),
+            Driver::Real { fleet, .. } => fleet.system(name),
+        }
+    }
+
+    fn systems(&self) -> &[Comm] {
+        match self {
+            Driver::Sim(sim) => sim.systems(),
+            Driver::Real { fleet, .. } => fleet.systems(),
+        }
+    }
+
+    /// Lets time pass up to `at` after the start of the trial.
+    fn run_until(&self, at: Time) {
+        match self {
+            Driver::Sim(sim) => sim.run_until(at),
+            Driver::Real { start, .. } => {
+                let due = *start + at.saturating_since(Time::ZERO);
+                std::thread::sleep(due.saturating_duration_since(std::time::Instant::now()));
+            }
+        }
+    }
+
+    /// The time to stamp a send with, on the clock receivers stamp arrivals with.
+    fn now(&self) -> Time {
+        match self {
+            Driver::Sim(sim) => sim.now(),
+            Driver::Real { .. } => Time::now_wall(),
+        }
+    }
+
+    /// Runs until every send ended (or `limit` after the start), then returns the seconds
+    /// the trial took on its own clock.
+    fn finish(&self, limit: Duration, tickets: &[&Ticket]) -> f64 {
+        match self {
+            Driver::Sim(sim) => {
+                sim.run_idle(Time::ZERO + limit);
+                sim.now().as_secs_f64()
+            }
+            Driver::Real { start, .. } => {
+                let deadline = *start + limit;
+                for t in tickets {
+                    let left = deadline.saturating_duration_since(std::time::Instant::now());
+                    let _ = t.wait_timeout(left);
+                }
+                // Unacknowledged messages may still be on their way: a short grace period.
+                std::thread::sleep(Duration::from_millis(200));
+                start.elapsed().as_secs_f64()
+            }
+        }
+    }
+
+    fn net_stats(&self) -> SimNetStats {
+        match self {
+            Driver::Sim(sim) => sim.net_stats(),
+            Driver::Real { .. } => SimNetStats::default(),
+        }
+    }
+}
+
 /// The fleet of one mode: delivery, budgets and loss set on a copy of `base`.
 pub fn fleet_for_mode(
     base: &Fleet,
@@ -894,14 +973,21 @@ fn run_mode(
 
     for (trial, destinations) in plan.iter().enumerate() {
         let trial_no = trial as u32;
-        let sim = SimFleet::open(
-            fleet.clone(),
-            SimOptions {
-                seed: config.seed.wrapping_add(trial as u64),
-                losses,
-                timing,
-            },
-        )?;
+        let sim = if config.realtime {
+            Driver::Real {
+                fleet: LocalFleet::open(fleet.clone())?,
+                start: std::time::Instant::now(),
+            }
+        } else {
+            Driver::Sim(SimFleet::open(
+                fleet.clone(),
+                SimOptions {
+                    seed: config.seed.wrapping_add(trial as u64),
+                    losses,
+                    timing,
+                },
+            )?)
+        };
         let modules = senders
             .iter()
             .map(|(id, _)| {
@@ -973,8 +1059,8 @@ fn run_mode(
                 }
             }
         }
-        sim.run_idle(Time::ZERO + config.time_limit);
-        virtual_seconds += sim.now().as_secs_f64();
+        let tickets: Vec<&Ticket> = sends.iter().map(|r| &r.ticket).collect();
+        virtual_seconds += sim.finish(config.time_limit, &tickets);
 
         // Send side.
         for rec in &sends {
@@ -1094,9 +1180,10 @@ fn run_mode(
     Ok(ModeReport {
         mode,
         description,
-        losses: match losses {
-            LossVisibility::Silent => "silent".into(),
-            LossVisibility::Reported => "reported".into(),
+        losses: match (config.realtime, losses) {
+            (true, _) => "as the real links behave (real time)".into(),
+            (false, LossVisibility::Silent) => "silent".into(),
+            (false, LossVisibility::Reported) => "reported".into(),
         },
         transports: columns.iter().map(|&i| transport_info(fleet, i)).collect(),
         timing: TimingInfo::from(timing.unwrap_or_default()),
