@@ -51,3 +51,61 @@ mod rtt;
 
 pub use router::*;
 pub use rtt::RttEstimator;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hetcomm_core::*;
+
+    #[test]
+    fn an_acknowledged_send_leaves_no_timer_behind() {
+        let route = Route {
+            link: 0,
+            tag: b'R',
+            acknowledged: true,
+            attempts: 3,
+            max_frame: 1 << 20,
+        };
+        let mut a = Router::<()>::new(RouterConfig::new(
+            SystemId(0),
+            1,
+            vec![(SystemId(1), route)],
+        ));
+        let mut b = Router::<()>::new(RouterConfig::new(
+            SystemId(1),
+            2,
+            vec![(SystemId(0), route)],
+        ));
+        let now = Time::from_micros(1_000);
+        let to = Address {
+            system: SystemId(1),
+            module: ModuleId(0),
+        };
+        a.send(
+            now,
+            SendRequest::new(ModuleId(0), to, MessageType(1), b"x"),
+            (),
+        )
+        .unwrap();
+        let tx = a.poll_transmit(now).unwrap();
+        b.handle_frame(now, tx.link, &tx.frame);
+        a.transmit_result(now, tx, Ok(()));
+        assert!(a.poll_timeout().is_some(), "armed while unacknowledged");
+        let d = b.poll_delivery().unwrap();
+        b.delivery_result(now, d.token.unwrap(), wire::AckStatus::Delivered);
+        let ack = b.poll_transmit(now).unwrap();
+        a.handle_frame(now, ack.link, &ack.frame);
+        assert!(matches!(
+            a.poll_event(),
+            Some(Event::Outcome {
+                outcome: Outcome::Delivered { .. },
+                ..
+            })
+        ));
+        assert_eq!(
+            a.poll_timeout(),
+            None,
+            "a delivered send must not keep a timer"
+        );
+    }
+}

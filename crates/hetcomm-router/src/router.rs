@@ -622,6 +622,10 @@ impl<T> Router<T> {
 
     fn finish(&mut self, id: SendId, outcome: Outcome) {
         if let Some(p) = self.pending.remove(&id) {
+            // Its retransmission timer would only wake the driver for nothing.
+            if let Some(deadline) = p.deadline {
+                self.timers.remove(&(deadline, id));
+            }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,
                 Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
