@@ -24,6 +24,7 @@ impl InprocHub {
     /// Registers `system` with the sink its frames go to, and returns its link. Opening the
     /// same system again replaces its sink.
     pub fn open(&self, system: SystemId, sink: Arc<dyn FrameSink>) -> InprocLink {
+        let registered = sink.clone();
         self.sinks
             .write()
             .unwrap_or_else(|e| e.into_inner())
@@ -31,6 +32,7 @@ impl InprocHub {
         InprocLink {
             hub: self.clone(),
             local: system,
+            sink: registered,
         }
     }
 
@@ -47,6 +49,9 @@ impl InprocHub {
 pub struct InprocLink {
     hub: InprocHub,
     local: SystemId,
+    /// The sink this link registered, so that dropping it never unregisters a newer link
+    /// opened for the same system.
+    sink: Arc<dyn FrameSink>,
 }
 
 impl Link for InprocLink {
@@ -92,7 +97,13 @@ impl Link for InprocLink {
 
 impl Drop for InprocLink {
     fn drop(&mut self) {
-        self.hub.close(self.local);
+        let mut sinks = self.hub.sinks.write().unwrap_or_else(|e| e.into_inner());
+        if sinks
+            .get(&self.local)
+            .is_some_and(|s| Arc::ptr_eq(s, &self.sink))
+        {
+            sinks.remove(&self.local);
+        }
     }
 }
 
@@ -107,6 +118,18 @@ mod tests {
         fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
             Box::new(self.0.open(system, sink))
         }
+    }
+
+    #[test]
+    fn dropping_a_replaced_link_keeps_the_newer_one() {
+        let hub = InprocHub::new();
+        let sink = crate::conformance::CollectSink::new();
+        let a = hub.open(SystemId(1), crate::conformance::CollectSink::new());
+        let old = hub.open(SystemId(2), crate::conformance::CollectSink::new());
+        let _new = hub.open(SystemId(2), sink.clone());
+        drop(old);
+        a.send(SystemId(2), b"still here").unwrap();
+        assert_eq!(sink.frames().len(), 1);
     }
 
     #[test]

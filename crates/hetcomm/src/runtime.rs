@@ -489,9 +489,10 @@ impl FrameSink for SystemSink {
     }
 }
 
+/// The timer thread: sleeps until the router's next deadline (or until [`Timer::arm`] brings
+/// it forward), then fires it. Shutdown sets the flag and wakes it.
 fn run_timer(core: Weak<SystemCore>) {
-    loop {
-        let Some(c) = core.upgrade() else { return };
+    while let Some(c) = core.upgrade() {
         let mut s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
         if s.shutdown {
             return;
@@ -501,29 +502,10 @@ fn run_timer(core: Weak<SystemCore>) {
             Some(d) if d <= now => {
                 s.deadline = None;
                 drop(s);
-                let mut router = c.router();
-                router.handle_timeout(now);
-                c.pump(router);
+                c.fire_timers();
             }
-            Some(d) => {
-                let wait = d.saturating_since(now);
-                let _ = c.timer.wake.wait_timeout(s, wait);
-            }
-            None => {
-                // Hold only a weak reference while idle so the system can be dropped.
-                drop(s);
-                let timer_wait = {
-                    let s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
-                    if s.shutdown || s.deadline.is_some() {
-                        continue;
-                    }
-                    c.timer
-                        .wake
-                        .wait_timeout(s, std::time::Duration::from_millis(200))
-                        .map(|_| ())
-                };
-                let _ = timer_wait;
-            }
+            Some(d) => drop(c.timer.wake.wait_timeout(s, d.saturating_since(now))),
+            None => drop(c.timer.wake.wait(s)),
         }
     }
 }

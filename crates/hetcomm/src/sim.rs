@@ -95,14 +95,37 @@ struct FrameEvent {
     frame: Vec<u8>,
 }
 
+/// A frame in flight, ordered by arrival time, ties in the order they were scheduled.
+struct Scheduled {
+    at: Time,
+    id: u64,
+    event: FrameEvent,
+}
+
+impl PartialEq for Scheduled {
+    fn eq(&self, other: &Self) -> bool {
+        (self.at, self.id) == (other.at, other.id)
+    }
+}
+impl Eq for Scheduled {}
+impl PartialOrd for Scheduled {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Scheduled {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        (self.at, self.id).cmp(&(other.at, other.id))
+    }
+}
+
 /// The simulated network: pending frame arrivals, the link models and the endpoints.
 pub(crate) struct SimNet {
     seed: u64,
     losses: LossVisibility,
     clock: Arc<VirtualClock>,
     next_event: AtomicU64,
-    queue: Mutex<BinaryHeap<Reverse<(Time, u64)>>>,
-    events: Mutex<HashMap<u64, FrameEvent>>,
+    queue: Mutex<BinaryHeap<Reverse<Scheduled>>>,
     /// (transport index, system) → (sink, link index at that system).
     sinks: RwLock<HashMap<(usize, SystemId), Arc<dyn FrameSink>>>,
     models: Vec<Option<Mutex<LinkModel>>>,
@@ -122,14 +145,10 @@ impl SimNet {
 
     fn push(&self, at: Time, ev: FrameEvent) {
         let id = self.next_event.fetch_add(1, Ordering::Relaxed);
-        self.events
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(id, ev);
         self.queue
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .push(Reverse((at, id)));
+            .push(Reverse(Scheduled { at, id, event: ev }));
     }
 
     fn next_frame_time(&self) -> Option<Time> {
@@ -137,20 +156,13 @@ impl SimNet {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .peek()
-            .map(|Reverse((t, _))| *t)
+            .map(|Reverse(s)| s.at)
     }
 
     fn pop_due(&self, now: Time) -> Option<FrameEvent> {
         let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         match q.peek() {
-            Some(Reverse((t, _))) if *t <= now => {
-                let Reverse((_, id)) = q.pop()?;
-                drop(q);
-                self.events
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .remove(&id)
-            }
+            Some(Reverse(s)) if s.at <= now => q.pop().map(|Reverse(s)| s.event),
             _ => None,
         }
     }
@@ -320,7 +332,6 @@ impl SimFleet {
             clock: clock.clone(),
             next_event: AtomicU64::new(0),
             queue: Mutex::new(BinaryHeap::new()),
-            events: Mutex::new(HashMap::new()),
             sinks: RwLock::new(HashMap::new()),
             models,
             positions: positions.clone(),
