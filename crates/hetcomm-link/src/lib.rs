@@ -111,6 +111,48 @@ pub trait Link: Send + Sync {
     fn stats(&self) -> LinkStats {
         LinkStats::default()
     }
+
+    /// Like [`send`](Link::send), but the link may hold the frame back in a per-peer batch so
+    /// that it goes out together with the frames sent after it, in one write or datagram.
+    /// Held frames go out in order, before any later frame to the same peer: when the batch is
+    /// full, at the next plain `send` to that peer, or at [`flush`](Link::flush). The runtime
+    /// decides when holding is worth it (see `batch_linger_us` in the fleet file); links that
+    /// do not batch send at once, which is the default.
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.send(to, frame)
+    }
+
+    /// Puts every held frame on the link now. A frame that then fails is counted in
+    /// [`LinkStats::frames_dropped`]; the first error is returned.
+    fn flush(&self) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    /// Whether [`send_held`](Link::send_held) can hold frames back on this link.
+    fn batches(&self) -> bool {
+        false
+    }
+
+    /// The link's receive side, when a waiting thread may drive it (see [`Readable`]).
+    /// `None` (the default): the link receives on its own.
+    fn readable(&self) -> Option<&dyn Readable> {
+        None
+    }
+}
+
+/// A receive side that a thread waiting for messages can drive itself, so that a frame
+/// reaches the module that waits for it without a hand-off between threads (a wake-up that
+/// crosses CPUs costs tens of microseconds). The runtime makes sure one thread at a time
+/// reads; the link does not start a receive thread of its own for it.
+pub trait Readable: Send + Sync {
+    /// A descriptor that polls readable (`POLLIN`) whenever [`read_ready`](Readable::read_ready)
+    /// may find something to read.
+    fn fd(&self) -> std::os::fd::RawFd;
+
+    /// Reads, without blocking, what has arrived (at most `budget` reads), hands each complete
+    /// frame to the link's sink, and does the link's periodic upkeep (e.g. expiring partial
+    /// messages). Returns the number of frames handed on.
+    fn read_ready(&self, budget: usize) -> std::io::Result<usize>;
 }
 
 /// Counters a link may keep. Links fill in what applies to them.
@@ -137,5 +179,17 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn stats(&self) -> LinkStats {
         (**self).stats()
+    }
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        (**self).send_held(to, frame)
+    }
+    fn flush(&self) -> Result<(), LinkError> {
+        (**self).flush()
+    }
+    fn batches(&self) -> bool {
+        (**self).batches()
+    }
+    fn readable(&self) -> Option<&dyn Readable> {
+        (**self).readable()
     }
 }
