@@ -466,6 +466,31 @@ impl<T> Router<T> {
     /// Accepts a send: assigns its sequence number and queues its frame. Its outcome arrives
     /// later through [`Router::poll_event`].
     pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
+        let (route, header) = self.admit(now, &req)?;
+        let id = SendId {
+            to: req.to.system,
+            seq: header.seq,
+        };
+        let frame = wire::encode(&header, req.payload);
+        self.pending.insert(
+            id,
+            Pending {
+                token,
+                route,
+                frame: Some(frame),
+                attempts: 0,
+                first_sent: None,
+                deadline: None,
+            },
+        );
+        self.transmits.push_back(TransmitItem::Send(id));
+        self.stats.sends += 1;
+        Ok(id)
+    }
+
+    /// Checks a send against the routing table and the size limit, gives it the next
+    /// sequence number towards its destination and builds its header.
+    fn admit(&mut self, now: Time, req: &SendRequest<'_>) -> Result<(Route, Header), SendError> {
         let to = req.to.system;
         let route = self.routes.get(&to).copied().ok_or(SendError::NoRoute {
             from: self.config.local,
@@ -478,7 +503,6 @@ impl<T> Router<T> {
         }
         let seq = self.next_seq.entry(to).or_insert(0);
         *seq += 1;
-        let id = SendId { to, seq: *seq };
         let mut flags = 0;
         if route.acknowledged {
             flags |= FLAG_ACK_REQUESTED;
@@ -497,25 +521,59 @@ impl<T> Router<T> {
             },
             destination: req.to,
             incarnation: self.config.incarnation,
-            seq: id.seq,
+            seq: *seq,
             message_type: req.message_type,
             timestamp: now,
         };
-        let frame = wire::encode(&header, req.payload);
-        self.pending.insert(
-            id,
-            Pending {
-                token,
-                route,
-                frame: Some(frame),
-                attempts: 0,
-                first_sent: None,
-                deadline: None,
-            },
-        );
-        self.transmits.push_back(TransmitItem::Send(id));
+        Ok((route, header))
+    }
+
+    /// The link a send to `to` would take.
+    pub fn route_link(&self, to: SystemId) -> Option<usize> {
+        self.routes.get(&to).map(|r| r.link)
+    }
+
+    /// A send that the driver hands straight to a destination in the same process (an
+    /// in-process link, which is reliable, ordered and synchronous), skipping the frame, its
+    /// checksum and the destination's router. The router still checks the route and size,
+    /// numbers the message and counts it; the driver reports what happened with
+    /// [`Router::direct_result`]. Returns the header to deliver.
+    pub fn send_direct(&mut self, now: Time, req: SendRequest<'_>) -> Result<Header, SendError> {
+        let (_, header) = self.admit(now, &req)?;
         self.stats.sends += 1;
-        Ok(id)
+        self.stats.transmissions += 1;
+        Ok(header)
+    }
+
+    /// The outcome of a [`Router::send_direct`] send, given what the destination's inbox said
+    /// (`status`), counted like any other outcome. Unacknowledged sends end `Sent` whatever
+    /// the inbox said, exactly as over a link.
+    pub fn direct_result(&mut self, header: &Header, status: AckStatus) -> Outcome {
+        let attempts = 1;
+        let outcome = if !header.ack_requested() {
+            Outcome::Sent { attempts }
+        } else {
+            match status {
+                AckStatus::Delivered => Outcome::Delivered {
+                    attempts,
+                    latency: Duration::ZERO,
+                },
+                AckStatus::InboxFull => Outcome::Failed {
+                    reason: FailReason::InboxFull,
+                    attempts,
+                },
+                AckStatus::UnknownModule => Outcome::Failed {
+                    reason: FailReason::UnknownModule,
+                    attempts,
+                },
+            }
+        };
+        match outcome {
+            Outcome::Delivered { .. } => self.stats.delivered += 1,
+            Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
+            Outcome::Failed { .. } => self.stats.failed += 1,
+        }
+        outcome
     }
 
     /// The next frame to put on a link. `now` is when the driver hands it to the link: an

@@ -179,11 +179,17 @@ impl Comm {
         );
         let mut links = Vec::with_capacity(used.len());
         let mut endpoints = Vec::with_capacity(used.len());
+        let mut direct = Vec::with_capacity(used.len());
         for (i, &t) in used.iter().enumerate() {
             let opened = open_link(&fleet, t, me, core.sink(i), env)?;
             links.push(opened.link);
             endpoints.push((fleet.transports[t].name.clone(), opened.local_address));
+            if let Some(name) = &opened.direct {
+                env.hubs.register(name, &core);
+            }
+            direct.push(opened.direct);
         }
+        core.set_direct(env.hubs.clone(), direct);
         let routes: Vec<(SystemId, Route)> = fleet
             .table
             .iter()
@@ -290,7 +296,10 @@ impl Comm {
     /// Counters for this system.
     pub fn stats(&self) -> SystemStats {
         let core = &self.handle.core;
-        let router = core.router().stats().clone();
+        let mut router = core.router().stats().clone();
+        // Messages other systems of this process handed over directly never pass this
+        // system's router; they are still messages it received.
+        router.received += core.direct_received.load(std::sync::atomic::Ordering::Relaxed);
         let mut inboxes: Vec<(String, InboxStats)> = core
             .modules
             .values()

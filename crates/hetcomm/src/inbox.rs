@@ -1,7 +1,7 @@
 //! A module's inbox: bounded, ordered by priority then arrival, with an explicit overflow
 //! policy and exact drop counters.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::VecDeque;
 use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -45,52 +45,57 @@ impl InboxStats {
 
 #[derive(Default)]
 struct State {
-    /// Priority → FIFO. Highest key is served first.
-    queues: BTreeMap<u8, VecDeque<Entry>>,
+    /// One FIFO per priority in use, highest priority first. Emptied queues stay (a fleet uses
+    /// a handful of priorities), so the common push is a short scan and a `push_back`.
+    queues: Vec<(u8, VecDeque<Entry>)>,
     len: usize,
     stats: InboxStats,
     closed: bool,
+    /// Threads waiting in `take_timeout` / a blocked `push`: a condition variable is only
+    /// signalled when someone waits, since every signal is a system call.
+    empty_waiters: usize,
+    full_waiters: usize,
 }
 
 impl State {
     fn push(&mut self, e: Entry) {
-        self.queues
-            .entry(e.header.priority.0)
-            .or_default()
-            .push_back(e);
+        let prio = e.header.priority.0;
+        let at = match self.queues.iter().position(|(p, _)| *p <= prio) {
+            Some(i) if self.queues[i].0 == prio => i,
+            Some(i) => {
+                self.queues.insert(i, (prio, VecDeque::new()));
+                i
+            }
+            None => {
+                self.queues.push((prio, VecDeque::new()));
+                self.queues.len() - 1
+            }
+        };
+        self.queues[at].1.push_back(e);
         self.len += 1;
         self.stats.accepted += 1;
     }
 
     fn front(&self) -> Option<&Entry> {
-        self.queues.values().next_back().and_then(|q| q.front())
+        self.queues.iter().find_map(|(_, q)| q.front())
     }
 
     fn pop(&mut self) -> Option<Entry> {
-        let (&prio, q) = self.queues.iter_mut().next_back()?;
-        let e = q.pop_front();
-        if q.is_empty() {
-            self.queues.remove(&prio);
-        }
-        if e.is_some() {
-            self.len -= 1;
-            self.stats.taken += 1;
-        }
-        e
+        let e = self.queues.iter_mut().find_map(|(_, q)| q.pop_front())?;
+        self.len -= 1;
+        self.stats.taken += 1;
+        Some(e)
     }
 
     /// Evicts the oldest message of the lowest priority at or below `prio`.
     fn evict_for(&mut self, prio: u8) -> bool {
-        let Some((&lowest, q)) = self.queues.iter_mut().next() else {
+        let Some((lowest, q)) = self.queues.iter_mut().rev().find(|(_, q)| !q.is_empty()) else {
             return false;
         };
-        if lowest > prio {
+        if *lowest > prio {
             return false;
         }
         q.pop_front();
-        if q.is_empty() {
-            self.queues.remove(&lowest);
-        }
         self.len -= 1;
         self.stats.dropped_oldest += 1;
         true
@@ -158,11 +163,13 @@ impl Inbox {
                             s.stats.dropped_after_wait += 1;
                             return Err(PushError::Full);
                         }
+                        s.full_waiters += 1;
                         s = self
                             .not_full
                             .wait_timeout(s, left)
                             .unwrap_or_else(|e| e.into_inner())
                             .0;
+                        s.full_waiters -= 1;
                     }
                     if s.closed {
                         return Err(PushError::Closed);
@@ -171,8 +178,11 @@ impl Inbox {
             }
         }
         s.push(e);
+        let wake = s.empty_waiters > 0;
         drop(s);
-        self.not_empty.notify_one();
+        if wake {
+            self.not_empty.notify_one();
+        }
         Ok(())
     }
 
@@ -204,7 +214,9 @@ impl Inbox {
             Some(e) if !accept(&e.header) => Err(e.header),
             Some(_) => {
                 let e = s.pop();
-                self.not_full.notify_one();
+                if s.full_waiters > 0 {
+                    self.not_full.notify_one();
+                }
                 Ok(e)
             }
         }
@@ -223,19 +235,27 @@ impl Inbox {
             if s.len > 0 || s.closed {
                 return self.take_locked(&mut s, &accept);
             }
-            s = match deadline {
-                None => self.not_empty.wait(s).unwrap_or_else(|e| e.into_inner()),
+            let left = match deadline {
+                None => None,
                 Some(d) => {
                     let left = d.saturating_duration_since(Instant::now());
                     if left.is_zero() {
                         return Ok(None);
                     }
+                    Some(left)
+                }
+            };
+            s.empty_waiters += 1;
+            s = match left {
+                None => self.not_empty.wait(s).unwrap_or_else(|e| e.into_inner()),
+                Some(left) => {
                     self.not_empty
                         .wait_timeout(s, left)
                         .unwrap_or_else(|e| e.into_inner())
                         .0
                 }
             };
+            s.empty_waiters -= 1;
         }
     }
 

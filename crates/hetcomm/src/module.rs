@@ -12,7 +12,7 @@ use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::received::{RawMessage, Received};
-use crate::runtime::{raw_message, ModuleCore};
+use crate::runtime::{raw_message, Directory, ModuleCore};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket};
 
 /// Per-send options.
@@ -133,7 +133,6 @@ impl Module {
         if core.is_closed() {
             return Err(SendError::Closed);
         }
-        let slot = Arc::new(OutcomeSlot::default());
         let req = SendRequest {
             from: self.core.id,
             to,
@@ -142,30 +141,32 @@ impl Module {
             payload,
             broadcast,
         };
+        let now = core.clock.now();
         let mut router = core.router();
-        match router.send(core.clock.now(), req, slot.clone()) {
-            Ok(_) => {}
-            Err(e) => {
-                drop(router);
-                let dir = &core.directory;
-                return Err(match e {
-                    hetcomm_router::SendError::NoRoute { from, to } => SendError::NoRoute {
-                        from: dir.system_name(from).to_string(),
-                        to: dir.system_name(to).to_string(),
-                    },
-                    hetcomm_router::SendError::TooLarge { len, max, to } => SendError::TooLarge {
-                        to: dir.system_name(to).to_string(),
-                        len,
-                        max,
-                    },
-                    other => SendError::UnknownSystem(other.to_string()),
-                });
-            }
+        let direct = router
+            .route_link(to.system)
+            .and_then(|link| core.direct_peer(link, to.system));
+        if let Some(peer) = direct {
+            let header = router
+                .send_direct(now, req)
+                .map_err(|e| send_error(&core.directory, e))?;
+            drop(router);
+            let status = peer.deliver_direct(header, payload.to_vec());
+            let outcome = core.router().direct_result(&header, status);
+            return Ok(Ticket {
+                slot: Arc::new(OutcomeSlot::ready(outcome)),
+                destination: core.directory.system_name(to.system),
+            });
+        }
+        let slot = Arc::new(OutcomeSlot::default());
+        if let Err(e) = router.send(now, req, slot.clone()) {
+            drop(router);
+            return Err(send_error(&core.directory, e));
         }
         core.pump(router);
         Ok(Ticket {
             slot,
-            destination: core.directory.system_name(to.system).to_string(),
+            destination: core.directory.system_name(to.system),
         })
     }
 
@@ -368,5 +369,21 @@ impl Module {
     /// This module's inbox counters.
     pub fn inbox_stats(&self) -> InboxStats {
         self.core.inbox.stats()
+    }
+}
+
+/// The facade's error for a send the router refused.
+fn send_error(dir: &Directory, e: hetcomm_router::SendError) -> SendError {
+    match e {
+        hetcomm_router::SendError::NoRoute { from, to } => SendError::NoRoute {
+            from: dir.system_name(from).to_string(),
+            to: dir.system_name(to).to_string(),
+        },
+        hetcomm_router::SendError::TooLarge { len, max, to } => SendError::TooLarge {
+            to: dir.system_name(to).to_string(),
+            len,
+            max,
+        },
+        other => SendError::UnknownSystem(other.to_string()),
     }
 }

@@ -11,7 +11,7 @@ use std::thread::JoinHandle;
 
 use hetcomm_config::InboxConfig;
 use hetcomm_core::wire::AckStatus;
-use hetcomm_core::{MessageType, ModuleId, SystemId, Time, TypeRegistry};
+use hetcomm_core::{Header, MessageType, ModuleId, SystemId, Time, TypeRegistry};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitError};
 use smallvec::SmallVec;
@@ -19,6 +19,7 @@ use smallvec::SmallVec;
 use crate::inbox::{Entry, Inbox, PushError};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
+use crate::transports::Hubs;
 
 /// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
 /// clock under the simulator.
@@ -254,6 +255,22 @@ pub(crate) struct SystemCore {
     /// Frames being handled right now: shutdown lets them finish (their acknowledgements go
     /// out) before it closes the links.
     in_progress: std::sync::atomic::AtomicUsize,
+    /// Destinations reached over in-process links, handed messages directly.
+    direct: OnceLock<DirectRoutes>,
+    /// Messages other systems of this process put straight into this one's inboxes.
+    pub direct_received: AtomicU64,
+}
+
+/// The in-process links of a system, through which a message skips framing, checksums and
+/// the destination's router: both ends are in this process, the link is reliable, ordered
+/// and synchronous, so the sender's thread can put the message into the destination inbox
+/// itself and know the outcome at once.
+pub(crate) struct DirectRoutes {
+    hubs: Hubs,
+    /// Per link index: the in-process transport's name, or None for other links.
+    names: Vec<Option<String>>,
+    /// Destinations resolved so far (re-resolved when one closes and reopens).
+    cache: Mutex<HashMap<SystemId, Weak<SystemCore>>>,
 }
 
 impl SystemCore {
@@ -288,6 +305,8 @@ impl SystemCore {
             timer_thread: Mutex::new(None),
             closed: AtomicBool::new(false),
             in_progress: std::sync::atomic::AtomicUsize::new(0),
+            direct: OnceLock::new(),
+            direct_received: AtomicU64::new(0),
         })
     }
 
@@ -308,6 +327,40 @@ impl SystemCore {
             .spawn(move || run_timer(weak))?;
         *self.timer_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
         Ok(())
+    }
+
+    /// Enables direct hand-over on the links that `names` marks as in-process (see
+    /// [`DirectRoutes`]).
+    pub(crate) fn set_direct(&self, hubs: Hubs, names: Vec<Option<String>>) {
+        if names.iter().any(Option::is_some) {
+            let _ = self.direct.set(DirectRoutes {
+                hubs,
+                names,
+                cache: Mutex::new(HashMap::default()),
+            });
+        }
+    }
+
+    /// The destination system when a send to `to` over `link` can be handed over directly.
+    pub(crate) fn direct_peer(&self, link: usize, to: SystemId) -> Option<Arc<SystemCore>> {
+        let d = self.direct.get()?;
+        let name = d.names.get(link)?.as_ref()?;
+        let mut cache = d.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = cache.get(&to).and_then(Weak::upgrade) {
+            if !c.is_closed() {
+                return Some(c);
+            }
+        }
+        let c = d.hubs.system(name, to)?;
+        cache.insert(to, Arc::downgrade(&c));
+        Some(c)
+    }
+
+    /// Puts a message handed over directly by another system of this process into its
+    /// module's inbox.
+    pub(crate) fn deliver_direct(&self, header: Header, payload: Vec<u8>) -> AckStatus {
+        self.direct_received.fetch_add(1, Ordering::Relaxed);
+        self.deliver_entry(header, payload, self.clock.now())
     }
 
     /// The router's next retransmission deadline.
@@ -409,15 +462,19 @@ impl SystemCore {
 
     /// Puts a delivery into its module's inbox (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
-        let Some(module) = self.modules.get(&d.header.destination.module) else {
+        self.deliver_entry(d.header, d.payload, now)
+    }
+
+    fn deliver_entry(&self, header: Header, payload: Vec<u8>, now: Time) -> AckStatus {
+        let Some(module) = self.modules.get(&header.destination.module) else {
             return AckStatus::UnknownModule;
         };
         let entry = Entry {
-            header: d.header,
-            payload: d.payload,
+            header,
+            payload,
             received_at: now,
         };
-        let wants_callback = module.wants_callback(d.header.message_type);
+        let wants_callback = module.wants_callback(header.message_type);
         if wants_callback && module.inline_callbacks {
             module.run_callback(&self.directory, entry);
             return AckStatus::Delivered;

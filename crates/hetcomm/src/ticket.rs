@@ -8,14 +8,66 @@ use hetcomm_router::Outcome;
 /// Where the runtime puts a send's outcome.
 #[derive(Default)]
 pub(crate) struct OutcomeSlot {
-    outcome: Mutex<Option<Outcome>>,
+    state: Mutex<SlotState>,
     ready: Condvar,
 }
 
+#[derive(Default)]
+struct SlotState {
+    outcome: Option<Outcome>,
+    /// Threads in `wait`: most tickets are never waited on, and signalling the condition
+    /// variable is a system call, so it is only signalled when someone waits.
+    waiters: usize,
+}
+
 impl OutcomeSlot {
+    /// A slot that already holds its outcome.
+    pub(crate) fn ready(outcome: Outcome) -> Self {
+        OutcomeSlot {
+            state: Mutex::new(SlotState {
+                outcome: Some(outcome),
+                waiters: 0,
+            }),
+            ready: Condvar::new(),
+        }
+    }
+
     pub(crate) fn complete(&self, outcome: Outcome) {
-        *self.outcome.lock().unwrap_or_else(|e| e.into_inner()) = Some(outcome);
-        self.ready.notify_all();
+        let mut s = self.lock();
+        s.outcome = Some(outcome);
+        if s.waiters > 0 {
+            self.ready.notify_all();
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, SlotState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Waits for the outcome until `deadline` (None: forever).
+    fn wait_until(&self, deadline: Option<Instant>) -> Option<Outcome> {
+        let mut s = self.lock();
+        loop {
+            if let Some(outcome) = s.outcome.as_ref() {
+                return Some(outcome.clone());
+            }
+            s.waiters += 1;
+            s = match deadline {
+                None => self.ready.wait(s).unwrap_or_else(|e| e.into_inner()),
+                Some(d) => {
+                    let left = d.saturating_duration_since(Instant::now());
+                    if left.is_zero() {
+                        s.waiters -= 1;
+                        return None;
+                    }
+                    self.ready
+                        .wait_timeout(s, left)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0
+                }
+            };
+            s.waiters -= 1;
+        }
     }
 }
 
@@ -24,7 +76,7 @@ impl OutcomeSlot {
 #[derive(Clone)]
 pub struct Ticket {
     pub(crate) slot: Arc<OutcomeSlot>,
-    pub(crate) destination: String,
+    pub(crate) destination: Arc<str>,
 }
 
 impl std::fmt::Debug for Ticket {
@@ -44,43 +96,21 @@ impl Ticket {
 
     /// The outcome, if the send has ended.
     pub fn try_outcome(&self) -> Option<Outcome> {
-        self.slot
-            .outcome
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
+        self.slot.lock().outcome.clone()
     }
 
     /// Waits for the outcome. Every send ends (the retry budget bounds it), so this returns.
     pub fn wait(&self) -> Outcome {
-        let mut o = self.slot.outcome.lock().unwrap_or_else(|e| e.into_inner());
         loop {
-            if let Some(outcome) = o.as_ref() {
-                return outcome.clone();
+            if let Some(o) = self.slot.wait_until(None) {
+                return o;
             }
-            o = self.slot.ready.wait(o).unwrap_or_else(|e| e.into_inner());
         }
     }
 
     /// Waits up to `timeout` for the outcome.
     pub fn wait_timeout(&self, timeout: Duration) -> Option<Outcome> {
-        let deadline = Instant::now() + timeout;
-        let mut o = self.slot.outcome.lock().unwrap_or_else(|e| e.into_inner());
-        loop {
-            if let Some(outcome) = o.as_ref() {
-                return Some(outcome.clone());
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return None;
-            }
-            o = self
-                .slot
-                .ready
-                .wait_timeout(o, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
-        }
+        self.slot.wait_until(Some(Instant::now() + timeout))
     }
 }
 
@@ -100,7 +130,7 @@ impl BroadcastTicket {
     pub fn wait(&self) -> Vec<(String, Outcome)> {
         self.tickets
             .iter()
-            .map(|t| (t.destination.clone(), t.wait()))
+            .map(|t| (t.destination.to_string(), t.wait()))
             .collect()
     }
 }

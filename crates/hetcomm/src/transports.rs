@@ -1,7 +1,7 @@
 //! The one dispatch point from a transport's kind to the code that opens it.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
@@ -15,11 +15,15 @@ use hetcomm_link_ip::tcp::TcpLink;
 use hetcomm_link_ip::udp::{UdpConfig, UdpLink};
 
 use crate::error::OpenError;
+use crate::runtime::SystemCore;
 
 /// In-process hubs by transport name: systems opened through the same `Hubs` meet there.
 #[derive(Clone, Default)]
 pub(crate) struct Hubs {
     hubs: Arc<Mutex<HashMap<String, InprocHub>>>,
+    /// The systems on each in-process transport, so that a send between two of them can skip
+    /// the link and hand the message straight to the destination's inbox.
+    systems: Arc<Mutex<HashMap<(String, SystemId), Weak<SystemCore>>>>,
 }
 
 impl Hubs {
@@ -36,6 +40,24 @@ impl Hubs {
             .clone()
     }
 
+    /// Records that `core` is on in-process transport `name`.
+    pub(crate) fn register(&self, name: &str, core: &Arc<SystemCore>) {
+        self.systems
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert((name.to_string(), core.id), Arc::downgrade(core));
+    }
+
+    /// The open system `id` on in-process transport `name`, if any.
+    pub(crate) fn system(&self, name: &str, id: SystemId) -> Option<Arc<SystemCore>> {
+        self.systems
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&(name.to_string(), id))
+            .and_then(Weak::upgrade)
+            .filter(|c| !c.is_closed())
+    }
+
     fn hub(&self, name: &str) -> InprocHub {
         self.hubs
             .lock()
@@ -50,6 +72,9 @@ impl Hubs {
 pub(crate) struct OpenedLink {
     pub link: Arc<dyn Link>,
     pub local_address: Option<String>,
+    /// For an in-process link in real time: its transport's name, under which the system is
+    /// registered in [`Hubs`] for direct hand-over.
+    pub direct: Option<String>,
 }
 
 /// Opens transport number `index` of the fleet for system `local`, delivering what it
@@ -66,6 +91,7 @@ pub(crate) fn open_link(
         return Ok(OpenedLink {
             link: net.open(index, local, sink),
             local_address: None,
+            direct: None,
         });
     }
     let hubs = &env.hubs;
@@ -82,6 +108,7 @@ pub(crate) fn open_link(
         (TransportKind::Inproc, _) => Ok(OpenedLink {
             link: Arc::new(hubs.hub(&t.name).open(local, sink)),
             local_address: None,
+            direct: Some(t.name.clone()),
         }),
         (TransportKind::Udp, TransportSettings::Ip(ip)) => {
             let mut config = if all_loopback(&ip.endpoints) {
@@ -99,6 +126,7 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address,
+                direct: None,
             })
         }
         (TransportKind::Tcp, TransportSettings::Ip(ip)) => {
@@ -112,6 +140,7 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address,
+                direct: None,
             })
         }
         (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
@@ -134,6 +163,7 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address: None,
+                direct: None,
             })
         }
         #[cfg(feature = "bluetooth")]
@@ -146,6 +176,7 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address,
+                direct: None,
             })
         }
         #[cfg(feature = "ros1")]
@@ -166,6 +197,7 @@ pub(crate) fn open_link(
             Ok(OpenedLink {
                 link: Arc::new(link),
                 local_address,
+                direct: None,
             })
         }
         (kind, _) => Err(unavailable(t, *kind)),
