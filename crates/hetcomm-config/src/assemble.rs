@@ -87,6 +87,7 @@ pub(crate) struct TransportSpec {
     pub delivery: DeliveryMode,
     pub attempts: u32,
     pub ordered: bool,
+    pub batch_linger_us: u32,
     pub letter: Option<(u8, Loc)>,
     /// None when the transport had errors; it still counts as defined so the table does not
     /// report it a second time as unknown.
@@ -627,6 +628,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             delivery: t.delivery,
             attempts: t.attempts,
             ordered: t.ordered,
+            batch_linger_us: t.batch_linger_us,
             settings,
         });
     }
@@ -755,6 +757,7 @@ fn resolve_cell(
         delivery: DeliveryMode::Acknowledged,
         attempts: 3,
         ordered: false,
+        batch_linger_us: crate::model::DEFAULT_BATCH_LINGER_US,
         letter: None,
         settings: Some(settings),
         over: None,

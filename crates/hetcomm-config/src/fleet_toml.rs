@@ -39,7 +39,14 @@ pub(crate) const SYSTEM_KEYS: [&str; 2] = ["id", "modules"];
 /// Keys of `[legacy]`.
 pub(crate) const LEGACY_KEYS: [&str; 3] = ["ids", "table", "bluetooth"];
 /// Keys every transport accepts.
-pub(crate) const COMMON_KEYS: [&str; 5] = ["kind", "delivery", "attempts", "letter", "ordered"];
+pub(crate) const COMMON_KEYS: [&str; 6] = [
+    "kind",
+    "delivery",
+    "attempts",
+    "letter",
+    "ordered",
+    "batch_linger_us",
+];
 /// Keys of `udp` / `tcp` transports besides the common ones.
 pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
 /// Keys of `ros1` transports besides the common ones.
@@ -883,6 +890,22 @@ impl P<'_> {
                 .unwrap_or(false)
             }
         };
+        let default_linger = crate::model::DEFAULT_BATCH_LINGER_US;
+        let batch_linger_us = match t.get("batch_linger_us") {
+            None => default_linger,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.batch_linger_us"),
+                    &vl,
+                    0,
+                    1_000_000,
+                    "microseconds a small frame may wait to share a write with the next; 0 turns batching off",
+                )
+                .map_or(default_linger, |a| u32::try_from(a).unwrap_or(default_linger))
+            }
+        };
         let letter = t.get("letter").and_then(|v| {
             let vl = self.vloc(v, &tloc);
             let s = self.string(
@@ -900,6 +923,7 @@ impl P<'_> {
             delivery,
             attempts,
             ordered,
+            batch_linger_us,
             letter,
             settings: None,
             over: None,

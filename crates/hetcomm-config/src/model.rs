@@ -174,9 +174,16 @@ pub struct TransportDef {
     /// Receivers deliver each sender's messages carried by this transport in the order they
     /// were sent (holding early arrivals until the gap fills or a hold timeout passes).
     pub ordered: bool,
+    /// How long a frame may wait to share a write or datagram with the frames after it, in
+    /// microseconds; 0 sends every frame at once. Only links that batch use it.
+    pub batch_linger_us: u32,
     /// Kind-specific settings.
     pub settings: TransportSettings,
 }
+
+/// The default [`TransportDef::batch_linger_us`]: long enough to gather a burst, short
+/// against a robot's control period.
+pub const DEFAULT_BATCH_LINGER_US: u32 = 50;
 
 /// Kind-specific settings, checked against each kind's schema.
 #[derive(Clone, Debug, PartialEq)]

@@ -221,7 +221,11 @@ impl Comm {
             config.timing = timing;
         }
         *core.router() = Router::new(config);
-        core.start(links, env.sim.is_none())
+        let linger = used
+            .iter()
+            .map(|&t| fleet.transports[t].batch_linger_us)
+            .collect();
+        core.start(links, linger, env.sim.is_none())
             .map_err(|e| OpenError::Transport {
                 transport: "(timer)".into(),
                 system: system.to_string(),

@@ -47,6 +47,7 @@ mod error;
 mod inbox;
 mod module;
 mod received;
+mod reactor;
 mod runtime;
 pub mod sim;
 mod ticket;

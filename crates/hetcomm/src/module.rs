@@ -285,9 +285,9 @@ impl Module {
     fn recv_inner<M: Message>(&self, timeout: Option<Duration>) -> Result<Received<M>, RecvError> {
         self.check_type::<M>()?;
         match self
+            .sys
             .core
-            .inbox
-            .take_timeout(|h| h.message_type == M::TYPE, timeout)
+            .take_waiting(&self.core, |h| h.message_type == M::TYPE, timeout)
         {
             Ok(Some(e)) => self.decode(e),
             Ok(None) if self.sys.core.is_closed() => Err(RecvError::Closed),
@@ -306,7 +306,7 @@ impl Module {
 
     /// Waits up to `timeout` (None: forever) for the next message of any type, undecoded.
     pub fn recv_raw_timeout(&self, timeout: Option<Duration>) -> Result<RawMessage, RecvError> {
-        match self.core.inbox.take_timeout(|_| true, timeout) {
+        match self.sys.core.take_waiting(&self.core, |_| true, timeout) {
             Ok(Some(e)) => Ok(raw_message(&self.sys.core.directory, e)),
             _ if self.sys.core.is_closed() => Err(RecvError::Closed),
             _ => Err(RecvError::Timeout(timeout.unwrap_or_default())),

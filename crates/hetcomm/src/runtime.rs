@@ -8,6 +8,7 @@ use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, RwLock, Weak};
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use hetcomm_config::InboxConfig;
 use hetcomm_core::wire::AckStatus;
@@ -19,6 +20,7 @@ use smallvec::SmallVec;
 use crate::inbox::{Entry, Inbox, PushError};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
+use crate::reactor::{leading_here, Reactor};
 use crate::transports::Hubs;
 
 /// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
@@ -79,6 +81,9 @@ pub(crate) struct ModuleCore {
     dispatcher: Mutex<Option<JoinHandle<()>>>,
     /// Callback invocations that panicked or failed to decode.
     pub callback_failures: AtomicU64,
+    /// This module's thread is blocked reading links as the reactor's leader: a message put
+    /// into its inbox by another thread must interrupt it.
+    leading: AtomicBool,
 }
 
 impl ModuleCore {
@@ -94,6 +99,7 @@ impl ModuleCore {
             inline_callbacks: false,
             dispatcher: Mutex::new(None),
             callback_failures: AtomicU64::new(0),
+            leading: AtomicBool::new(false),
         }
     }
 
@@ -216,6 +222,47 @@ pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
     }
 }
 
+/// The batching policy of one link. A frame goes out at once when the link was idle for
+/// the linger time, so sporadic messages never wait; while frames come faster than that,
+/// they are held and leave together when the link's batch is full, when the oldest has waited
+/// the linger time (checked at the next send, or by the timer thread), or when a thread of
+/// the system is about to wait.
+pub(crate) struct Batching {
+    /// 0: never hold.
+    linger_us: u64,
+    /// When the last frame was handed to this link (µs, the system's clock).
+    last_send: AtomicU64,
+    /// When the oldest frame still held was held (0: nothing held).
+    held_since: AtomicU64,
+}
+
+impl Batching {
+    fn new(linger_us: u32) -> Self {
+        Batching {
+            linger_us: u64::from(linger_us),
+            last_send: AtomicU64::new(0),
+            held_since: AtomicU64::new(0),
+        }
+    }
+
+    /// Whether held frames should go now (and marks them gone): any held frame when `now`
+    /// is None, else frames held for the linger time.
+    fn take_due(&self, now: Option<Time>) -> bool {
+        let since = self.held_since.load(Ordering::Relaxed);
+        if since == 0 {
+            return false;
+        }
+        if let Some(now) = now {
+            if now.as_micros().saturating_sub(since) < self.linger_us {
+                return false;
+            }
+        }
+        self.held_since
+            .compare_exchange(since, 0, Ordering::Relaxed, Ordering::Relaxed)
+            .is_ok()
+    }
+}
+
 #[derive(Default)]
 struct TimerState {
     deadline: Option<Time>,
@@ -249,6 +296,8 @@ pub(crate) struct SystemCore {
     pub clock: Arc<dyn Clock>,
     router: Mutex<Router<Arc<OutcomeSlot>>>,
     links: OnceLock<Vec<Arc<dyn Link>>>,
+    /// Per link: when small frames are held back to share a write (see [`Batching`]).
+    batching: OnceLock<Vec<Batching>>,
     timer: Timer,
     timer_thread: Mutex<Option<JoinHandle<()>>>,
     closed: AtomicBool,
@@ -257,6 +306,9 @@ pub(crate) struct SystemCore {
     in_progress: std::sync::atomic::AtomicUsize,
     /// Destinations reached over in-process links, handed messages directly.
     direct: OnceLock<DirectRoutes>,
+    /// Reads the links that a waiting thread can drive (see [`crate::reactor`]).
+    reactor: OnceLock<Arc<Reactor>>,
+    reactor_thread: Mutex<Option<JoinHandle<()>>>,
     /// Messages other systems of this process put straight into this one's inboxes.
     pub direct_received: AtomicU64,
 }
@@ -301,12 +353,15 @@ impl SystemCore {
             clock,
             router: Mutex::new(router),
             links: OnceLock::new(),
+            batching: OnceLock::new(),
             timer: Timer::default(),
             timer_thread: Mutex::new(None),
             closed: AtomicBool::new(false),
             in_progress: std::sync::atomic::AtomicUsize::new(0),
             direct: OnceLock::new(),
             direct_received: AtomicU64::new(0),
+            reactor: OnceLock::new(),
+            reactor_thread: Mutex::new(None),
         })
     }
 
@@ -315,11 +370,27 @@ impl SystemCore {
     pub(crate) fn start(
         self: &Arc<Self>,
         links: Vec<Arc<dyn Link>>,
+        linger_us: Vec<u32>,
         timer_thread: bool,
     ) -> std::io::Result<()> {
+        let reactor = Reactor::new(&links)?;
+        let batching = links
+            .iter()
+            .zip(linger_us.iter().chain(std::iter::repeat(&0)))
+            .map(|(l, &us)| Batching::new(if l.batches() { us } else { 0 }))
+            .collect();
+        let _ = self.batching.set(batching);
         let _ = self.links.set(links);
         if !timer_thread {
             return Ok(());
+        }
+        if let Some(reactor) = reactor {
+            let _ = self.reactor.set(reactor.clone());
+            let weak = Arc::downgrade(self);
+            let handle = std::thread::Builder::new()
+                .name(format!("hetcomm-rx-{}", self.name))
+                .spawn(move || reactor.run_background(weak))?;
+            *self.reactor_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
         }
         let weak = Arc::downgrade(self);
         let handle = std::thread::Builder::new()
@@ -356,6 +427,64 @@ impl SystemCore {
         Some(c)
     }
 
+    /// Takes the next message `accept` agrees to from `module`'s inbox, waiting up to
+    /// `timeout` (None: forever). While it waits, the thread reads the links itself when it
+    /// can (see [`crate::reactor`]). `Err(header)`: the next message was refused and stays.
+    pub(crate) fn take_waiting(
+        &self,
+        module: &ModuleCore,
+        accept: impl Fn(&Header) -> bool,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Entry>, Header> {
+        // Whatever this system held back for batching goes out before its thread waits
+        // (typically for the answer to it).
+        self.flush_held(None);
+        let Some(reactor) = self.reactor.get() else {
+            return module.inbox.take_timeout(accept, timeout);
+        };
+        let deadline = timeout.map(|t| Instant::now() + t);
+        loop {
+            match module.inbox.try_take(&accept) {
+                Ok(None) => {}
+                other => return other,
+            }
+            let left = match deadline {
+                None => Duration::MAX,
+                Some(d) => {
+                    let left = d.saturating_duration_since(Instant::now());
+                    if left.is_zero() {
+                        return Ok(None);
+                    }
+                    left
+                }
+            };
+            if self.is_closed() {
+                return Ok(None);
+            }
+            if reactor.try_lead() {
+                module.leading.store(true, Ordering::SeqCst);
+                // A message may have arrived between `try_take` and raising the flag.
+                if module.inbox.len() == 0 {
+                    reactor.turn(left);
+                }
+                module.leading.store(false, Ordering::SeqCst);
+                reactor.end_module_turn();
+            } else {
+                // Someone else reads; it queues what comes. Ask again soon: the leader may
+                // be the background thread stepping aside for us.
+                reactor.follow(true);
+                let r = module
+                    .inbox
+                    .take_timeout(&accept, Some(left.min(Duration::from_micros(500))));
+                reactor.follow(false);
+                match r {
+                    Ok(None) => {}
+                    other => return other,
+                }
+            }
+        }
+    }
+
     /// Puts a message handed over directly by another system of this process into its
     /// module's inbox.
     pub(crate) fn deliver_direct(&self, header: Header, payload: Vec<u8>) -> AckStatus {
@@ -370,9 +499,54 @@ impl SystemCore {
 
     /// Runs due retransmission timers (the simulator's timer thread).
     pub(crate) fn fire_timers(&self) {
+        let now = self.clock.now();
+        self.flush_held(Some(now));
         let mut router = self.router();
-        router.handle_timeout(self.clock.now());
+        router.handle_timeout(now);
         self.pump(router);
+    }
+
+    /// Puts frames held for batching on their links: all of them (`None`), or those held
+    /// for at least their link's linger by `Some(now)`.
+    pub(crate) fn flush_held(&self, due_at: Option<Time>) {
+        let (Some(links), Some(batching)) = (self.links.get(), self.batching.get()) else {
+            return;
+        };
+        for (link, b) in links.iter().zip(batching) {
+            if b.take_due(due_at) {
+                // A frame lost here is counted by the link; acknowledged sends retransmit.
+                let _ = link.flush();
+            }
+        }
+    }
+
+    /// Puts one frame on link `index`, holding it back to share a write with the next ones
+    /// when the link batches and is busy (see [`Batching`]).
+    fn transmit(&self, index: usize, link: &dyn Link, tx: &Transmit, now: Time) -> Result<(), LinkError> {
+        let Some(b) = self.batching.get().and_then(|v| v.get(index)) else {
+            return link.send(tx.to, &tx.frame);
+        };
+        if b.linger_us == 0 {
+            return link.send(tx.to, &tx.frame);
+        }
+        let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
+        if now.as_micros().saturating_sub(last) >= b.linger_us {
+            // The link was idle: this frame goes now (with anything still held before it),
+            // so sporadic traffic never waits.
+            b.held_since.store(0, Ordering::Relaxed);
+            return link.send(tx.to, &tx.frame);
+        }
+        let result = link.send_held(tx.to, &tx.frame);
+        let since = b.held_since.load(Ordering::Relaxed);
+        if since == 0 {
+            b.held_since.store(now.as_micros().max(1), Ordering::Relaxed);
+            // The timer thread sends the batch should nothing else come along.
+            self.timer.arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
+        } else if now.as_micros().saturating_sub(since) >= b.linger_us {
+            b.held_since.store(0, Ordering::Relaxed);
+            let _ = link.flush();
+        }
+        result
     }
 
     pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
@@ -439,7 +613,9 @@ impl SystemCore {
             let links = self.links();
             for tx in transmits.drain(..) {
                 let result = match links.get(tx.link) {
-                    Some(link) => link.send(tx.to, &tx.frame).map_err(transmit_error),
+                    Some(link) => self
+                        .transmit(tx.link, &**link, &tx, now)
+                        .map_err(transmit_error),
                     None => Err(TransmitError::Other("no such link".into())),
                 };
                 if tx.send.is_some() {
@@ -485,7 +661,14 @@ impl SystemCore {
             &module.inbox
         };
         match inbox.push(entry) {
-            Ok(()) => AckStatus::Delivered,
+            Ok(()) => {
+                if !wants_callback && module.leading.load(Ordering::SeqCst) && !leading_here() {
+                    if let Some(r) = self.reactor.get() {
+                        r.kick();
+                    }
+                }
+                AckStatus::Delivered
+            }
             Err(PushError::Full) | Err(PushError::Closed) => AckStatus::InboxFull,
         }
     }
@@ -507,6 +690,10 @@ impl SystemCore {
             self.timer.wake.notify_all();
         }
         join_unless_current(&self.timer_thread);
+        if let Some(r) = self.reactor.get() {
+            r.shutdown();
+        }
+        join_unless_current(&self.reactor_thread);
         let mut router = self.router();
         router.shutdown();
         while let Some(Event::Outcome { token, outcome, .. }) = router.poll_event() {
