@@ -1,6 +1,6 @@
 //! User message types and the registry that maps their numeric ids to names.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap as HashMap;
 
 use serde::{de::DeserializeOwned, Serialize};
 

@@ -2,6 +2,7 @@
 //! subscribes. It is the thesis's Table 5 (`Send`, `CheckForMessage`, `GetNextMessageType`,
 //! `GetMessage`) plus callbacks, priorities, timeouts and outcomes.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -13,7 +14,7 @@ use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::received::{RawMessage, Received};
 use crate::runtime::{raw_message, Directory, ModuleCore};
-use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket};
+use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
 
 /// Per-send options.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -105,7 +106,7 @@ impl Module {
         self.check_type::<M>()?;
         let to = self.resolve(system, module)?;
         let payload = payload::encode(msg)?;
-        self.send_encoded(to, M::TYPE, &payload, opts, false)
+        self.send_encoded(to, M::TYPE, Cow::Owned(payload), opts, false)
     }
 
     /// Sends an already-encoded payload (tools, other-language bindings).
@@ -118,14 +119,14 @@ impl Module {
         opts: SendOptions,
     ) -> Result<Ticket, SendError> {
         let to = self.resolve(system, module)?;
-        self.send_encoded(to, message_type, payload, opts, false)
+        self.send_encoded(to, message_type, Cow::Borrowed(payload), opts, false)
     }
 
     fn send_encoded(
         &self,
         to: Address,
         message_type: MessageType,
-        payload: &[u8],
+        payload: Cow<'_, [u8]>,
         opts: SendOptions,
         broadcast: bool,
     ) -> Result<Ticket, SendError> {
@@ -138,7 +139,7 @@ impl Module {
             to,
             message_type,
             priority: opts.priority,
-            payload,
+            payload: &payload,
             broadcast,
         };
         let now = core.clock.now();
@@ -151,10 +152,10 @@ impl Module {
                 .send_direct(now, req)
                 .map_err(|e| send_error(&core.directory, e))?;
             drop(router);
-            let status = peer.deliver_direct(header, payload.to_vec());
+            let status = peer.deliver_direct(header, payload.into_owned(), now);
             let outcome = core.router().direct_result(&header, status);
             return Ok(Ticket {
-                slot: Arc::new(OutcomeSlot::ready(outcome)),
+                slot: TicketSlot::Ready(outcome),
                 destination: core.directory.system_name(to.system),
             });
         }
@@ -165,7 +166,7 @@ impl Module {
         }
         core.pump(router);
         Ok(Ticket {
-            slot,
+            slot: TicketSlot::Pending(slot),
             destination: core.directory.system_name(to.system),
         })
     }
@@ -214,7 +215,7 @@ impl Module {
                 system,
                 module: module_id,
             };
-            tickets.push(self.send_encoded(to, message_type, payload, opts, true)?);
+            tickets.push(self.send_encoded(to, message_type, Cow::Borrowed(payload), opts, true)?);
         }
         Ok(BroadcastTicket { tickets })
     }

@@ -21,17 +21,6 @@ struct SlotState {
 }
 
 impl OutcomeSlot {
-    /// A slot that already holds its outcome.
-    pub(crate) fn ready(outcome: Outcome) -> Self {
-        OutcomeSlot {
-            state: Mutex::new(SlotState {
-                outcome: Some(outcome),
-                waiters: 0,
-            }),
-            ready: Condvar::new(),
-        }
-    }
-
     pub(crate) fn complete(&self, outcome: Outcome) {
         let mut s = self.lock();
         s.outcome = Some(outcome);
@@ -75,8 +64,17 @@ impl OutcomeSlot {
 /// system's statistics.
 #[derive(Clone)]
 pub struct Ticket {
-    pub(crate) slot: Arc<OutcomeSlot>,
+    pub(crate) slot: TicketSlot,
     pub(crate) destination: Arc<str>,
+}
+
+/// Where a ticket finds its outcome.
+#[derive(Clone)]
+pub(crate) enum TicketSlot {
+    /// Known when the send returned (a direct in-process hand-over): nothing to share.
+    Ready(Outcome),
+    /// Filled in later by the runtime.
+    Pending(Arc<OutcomeSlot>),
 }
 
 impl std::fmt::Debug for Ticket {
@@ -96,13 +94,16 @@ impl Ticket {
 
     /// The outcome, if the send has ended.
     pub fn try_outcome(&self) -> Option<Outcome> {
-        self.slot.lock().outcome.clone()
+        match &self.slot {
+            TicketSlot::Ready(o) => Some(o.clone()),
+            TicketSlot::Pending(slot) => slot.lock().outcome.clone(),
+        }
     }
 
     /// Waits for the outcome. Every send ends (the retry budget bounds it), so this returns.
     pub fn wait(&self) -> Outcome {
         loop {
-            if let Some(o) = self.slot.wait_until(None) {
+            if let Some(o) = self.wait_until(None) {
                 return o;
             }
         }
@@ -110,7 +111,14 @@ impl Ticket {
 
     /// Waits up to `timeout` for the outcome.
     pub fn wait_timeout(&self, timeout: Duration) -> Option<Outcome> {
-        self.slot.wait_until(Some(Instant::now() + timeout))
+        self.wait_until(Some(Instant::now() + timeout))
+    }
+
+    fn wait_until(&self, deadline: Option<Instant>) -> Option<Outcome> {
+        match &self.slot {
+            TicketSlot::Ready(o) => Some(o.clone()),
+            TicketSlot::Pending(slot) => slot.wait_until(deadline),
+        }
     }
 }
 
