@@ -306,9 +306,18 @@ pub fn inproc_oneway(
 }
 
 /// In-process hand-off latency without queueing: one message at a time, the sender waits
-/// until the receiving thread has taken it before sending the next.
-pub fn inproc_paced_handoff(acked: bool, size: usize, count: u64) -> Result<Latency, String> {
+/// until the receiving thread has taken it before sending the next. With `spin`, the
+/// receiver spins that long before it sleeps ([`Module::set_wait_spin`]).
+pub fn inproc_paced_handoff(
+    acked: bool,
+    size: usize,
+    count: u64,
+    spin: Option<Duration>,
+) -> Result<Latency, String> {
     let (_f, a, b) = local(acked)?;
+    if let Some(spin) = spin {
+        b.set_wait_spin(spin);
+    }
     let epoch = Instant::now();
     let taken = Arc::new(AtomicU64::new(0));
     let t2 = taken.clone();

@@ -258,8 +258,14 @@ fn run(o: &Options) -> Vec<Row> {
                 Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
             }
             let n = if o.quick { 300 } else { 20_000 };
-            match hc::inproc_paced_handoff(acked, 64, n) {
+            match hc::inproc_paced_handoff(acked, 64, n, None) {
                 Ok(l) => rows.push(Row::handoff(&name, "paced", 64, None, &l)),
+                Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
+            }
+            // The same with a receiver that spins before it sleeps (an opt-in per module).
+            let spin = Some(Duration::from_micros(100));
+            match hc::inproc_paced_handoff(acked, 64, n, spin) {
+                Ok(l) => rows.push(Row::handoff(&name, "paced, spin 100 µs", 64, None, &l)),
                 Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
             }
         }

@@ -1,13 +1,28 @@
 //! UDP: one socket per system, bound to its endpoint; sends go out with `send_to` on the
-//! caller's thread, a receive thread hands frames to the sink. Unreliable and unordered, as
-//! declared in its [`LinkCaps`].
+//! caller's thread, and a receive thread hands frames to the sink — or, with
+//! [`UdpConfig::driven`], a waiting thread reads the socket itself through
+//! [`Link::readable`]. Unreliable and unordered, as declared in its [`LinkCaps`].
 //!
 //! # Datagram format
 //!
-//! A frame no longer than the datagram payload size ([`UdpConfig::datagram_payload`], the
-//! link's `mtu`) travels as one datagram holding exactly the frame, with nothing added (wire
-//! frames start with `"HC"`). Larger frames are split into fragments, each one datagram that
-//! starts with this 20-byte fragment header (integers little-endian):
+//! Every datagram is one of three kinds, told apart by its first bytes:
+//!
+//! - **A whole frame**: a frame no longer than the datagram payload size
+//!   ([`UdpConfig::datagram_payload`], the link's `mtu`) travels as one datagram holding
+//!   exactly the frame, with nothing added.
+//! - **A batch**: frames held back by [`Link::send_held`] travel together as one datagram
+//!   holding whole wire frames back to back, with nothing between or around them, at most `mtu`
+//!   bytes in all. Only self-delimiting wire frames are batched: frames that start with the wire
+//!   magic `"HC"` and whose header's declared length ([`wire::peek_frame_len`]) is exactly
+//!   their own length. A receiver recognises a batch by its first frame: the datagram starts
+//!   with `"HC"` and the first header parses with a declared length *shorter* than the
+//!   datagram. It then walks the datagram frame by frame with [`wire::peek_frame_len`] and
+//!   hands each complete frame up; a piece that does not parse or runs past the end drops the
+//!   rest of the datagram and is counted in [`UdpStats::bad_datagrams`] (the frames before it
+//!   are still delivered). A batch of one frame is indistinguishable from a whole frame, and is
+//!   one.
+//! - **A fragment** of a frame larger than `mtu`: a datagram that starts with this 20-byte
+//!   fragment header (integers little-endian):
 //!
 //! | offset | size | field |
 //! |---|---|---|
@@ -25,10 +40,13 @@
 //! `chunk = ceil(total / count)`, fragment `i` holds bytes `i*chunk .. min((i+1)*chunk, total)`.
 //! The receiver derives every piece's position and exact length from `total` and `count`
 //! alone, so a fragment whose length is not the expected one is rejected, and fragments can
-//! never overlap or leave gaps.
+//! never overlap or leave gaps. A reassembled frame is handed up whole, never split as a batch.
 //!
-//! A frame that fits one datagram but happens to start with `"HF"` is sent as a one-fragment
-//! message, so any byte string round-trips unambiguously.
+//! Any other datagram — one whose header does not parse, or declares exactly the datagram's
+//! length or more — is handed up whole: the link does not judge frames (the router's decoder
+//! does). A frame that fits one datagram but would be mistaken for something else — it starts
+//! with `"HF"`, or it starts with a wire header declaring fewer bytes than the frame holds — is
+//! sent as a one-fragment message, so any byte string round-trips unambiguously.
 //!
 //! # Reassembly
 //!
@@ -45,8 +63,29 @@
 //! A datagram starting with `"HF"` whose header is malformed (truncated, wrong version,
 //! non-zero reserved bytes, index ≥ count, total of 0 or above `max_frame`, count larger than
 //! the total or inconsistent with it, a piece of the wrong length, or disagreeing with earlier
-//! fragments of the same message) is dropped and counted. Any other datagram is a whole frame:
-//! the link does not look inside frames (the router's decoder checks them).
+//! fragments of the same message) is dropped and counted, and so is the malformed tail of a
+//! batch. Beyond that the link does not look inside frames (the router's decoder checks them).
+//!
+//! # Batching
+//!
+//! [`Link::send_held`] appends a self-delimiting wire frame to its peer's batch (one buffer
+//! per peer, of `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
+//! out as one datagram when the next frame would not fit (or no further frame could), at the
+//! next plain [`Link::send`] to that peer (which joins the batch when it can, so both leave in
+//! one datagram), before a frame that cannot be batched, at [`Link::flush`], and when the link
+//! is dropped. Frames to one peer thus leave in the order they were given. An error returned by
+//! `send` or `send_held` concerns the frame passed in; held frames lost because their batch
+//! could not be sent are counted in [`UdpStats::held_frames_dropped`] (and `flush` returns the
+//! first such error).
+//!
+//! # Driven receive
+//!
+//! With [`UdpConfig::driven`] the link starts no receive thread; [`Link::readable`] returns
+//! its receive side, whose [`Readable::read_ready`] reads without blocking (`MSG_DONTWAIT`,
+//! while the socket itself stays blocking so that sends still wait for buffer space), hands
+//! the frames to the sink on the caller's thread and expires incomplete messages. The
+//! receive state sits behind a mutex that `read_ready` only tries: a second, concurrent
+//! caller reads nothing rather than waiting.
 //!
 //! # Identity
 //!
@@ -68,15 +107,17 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::{self, IoSlice};
+use std::mem::MaybeUninit;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::os::fd::{AsRawFd, RawFd};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::wire::{self, HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
 use crate::OpenError;
 
@@ -109,6 +150,10 @@ pub struct UdpConfig {
     pub reassembly_timeout: Duration,
     /// Send and receive socket buffer size requested from the kernel (default 4 MiB).
     pub socket_buffer_bytes: usize,
+    /// Start no receive thread: a thread waiting for messages reads the socket itself through
+    /// [`Link::readable`] (see the module docs, "Driven receive"). Nothing is received until
+    /// someone calls [`Readable::read_ready`]. Default `false`: the link's own thread receives.
+    pub driven: bool,
 }
 
 impl Default for UdpConfig {
@@ -119,6 +164,7 @@ impl Default for UdpConfig {
             reassembly_limit_bytes: 32 * 1024 * 1024,
             reassembly_timeout: Duration::from_secs(2),
             socket_buffer_bytes: 4 * 1024 * 1024,
+            driven: false,
         }
     }
 }
@@ -172,15 +218,24 @@ impl UdpConfig {
 /// Counters of a [`UdpLink`]; [`Link::stats`] reports the subset [`LinkStats`] has.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct UdpStats {
-    /// Frames fully handed to the socket by `send`.
+    /// Frames fully handed to the socket, alone, in fragments or in a batch.
     pub frames_sent: u64,
+    /// Datagrams handed to the socket: whole frames, batches and fragments.
+    pub datagrams_sent: u64,
+    /// Batch datagrams sent (each carries one or more held frames).
+    pub batches_sent: u64,
     /// Fragment datagrams sent (0 while every frame fits one datagram).
     pub fragments_sent: u64,
+    /// Held frames dropped because their batch could not be sent.
+    pub held_frames_dropped: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
-    /// Everything dropped on receive: bad datagrams plus incomplete messages given up.
+    /// Datagrams received as batches: their first frame is shorter than the datagram.
+    pub batches_received: u64,
+    /// Everything dropped: bad datagrams, incomplete messages given up, and held frames whose
+    /// batch could not be sent.
     pub frames_dropped: u64,
-    /// Malformed fragment datagrams dropped.
+    /// Malformed fragment datagrams, and batches with a malformed tail, dropped (in part).
     pub bad_datagrams: u64,
     /// Incomplete messages dropped because their time ran out.
     pub reassembly_timeouts: u64,
@@ -196,8 +251,12 @@ pub struct UdpStats {
 #[derive(Default)]
 struct Counters {
     frames_sent: AtomicU64,
+    datagrams_sent: AtomicU64,
+    batches_sent: AtomicU64,
     fragments_sent: AtomicU64,
+    held_frames_dropped: AtomicU64,
     frames_received: AtomicU64,
+    batches_received: AtomicU64,
     bad_datagrams: AtomicU64,
     reassembly_timeouts: AtomicU64,
     reassembly_evictions: AtomicU64,
@@ -538,22 +597,83 @@ struct Shared {
     counters: Counters,
 }
 
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic elsewhere (e.g. in a sink) leaves the state consistent: keep serving.
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Frames held for one peer, to go out as one datagram.
+#[derive(Default)]
+struct Batch {
+    /// Whole wire frames back to back, at most `mtu` bytes.
+    buf: Vec<u8>,
+    /// How many frames `buf` holds.
+    frames: u64,
+}
+
+/// A peer's address and its batch of held frames.
+struct PeerSlot {
+    addr: SocketAddr,
+    batch: Mutex<Batch>,
+}
+
+/// Who reads the socket.
+enum RxSide {
+    /// The link's own receive thread (joined on drop).
+    Thread(Option<JoinHandle<()>>),
+    /// Whichever thread calls [`Readable::read_ready`].
+    Driven(DrivenReceiver),
+}
+
+/// Whether `frame` may travel in a batch: a self-delimiting wire frame that fits a datagram.
+fn batchable(frame: &[u8], mtu: usize) -> bool {
+    frame.len() <= mtu && wire::peek_frame_len(frame).is_ok_and(|n| n == frame.len())
+}
+
+/// Whether a receiver takes a datagram holding exactly `d` for a batch: it starts with a wire
+/// header declaring fewer bytes than `d` holds.
+fn looks_like_batch(d: &[u8]) -> bool {
+    wire::peek_frame_len(d).is_ok_and(|n| n < d.len())
+}
+
+/// The frames of a batch datagram, front to back. Stops at the first piece that is not a
+/// complete wire frame and leaves it (with everything after it) in `rest`.
+struct BatchFrames<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> Iterator for BatchFrames<'a> {
+    type Item = &'a [u8];
+
+    fn next(&mut self) -> Option<&'a [u8]> {
+        // A declared length is at least HEADER_LEN, so every step makes progress.
+        let n = wire::peek_frame_len(self.rest)
+            .ok()
+            .filter(|&n| n <= self.rest.len())?;
+        let (frame, rest) = self.rest.split_at(n);
+        self.rest = rest;
+        Some(frame)
+    }
+}
+
 /// A system's UDP endpoint; see the module docs.
 pub struct UdpLink {
     local: SystemId,
     socket: Arc<UdpSocket>,
     local_addr: SocketAddr,
-    peers: BTreeMap<SystemId, SocketAddr>,
+    peers: BTreeMap<SystemId, PeerSlot>,
     config: UdpConfig,
+    max_frame: usize,
     next_message_id: AtomicU32,
     shared: Arc<Shared>,
-    thread: Option<JoinHandle<()>>,
+    rx: RxSide,
 }
 
 impl UdpLink {
     /// Binds `local`'s endpoint from `endpoints` (port 0 picks a free port; see
-    /// [`UdpLink::local_addr`]) and starts the receive thread. The other entries are the peers;
-    /// they are resolved now, since their addresses also identify senders.
+    /// [`UdpLink::local_addr`]) and starts the receive thread (unless [`UdpConfig::driven`]).
+    /// The other entries are the peers; they are resolved now, since their addresses also
+    /// identify senders.
     pub fn bind(
         local: SystemId,
         endpoints: &BTreeMap<SystemId, String>,
@@ -581,49 +701,71 @@ impl UdpLink {
     ) -> Result<UdpLink, OpenError> {
         config.check()?;
         let local_addr = socket.local_addr()?;
-        let mut peers = BTreeMap::new();
+        let mut peer_addrs = BTreeMap::new();
         for (&id, endpoint) in endpoints.iter().filter(|(id, _)| **id != local) {
-            peers.insert(id, resolve(id, endpoint, local_addr.is_ipv4())?);
+            peer_addrs.insert(id, resolve(id, endpoint, local_addr.is_ipv4())?);
         }
         // Best effort: the kernel may cap these (net.core.rmem_max / wmem_max).
         let sock = socket2::SockRef::from(&socket);
         let _ = sock.set_recv_buffer_size(config.socket_buffer_bytes);
         let _ = sock.set_send_buffer_size(config.socket_buffer_bytes);
-        // The receive thread wakes at least this often to expire incomplete messages and to
-        // notice shutdown should the wake-up datagram be lost.
-        let tick = (config.reassembly_timeout / 4)
-            .clamp(Duration::from_millis(10), Duration::from_millis(250));
-        socket.set_read_timeout(Some(tick))?;
+        if !config.driven {
+            // The receive thread wakes at least this often to expire incomplete messages and
+            // to notice shutdown should the wake-up datagram be lost.
+            let tick = (config.reassembly_timeout / 4)
+                .clamp(Duration::from_millis(10), Duration::from_millis(250));
+            socket.set_read_timeout(Some(tick))?;
+        }
         let socket = Arc::new(socket);
         let shared = Arc::new(Shared {
             closing: AtomicBool::new(false),
             counters: Counters::default(),
         });
+        let max_frame = config.max_frame();
         let receiver = Receiver {
             socket: socket.clone(),
-            shared: shared.clone(),
-            sink,
-            senders: peers.iter().map(|(id, addr)| (*addr, *id)).collect(),
-            reassembler: Reassembler::new(
-                config.reassembly_limit_bytes,
-                config.reassembly_timeout,
-                config.max_frame(),
-            ),
+            buf: vec![0; RECV_BUF_LEN],
+            state: RxState {
+                shared: shared.clone(),
+                sink,
+                senders: peer_addrs.iter().map(|(id, addr)| (*addr, *id)).collect(),
+                reassembler: Reassembler::new(
+                    config.reassembly_limit_bytes,
+                    config.reassembly_timeout,
+                    max_frame,
+                ),
+            },
         };
-        let thread = std::thread::Builder::new()
-            .name(format!("hetcomm-udp-rx-{local}"))
-            .spawn(move || receiver.run())?;
+        let rx = if config.driven {
+            RxSide::Driven(DrivenReceiver {
+                fd: socket.as_raw_fd(),
+                receiver: Mutex::new(receiver),
+            })
+        } else {
+            let thread = std::thread::Builder::new()
+                .name(format!("hetcomm-udp-rx-{local}"))
+                .spawn(move || receiver.run())?;
+            RxSide::Thread(Some(thread))
+        };
+        let peers = peer_addrs
+            .into_iter()
+            .map(|(id, addr)| {
+                let batch = Mutex::new(Batch::default());
+                (id, PeerSlot { addr, batch })
+            })
+            .collect();
         Ok(UdpLink {
             local,
             socket,
             local_addr,
             peers,
             config,
+            max_frame,
             // Start from a value tied to the clock so that a restarted sender is unlikely to
             // reuse the ids of its previous incarnation's half-delivered messages.
             next_message_id: AtomicU32::new(clock_seed()),
             shared,
-            thread: Some(thread),
+            rx,
         })
     }
 
@@ -639,16 +781,116 @@ impl UdpLink {
         let bad = get(&c.bad_datagrams);
         let timeouts = get(&c.reassembly_timeouts);
         let evictions = get(&c.reassembly_evictions);
+        let held_dropped = get(&c.held_frames_dropped);
         UdpStats {
             frames_sent: get(&c.frames_sent),
+            datagrams_sent: get(&c.datagrams_sent),
+            batches_sent: get(&c.batches_sent),
             fragments_sent: get(&c.fragments_sent),
+            held_frames_dropped: held_dropped,
             frames_received: get(&c.frames_received),
-            frames_dropped: bad + timeouts + evictions,
+            batches_received: get(&c.batches_received),
+            frames_dropped: bad + timeouts + evictions + held_dropped,
             bad_datagrams: bad,
             reassembly_timeouts: timeouts,
             reassembly_evictions: evictions,
             from_unknown_address: get(&c.from_unknown_address),
             buffered_bytes: get(&c.buffered_bytes),
+        }
+    }
+
+    fn check_size(&self, frame: &[u8]) -> Result<(), LinkError> {
+        if frame.len() > self.max_frame {
+            return Err(LinkError::TooLarge {
+                len: frame.len(),
+                max: self.max_frame,
+            });
+        }
+        Ok(())
+    }
+
+    fn peer(&self, to: SystemId) -> Result<&PeerSlot, LinkError> {
+        self.peers.get(&to).ok_or_else(|| {
+            let reason = if to == self.local {
+                "it is this system itself".to_string()
+            } else {
+                format!("system {to} has no endpoint on this udp link")
+            };
+            LinkError::Unreachable { peer: to, reason }
+        })
+    }
+
+    /// Sends `frame` on its own: as one datagram, or as fragments.
+    fn send_now(&self, to: SystemId, addr: SocketAddr, frame: &[u8]) -> Result<(), LinkError> {
+        let counters = &self.shared.counters;
+        let mtu = self.config.datagram_payload;
+        if frame.len() <= mtu && !frame.starts_with(&FRAGMENT_MAGIC) && !looks_like_batch(frame) {
+            self.socket
+                .send_to(frame, addr)
+                .map_err(|e| self.send_error(to, addr, e))?;
+            add(&counters.datagrams_sent, 1);
+            add(&counters.frames_sent, 1);
+            return Ok(());
+        }
+        let too_large = || LinkError::TooLarge {
+            len: frame.len(),
+            max: self.max_frame,
+        };
+        let piece_max = mtu - FRAGMENT_HEADER_LEN;
+        let count = frame.len().div_ceil(piece_max).max(1);
+        let count = u16::try_from(count).map_err(|_| too_large())?;
+        let total = u32::try_from(frame.len()).map_err(|_| too_large())?;
+        let message_id = self.next_message_id.fetch_add(1, Ordering::Relaxed);
+        let dest = socket2::SockAddr::from(addr);
+        let sock = socket2::SockRef::from(&*self.socket);
+        for index in 0..count {
+            let h = FragmentHeader {
+                sender: self.local,
+                index,
+                count,
+                message_id,
+                total,
+            };
+            let head = h.encode();
+            let piece = &frame[h.piece_range()];
+            sock.send_to_vectored(&[IoSlice::new(&head), IoSlice::new(piece)], &dest)
+                .map_err(|e| self.send_error(to, addr, e))?;
+            add(&counters.fragments_sent, 1);
+            add(&counters.datagrams_sent, 1);
+        }
+        add(&counters.frames_sent, 1);
+        Ok(())
+    }
+
+    /// Sends the held frames `b` towards `to` as one datagram and empties the batch. `own` of
+    /// them (0 or 1, the last) are the caller's, who gets the error; should the send fail, the
+    /// others are counted as dropped.
+    fn send_batch(
+        &self,
+        to: SystemId,
+        addr: SocketAddr,
+        b: &mut Batch,
+        own: u64,
+    ) -> Result<(), LinkError> {
+        if b.frames == 0 {
+            return Ok(());
+        }
+        let result = self.socket.send_to(&b.buf, addr);
+        let frames = b.frames;
+        b.buf.clear();
+        b.frames = 0;
+        let c = &self.shared.counters;
+        match result {
+            Ok(_) => {
+                add(&c.frames_sent, frames);
+                add(&c.datagrams_sent, 1);
+                add(&c.batches_sent, 1);
+                Ok(())
+            }
+            Err(e) => {
+                add(&c.held_frames_dropped, frames.saturating_sub(own));
+                Err(self.send_error(to, addr, e))
+            }
         }
     }
 
@@ -703,7 +945,7 @@ fn resolve(id: SystemId, endpoint: &str, prefer_v4: bool) -> Result<SocketAddr, 
 impl Link for UdpLink {
     fn caps(&self) -> LinkCaps {
         LinkCaps {
-            max_frame: self.config.max_frame(),
+            max_frame: self.max_frame,
             mtu: self.config.datagram_payload,
             reliable: false,
             ordered: false,
@@ -712,59 +954,23 @@ impl Link for UdpLink {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let max = self.config.max_frame();
-        if frame.len() > max {
-            return Err(LinkError::TooLarge {
-                len: frame.len(),
-                max,
-            });
-        }
-        let Some(&addr) = self.peers.get(&to) else {
-            let reason = if to == self.local {
-                "it is this system itself".to_string()
-            } else {
-                format!("system {to} has no endpoint on this udp link")
-            };
-            return Err(LinkError::Unreachable { peer: to, reason });
-        };
-        let counters = &self.shared.counters;
+        self.check_size(frame)?;
+        let peer = self.peer(to)?;
         let mtu = self.config.datagram_payload;
-        if frame.len() <= mtu && !frame.starts_with(&FRAGMENT_MAGIC) {
-            self.socket
-                .send_to(frame, addr)
-                .map_err(|e| self.send_error(to, addr, e))?;
-            add(&counters.frames_sent, 1);
-            return Ok(());
+        {
+            let mut b = lock(&peer.batch);
+            if b.frames > 0 {
+                if batchable(frame, mtu) && b.buf.len() + frame.len() <= mtu {
+                    // Joins the held frames: one datagram for all of them.
+                    b.buf.extend_from_slice(frame);
+                    b.frames += 1;
+                    return self.send_batch(to, peer.addr, &mut b, 1);
+                }
+                // Held frames go first. Their failure is counted; the result is this frame's.
+                let _ = self.send_batch(to, peer.addr, &mut b, 0);
+            }
         }
-        let piece_max = mtu - FRAGMENT_HEADER_LEN;
-        let count = frame.len().div_ceil(piece_max).max(1);
-        let count = u16::try_from(count).map_err(|_| LinkError::TooLarge {
-            len: frame.len(),
-            max,
-        })?;
-        let total = u32::try_from(frame.len()).map_err(|_| LinkError::TooLarge {
-            len: frame.len(),
-            max,
-        })?;
-        let message_id = self.next_message_id.fetch_add(1, Ordering::Relaxed);
-        let dest = socket2::SockAddr::from(addr);
-        let sock = socket2::SockRef::from(&*self.socket);
-        for index in 0..count {
-            let h = FragmentHeader {
-                sender: self.local,
-                index,
-                count,
-                message_id,
-                total,
-            };
-            let head = h.encode();
-            let piece = &frame[h.piece_range()];
-            sock.send_to_vectored(&[IoSlice::new(&head), IoSlice::new(piece)], &dest)
-                .map_err(|e| self.send_error(to, addr, e))?;
-            add(&counters.fragments_sent, 1);
-        }
-        add(&counters.frames_sent, 1);
-        Ok(())
+        self.send_now(to, peer.addr, frame)
     }
 
     fn stats(&self) -> LinkStats {
@@ -777,11 +983,67 @@ impl Link for UdpLink {
             buffered_bytes: s.buffered_bytes,
         }
     }
+
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.check_size(frame)?;
+        let peer = self.peer(to)?;
+        let mtu = self.config.datagram_payload;
+        let mut b = lock(&peer.batch);
+        if !batchable(frame, mtu) {
+            // Held frames go first. Their failure is counted; the result is this frame's.
+            let _ = self.send_batch(to, peer.addr, &mut b, 0);
+            drop(b);
+            return self.send_now(to, peer.addr, frame);
+        }
+        if b.buf.len() + frame.len() > mtu {
+            let _ = self.send_batch(to, peer.addr, &mut b, 0);
+        }
+        if b.buf.capacity() < mtu {
+            // Once per peer: afterwards holding a frame never allocates.
+            b.buf.reserve_exact(mtu);
+        }
+        b.buf.extend_from_slice(frame);
+        b.frames += 1;
+        if mtu - b.buf.len() < HEADER_LEN {
+            // No further frame can fit: holding these longer would only add latency.
+            return self.send_batch(to, peer.addr, &mut b, 1);
+        }
+        Ok(())
+    }
+
+    fn flush(&self) -> Result<(), LinkError> {
+        let mut first = Ok(());
+        for (&to, peer) in &self.peers {
+            let mut b = lock(&peer.batch);
+            if let Err(e) = self.send_batch(to, peer.addr, &mut b, 0) {
+                if first.is_ok() {
+                    first = Err(e);
+                }
+            }
+        }
+        first
+    }
+
+    fn batches(&self) -> bool {
+        true
+    }
+
+    fn readable(&self) -> Option<&dyn Readable> {
+        match &self.rx {
+            RxSide::Driven(d) => Some(d),
+            RxSide::Thread(_) => None,
+        }
+    }
 }
 
 impl Drop for UdpLink {
     fn drop(&mut self) {
+        // Best effort: held frames would otherwise be lost without a trace.
+        let _ = self.flush();
         self.shared.closing.store(true, Ordering::SeqCst);
+        let RxSide::Thread(thread) = &mut self.rx else {
+            return; // driven: no thread to stop
+        };
         // Wake the receive thread with an empty datagram to ourselves; the read timeout is the
         // fallback should it be lost.
         let mut me = self.local_addr;
@@ -792,61 +1054,113 @@ impl Drop for UdpLink {
             });
         }
         let _ = self.socket.send_to(&[], me);
-        if let Some(t) = self.thread.take() {
+        if let Some(t) = thread.take() {
             let _ = t.join();
         }
     }
 }
 
-/// The receive thread's state.
+/// Large enough for any UDP datagram, so nothing is silently truncated.
+const RECV_BUF_LEN: usize = 65_536;
+
+/// The receive side: the socket, one receive buffer reused for every datagram, and what the
+/// datagrams are made into.
 struct Receiver {
     socket: Arc<UdpSocket>,
+    buf: Vec<u8>,
+    state: RxState,
+}
+
+/// Receive errors after which reading simply goes on: timeouts, signals, and an earlier
+/// send's ICMP error, which some platforms report on the next receive.
+fn is_transient(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::WouldBlock
+            | io::ErrorKind::TimedOut
+            | io::ErrorKind::Interrupted
+            | io::ErrorKind::ConnectionRefused
+            | io::ErrorKind::ConnectionReset
+    )
+}
+
+/// Receives one datagram if one is waiting, without blocking (the socket itself stays
+/// blocking, for the sends).
+fn recv_dontwait(socket: &UdpSocket, buf: &mut [u8]) -> io::Result<(usize, Option<SocketAddr>)> {
+    // SAFETY: `[u8]` and `[MaybeUninit<u8>]` have the same layout, and socket2 promises never
+    // to write uninitialised bytes into the buffer (it passes it straight to recvfrom(2)), so
+    // `buf` stays initialised.
+    let uninit = unsafe { &mut *(buf as *mut [u8] as *mut [MaybeUninit<u8>]) };
+    let (n, from) =
+        socket2::SockRef::from(socket).recv_from_with_flags(uninit, libc::MSG_DONTWAIT)?;
+    Ok((n, from.as_socket()))
+}
+
+impl Receiver {
+    /// The receive thread's loop.
+    fn run(mut self) {
+        let mut consecutive_errors = 0u32;
+        while !self.state.shared.closing.load(Ordering::SeqCst) {
+            match self.socket.recv_from(&mut self.buf) {
+                Ok((n, src)) => {
+                    consecutive_errors = 0;
+                    if self.state.shared.closing.load(Ordering::SeqCst) {
+                        break;
+                    }
+                    self.state.on_datagram(&self.buf[..n], src);
+                }
+                Err(e) if is_transient(&e) => {}
+                Err(_) => {
+                    // An unexpected, possibly persistent error: pause a little so it cannot
+                    // spin a core, and keep serving.
+                    consecutive_errors = consecutive_errors.saturating_add(1);
+                    if consecutive_errors > 3 {
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                }
+            }
+            self.state.upkeep();
+        }
+    }
+
+    /// Reads at most `budget` datagrams that have arrived, without blocking; returns the
+    /// number of frames handed to the sink. An unexpected error is returned only when no frame
+    /// was handed on (a persistent one shows again at the next call).
+    fn read_ready(&mut self, budget: usize) -> io::Result<usize> {
+        let mut frames = 0;
+        let mut failure = None;
+        for _ in 0..budget {
+            match recv_dontwait(&self.socket, &mut self.buf) {
+                Ok((n, Some(src))) => frames += self.state.on_datagram(&self.buf[..n], src),
+                // Not an IP source: cannot happen on a UDP/IP socket; nothing to attribute.
+                Ok((_, None)) => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+                Err(e) if is_transient(&e) => {}
+                Err(e) => {
+                    failure = Some(e);
+                    break;
+                }
+            }
+        }
+        self.state.upkeep();
+        match failure {
+            Some(e) if frames == 0 => Err(e),
+            _ => Ok(frames),
+        }
+    }
+}
+
+/// What received datagrams are made into, and where they go.
+struct RxState {
     shared: Arc<Shared>,
     sink: Arc<dyn FrameSink>,
     senders: HashMap<SocketAddr, SystemId>,
     reassembler: Reassembler,
 }
 
-impl Receiver {
-    fn run(mut self) {
-        // Large enough for any UDP datagram, so nothing is silently truncated.
-        let mut buf = vec![0u8; 65_536];
-        let mut consecutive_errors = 0u32;
-        while !self.shared.closing.load(Ordering::SeqCst) {
-            match self.socket.recv_from(&mut buf) {
-                Ok((n, src)) => {
-                    consecutive_errors = 0;
-                    if self.shared.closing.load(Ordering::SeqCst) {
-                        break;
-                    }
-                    self.on_datagram(&buf[..n], src);
-                }
-                Err(e) => match e.kind() {
-                    io::ErrorKind::WouldBlock
-                    | io::ErrorKind::TimedOut
-                    | io::ErrorKind::Interrupted
-                    // Some platforms report an earlier send's ICMP error on the next receive.
-                    | io::ErrorKind::ConnectionRefused
-                    | io::ErrorKind::ConnectionReset => {}
-                    _ => {
-                        // An unexpected, possibly persistent error: pause a little so it cannot
-                        // spin a core, and keep serving.
-                        consecutive_errors = consecutive_errors.saturating_add(1);
-                        if consecutive_errors > 3 {
-                            std::thread::sleep(Duration::from_millis(10));
-                        }
-                    }
-                },
-            }
-            let c = &self.shared.counters;
-            let expired = self.reassembler.expire(Instant::now());
-            add(&c.reassembly_timeouts, expired as u64);
-            c.buffered_bytes
-                .store(self.reassembler.held_bytes() as u64, Ordering::Relaxed);
-        }
-    }
-
-    fn on_datagram(&mut self, d: &[u8], src: SocketAddr) {
+impl RxState {
+    /// Takes one datagram from `src`; returns the number of frames handed to the sink.
+    fn on_datagram(&mut self, d: &[u8], src: SocketAddr) -> usize {
         let c = &self.shared.counters;
         let system = self.senders.get(&src).copied();
         let from = match system {
@@ -854,8 +1168,11 @@ impl Receiver {
             None => Peer::Unknown,
         };
         if !d.starts_with(&FRAGMENT_MAGIC) {
+            if looks_like_batch(d) {
+                return self.deliver_batch(d, from);
+            }
             self.deliver(d, from);
-            return;
+            return 1;
         }
         let evictions_before = self.reassembler.evictions();
         let outcome = self.reassembler.on_fragment(d, src, system, Instant::now());
@@ -864,11 +1181,15 @@ impl Receiver {
             self.reassembler.evictions() - evictions_before,
         );
         match outcome {
-            Reassembly::Complete(frame) => self.deliver(&frame, from),
-            Reassembly::Pending => {}
+            Reassembly::Complete(frame) => {
+                self.deliver(&frame, from);
+                1
+            }
+            Reassembly::Pending => 0,
             Reassembly::Rejected { dropped, .. } => {
                 add(&c.bad_datagrams, 1);
                 add(&c.reassembly_evictions, dropped as u64);
+                0
             }
         }
     }
@@ -881,6 +1202,62 @@ impl Receiver {
         // Counted first so that whoever the sink wakes sees the counter already updated.
         add(&c.frames_received, 1);
         self.sink.on_frame(frame, from);
+    }
+
+    /// Hands up the complete frames of batch datagram `d`; returns how many.
+    fn deliver_batch(&self, d: &[u8], from: Peer) -> usize {
+        let c = &self.shared.counters;
+        // Walked once to count, so that the counters are updated (once per datagram) before
+        // the sink wakes anyone; the walk only reads headers.
+        let mut walk = BatchFrames { rest: d };
+        let n = walk.by_ref().count();
+        if !walk.rest.is_empty() {
+            add(&c.bad_datagrams, 1);
+        }
+        add(&c.batches_received, 1);
+        if from == Peer::Unknown {
+            add(&c.from_unknown_address, n as u64);
+        }
+        add(&c.frames_received, n as u64);
+        for frame in (BatchFrames { rest: d }) {
+            self.sink.on_frame(frame, from);
+        }
+        n
+    }
+
+    /// Expires incomplete messages whose time ran out and publishes the bytes held.
+    fn upkeep(&mut self) {
+        let c = &self.shared.counters;
+        if self.reassembler.pending() > 0 {
+            let expired = self.reassembler.expire(Instant::now());
+            add(&c.reassembly_timeouts, expired as u64);
+        }
+        c.buffered_bytes
+            .store(self.reassembler.held_bytes() as u64, Ordering::Relaxed);
+    }
+}
+
+/// The receive side of a driven link, read by whichever thread calls
+/// [`Readable::read_ready`].
+struct DrivenReceiver {
+    fd: RawFd,
+    receiver: Mutex<Receiver>,
+}
+
+impl Readable for DrivenReceiver {
+    fn fd(&self) -> RawFd {
+        self.fd
+    }
+
+    fn read_ready(&self, budget: usize) -> io::Result<usize> {
+        let mut rx = match self.receiver.try_lock() {
+            Ok(rx) => rx,
+            Err(TryLockError::Poisoned(e)) => e.into_inner(),
+            // Another thread is reading (or a sink called back in): this call must not block,
+            // and that reader hands on whatever has arrived.
+            Err(TryLockError::WouldBlock) => return Ok(0),
+        };
+        rx.read_ready(budget)
     }
 }
 
@@ -906,6 +1283,62 @@ mod tests {
                 d
             })
             .collect()
+    }
+
+    fn wire_frame(seq: u64, payload_len: usize) -> Vec<u8> {
+        use hetcomm_core::{Address, MessageType, ModuleId};
+        let at = |s| Address {
+            system: SystemId(s),
+            module: ModuleId(1),
+        };
+        let mut h = wire::Header::data(at(1), at(2), MessageType(7));
+        h.seq = seq;
+        wire::encode(&h, &vec![seq as u8; payload_len])
+    }
+
+    #[test]
+    fn batch_walk_stops_at_the_first_incomplete_piece() {
+        let frames: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 10 * i as usize)).collect();
+        let batch = frames.concat();
+        assert!(looks_like_batch(&batch));
+        let mut walk = BatchFrames { rest: &batch };
+        assert_eq!(walk.by_ref().collect::<Vec<_>>(), frames);
+        assert!(walk.rest.is_empty());
+
+        let mut tail = batch.clone();
+        tail.extend_from_slice(&frames[1][..HEADER_LEN + 1]); // header says more than is left
+        let mut walk = BatchFrames { rest: &tail };
+        assert_eq!(walk.by_ref().count(), 3);
+        assert_eq!(walk.rest.len(), HEADER_LEN + 1);
+
+        let mut garbage = frames[0].clone();
+        garbage.extend_from_slice(b"HX not a frame header at all, but long enough to be one...");
+        let mut walk = BatchFrames { rest: &garbage };
+        assert_eq!(walk.by_ref().count(), 1);
+        assert!(walk.rest.starts_with(b"HX"));
+    }
+
+    #[test]
+    fn only_self_delimiting_wire_frames_are_batched_or_split() {
+        let f = wire_frame(1, 64);
+        assert!(batchable(&f, 1472));
+        assert!(!batchable(&f, f.len() - 1), "larger than the mtu");
+        assert!(batchable(&f, f.len()));
+        assert!(!looks_like_batch(&f), "one frame is a whole frame");
+        let mut longer = f.clone();
+        longer.push(0);
+        assert!(!batchable(&longer, 1472));
+        assert!(looks_like_batch(&longer));
+        assert!(!batchable(&f[..f.len() - 1], 1472));
+        assert!(
+            !looks_like_batch(&f[..f.len() - 1]),
+            "truncated: handed up whole"
+        );
+        assert!(!batchable(b"HC short", 1472));
+        assert!(!batchable(&[0u8; 100], 1472));
+        let mut hf = f.clone();
+        hf[1] = b'F';
+        assert!(!batchable(&hf, 1472) && !looks_like_batch(&hf));
     }
 
     fn reassembler() -> Reassembler {

@@ -225,6 +225,16 @@ impl Module {
         self.core.inbox.len() > 0
     }
 
+    /// Lets `recv` calls on this module spin up to `spin` for a message before they sleep
+    /// (default: no spinning). A message arriving while the receiver spins is taken within
+    /// a fraction of a microsecond instead of after a thread wake-up (several microseconds, tens
+    /// when the wake-up crosses CPUs on a small VM), at the cost of a busy core while spinning.
+    /// For latency-critical modules on machines with cores to spare; links that the waiting
+    /// thread reads itself (UDP) do not need it.
+    pub fn set_wait_spin(&self, spin: Duration) {
+        self.core.inbox.set_spin(spin);
+    }
+
     /// Messages waiting.
     pub fn pending(&self) -> usize {
         self.core.inbox.len()

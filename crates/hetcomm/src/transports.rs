@@ -120,6 +120,9 @@ pub(crate) fn open_link(
             if let Some(max) = ip.max_message_bytes {
                 config.max_message_bytes = Some(max);
             }
+            // The system's reactor reads the socket: a module waiting for a message reads
+            // it itself (see `reactor.rs`).
+            config.driven = true;
             let link = UdpLink::bind(local, &ip.endpoints, sink, config)
                 .map_err(|e| failed(e.to_string()))?;
             let local_address = Some(format!("udp://{}", link.local_addr()));
