@@ -164,7 +164,7 @@ impl Module {
             drop(router);
             return Err(send_error(&core.directory, e));
         }
-        core.pump(router);
+        core.pump_at(router, now);
         Ok(Ticket {
             slot: TicketSlot::Pending(slot),
             destination: core.directory.system_name(to.system),
