@@ -303,7 +303,9 @@ impl Comm {
         let mut router = core.router().stats().clone();
         // Messages other systems of this process handed over directly never pass this
         // system's router; they are still messages it received.
-        router.received += core.direct_received.load(std::sync::atomic::Ordering::Relaxed);
+        router.received += core
+            .direct_received
+            .load(std::sync::atomic::Ordering::Relaxed);
         let mut inboxes: Vec<(String, InboxStats)> = core
             .modules
             .values()

@@ -257,7 +257,9 @@ impl Inbox {
             let spin = self.spin_us.load(Ordering::Relaxed);
             if spin > 0 && !s.closed {
                 drop(s);
-                self.spin_until_queued(Duration::from_micros(spin).min(left.unwrap_or(Duration::MAX)));
+                self.spin_until_queued(
+                    Duration::from_micros(spin).min(left.unwrap_or(Duration::MAX)),
+                );
                 s = self.lock();
                 if s.len > 0 || s.closed {
                     continue;
@@ -292,7 +294,7 @@ impl Inbox {
             std::hint::spin_loop();
             rounds += 1;
             // Reading the clock costs more than a spin: look at it now and then.
-            if rounds % 64 == 0 && start.elapsed() >= spin {
+            if rounds.is_multiple_of(64) && start.elapsed() >= spin {
                 return;
             }
         }

@@ -215,7 +215,13 @@ impl Module {
                 system,
                 module: module_id,
             };
-            tickets.push(self.send_encoded(to, message_type, Cow::Borrowed(payload), opts, true)?);
+            tickets.push(self.send_encoded(
+                to,
+                message_type,
+                Cow::Borrowed(payload),
+                opts,
+                true,
+            )?);
         }
         Ok(BroadcastTicket { tickets })
     }

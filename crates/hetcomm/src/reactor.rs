@@ -249,7 +249,13 @@ impl Reactor {
             }
             let quiet = s.last_module_turn.elapsed();
             if s.leader.is_some() || quiet < LINGER {
-                let wait = LINGER.saturating_sub(quiet).max(Duration::from_micros(200));
+                // While a module leads, look back now and then (it may have gone off to do
+                // other work); once it stopped, take over when the linger time is up.
+                let wait = if s.leader.is_some() {
+                    Duration::from_millis(10)
+                } else {
+                    LINGER.saturating_sub(quiet).max(Duration::from_micros(200))
+                };
                 drop(
                     self.idle
                         .wait_timeout(s, wait)

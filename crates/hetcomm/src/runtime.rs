@@ -18,9 +18,9 @@ use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitE
 use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
+use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
-use crate::reactor::{leading_here, Reactor};
 use crate::transports::Hubs;
 
 /// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
@@ -390,7 +390,10 @@ impl SystemCore {
             let handle = std::thread::Builder::new()
                 .name(format!("hetcomm-rx-{}", self.name))
                 .spawn(move || reactor.run_background(weak))?;
-            *self.reactor_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
+            *self
+                .reactor_thread
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()) = Some(handle);
         }
         let weak = Arc::downgrade(self);
         let handle = std::thread::Builder::new()
@@ -502,6 +505,9 @@ impl SystemCore {
     pub(crate) fn fire_timers(&self) {
         let now = self.clock.now();
         self.flush_held(Some(now));
+        // A batch held after this timer was armed (for an earlier deadline) is due later: the
+        // timer keeps one deadline, so arm it again.
+        self.timer.arm(self.next_flush());
         let mut router = self.router();
         router.handle_timeout(now);
         self.pump(router);
@@ -521,9 +527,27 @@ impl SystemCore {
         }
     }
 
+    /// When the oldest batch still held is due.
+    fn next_flush(&self) -> Option<Time> {
+        self.batching
+            .get()?
+            .iter()
+            .filter_map(|b| {
+                let since = b.held_since.load(Ordering::Relaxed);
+                (since != 0).then(|| Time::from_micros(since + b.linger_us))
+            })
+            .min()
+    }
+
     /// Puts one frame on link `index`, holding it back to share a write with the next ones
     /// when the link batches and is busy (see [`Batching`]).
-    fn transmit(&self, index: usize, link: &dyn Link, tx: &Transmit, now: Time) -> Result<(), LinkError> {
+    fn transmit(
+        &self,
+        index: usize,
+        link: &dyn Link,
+        tx: &Transmit,
+        now: Time,
+    ) -> Result<(), LinkError> {
         let Some(b) = self.batching.get().and_then(|v| v.get(index)) else {
             return link.send(tx.to, &tx.frame);
         };
@@ -532,17 +556,19 @@ impl SystemCore {
         }
         let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
         if now.as_micros().saturating_sub(last) >= b.linger_us {
-            // The link was idle: this frame goes now (with anything still held before it),
-            // so sporadic traffic never waits.
-            b.held_since.store(0, Ordering::Relaxed);
+            // The link was idle: this frame goes now (with anything still held for this
+            // peer before it), so sporadic traffic never waits. Frames held for other peers
+            // stay on the timer.
             return link.send(tx.to, &tx.frame);
         }
         let result = link.send_held(tx.to, &tx.frame);
         let since = b.held_since.load(Ordering::Relaxed);
         if since == 0 {
-            b.held_since.store(now.as_micros().max(1), Ordering::Relaxed);
+            b.held_since
+                .store(now.as_micros().max(1), Ordering::Relaxed);
             // The timer thread sends the batch should nothing else come along.
-            self.timer.arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
+            self.timer
+                .arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
         } else if now.as_micros().saturating_sub(since) >= b.linger_us {
             b.held_since.store(0, Ordering::Relaxed);
             let _ = link.flush();

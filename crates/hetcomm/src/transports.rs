@@ -17,13 +17,16 @@ use hetcomm_link_ip::udp::{UdpConfig, UdpLink};
 use crate::error::OpenError;
 use crate::runtime::SystemCore;
 
+/// The systems on each in-process transport, by (transport name, system).
+type LocalSystems = HashMap<(String, SystemId), Weak<SystemCore>>;
+
 /// In-process hubs by transport name: systems opened through the same `Hubs` meet there.
 #[derive(Clone, Default)]
 pub(crate) struct Hubs {
     hubs: Arc<Mutex<HashMap<String, InprocHub>>>,
     /// The systems on each in-process transport, so that a send between two of them can skip
     /// the link and hand the message straight to the destination's inbox.
-    systems: Arc<Mutex<HashMap<(String, SystemId), Weak<SystemCore>>>>,
+    systems: Arc<Mutex<LocalSystems>>,
 }
 
 impl Hubs {
