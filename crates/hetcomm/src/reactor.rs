@@ -1,6 +1,6 @@
 //! Caller-driven receiving: the thread that waits for a message reads the socket itself.
 //!
-//! A link that offers a [`Readable`] receive side (UDP) starts no receive thread of its own.
+//! A link that offers a [`Readable`](hetcomm_link::Readable) receive side (UDP) starts no receive thread of its own.
 //! Instead, one thread at a time *leads*: it blocks in `poll(2)` on every such link's
 //! descriptor and reads what arrives, handing frames to the router, which puts messages into
 //! inboxes. A module waiting in `recv` with an empty inbox becomes the leader when nobody
@@ -8,8 +8,9 @@
 //! without any hand-off: the only wake-up is the kernel's, as for a raw socket. (A wake-up
 //! that crosses CPUs costs tens of microseconds on small VMs, more than the rest of the path.)
 //!
-//! When no module has led for [`LINGER`], a background thread per system leads instead, so
-//! acknowledgements, callbacks and messages for modules that are busy elsewhere keep flowing.
+//! When no module has led for [`LINGER`] (checked at least every 10 ms while one leads), a
+//! background thread per system leads instead, so acknowledgements, callbacks and messages
+//! for modules that are busy elsewhere keep flowing.
 //! A module that wants to lead while the background thread does asks it to step aside
 //! (through the wake descriptor) and meanwhile waits on its inbox as usual.
 //!
@@ -269,7 +270,7 @@ impl Reactor {
             loop {
                 self.turn(MAX_TURN);
                 let s = self.lock();
-                if s.wanted || s.shutdown {
+                if s.wanted || s.shutdown || alive.strong_count() == 0 {
                     break;
                 }
             }
