@@ -210,6 +210,21 @@ pub enum Outcome {
 }
 
 impl Outcome {
+    /// The outcome an acknowledgement with `status` reports.
+    fn acknowledged(status: AckStatus, attempts: u32, latency: Duration) -> Outcome {
+        match status {
+            AckStatus::Delivered => Outcome::Delivered { attempts, latency },
+            AckStatus::InboxFull => Outcome::Failed {
+                reason: FailReason::InboxFull,
+                attempts,
+            },
+            AckStatus::UnknownModule => Outcome::Failed {
+                reason: FailReason::UnknownModule,
+                attempts,
+            },
+        }
+    }
+
     /// Delivered, or sent without confirmation.
     pub fn is_success(&self) -> bool {
         !matches!(self, Outcome::Failed { .. })
@@ -549,24 +564,10 @@ impl<T> Router<T> {
     /// (`status`), counted like any other outcome. Unacknowledged sends end `Sent` whatever
     /// the inbox said, exactly as over a link.
     pub fn direct_result(&mut self, header: &Header, status: AckStatus) -> Outcome {
-        let attempts = 1;
         let outcome = if !header.ack_requested() {
-            Outcome::Sent { attempts }
+            Outcome::Sent { attempts: 1 }
         } else {
-            match status {
-                AckStatus::Delivered => Outcome::Delivered {
-                    attempts,
-                    latency: Duration::ZERO,
-                },
-                AckStatus::InboxFull => Outcome::Failed {
-                    reason: FailReason::InboxFull,
-                    attempts,
-                },
-                AckStatus::UnknownModule => Outcome::Failed {
-                    reason: FailReason::UnknownModule,
-                    attempts,
-                },
-            }
+            Outcome::acknowledged(status, 1, Duration::ZERO)
         };
         match outcome {
             Outcome::Delivered { .. } => self.stats.delivered += 1,
@@ -752,18 +753,7 @@ impl<T> Router<T> {
                 .or_insert_with(|| RttEstimator::new(t.initial_rto, t.min_rto, t.max_rto))
                 .sample(latency);
         }
-        let outcome = match status {
-            AckStatus::Delivered => Outcome::Delivered { attempts, latency },
-            AckStatus::InboxFull => Outcome::Failed {
-                reason: FailReason::InboxFull,
-                attempts,
-            },
-            AckStatus::UnknownModule => Outcome::Failed {
-                reason: FailReason::UnknownModule,
-                attempts,
-            },
-        };
-        self.finish(id, outcome);
+        self.finish(id, Outcome::acknowledged(status, attempts, latency));
     }
 
     fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: &[u8]) {
