@@ -108,4 +108,65 @@ mod tests {
             "a delivered send must not keep a timer"
         );
     }
+
+    #[test]
+    fn direct_sends_are_numbered_checked_and_counted() {
+        let route = |acknowledged| Route {
+            link: 0,
+            tag: b'I',
+            acknowledged,
+            attempts: 3,
+            max_frame: 64,
+        };
+        let mut a = Router::<()>::new(RouterConfig::new(
+            SystemId(0),
+            1,
+            vec![(SystemId(1), route(true)), (SystemId(2), route(false))],
+        ));
+        let now = Time::from_micros(5);
+        let to = |s| Address {
+            system: SystemId(s),
+            module: ModuleId(0),
+        };
+        let req = |s, p: &'static [u8]| SendRequest::new(ModuleId(0), to(s), MessageType(1), p);
+        let h1 = a.send_direct(now, req(1, b"a")).unwrap();
+        let h2 = a.send_direct(now, req(1, b"b")).unwrap();
+        assert_eq!((h1.seq, h2.seq), (1, 2), "numbered per destination");
+        assert!(h1.ack_requested());
+        assert_eq!(a.route_link(SystemId(1)), Some(0));
+        assert!(matches!(
+            a.send_direct(now, req(3, b"x")),
+            Err(SendError::NoRoute { .. })
+        ));
+        assert!(matches!(
+            a.send_direct(now, req(1, &[0; 64])),
+            Err(SendError::TooLarge { .. })
+        ));
+        let delivered = a.direct_result(&h1, wire::AckStatus::Delivered);
+        assert!(matches!(delivered, Outcome::Delivered { attempts: 1, .. }));
+        let full = a.direct_result(&h2, wire::AckStatus::InboxFull);
+        assert!(matches!(
+            full,
+            Outcome::Failed {
+                reason: FailReason::InboxFull,
+                ..
+            }
+        ));
+        // Unacknowledged: `Sent` whatever the inbox said, as over a link.
+        let h3 = a.send_direct(now, req(2, b"c")).unwrap();
+        let sent = a.direct_result(&h3, wire::AckStatus::InboxFull);
+        assert_eq!(sent, Outcome::Sent { attempts: 1 });
+        let s = a.stats();
+        assert_eq!(
+            (
+                s.sends,
+                s.transmissions,
+                s.delivered,
+                s.failed,
+                s.sent_unconfirmed
+            ),
+            (3, 3, 1, 1, 1)
+        );
+        assert_eq!(s.in_flight(), 0);
+    }
 }
