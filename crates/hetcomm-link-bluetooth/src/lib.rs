@@ -455,6 +455,15 @@ impl<F: AddressFamily> Link for BluetoothLink<F> {
     fn stats(&self) -> LinkStats {
         self.inner.stats()
     }
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.inner.send_held(to, frame)
+    }
+    fn flush(&self) -> Result<(), LinkError> {
+        self.inner.flush()
+    }
+    fn batches(&self) -> bool {
+        self.inner.batches()
+    }
 }
 
 #[cfg(test)]

@@ -1,12 +1,12 @@
 //! The stream-link layer shared by every connection-oriented transport: TCP ([`crate::tcp`]),
-//! Unix stream sockets ([`crate::unix`]) and, later, Bluetooth RFCOMM.
+//! Unix stream sockets ([`crate::unix`]) and Bluetooth RFCOMM (`hetcomm-link-bluetooth`).
 //!
 //! A transport plugs in through three small traits: [`StreamSocket`] (a connected byte
 //! stream), [`StreamListener`] (accepts connections) and [`StreamTransport`] (connects to an
 //! address and says how a receiver learns who is on the other end). [`StreamLink`] does the
 //! rest: framing, one cached outgoing connection per peer, reconnection with backoff, write
-//! deadlines, a listener thread with one reader thread per accepted connection, statistics and
-//! clean shutdown.
+//! deadlines, batching of held frames, a listener thread with one reader thread per accepted
+//! connection, statistics and clean shutdown.
 //!
 //! # Connections
 //!
@@ -50,6 +50,40 @@
 //! all. Framing on the record header keeps the link content-agnostic at a cost of 8 bytes per
 //! frame; the magic still catches a desynchronised stream at the first bad record.
 //!
+//! # Sending and batching
+//!
+//! [`Link::send`] writes the record header and the frame with one vectored write, straight
+//! from the caller's buffer (no copy in user space), on the caller's thread.
+//!
+//! [`Link::send_held`] instead appends the record to the peer's outgoing batch, a reused
+//! buffer of at most [`StreamConfig::batch_bytes`] (64 KiB by default), so that many small
+//! frames leave in one write. The batch goes out, always before any later frame to that peer:
+//! - when the next frame would not fit: the batch is written first, then the frame is held
+//!   (a frame larger than the whole batch is written right after the batch, in the same
+//!   vectored write);
+//! - at the next plain `send` to that peer, in the same vectored write as the new frame;
+//! - at [`Link::flush`], which writes every peer's batch. A batch that fails to write is
+//!   counted in [`StreamStats::held_frames_dropped`] (part of [`LinkStats::frames_dropped`])
+//!   and `flush` returns the first error. With nothing held, `flush` only reads an atomic flag;
+//! - when the link is dropped (a best-effort flush).
+//!
+//! Holding is cheap: one uncontended lock and one copy of the frame per `send_held`, no
+//! allocation once the batch buffer has grown. [`Link::batches`] is true unless
+//! `batch_bytes` is 0 (then `send_held` writes at once, like `send`).
+//!
+//! Held frames to a peer whose connection is still being made wait with the frames queued for
+//! it (below), in send order: the connector writes the frames that were sent or flushed as soon
+//! as the connection is up, and leaves the ones still held in the batch.
+//!
+//! # Receiving
+//!
+//! Each accepted connection has a reader thread with a 64 KiB read buffer. Small records are
+//! read through it, as many per read as have arrived, and handed to the sink straight from the
+//! buffer. A frame larger than 16 KiB that is not already in the buffer is read directly into
+//! a reused buffer of its own size (the bytes already buffered are copied once; after a large
+//! frame the reader reads at most 1 KiB ahead into its buffer, so a run of large frames costs
+//! almost no copy in user space). Nothing is allocated per frame in steady state.
+//!
 //! # Identity
 //!
 //! How the receiver labels a connection's frames is the transport's [`IdentityMode`]:
@@ -67,28 +101,29 @@
 //!
 //! # Failures and backpressure
 //!
-//! - A send never waits for a connection to be made: the first send to a peer queues its
-//!   frame and starts a connector thread (connect within [`StreamConfig::connect_timeout`],
-//!   which for Bluetooth is seconds); later sends queue behind it, up to
-//!   [`StreamConfig::connect_queue_frames`] frames (then [`LinkError::Congested`]). When the
-//!   connection is up the queue is written in order. A failed connect drops the queued frames
-//!   (counted in [`StreamStats::frames_lost_connecting`]; the router's acknowledgements
-//!   retransmit them) and starts an exponential backoff ([`StreamConfig::backoff_initial`]
-//!   doubling up to [`StreamConfig::backoff_max`]); sends during the backoff fail at once with
-//!   `Unreachable` and a reason such as
-//!   `"reconnecting in 80 ms after: connection refused (os error 111)"`. A successful connect
-//!   resets the backoff.
-//! - A send blocks at most [`StreamConfig::write_timeout`] writing its frame. If the peer does
-//!   not take the bytes in time the send fails with [`LinkError::Congested`]; any other write
+//! - A send never waits for a connection to be made: the first send (or `send_held`) to a
+//!   peer queues its frame and starts a connector thread (connect within
+//!   [`StreamConfig::connect_timeout`], which for Bluetooth is seconds); later frames queue
+//!   behind it, up to [`StreamConfig::connect_queue_frames`] frames, held ones included (then
+//!   [`LinkError::Congested`]). When the connection is up the queue is written in order. A
+//!   failed connect drops the queued and held frames (counted in
+//!   [`StreamStats::frames_lost_connecting`]; the router's acknowledgements retransmit them)
+//!   and starts an exponential backoff ([`StreamConfig::backoff_initial`] doubling up to
+//!   [`StreamConfig::backoff_max`]); sends during the backoff fail at once with `Unreachable`
+//!   and a reason such as `"reconnecting in 80 ms after: connection refused (os error 111)"`.
+//!   A successful connect resets the backoff.
+//! - A write blocks at most [`StreamConfig::write_timeout`]. If the peer does not take the
+//!   bytes in time the send (or flush) fails with [`LinkError::Congested`]; any other write
 //!   error fails with [`LinkError::Unreachable`]. Either way the connection is dropped (a
-//!   partly written frame would desynchronise it) and the next send reconnects at once.
+//!   partly written frame would desynchronise it), held frames written with it are counted as
+//!   dropped, and the next send reconnects at once.
 //! - A frame written into the kernel just before the peer died can be lost without an error
 //!   (TCP reports the reset on a later write). The link does not retry: acknowledgements and
 //!   retries are the router's.
 
 use std::collections::BTreeMap;
 use std::fmt;
-use std::io::{self, IoSlice, Read, Write};
+use std::io::{self, IoSlice, IoSliceMut, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -108,6 +143,22 @@ pub const RECORD_HEADER_LEN: usize = 8;
 pub const RECORD_MAGIC: [u8; 2] = *b"HR";
 /// Version of the hello and record formats.
 pub const STREAM_VERSION: u8 = 1;
+/// Default of [`StreamConfig::batch_bytes`]: 64 KiB.
+pub const DEFAULT_BATCH_BYTES: usize = 64 * 1024;
+
+/// Each reader's buffer for small records.
+const READ_BUF_LEN: usize = 64 * 1024;
+/// Frames longer than this that are not already buffered are read straight into a buffer of
+/// their own size; shorter ones are read through the read buffer (where the occasional
+/// partial record is moved to its front, which stays cheap only for short records).
+const DIRECT_READ_MIN: usize = 16 * 1024;
+/// After a directly read frame, how far the reader reads ahead into its buffer: enough for the
+/// next record header and a few small records, little enough that the start of another large
+/// frame is hardly copied.
+const READ_AHEAD_AFTER_LARGE: usize = 1024;
+/// A reader's large-frame buffer above this size is released when a much smaller large frame
+/// follows, so that one rare huge frame does not pin its memory for the connection's life.
+const LARGE_BUF_KEEP: usize = 4 * 1024 * 1024;
 
 /// A connected byte stream a [`StreamLink`] reads or writes frames on.
 pub trait StreamSocket: Read + Write + Send + Sized + 'static {
@@ -121,7 +172,6 @@ pub trait StreamSocket: Read + Write + Send + Sized + 'static {
     /// Bounds each blocking read (`None`: no bound).
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()>;
 }
-
 /// A bound, listening socket that accepts [`StreamSocket`]s.
 pub trait StreamListener: Send + Sync + 'static {
     /// The sockets it accepts.
@@ -196,12 +246,17 @@ pub struct StreamConfig {
     pub backoff_initial: Duration,
     /// The backoff doubles per failed connect up to this (default 1 s).
     pub backoff_max: Duration,
-    /// Frames a peer's queue holds while its connection is being made (default 1024).
+    /// Frames a peer's queue holds while its connection is being made, held frames included
+    /// (default 1024).
     pub connect_queue_frames: usize,
     /// Largest message payload accepted, bytes; `None`: the codec's limit
     /// ([`MAX_PAYLOAD`]). Frames may be this plus the 48-byte header. Larger values than
     /// the codec's limit are capped to it.
     pub max_message_bytes: Option<usize>,
+    /// Most bytes (record headers included) of held frames a peer's batch takes before
+    /// [`Link::send_held`] writes it (default [`DEFAULT_BATCH_BYTES`]); 0 turns holding off.
+    /// See the module docs.
+    pub batch_bytes: usize,
 }
 
 impl Default for StreamConfig {
@@ -214,6 +269,7 @@ impl Default for StreamConfig {
             backoff_max: Duration::from_secs(1),
             connect_queue_frames: 1024,
             max_message_bytes: None,
+            batch_bytes: DEFAULT_BATCH_BYTES,
         }
     }
 }
@@ -232,7 +288,7 @@ impl StreamConfig {
 /// Counters of a [`StreamLink`]; [`Link::stats`] reports the subset [`LinkStats`] has.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct StreamStats {
-    /// Frames fully written by `send`.
+    /// Frames fully written to a connection (by `send`, a held batch, or the connector).
     pub frames_sent: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
@@ -246,10 +302,13 @@ pub struct StreamStats {
     /// Accepted connections closed because their sender is not a fleet system (or sent a
     /// malformed hello).
     pub rejected_connections: u64,
-    /// Sends that failed after a connection was up (write errors and write timeouts).
+    /// Writes that failed after a connection was up (write errors and write timeouts).
     pub write_failures: u64,
-    /// Frames queued while connecting whose connection then failed (never sent).
+    /// Frames queued or held while connecting whose connection then failed (never sent).
     pub frames_lost_connecting: u64,
+    /// Held frames whose batch failed to write (the connection was dropped). [`Link::stats`]
+    /// adds them to [`LinkStats::frames_dropped`].
+    pub held_frames_dropped: u64,
 }
 
 #[derive(Default)]
@@ -262,10 +321,24 @@ struct Counters {
     rejected_connections: AtomicU64,
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
+    held_frames_dropped: AtomicU64,
 }
 
 fn bump(c: &AtomicU64) {
     c.fetch_add(1, Ordering::Relaxed);
+}
+
+fn add(c: &AtomicU64, n: usize) {
+    if n > 0 {
+        c.fetch_add(n as u64, Ordering::Relaxed);
+    }
+}
+
+/// Sets `flag` unless it is already set, so that the common case only reads the cache line.
+fn raise(flag: &AtomicBool) {
+    if !flag.load(Ordering::Acquire) {
+        flag.store(true, Ordering::Release);
+    }
 }
 
 /// A peer's address and its outgoing-connection state, locked per peer so that senders to
@@ -273,6 +346,9 @@ fn bump(c: &AtomicU64) {
 struct PeerEntry<T: StreamTransport> {
     addr: T::Addr,
     slot: Mutex<PeerSlot<T::Socket>>,
+    /// Set (under the slot's lock) when a frame is held; cleared by `flush` before it looks.
+    /// May be set with nothing held, never clear with something held that `flush` must write.
+    held: AtomicBool,
 }
 
 /// What the link remembers about one peer's outgoing connection.
@@ -281,8 +357,54 @@ struct PeerSlot<S> {
     backoff: Option<Backoff>,
     /// A connector thread is making the connection.
     connecting: bool,
-    /// Frames waiting for that connection, in send order.
-    queue: std::collections::VecDeque<Vec<u8>>,
+    /// Records (header + frame) not written yet, in send order. While the connection is up
+    /// these are all held frames. While connecting, the first `released` bytes are frames that
+    /// were sent (or flushed) and go out as soon as the connection is up; the rest are held.
+    /// Without a connection and without a connector it is empty.
+    out: Vec<u8>,
+    /// Bytes at the front of `out` waiting only for the connection.
+    released: usize,
+    /// Frames in `out[..released]`.
+    released_frames: usize,
+    /// Frames in `out[released..]`.
+    held_frames: usize,
+}
+
+impl<S> PeerSlot<S> {
+    fn new() -> Self {
+        PeerSlot {
+            conn: None,
+            backoff: None,
+            connecting: false,
+            out: Vec::new(),
+            released: 0,
+            released_frames: 0,
+            held_frames: 0,
+        }
+    }
+
+    fn pending_frames(&self) -> usize {
+        self.released_frames + self.held_frames
+    }
+
+    /// Forgets every pending frame and returns how many there were.
+    fn clear_pending(&mut self, batch_bytes: usize) -> usize {
+        let n = self.pending_frames();
+        self.out.clear();
+        // A burst queued while connecting may have grown the buffer far past one batch.
+        self.out.shrink_to(batch_bytes);
+        self.released = 0;
+        self.released_frames = 0;
+        self.held_frames = 0;
+        n
+    }
+
+    /// Marks everything pending as released (written as soon as the connection is up).
+    fn release_all(&mut self) {
+        self.released = self.out.len();
+        self.released_frames += self.held_frames;
+        self.held_frames = 0;
+    }
 }
 
 struct Backoff {
@@ -321,6 +443,8 @@ pub struct StreamLink<T: StreamTransport> {
     shared: Arc<Shared<T>>,
     listener: Arc<T::Listener>,
     peers: Arc<BTreeMap<SystemId, PeerEntry<T>>>,
+    /// Set when any peer's `held` flag is; lets `flush` return at once when nothing is held.
+    held_any: AtomicBool,
     accept_thread: Option<JoinHandle<()>>,
 }
 
@@ -340,19 +464,12 @@ impl<T: StreamTransport> StreamLink<T> {
             .into_iter()
             .filter(|(id, _)| *id != local)
             .map(|(id, addr)| {
-                let slot = PeerSlot {
-                    conn: None,
-                    backoff: None,
-                    connecting: false,
-                    queue: std::collections::VecDeque::new(),
+                let entry = PeerEntry {
+                    addr,
+                    slot: Mutex::new(PeerSlot::new()),
+                    held: AtomicBool::new(false),
                 };
-                (
-                    id,
-                    PeerEntry {
-                        addr,
-                        slot: Mutex::new(slot),
-                    },
-                )
+                (id, entry)
             })
             .collect();
         let shared = Arc::new(Shared {
@@ -377,6 +494,7 @@ impl<T: StreamTransport> StreamLink<T> {
             shared,
             listener,
             peers: Arc::new(peers),
+            held_any: AtomicBool::new(false),
             accept_thread: Some(accept_thread),
         })
     }
@@ -404,7 +522,13 @@ impl<T: StreamTransport> StreamLink<T> {
             rejected_connections: get(&c.rejected_connections),
             write_failures: get(&c.write_failures),
             frames_lost_connecting: get(&c.frames_lost_connecting),
+            held_frames_dropped: get(&c.held_frames_dropped),
         }
+    }
+
+    /// Bytes of frames queued for connections or held in batches, over all peers.
+    pub fn pending_bytes(&self) -> usize {
+        self.peers.values().map(|p| lock(&p.slot).out.len()).sum()
     }
 
     /// Starts a connector thread for `to` (its slot is already marked `connecting`).
@@ -420,6 +544,166 @@ impl<T: StreamTransport> StreamLink<T> {
                 }
             })
             .map(|_| ())
+    }
+
+    /// The peer entry of `to`, after checking `frame`'s size.
+    fn entry_for(&self, to: SystemId, frame: &[u8]) -> Result<&PeerEntry<T>, LinkError> {
+        let max = self.shared.config.max_frame();
+        if frame.len() > max {
+            return Err(LinkError::TooLarge {
+                len: frame.len(),
+                max,
+            });
+        }
+        self.peers.get(&to).ok_or_else(|| {
+            let reason = if to == self.local {
+                "it is this system itself".to_string()
+            } else {
+                format!("system {to} has no endpoint on this {} link", T::NAME)
+            };
+            LinkError::Unreachable { peer: to, reason }
+        })
+    }
+
+    fn mark_held(&self, entry: &PeerEntry<T>) {
+        raise(&entry.held);
+        raise(&self.held_any);
+    }
+
+    /// Queues `frame` for `to`'s connection, which is not up, starting a connector if none
+    /// runs. `release`: the frame (and everything held before it) goes out as soon as the
+    /// connection is up; otherwise it is held like the batch of a live connection.
+    fn queue_for_connection(
+        &self,
+        to: SystemId,
+        entry: &PeerEntry<T>,
+        slot: &mut PeerSlot<T::Socket>,
+        frame: &[u8],
+        release: bool,
+    ) -> Result<(), LinkError> {
+        let now = Instant::now();
+        if let Some(b) = &slot.backoff {
+            if now < b.retry_at {
+                let left = b.retry_at - now;
+                return Err(LinkError::Unreachable {
+                    peer: to,
+                    reason: format!(
+                        "reconnecting in {} ms after: {}",
+                        left.as_millis().max(1),
+                        b.reason
+                    ),
+                });
+            }
+        }
+        // Never wait for a connect on the caller's thread: queue behind a connector.
+        if slot.pending_frames() >= self.shared.config.connect_queue_frames {
+            return Err(LinkError::Congested {
+                peer: to,
+                reason: format!(
+                    "{} frames already wait for the connection to {}",
+                    slot.pending_frames(),
+                    entry.addr
+                ),
+            });
+        }
+        append_record(&mut slot.out, frame);
+        slot.held_frames += 1;
+        if release {
+            slot.release_all();
+        } else {
+            self.mark_held(entry);
+        }
+        if !slot.connecting {
+            slot.connecting = true;
+            if let Err(e) = self.start_connector(to) {
+                slot.connecting = false;
+                // Only this frame can be pending here (no connection and no connector means
+                // nothing was queued), and it is refused rather than lost.
+                slot.clear_pending(self.shared.config.batch_bytes);
+                return Err(LinkError::Io(e));
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes `slot`'s held records followed by `frame`, if any, on its live connection in one
+    /// vectored write. On failure the connection is dropped and the held frames are counted
+    /// as dropped (the caller learns about `frame` from the error).
+    fn write_batch(
+        &self,
+        to: SystemId,
+        entry: &PeerEntry<T>,
+        slot: &mut PeerSlot<T::Socket>,
+        frame: Option<&[u8]>,
+    ) -> Result<(), LinkError> {
+        let cfg = &self.shared.config;
+        let counters = &self.shared.counters;
+        let PeerSlot {
+            conn,
+            out,
+            held_frames,
+            ..
+        } = slot;
+        let Some(socket) = conn.as_mut() else {
+            // Callers check the connection first; fail soft rather than panic.
+            return Err(LinkError::Closed);
+        };
+        let head = frame.map_or([0; RECORD_HEADER_LEN], |f| record_header(f.len()));
+        let parts: [&[u8]; 3] = match frame {
+            Some(f) => [&out[..], &head, f],
+            None => [&out[..], &[], &[]],
+        };
+        let result = write_parts(socket, &parts, cfg.write_timeout);
+        let held = std::mem::take(held_frames);
+        out.clear();
+        if held > 0 && entry.held.load(Ordering::Relaxed) {
+            // Nothing is held any more (we hold the lock), so the next flush can skip this peer.
+            entry.held.store(false, Ordering::Release);
+        }
+        match result {
+            Ok(()) => {
+                add(&counters.frames_sent, held + usize::from(frame.is_some()));
+                Ok(())
+            }
+            Err(e) => {
+                // Something may be half written: this connection can no longer be framed.
+                if let Some(s) = conn.take() {
+                    let _ = s.shutdown_both();
+                }
+                bump(&counters.write_failures);
+                add(&counters.held_frames_dropped, held);
+                Err(write_error(to, &entry.addr, &e, cfg.write_timeout))
+            }
+        }
+    }
+}
+
+/// The error a failed write on a live connection is reported as.
+fn write_error(
+    to: SystemId,
+    addr: &impl fmt::Display,
+    e: &io::Error,
+    timeout: Duration,
+) -> LinkError {
+    let ms = timeout.as_millis();
+    if matches!(
+        e.kind(),
+        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+    ) {
+        LinkError::Congested {
+            peer: to,
+            reason: format!(
+                "{addr} did not take the data within the {ms} ms write timeout; \
+                 connection dropped"
+            ),
+        }
+    } else {
+        LinkError::Unreachable {
+            peer: to,
+            reason: format!(
+                "write to {addr} failed: {e}; connection dropped, the next send reconnects"
+            ),
+        }
     }
 }
 
@@ -440,8 +724,8 @@ fn connect<T: StreamTransport>(
 }
 
 /// The connector thread: makes the connection without holding the peer's lock (senders keep
-/// queueing meanwhile), then installs it and writes the queued frames in order, or drops them
-/// and starts the backoff.
+/// queueing meanwhile), then installs it and writes the released frames in order (held ones
+/// stay in the batch), or drops them all and starts the backoff.
 fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry: &PeerEntry<T>) {
     let result = connect(shared, local, &entry.addr);
     let mut slot = lock(&entry.slot);
@@ -449,27 +733,24 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
     if shared.closing.load(Ordering::SeqCst) {
         return;
     }
+    let cfg = &shared.config;
     let error = match result {
         Ok(mut socket) => {
             bump(&shared.counters.connects);
-            let mut failed = None;
-            while let Some(frame) = slot.queue.pop_front() {
-                match write_record(&mut socket, &frame, shared.config.write_timeout) {
-                    Ok(()) => bump(&shared.counters.frames_sent),
-                    Err(e) => {
-                        bump(&shared.counters.write_failures);
-                        failed = Some(e);
-                        break;
-                    }
-                }
-            }
-            match failed {
-                None => {
+            let released = slot.released;
+            match write_parts(&mut socket, &[&slot.out[..released]], cfg.write_timeout) {
+                Ok(()) => {
+                    add(&shared.counters.frames_sent, slot.released_frames);
+                    slot.out.drain(..released);
+                    slot.out.shrink_to(cfg.batch_bytes);
+                    slot.released = 0;
+                    slot.released_frames = 0;
                     slot.conn = Some(socket);
                     slot.backoff = None;
                     return;
                 }
-                Some(e) => {
+                Err(e) => {
+                    bump(&shared.counters.write_failures);
                     let _ = socket.shutdown_both();
                     e
                 }
@@ -477,13 +758,8 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
         }
         Err(e) => e,
     };
-    let lost = slot.queue.len() as u64;
-    slot.queue.clear();
-    shared
-        .counters
-        .frames_lost_connecting
-        .fetch_add(lost, Ordering::Relaxed);
-    let cfg = &shared.config;
+    let lost = slot.clear_pending(cfg.batch_bytes);
+    add(&shared.counters.frames_lost_connecting, lost);
     let delay = match &slot.backoff {
         Some(b) => (b.delay * 2).min(cfg.backoff_max),
         None => cfg.backoff_initial,
@@ -515,96 +791,69 @@ impl<T: StreamTransport> Link for StreamLink<T> {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let max = self.shared.config.max_frame();
-        if frame.len() > max {
-            return Err(LinkError::TooLarge {
-                len: frame.len(),
-                max,
-            });
-        }
-        let Some(PeerEntry { addr, slot }) = self.peers.get(&to) else {
-            let reason = if to == self.local {
-                "it is this system itself".to_string()
-            } else {
-                format!("system {to} has no endpoint on this {} link", T::NAME)
-            };
-            return Err(LinkError::Unreachable { peer: to, reason });
-        };
-        let mut slot = lock(slot);
+        let entry = self.entry_for(to, frame)?;
+        let mut slot = lock(&entry.slot);
         if slot.conn.is_none() {
-            let now = Instant::now();
-            if let Some(b) = &slot.backoff {
-                if now < b.retry_at {
-                    let left = b.retry_at - now;
-                    return Err(LinkError::Unreachable {
-                        peer: to,
-                        reason: format!(
-                            "reconnecting in {} ms after: {}",
-                            left.as_millis().max(1),
-                            b.reason
-                        ),
-                    });
-                }
-            }
-            // Never wait for a connect on the caller's thread: queue behind a connector.
-            if slot.queue.len() >= self.shared.config.connect_queue_frames {
-                return Err(LinkError::Congested {
-                    peer: to,
-                    reason: format!(
-                        "{} frames already wait for the connection to {addr}",
-                        slot.queue.len()
-                    ),
-                });
-            }
-            slot.queue.push_back(frame.to_vec());
-            if !slot.connecting {
-                slot.connecting = true;
-                if let Err(e) = self.start_connector(to) {
-                    slot.connecting = false;
-                    slot.queue.clear();
-                    return Err(LinkError::Io(e));
-                }
-            }
+            return self.queue_for_connection(to, entry, &mut slot, frame, true);
+        }
+        // Held frames first, in the same write: order kept, one syscall for both.
+        self.write_batch(to, entry, &mut slot, Some(frame))
+    }
+
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let entry = self.entry_for(to, frame)?;
+        let cap = self.shared.config.batch_bytes;
+        let mut slot = lock(&entry.slot);
+        if slot.conn.is_none() {
+            return self.queue_for_connection(to, entry, &mut slot, frame, false);
+        }
+        let record = RECORD_HEADER_LEN + frame.len();
+        if record > cap {
+            // Too big to hold: write it now, right behind what is held.
+            return self.write_batch(to, entry, &mut slot, Some(frame));
+        }
+        if slot.out.len() + record > cap {
+            self.write_batch(to, entry, &mut slot, None)?;
+        }
+        if slot.out.capacity() < cap {
+            // Grow to the full batch once, rather than by doubling.
+            let more = cap - slot.out.len();
+            slot.out.reserve_exact(more);
+        }
+        append_record(&mut slot.out, frame);
+        slot.held_frames += 1;
+        self.mark_held(entry);
+        Ok(())
+    }
+
+    fn flush(&self) -> Result<(), LinkError> {
+        if !self.held_any.load(Ordering::Acquire) || !self.held_any.swap(false, Ordering::AcqRel) {
             return Ok(());
         }
-        let Some(socket) = slot.conn.as_mut() else {
-            // Unreachable by construction (set just above); fail soft rather than panic.
-            return Err(LinkError::Closed);
-        };
-        match write_record(socket, frame, self.shared.config.write_timeout) {
-            Ok(()) => {
-                bump(&self.shared.counters.frames_sent);
-                Ok(())
+        let mut first_error = None;
+        for (&to, entry) in self.peers.iter() {
+            // Cleared before the lock is taken: a frame held after this is flagged anew.
+            if !entry.held.load(Ordering::Acquire) || !entry.held.swap(false, Ordering::AcqRel) {
+                continue;
             }
-            Err(e) => {
-                // The frame may be half written: this connection can no longer be framed.
-                if let Some(s) = slot.conn.take() {
-                    let _ = s.shutdown_both();
-                }
-                bump(&self.shared.counters.write_failures);
-                let ms = self.shared.config.write_timeout.as_millis();
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
-                ) {
-                    Err(LinkError::Congested {
-                        peer: to,
-                        reason: format!(
-                            "{addr} did not take the frame within the {ms} ms write timeout; \
-                             connection dropped"
-                        ),
-                    })
-                } else {
-                    Err(LinkError::Unreachable {
-                        peer: to,
-                        reason: format!(
-                            "write to {addr} failed: {e}; connection dropped, the next send \
-                             reconnects"
-                        ),
-                    })
-                }
+            let mut slot = lock(&entry.slot);
+            if slot.held_frames == 0 {
+                continue;
+            }
+            if slot.conn.is_none() {
+                // The connector writes released frames as soon as the connection is up.
+                slot.release_all();
+                continue;
+            }
+            if let Err(e) = self.write_batch(to, entry, &mut slot, None) {
+                first_error.get_or_insert(e);
             }
         }
+        first_error.map_or(Ok(()), Err)
+    }
+
+    fn batches(&self) -> bool {
+        self.shared.config.batch_bytes > 0
     }
 
     fn stats(&self) -> LinkStats {
@@ -612,15 +861,18 @@ impl<T: StreamTransport> Link for StreamLink<T> {
         LinkStats {
             frames_sent: s.frames_sent,
             frames_received: s.frames_received,
-            frames_dropped: s.frames_dropped,
+            frames_dropped: s.frames_dropped + s.held_frames_dropped,
             connects: s.connects,
-            buffered_bytes: 0,
+            buffered_bytes: self.pending_bytes() as u64,
         }
     }
 }
 
 impl<T: StreamTransport> Drop for StreamLink<T> {
     fn drop(&mut self) {
+        // Best effort: held frames would otherwise be lost without a trace (a peer that does
+        // not read makes this wait up to the write timeout).
+        let _ = self.flush();
         self.shared.closing.store(true, Ordering::SeqCst);
         self.listener.wake();
         if let Some(h) = self.accept_thread.take() {
@@ -642,29 +894,51 @@ impl<T: StreamTransport> Drop for StreamLink<T> {
     }
 }
 
-/// Writes the record header and `frame` as one vectored write where possible, bounded by
-/// `timeout` in total (the socket's own timeout bounds each call; it is shortened after a
-/// partial write so the sum stays within `timeout`).
-fn write_record<S: StreamSocket>(
-    socket: &mut S,
-    frame: &[u8],
-    timeout: Duration,
-) -> io::Result<()> {
-    let len = u32::try_from(frame.len())
-        .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "frame over 4 GiB"))?;
+/// The record header of a frame of `len` bytes (callers have checked `len` against
+/// `max_frame`, which is far below 4 GiB).
+fn record_header(len: usize) -> [u8; RECORD_HEADER_LEN] {
+    let len = u32::try_from(len).unwrap_or(u32::MAX);
     let mut head = [0u8; RECORD_HEADER_LEN];
     head[0..2].copy_from_slice(&RECORD_MAGIC);
     head[2] = STREAM_VERSION;
     head[4..8].copy_from_slice(&len.to_le_bytes());
-    let total = RECORD_HEADER_LEN + frame.len();
+    head
+}
+
+fn append_record(out: &mut Vec<u8>, frame: &[u8]) {
+    out.extend_from_slice(&record_header(frame.len()));
+    out.extend_from_slice(frame);
+}
+
+/// Writes all of `parts`, in order, with as few vectored writes as the socket allows, bounded
+/// by `timeout` in total (the socket's own timeout bounds each call; it is shortened after a
+/// partial write so that the sum stays within `timeout`, and restored at the end).
+fn write_parts<S: StreamSocket, const N: usize>(
+    socket: &mut S,
+    parts: &[&[u8]; N],
+    timeout: Duration,
+) -> io::Result<()> {
+    let total: usize = parts.iter().map(|p| p.len()).sum();
     let deadline = Instant::now() + timeout;
     let mut done = 0;
     let mut shortened = false;
     while done < total {
-        let result = if done < RECORD_HEADER_LEN {
-            socket.write_vectored(&[IoSlice::new(&head[done..]), IoSlice::new(frame)])
-        } else {
-            socket.write(&frame[done - RECORD_HEADER_LEN..])
+        // The slices of what is left: skip `done` bytes, then every empty part.
+        let mut slices = [IoSlice::new(&[]); N];
+        let mut n = 0;
+        let mut skip = done;
+        for part in parts {
+            if skip >= part.len() {
+                skip -= part.len();
+                continue;
+            }
+            slices[n] = IoSlice::new(&part[skip..]);
+            skip = 0;
+            n += 1;
+        }
+        let result = match &slices[..n] {
+            [one] => socket.write(one),
+            many => socket.write_vectored(many),
         };
         match result {
             Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
@@ -790,6 +1064,7 @@ fn identify<T: StreamTransport>(
             socket
                 .set_read_timeout(Some(shared.config.hello_timeout))
                 .ok()?;
+            // Exactly the hello: the records behind it belong to the record reader.
             let mut hello = [0u8; HELLO_LEN];
             let got = read_full(socket, &mut hello).ok()?;
             if got < HELLO_LEN {
@@ -798,6 +1073,155 @@ fn identify<T: StreamTransport>(
             socket.set_read_timeout(None).ok()?;
             decode_hello(&hello).and_then(in_fleet)
         }
+    }
+}
+
+/// Why a connection's record stream ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum StreamEnd {
+    /// End of stream (or a read error) between records.
+    Clean,
+    /// End of stream or a read error inside a record: that frame is lost.
+    Cut,
+    /// A record header that is malformed or announces more than `max_frame`.
+    Bad,
+}
+
+/// Where [`RecordReader::next_record`] left a complete frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum FrameAt {
+    /// In the read buffer, at this range.
+    Buffered(usize, usize),
+    /// At the start of the large-frame buffer, this long.
+    Large(usize),
+}
+
+/// Splits a connection's byte stream into frames: small records through a read buffer (as
+/// many per read as have arrived), large frames straight into a buffer of their own size.
+struct RecordReader {
+    max_frame: usize,
+    buf: Box<[u8]>,
+    /// Unconsumed bytes are `buf[start..end]`.
+    start: usize,
+    end: usize,
+    /// The last frame was read directly: read only a little ahead into `buf` (see
+    /// [`READ_AHEAD_AFTER_LARGE`]), since another large frame is likely next.
+    after_large: bool,
+    /// Reused for frames over [`DIRECT_READ_MIN`]; at least as long as the longest recent one.
+    large: Vec<u8>,
+}
+
+impl RecordReader {
+    fn new(max_frame: usize) -> Self {
+        RecordReader {
+            max_frame,
+            buf: vec![0; READ_BUF_LEN].into_boxed_slice(),
+            start: 0,
+            end: 0,
+            after_large: false,
+            large: Vec::new(),
+        }
+    }
+
+    /// The bytes of a frame [`next_record`](Self::next_record) returned.
+    fn frame(&self, at: FrameAt) -> &[u8] {
+        match at {
+            FrameAt::Buffered(from, to) => &self.buf[from..to],
+            FrameAt::Large(len) => &self.large[..len],
+        }
+    }
+
+    /// Reads until `buf[start..]` holds at least `need` bytes (`need` ≤ the buffer's size),
+    /// first moving what is left to the front if it would not fit.
+    fn fill<R: Read>(&mut self, r: &mut R, need: usize) -> Result<(), StreamEnd> {
+        if self.start == self.end {
+            self.start = 0;
+            self.end = 0;
+        } else if self.start + need > self.buf.len() {
+            self.buf.copy_within(self.start..self.end, 0);
+            self.end -= self.start;
+            self.start = 0;
+        }
+        while self.end - self.start < need {
+            let limit = if self.after_large {
+                (self.start + READ_AHEAD_AFTER_LARGE.max(need)).min(self.buf.len())
+            } else {
+                self.buf.len()
+            };
+            match r.read(&mut self.buf[self.end..limit]) {
+                Ok(0) => break,
+                Ok(n) => self.end += n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => break,
+            }
+        }
+        match self.end - self.start {
+            n if n >= need => Ok(()),
+            0 => Err(StreamEnd::Clean),
+            _ => Err(StreamEnd::Cut),
+        }
+    }
+
+    /// Reads the next record; its frame is then [`frame`](Self::frame)`(at)` until the next
+    /// call.
+    fn next_record<R: Read>(&mut self, r: &mut R) -> Result<FrameAt, StreamEnd> {
+        self.fill(r, RECORD_HEADER_LEN)?;
+        let mut head = [0u8; RECORD_HEADER_LEN];
+        head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
+        // Checked before anything is allocated or read for it.
+        let len = decode_record_header(&head, self.max_frame).ok_or(StreamEnd::Bad)?;
+        let body = self.start + RECORD_HEADER_LEN;
+        if body + len <= self.end || len <= DIRECT_READ_MIN {
+            if body + len > self.end {
+                // A small partial record: completing it in the buffer costs at most a move of
+                // DIRECT_READ_MIN bytes per buffer's worth of records.
+                self.fill(r, RECORD_HEADER_LEN + len)
+                    .map_err(|_| StreamEnd::Cut)?;
+            }
+            let from = self.start + RECORD_HEADER_LEN;
+            self.start = from + len;
+            self.after_large = false;
+            return Ok(FrameAt::Buffered(from, from + len));
+        }
+        self.read_large(r, body, len)?;
+        Ok(FrameAt::Large(len))
+    }
+
+    /// Reads the frame of `len` bytes whose first bytes are `buf[body..end]` into `large`.
+    fn read_large<R: Read>(&mut self, r: &mut R, body: usize, len: usize) -> Result<(), StreamEnd> {
+        if self.large.len() > LARGE_BUF_KEEP && len < LARGE_BUF_KEEP / 4 {
+            self.large = Vec::new();
+        }
+        if self.large.len() < len {
+            // A fresh zeroed allocation rather than `resize`, which would copy the old bytes.
+            self.large = vec![0; len];
+        }
+        let have = self.end - body;
+        self.large[..have].copy_from_slice(&self.buf[body..self.end]);
+        self.start = 0;
+        self.end = 0;
+        self.after_large = true;
+        let mut got = have;
+        while got < len {
+            // The rest of the frame in place, and whatever follows it (the next record header,
+            // with luck) into the front of the read buffer, in one read.
+            let (frame, ahead) = (
+                &mut self.large[got..len],
+                &mut self.buf[..READ_AHEAD_AFTER_LARGE],
+            );
+            let want = frame.len();
+            match r.read_vectored(&mut [IoSliceMut::new(frame), IoSliceMut::new(ahead)]) {
+                Ok(0) => return Err(StreamEnd::Cut),
+                Ok(n) if n <= want => got += n,
+                Ok(n) => {
+                    got = len;
+                    self.end = n - want;
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => return Err(StreamEnd::Cut),
+            }
+        }
+        Ok(())
     }
 }
 
@@ -817,46 +1241,26 @@ fn serve_connection<T: StreamTransport>(
         let _ = socket.shutdown_both();
         return;
     };
-    let max_frame = shared.config.max_frame();
-    let mut buf = Vec::new();
-    loop {
-        let mut head = [0u8; RECORD_HEADER_LEN];
-        let got = match read_full(&mut socket, &mut head) {
-            Ok(n) => n,
-            Err(_) => break,
-        };
-        if got == 0 {
-            break; // clean end of stream between records
-        }
-        let len = match (got == RECORD_HEADER_LEN)
-            .then(|| decode_record_header(&head, max_frame))
-            .flatten()
-        {
-            Some(len) => len,
-            None => {
-                // Truncated, desynchronised or oversized: nothing after this can be trusted.
-                bump(&counters.frames_dropped);
-                break;
+    let mut reader = RecordReader::new(shared.config.max_frame());
+    let end = loop {
+        match reader.next_record(&mut socket) {
+            Ok(at) => {
+                // Counted first so that whoever the sink wakes sees the counter already updated.
+                bump(&counters.frames_received);
+                shared.sink.on_frame(reader.frame(at), from);
             }
-        };
-        // Keep one buffer per connection, but do not pin a huge one after a rare big frame.
-        if buf.capacity() > 4 * 1024 * 1024 && len < 64 * 1024 {
-            buf = Vec::new();
+            Err(end) => break end,
         }
-        buf.clear();
-        buf.resize(len, 0);
-        match read_full(&mut socket, &mut buf) {
-            Ok(n) if n == len => {}
-            _ => {
-                if !shared.closing.load(Ordering::SeqCst) {
-                    bump(&counters.frames_dropped);
-                }
-                break;
-            }
-        }
-        // Counted first so that whoever the sink wakes sees the counter already updated.
-        bump(&counters.frames_received);
-        shared.sink.on_frame(&buf, from);
+    };
+    // Truncated, desynchronised or oversized: nothing after it can be trusted. A record cut
+    // by our own shutdown is not the peer's fault.
+    let count = match end {
+        StreamEnd::Clean => false,
+        StreamEnd::Cut => !shared.closing.load(Ordering::SeqCst),
+        StreamEnd::Bad => true,
+    };
+    if count {
+        bump(&counters.frames_dropped);
     }
     let _ = socket.shutdown_both();
 }
@@ -888,6 +1292,7 @@ mod tests {
         h[4..8].copy_from_slice(&100u32.to_le_bytes());
         assert_eq!(decode_record_header(&h, 100), Some(100));
         assert_eq!(decode_record_header(&h, 99), None);
+        assert_eq!(record_header(100), h);
         h[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
         assert_eq!(
             decode_record_header(&h, StreamConfig::default().max_frame()),
@@ -906,5 +1311,317 @@ mod tests {
         assert_eq!(c.max_frame(), HEADER_LEN + 1000);
         c.max_message_bytes = Some(usize::MAX);
         assert_eq!(c.max_frame(), HEADER_LEN + MAX_PAYLOAD);
+    }
+
+    /// A stream that hands out its bytes in pieces of varying size (at most `max` per call),
+    /// filling only the first buffer of a vectored read, as many sockets do.
+    struct Chunky<'a> {
+        data: &'a [u8],
+        max: usize,
+        calls: usize,
+    }
+
+    impl Read for Chunky<'_> {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            self.calls += 1;
+            if self.calls % 5 == 4 {
+                return Err(io::ErrorKind::Interrupted.into());
+            }
+            // 1, 2, … max, 1, 2, …: every split point shows up sooner or later.
+            let n = (self.calls % self.max + 1)
+                .min(buf.len())
+                .min(self.data.len());
+            buf[..n].copy_from_slice(&self.data[..n]);
+            self.data = &self.data[n..];
+            Ok(n)
+        }
+    }
+
+    fn frame_of(len: usize, seed: u8) -> Vec<u8> {
+        (0..len)
+            .map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed))
+            .collect()
+    }
+
+    /// Frames around every size boundary of the reader, in an order that exercises the switch
+    /// between buffered and direct reads both ways.
+    fn mixed_frames() -> Vec<Vec<u8>> {
+        let sizes = [
+            0,
+            1,
+            64,
+            DIRECT_READ_MIN,
+            DIRECT_READ_MIN + 1,
+            64,
+            READ_BUF_LEN - RECORD_HEADER_LEN,
+            READ_BUF_LEN + 48,
+            READ_BUF_LEN + 48,
+            3,
+            1 << 20,
+            READ_AHEAD_AFTER_LARGE,
+            70_000,
+            5,
+        ];
+        sizes
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| frame_of(n, i as u8))
+            .collect()
+    }
+
+    fn stream_of(frames: &[Vec<u8>]) -> Vec<u8> {
+        let mut s = Vec::new();
+        for f in frames {
+            append_record(&mut s, f);
+        }
+        s
+    }
+
+    fn read_all<R: Read>(r: &mut R, max_frame: usize) -> (Vec<Vec<u8>>, StreamEnd) {
+        let mut reader = RecordReader::new(max_frame);
+        let mut got = Vec::new();
+        loop {
+            match reader.next_record(r) {
+                Ok(at) => got.push(reader.frame(at).to_vec()),
+                Err(end) => return (got, end),
+            }
+        }
+    }
+
+    #[test]
+    fn record_reader_splits_any_chunking_into_the_frames_sent() {
+        let frames = mixed_frames();
+        let stream = stream_of(&frames);
+        // Whole reads (a slice fills every buffer of a vectored read), then odd pieces.
+        let (got, end) = read_all(&mut &stream[..], 2 << 20);
+        assert_eq!(end, StreamEnd::Clean);
+        assert!(got == frames, "whole reads");
+        for max in [1, 7, 4096, 100_000] {
+            let mut r = Chunky {
+                data: &stream,
+                max,
+                calls: 0,
+            };
+            let (got, end) = read_all(&mut r, 2 << 20);
+            assert_eq!(end, StreamEnd::Clean, "chunks of up to {max}");
+            assert!(got == frames, "chunks of up to {max}");
+        }
+    }
+
+    #[test]
+    fn record_reader_reports_cut_and_bad_records() {
+        let frames = mixed_frames();
+        let stream = stream_of(&frames);
+        // Cut inside a header, inside a small frame, inside a large one.
+        for cut in [3, RECORD_HEADER_LEN + 1 + 4, stream.len() - 2] {
+            let (got, end) = read_all(&mut &stream[..cut], 2 << 20);
+            assert_eq!(end, StreamEnd::Cut, "cut at {cut}");
+            assert!(got.len() < frames.len());
+        }
+        // A frame over max_frame ends the stream before its bytes are read.
+        let (got, end) = read_all(&mut &stream[..], 100_000);
+        assert_eq!(end, StreamEnd::Bad);
+        assert_eq!(got.len(), 10);
+        // Garbage after a good record.
+        let mut s = stream_of(&frames[..3]);
+        s.extend_from_slice(b"\xde\xad\xbe\xef garbage");
+        let (got, end) = read_all(&mut &s[..], 2 << 20);
+        assert_eq!((got.len(), end), (3, StreamEnd::Bad));
+    }
+
+    #[test]
+    fn record_reader_reuses_its_buffers() {
+        let frames: Vec<Vec<u8>> = (0..50).map(|i| frame_of(65_584, i)).collect();
+        let stream = stream_of(&frames);
+        let mut r = Chunky {
+            data: &stream,
+            max: 70_000,
+            calls: 0,
+        };
+        let mut reader = RecordReader::new(1 << 20);
+        let first = reader.next_record(&mut r).unwrap();
+        assert_eq!(first, FrameAt::Large(65_584));
+        let ptr = reader.large.as_ptr();
+        for f in &frames[1..] {
+            let at = reader.next_record(&mut r).unwrap();
+            assert!(reader.frame(at) == &f[..]);
+        }
+        assert_eq!(reader.large.as_ptr(), ptr, "large buffer reallocated");
+    }
+
+    /// A socket that takes at most `max` bytes per write, across buffers of a vectored write.
+    struct Slow {
+        out: Vec<u8>,
+        max: usize,
+        calls: usize,
+    }
+
+    impl Read for Slow {
+        fn read(&mut self, _: &mut [u8]) -> io::Result<usize> {
+            Ok(0)
+        }
+    }
+
+    impl Write for Slow {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.write_vectored(&[IoSlice::new(buf)])
+        }
+        fn write_vectored(&mut self, bufs: &[IoSlice<'_>]) -> io::Result<usize> {
+            self.calls += 1;
+            if self.calls % 4 == 3 {
+                return Err(io::ErrorKind::Interrupted.into());
+            }
+            let mut left = self.max;
+            for b in bufs {
+                let n = b.len().min(left);
+                self.out.extend_from_slice(&b[..n]);
+                left -= n;
+            }
+            Ok(self.max - left)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl StreamSocket for Slow {
+        fn try_clone(&self) -> io::Result<Self> {
+            Err(io::ErrorKind::Unsupported.into())
+        }
+        fn shutdown_both(&self) -> io::Result<()> {
+            Ok(())
+        }
+        fn set_write_timeout(&self, _: Option<Duration>) -> io::Result<()> {
+            Ok(())
+        }
+        fn set_read_timeout(&self, _: Option<Duration>) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Unix sockets whose connects wait until the test opens the gate, so that a test
+    /// controls exactly when a connection comes up.
+    #[cfg(unix)]
+    struct GatedUnix {
+        gate: Mutex<std::sync::mpsc::Receiver<()>>,
+    }
+
+    #[cfg(unix)]
+    impl StreamTransport for GatedUnix {
+        type Socket = std::os::unix::net::UnixStream;
+        type Listener = std::os::unix::net::UnixListener;
+        type Addr = crate::unix::UnixAddr;
+        const NAME: &'static str = "gated";
+
+        fn connect(&self, addr: &Self::Addr, _: Duration) -> io::Result<Self::Socket> {
+            let _ = lock(&self.gate).recv();
+            std::os::unix::net::UnixStream::connect(&addr.0)
+        }
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn held_frames_count_against_the_connect_queue_and_stay_held_after_connecting() {
+        use std::os::unix::net::UnixListener;
+
+        let dir = std::env::temp_dir().join(format!("hetcomm-gated-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (path_a, path_b) = (dir.join("a.sock"), dir.join("b.sock"));
+        // B is a raw listener, so the test sees the bytes A writes.
+        let raw_b = UnixListener::bind(&path_b).unwrap();
+        let (open, gate) = std::sync::mpsc::channel();
+        let transport = GatedUnix {
+            gate: Mutex::new(gate),
+        };
+        let config = StreamConfig {
+            connect_queue_frames: 4,
+            ..StreamConfig::default()
+        };
+        struct Nobody;
+        impl FrameSink for Nobody {
+            fn on_frame(&self, _: &[u8], _: Peer) {}
+        }
+        let (a_id, b_id) = (SystemId(1), SystemId(2));
+        let a = StreamLink::new(
+            transport,
+            a_id,
+            UnixListener::bind(&path_a).unwrap(),
+            BTreeMap::from([(b_id, crate::unix::UnixAddr(path_b.clone()))]),
+            Arc::new(Nobody),
+            config,
+        )
+        .unwrap();
+        let f: Vec<Vec<u8>> = (0..5).map(|i| frame_of(20 + i, i as u8)).collect();
+        a.send_held(b_id, &f[0]).unwrap();
+        a.send_held(b_id, &f[1]).unwrap();
+        a.send(b_id, &f[2]).unwrap(); // releases 0 and 1 with it
+        a.send_held(b_id, &f[3]).unwrap();
+        // Four frames wait, held ones included: the fifth is refused either way.
+        for result in [a.send(b_id, &f[4]), a.send_held(b_id, &f[4])] {
+            assert!(
+                matches!(result, Err(LinkError::Congested { .. })),
+                "{result:?}"
+            );
+        }
+        assert_eq!(a.pending_bytes(), stream_of(&f[..4]).len());
+
+        open.send(()).unwrap();
+        let (mut conn, _) = raw_b.accept().unwrap();
+        let mut expected = encode_hello(a_id).to_vec();
+        expected.extend_from_slice(&stream_of(&f[..3]));
+        let mut got = vec![0; expected.len()];
+        conn.set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        conn.read_exact(&mut got).unwrap();
+        assert!(got == expected, "hello and the released frames, in order");
+        // The frame held after the send stays held on the new connection...
+        conn.set_read_timeout(Some(Duration::from_millis(150)))
+            .unwrap();
+        let mut more = [0u8; 1];
+        assert!(conn.read(&mut more).is_err(), "a held frame went out");
+        assert_eq!(a.stream_stats().frames_sent, 3);
+        // ...until the flush.
+        a.flush().unwrap();
+        let record = stream_of(&f[3..4]);
+        let mut got = vec![0; record.len()];
+        conn.set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        conn.read_exact(&mut got).unwrap();
+        assert_eq!(got, record);
+        assert_eq!(a.stream_stats().frames_sent, 4);
+        assert_eq!(a.pending_bytes(), 0);
+        drop(a);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn partial_vectored_writes_are_resumed_exactly() {
+        let held = stream_of(&mixed_frames()[..4]);
+        let frame = frame_of(100_000, 9);
+        let head = record_header(frame.len());
+        let mut whole = held.clone();
+        whole.extend_from_slice(&head);
+        whole.extend_from_slice(&frame);
+        for max in [1, 5, 8, 4096, 1 << 20] {
+            let mut s = Slow {
+                out: Vec::new(),
+                max,
+                calls: 0,
+            };
+            write_parts(&mut s, &[&held, &head, &frame], Duration::from_secs(5)).unwrap();
+            assert!(s.out == whole, "writes of up to {max} bytes");
+        }
+        // Empty parts are skipped, and nothing to write is no write at all.
+        let mut s = Slow {
+            out: Vec::new(),
+            max: 3,
+            calls: 0,
+        };
+        write_parts(&mut s, &[&[], &head, &[]], Duration::from_secs(5)).unwrap();
+        assert_eq!(s.out, head);
+        let calls = s.calls;
+        write_parts(&mut s, &[&[], &[]], Duration::from_secs(5)).unwrap();
+        assert_eq!(s.calls, calls);
     }
 }

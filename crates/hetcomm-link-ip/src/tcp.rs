@@ -2,8 +2,10 @@
 //!
 //! Each system listens on its endpoint from the fleet's endpoint map; a sender opens one
 //! connection per peer on first send, identifies itself with a hello, and reuses the
-//! connection (`TCP_NODELAY` set, so small frames are not held back). See the
-//! [`stream`](crate::stream) module for the byte format, identity, backoff and timeouts.
+//! connection (`TCP_NODELAY` set, so the kernel never holds small frames back; the link
+//! batches frames itself when the runtime asks it to, with `send_held`). See the
+//! [`stream`](crate::stream) module for the byte format, batching, identity, backoff and
+//! timeouts.
 //!
 //! Peer endpoints are resolved (`host:port`, DNS allowed) on each connect attempt, so a peer
 //! whose name does not resolve yet is simply unreachable until it does.
@@ -163,5 +165,14 @@ impl Link for TcpLink {
     }
     fn stats(&self) -> LinkStats {
         self.inner.stats()
+    }
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.inner.send_held(to, frame)
+    }
+    fn flush(&self) -> Result<(), LinkError> {
+        self.inner.flush()
+    }
+    fn batches(&self) -> bool {
+        self.inner.batches()
     }
 }

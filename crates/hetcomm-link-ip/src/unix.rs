@@ -1,7 +1,8 @@
 //! Unix stream sockets: the [`stream`](crate::stream) layer between processes of one machine
 //! (e.g. a robot's driver process and its planner), addressed by socket paths.
 //!
-//! Identity is by hello, as for TCP. The link removes its socket file when dropped.
+//! Identity is by hello and small frames are batched with `send_held`, as for TCP. The link
+//! removes its socket file when dropped.
 
 use std::collections::BTreeMap;
 use std::io;
@@ -157,6 +158,18 @@ impl Link for UnixLink {
     }
     fn stats(&self) -> LinkStats {
         self.inner.as_ref().map(Link::stats).unwrap_or_default()
+    }
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.inner
+            .as_ref()
+            .ok_or(LinkError::Closed)?
+            .send_held(to, frame)
+    }
+    fn flush(&self) -> Result<(), LinkError> {
+        self.inner.as_ref().map_or(Ok(()), Link::flush)
+    }
+    fn batches(&self) -> bool {
+        self.inner.as_ref().is_some_and(Link::batches)
     }
 }
 
