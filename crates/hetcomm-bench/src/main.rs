@@ -208,7 +208,11 @@ fn run(o: &Options) -> Vec<Row> {
             // Small round trips swing with where the scheduler puts the two processes (the
             // same vCPU or not: 3 µs or 20 µs on this VM). Run the raw and hetcomm paths
             // interleaved, several rounds, and keep each path's round with the median p50.
-            let rounds = if o.quick || size > 1024 { 1 } else { RTT_ROUNDS };
+            let rounds = if o.quick || size > 1024 {
+                1
+            } else {
+                RTT_ROUNDS
+            };
             let paths: Vec<(String, Box<RttRun>)> = raws
                 .iter()
                 .map(|&k| {
@@ -225,7 +229,10 @@ fn run(o: &Options) -> Vec<Row> {
                 paths.iter().map(|_| Vec::new()).collect();
             for round in 0..rounds {
                 for ((name, f), out) in paths.iter().zip(results.iter_mut()) {
-                    log(o.quick, &format!("rtt {name} {size} B (round {})", round + 1));
+                    log(
+                        o.quick,
+                        &format!("rtt {name} {size} B (round {})", round + 1),
+                    );
                     out.push(f());
                 }
             }
