@@ -489,8 +489,7 @@ impl SystemCore {
     }
 
     /// Puts a message handed over directly by another system of this process into its
-    /// module's inbox.
-    /// `now` is the sender's clock reading: one process, one wall clock.
+    /// module's inbox. `now` is the sender's clock reading: one process, one wall clock.
     pub(crate) fn deliver_direct(&self, header: Header, payload: Vec<u8>, now: Time) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
         self.deliver_entry(header, payload, now)
