@@ -895,8 +895,7 @@ impl UdpLink {
     }
 
     fn send_error(&self, to: SystemId, addr: SocketAddr, e: io::Error) -> LinkError {
-        const ENOBUFS: i32 = 105;
-        if e.kind() == io::ErrorKind::WouldBlock || e.raw_os_error() == Some(ENOBUFS) {
+        if e.kind() == io::ErrorKind::WouldBlock || e.raw_os_error() == Some(libc::ENOBUFS) {
             return LinkError::Congested {
                 peer: to,
                 reason: format!("socket send buffer full sending to {addr}: {e}"),

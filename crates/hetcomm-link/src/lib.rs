@@ -162,7 +162,8 @@ pub struct LinkStats {
     pub frames_sent: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
-    /// Frames dropped on receive (malformed, unknown sender, reassembly failure, …).
+    /// Frames dropped: on receive (malformed, unknown sender, reassembly failure, …) and
+    /// frames held for batching that a later flush failed to send.
     pub frames_dropped: u64,
     /// Times a connection to a peer was (re)established.
     pub connects: u64,

@@ -551,24 +551,27 @@ impl<T> Router<T> {
     /// A send that the driver hands straight to a destination in the same process (an
     /// in-process link, which is reliable, ordered and synchronous), skipping the frame, its
     /// checksum and the destination's router. The router still checks the route and size,
-    /// numbers the message and counts it; the driver reports what happened with
-    /// [`Router::direct_result`]. Returns the header to deliver.
+    /// numbers the message and counts it. Returns the header to deliver. An unacknowledged
+    /// send ends `Sent` here, whatever the inbox will say, exactly as over a link (so the
+    /// driver need not come back); an acknowledged one ends with [`Router::direct_result`].
     pub fn send_direct(&mut self, now: Time, req: SendRequest<'_>) -> Result<Header, SendError> {
         let (_, header) = self.admit(now, &req)?;
         self.stats.sends += 1;
         self.stats.transmissions += 1;
+        if !header.ack_requested() {
+            self.stats.sent_unconfirmed += 1;
+        }
         Ok(header)
     }
 
     /// The outcome of a [`Router::send_direct`] send, given what the destination's inbox said
-    /// (`status`), counted like any other outcome. Unacknowledged sends end `Sent` whatever
-    /// the inbox said, exactly as over a link.
+    /// (`status`). An unacknowledged send is `Sent` (already counted by `send_direct`); an
+    /// acknowledged one is counted here like any other outcome.
     pub fn direct_result(&mut self, header: &Header, status: AckStatus) -> Outcome {
-        let outcome = if !header.ack_requested() {
-            Outcome::Sent { attempts: 1 }
-        } else {
-            Outcome::acknowledged(status, 1, Duration::ZERO)
-        };
+        if !header.ack_requested() {
+            return Outcome::Sent { attempts: 1 };
+        }
+        let outcome = Outcome::acknowledged(status, 1, Duration::ZERO);
         match outcome {
             Outcome::Delivered { .. } => self.stats.delivered += 1,
             Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,

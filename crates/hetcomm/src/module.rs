@@ -153,7 +153,12 @@ impl Module {
                 .map_err(|e| send_error(&core.directory, e))?;
             drop(router);
             let status = peer.deliver_direct(header, payload.into_owned(), now);
-            let outcome = core.router().direct_result(&header, status);
+            // An unacknowledged send's outcome needs no second trip through the router lock.
+            let outcome = if header.ack_requested() {
+                core.router().direct_result(&header, status)
+            } else {
+                hetcomm_router::Outcome::Sent { attempts: 1 }
+            };
             return Ok(Ticket {
                 slot: TicketSlot::Ready(outcome),
                 destination: core.directory.system_name(to.system),

@@ -568,8 +568,7 @@ impl SystemCore {
             // The timer thread sends the batch should nothing else come along.
             self.timer
                 .arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
-        } else if now.as_micros().saturating_sub(since) >= b.linger_us {
-            b.held_since.store(0, Ordering::Relaxed);
+        } else if b.take_due(Some(now)) {
             let _ = link.flush();
         }
         result
