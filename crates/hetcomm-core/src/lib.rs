@@ -22,12 +22,14 @@
 //! # let _ = (Priority::NORMAL, Time::ZERO);
 //! ```
 
+pub mod buf;
 pub mod ids;
 pub mod message;
 pub mod payload;
 pub mod time;
 pub mod wire;
 
+pub use buf::{PayloadBuf, INLINE_PAYLOAD};
 pub use ids::{Address, MessageId, MessageType, ModuleId, Priority, SystemId};
 pub use message::{Message, TypeInfo, TypeRegistry, TypeRegistryError};
 pub use time::Time;

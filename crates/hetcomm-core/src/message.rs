@@ -48,15 +48,45 @@ pub enum TypeRegistryError {
 }
 
 /// Maps message type ids to names; refuses two types with one id.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug)]
 pub struct TypeRegistry {
+    /// Unique in the process, so callers may cache what they verified against this registry.
+    id: u64,
     by_id: HashMap<MessageType, TypeInfo>,
+}
+
+static NEXT_REGISTRY_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+impl Default for TypeRegistry {
+    fn default() -> Self {
+        TypeRegistry {
+            id: NEXT_REGISTRY_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            by_id: HashMap::default(),
+        }
+    }
+}
+
+/// A clone is a new registry (with its own [`TypeRegistry::id`]) holding the same types.
+impl Clone for TypeRegistry {
+    fn clone(&self) -> Self {
+        TypeRegistry {
+            by_id: self.by_id.clone(),
+            ..Self::default()
+        }
+    }
 }
 
 impl TypeRegistry {
     /// An empty registry.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// This registry's process-unique id. Types are never removed from a registry, so a
+    /// check made against it (type `T` is registered under name `N`) stays true for the
+    /// id's lifetime: callers key caches of such checks by this id.
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     /// Registers `M`. Registering the same type twice is fine; another type with the same id

@@ -46,6 +46,14 @@ pub fn encode<T: Serialize + ?Sized>(value: &T) -> Result<Vec<u8>, PayloadError>
     Ok(out)
 }
 
+/// Encodes a value into a [`crate::PayloadBuf`]: inline, with no allocation, when small.
+pub fn encode_buf<T: Serialize + ?Sized>(value: &T) -> Result<crate::PayloadBuf, PayloadError> {
+    let mut out = crate::PayloadBuf::new();
+    let mut ser = rmp_serde::Serializer::new(&mut out).with_struct_map();
+    value.serialize(&mut ser)?;
+    Ok(out)
+}
+
 /// Decodes exactly one value; trailing bytes are an error.
 pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, PayloadError> {
     let type_name = std::any::type_name::<T>();

@@ -465,7 +465,7 @@ fn raw_message(py: Python<'_>, raw: hetcomm::RawMessage) -> PyResult<RawMessage>
                 inner: raw.envelope,
             },
         )?,
-        payload: raw.payload,
+        payload: raw.payload.into_vec(),
         type_id,
     })
 }

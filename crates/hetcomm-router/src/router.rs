@@ -7,7 +7,9 @@ use rustc_hash::FxHashMap as HashMap;
 use std::time::Duration;
 
 use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
-use hetcomm_core::{Address, FrameKind, Header, MessageType, ModuleId, Priority, SystemId, Time};
+use hetcomm_core::{
+    Address, FrameKind, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time,
+};
 
 use crate::dedup::Dedup;
 use crate::rtt::RttEstimator;
@@ -291,7 +293,7 @@ pub struct Delivery {
     /// The envelope header.
     pub header: Header,
     /// The encoded payload.
-    pub payload: Vec<u8>,
+    pub payload: PayloadBuf,
     /// The link it arrived on.
     pub link: usize,
     /// Present when the sender wants an acknowledgement: report what the inbox did through
@@ -386,7 +388,7 @@ struct OrderState {
 
 struct Held {
     header: Header,
-    payload: Vec<u8>,
+    payload: PayloadBuf,
     link: usize,
     ack_header: Header,
 }
@@ -792,7 +794,7 @@ impl<T> Router<T> {
         }
         self.dedup.insert(origin, h.incarnation, h.seq);
         if !self.config.ordered_sources.contains(&origin) {
-            self.accept(link, *h, payload.to_vec(), ack_header);
+            self.accept(link, *h, PayloadBuf::copy_from_slice(payload), ack_header);
             return;
         }
         let hold = self.config.timing.hold_timeout;
@@ -806,7 +808,7 @@ impl<T> Router<T> {
                 h.seq,
                 Held {
                     header: *h,
-                    payload: payload.to_vec(),
+                    payload: PayloadBuf::copy_from_slice(payload),
                     link,
                     ack_header,
                 },
@@ -818,7 +820,7 @@ impl<T> Router<T> {
             state.next += 1;
         }
         // In order (or older than a gap already given up): deliver, then whatever it unblocks.
-        self.accept(link, *h, payload.to_vec(), ack_header);
+        self.accept(link, *h, PayloadBuf::copy_from_slice(payload), ack_header);
         self.release_in_order(now, key);
     }
 
@@ -843,7 +845,7 @@ impl<T> Router<T> {
     }
 
     /// Hands a message to the driver for its inbox (with a token when it wants an ack).
-    fn accept(&mut self, link: usize, header: Header, payload: Vec<u8>, ack_header: Header) {
+    fn accept(&mut self, link: usize, header: Header, payload: PayloadBuf, ack_header: Header) {
         self.stats.received += 1;
         let token = if header.ack_requested() {
             let token = DeliveryToken(self.next_token);

@@ -14,7 +14,7 @@ use hetcomm_router::{Route, Router, RouterConfig, RouterStats};
 use crate::error::OpenError;
 use crate::inbox::InboxStats;
 use crate::module::Module;
-use crate::runtime::{Clock, Directory, SystemCore, WallClock};
+use crate::runtime::{intern, Clock, Directory, SystemCore, WallClock};
 use crate::sim::SimNet;
 use crate::transports::{open_link, Hubs};
 
@@ -348,7 +348,7 @@ fn directory(fleet: &Fleet) -> Directory {
         systems: fleet
             .systems
             .iter()
-            .map(|s| (s.id, Arc::from(s.name.as_str())))
+            .map(|s| (s.id, intern(&s.name)))
             .collect(),
         system_ids: fleet
             .systems
@@ -358,7 +358,7 @@ fn directory(fleet: &Fleet) -> Directory {
         modules: fleet
             .modules
             .iter()
-            .map(|m| (m.id, Arc::from(m.name.as_str())))
+            .map(|m| (m.id, intern(&m.name)))
             .collect(),
         module_ids: fleet
             .modules

@@ -7,13 +7,13 @@ use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use hetcomm_config::{InboxConfig, OverflowPolicy};
-use hetcomm_core::{Header, MessageType};
+use hetcomm_core::{Header, MessageType, PayloadBuf};
 
 /// One queued message.
 #[derive(Clone, Debug)]
 pub(crate) struct Entry {
     pub header: Header,
-    pub payload: Vec<u8>,
+    pub payload: PayloadBuf,
     pub received_at: hetcomm_core::Time,
 }
 
@@ -330,7 +330,7 @@ mod tests {
         header.priority = Priority(prio);
         Entry {
             header,
-            payload: vec![tag],
+            payload: PayloadBuf::copy_from_slice(&[tag]),
             received_at: hetcomm_core::Time::ZERO,
         }
     }

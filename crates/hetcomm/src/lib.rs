@@ -56,7 +56,7 @@ mod transports;
 pub use comm::{Comm, LocalFleet, SystemStats};
 pub use error::{OpenError, RecvError, SendError};
 pub use inbox::InboxStats;
-pub use module::{Module, SendOptions};
+pub use module::{Module, RawSender, SendOptions, Sender};
 pub use received::{Envelope, RawMessage, Received};
 pub use runtime::{Clock, WallClock};
 pub use ticket::{BroadcastTicket, Ticket};

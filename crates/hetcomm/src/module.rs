@@ -2,19 +2,50 @@
 //! subscribes. It is the thesis's Table 5 (`Send`, `CheckForMessage`, `GetNextMessageType`,
 //! `GetMessage`) plus callbacks, priorities, timeouts and outcomes.
 
-use std::borrow::Cow;
-use std::sync::Arc;
+use std::cell::RefCell;
+use std::marker::PhantomData;
+use std::sync::{Arc, MutexGuard};
 use std::time::Duration;
 
-use hetcomm_core::{payload, Address, Message, MessageType, Priority};
+use hetcomm_core::{payload, Address, Message, MessageType, PayloadBuf, Priority};
 use hetcomm_router::SendRequest;
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::received::{RawMessage, Received};
-use crate::runtime::{raw_message, Directory, ModuleCore};
+use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
+
+thread_local! {
+    /// Type checks that passed on this thread: (registry id, type id, name address, name
+    /// length). The name's address and length identify the exact `&'static str` checked.
+    static CHECKED_TYPES: RefCell<rustc_hash::FxHashSet<(u64, u32, usize, usize)>> =
+        RefCell::default();
+}
+
+/// A payload on its way into a send: borrowed from the caller (copied into a frame, or into
+/// the destination inbox) or already owned (moved there).
+enum Payload<'a> {
+    Borrowed(&'a [u8]),
+    Owned(PayloadBuf),
+}
+
+impl Payload<'_> {
+    fn as_slice(&self) -> &[u8] {
+        match self {
+            Payload::Borrowed(b) => b,
+            Payload::Owned(p) => p,
+        }
+    }
+
+    fn into_buf(self) -> PayloadBuf {
+        match self {
+            Payload::Borrowed(b) => PayloadBuf::copy_from_slice(b),
+            Payload::Owned(p) => p,
+        }
+    }
+}
 
 /// Per-send options.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -54,20 +85,33 @@ impl Module {
         }
     }
 
+    /// Registers `M` in the process's type registry, or checks it is there under its name.
+    /// A check that passed is remembered by the thread (types are never unregistered), so
+    /// the common case takes no lock shared with other threads.
     fn check_type<M: Message>(&self) -> Result<(), hetcomm_core::TypeRegistryError> {
+        let key = (
+            self.sys.core.registry_id,
+            M::TYPE.0,
+            M::NAME.as_ptr() as usize,
+            M::NAME.len(),
+        );
+        if CHECKED_TYPES.with(|c| c.borrow().contains(&key)) {
+            return Ok(());
+        }
         let registry = &self.sys.core.registry;
         let known = registry
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .get(M::TYPE)
             .map(|t| t.name == M::NAME);
-        match known {
-            Some(true) => Ok(()),
-            _ => registry
+        if known != Some(true) {
+            registry
                 .write()
                 .unwrap_or_else(|e| e.into_inner())
-                .register::<M>(),
+                .register::<M>()?;
         }
+        CHECKED_TYPES.with(|c| c.borrow_mut().insert(key));
+        Ok(())
     }
 
     fn resolve(&self, system: &str, module: &str) -> Result<Address, SendError> {
@@ -105,8 +149,8 @@ impl Module {
     ) -> Result<Ticket, SendError> {
         self.check_type::<M>()?;
         let to = self.resolve(system, module)?;
-        let payload = payload::encode(msg)?;
-        self.send_encoded(to, M::TYPE, Cow::Owned(payload), opts, false)
+        let payload = payload::encode_buf(msg)?;
+        self.send_encoded(to, M::TYPE, Payload::Owned(payload), opts, false)
     }
 
     /// Sends an already-encoded payload (tools, other-language bindings).
@@ -119,14 +163,14 @@ impl Module {
         opts: SendOptions,
     ) -> Result<Ticket, SendError> {
         let to = self.resolve(system, module)?;
-        self.send_encoded(to, message_type, Cow::Borrowed(payload), opts, false)
+        self.send_encoded(to, message_type, Payload::Borrowed(payload), opts, false)
     }
 
     fn send_encoded(
         &self,
         to: Address,
         message_type: MessageType,
-        payload: Cow<'_, [u8]>,
+        payload: Payload<'_>,
         opts: SendOptions,
         broadcast: bool,
     ) -> Result<Ticket, SendError> {
@@ -134,36 +178,23 @@ impl Module {
         if core.is_closed() {
             return Err(SendError::Closed);
         }
-        let req = SendRequest {
-            from: self.core.id,
-            to,
-            message_type,
-            priority: opts.priority,
-            payload: &payload,
-            broadcast,
-        };
         let now = core.clock.now();
         let mut router = core.router();
         let direct = router
             .route_link(to.system)
             .and_then(|link| core.direct_peer(link, to.system));
         if let Some(peer) = direct {
-            let header = router
-                .send_direct(now, req)
-                .map_err(|e| send_error(&core.directory, e))?;
-            drop(router);
-            let status = peer.deliver_direct(header, payload.into_owned(), now);
-            // An unacknowledged send's outcome needs no second trip through the router lock.
-            let outcome = if header.ack_requested() {
-                core.router().direct_result(&header, status)
-            } else {
-                hetcomm_router::Outcome::Sent { attempts: 1 }
-            };
-            return Ok(Ticket {
-                slot: TicketSlot::Ready(outcome),
-                destination: core.directory.system_name(to.system),
-            });
+            let what = (to, message_type, opts, broadcast);
+            return self.hand_over(router, &peer, what, payload, now);
         }
+        let req = SendRequest {
+            from: self.core.id,
+            to,
+            message_type,
+            priority: opts.priority,
+            payload: payload.as_slice(),
+            broadcast,
+        };
         let slot = Arc::new(OutcomeSlot::default());
         if let Err(e) = router.send(now, req, slot.clone()) {
             drop(router);
@@ -173,6 +204,88 @@ impl Module {
         Ok(Ticket {
             slot: TicketSlot::Pending(slot),
             destination: core.directory.system_name(to.system),
+        })
+    }
+
+    /// Sends straight into `peer`'s inbox (an in-process route): the router numbers and
+    /// counts the message under the lock the caller holds; no frame is built.
+    fn hand_over(
+        &self,
+        mut router: MutexGuard<'_, hetcomm_router::Router<Arc<OutcomeSlot>>>,
+        peer: &SystemCore,
+        (to, message_type, opts, broadcast): (Address, MessageType, SendOptions, bool),
+        payload: Payload<'_>,
+        now: hetcomm_core::Time,
+    ) -> Result<Ticket, SendError> {
+        let core = &self.sys.core;
+        let req = SendRequest {
+            from: self.core.id,
+            to,
+            message_type,
+            priority: opts.priority,
+            payload: payload.as_slice(),
+            broadcast,
+        };
+        let header = router
+            .send_direct(now, req)
+            .map_err(|e| send_error(&core.directory, e))?;
+        drop(router);
+        let status = peer.deliver_direct(header, payload.into_buf(), now);
+        // An unacknowledged send's outcome needs no second trip through the router lock.
+        let outcome = if header.ack_requested() {
+            core.router().direct_result(&header, status)
+        } else {
+            hetcomm_router::Outcome::Sent { attempts: 1 }
+        };
+        Ok(Ticket {
+            slot: TicketSlot::Ready(outcome),
+            destination: core.directory.system_name(to.system),
+        })
+    }
+
+    /// A handle for sending many `M`s to `module` of `system`: the names are looked up, the
+    /// type registered and the route found once, here, instead of at every send. Sending
+    /// through it behaves exactly like [`Module::send`] (same checks, numbering, outcomes).
+    pub fn sender<M: Message>(&self, system: &str, module: &str) -> Result<Sender<M>, SendError> {
+        self.check_type::<M>()?;
+        Ok(Sender {
+            route: self.route(system, module)?,
+            _type: PhantomData,
+        })
+    }
+
+    /// [`Module::sender`] for already-encoded payloads of type `message_type`.
+    pub fn raw_sender(
+        &self,
+        system: &str,
+        module: &str,
+        message_type: MessageType,
+    ) -> Result<RawSender, SendError> {
+        Ok(RawSender {
+            route: self.route(system, module)?,
+            message_type,
+        })
+    }
+
+    fn route(&self, system: &str, module: &str) -> Result<Route, SendError> {
+        let to = self.resolve(system, module)?;
+        let core = &self.sys.core;
+        let direct = {
+            let router = core.router();
+            let link = router
+                .route_link(to.system)
+                .ok_or_else(|| SendError::NoRoute {
+                    from: core.name.to_string(),
+                    to: system.to_string(),
+                })?;
+            drop(router);
+            core.direct_peer(link, to.system)
+        };
+        Ok(Route {
+            from: self.clone(),
+            to,
+            destination: core.directory.system_name(to.system),
+            direct,
         })
     }
 
@@ -223,7 +336,7 @@ impl Module {
             tickets.push(self.send_encoded(
                 to,
                 message_type,
-                Cow::Borrowed(payload),
+                Payload::Borrowed(payload),
                 opts,
                 true,
             )?);
@@ -407,5 +520,93 @@ fn send_error(dir: &Directory, e: hetcomm_router::SendError) -> SendError {
             max,
         },
         other => SendError::UnknownSystem(other.to_string()),
+    }
+}
+
+/// A resolved destination: the sending module, the address, and the destination system
+/// itself when it lives in this process behind an in-process route.
+#[derive(Clone)]
+struct Route {
+    from: Module,
+    to: Address,
+    destination: &'static str,
+    direct: Option<Arc<SystemCore>>,
+}
+
+impl Route {
+    fn send(
+        &self,
+        message_type: MessageType,
+        payload: Payload<'_>,
+        opts: SendOptions,
+    ) -> Result<Ticket, SendError> {
+        let core = &self.from.sys.core;
+        match &self.direct {
+            Some(peer) if !peer.is_closed() && !core.is_closed() => {
+                let now = core.clock.now();
+                let what = (self.to, message_type, opts, false);
+                self.from.hand_over(core.router(), peer, what, payload, now)
+            }
+            // Not in-process, or that system was closed (it may have been opened again):
+            // the general path finds the route afresh.
+            _ => self
+                .from
+                .send_encoded(self.to, message_type, payload, opts, false),
+        }
+    }
+}
+
+/// Sends `M`s from one module to one destination module without looking anything up per
+/// send; made by [`Module::sender`]. Cheap to clone, `Send + Sync`.
+pub struct Sender<M> {
+    route: Route,
+    _type: PhantomData<fn(&M)>,
+}
+
+impl<M> Clone for Sender<M> {
+    fn clone(&self) -> Self {
+        Sender {
+            route: self.route.clone(),
+            _type: PhantomData,
+        }
+    }
+}
+
+impl<M: Message> Sender<M> {
+    /// Sends `msg` ([`Module::send`]).
+    pub fn send(&self, msg: &M) -> Result<Ticket, SendError> {
+        self.send_with(msg, SendOptions::default())
+    }
+
+    /// Sends `msg` with options ([`Module::send_with`]).
+    pub fn send_with(&self, msg: &M, opts: SendOptions) -> Result<Ticket, SendError> {
+        let payload = payload::encode_buf(msg)?;
+        self.route.send(M::TYPE, Payload::Owned(payload), opts)
+    }
+
+    /// The destination system's name.
+    pub fn destination(&self) -> &str {
+        &self.route.destination
+    }
+}
+
+/// Sends already-encoded payloads of one type from one module to one destination module;
+/// made by [`Module::raw_sender`].
+#[derive(Clone)]
+pub struct RawSender {
+    route: Route,
+    message_type: MessageType,
+}
+
+impl RawSender {
+    /// Sends `payload` ([`Module::send_raw`]).
+    pub fn send(&self, payload: &[u8], opts: SendOptions) -> Result<Ticket, SendError> {
+        self.route
+            .send(self.message_type, Payload::Borrowed(payload), opts)
+    }
+
+    /// The destination system's name.
+    pub fn destination(&self) -> &str {
+        &self.route.destination
     }
 }

@@ -1,8 +1,6 @@
 //! What a receiver gets: the message and its envelope.
 
-use std::sync::Arc;
-
-use hetcomm_core::{Address, Header, MessageId, MessageType, Priority, Time};
+use hetcomm_core::{Address, Header, MessageId, MessageType, PayloadBuf, Priority, Time};
 
 /// The envelope of a received message, with friendly names resolved.
 #[derive(Clone, Debug)]
@@ -10,9 +8,9 @@ pub struct Envelope {
     /// The raw header as it came off the wire.
     pub header: Header,
     /// The sending system's friendly name.
-    pub source_system: Arc<str>,
+    pub source_system: &'static str,
     /// The sending module's name.
-    pub source_module: Arc<str>,
+    pub source_module: &'static str,
     /// When this system's router put it into the inbox (receiver's clock, µs).
     pub received_at: Time,
 }
@@ -58,6 +56,7 @@ pub struct Received<M> {
 pub struct RawMessage {
     /// Where it came from, when, at which priority.
     pub envelope: Envelope,
-    /// The encoded payload (see `docs/wire-format.md`).
-    pub payload: Vec<u8>,
+    /// The encoded payload (see `docs/wire-format.md`): reads as a `[u8]`; small payloads
+    /// are stored inline, `into_vec` gives a `Vec<u8>`.
+    pub payload: PayloadBuf,
 }

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use hetcomm_config::InboxConfig;
 use hetcomm_core::wire::AckStatus;
-use hetcomm_core::{Header, MessageType, ModuleId, SystemId, Time, TypeRegistry};
+use hetcomm_core::{Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitError};
 use smallvec::SmallVec;
@@ -40,27 +40,48 @@ impl Clock for WallClock {
     }
 }
 
+/// The one process-wide copy of a system or module name.
+///
+/// Every received message and every ticket names a system; with names shared as `Arc<str>`,
+/// each would bump a reference count that the sending and receiving threads both touch (a
+/// cache line moving between cores per message). Names are few and live as long as the
+/// fleets using them, so they are kept once for the life of the process instead: the memory
+/// is bounded by the number of distinct names ever opened.
+pub(crate) fn intern(name: &str) -> &'static str {
+    static NAMES: OnceLock<Mutex<rustc_hash::FxHashSet<&'static str>>> = OnceLock::new();
+    let mut names = NAMES
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some(known) = names.get(name) {
+        return known;
+    }
+    let leaked: &'static str = Box::leak(name.to_owned().into_boxed_str());
+    names.insert(leaked);
+    leaked
+}
+
 /// Friendly names of the fleet's systems and modules, shared by every system of a process.
 #[derive(Debug)]
 pub(crate) struct Directory {
-    pub systems: HashMap<SystemId, Arc<str>>,
+    pub systems: HashMap<SystemId, &'static str>,
     pub system_ids: HashMap<String, SystemId>,
-    pub modules: HashMap<ModuleId, Arc<str>>,
+    pub modules: HashMap<ModuleId, &'static str>,
     pub module_ids: HashMap<String, ModuleId>,
 }
 
 impl Directory {
-    pub(crate) fn system_name(&self, id: SystemId) -> Arc<str> {
+    pub(crate) fn system_name(&self, id: SystemId) -> &'static str {
         self.systems
             .get(&id)
-            .cloned()
-            .unwrap_or_else(|| Arc::from(format!("#{id}")))
+            .copied()
+            .unwrap_or_else(|| intern(&format!("#{id}")))
     }
-    pub(crate) fn module_name(&self, id: ModuleId) -> Arc<str> {
+    pub(crate) fn module_name(&self, id: ModuleId) -> &'static str {
         self.modules
             .get(&id)
-            .cloned()
-            .unwrap_or_else(|| Arc::from(format!("#{id}")))
+            .copied()
+            .unwrap_or_else(|| intern(&format!("#{id}")))
     }
 }
 
@@ -69,7 +90,7 @@ pub(crate) type Callback = Arc<dyn Fn(RawMessage) + Send + Sync>;
 /// One module of one system: its inbox, its callbacks and their thread.
 pub(crate) struct ModuleCore {
     pub id: ModuleId,
-    pub name: Arc<str>,
+    pub name: &'static str,
     pub inbox: Inbox,
     callback_inbox: Inbox,
     callbacks: RwLock<HashMap<MessageType, Callback>>,
@@ -87,7 +108,7 @@ pub(crate) struct ModuleCore {
 }
 
 impl ModuleCore {
-    fn new(id: ModuleId, name: Arc<str>, inbox: InboxConfig) -> Self {
+    fn new(id: ModuleId, name: &'static str, inbox: InboxConfig) -> Self {
         ModuleCore {
             id,
             name,
@@ -289,9 +310,11 @@ impl Timer {
 /// One opened system.
 pub(crate) struct SystemCore {
     pub id: SystemId,
-    pub name: Arc<str>,
+    pub name: &'static str,
     pub directory: Arc<Directory>,
     pub registry: Arc<RwLock<TypeRegistry>>,
+    /// [`TypeRegistry::id`] of `registry`, readable without its lock.
+    pub registry_id: u64,
     pub modules: HashMap<ModuleId, Arc<ModuleCore>>,
     pub clock: Arc<dyn Clock>,
     router: Mutex<Router<Arc<OutcomeSlot>>>,
@@ -344,10 +367,12 @@ impl SystemCore {
                 (mid, Arc::new(module))
             })
             .collect();
+        let registry_id = registry.read().unwrap_or_else(|e| e.into_inner()).id();
         Arc::new(SystemCore {
             id,
             name: directory.system_name(id),
             directory,
+            registry_id,
             registry,
             modules,
             clock,
@@ -490,7 +515,12 @@ impl SystemCore {
 
     /// Puts a message handed over directly by another system of this process into its
     /// module's inbox. `now` is the sender's clock reading: one process, one wall clock.
-    pub(crate) fn deliver_direct(&self, header: Header, payload: Vec<u8>, now: Time) -> AckStatus {
+    pub(crate) fn deliver_direct(
+        &self,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+    ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
         self.deliver_entry(header, payload, now)
     }
@@ -682,7 +712,7 @@ impl SystemCore {
         self.deliver_entry(d.header, d.payload, now)
     }
 
-    fn deliver_entry(&self, header: Header, payload: Vec<u8>, now: Time) -> AckStatus {
+    fn deliver_entry(&self, header: Header, payload: PayloadBuf, now: Time) -> AckStatus {
         let Some(module) = self.modules.get(&header.destination.module) else {
             return AckStatus::UnknownModule;
         };

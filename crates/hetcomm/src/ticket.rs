@@ -65,7 +65,7 @@ impl OutcomeSlot {
 #[derive(Clone)]
 pub struct Ticket {
     pub(crate) slot: TicketSlot,
-    pub(crate) destination: Arc<str>,
+    pub(crate) destination: &'static str,
 }
 
 /// Where a ticket finds its outcome.

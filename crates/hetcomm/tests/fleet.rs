@@ -526,3 +526,97 @@ B = ["z", "X"]
     );
     assert!(!text.contains("unknown variant"), "{text}");
 }
+
+#[test]
+fn a_sender_handle_sends_like_send() {
+    for delivery in ["acknowledged", "unacknowledged"] {
+        let f = open("2", delivery);
+        let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
+        let act = f.system("Charlie").unwrap().module("Act").unwrap();
+        let to_act = plan.sender::<Command>("Charlie", "Act").unwrap();
+        assert_eq!(to_act.destination(), "Charlie");
+        let raw = plan.raw_sender("Charlie", "Act", Wheels::TYPE).unwrap();
+        let first = to_act.send(&Command { code: 1 }).unwrap();
+        assert_eq!(first.destination(), "Charlie");
+        let outcome = first.wait();
+        match delivery {
+            "acknowledged" => assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome:?}"),
+            _ => assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}"),
+        }
+        let wheels = hetcomm::payload::encode(&Wheels {
+            left: 1.0,
+            right: 2.0,
+        })
+        .unwrap();
+        raw.send(&wheels, SendOptions::priority(200)).unwrap();
+        to_act.clone().send(&Command { code: 2 }).unwrap();
+        // Priority first, then arrival; every message numbered by Alpha's router in turn.
+        let w = act.try_recv::<Wheels>().unwrap().unwrap();
+        assert_eq!(
+            w.message,
+            Wheels {
+                left: 1.0,
+                right: 2.0
+            }
+        );
+        let a = act.try_recv::<Command>().unwrap().unwrap();
+        let b = act.try_recv::<Command>().unwrap().unwrap();
+        assert_eq!((a.message.code, b.message.code), (1, 2));
+        assert_eq!(
+            (
+                a.envelope.id().seq,
+                w.envelope.id().seq,
+                b.envelope.id().seq
+            ),
+            (1, 2, 3)
+        );
+        assert_eq!(&*b.envelope.source_system, "Alpha");
+        let stats = f.system("Alpha").unwrap().stats();
+        assert_eq!(stats.router.sends, 3, "{delivery}");
+    }
+}
+
+#[test]
+fn a_sender_handle_refuses_what_send_refuses() {
+    let f = default_fleet();
+    let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
+    assert!(matches!(
+        plan.sender::<Command>("Nowhere", "Act"),
+        Err(SendError::UnknownSystem(_))
+    ));
+    assert!(matches!(
+        plan.sender::<Command>("Bravo", "Nobody"),
+        Err(SendError::UnknownModule(_))
+    ));
+    // Alpha ↔ Tango is X.
+    assert!(matches!(
+        plan.raw_sender("Tango", "Act", Command::TYPE),
+        Err(SendError::NoRoute { .. })
+    ));
+    plan.sender::<Command>("Bravo", "Act").unwrap();
+    assert!(matches!(
+        plan.sender::<Impostor>("Bravo", "Act"),
+        Err(SendError::TypeConflict(_))
+    ));
+}
+
+#[test]
+fn a_sender_handle_follows_its_destination_closing_and_reopening() {
+    let fleet =
+        hetcomm::config::parse_str(&fleet_text("2", "acknowledged"), "five.toml", None).unwrap();
+    let alpha = hetcomm::Comm::open_fleet(&fleet, "Alpha").unwrap();
+    let bravo = hetcomm::Comm::open_fleet(&fleet, "Bravo").unwrap();
+    let plan = alpha.module("Plan").unwrap();
+    let to_bravo = plan.sender::<Command>("Bravo", "Act").unwrap();
+    let o = to_bravo.send(&Command { code: 1 }).unwrap().wait();
+    assert!(matches!(o, Outcome::Delivered { .. }), "{o:?}");
+    drop(bravo);
+    let o = to_bravo.send(&Command { code: 2 }).unwrap().wait();
+    assert!(matches!(o, Outcome::Failed { .. }), "{o:?}");
+    // Opened again: the same handle finds the new system.
+    let bravo = hetcomm::Comm::open_fleet(&fleet, "Bravo").unwrap();
+    let o = to_bravo.send(&Command { code: 3 }).unwrap().wait();
+    assert!(matches!(o, Outcome::Delivered { .. }), "{o:?}");
+    let got = bravo.module("Act").unwrap().try_recv::<Command>().unwrap();
+    assert_eq!(got.map(|r| r.message.code), Some(3));
+}
