@@ -242,7 +242,7 @@ impl Comm {
 
     /// This system's friendly name.
     pub fn name(&self) -> &str {
-        &self.handle.core.name
+        self.handle.core.name
     }
 
     /// This system's id.

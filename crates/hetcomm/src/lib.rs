@@ -46,6 +46,7 @@ mod comm;
 mod error;
 mod inbox;
 mod module;
+mod padded;
 mod reactor;
 mod received;
 mod runtime;

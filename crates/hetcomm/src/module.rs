@@ -74,7 +74,7 @@ pub struct Module {
 impl Module {
     /// This module's name.
     pub fn name(&self) -> &str {
-        &self.core.name
+        self.core.name
     }
 
     /// This module's address.
@@ -346,7 +346,7 @@ impl Module {
 
     /// Whether a message is waiting (the thesis's `CheckForMessage`).
     pub fn has_message(&self) -> bool {
-        self.core.inbox.len() > 0
+        !self.core.inbox.is_empty()
     }
 
     /// Lets `recv` calls on this module spin up to `spin` for a message before they sleep
@@ -586,7 +586,7 @@ impl<M: Message> Sender<M> {
 
     /// The destination system's name.
     pub fn destination(&self) -> &str {
-        &self.route.destination
+        self.route.destination
     }
 }
 
@@ -607,6 +607,6 @@ impl RawSender {
 
     /// The destination system's name.
     pub fn destination(&self) -> &str {
-        &self.route.destination
+        self.route.destination
     }
 }

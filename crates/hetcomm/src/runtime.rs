@@ -18,6 +18,7 @@ use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitE
 use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
+use crate::padded::CachePadded;
 use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
@@ -333,7 +334,9 @@ pub(crate) struct SystemCore {
     reactor: OnceLock<Arc<Reactor>>,
     reactor_thread: Mutex<Option<JoinHandle<()>>>,
     /// Messages other systems of this process put straight into this one's inboxes.
-    pub direct_received: AtomicU64,
+    /// Bumped by other systems' threads for every message they hand over: on lines of its
+    /// own, away from what this system's threads read.
+    pub direct_received: CachePadded<AtomicU64>,
 }
 
 /// The in-process links of a system, through which a message skips framing, checksums and
@@ -384,7 +387,7 @@ impl SystemCore {
             closed: AtomicBool::new(false),
             in_progress: std::sync::atomic::AtomicUsize::new(0),
             direct: OnceLock::new(),
-            direct_received: AtomicU64::new(0),
+            direct_received: CachePadded::default(),
             reactor: OnceLock::new(),
             reactor_thread: Mutex::new(None),
         })
@@ -405,6 +408,13 @@ impl SystemCore {
             .map(|(l, &us)| Batching::new(if l.batches() { us } else { 0 }))
             .collect();
         let _ = self.batching.set(batching);
+        {
+            // Frames on links that vouch for their bytes need a CRC of the header only.
+            let mut router = self.router();
+            for (i, l) in links.iter().enumerate() {
+                router.set_link_checksums_payload(i, l.checksums_payload());
+            }
+        }
         let _ = self.links.set(links);
         if !timer_thread {
             return Ok(());
@@ -492,7 +502,7 @@ impl SystemCore {
             if reactor.try_lead() {
                 module.leading.store(true, Ordering::SeqCst);
                 // A message may have arrived between `try_take` and raising the flag.
-                if module.inbox.len() == 0 {
+                if module.inbox.is_empty() {
                     reactor.turn(left);
                 }
                 module.leading.store(false, Ordering::SeqCst);
@@ -802,6 +812,24 @@ impl FrameSink for SystemSink {
         let mut router = core.router();
         router.handle_frame(now, self.link, frame);
         core.pump_at(router, now);
+    }
+
+    /// A large frame in a buffer of its own: the router delivers its payload in that buffer.
+    fn on_frame_owned(&self, frame: Vec<u8>, _from: Peer) {
+        let Some(core) = self.core.upgrade() else {
+            return;
+        };
+        if core.is_closed() {
+            return;
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        router.handle_frame_owned(now, self.link, frame);
+        core.pump_at(router, now);
+    }
+
+    fn takes_frames(&self) -> bool {
+        true
     }
 }
 

@@ -89,7 +89,7 @@ impl std::fmt::Debug for Ticket {
 impl Ticket {
     /// The destination system's name.
     pub fn destination(&self) -> &str {
-        &self.destination
+        self.destination
     }
 
     /// The outcome, if the send has ended.

@@ -602,8 +602,10 @@ fn a_sender_handle_refuses_what_send_refuses() {
 
 #[test]
 fn a_sender_handle_follows_its_destination_closing_and_reopening() {
-    let fleet =
-        hetcomm::config::parse_str(&fleet_text("2", "acknowledged"), "five.toml", None).unwrap();
+    // Its own fleet name: systems of one fleet opened one by one meet on a process-wide
+    // hub, and another test counts on Bravo not being there.
+    let text = fleet_text("2", "acknowledged").replace("name = \"five\"", "name = \"reopen\"");
+    let fleet = hetcomm::config::parse_str(&text, "five.toml", None).unwrap();
     let alpha = hetcomm::Comm::open_fleet(&fleet, "Alpha").unwrap();
     let bravo = hetcomm::Comm::open_fleet(&fleet, "Bravo").unwrap();
     let plan = alpha.module("Plan").unwrap();
