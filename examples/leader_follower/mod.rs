@@ -254,7 +254,7 @@ impl Environment {
             let env = env.clone();
             world.on::<Wheels>(move |r| {
                 let t = seconds_since(start, r.envelope.received_at);
-                apply(&env, &r.envelope.source_system, t, r.message);
+                apply(&env, r.envelope.source_system, t, r.message);
             })?;
         }
         Ok(Environment {
@@ -270,7 +270,7 @@ impl Environment {
         if !self.callbacks {
             while let Some(r) = self.world.try_recv::<Wheels>()? {
                 let t = seconds_since(self.start, r.envelope.received_at);
-                apply(&self.env, &r.envelope.source_system, t, r.message);
+                apply(&self.env, r.envelope.source_system, t, r.message);
             }
         }
         self.env

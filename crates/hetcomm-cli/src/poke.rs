@@ -112,8 +112,8 @@ fn describe(module: &str, raw: &RawMessage, json: bool) -> String {
     if json {
         serde_json::json!({
             "to_module": module,
-            "from_system": &*e.source_system,
-            "from_module": &*e.source_module,
+            "from_system": e.source_system,
+            "from_module": e.source_module,
             "id": { "origin": e.id().origin.0, "seq": e.id().seq },
             "type": e.message_type().0,
             "priority": e.priority().0,

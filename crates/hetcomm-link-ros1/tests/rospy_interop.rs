@@ -60,7 +60,7 @@ Rospy   = ["ros",   "X"]
         let got = act
             .recv_timeout::<Text>(Duration::from_secs(30))
             .expect("a Text from rospy");
-        assert_eq!(&*got.envelope.source_system, "Rospy");
+        assert_eq!(got.envelope.source_system, "Rospy");
         let reply = Text {
             text: format!("echo: {}", got.message.text),
         };

@@ -269,12 +269,12 @@ impl Envelope {
     /// The sending system's name.
     #[getter]
     fn source_system(&self) -> &str {
-        &self.inner.source_system
+        self.inner.source_system
     }
     /// The sending module's name.
     #[getter]
     fn source_module(&self) -> &str {
-        &self.inner.source_module
+        self.inner.source_module
     }
     /// (system id, module id) of the sender.
     #[getter]

@@ -16,6 +16,7 @@ from conftest import ROOT, Wheels
 VECTORS = json.loads((ROOT / "docs" / "wire-vectors.json").read_text())
 HEADER = struct.Struct("<2sBBBBBBHHHHIQIQII")
 ACK_STATUS = {0: "delivered", 1: "inbox_full", 2: "unknown_module"}
+FLAG_HEADER_CRC = 0x04  # the CRC covers the 48 header bytes only
 
 
 def py_decode(frame: bytes):
@@ -34,9 +35,10 @@ def py_decode(frame: bytes):
         raise ValueError("LengthMismatch")
     if kind not in (0, 1):
         raise ValueError("BadKind")
-    if flags & ~0x03:
+    if flags & ~0x07:
         raise ValueError("BadFlags")
-    if zlib.crc32(frame[:44] + b"\0\0\0\0" + frame[48:]) != crc:
+    covered = b"" if flags & FLAG_HEADER_CRC else frame[48:]
+    if zlib.crc32(frame[:44] + b"\0\0\0\0" + covered) != crc:
         raise ValueError("BadChecksum")
     header = {
         "kind": kind, "flags": flags, "priority": priority, "transport": transport,
@@ -53,7 +55,7 @@ def py_encode(h, payload: bytes) -> bytes:
                        h["source"]["system"], h["source"]["module"],
                        h["destination"]["system"], h["destination"]["module"],
                        h["incarnation"], h["seq"], h["message_type"], h["timestamp"], len(payload), 0)
-    crc = zlib.crc32(head + payload)
+    crc = zlib.crc32(head if h["flags"] & FLAG_HEADER_CRC else head + payload)
     return head[:44] + struct.pack("<I", crc) + payload
 
 

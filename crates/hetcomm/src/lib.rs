@@ -34,7 +34,7 @@
 //! assert!(matches!(ticket.wait(), Outcome::Delivered { attempts: 1, .. }));
 //! let got = act.recv::<Command>().unwrap();
 //! assert_eq!(got.message, Command(1));
-//! assert_eq!(&*got.envelope.source_system, "Alpha");
+//! assert_eq!(got.envelope.source_system, "Alpha");
 //! ```
 //!
 //! Layers, bottom up: `hetcomm-core` (ids, envelope, wire codec), `hetcomm-config` (fleet

@@ -101,8 +101,8 @@ fn point_to_point_lands_in_the_right_inbox() {
     assert_eq!(act.next_type(), Some(Command::TYPE));
     let got = act.try_recv::<Command>().unwrap().unwrap();
     assert_eq!(got.message, Command { code: 1 });
-    assert_eq!(&*got.envelope.source_system, "Alpha");
-    assert_eq!(&*got.envelope.source_module, "Plan");
+    assert_eq!(got.envelope.source_system, "Alpha");
+    assert_eq!(got.envelope.source_module, "Plan");
     assert!(got.envelope.timestamp().as_micros() > 0);
     assert!(got.envelope.received_at >= got.envelope.timestamp());
     assert!(!act.has_message());
@@ -570,7 +570,7 @@ fn a_sender_handle_sends_like_send() {
             ),
             (1, 2, 3)
         );
-        assert_eq!(&*b.envelope.source_system, "Alpha");
+        assert_eq!(b.envelope.source_system, "Alpha");
         let stats = f.system("Alpha").unwrap().stats();
         assert_eq!(stats.router.sends, 3, "{delivery}");
     }
