@@ -219,6 +219,7 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                         }
                     }
                 }
+                report_cpu("hc-sink", c.count);
                 say(&c.line());
                 Ok(())
             }
@@ -300,7 +301,31 @@ fn tcp_role(stream: std::net::TcpStream, echo: bool) -> Result<(), String> {
         }
     }
     if !echo {
+        report_cpu("tcp-sink", c.count);
         say(&c.line());
     }
     Ok(())
+}
+
+/// With `HETCOMM_BENCH_SINK_CPU` set (a developer aid, see `main.rs`), a sink says on
+/// standard error how much CPU time its whole process used per message received: the
+/// receiver's cost, which throughput alone hides when the machine is busy.
+fn report_cpu(role: &str, count: u64) {
+    if std::env::var_os("HETCOMM_BENCH_SINK_CPU").is_none() || count == 0 {
+        return;
+    }
+    // SAFETY: getrusage writes into the zeroed struct we pass.
+    let usage = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_SELF, &mut u);
+        u
+    };
+    let us = |t: libc::timeval| t.tv_sec as f64 * 1e6 + t.tv_usec as f64;
+    let (user, sys) = (us(usage.ru_utime), us(usage.ru_stime));
+    eprintln!(
+        "sink {role}: {count} messages, CPU per message {:.2} µs (user {:.2}, sys {:.2})",
+        (user + sys) / count as f64,
+        user / count as f64,
+        sys / count as f64
+    );
 }

@@ -4,12 +4,20 @@
 //! ```text
 //! hetcomm-bench [--quick] [--json FILE] [--markdown FILE] [--zenoh-bin PATH]
 //!               [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|"unavailable: why"]
-//!               [--only SECTION[,SECTION…]]
+//!               [--only SECTION[,SECTION…]] [--sizes BYTES[,BYTES…]] [--paths PATH[,PATH…]]
 //! ```
 //!
 //! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`. `--quick` runs every
 //! measurement briefly (small payloads, few iterations) for CI: it checks that everything
 //! runs, never how fast. See `benchmarks/README.md`.
+//!
+//! For iterating on one number (developer use; a full run takes neither): `--sizes` keeps only
+//! the given payload sizes of the `rtt` and `oneway` sections (e.g. `--sizes 65536`), and
+//! `--paths` only the given rows of those sections, by row name (e.g.
+//! `--paths raw-tcp,hetcomm-tcp-unack`; `zenoh-tcp`, `cyclone-ddsperf` included). With the
+//! environment variable `HETCOMM_BENCH_SINK_CPU` set, the raw TCP and hetcomm sink processes
+//! of the `oneway` section also print to standard error the CPU time (user + system, whole
+//! process) they used per message received.
 
 mod child;
 mod ext;
@@ -35,11 +43,31 @@ pub struct Options {
     no_ddsperf: bool,
     reliability: Option<String>,
     only: Option<Vec<String>>,
+    /// `--sizes`: payload sizes of the rtt and oneway sections to run (all when `None`).
+    sizes: Option<Vec<usize>>,
+    /// `--paths`: row names of the rtt and oneway sections to run (all when `None`).
+    paths: Option<Vec<String>>,
+}
+
+impl Options {
+    /// Whether the rtt / oneway row `name` is selected by `--paths`.
+    fn path_wanted(&self, name: &str) -> bool {
+        self.paths
+            .as_ref()
+            .is_none_or(|v| v.iter().any(|x| x == name))
+    }
+}
+
+fn comma_list(v: &str) -> Vec<String> {
+    v.split(',')
+        .map(|s| s.trim().to_string())
+        .filter(|s| !s.is_empty())
+        .collect()
 }
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim]";
+[--only rtt,oneway,inproc,pinning,scale,sim] [--sizes BYTES,…] [--paths ROW,…]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
     let mut o = Options::default();
@@ -54,14 +82,16 @@ fn parse(args: &[String]) -> Result<Options, String> {
             "--no-zenoh" => o.no_zenoh = true,
             "--no-ddsperf" => o.no_ddsperf = true,
             "--reliability-wall" => o.reliability = Some(val("--reliability-wall")?),
-            "--only" => {
-                o.only = Some(
-                    val("--only")?
-                        .split(',')
-                        .map(|s| s.trim().to_string())
-                        .collect(),
-                )
+            "--only" => o.only = Some(comma_list(&val("--only")?)),
+            "--sizes" => {
+                let sizes = comma_list(&val("--sizes")?)
+                    .iter()
+                    .map(|s| s.parse::<usize>())
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|e| format!("--sizes: {e}"))?;
+                o.sizes = Some(sizes);
             }
+            "--paths" => o.paths = Some(comma_list(&val("--paths")?)),
             "-h" | "--help" => return Err(USAGE.into()),
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
@@ -183,7 +213,10 @@ fn tp_row(path: &str, size: usize, r: Result<stats::Throughput, String>) -> Row 
 }
 
 fn run(o: &Options) -> Vec<Row> {
-    let p = plan(o.quick);
+    let mut p = plan(o.quick);
+    if let Some(sizes) = &o.sizes {
+        p.sizes.clone_from(sizes);
+    }
     let want = |s: &str| o.only.as_ref().is_none_or(|v| v.iter().any(|x| x == s));
     let zenoh = if o.no_zenoh {
         None
@@ -224,6 +257,7 @@ fn run(o: &Options) -> Vec<Row> {
                         Box::new(move || hc::rtt(k, acked, size, warmup, iters));
                     (hc::path_name(k, acked), f)
                 }))
+                .filter(|(name, _)| o.path_wanted(name))
                 .collect();
             let mut results: Vec<Vec<Result<stats::Latency, String>>> =
                 paths.iter().map(|_| Vec::new()).collect();
@@ -239,7 +273,7 @@ fn run(o: &Options) -> Vec<Row> {
             for ((name, _), out) in paths.iter().zip(results) {
                 rows.push(lat_row("rtt", name, size, median_run(out)));
             }
-            if let Some(bin) = &zenoh {
+            if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("rtt zenoh-tcp {size} B"));
                 rows.push(lat_row(
                     "rtt",
@@ -248,7 +282,7 @@ fn run(o: &Options) -> Vec<Row> {
                     ext::zenoh_rtt(bin, size, warmup, iters),
                 ));
             }
-            if dds {
+            if dds && o.path_wanted("cyclone-ddsperf") {
                 log(o.quick, &format!("rtt cyclone-ddsperf {size} B"));
                 rows.push(lat_row(
                     "rtt",
@@ -261,16 +295,19 @@ fn run(o: &Options) -> Vec<Row> {
     }
     if want("oneway") {
         for &size in &p.sizes {
-            for k in raws {
+            for k in raws.into_iter().filter(|k| o.path_wanted(k.name())) {
                 log(o.quick, &format!("oneway {} {size} B", k.name()));
                 rows.push(tp_row(k.name(), size, raw::oneway(k, size, p.oneway)));
             }
             for (k, acked) in hc_paths {
                 let name = hc::path_name(k, acked);
+                if !o.path_wanted(&name) {
+                    continue;
+                }
                 log(o.quick, &format!("oneway {name} {size} B"));
                 rows.push(tp_row(&name, size, hc::oneway(k, acked, size, p.oneway)));
             }
-            if let Some(bin) = &zenoh {
+            if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("oneway zenoh-tcp {size} B"));
                 rows.push(tp_row(
                     "zenoh-tcp",
@@ -278,7 +315,7 @@ fn run(o: &Options) -> Vec<Row> {
                     ext::zenoh_oneway(bin, size, p.oneway),
                 ));
             }
-            if dds {
+            if dds && o.path_wanted("cyclone-ddsperf") {
                 log(o.quick, &format!("oneway cyclone-ddsperf {size} B"));
                 rows.push(tp_row(
                     "cyclone-ddsperf",
@@ -414,4 +451,32 @@ fn main() {
         ctx.wall_s
     );
     std::process::exit(if ok && failed == 0 { 0 } else { 1 });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(a: &[&str]) -> Vec<String> {
+        a.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn sizes_and_paths_narrow_the_run() {
+        let o = parse(&args(&[
+            "--only",
+            "oneway",
+            "--sizes",
+            "65536, 1024",
+            "--paths",
+            "raw-tcp,hetcomm-tcp-unack",
+        ]))
+        .unwrap();
+        assert_eq!(o.sizes, Some(vec![65536, 1024]));
+        assert!(o.path_wanted("raw-tcp") && o.path_wanted("hetcomm-tcp-unack"));
+        assert!(!o.path_wanted("hetcomm-udp-ack"));
+        assert!(parse(&args(&["--sizes", "64k"])).is_err());
+        let all = parse(&[]).unwrap();
+        assert!(all.sizes.is_none() && all.path_wanted("zenoh-tcp"));
+    }
 }

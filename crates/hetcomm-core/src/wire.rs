@@ -4,7 +4,9 @@
 //! A frame is a fixed 48-byte header followed by the payload. All integers are little-endian.
 //! The decoder checks magic, version, kind, the declared payload length against the bytes
 //! actually present, and a CRC-32 over the whole frame before it hands anything out; it never
-//! allocates (the decoded payload borrows from the input).
+//! allocates (the decoded payload borrows from the input). A frame flagged
+//! [`FLAG_HEADER_CRC`] carries a CRC of its header only, for links that check the payload's
+//! integrity themselves (see [`Header::payload_checked`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -73,8 +75,14 @@ impl AckStatus {
 pub const FLAG_ACK_REQUESTED: u8 = 0b0000_0001;
 /// Flag bit: this message is one copy of a broadcast.
 pub const FLAG_BROADCAST: u8 = 0b0000_0010;
+/// Flag bit: the CRC covers the 48 header bytes only, not the payload. A sender sets it only
+/// on links that protect the bytes themselves (a checksummed, reliable byte stream such as
+/// TCP); it saves a pass over the payload on both sides. Decoders still check the header's
+/// CRC, the magic, the version and the lengths. Receivers should accept such frames only from
+/// links that protect the payload themselves (the router does so).
+pub const FLAG_HEADER_CRC: u8 = 0b0000_0100;
 /// Flags this version defines; a frame with other bits set is rejected.
-pub const KNOWN_FLAGS: u8 = FLAG_ACK_REQUESTED | FLAG_BROADCAST;
+pub const KNOWN_FLAGS: u8 = FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_HEADER_CRC;
 
 /// The envelope header: the thesis's Fig. 9 fields plus version, kind, flags, priority,
 /// incarnation, timestamp and an integrity check.
@@ -82,7 +90,7 @@ pub const KNOWN_FLAGS: u8 = FLAG_ACK_REQUESTED | FLAG_BROADCAST;
 pub struct Header {
     /// Data or acknowledgement.
     pub kind: FrameKind,
-    /// [`FLAG_ACK_REQUESTED`], [`FLAG_BROADCAST`].
+    /// [`FLAG_ACK_REQUESTED`], [`FLAG_BROADCAST`], [`FLAG_HEADER_CRC`].
     pub flags: u8,
     /// Receive priority at the destination inbox.
     pub priority: Priority,
@@ -141,6 +149,12 @@ impl Header {
     /// Whether this message is one copy of a broadcast.
     pub fn is_broadcast(&self) -> bool {
         self.flags & FLAG_BROADCAST != 0
+    }
+
+    /// Whether the frame's CRC covers its payload too (no [`FLAG_HEADER_CRC`]). When false,
+    /// only the transport vouches for the payload's bytes.
+    pub fn payload_checked(&self) -> bool {
+        self.flags & FLAG_HEADER_CRC == 0
     }
 }
 
@@ -201,7 +215,8 @@ pub enum DecodeError {
         /// Payload bytes actually present.
         present: usize,
     },
-    /// The CRC-32 does not match: the frame was corrupted.
+    /// The CRC-32 does not match: the frame (or, with [`FLAG_HEADER_CRC`], its header) was
+    /// corrupted.
     #[error(
         "checksum mismatch at offset 44: frame says {declared:#010x}, computed {computed:#010x}"
     )]
@@ -214,6 +229,8 @@ pub enum DecodeError {
 }
 
 /// Writes `header` and `payload` into `out` (appending). Use [`encode`] for a fresh buffer.
+/// The CRC covers the whole frame, or only the header when `header.flags` has
+/// [`FLAG_HEADER_CRC`].
 ///
 /// # Panics
 /// If `payload` is longer than [`MAX_PAYLOAD`]: callers check sizes first (the router refuses
@@ -240,7 +257,7 @@ pub fn encode_into(header: &Header, payload: &[u8], out: &mut Vec<u8>) {
     out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
     out.extend_from_slice(&[0; 4]); // CRC placeholder
     out.extend_from_slice(payload);
-    let crc = checksum(&out[start..]);
+    let crc = checksum(&out[start..], header.flags & FLAG_HEADER_CRC != 0);
     out[start + CRC_OFFSET..start + CRC_OFFSET + 4].copy_from_slice(&crc.to_le_bytes());
 }
 
@@ -251,12 +268,14 @@ pub fn encode(header: &Header, payload: &[u8]) -> Vec<u8> {
     out
 }
 
-/// CRC-32 (IEEE) of a whole frame with its CRC field taken as zero.
-fn checksum(frame: &[u8]) -> u32 {
+/// CRC-32 (IEEE) of a whole frame, or of its header only (`header_only`), with its CRC field
+/// taken as zero.
+fn checksum(frame: &[u8], header_only: bool) -> u32 {
     let mut h = crc32fast::Hasher::new();
     h.update(&frame[..CRC_OFFSET]);
     h.update(&[0; 4]);
-    h.update(&frame[CRC_OFFSET + 4..]);
+    let end = if header_only { HEADER_LEN } else { frame.len() };
+    h.update(&frame[CRC_OFFSET + 4..end]);
     h.finalize()
 }
 
@@ -302,7 +321,9 @@ fn check_prefix(b: &[u8]) -> Result<(), DecodeError> {
 }
 
 /// Decodes exactly one frame: `bytes` must hold the header and exactly the declared payload
-/// (trailing bytes are an error).
+/// (trailing bytes are an error). With [`FLAG_HEADER_CRC`] set only the header is checksummed:
+/// a corrupted payload of the right length is not detected here (by design: the link vouches
+/// for it, see [`Header::payload_checked`]).
 pub fn decode(bytes: &[u8]) -> Result<Frame<'_>, DecodeError> {
     let total = peek_frame_len(bytes)?;
     let declared = total - HEADER_LEN;
@@ -316,7 +337,7 @@ pub fn decode(bytes: &[u8]) -> Result<Frame<'_>, DecodeError> {
         return Err(DecodeError::BadFlags { found: flags });
     }
     let declared_crc = u32_at(bytes, CRC_OFFSET);
-    let computed = checksum(bytes);
+    let computed = checksum(bytes, flags & FLAG_HEADER_CRC != 0);
     if declared_crc != computed {
         return Err(DecodeError::BadChecksum {
             declared: declared_crc,
@@ -397,13 +418,40 @@ mod tests {
         }
 
         #[test]
-        fn any_single_bit_flip_is_rejected(header in arb_header(),
+        fn any_single_bit_flip_is_rejected(mut header in arb_header(),
                                            payload in proptest::collection::vec(any::<u8>(), 0..64),
                                            bit in any::<prop::sample::Index>()) {
+            header.flags &= !FLAG_HEADER_CRC;
             let mut frame = encode(&header, &payload);
             let i = bit.index(frame.len() * 8);
             frame[i / 8] ^= 1 << (i % 8);
             prop_assert!(decode(&frame).is_err());
+        }
+
+        #[test]
+        fn header_crc_frames_reject_any_header_bit_flip(mut header in arb_header(),
+                                                        payload in proptest::collection::vec(any::<u8>(), 0..64),
+                                                        bit in any::<prop::sample::Index>()) {
+            header.flags |= FLAG_HEADER_CRC;
+            let mut frame = encode(&header, &payload);
+            let i = bit.index(HEADER_LEN * 8);
+            frame[i / 8] ^= 1 << (i % 8);
+            prop_assert!(decode(&frame).is_err());
+        }
+
+        #[test]
+        fn header_crc_frames_do_not_check_the_payload(mut header in arb_header(),
+                                                      payload in proptest::collection::vec(any::<u8>(), 1..64),
+                                                      bit in any::<prop::sample::Index>()) {
+            header.flags |= FLAG_HEADER_CRC;
+            let mut frame = encode(&header, &payload);
+            let i = bit.index(payload.len() * 8);
+            frame[HEADER_LEN + i / 8] ^= 1 << (i % 8);
+            // By design: the header is intact, the payload is the link's business.
+            let decoded = decode(&frame).unwrap();
+            prop_assert_eq!(decoded.header, header);
+            prop_assert!(!decoded.header.payload_checked());
+            prop_assert_eq!(decoded.payload, &frame[HEADER_LEN..]);
         }
 
         #[test]
@@ -436,6 +484,69 @@ mod tests {
                 declared: u32::MAX as u64
             })
         );
+    }
+
+    fn sample_header(flags: u8) -> Header {
+        let mut h = Header::data(
+            Address::from((SystemId(1), ModuleId(2))),
+            Address::from((SystemId(3), ModuleId(4))),
+            MessageType(1),
+        );
+        h.flags = flags;
+        h.seq = 7;
+        h
+    }
+
+    #[test]
+    fn header_crc_covers_exactly_the_header() {
+        let payload = vec![0xa5u8; 1000];
+        let frame = encode(&sample_header(FLAG_HEADER_CRC), &payload);
+        let mut head = frame[..HEADER_LEN].to_vec();
+        head[CRC_OFFSET..CRC_OFFSET + 4].fill(0);
+        let stored = u32_at(&frame, CRC_OFFSET);
+        assert_eq!(stored, crc32fast::hash(&head));
+        let decoded = decode(&frame).unwrap();
+        assert!(!decoded.header.payload_checked());
+        assert_eq!(decoded.payload, &payload[..]);
+        // The same frame without the flag is checksummed over everything.
+        let full = encode(&sample_header(0), &payload);
+        assert!(decode(&full).unwrap().header.payload_checked());
+        assert_ne!(u32_at(&full, CRC_OFFSET), crc32fast::hash(&head));
+    }
+
+    #[test]
+    fn header_crc_frames_still_check_header_and_lengths() {
+        let frame = encode(&sample_header(FLAG_HEADER_CRC), b"payload");
+        // A corrupted header field (the sequence number).
+        let mut bad = frame.clone();
+        bad[20] ^= 0x01;
+        assert!(matches!(decode(&bad), Err(DecodeError::BadChecksum { .. })));
+        // Clearing the flag makes the CRC cover the payload, which it was not computed over.
+        let mut cleared = frame.clone();
+        cleared[4] &= !FLAG_HEADER_CRC;
+        assert!(matches!(
+            decode(&cleared),
+            Err(DecodeError::BadChecksum { .. })
+        ));
+        // Lengths: a byte missing, a byte too many.
+        assert!(matches!(
+            decode(&frame[..frame.len() - 1]),
+            Err(DecodeError::LengthMismatch { .. })
+        ));
+        let mut long = frame.clone();
+        long.push(0);
+        assert!(matches!(
+            decode(&long),
+            Err(DecodeError::LengthMismatch { .. })
+        ));
+        // Magic and version are checked first, as always.
+        let mut magic = frame.clone();
+        magic[0] = b'X';
+        assert!(matches!(decode(&magic), Err(DecodeError::BadMagic { .. })));
+        // A payload byte changed: accepted, by design.
+        let mut payload = frame.clone();
+        *payload.last_mut().unwrap() ^= 0xff;
+        assert_eq!(decode(&payload).unwrap().payload, b"payloa\x9b");
     }
 
     #[test]

@@ -13,7 +13,9 @@
 
 use std::path::PathBuf;
 
-use hetcomm_core::wire::{self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::wire::{
+    self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN, MAX_PAYLOAD,
+};
 use hetcomm_core::{
     payload, AckStatus, Address, DecodeError, FrameKind, Header, MessageType, ModuleId, Priority,
     SystemId, Time,
@@ -312,6 +314,10 @@ fn generate() -> VectorFile {
         timestamp: Time(u64::MAX),
     };
     let large_payload = payload::encode(&(u64::MAX, i64::MIN, u32::MAX)).expect("encodes");
+    let header_crc_h = Header {
+        flags: FLAG_ACK_REQUESTED | FLAG_HEADER_CRC,
+        ..wheels_h
+    };
 
     let mut valid_vectors = vec![
         valid(
@@ -398,6 +404,14 @@ fn generate() -> VectorFile {
             large_h,
             &large_payload,
         ),
+        valid(
+            "data_header_crc",
+            "data_struct_wheels as a sender writes it on a link that checks the payload itself \
+             (TCP): flags 0x05 (acknowledgement requested, FLAG_HEADER_CRC), so the CRC covers \
+             the 48 header bytes only (with the CRC field as zero), not the payload.",
+            header_crc_h,
+            &wheels,
+        ),
     ]);
 
     let good = wire::encode(&wheels_h, &wheels);
@@ -462,9 +476,9 @@ fn generate() -> VectorFile {
         ("bad_kind_high", "Frame kind 255.", 3, 0xff, "BadKind"),
         (
             "unknown_flag_bit",
-            "Flags 0x05: bit 2 is not defined.",
+            "Flags 0x09: bit 3 is not defined.",
             4,
-            0x05,
+            0x09,
             "BadFlags",
         ),
         ("unknown_flag_high_bit", "Flags 0x80.", 4, 0x80, "BadFlags"),
@@ -543,6 +557,34 @@ fn generate() -> VectorFile {
          decoders ignore the reserved byte's value, so this is caught only by the CRC.)",
         &reserved,
         "BadChecksum",
+    ));
+    let header_crc = wire::encode(&header_crc_h, &wheels);
+    let mut corrupted = header_crc.clone();
+    corrupted[20] ^= 0x01;
+    invalid_vectors.push(invalid(
+        "header_crc_header_corrupted",
+        "data_header_crc with the lowest bit of its seq field flipped and the CRC left alone: \
+         with FLAG_HEADER_CRC the header is still checksummed.",
+        &corrupted,
+        "BadChecksum",
+    ));
+    let mut cleared = header_crc.clone();
+    cleared[4] &= !FLAG_HEADER_CRC;
+    invalid_vectors.push(invalid(
+        "header_crc_flag_cleared",
+        "data_header_crc with FLAG_HEADER_CRC cleared (flags 0x01) and the CRC left alone: the \
+         decoder now checks a CRC over the whole frame, which the sender did not compute.",
+        &cleared,
+        "BadChecksum",
+    ));
+    let mut short = header_crc.clone();
+    short.pop();
+    invalid_vectors.push(invalid(
+        "header_crc_truncated_payload",
+        "data_header_crc without its last payload byte (the header and its CRC are intact): \
+         lengths are checked whatever the flags.",
+        &short,
+        "LengthMismatch",
     ));
     // Order of checks: two defects, the earlier check wins.
     let mut two = good.clone();

@@ -332,6 +332,12 @@ impl<F: AddressFamily> StreamTransport for BluetoothTransport<F> {
             .device_of(addr)
             .and_then(|device| self.system_of(device))
     }
+
+    /// RFCOMM is a reliable stream over L2CAP, whose frames the baseband checks (CRC) and
+    /// retransmits: bytes arrive unaltered or not at all.
+    fn checksums_payload(&self) -> bool {
+        true
+    }
 }
 
 /// A system's Bluetooth endpoint: a [`StreamLink`] over [`BluetoothTransport`].
@@ -463,6 +469,9 @@ impl<F: AddressFamily> Link for BluetoothLink<F> {
     }
     fn batches(&self) -> bool {
         self.inner.batches()
+    }
+    fn checksums_payload(&self) -> bool {
+        self.inner.checksums_payload()
     }
 }
 

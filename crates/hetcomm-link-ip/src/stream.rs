@@ -82,7 +82,17 @@
 //! buffer. A frame larger than 16 KiB that is not already in the buffer is read directly into
 //! a reused buffer of its own size (the bytes already buffered are copied once; after a large
 //! frame the reader reads at most 1 KiB ahead into its buffer, so a run of large frames costs
-//! almost no copy in user space). Nothing is allocated per frame in steady state.
+//! almost no copy in user space). Nothing is allocated per frame in steady state, unless the
+//! sink keeps frames ([`FrameSink::takes_frames`], as the runtime's does): then each such large
+//! frame is read into a fresh buffer of exactly its size (not zero-filled first when the
+//! socket offers [`StreamSocket::raw_fd`]) and handed over with [`FrameSink::on_frame_owned`],
+//! so that it becomes the message's payload without a copy.
+//!
+//! # Integrity
+//!
+//! TCP, Unix and RFCOMM transports declare [`StreamTransport::checksums_payload`], reported as
+//! [`Link::checksums_payload`]: the router then sends frames whose CRC covers the header only
+//! (`FLAG_HEADER_CRC`, see `docs/wire-format.md`).
 //!
 //! # Identity
 //!
@@ -171,6 +181,13 @@ pub trait StreamSocket: Read + Write + Send + Sized + 'static {
     fn set_write_timeout(&self, timeout: Option<Duration>) -> io::Result<()>;
     /// Bounds each blocking read (`None`: no bound).
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()>;
+    /// The connection's file descriptor, if reading it with `readv(2)` is exactly what
+    /// [`Read`] does (no buffering or transformation in user space). The reader then reads
+    /// large frames into fresh, not yet initialised buffers instead of zero-filling them
+    /// first. `None` (the default) is always correct.
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        None
+    }
 }
 /// A bound, listening socket that accepts [`StreamSocket`]s.
 pub trait StreamListener: Send + Sync + 'static {
@@ -229,6 +246,13 @@ pub trait StreamTransport: Send + Sync + 'static {
         _addr: &<Self::Listener as StreamListener>::PeerAddr,
     ) -> Option<SystemId> {
         None
+    }
+
+    /// Whether the transport delivers bytes unaltered or not at all (a checksummed, reliable
+    /// stream such as TCP, a Unix socket or RFCOMM), so that frames on it need a CRC of their
+    /// header only ([`Link::checksums_payload`]). The default, false, is always safe.
+    fn checksums_payload(&self) -> bool {
+        false
     }
 }
 
@@ -856,6 +880,10 @@ impl<T: StreamTransport> Link for StreamLink<T> {
         self.shared.config.batch_bytes > 0
     }
 
+    fn checksums_payload(&self) -> bool {
+        self.shared.transport.checksums_payload()
+    }
+
     fn stats(&self) -> LinkStats {
         let s = self.stream_stats();
         LinkStats {
@@ -1096,6 +1124,50 @@ enum FrameAt {
     Large(usize),
 }
 
+/// What a [`RecordReader`] reads from: any [`Read`], and, when it has one, the file
+/// descriptor behind it (see [`StreamSocket::raw_fd`]).
+trait RecordSource: Read {
+    /// A descriptor that `readv(2)` may read instead of [`Read`] (`None`: never).
+    fn fd(&self) -> Option<std::os::fd::RawFd> {
+        None
+    }
+}
+
+impl<S: StreamSocket> RecordSource for S {
+    fn fd(&self) -> Option<std::os::fd::RawFd> {
+        self.raw_fd()
+    }
+}
+
+impl RecordSource for &[u8] {}
+
+/// `readv(2)` of `fd` into `spare` (memory not yet initialised), then `ahead`. Returns the
+/// number of bytes read; the first `min(n, spare.len())` bytes of `spare` are then initialised.
+fn readv_uninit(
+    fd: std::os::fd::RawFd,
+    spare: &mut [std::mem::MaybeUninit<u8>],
+    ahead: &mut [u8],
+) -> io::Result<usize> {
+    let iov = [
+        libc::iovec {
+            iov_base: spare.as_mut_ptr().cast(),
+            iov_len: spare.len(),
+        },
+        libc::iovec {
+            iov_base: ahead.as_mut_ptr().cast(),
+            iov_len: ahead.len(),
+        },
+    ];
+    // SAFETY: both iovecs describe memory we hold exclusively for the call, with their true
+    // lengths; the kernel only writes into them. Writing into uninitialised bytes is fine.
+    let n = unsafe { libc::readv(fd, iov.as_ptr(), 2) };
+    if n < 0 {
+        Err(io::Error::last_os_error())
+    } else {
+        Ok(n as usize)
+    }
+}
+
 /// Splits a connection's byte stream into frames: small records through a read buffer (as
 /// many per read as have arrived), large frames straight into a buffer of their own size.
 struct RecordReader {
@@ -1108,7 +1180,10 @@ struct RecordReader {
     /// [`READ_AHEAD_AFTER_LARGE`]), since another large frame is likely next.
     after_large: bool,
     /// Reused for frames over [`DIRECT_READ_MIN`]; at least as long as the longest recent one.
+    /// With `hand_out`, a fresh buffer of exactly the frame's length each time instead.
     large: Vec<u8>,
+    /// Large frames are given away ([`take_large`](Self::take_large)) rather than reused.
+    hand_out: bool,
 }
 
 impl RecordReader {
@@ -1120,7 +1195,23 @@ impl RecordReader {
             end: 0,
             after_large: false,
             large: Vec::new(),
+            hand_out: false,
         }
+    }
+
+    /// A reader that gives large frames away: each one is read into a buffer of its own,
+    /// taken with [`take_large`](Self::take_large).
+    fn handing_out(max_frame: usize) -> Self {
+        RecordReader {
+            hand_out: true,
+            ..RecordReader::new(max_frame)
+        }
+    }
+
+    /// The buffer of a [`FrameAt::Large`] frame, exactly its bytes, for a reader
+    /// [`handing_out`](Self::handing_out) (the next large frame gets a new buffer).
+    fn take_large(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.large)
     }
 
     /// The bytes of a frame [`next_record`](Self::next_record) returned.
@@ -1164,7 +1255,7 @@ impl RecordReader {
 
     /// Reads the next record; its frame is then [`frame`](Self::frame)`(at)` until the next
     /// call.
-    fn next_record<R: Read>(&mut self, r: &mut R) -> Result<FrameAt, StreamEnd> {
+    fn next_record<R: RecordSource>(&mut self, r: &mut R) -> Result<FrameAt, StreamEnd> {
         self.fill(r, RECORD_HEADER_LEN)?;
         let mut head = [0u8; RECORD_HEADER_LEN];
         head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
@@ -1188,19 +1279,38 @@ impl RecordReader {
     }
 
     /// Reads the frame of `len` bytes whose first bytes are `buf[body..end]` into `large`.
-    fn read_large<R: Read>(&mut self, r: &mut R, body: usize, len: usize) -> Result<(), StreamEnd> {
-        if self.large.len() > LARGE_BUF_KEEP && len < LARGE_BUF_KEEP / 4 {
-            self.large = Vec::new();
-        }
-        if self.large.len() < len {
-            // A fresh zeroed allocation rather than `resize`, which would copy the old bytes.
-            self.large = vec![0; len];
-        }
+    fn read_large<R: RecordSource>(
+        &mut self,
+        r: &mut R,
+        body: usize,
+        len: usize,
+    ) -> Result<(), StreamEnd> {
         let have = self.end - body;
-        self.large[..have].copy_from_slice(&self.buf[body..self.end]);
-        self.start = 0;
-        self.end = 0;
-        self.after_large = true;
+        if self.hand_out {
+            // The last one left with its frame (or is still here after an error: replaced).
+            self.large = Vec::with_capacity(len);
+            self.large.extend_from_slice(&self.buf[body..self.end]);
+            self.start = 0;
+            self.end = 0;
+            self.after_large = true;
+            if let Some(fd) = r.fd() {
+                return self.read_large_uninit(fd, len);
+            }
+            self.large.resize(len, 0);
+        } else {
+            if self.large.len() > LARGE_BUF_KEEP && len < LARGE_BUF_KEEP / 4 {
+                self.large = Vec::new();
+            }
+            if self.large.len() < len {
+                // A fresh zeroed allocation rather than `resize`, which would copy the old
+                // bytes.
+                self.large = vec![0; len];
+            }
+            self.large[..have].copy_from_slice(&self.buf[body..self.end]);
+            self.start = 0;
+            self.end = 0;
+            self.after_large = true;
+        }
         let mut got = have;
         while got < len {
             // The rest of the frame in place, and whatever follows it (the next record header,
@@ -1216,6 +1326,31 @@ impl RecordReader {
                 Ok(n) => {
                     got = len;
                     self.end = n - want;
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => return Err(StreamEnd::Cut),
+            }
+        }
+        Ok(())
+    }
+
+    /// The rest of a handed-out frame (`large` holds its first bytes, `len` is reserved), read
+    /// from `fd` straight into the uninitialised capacity, with a little read-ahead into `buf`
+    /// as in [`read_large`](Self::read_large).
+    fn read_large_uninit(&mut self, fd: std::os::fd::RawFd, len: usize) -> Result<(), StreamEnd> {
+        while self.large.len() < len {
+            let got = self.large.len();
+            let want = len - got;
+            let spare = &mut self.large.spare_capacity_mut()[..want];
+            match readv_uninit(fd, spare, &mut self.buf[..READ_AHEAD_AFTER_LARGE]) {
+                Ok(0) => return Err(StreamEnd::Cut),
+                Ok(n) => {
+                    // SAFETY: the kernel wrote the first min(n, want) bytes of the spare
+                    // capacity (and the rest of n into `buf`).
+                    unsafe { self.large.set_len(got + n.min(want)) };
+                    if n > want {
+                        self.end = n - want;
+                    }
                 }
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
                 Err(_) => return Err(StreamEnd::Cut),
@@ -1241,13 +1376,24 @@ fn serve_connection<T: StreamTransport>(
         let _ = socket.shutdown_both();
         return;
     };
-    let mut reader = RecordReader::new(shared.config.max_frame());
+    // A sink that keeps frames gets each large one in a buffer of its own (its payload then
+    // needs no copy); others borrow from the reader's reused buffers.
+    let mut reader = if shared.sink.takes_frames() {
+        RecordReader::handing_out(shared.config.max_frame())
+    } else {
+        RecordReader::new(shared.config.max_frame())
+    };
     let end = loop {
         match reader.next_record(&mut socket) {
             Ok(at) => {
                 // Counted first so that whoever the sink wakes sees the counter already updated.
                 bump(&counters.frames_received);
-                shared.sink.on_frame(reader.frame(at), from);
+                match at {
+                    FrameAt::Large(_) if reader.hand_out => {
+                        shared.sink.on_frame_owned(reader.take_large(), from)
+                    }
+                    _ => shared.sink.on_frame(reader.frame(at), from),
+                }
             }
             Err(end) => break end,
         }
@@ -1337,6 +1483,8 @@ mod tests {
         }
     }
 
+    impl RecordSource for Chunky<'_> {}
+
     fn frame_of(len: usize, seed: u8) -> Vec<u8> {
         (0..len)
             .map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed))
@@ -1377,7 +1525,7 @@ mod tests {
         s
     }
 
-    fn read_all<R: Read>(r: &mut R, max_frame: usize) -> (Vec<Vec<u8>>, StreamEnd) {
+    fn read_all<R: RecordSource>(r: &mut R, max_frame: usize) -> (Vec<Vec<u8>>, StreamEnd) {
         let mut reader = RecordReader::new(max_frame);
         let mut got = Vec::new();
         loop {
@@ -1386,6 +1534,73 @@ mod tests {
                 Err(end) => return (got, end),
             }
         }
+    }
+
+    /// Like [`read_all`] with a reader that hands large frames out; also says which frames
+    /// came out as their own buffer (with no spare capacity).
+    fn read_all_handed_out<R: RecordSource>(
+        r: &mut R,
+        max_frame: usize,
+    ) -> (Vec<(Vec<u8>, bool)>, StreamEnd) {
+        let mut reader = RecordReader::handing_out(max_frame);
+        let mut got = Vec::new();
+        loop {
+            match reader.next_record(r) {
+                Ok(FrameAt::Large(len)) => {
+                    let frame = reader.take_large();
+                    assert_eq!(frame.len(), len);
+                    assert_eq!(frame.capacity(), len, "a buffer of exactly the frame");
+                    got.push((frame, true));
+                }
+                Ok(at) => got.push((reader.frame(at).to_vec(), false)),
+                Err(end) => return (got, end),
+            }
+        }
+    }
+
+    #[test]
+    fn handing_out_reader_gives_each_large_frame_its_own_buffer() {
+        let frames = mixed_frames();
+        let stream = stream_of(&frames);
+        let check = |got: &[(Vec<u8>, bool)], what: &str| {
+            assert_eq!(got.len(), frames.len(), "{what}");
+            for (i, ((g, own), f)) in got.iter().zip(&frames).enumerate() {
+                assert!(g == f, "{what}: frame {i}");
+                // Only frames read directly (large, not already buffered) are handed out.
+                if *own {
+                    assert!(f.len() > DIRECT_READ_MIN, "{what}: frame {i}");
+                }
+            }
+            assert!(got.iter().any(|(_, own)| *own), "{what}: none handed out");
+        };
+        // No descriptor: the zero-filled path, whole reads and odd pieces.
+        let (got, end) = read_all_handed_out(&mut &stream[..], 2 << 20);
+        assert_eq!(end, StreamEnd::Clean);
+        check(&got, "whole reads");
+        for max in [1, 4096, 100_000] {
+            let mut r = Chunky {
+                data: &stream,
+                max,
+                calls: 0,
+            };
+            let (got, end) = read_all_handed_out(&mut r, 2 << 20);
+            assert_eq!(end, StreamEnd::Clean, "chunks of up to {max}");
+            check(&got, &format!("chunks of up to {max}"));
+        }
+        // A real socket: read with readv(2) into uninitialised buffers.
+        let (mut tx, mut rx) = std::os::unix::net::UnixStream::pair().unwrap();
+        assert!(rx.raw_fd().is_some());
+        let writer = std::thread::spawn(move || {
+            tx.write_all(&stream).unwrap();
+            // Cut in the middle of a large frame at the end.
+            let mut last = Vec::new();
+            append_record(&mut last, &frame_of(100_000, 9));
+            tx.write_all(&last[..50_000]).unwrap();
+        });
+        let (got, end) = read_all_handed_out(&mut rx, 2 << 20);
+        writer.join().unwrap();
+        assert_eq!(end, StreamEnd::Cut);
+        check(&got, "unix socket");
     }
 
     #[test]

@@ -37,6 +37,10 @@ impl StreamSocket for TcpStream {
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()> {
         TcpStream::set_read_timeout(self, timeout)
     }
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
 }
 
 impl StreamListener for TcpListener {
@@ -90,6 +94,11 @@ impl StreamTransport for TcpTransport {
 
     fn configure(&self, socket: &TcpStream) -> io::Result<()> {
         socket.set_nodelay(true)
+    }
+
+    /// TCP checksums every segment and retransmits what is lost or damaged.
+    fn checksums_payload(&self) -> bool {
+        true
     }
 }
 
@@ -174,5 +183,8 @@ impl Link for TcpLink {
     }
     fn batches(&self) -> bool {
         self.inner.batches()
+    }
+    fn checksums_payload(&self) -> bool {
+        self.inner.checksums_payload()
     }
 }

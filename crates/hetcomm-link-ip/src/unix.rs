@@ -33,6 +33,10 @@ impl StreamSocket for UnixStream {
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()> {
         UnixStream::set_read_timeout(self, timeout)
     }
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
 }
 
 impl StreamListener for UnixListener {
@@ -79,6 +83,11 @@ impl StreamTransport for UnixTransport {
     fn connect(&self, addr: &UnixAddr, _timeout: Duration) -> io::Result<UnixStream> {
         // A local connect either succeeds or fails at once (no handshake to wait for).
         UnixStream::connect(&addr.0)
+    }
+
+    /// A Unix socket's bytes never leave the kernel: they arrive unaltered or not at all.
+    fn checksums_payload(&self) -> bool {
+        true
     }
 }
 
@@ -170,6 +179,9 @@ impl Link for UnixLink {
     }
     fn batches(&self) -> bool {
         self.inner.as_ref().is_some_and(Link::batches)
+    }
+    fn checksums_payload(&self) -> bool {
+        self.inner.as_ref().is_some_and(Link::checksums_payload)
     }
 }
 

@@ -59,6 +59,22 @@ pub enum Peer {
 pub trait FrameSink: Send + Sync + 'static {
     /// One complete frame, as sent. The bytes are only borrowed for the call.
     fn on_frame(&self, frame: &[u8], from: Peer);
+
+    /// One complete frame, as sent, handed over: the sink may keep the buffer (e.g. as the
+    /// message's payload, without copying it). Links call it only when
+    /// [`takes_frames`](FrameSink::takes_frames) says so, and only for frames they had to put
+    /// in a buffer of their own anyway (a large frame read straight from a stream). The
+    /// default lends the bytes to [`on_frame`](FrameSink::on_frame).
+    fn on_frame_owned(&self, frame: Vec<u8>, from: Peer) {
+        self.on_frame(&frame, from)
+    }
+
+    /// Whether [`on_frame_owned`](FrameSink::on_frame_owned) keeps frames rather than copying
+    /// them: a link then gives up a reusable buffer for a fresh one per large frame. The
+    /// default is false.
+    fn takes_frames(&self) -> bool {
+        false
+    }
 }
 
 /// Why a link could not take a frame.
@@ -138,6 +154,16 @@ pub trait Link: Send + Sync {
     fn readable(&self) -> Option<&dyn Readable> {
         None
     }
+
+    /// Whether the link itself guarantees the integrity of the bytes it delivers, so that a
+    /// frame's CRC need only cover its header (`hetcomm_core::wire::FLAG_HEADER_CRC`): frames
+    /// arrive whole and unaltered or not at all. True for reliable, checksummed byte streams
+    /// (TCP, Unix stream sockets, Bluetooth RFCOMM). The default, false, is the safe answer:
+    /// the router then checksums every payload it sends on this link and refuses frames with
+    /// a header-only CRC that arrive on it.
+    fn checksums_payload(&self) -> bool {
+        false
+    }
 }
 
 /// A receive side that a thread waiting for messages can drive itself, so that a frame
@@ -192,5 +218,8 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn readable(&self) -> Option<&dyn Readable> {
         (**self).readable()
+    }
+    fn checksums_payload(&self) -> bool {
+        (**self).checksums_payload()
     }
 }

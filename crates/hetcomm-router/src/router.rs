@@ -6,7 +6,9 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use rustc_hash::FxHashMap as HashMap;
 use std::time::Duration;
 
-use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
+use hetcomm_core::wire::{
+    self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN,
+};
 use hetcomm_core::{
     Address, FrameKind, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time,
 };
@@ -419,6 +421,41 @@ pub struct Router<T> {
     dedup: Dedup,
     order: BTreeMap<(SystemId, u32), OrderState>,
     stats: RouterStats,
+    /// Per link index: whether the link guarantees the payload's integrity itself (see
+    /// [`Router::set_link_checksums_payload`]). Links past the end do not.
+    link_checks_payload: Vec<bool>,
+    /// Frame buffers of ended sends, reused by the next sends (see [`SPARE_FRAMES`]).
+    spare_frames: Vec<Vec<u8>>,
+}
+
+/// How many buffers of ended sends a router keeps for reuse: a sender that keeps sending
+/// large messages then neither allocates nor frees a frame per message (an allocation of tens
+/// of kilobytes, freed at once, is returned to the system and faulted in again each time).
+const SPARE_FRAMES: usize = 4;
+/// Buffers larger than this are freed rather than kept.
+const SPARE_FRAME_MAX: usize = 4 << 20;
+
+/// A received frame's payload: borrowed from the link, or inside a frame buffer handed over
+/// by the link (then it becomes the delivered payload without a copy).
+enum Body<'a> {
+    Borrowed(&'a [u8]),
+    Frame(Vec<u8>),
+}
+
+impl Body<'_> {
+    fn as_slice(&self) -> &[u8] {
+        match self {
+            Body::Borrowed(b) => b,
+            Body::Frame(f) => f.get(HEADER_LEN..).unwrap_or_default(),
+        }
+    }
+
+    fn into_buf(self) -> PayloadBuf {
+        match self {
+            Body::Borrowed(b) => PayloadBuf::copy_from_slice(b),
+            Body::Frame(f) => PayloadBuf::from_frame(f, HEADER_LEN),
+        }
+    }
 }
 
 enum TransmitItem {
@@ -450,7 +487,27 @@ impl<T> Router<T> {
             dedup,
             order: BTreeMap::new(),
             stats: RouterStats::default(),
+            link_checks_payload: Vec::new(),
+            spare_frames: Vec::new(),
         }
+    }
+
+    /// Declares whether link `link` guarantees the integrity of the bytes it carries (a
+    /// reliable, checksummed byte stream such as TCP: `Link::checksums_payload` in
+    /// `hetcomm-link`). Data frames sent on such a link carry a CRC of their header only
+    /// ([`FLAG_HEADER_CRC`]), which spares both sides a pass over every payload byte; frames
+    /// with a header-only CRC are accepted only from such links (elsewhere they count as
+    /// malformed). Links are assumed not to until declared.
+    pub fn set_link_checksums_payload(&mut self, link: usize, checks: bool) {
+        if self.link_checks_payload.len() <= link {
+            self.link_checks_payload.resize(link + 1, false);
+        }
+        self.link_checks_payload[link] = checks;
+    }
+
+    /// Whether link `link` was declared to guarantee payload integrity.
+    pub fn link_checksums_payload(&self, link: usize) -> bool {
+        self.link_checks_payload.get(link).copied().unwrap_or(false)
     }
 
     /// This system.
@@ -483,12 +540,23 @@ impl<T> Router<T> {
     /// Accepts a send: assigns its sequence number and queues its frame. Its outcome arrives
     /// later through [`Router::poll_event`].
     pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
-        let (route, header) = self.admit(now, &req)?;
+        let (route, mut header) = self.admit(now, &req)?;
         let id = SendId {
             to: req.to.system,
             seq: header.seq,
         };
-        let frame = wire::encode(&header, req.payload);
+        if self.link_checksums_payload(route.link) {
+            header.flags |= FLAG_HEADER_CRC;
+        }
+        let len = HEADER_LEN + req.payload.len();
+        let mut frame = match self.spare_frames.pop() {
+            Some(mut f) if f.capacity() >= len => {
+                f.clear();
+                f
+            }
+            _ => Vec::with_capacity(len),
+        };
+        wire::encode_into(&header, req.payload, &mut frame);
         self.pending.insert(
             id,
             Pending {
@@ -690,6 +758,11 @@ impl<T> Router<T> {
             if let Some(deadline) = p.deadline {
                 self.timers.remove(&(deadline, id));
             }
+            if let Some(frame) = p.frame {
+                if self.spare_frames.len() < SPARE_FRAMES && frame.capacity() <= SPARE_FRAME_MAX {
+                    self.spare_frames.push(frame);
+                }
+            }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,
                 Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
@@ -712,7 +785,28 @@ impl<T> Router<T> {
                 return;
             }
         };
-        let h = frame.header;
+        self.handle_decoded(now, link, frame.header, Body::Borrowed(frame.payload));
+    }
+
+    /// Like [`Router::handle_frame`], for a frame the link handed over in a buffer of its own:
+    /// a data frame's payload is delivered in that same buffer, without a copy.
+    pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: Vec<u8>) {
+        let header = match wire::decode(&frame) {
+            Ok(f) => f.header,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        self.handle_decoded(now, link, header, Body::Frame(frame));
+    }
+
+    fn handle_decoded(&mut self, now: Time, link: usize, h: Header, body: Body<'_>) {
+        if !h.payload_checked() && !self.link_checksums_payload(link) {
+            // Only the header was checksummed, on a link that does not vouch for the rest.
+            self.stats.malformed += 1;
+            return;
+        }
         if !self.config.known_systems.contains(&h.source.system) {
             self.stats.unknown_origin += 1;
             return;
@@ -722,8 +816,8 @@ impl<T> Router<T> {
             return;
         }
         match h.kind {
-            FrameKind::Ack => self.handle_ack(now, &h, frame.payload),
-            FrameKind::Data => self.handle_data(now, link, &h, frame.payload),
+            FrameKind::Ack => self.handle_ack(now, &h, body.as_slice()),
+            FrameKind::Data => self.handle_data(now, link, &h, body),
         }
     }
 
@@ -761,7 +855,7 @@ impl<T> Router<T> {
         self.finish(id, Outcome::acknowledged(status, attempts, latency));
     }
 
-    fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: &[u8]) {
+    fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: Body<'_>) {
         let origin = h.source.system;
         let ack_header = Header {
             kind: FrameKind::Ack,
@@ -794,7 +888,7 @@ impl<T> Router<T> {
         }
         self.dedup.insert(origin, h.incarnation, h.seq);
         if !self.config.ordered_sources.contains(&origin) {
-            self.accept(link, *h, PayloadBuf::copy_from_slice(payload), ack_header);
+            self.accept(link, *h, payload.into_buf(), ack_header);
             return;
         }
         let hold = self.config.timing.hold_timeout;
@@ -808,7 +902,7 @@ impl<T> Router<T> {
                 h.seq,
                 Held {
                     header: *h,
-                    payload: PayloadBuf::copy_from_slice(payload),
+                    payload: payload.into_buf(),
                     link,
                     ack_header,
                 },
@@ -820,7 +914,7 @@ impl<T> Router<T> {
             state.next += 1;
         }
         // In order (or older than a gap already given up): deliver, then whatever it unblocks.
-        self.accept(link, *h, PayloadBuf::copy_from_slice(payload), ack_header);
+        self.accept(link, *h, payload.into_buf(), ack_header);
         self.release_in_order(now, key);
     }
 
@@ -971,5 +1065,176 @@ impl<T> Router<T> {
             );
         }
         self.timers.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const A: SystemId = SystemId(0);
+    const B: SystemId = SystemId(1);
+
+    fn route(acknowledged: bool) -> Route {
+        Route {
+            link: 0,
+            tag: b'T',
+            acknowledged,
+            attempts: 3,
+            max_frame: 1 << 20,
+        }
+    }
+
+    fn pair(acknowledged: bool) -> (Router<()>, Router<()>) {
+        let a = Router::new(RouterConfig::new(A, 1, vec![(B, route(acknowledged))]));
+        let b = Router::new(RouterConfig::new(B, 2, vec![(A, route(acknowledged))]));
+        (a, b)
+    }
+
+    fn to_b() -> Address {
+        Address {
+            system: B,
+            module: ModuleId(0),
+        }
+    }
+
+    fn payload(len: usize) -> Vec<u8> {
+        (0..len).map(|i| (i % 251) as u8).collect()
+    }
+
+    /// Sends `bytes` from `a` and returns the frame it hands out (after reporting success).
+    fn sent_frame(a: &mut Router<()>, now: Time, bytes: &[u8]) -> Vec<u8> {
+        a.send(
+            now,
+            SendRequest::new(ModuleId(0), to_b(), MessageType(1), bytes),
+            (),
+        )
+        .unwrap();
+        let tx = a.poll_transmit(now).unwrap();
+        let frame = tx.frame.clone();
+        a.transmit_result(now, tx, Ok(()));
+        frame
+    }
+
+    #[test]
+    fn links_that_check_the_payload_get_a_header_only_crc() {
+        let now = Time::from_micros(1_000);
+        let (mut a, mut b) = pair(true);
+        assert!(!a.link_checksums_payload(0));
+        let full = sent_frame(&mut a, now, &payload(1000));
+        assert!(wire::decode(&full).unwrap().header.payload_checked());
+        a.set_link_checksums_payload(0, true);
+        assert!(a.link_checksums_payload(0) && !a.link_checksums_payload(1));
+        let frame = sent_frame(&mut a, now, &payload(1000));
+        let h = wire::decode(&frame).unwrap().header;
+        assert_eq!(h.flags, FLAG_ACK_REQUESTED | FLAG_HEADER_CRC);
+        // The payload is not covered: a changed payload byte still decodes.
+        let mut changed = frame.clone();
+        changed[HEADER_LEN + 10] ^= 0xff;
+        assert!(wire::decode(&changed).is_ok());
+
+        // A receiver whose link does not vouch for payloads refuses such frames…
+        b.handle_frame(now, 0, &frame);
+        assert_eq!(b.stats().malformed, 1);
+        assert!(b.poll_delivery().is_none());
+        // …one whose link does accepts them, and full-CRC frames as before.
+        b.set_link_checksums_payload(0, true);
+        b.handle_frame(now, 0, &frame);
+        b.handle_frame(now, 0, &full);
+        let d = b.poll_delivery().unwrap();
+        assert_eq!(d.payload, payload(1000));
+        assert_eq!(d.header.seq, 2);
+        assert_eq!(b.poll_delivery().unwrap().header.seq, 1);
+        assert_eq!(b.stats().malformed, 1);
+        // Acknowledgements keep flags 0 and a full CRC.
+        b.delivery_result(now, d.token.unwrap(), AckStatus::Delivered);
+        let ack = b.poll_transmit(now).unwrap();
+        let ack_h = wire::decode(&ack.frame).unwrap().header;
+        assert_eq!((ack_h.kind, ack_h.flags), (FrameKind::Ack, 0));
+    }
+
+    #[test]
+    fn owned_frames_become_the_payload_without_a_copy() {
+        let now = Time::from_micros(1_000);
+        for ordered in [false, true] {
+            let (mut a, mut b) = pair(false);
+            if ordered {
+                b.config.ordered_sources.insert(A);
+            }
+            let first = sent_frame(&mut a, now, &payload(5000));
+            let second = sent_frame(&mut a, now, &payload(70_000));
+            // The second arrives first when ordered: it is held, then released.
+            let handed = second.clone();
+            let ptr = handed.as_ptr();
+            b.handle_frame_owned(now, 0, handed);
+            if !ordered {
+                let d = b.poll_delivery().unwrap();
+                assert_eq!(d.payload.as_ptr(), ptr.wrapping_add(HEADER_LEN));
+                assert_eq!(d.payload, payload(70_000));
+            }
+            let ptr_first = first.as_ptr();
+            b.handle_frame_owned(now, 0, first);
+            let d = b.poll_delivery().unwrap();
+            assert_eq!(d.header.seq, 1, "ordered: {ordered}");
+            assert_eq!(d.payload.as_ptr(), ptr_first.wrapping_add(HEADER_LEN));
+            assert_eq!(d.payload, payload(5000));
+            if ordered {
+                // Held, then released: still the buffer it arrived in.
+                let d = b.poll_delivery().unwrap();
+                assert_eq!(d.header.seq, 2);
+                assert_eq!(d.payload.as_ptr(), ptr.wrapping_add(HEADER_LEN));
+                assert_eq!(d.payload, payload(70_000));
+            }
+            // A duplicate is dropped, a small payload copied inline, garbage counted.
+            b.handle_frame_owned(now, 0, second);
+            assert_eq!(b.stats().duplicates, 1);
+            let small = sent_frame(&mut a, now, b"tiny");
+            b.handle_frame_owned(now, 0, small);
+            let d = b.poll_delivery().unwrap();
+            assert!(d.payload.is_inline());
+            assert_eq!(d.payload, b"tiny");
+            b.handle_frame_owned(now, 0, vec![1, 2, 3]);
+            assert_eq!(b.stats().malformed, 1);
+            assert!(b.poll_delivery().is_none());
+        }
+    }
+
+    #[test]
+    fn frame_buffers_of_ended_sends_are_reused() {
+        let now = Time::from_micros(1_000);
+        let (mut a, _) = pair(false);
+        let big = payload(65_536);
+        a.send(
+            now,
+            SendRequest::new(ModuleId(0), to_b(), MessageType(1), &big),
+            (),
+        )
+        .unwrap();
+        let tx = a.poll_transmit(now).unwrap();
+        let ptr = tx.frame.as_ptr();
+        a.transmit_result(now, tx, Ok(()));
+        assert!(matches!(
+            a.poll_event(),
+            Some(Event::Outcome {
+                outcome: Outcome::Sent { .. },
+                ..
+            })
+        ));
+        // The next send, no larger, is encoded into the same buffer; a larger one is not.
+        let small = payload(100);
+        a.send(
+            now,
+            SendRequest::new(ModuleId(0), to_b(), MessageType(1), &small),
+            (),
+        )
+        .unwrap();
+        let tx = a.poll_transmit(now).unwrap();
+        assert_eq!(tx.frame.as_ptr(), ptr);
+        assert_eq!(wire::decode(&tx.frame).unwrap().payload, &small[..]);
+        a.transmit_result(now, tx, Ok(()));
+        let bigger = payload(200_000);
+        let frame = sent_frame(&mut a, now, &bigger);
+        assert_eq!(wire::decode(&frame).unwrap().payload, &bigger[..]);
+        assert!(a.spare_frames.len() <= SPARE_FRAMES);
     }
 }

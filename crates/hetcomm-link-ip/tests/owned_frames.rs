@@ -1,0 +1,116 @@
+//! What the IP links tell the router about frame integrity ([`Link::checksums_payload`]), and
+//! how the stream links hand large frames over to a sink that keeps them
+//! ([`FrameSink::on_frame_owned`]). Real sockets on 127.0.0.1 (port 0) and in a temporary
+//! directory.
+
+mod common;
+
+use std::sync::{Arc, Mutex};
+
+use common::{wait_until, TcpHarness, UdpHarness, UnixHarness, DEADLINE};
+use hetcomm_core::SystemId;
+use hetcomm_link::conformance::{CollectSink, Harness};
+use hetcomm_link::emulation::{EmulatedLink, LinkModel, ModelParams, PositionTable};
+use hetcomm_link::{FrameSink, Link, Peer};
+use hetcomm_link_ip::stream::StreamConfig;
+use hetcomm_link_ip::UdpConfig;
+
+const A: SystemId = SystemId(1);
+const B: SystemId = SystemId(2);
+
+#[test]
+fn stream_links_check_the_payload_datagram_and_emulated_links_do_not() {
+    let mut tcp = TcpHarness::new(StreamConfig::default());
+    let mut unix = UnixHarness::new(StreamConfig::default());
+    let mut udp = UdpHarness::new(UdpConfig::default());
+    let tcp_link = tcp.open(A, CollectSink::new());
+    let unix_link = unix.open(A, CollectSink::new());
+    let udp_link = udp.open(A, CollectSink::new());
+    assert!(tcp_link.checksums_payload(), "tcp");
+    assert!(unix_link.checksums_payload(), "unix");
+    assert!(!udp_link.checksums_payload(), "udp");
+    // Through an Arc, as the runtime holds links.
+    let shared: Arc<dyn Link> = Arc::from(tcp_link);
+    assert!(Arc::clone(&shared).checksums_payload());
+    // An emulated link may corrupt bytes on purpose, whatever it runs over.
+    let model = LinkModel::new(ModelParams::default(), 1).expect("model");
+    let emulated = EmulatedLink::new(shared, A, model, PositionTable::new()).expect("emulated");
+    assert!(!emulated.checksums_payload(), "emulated over tcp");
+}
+
+/// Records each frame and whether it came as an owned buffer.
+#[derive(Default)]
+struct OwningSink {
+    frames: Mutex<Vec<(Vec<u8>, bool, Peer)>>,
+}
+
+impl FrameSink for OwningSink {
+    fn on_frame(&self, frame: &[u8], from: Peer) {
+        self.frames
+            .lock()
+            .unwrap()
+            .push((frame.to_vec(), false, from));
+    }
+    fn on_frame_owned(&self, frame: Vec<u8>, from: Peer) {
+        self.frames.lock().unwrap().push((frame, true, from));
+    }
+    fn takes_frames(&self) -> bool {
+        true
+    }
+}
+
+fn frame(tag: u8, len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u8).wrapping_mul(7) ^ tag).collect()
+}
+
+/// Small frames are lent, large ones handed over in a buffer of their own; all arrive intact,
+/// in order, labelled with their sender.
+fn hands_over_large_frames(h: &mut dyn Harness) {
+    let sink = Arc::new(OwningSink::default());
+    let _b = h.open(B, sink.clone());
+    let a = h.open(A, CollectSink::new());
+    let sent: Vec<Vec<u8>> = [10, 65_584, 100, 1 << 20, 20_000, 65_584, 3]
+        .iter()
+        .enumerate()
+        .map(|(i, &len)| frame(i as u8, len))
+        .collect();
+    for f in &sent {
+        a.send(B, f).expect("send");
+    }
+    wait_until("every frame", DEADLINE, || {
+        sink.frames.lock().unwrap().len() == sent.len()
+    });
+    let got = sink.frames.lock().unwrap();
+    for (i, ((bytes, owned, from), f)) in got.iter().zip(&sent).enumerate() {
+        assert!(bytes == f, "frame {i} differs");
+        assert_eq!(*from, Peer::System(A), "frame {i}");
+        if f.len() <= 100 {
+            assert!(!owned, "small frame {i} handed over");
+        }
+    }
+    // The megabyte frame cannot have been in the 64 KiB read buffer.
+    assert!(got[3].1, "the 1 MiB frame was not handed over");
+}
+
+#[test]
+fn tcp_hands_over_large_frames() {
+    hands_over_large_frames(&mut TcpHarness::new(StreamConfig::default()));
+}
+
+#[test]
+fn unix_hands_over_large_frames() {
+    hands_over_large_frames(&mut UnixHarness::new(StreamConfig::default()));
+}
+
+/// A sink that does not keep frames gets every frame lent, large ones included.
+#[test]
+fn sinks_that_do_not_keep_frames_borrow_them() {
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let sink = CollectSink::new();
+    let _b = h.open(B, sink.clone());
+    let a = h.open(A, CollectSink::new());
+    let big = frame(1, 1 << 20);
+    a.send(B, &big).expect("send");
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    assert!(sink.frames()[0].bytes == big);
+}
