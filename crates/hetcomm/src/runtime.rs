@@ -244,6 +244,9 @@ pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
     }
 }
 
+/// Frames larger than this are never held for batching (see [`SystemCore::transmit`]).
+const BATCH_FRAME_MAX: usize = 8 * 1024;
+
 /// The batching policy of one link. A frame goes out at once when the link was idle for
 /// the linger time, so sporadic messages never wait; while frames come faster than that,
 /// they are held and leave together when the link's batch is full, when the oldest has waited
@@ -594,6 +597,11 @@ impl SystemCore {
             return link.send(tx.to, &tx.frame);
         }
         let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
+        if tx.frame.len() > BATCH_FRAME_MAX {
+            // A large frame fills a write on its own: holding it would only cost a timer
+            // wake-up. It goes now, after whatever is held for the same peer.
+            return link.send(tx.to, &tx.frame);
+        }
         if now.as_micros().saturating_sub(last) >= b.linger_us {
             // The link was idle: this frame goes now (with anything still held for this
             // peer before it), so sporadic traffic never waits. Frames held for other peers
