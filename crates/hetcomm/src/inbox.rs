@@ -380,6 +380,8 @@ impl Inbox {
         }
         s.stash_bound = s.len;
         s.len = 0;
+        // Before the shared lock is released: a push near the bound counts the stash by it.
+        self.stash_len.store(stash.entries.len(), Ordering::SeqCst);
         self.shared_top.store(SHARED_EMPTY, Ordering::Release);
         drop(s);
         self.take_stashed(stash, accept)
@@ -627,6 +629,24 @@ mod tests {
         assert_eq!(drain(&i), vec![10, 1, 2, 11, 12]);
         let s = i.stats();
         assert_eq!((s.accepted, s.taken, s.len), (6, 6, 0));
+        assert!(i.is_empty());
+    }
+
+    #[test]
+    fn the_bound_counts_stashed_and_shared_messages() {
+        let i = inbox(3, OverflowPolicy::DropNewest);
+        for t in 0..3 {
+            i.push(entry(1, t)).unwrap();
+        }
+        assert_eq!(i.try_take(|_| true).unwrap().unwrap().payload, [0u8]); // stash: 1, 2
+        i.push(entry(1, 3)).unwrap();
+        assert_eq!(i.push(entry(9, 4)), Err(PushError::Full));
+        assert_eq!(
+            (i.len(), i.stats().len, i.stats().dropped_newest),
+            (3, 3, 1)
+        );
+        assert!(!i.is_empty());
+        assert_eq!(drain(&i), vec![1, 2, 3]);
         assert!(i.is_empty());
     }
 
