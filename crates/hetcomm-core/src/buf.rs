@@ -172,6 +172,34 @@ impl From<PayloadBuf> for Vec<u8> {
     }
 }
 
+/// Payload bytes on their way into a message: borrowed from the caller (copied only where
+/// they must be kept) or already owned (moved there).
+#[derive(Debug)]
+pub enum PayloadSource<'a> {
+    /// The caller's bytes.
+    Borrowed(&'a [u8]),
+    /// Bytes the message may keep as they are.
+    Owned(PayloadBuf),
+}
+
+impl PayloadSource<'_> {
+    /// The bytes.
+    pub fn as_slice(&self) -> &[u8] {
+        match self {
+            PayloadSource::Borrowed(b) => b,
+            PayloadSource::Owned(p) => p,
+        }
+    }
+
+    /// The bytes as an owned payload (a copy only when borrowed).
+    pub fn into_buf(self) -> PayloadBuf {
+        match self {
+            PayloadSource::Borrowed(b) => PayloadBuf::copy_from_slice(b),
+            PayloadSource::Owned(p) => p,
+        }
+    }
+}
+
 /// Appends, moving to the heap once the inline room is used up (the payload encoder writes
 /// straight into a `PayloadBuf`).
 impl std::io::Write for PayloadBuf {

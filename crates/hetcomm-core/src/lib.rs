@@ -29,7 +29,7 @@ pub mod payload;
 pub mod time;
 pub mod wire;
 
-pub use buf::{PayloadBuf, INLINE_PAYLOAD};
+pub use buf::{PayloadBuf, PayloadSource, INLINE_PAYLOAD};
 pub use ids::{Address, MessageId, MessageType, ModuleId, Priority, SystemId};
 pub use message::{Message, TypeInfo, TypeRegistry, TypeRegistryError};
 pub use time::Time;

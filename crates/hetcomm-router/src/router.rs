@@ -10,7 +10,8 @@ use hetcomm_core::wire::{
     self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN,
 };
 use hetcomm_core::{
-    Address, FrameKind, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time,
+    Address, FrameKind, Header, MessageType, ModuleId, PayloadBuf, PayloadSource, Priority,
+    SystemId, Time,
 };
 
 use crate::dedup::Dedup;
@@ -435,29 +436,6 @@ const SPARE_FRAMES: usize = 4;
 /// Buffers larger than this are freed rather than kept.
 const SPARE_FRAME_MAX: usize = 4 << 20;
 
-/// A received frame's payload: borrowed from the link, or inside a frame buffer handed over
-/// by the link (then it becomes the delivered payload without a copy).
-enum Body<'a> {
-    Borrowed(&'a [u8]),
-    Frame(Vec<u8>),
-}
-
-impl Body<'_> {
-    fn as_slice(&self) -> &[u8] {
-        match self {
-            Body::Borrowed(b) => b,
-            Body::Frame(f) => f.get(HEADER_LEN..).unwrap_or_default(),
-        }
-    }
-
-    fn into_buf(self) -> PayloadBuf {
-        match self {
-            Body::Borrowed(b) => PayloadBuf::copy_from_slice(b),
-            Body::Frame(f) => PayloadBuf::from_frame(f, HEADER_LEN),
-        }
-    }
-}
-
 enum TransmitItem {
     Send(SendId),
     Ack {
@@ -785,7 +763,12 @@ impl<T> Router<T> {
                 return;
             }
         };
-        self.handle_decoded(now, link, frame.header, Body::Borrowed(frame.payload));
+        self.handle_decoded(
+            now,
+            link,
+            frame.header,
+            PayloadSource::Borrowed(frame.payload),
+        );
     }
 
     /// Like [`Router::handle_frame`], for a frame the link handed over in a buffer of its own:
@@ -798,10 +781,15 @@ impl<T> Router<T> {
                 return;
             }
         };
-        self.handle_decoded(now, link, header, Body::Frame(frame));
+        self.handle_decoded(
+            now,
+            link,
+            header,
+            PayloadSource::Owned(PayloadBuf::from_frame(frame, HEADER_LEN)),
+        );
     }
 
-    fn handle_decoded(&mut self, now: Time, link: usize, h: Header, body: Body<'_>) {
+    fn handle_decoded(&mut self, now: Time, link: usize, h: Header, body: PayloadSource<'_>) {
         if !h.payload_checked() && !self.link_checksums_payload(link) {
             // Only the header was checksummed, on a link that does not vouch for the rest.
             self.stats.malformed += 1;
@@ -855,7 +843,7 @@ impl<T> Router<T> {
         self.finish(id, Outcome::acknowledged(status, attempts, latency));
     }
 
-    fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: Body<'_>) {
+    fn handle_data(&mut self, now: Time, link: usize, h: &Header, payload: PayloadSource<'_>) {
         let origin = h.source.system;
         let ack_header = Header {
             kind: FrameKind::Ack,

@@ -7,7 +7,7 @@ use std::marker::PhantomData;
 use std::sync::{Arc, MutexGuard};
 use std::time::Duration;
 
-use hetcomm_core::{payload, Address, Message, MessageType, PayloadBuf, Priority};
+use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
 use hetcomm_router::SendRequest;
 
 use crate::comm::SystemHandle;
@@ -22,29 +22,6 @@ thread_local! {
     /// length). The name's address and length identify the exact `&'static str` checked.
     static CHECKED_TYPES: RefCell<rustc_hash::FxHashSet<(u64, u32, usize, usize)>> =
         RefCell::default();
-}
-
-/// A payload on its way into a send: borrowed from the caller (copied into a frame, or into
-/// the destination inbox) or already owned (moved there).
-enum Payload<'a> {
-    Borrowed(&'a [u8]),
-    Owned(PayloadBuf),
-}
-
-impl Payload<'_> {
-    fn as_slice(&self) -> &[u8] {
-        match self {
-            Payload::Borrowed(b) => b,
-            Payload::Owned(p) => p,
-        }
-    }
-
-    fn into_buf(self) -> PayloadBuf {
-        match self {
-            Payload::Borrowed(b) => PayloadBuf::copy_from_slice(b),
-            Payload::Owned(p) => p,
-        }
-    }
 }
 
 /// Per-send options.
@@ -150,7 +127,7 @@ impl Module {
         self.check_type::<M>()?;
         let to = self.resolve(system, module)?;
         let payload = payload::encode_buf(msg)?;
-        self.send_encoded(to, M::TYPE, Payload::Owned(payload), opts, false)
+        self.send_encoded(to, M::TYPE, PayloadSource::Owned(payload), opts, false)
     }
 
     /// Sends an already-encoded payload (tools, other-language bindings).
@@ -163,14 +140,20 @@ impl Module {
         opts: SendOptions,
     ) -> Result<Ticket, SendError> {
         let to = self.resolve(system, module)?;
-        self.send_encoded(to, message_type, Payload::Borrowed(payload), opts, false)
+        self.send_encoded(
+            to,
+            message_type,
+            PayloadSource::Borrowed(payload),
+            opts,
+            false,
+        )
     }
 
     fn send_encoded(
         &self,
         to: Address,
         message_type: MessageType,
-        payload: Payload<'_>,
+        payload: PayloadSource<'_>,
         opts: SendOptions,
         broadcast: bool,
     ) -> Result<Ticket, SendError> {
@@ -214,7 +197,7 @@ impl Module {
         mut router: MutexGuard<'_, hetcomm_router::Router<Arc<OutcomeSlot>>>,
         peer: &SystemCore,
         (to, message_type, opts, broadcast): (Address, MessageType, SendOptions, bool),
-        payload: Payload<'_>,
+        payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
         let core = &self.sys.core;
@@ -336,7 +319,7 @@ impl Module {
             tickets.push(self.send_encoded(
                 to,
                 message_type,
-                Payload::Borrowed(payload),
+                PayloadSource::Borrowed(payload),
                 opts,
                 true,
             )?);
@@ -537,7 +520,7 @@ impl Route {
     fn send(
         &self,
         message_type: MessageType,
-        payload: Payload<'_>,
+        payload: PayloadSource<'_>,
         opts: SendOptions,
     ) -> Result<Ticket, SendError> {
         let core = &self.from.sys.core;
@@ -581,7 +564,8 @@ impl<M: Message> Sender<M> {
     /// Sends `msg` with options ([`Module::send_with`]).
     pub fn send_with(&self, msg: &M, opts: SendOptions) -> Result<Ticket, SendError> {
         let payload = payload::encode_buf(msg)?;
-        self.route.send(M::TYPE, Payload::Owned(payload), opts)
+        self.route
+            .send(M::TYPE, PayloadSource::Owned(payload), opts)
     }
 
     /// The destination system's name.
@@ -602,7 +586,7 @@ impl RawSender {
     /// Sends `payload` ([`Module::send_raw`]).
     pub fn send(&self, payload: &[u8], opts: SendOptions) -> Result<Ticket, SendError> {
         self.route
-            .send(self.message_type, Payload::Borrowed(payload), opts)
+            .send(self.message_type, PayloadSource::Borrowed(payload), opts)
     }
 
     /// The destination system's name.
