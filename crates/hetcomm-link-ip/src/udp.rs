@@ -1218,9 +1218,7 @@ impl RxState {
             add(&c.from_unknown_address, n as u64);
         }
         add(&c.frames_received, n as u64);
-        for frame in (BatchFrames { rest: d }) {
-            self.sink.on_frame(frame, from);
-        }
+        self.sink.on_frames(&mut BatchFrames { rest: d }, from);
         n
     }
 

@@ -312,6 +312,48 @@ fn held_frames_go_out_when_the_link_is_dropped() {
     assert_eq!(recv_datagrams(&raw, 1), vec![f]);
 }
 
+/// Records how frames arrive: each `on_frame` call as a group of one, each `on_frames` call
+/// as one group.
+#[derive(Default)]
+struct GroupSink(std::sync::Mutex<Vec<Vec<Vec<u8>>>>);
+
+impl FrameSink for GroupSink {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.0.lock().unwrap().push(vec![frame.to_vec()]);
+    }
+
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
+        assert_eq!(from, Peer::System(A));
+        let group = frames.map(<[u8]>::to_vec).collect();
+        self.0.lock().unwrap().push(group);
+    }
+}
+
+#[test]
+fn the_frames_of_a_batch_reach_the_sink_in_one_call() {
+    let (endpoints, mut sockets) = udp_sockets(&[A, B]);
+    let sink = Arc::new(GroupSink::default());
+    let b = open(
+        B,
+        sockets.remove(&B).unwrap(),
+        &endpoints,
+        sink.clone(),
+        UdpConfig::default(),
+    );
+    let raw = sockets.remove(&A).unwrap();
+    raw.connect(b.local_addr()).unwrap();
+    let f: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 20 + i as usize)).collect();
+    raw.send(&f.concat()).unwrap();
+    raw.send(&f[0]).unwrap();
+    wait_until("both datagrams handled", DEADLINE, || {
+        sink.0.lock().unwrap().len() == 2
+    });
+    let groups = sink.0.lock().unwrap().clone();
+    assert_eq!(groups, vec![f.clone(), vec![f[0].clone()]]);
+    let s = b.udp_stats();
+    assert_eq!((s.frames_received, s.batches_received), (4, 1), "{s:?}");
+}
+
 #[test]
 fn a_batch_with_a_bad_tail_delivers_the_frames_before_it() {
     let (b, raw, sink) = b_and_raw_a(UdpConfig::default());

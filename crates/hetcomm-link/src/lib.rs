@@ -69,6 +69,15 @@ pub trait FrameSink: Send + Sync + 'static {
         self.on_frame(&frame, from)
     }
 
+    /// Several complete frames that arrived together (one datagram carrying a batch), in
+    /// order. A sink can handle them at the cost of one (locking, clock reading, …) instead
+    /// of one per frame. The default hands each to [`on_frame`](FrameSink::on_frame).
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
+        for frame in frames {
+            self.on_frame(frame, from);
+        }
+    }
+
     /// Whether [`on_frame_owned`](FrameSink::on_frame_owned) keeps frames rather than copying
     /// them: a link then gives up a reusable buffer for a fresh one per large frame. The
     /// default is false.

@@ -11,6 +11,7 @@
 //! | call | when |
 //! |---|---|
 //! | [`Router::send`] | a module sends |
+//! | [`Router::send_unqueued`] / [`Router::unqueued_result`] | a module sends (the driver puts an unacknowledged send's frame on the link at once, without the router keeping it) / after the link took or refused that frame |
 //! | [`Router::poll_transmit`] | after any input: frames to put on links |
 //! | [`Router::transmit_result`] | after a link took (or refused) a frame from `poll_transmit` |
 //! | [`Router::handle_frame`] | a link received a frame |

@@ -290,6 +290,41 @@ pub enum TransmitError {
     Other(String),
 }
 
+/// How [`Router::send_unqueued`] took a send.
+#[derive(Debug)]
+pub enum Admitted {
+    /// Queued exactly as by [`Router::send`]: its frame comes out of
+    /// [`Router::poll_transmit`], its outcome out of [`Router::poll_event`]. Acknowledged sends
+    /// take this way, since the router must keep them for retransmission.
+    Queued(SendId),
+    /// An unacknowledged send, numbered and counted but kept nowhere: put its frame on the
+    /// link now and report what the link did through [`Router::unqueued_result`].
+    Transmit(Unqueued),
+}
+
+/// The frame of an unacknowledged send that the router handed straight to the driver
+/// ([`Admitted::Transmit`]). It must go back through [`Router::unqueued_result`]: until then
+/// the send counts as in flight.
+#[derive(Debug)]
+#[must_use = "an unqueued send stays in flight until given to Router::unqueued_result"]
+pub struct Unqueued {
+    /// Which link.
+    pub link: usize,
+    /// Destination system.
+    pub to: SystemId,
+    /// The encoded frame.
+    pub frame: Vec<u8>,
+    /// The send it carries.
+    id: SendId,
+}
+
+impl Unqueued {
+    /// The send this frame carries.
+    pub fn id(&self) -> SendId {
+        self.id
+    }
+}
+
 /// A message for a local module's inbox.
 #[derive(Debug)]
 pub struct Delivery {
@@ -518,15 +553,16 @@ impl<T> Router<T> {
     /// Accepts a send: assigns its sequence number and queues its frame. Its outcome arrives
     /// later through [`Router::poll_event`].
     pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
-        let (route, mut header) = self.admit(now, &req)?;
-        let id = SendId {
-            to: req.to.system,
-            seq: header.seq,
-        };
+        let (route, header) = self.admit(now, &req)?;
+        Ok(self.queue(route, header, req.payload, token))
+    }
+
+    /// Encodes a send's frame (into a spare buffer when one is big enough).
+    fn encode(&mut self, route: &Route, mut header: Header, payload: &[u8]) -> Vec<u8> {
         if self.link_checksums_payload(route.link) {
             header.flags |= FLAG_HEADER_CRC;
         }
-        let len = HEADER_LEN + req.payload.len();
+        let len = HEADER_LEN + payload.len();
         let mut frame = match self.spare_frames.pop() {
             Some(mut f) if f.capacity() >= len => {
                 f.clear();
@@ -534,7 +570,17 @@ impl<T> Router<T> {
             }
             _ => Vec::with_capacity(len),
         };
-        wire::encode_into(&header, req.payload, &mut frame);
+        wire::encode_into(&header, payload, &mut frame);
+        frame
+    }
+
+    /// Keeps an admitted send as pending and queues its first transmission.
+    fn queue(&mut self, route: Route, header: Header, payload: &[u8], token: T) -> SendId {
+        let id = SendId {
+            to: header.destination.system,
+            seq: header.seq,
+        };
+        let frame = self.encode(&route, header, payload);
         self.pending.insert(
             id,
             Pending {
@@ -548,7 +594,108 @@ impl<T> Router<T> {
         );
         self.transmits.push_back(TransmitItem::Send(id));
         self.stats.sends += 1;
-        Ok(id)
+        id
+    }
+
+    /// Like [`Router::send`], except that an unacknowledged send is not kept: its outcome is
+    /// known as soon as the link takes or refuses its one frame, so the router numbers and
+    /// counts it and hands the frame straight back ([`Admitted::Transmit`]) instead of keeping
+    /// a pending entry, a queued transmission and an event for it. The driver puts the frame
+    /// on the link and reports with [`Router::unqueued_result`]. An acknowledged send is
+    /// queued as by [`Router::send`] ([`Admitted::Queued`]); `token` is only called then,
+    /// or later by `unqueued_result` should a refused frame be retried, so a driver whose
+    /// token is costly (a shared slot for the outcome) makes one only when it is needed.
+    pub fn send_unqueued(
+        &mut self,
+        now: Time,
+        req: SendRequest<'_>,
+        token: impl FnOnce() -> T,
+    ) -> Result<Admitted, SendError> {
+        let (route, header) = self.admit(now, &req)?;
+        if route.acknowledged {
+            return Ok(Admitted::Queued(self.queue(
+                route,
+                header,
+                req.payload,
+                token(),
+            )));
+        }
+        let id = SendId {
+            to: header.destination.system,
+            seq: header.seq,
+        };
+        let frame = self.encode(&route, header, req.payload);
+        self.stats.sends += 1;
+        self.stats.transmissions += 1;
+        Ok(Admitted::Transmit(Unqueued {
+            link: route.link,
+            to: id.to,
+            frame,
+            id,
+        }))
+    }
+
+    /// Reports what the link did with the frame of an unqueued send
+    /// ([`Router::send_unqueued`]) and returns the send's outcome when it is known now: `Sent`
+    /// when the link took the frame, `Failed` when it refused it for good (too large, or the
+    /// route allows one attempt). A refusal with attempts left makes the send pending with
+    /// `token` and retries it after [`Timing::link_retry`], exactly as a queued send; its
+    /// outcome then comes out of [`Router::poll_event`] and this returns None.
+    pub fn unqueued_result(
+        &mut self,
+        now: Time,
+        tx: Unqueued,
+        result: Result<(), TransmitError>,
+        token: impl FnOnce() -> T,
+    ) -> Option<Outcome> {
+        let Unqueued { frame, id, .. } = tx;
+        let err = match result {
+            Ok(()) => {
+                self.recycle(frame);
+                self.stats.sent_unconfirmed += 1;
+                return Some(Outcome::Sent { attempts: 1 });
+            }
+            Err(err) => err,
+        };
+        let route = self.routes.get(&id.to).copied();
+        let retry = match (&err, route) {
+            (TransmitError::TooLarge(_), _) | (_, None) => None,
+            (_, Some(route)) => Some(route).filter(|r| r.attempts > 1),
+        };
+        let Some(route) = retry else {
+            self.recycle(frame);
+            self.stats.failed += 1;
+            let reason = match err {
+                TransmitError::Unreachable(r) => FailReason::Unreachable(r),
+                TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
+            };
+            return Some(Outcome::Failed {
+                reason,
+                attempts: 1,
+            });
+        };
+        // The first attempt failed: from here on the send is an ordinary pending one.
+        let deadline = now + self.config.timing.link_retry;
+        self.pending.insert(
+            id,
+            Pending {
+                token: token(),
+                route,
+                frame: Some(frame),
+                attempts: 1,
+                first_sent: Some(now),
+                deadline: Some(deadline),
+            },
+        );
+        self.timers.insert((deadline, id));
+        None
+    }
+
+    /// Keeps an ended send's frame buffer for the next sends (see [`SPARE_FRAMES`]).
+    fn recycle(&mut self, frame: Vec<u8>) {
+        if self.spare_frames.len() < SPARE_FRAMES && frame.capacity() <= SPARE_FRAME_MAX {
+            self.spare_frames.push(frame);
+        }
     }
 
     /// Checks a send against the routing table and the size limit, gives it the next
@@ -737,9 +884,7 @@ impl<T> Router<T> {
                 self.timers.remove(&(deadline, id));
             }
             if let Some(frame) = p.frame {
-                if self.spare_frames.len() < SPARE_FRAMES && frame.capacity() <= SPARE_FRAME_MAX {
-                    self.spare_frames.push(frame);
-                }
+                self.recycle(frame);
             }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,
@@ -858,7 +1003,7 @@ impl<T> Router<T> {
             timestamp: h.timestamp,
         };
         let key = (origin, h.incarnation);
-        if self.dedup.contains(origin, h.incarnation, h.seq) {
+        if !self.dedup.insert_new(origin, h.incarnation, h.seq) {
             self.stats.duplicates += 1;
             // The earlier acknowledgement may have been lost: say it again, unless the first
             // copy is still waiting for its inbox or its turn (its ack comes then).
@@ -874,7 +1019,6 @@ impl<T> Router<T> {
             }
             return;
         }
-        self.dedup.insert(origin, h.incarnation, h.seq);
         if !self.config.ordered_sources.contains(&origin) {
             self.accept(link, *h, payload.into_buf(), ack_header);
             return;
@@ -1185,6 +1329,183 @@ mod tests {
             assert_eq!(b.stats().malformed, 1);
             assert!(b.poll_delivery().is_none());
         }
+    }
+
+    fn unqueued(a: &mut Router<u32>, now: Time, bytes: &[u8]) -> Unqueued {
+        let req = SendRequest::new(ModuleId(0), to_b(), MessageType(1), bytes);
+        match a.send_unqueued(now, req, || panic!("no token for an unacknowledged send")) {
+            Ok(Admitted::Transmit(tx)) => tx,
+            other => panic!("expected an unqueued frame, got {other:?}"),
+        }
+    }
+
+    fn router_with(acknowledged: bool, attempts: u32) -> Router<u32> {
+        let r = Route {
+            attempts,
+            ..route(acknowledged)
+        };
+        Router::new(RouterConfig::new(A, 1, vec![(B, r)]))
+    }
+
+    #[test]
+    fn an_unqueued_send_is_sent_when_the_link_takes_it() {
+        let now = Time::from_micros(1_000);
+        let mut a = router_with(false, 3);
+        let (_, mut b) = pair(false);
+        let tx = unqueued(&mut a, now, b"hello");
+        assert_eq!((tx.link, tx.to, tx.id()), (0, B, SendId { to: B, seq: 1 }));
+        // Counted as sent and in flight until the link answers; nothing queued or pending.
+        assert_eq!((a.stats().sends, a.stats().transmissions), (1, 1));
+        assert_eq!(a.stats().in_flight(), 1);
+        assert!(a.poll_transmit(now).is_none() && a.poll_timeout().is_none());
+        // The frame is an ordinary unacknowledged data frame.
+        b.handle_frame(now, 0, &tx.frame);
+        let d = b.poll_delivery().unwrap();
+        assert_eq!((d.payload.as_slice(), d.header.seq), (&b"hello"[..], 1));
+        assert!(d.token.is_none() && !d.header.ack_requested());
+        let ptr = tx.frame.as_ptr();
+        let outcome = a.unqueued_result(now, tx, Ok(()), || panic!("no token when sent"));
+        assert_eq!(outcome, Some(Outcome::Sent { attempts: 1 }));
+        let s = a.stats().clone();
+        assert_eq!((s.sent_unconfirmed, s.failed, s.in_flight()), (1, 0, 0));
+        assert!(
+            a.poll_event().is_none(),
+            "the outcome was returned, not queued"
+        );
+        // The next send reuses the frame buffer and takes the next number.
+        let tx = unqueued(&mut a, now, b"again");
+        assert_eq!((tx.frame.as_ptr(), tx.id().seq), (ptr, 2));
+        let _ = a.unqueued_result(now, tx, Ok(()), || 0);
+    }
+
+    #[test]
+    fn an_unqueued_send_refused_by_its_link_is_retried_then_fails() {
+        let t0 = Time::from_micros(1_000);
+        let mut a = router_with(false, 3);
+        let tx = unqueued(&mut a, t0, b"x");
+        let refused = || Err(TransmitError::Unreachable("peer down".into()));
+        // Attempts left: the send becomes pending with its token, retried after link_retry.
+        assert_eq!(a.unqueued_result(t0, tx, refused(), || 7), None);
+        let retry = a.config.timing.link_retry;
+        assert_eq!(a.poll_timeout(), Some(t0 + retry));
+        assert_eq!(a.stats().in_flight(), 1);
+        for attempt in 2..=3u32 {
+            let now = a.poll_timeout().unwrap();
+            a.handle_timeout(now);
+            let tx = a.poll_transmit(now).expect("a retransmission");
+            assert_eq!(tx.send, Some(SendId { to: B, seq: 1 }));
+            a.transmit_result(now, tx, refused());
+            assert_eq!(a.stats().retransmissions, u64::from(attempt - 1));
+        }
+        match a.poll_event() {
+            Some(Event::Outcome {
+                token: 7,
+                outcome:
+                    Outcome::Failed {
+                        reason: FailReason::Unreachable(why),
+                        attempts: 3,
+                    },
+                ..
+            }) => assert!(why.contains("peer down")),
+            other => panic!("expected a failure after 3 attempts, got {other:?}"),
+        }
+        let s = a.stats().clone();
+        assert_eq!(
+            (s.sends, s.transmissions, s.retransmissions, s.failed),
+            (1, 3, 2, 1)
+        );
+        assert_eq!((s.sent_unconfirmed, s.in_flight()), (0, 0));
+        assert!(a.poll_timeout().is_none());
+    }
+
+    #[test]
+    fn an_unqueued_send_retried_after_a_refusal_can_still_be_sent() {
+        let t0 = Time::from_micros(1_000);
+        let mut a = router_with(false, 3);
+        let tx = unqueued(&mut a, t0, b"x");
+        let err = Err(TransmitError::Other("congested".into()));
+        assert_eq!(a.unqueued_result(t0, tx, err, || 9), None);
+        let now = a.poll_timeout().unwrap();
+        a.handle_timeout(now);
+        let tx = a.poll_transmit(now).unwrap();
+        a.transmit_result(now, tx, Ok(()));
+        assert!(matches!(
+            a.poll_event(),
+            Some(Event::Outcome {
+                token: 9,
+                outcome: Outcome::Sent { attempts: 2 },
+                ..
+            })
+        ));
+        let s = a.stats().clone();
+        assert_eq!(
+            (s.sent_unconfirmed, s.retransmissions, s.in_flight()),
+            (1, 1, 0)
+        );
+    }
+
+    #[test]
+    fn an_unqueued_send_fails_at_once_without_attempts_left_or_when_too_large() {
+        let now = Time::from_micros(1_000);
+        let mut a = router_with(false, 1);
+        let tx = unqueued(&mut a, now, b"x");
+        let err = Err(TransmitError::Unreachable("peer down".into()));
+        let outcome = a.unqueued_result(now, tx, err, || panic!("nothing to retry"));
+        assert!(matches!(
+            outcome,
+            Some(Outcome::Failed {
+                reason: FailReason::Unreachable(_),
+                attempts: 1
+            })
+        ));
+        // A frame the link can never carry is not retried, whatever the budget.
+        let mut a3 = router_with(false, 3);
+        let tx = unqueued(&mut a3, now, b"x");
+        let err = Err(TransmitError::TooLarge("too big".into()));
+        let outcome = a3.unqueued_result(now, tx, err, || panic!("nothing to retry"));
+        assert!(matches!(
+            outcome,
+            Some(Outcome::Failed {
+                reason: FailReason::Link(_),
+                attempts: 1
+            })
+        ));
+        for r in [&a, &a3] {
+            let s = r.stats();
+            assert_eq!(
+                (s.sends, s.transmissions, s.failed, s.in_flight()),
+                (1, 1, 1, 0)
+            );
+            assert!(r.poll_timeout().is_none() && r.pending.is_empty());
+        }
+    }
+
+    #[test]
+    fn an_acknowledged_send_offered_unqueued_is_queued_with_its_token() {
+        let now = Time::from_micros(1_000);
+        let mut a = router_with(true, 3);
+        let req = SendRequest::new(ModuleId(0), to_b(), MessageType(1), b"x");
+        let admitted = a.send_unqueued(now, req, || 5).unwrap();
+        assert!(matches!(admitted, Admitted::Queued(SendId { seq: 1, .. })));
+        let tx = a.poll_transmit(now).unwrap();
+        assert!(wire::decode(&tx.frame).unwrap().header.ack_requested());
+        a.transmit_result(now, tx, Ok(()));
+        assert!(a.poll_timeout().is_some(), "waits for its acknowledgement");
+        a.shutdown();
+        assert!(matches!(
+            a.poll_event(),
+            Some(Event::Outcome { token: 5, .. })
+        ));
+        // Refusals are the router's as with `send`.
+        let far = Address {
+            system: SystemId(9),
+            module: ModuleId(0),
+        };
+        let req = SendRequest::new(ModuleId(0), far, MessageType(1), b"x");
+        assert!(matches!(
+            a.send_unqueued(now, req, || 0),
+            Err(SendError::NoRoute { .. })
+        ));
     }
 
     #[test]

@@ -8,7 +8,7 @@ use std::sync::{Arc, MutexGuard};
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
-use hetcomm_router::SendRequest;
+use hetcomm_router::{Admitted, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
@@ -178,16 +178,55 @@ impl Module {
             payload: payload.as_slice(),
             broadcast,
         };
-        let slot = Arc::new(OutcomeSlot::default());
-        if let Err(e) = router.send(now, req, slot.clone()) {
-            drop(router);
-            return Err(send_error(&core.directory, e));
+        // A slot for the outcome is shared with the runtime only when the outcome comes
+        // later (an acknowledged send, or a refused frame that is retried).
+        let mut slot = None;
+        let make_slot = |slot: &mut Option<Arc<OutcomeSlot>>| {
+            let s = Arc::new(OutcomeSlot::default());
+            *slot = Some(s.clone());
+            s
+        };
+        let admitted = router.send_unqueued(now, req, || make_slot(&mut slot));
+        let destination = core.directory.system_name(to.system);
+        let tx = match admitted {
+            Err(e) => {
+                drop(router);
+                return Err(send_error(&core.directory, e));
+            }
+            Ok(Admitted::Queued(_)) => {
+                core.pump_at(router, now);
+                let slot = slot.expect("a queued send has an outcome slot");
+                return Ok(Ticket {
+                    slot: TicketSlot::Pending(slot),
+                    destination,
+                });
+            }
+            Ok(Admitted::Transmit(tx)) => tx,
+        };
+        // An unacknowledged send: every earlier input pumped its own work, so the router has
+        // nothing else queued; the frame goes out without a trip through `pump`, and its
+        // outcome is known when the link answers.
+        drop(router);
+        let result = core.transmit_on(tx.link, tx.to, &tx.frame, now);
+        let mut router = core.router();
+        match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
+            Some(outcome) => {
+                drop(router);
+                Ok(Ticket {
+                    slot: TicketSlot::Ready(outcome),
+                    destination,
+                })
+            }
+            None => {
+                // Refused and retried later: the timer must learn the retry's deadline.
+                core.pump_at(router, now);
+                let slot = slot.expect("a retried send has an outcome slot");
+                Ok(Ticket {
+                    slot: TicketSlot::Pending(slot),
+                    destination,
+                })
+            }
         }
-        core.pump_at(router, now);
-        Ok(Ticket {
-            slot: TicketSlot::Pending(slot),
-            destination: core.directory.system_name(to.system),
-        })
     }
 
     /// Sends straight into `peer`'s inbox (an in-process route): the router numbers and

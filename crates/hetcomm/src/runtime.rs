@@ -483,12 +483,16 @@ impl SystemCore {
         let Some(reactor) = self.reactor.get() else {
             return module.inbox.take_timeout(accept, timeout);
         };
-        let deadline = timeout.map(|t| Instant::now() + t);
+        // The deadline is computed only once the inbox turned out empty: a receiver keeping up
+        // with a stream finds a message at once nearly every time, and reading the clock
+        // is a noticeable part of taking a small message.
+        let mut deadline: Option<Option<Instant>> = None;
         loop {
             match module.inbox.try_take(&accept) {
                 Ok(None) => {}
                 other => return other,
             }
+            let deadline = *deadline.get_or_insert_with(|| timeout.map(|t| Instant::now() + t));
             let left = match deadline {
                 None => Duration::MAX,
                 Some(d) => {
@@ -587,28 +591,29 @@ impl SystemCore {
         &self,
         index: usize,
         link: &dyn Link,
-        tx: &Transmit,
+        to: SystemId,
+        frame: &[u8],
         now: Time,
     ) -> Result<(), LinkError> {
         let Some(b) = self.batching.get().and_then(|v| v.get(index)) else {
-            return link.send(tx.to, &tx.frame);
+            return link.send(to, frame);
         };
         if b.linger_us == 0 {
-            return link.send(tx.to, &tx.frame);
+            return link.send(to, frame);
         }
         let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
-        if tx.frame.len() > BATCH_FRAME_MAX {
+        if frame.len() > BATCH_FRAME_MAX {
             // A large frame fills a write on its own: holding it would only cost a timer
             // wake-up. It goes now, after whatever is held for the same peer.
-            return link.send(tx.to, &tx.frame);
+            return link.send(to, frame);
         }
         if now.as_micros().saturating_sub(last) >= b.linger_us {
             // The link was idle: this frame goes now (with anything still held for this
             // peer before it), so sporadic traffic never waits. Frames held for other peers
             // stay on the timer.
-            return link.send(tx.to, &tx.frame);
+            return link.send(to, frame);
         }
-        let result = link.send_held(tx.to, &tx.frame);
+        let result = link.send_held(to, frame);
         let since = b.held_since.load(Ordering::Relaxed);
         if since == 0 {
             b.held_since
@@ -620,6 +625,22 @@ impl SystemCore {
             let _ = link.flush();
         }
         result
+    }
+
+    /// Puts `frame` on link `index` (see [`SystemCore::transmit`]), in the router's terms.
+    pub(crate) fn transmit_on(
+        &self,
+        index: usize,
+        to: SystemId,
+        frame: &[u8],
+        now: Time,
+    ) -> Result<(), TransmitError> {
+        match self.links().get(index) {
+            Some(link) => self
+                .transmit(index, &**link, to, frame, now)
+                .map_err(transmit_error),
+            None => Err(TransmitError::Other("no such link".into())),
+        }
     }
 
     pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
@@ -661,7 +682,8 @@ impl SystemCore {
         // One message usually makes one transmit, delivery or outcome per round: keep them on
         // the stack.
         let mut transmits: SmallVec<[Transmit; 4]> = SmallVec::new();
-        let mut deliveries: SmallVec<[Delivery; 2]> = SmallVec::new();
+        // A batch datagram's frames are handled in one go (see `SystemSink::on_frames`).
+        let mut deliveries: SmallVec<[Delivery; 16]> = SmallVec::new();
         let mut events: SmallVec<[Event<Arc<OutcomeSlot>>; 4]> = SmallVec::new();
         let mut delivery_results: SmallVec<[(DeliveryToken, AckStatus); 2]> = SmallVec::new();
         let mut transmit_results: SmallVec<[(Transmit, Result<(), TransmitError>); 4]> =
@@ -699,14 +721,8 @@ impl SystemCore {
                     delivery_results.push((token, status));
                 }
             }
-            let links = self.links();
             for tx in transmits.drain(..) {
-                let result = match links.get(tx.link) {
-                    Some(link) => self
-                        .transmit(tx.link, &**link, &tx, now)
-                        .map_err(transmit_error),
-                    None => Err(TransmitError::Other("no such link".into())),
-                };
+                let result = self.transmit_on(tx.link, tx.to, &tx.frame, now);
                 if tx.send.is_some() {
                     transmit_results.push((tx, result));
                 }
@@ -819,6 +835,23 @@ impl FrameSink for SystemSink {
         let now = core.clock.now();
         let mut router = core.router();
         router.handle_frame(now, self.link, frame);
+        core.pump_at(router, now);
+    }
+
+    /// The frames of one batch datagram: one clock reading, one router lock and one pump for
+    /// all of them instead of one each (they arrived at the same moment).
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
+        let Some(core) = self.core.upgrade() else {
+            return;
+        };
+        if core.is_closed() {
+            return;
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        for frame in frames {
+            router.handle_frame(now, self.link, frame);
+        }
         core.pump_at(router, now);
     }
 

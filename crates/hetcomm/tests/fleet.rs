@@ -364,6 +364,49 @@ fn unreachable_peer_is_retried_then_reported() {
     assert_eq!(stats.in_flight(), 0);
 }
 
+#[test]
+fn unacknowledged_send_to_an_unreachable_peer_is_retried_then_reported() {
+    // As above, unacknowledged: the outcome of a refused frame still ends Failed, after the
+    // transport's attempts (3 by default, or 1), and the counters stay exact.
+    for attempts in [None, Some(1)] {
+        let mut text = fleet_text("2", "unacknowledged");
+        if let Some(n) = attempts {
+            text = text.replace(
+                "delivery = \"unacknowledged\"",
+                &format!("delivery = \"unacknowledged\"\nattempts = {n}"),
+            );
+        }
+        let fleet = hetcomm::config::parse_str(&text, "five.toml", None).unwrap();
+        let alpha = hetcomm::Comm::open_fleet(&fleet, "Alpha").unwrap();
+        let plan = alpha.module("Plan").unwrap();
+        let ticket = plan.send("Bravo", "Act", &Command { code: 1 }).unwrap();
+        let expected = attempts.unwrap_or(3);
+        if expected == 1 {
+            // Nothing left to try: known when `send` returns.
+            assert!(ticket.try_outcome().is_some());
+        }
+        match ticket.wait() {
+            Outcome::Failed {
+                reason: FailReason::Unreachable(why),
+                attempts,
+            } if attempts == expected => assert!(why.contains("unreachable"), "{why}"),
+            other => panic!("expected unreachable after {expected} attempts, got {other:?}"),
+        }
+        let stats = alpha.stats().router;
+        assert_eq!(
+            (
+                stats.sends,
+                stats.transmissions,
+                stats.retransmissions,
+                stats.failed,
+                stats.sent_unconfirmed
+            ),
+            (1, u64::from(expected), u64::from(expected - 1), 1, 0)
+        );
+        assert_eq!(stats.in_flight(), 0);
+    }
+}
+
 fn overflow_fleet(policy: &str) -> LocalFleet {
     open(
         &format!("{{ id = 2, inbox_capacity = 3, overflow = \"{policy}\" }}"),
