@@ -187,12 +187,15 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
             let _ = stream.set_nodelay(true);
             tcp_role(stream, role.ends_with("echo"))
         }
-        "hc-echo" | "hc-sink" => {
+        "hc-echo" | "hc-echo-spin" | "hc-sink" => {
             let fleet: PathBuf = arg(args, 1, "fleet file")?;
             let comm = hetcomm::Comm::open(&fleet, "B").map_err(|e| e.to_string())?;
             let m = comm.module("M").map_err(|e| e.to_string())?;
+            if role == "hc-echo-spin" {
+                m.set_wait_spin(crate::hc::WAIT_SPIN);
+            }
             say("ready");
-            if role == "hc-echo" {
+            if role.starts_with("hc-echo") {
                 while !closed.load(Ordering::SeqCst) {
                     if let Ok(msg) = m.recv_raw_timeout(Some(Duration::from_millis(50))) {
                         let _ = m.send_raw("A", "M", DATA, &msg.payload, Default::default());

@@ -171,6 +171,20 @@ pub fn rtt(
     result
 }
 
+/// How long both ends of [`rtt_spinning`] spin before they sleep.
+pub const WAIT_SPIN: Duration = Duration::from_micros(50);
+
+/// [`rtt`] between two processes whose waiting modules spin [`WAIT_SPIN`] before they
+/// sleep ([`Module::set_wait_spin`]), reading their links meanwhile.
+pub fn rtt_spinning(kind: Kind, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let pair = open_pair(kind, false, "echo-spin")?;
+    pair.m.set_wait_spin(WAIT_SPIN);
+    let result = round_trips(&pair.m, size, warmup, iters);
+    let Pair { peer, .. } = pair;
+    peer.finish(Duration::from_secs(3));
+    result
+}
+
 /// One-way: A sends as fast as `send_raw` returns for `duration`; B counts.
 pub fn oneway(
     kind: Kind,

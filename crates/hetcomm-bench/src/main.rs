@@ -351,7 +351,7 @@ fn run(o: &Options) -> Vec<Row> {
     if want("pinning") {
         let (warmup, iters) = (p.rtt_iters)(64);
         for (label, cpu) in [("pinned-cpu0", Some(0)), ("unpinned", None)] {
-            for which in ["raw-udp", "hetcomm-udp-unack"] {
+            for which in ["raw-udp", "hetcomm-udp-unack", "hetcomm-udp-unack-spin"] {
                 log(o.quick, &format!("pinning {which} {label}"));
                 let rounds = if o.quick { 1 } else { RTT_ROUNDS };
                 let runs = (0..rounds)
@@ -361,10 +361,12 @@ fn run(o: &Options) -> Vec<Row> {
                             if !pin_thread(cpu) {
                                 return Err("sched_setaffinity failed".to_string());
                             }
-                            if which_s == "raw-udp" {
-                                raw::rtt(raw::RawKind::Udp, 64, warmup, iters)
-                            } else {
-                                hc::rtt(hc::Kind::Udp, false, 64, warmup, iters)
+                            match which_s.as_str() {
+                                "raw-udp" => raw::rtt(raw::RawKind::Udp, 64, warmup, iters),
+                                "hetcomm-udp-unack" => {
+                                    hc::rtt(hc::Kind::Udp, false, 64, warmup, iters)
+                                }
+                                _ => hc::rtt_spinning(hc::Kind::Udp, 64, warmup, iters),
                             }
                         });
                         handle

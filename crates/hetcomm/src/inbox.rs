@@ -456,6 +456,11 @@ impl Inbox {
         false
     }
 
+    /// How long a waiter spins before it sleeps ([`Inbox::set_spin`]).
+    pub(crate) fn spin(&self) -> Duration {
+        Duration::from_micros(self.spin_us.load(Ordering::Relaxed))
+    }
+
     /// Spins until something is queued (true) or `spin` has passed (false).
     fn spin_until_queued(&self, spin: Duration) -> bool {
         let start = Instant::now();

@@ -372,11 +372,13 @@ impl Module {
     }
 
     /// Lets `recv` calls on this module spin up to `spin` for a message before they sleep
-    /// (default: no spinning). A message arriving while the receiver spins is taken within
-    /// a fraction of a microsecond instead of after a thread wake-up (several microseconds, tens
-    /// when the wake-up crosses CPUs on a small VM), at the cost of a busy core while spinning.
-    /// For latency-critical modules on machines with cores to spare; links that the waiting
-    /// thread reads itself (UDP) do not need it.
+    /// (default: no spinning, beyond a look of about a microsecond). A message arriving while
+    /// the receiver spins is taken within a fraction of a microsecond instead of after a
+    /// thread wake-up (several microseconds, tens when the wake-up crosses CPUs on a small VM),
+    /// at the cost of a busy core while spinning. A receiver that reads its links itself (UDP)
+    /// keeps polling them without a timeout meanwhile, yielding the CPU between looks so that
+    /// a peer sharing the CPU still runs. For latency-critical modules on machines with cores
+    /// to spare.
     pub fn set_wait_spin(&self, spin: Duration) {
         self.core.inbox.set_spin(spin);
     }

@@ -192,6 +192,19 @@ impl Reactor {
     /// whatever is ready. Only the leader calls this.
     pub(crate) fn turn(&self, timeout: Duration) {
         let timeout = timeout.min(MAX_TURN);
+        // Round up so that a sub-millisecond timeout still waits rather than spins.
+        let ms = timeout.as_micros().div_ceil(1000).min(i32::MAX as u128) as i32;
+        self.turn_ms(ms, true);
+    }
+
+    /// One look at the links without waiting: reads whatever is ready. Whether anything was.
+    pub(crate) fn poll_now(&self) -> bool {
+        self.turn_ms(0, false)
+    }
+
+    /// Waits up to `ms` for a link to become readable and reads what is ready; with `upkeep`,
+    /// a wait that ends without anything ready still lets every link do its upkeep.
+    fn turn_ms(&self, ms: i32, upkeep: bool) -> bool {
         let mut fds: smallvec::SmallVec<[libc::pollfd; 4]> = smallvec::SmallVec::new();
         fds.push(libc::pollfd {
             fd: self.wake.as_raw_fd(),
@@ -207,13 +220,11 @@ impl Reactor {
                 });
             }
         }
-        // Round up so that a sub-millisecond timeout still waits rather than spins.
-        let ms = timeout.as_micros().div_ceil(1000).min(i32::MAX as u128) as i32;
         // SAFETY: `fds` is a valid, exclusively borrowed array of `fds.len()` pollfds.
         let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, ms) };
         if n < 0 {
             // EINTR and the like: the caller simply takes another turn.
-            return;
+            return false;
         }
         if fds[0].revents != 0 {
             self.drain_kicks();
@@ -221,13 +232,14 @@ impl Reactor {
         LEADING.with(|l| l.set(true));
         for (l, fd) in self.links.iter().zip(&fds[1..]) {
             // On a timeout every link still gets its upkeep.
-            if n == 0 || fd.revents != 0 {
+            if (n == 0 && upkeep) || fd.revents != 0 {
                 if let Some(r) = l.readable() {
                     let _ = r.read_ready(BUDGET);
                 }
             }
         }
         LEADING.with(|l| l.set(false));
+        n > 0
     }
 
     /// Stops the background thread and any leader.

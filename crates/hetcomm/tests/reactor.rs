@@ -183,3 +183,37 @@ fn an_unacknowledged_udp_stream_ends_sent_at_once_and_counts_exactly() {
     let (_, udp) = sb.links.iter().find(|(n, _)| n == "u").unwrap();
     assert_eq!(udp.frames_received, N);
 }
+
+/// Waiting modules that spin (`set_wait_spin`) keep reading their UDP socket while they
+/// spin: every message of a ping-pong arrives, in order, and a spinning wait with nothing
+/// to read still ends at its timeout.
+#[test]
+fn spinning_waiters_read_their_links_and_still_time_out() {
+    let f = fleet("unacknowledged");
+    let a = f.system("A").unwrap().module("M").unwrap();
+    let b = f.system("B").unwrap().module("M").unwrap();
+    a.set_wait_spin(Duration::from_micros(200));
+    b.set_wait_spin(Duration::from_micros(200));
+    let echo = std::thread::spawn(move || {
+        for _ in 0..500 {
+            let m = b.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
+            b.send_raw("A", "M", TY, &m.payload, Default::default())
+                .unwrap();
+        }
+        b
+    });
+    for i in 0u32..500 {
+        a.send_raw("B", "M", TY, &i.to_le_bytes(), Default::default())
+            .unwrap();
+        let m = a.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
+        assert_eq!(m.payload, i.to_le_bytes());
+    }
+    let b = echo.join().unwrap();
+    let started = Instant::now();
+    assert!(b.recv_raw_timeout(Some(Duration::from_millis(30))).is_err());
+    let waited = started.elapsed();
+    assert!(
+        waited >= Duration::from_millis(30) && waited < Duration::from_secs(2),
+        "{waited:?}"
+    );
+}
