@@ -111,7 +111,7 @@ impl Stash {
 }
 
 /// Spins of [`Inbox::poll_briefly`].
-const BRIEF_POLL_SPINS: u32 = 256;
+const BRIEF_POLL_SPINS: u32 = 40;
 
 /// Why a push was refused.
 #[derive(Debug, PartialEq, Eq)]
@@ -221,8 +221,10 @@ impl Inbox {
             // to sleep, or that consumer's look at the intake sees the message.
             fence(Ordering::SeqCst);
             if self.empty_waiters.load(Ordering::Relaxed) > 0 {
-                // Under the lock, so the signal cannot fall between its look and its wait.
-                let _stash = self.lock_stash();
+                // A sleeper looks at the intake and starts waiting under the stash lock:
+                // passing through the lock puts this signal after its wait began. Signalled
+                // after the lock is released, so the woken thread does not block on it.
+                drop(self.lock_stash());
                 self.not_empty.notify_one();
             }
             return Ok(());
@@ -445,7 +447,8 @@ impl Inbox {
         self.spin_us.store(us, Ordering::Relaxed);
     }
 
-    /// Looks for a message for a few hundred spins (about a microsecond; no clock read).
+    /// Looks for a message for [`BRIEF_POLL_SPINS`] spins (about a microsecond here; no clock
+    /// read).
     fn poll_briefly(&self) -> bool {
         for _ in 0..BRIEF_POLL_SPINS {
             if !self.is_empty() || self.closed.load(Ordering::Relaxed) {
