@@ -110,7 +110,7 @@ impl Stash {
     }
 }
 
-/// Spins of [`Inbox::poll_briefly`].
+/// Spins of a waiter's short look before it sleeps ([`Inbox::spin_until_queued`]).
 const BRIEF_POLL_SPINS: u32 = 40;
 
 /// Why a push was refused.
@@ -395,24 +395,21 @@ impl Inbox {
                     Some(left)
                 }
             };
-            let spin = self.spin_us.load(Ordering::Relaxed);
-            if spin == 0 && !spun {
-                // A short look before sleeping: a producer that keeps sending refills the
-                // inbox within a few hundred nanoseconds, far less than a sleep and a wake-up.
+            // Before sleeping: the configured spin, or else one short look (a producer that
+            // keeps sending refills the inbox far sooner than a sleep and a wake-up take).
+            let spin = self.spin();
+            let look = if !spin.is_zero() {
+                Some(Some(spin.min(left.unwrap_or(Duration::MAX))))
+            } else if !spun {
                 spun = true;
-                drop(stash);
-                let came = self.poll_briefly();
-                stash = self.lock_stash();
-                if came {
-                    continue;
-                }
-            }
-            if spin > 0 {
+                Some(None)
+            } else {
+                None
+            };
+            if let Some(limit) = look {
                 // Never spin holding the stash: producers of a full inbox need it.
                 drop(stash);
-                let came = self.spin_until_queued(
-                    Duration::from_micros(spin).min(left.unwrap_or(Duration::MAX)),
-                );
+                let came = self.spin_until_queued(limit);
                 stash = self.lock_stash();
                 if came {
                     continue;
@@ -447,32 +444,26 @@ impl Inbox {
         self.spin_us.store(us, Ordering::Relaxed);
     }
 
-    /// Looks for a message for [`BRIEF_POLL_SPINS`] spins (about a microsecond here; no clock
-    /// read).
-    fn poll_briefly(&self) -> bool {
-        for _ in 0..BRIEF_POLL_SPINS {
-            if !self.is_empty() || self.closed.load(Ordering::Relaxed) {
-                return true;
-            }
-            std::hint::spin_loop();
-        }
-        false
-    }
-
     /// How long a waiter spins before it sleeps ([`Inbox::set_spin`]).
     pub(crate) fn spin(&self) -> Duration {
         Duration::from_micros(self.spin_us.load(Ordering::Relaxed))
     }
 
-    /// Spins until something is queued (true) or `spin` has passed (false).
-    fn spin_until_queued(&self, spin: Duration) -> bool {
-        let start = Instant::now();
+    /// Spins until something is queued or the inbox closed (true), or until `limit` has
+    /// passed (false); `None`: a short look of [`BRIEF_POLL_SPINS`] spins (about a
+    /// microsecond here), with no clock read.
+    fn spin_until_queued(&self, limit: Option<Duration>) -> bool {
+        let start = limit.map(|limit| (Instant::now(), limit));
         let mut rounds = 0u32;
         while self.is_empty() && !self.closed.load(Ordering::Relaxed) {
             std::hint::spin_loop();
             rounds += 1;
-            // Reading the clock costs more than a spin: look at it now and then.
-            if rounds.is_multiple_of(64) && start.elapsed() >= spin {
+            let done = match start {
+                // Reading the clock costs more than a spin: look at it now and then.
+                Some((start, limit)) => rounds.is_multiple_of(64) && start.elapsed() >= limit,
+                None => rounds >= BRIEF_POLL_SPINS,
+            };
+            if done {
                 return false;
             }
         }

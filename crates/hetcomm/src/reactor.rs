@@ -197,14 +197,14 @@ impl Reactor {
         self.turn_ms(ms, true);
     }
 
-    /// One look at the links without waiting: reads whatever is ready. Whether anything was.
-    pub(crate) fn poll_now(&self) -> bool {
-        self.turn_ms(0, false)
+    /// One look at the links without waiting: reads whatever is ready.
+    pub(crate) fn poll_now(&self) {
+        self.turn_ms(0, false);
     }
 
     /// Waits up to `ms` for a link to become readable and reads what is ready; with `upkeep`,
     /// a wait that ends without anything ready still lets every link do its upkeep.
-    fn turn_ms(&self, ms: i32, upkeep: bool) -> bool {
+    fn turn_ms(&self, ms: i32, upkeep: bool) {
         let mut fds: smallvec::SmallVec<[libc::pollfd; 4]> = smallvec::SmallVec::new();
         fds.push(libc::pollfd {
             fd: self.wake.as_raw_fd(),
@@ -224,7 +224,7 @@ impl Reactor {
         let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, ms) };
         if n < 0 {
             // EINTR and the like: the caller simply takes another turn.
-            return false;
+            return;
         }
         if fds[0].revents != 0 {
             self.drain_kicks();
@@ -239,7 +239,6 @@ impl Reactor {
             }
         }
         LEADING.with(|l| l.set(false));
-        n > 0
     }
 
     /// Stops the background thread and any leader.

@@ -848,17 +848,8 @@ struct SystemSink {
 }
 
 impl FrameSink for SystemSink {
-    fn on_frame(&self, frame: &[u8], _from: Peer) {
-        let Some(core) = self.core.upgrade() else {
-            return;
-        };
-        if core.is_closed() {
-            return;
-        }
-        let now = core.clock.now();
-        let mut router = core.router();
-        router.handle_frame(now, self.link, frame);
-        core.pump_at(router, now);
+    fn on_frame(&self, frame: &[u8], from: Peer) {
+        self.on_frames(&mut std::iter::once(frame), from);
     }
 
     /// The frames of one batch datagram: one clock reading, one router lock and one pump for
