@@ -10,6 +10,8 @@
 use std::fmt;
 use std::ops::Deref;
 
+use crate::pool::FrameBuf;
+
 /// Payloads up to this many bytes are stored inline.
 pub const INLINE_PAYLOAD: usize = 64;
 
@@ -25,7 +27,7 @@ enum Repr {
         bytes: [u8; INLINE_PAYLOAD],
     },
     /// `buf[start..]` is the payload (a whole received frame, header skipped, or a vector).
-    Heap { buf: Vec<u8>, start: usize },
+    Heap { buf: FrameBuf, start: usize },
 }
 
 impl PayloadBuf {
@@ -48,7 +50,7 @@ impl PayloadBuf {
             })
         } else {
             PayloadBuf(Repr::Heap {
-                buf: bytes.to_vec(),
+                buf: bytes.to_vec().into(),
                 start: 0,
             })
         }
@@ -60,13 +62,18 @@ impl PayloadBuf {
         if vec.len() <= INLINE_PAYLOAD {
             Self::copy_from_slice(&vec)
         } else {
-            PayloadBuf(Repr::Heap { buf: vec, start: 0 })
+            PayloadBuf(Repr::Heap {
+                buf: vec.into(),
+                start: 0,
+            })
         }
     }
 
-    /// The payload `frame[start..]` of a received frame, without copying it. A `start` past
-    /// the end gives an empty payload.
-    pub fn from_frame(frame: Vec<u8>, start: usize) -> Self {
+    /// The payload `frame[start..]` of a received frame, without copying it (a pooled frame
+    /// goes back to its pool when the payload is dropped). A `start` past the end gives an
+    /// empty payload.
+    pub fn from_frame(frame: impl Into<FrameBuf>, start: usize) -> Self {
+        let frame = frame.into();
         if start >= frame.len() {
             return Self::new();
         }
@@ -87,7 +94,7 @@ impl PayloadBuf {
     /// The bytes as a vector; free when the payload is a heap vector from its start.
     pub fn into_vec(self) -> Vec<u8> {
         match self.0 {
-            Repr::Heap { buf, start: 0 } => buf,
+            Repr::Heap { buf, start: 0 } => buf.into_vec(),
             _ => self.as_slice().to_vec(),
         }
     }
@@ -214,7 +221,10 @@ impl std::io::Write for PayloadBuf {
                     let mut buf = Vec::with_capacity((used + data.len()).max(2 * INLINE_PAYLOAD));
                     buf.extend_from_slice(&bytes[..used]);
                     buf.extend_from_slice(data);
-                    self.0 = Repr::Heap { buf, start: 0 };
+                    self.0 = Repr::Heap {
+                        buf: buf.into(),
+                        start: 0,
+                    };
                 }
             }
             Repr::Heap { buf, .. } => buf.extend_from_slice(data),

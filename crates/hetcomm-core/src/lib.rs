@@ -26,11 +26,13 @@ pub mod buf;
 pub mod ids;
 pub mod message;
 pub mod payload;
+pub mod pool;
 pub mod time;
 pub mod wire;
 
 pub use buf::{PayloadBuf, PayloadSource, INLINE_PAYLOAD};
 pub use ids::{Address, MessageId, MessageType, ModuleId, Priority, SystemId};
 pub use message::{Message, TypeInfo, TypeRegistry, TypeRegistryError};
+pub use pool::{BufferPool, FrameBuf};
 pub use time::Time;
 pub use wire::{AckStatus, DecodeError, Frame, FrameKind, Header};

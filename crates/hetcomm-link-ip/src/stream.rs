@@ -140,7 +140,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
-use hetcomm_core::SystemId;
+use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 
 /// Size of the hello a connector sends in [`IdentityMode::Hello`].
@@ -166,6 +166,11 @@ const DIRECT_READ_MIN: usize = 16 * 1024;
 /// next record header and a few small records, little enough that the start of another large
 /// frame is hardly copied.
 const READ_AHEAD_AFTER_LARGE: usize = 1024;
+/// Most bytes of large-frame buffers a connection's reader keeps for reuse, when it hands
+/// frames out: the buffers come back as the module drops the messages.
+const RECEIVE_POOL_BYTES: usize = 8 * 1024 * 1024;
+/// Pooled large-frame buffers are allocated in multiples of this many bytes.
+const POOLED_BUF_STEP: usize = 4096;
 /// A reader's large-frame buffer above this size is released when a much smaller large frame
 /// follows, so that one rare huge frame does not pin its memory for the connection's life.
 const LARGE_BUF_KEEP: usize = 4 * 1024 * 1024;
@@ -1180,10 +1185,11 @@ struct RecordReader {
     /// [`READ_AHEAD_AFTER_LARGE`]), since another large frame is likely next.
     after_large: bool,
     /// Reused for frames over [`DIRECT_READ_MIN`]; at least as long as the longest recent one.
-    /// With `hand_out`, a fresh buffer of exactly the frame's length each time instead.
+    /// When handing out, a buffer from `pool` each time instead.
     large: Vec<u8>,
-    /// Large frames are given away ([`take_large`](Self::take_large)) rather than reused.
-    hand_out: bool,
+    /// Large frames are given away ([`take_large`](Self::take_large)) rather than reused, in
+    /// buffers that come back to this pool when the sink drops them.
+    pool: Option<Arc<BufferPool>>,
 }
 
 impl RecordReader {
@@ -1195,23 +1201,32 @@ impl RecordReader {
             end: 0,
             after_large: false,
             large: Vec::new(),
-            hand_out: false,
+            pool: None,
         }
     }
 
-    /// A reader that gives large frames away: each one is read into a buffer of its own,
-    /// taken with [`take_large`](Self::take_large).
-    fn handing_out(max_frame: usize) -> Self {
+    /// A reader that gives large frames away: each one is read into a buffer of its own from
+    /// `pool`, taken with [`take_large`](Self::take_large).
+    fn handing_out(max_frame: usize, pool: Arc<BufferPool>) -> Self {
         RecordReader {
-            hand_out: true,
+            pool: Some(pool),
             ..RecordReader::new(max_frame)
         }
     }
 
+    /// Whether large frames are given away.
+    fn hands_out(&self) -> bool {
+        self.pool.is_some()
+    }
+
     /// The buffer of a [`FrameAt::Large`] frame, exactly its bytes, for a reader
-    /// [`handing_out`](Self::handing_out) (the next large frame gets a new buffer).
-    fn take_large(&mut self) -> Vec<u8> {
-        std::mem::take(&mut self.large)
+    /// [`handing_out`](Self::handing_out) (the next large frame gets another buffer).
+    fn take_large(&mut self) -> FrameBuf {
+        let frame = std::mem::take(&mut self.large);
+        match &self.pool {
+            Some(pool) => pool.wrap(frame),
+            None => frame.into(),
+        }
     }
 
     /// The bytes of a frame [`next_record`](Self::next_record) returned.
@@ -1286,9 +1301,10 @@ impl RecordReader {
         len: usize,
     ) -> Result<(), StreamEnd> {
         let have = self.end - body;
-        if self.hand_out {
+        if let Some(pool) = &self.pool {
             // The last one left with its frame (or is still here after an error: replaced).
-            self.large = Vec::with_capacity(len);
+            // Rounded up so that frames of similar sizes can reuse each other's buffers.
+            self.large = pool.take(len.next_multiple_of(POOLED_BUF_STEP));
             self.large.extend_from_slice(&self.buf[body..self.end]);
             self.start = 0;
             self.end = 0;
@@ -1379,7 +1395,10 @@ fn serve_connection<T: StreamTransport>(
     // A sink that keeps frames gets each large one in a buffer of its own (its payload then
     // needs no copy); others borrow from the reader's reused buffers.
     let mut reader = if shared.sink.takes_frames() {
-        RecordReader::handing_out(shared.config.max_frame())
+        RecordReader::handing_out(
+            shared.config.max_frame(),
+            BufferPool::new(RECEIVE_POOL_BYTES),
+        )
     } else {
         RecordReader::new(shared.config.max_frame())
     };
@@ -1389,7 +1408,7 @@ fn serve_connection<T: StreamTransport>(
                 // Counted first so that whoever the sink wakes sees the counter already updated.
                 bump(&counters.frames_received);
                 match at {
-                    FrameAt::Large(_) if reader.hand_out => {
+                    FrameAt::Large(_) if reader.hands_out() => {
                         shared.sink.on_frame_owned(reader.take_large(), from)
                     }
                     _ => shared.sink.on_frame(reader.frame(at), from),
@@ -1537,25 +1556,54 @@ mod tests {
     }
 
     /// Like [`read_all`] with a reader that hands large frames out; also says which frames
-    /// came out as their own buffer (with no spare capacity).
+    /// came out as their own buffer (with less than a step of spare capacity).
     fn read_all_handed_out<R: RecordSource>(
         r: &mut R,
         max_frame: usize,
     ) -> (Vec<(Vec<u8>, bool)>, StreamEnd) {
-        let mut reader = RecordReader::handing_out(max_frame);
+        let mut reader = RecordReader::handing_out(max_frame, BufferPool::new(1 << 20));
         let mut got = Vec::new();
         loop {
             match reader.next_record(r) {
                 Ok(FrameAt::Large(len)) => {
                     let frame = reader.take_large();
+                    assert!(frame.is_pooled());
+                    // Kept, so none came back to the pool: each is a new buffer.
+                    let frame = frame.into_vec();
                     assert_eq!(frame.len(), len);
-                    assert_eq!(frame.capacity(), len, "a buffer of exactly the frame");
+                    assert!(
+                        frame.capacity() < len + POOLED_BUF_STEP,
+                        "a buffer of about the frame"
+                    );
                     got.push((frame, true));
                 }
                 Ok(at) => got.push((reader.frame(at).to_vec(), false)),
                 Err(end) => return (got, end),
             }
         }
+    }
+
+    #[test]
+    fn handed_out_frames_come_back_to_the_readers_pool() {
+        let frames: Vec<Vec<u8>> = (0..6u8)
+            .map(|i| vec![i; 100_000 + usize::from(i)])
+            .collect();
+        let stream = stream_of(&frames);
+        let pool = BufferPool::new(1 << 20);
+        let mut reader = RecordReader::handing_out(2 << 20, pool.clone());
+        let mut r = &stream[..];
+        let mut first_ptr = None;
+        for (i, f) in frames.iter().enumerate() {
+            assert!(matches!(reader.next_record(&mut r), Ok(FrameAt::Large(_))));
+            let frame = reader.take_large();
+            assert_eq!(frame.as_slice(), &f[..], "frame {i}");
+            // Each frame is dropped before the next is read: one buffer serves them all.
+            let ptr = frame.as_ptr();
+            assert_eq!(*first_ptr.get_or_insert(ptr), ptr, "frame {i}");
+            drop(frame);
+            assert!(pool.kept_bytes() >= f.len());
+        }
+        assert_eq!(reader.next_record(&mut r), Err(StreamEnd::Clean));
     }
 
     #[test]

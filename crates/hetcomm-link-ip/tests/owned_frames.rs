@@ -8,7 +8,7 @@ mod common;
 use std::sync::{Arc, Mutex};
 
 use common::{wait_until, TcpHarness, UdpHarness, UnixHarness, DEADLINE};
-use hetcomm_core::SystemId;
+use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::conformance::{CollectSink, Harness};
 use hetcomm_link::emulation::{EmulatedLink, LinkModel, ModelParams, PositionTable};
 use hetcomm_link::{FrameSink, Link, Peer};
@@ -51,8 +51,11 @@ impl FrameSink for OwningSink {
             .unwrap()
             .push((frame.to_vec(), false, from));
     }
-    fn on_frame_owned(&self, frame: Vec<u8>, from: Peer) {
-        self.frames.lock().unwrap().push((frame, true, from));
+    fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
+        self.frames
+            .lock()
+            .unwrap()
+            .push((frame.into_vec(), true, from));
     }
     fn takes_frames(&self) -> bool {
         true

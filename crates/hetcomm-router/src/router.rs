@@ -10,8 +10,8 @@ use hetcomm_core::wire::{
     self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN,
 };
 use hetcomm_core::{
-    Address, FrameKind, Header, MessageType, ModuleId, PayloadBuf, PayloadSource, Priority,
-    SystemId, Time,
+    Address, FrameBuf, FrameKind, Header, MessageType, ModuleId, PayloadBuf, PayloadSource,
+    Priority, SystemId, Time,
 };
 
 use crate::dedup::Dedup;
@@ -918,7 +918,8 @@ impl<T> Router<T> {
 
     /// Like [`Router::handle_frame`], for a frame the link handed over in a buffer of its own:
     /// a data frame's payload is delivered in that same buffer, without a copy.
-    pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: Vec<u8>) {
+    pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: impl Into<FrameBuf>) {
+        let frame = frame.into();
         let header = match wire::decode(&frame) {
             Ok(f) => f.header,
             Err(_) => {

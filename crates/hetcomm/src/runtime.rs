@@ -12,7 +12,9 @@ use std::time::{Duration, Instant};
 
 use hetcomm_config::InboxConfig;
 use hetcomm_core::wire::AckStatus;
-use hetcomm_core::{Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry};
+use hetcomm_core::{
+    FrameBuf, Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry,
+};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitError};
 use smallvec::SmallVec;
@@ -870,7 +872,7 @@ impl FrameSink for SystemSink {
     }
 
     /// A large frame in a buffer of its own: the router delivers its payload in that buffer.
-    fn on_frame_owned(&self, frame: Vec<u8>, _from: Peer) {
+    fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
         let Some(core) = self.core.upgrade() else {
             return;
         };
