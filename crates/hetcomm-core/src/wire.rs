@@ -236,9 +236,21 @@ pub enum DecodeError {
 /// If `payload` is longer than [`MAX_PAYLOAD`]: callers check sizes first (the router refuses
 /// such sends with an error).
 pub fn encode_into(header: &Header, payload: &[u8], out: &mut Vec<u8>) {
+    out.reserve(HEADER_LEN + payload.len());
+    encode_header_into(header, payload, out);
+    out.extend_from_slice(payload);
+}
+
+/// Appends only the [`HEADER_LEN`]-byte header of the frame that carries `payload` (its
+/// length and CRC included); the frame is that header followed by `payload`. A sender can
+/// then write the two pieces with one vectored write instead of copying the payload.
+///
+/// # Panics
+///
+/// If `payload` is longer than [`MAX_PAYLOAD`].
+pub fn encode_header_into(header: &Header, payload: &[u8], out: &mut Vec<u8>) {
     assert!(payload.len() <= MAX_PAYLOAD, "payload over MAX_PAYLOAD");
     let start = out.len();
-    out.reserve(HEADER_LEN + payload.len());
     out.extend_from_slice(&MAGIC);
     out.push(VERSION);
     out.push(header.kind as u8);
@@ -256,8 +268,7 @@ pub fn encode_into(header: &Header, payload: &[u8], out: &mut Vec<u8>) {
     out.extend_from_slice(&header.timestamp.0.to_le_bytes());
     out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
     out.extend_from_slice(&[0; 4]); // CRC placeholder
-    out.extend_from_slice(payload);
-    let crc = checksum(&out[start..], header.flags & FLAG_HEADER_CRC != 0);
+    let crc = checksum_parts(&out[start..], payload, header.flags & FLAG_HEADER_CRC != 0);
     out[start + CRC_OFFSET..start + CRC_OFFSET + 4].copy_from_slice(&crc.to_le_bytes());
 }
 
@@ -271,11 +282,18 @@ pub fn encode(header: &Header, payload: &[u8]) -> Vec<u8> {
 /// CRC-32 (IEEE) of a whole frame, or of its header only (`header_only`), with its CRC field
 /// taken as zero.
 fn checksum(frame: &[u8], header_only: bool) -> u32 {
+    checksum_parts(&frame[..HEADER_LEN], &frame[HEADER_LEN..], header_only)
+}
+
+/// [`checksum`] of the frame `header` (exactly [`HEADER_LEN`] bytes) followed by `payload`.
+fn checksum_parts(header: &[u8], payload: &[u8], header_only: bool) -> u32 {
     let mut h = crc32fast::Hasher::new();
-    h.update(&frame[..CRC_OFFSET]);
+    h.update(&header[..CRC_OFFSET]);
     h.update(&[0; 4]);
-    let end = if header_only { HEADER_LEN } else { frame.len() };
-    h.update(&frame[CRC_OFFSET + 4..end]);
+    h.update(&header[CRC_OFFSET + 4..HEADER_LEN]);
+    if !header_only {
+        h.update(payload);
+    }
     h.finalize()
 }
 
@@ -409,6 +427,16 @@ mod tests {
             let decoded = decode(&frame).unwrap();
             prop_assert_eq!(decoded.header, header);
             prop_assert_eq!(decoded.payload, &payload[..]);
+        }
+
+        #[test]
+        fn header_alone_then_payload_is_the_same_frame(header in arb_header(), payload in proptest::collection::vec(any::<u8>(), 0..2048)) {
+            // Whole-frame and header-only CRC (arb_header sets either flag).
+            let mut split = vec![9u8];
+            encode_header_into(&header, &payload, &mut split);
+            prop_assert_eq!(split.len(), 1 + HEADER_LEN);
+            split.extend_from_slice(&payload);
+            prop_assert_eq!(&split[1..], &encode(&header, &payload)[..]);
         }
 
         #[test]

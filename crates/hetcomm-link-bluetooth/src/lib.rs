@@ -458,6 +458,9 @@ impl<F: AddressFamily> Link for BluetoothLink<F> {
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         self.inner.send(to, frame)
     }
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        self.inner.send_parts(to, head, body)
+    }
     fn stats(&self) -> LinkStats {
         self.inner.stats()
     }

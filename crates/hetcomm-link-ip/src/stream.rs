@@ -575,14 +575,11 @@ impl<T: StreamTransport> StreamLink<T> {
             .map(|_| ())
     }
 
-    /// The peer entry of `to`, after checking `frame`'s size.
-    fn entry_for(&self, to: SystemId, frame: &[u8]) -> Result<&PeerEntry<T>, LinkError> {
+    /// The peer entry of `to`, after checking the size of a frame of `len` bytes.
+    fn entry_for(&self, to: SystemId, len: usize) -> Result<&PeerEntry<T>, LinkError> {
         let max = self.shared.config.max_frame();
-        if frame.len() > max {
-            return Err(LinkError::TooLarge {
-                len: frame.len(),
-                max,
-            });
+        if len > max {
+            return Err(LinkError::TooLarge { len, max });
         }
         self.peers.get(&to).ok_or_else(|| {
             let reason = if to == self.local {
@@ -592,6 +589,17 @@ impl<T: StreamTransport> StreamLink<T> {
             };
             LinkError::Unreachable { peer: to, reason }
         })
+    }
+
+    /// [`Link::send`] of a frame in one or two pieces.
+    fn send_frame(&self, to: SystemId, frame: FrameParts<'_>) -> Result<(), LinkError> {
+        let entry = self.entry_for(to, frame.len())?;
+        let mut slot = lock(&entry.slot);
+        if slot.conn.is_none() {
+            return self.queue_for_connection(to, entry, &mut slot, frame, true);
+        }
+        // Held frames first, in the same write: order kept, one syscall for both.
+        self.write_batch(to, entry, &mut slot, Some(frame))
     }
 
     fn mark_held(&self, entry: &PeerEntry<T>) {
@@ -607,7 +615,7 @@ impl<T: StreamTransport> StreamLink<T> {
         to: SystemId,
         entry: &PeerEntry<T>,
         slot: &mut PeerSlot<T::Socket>,
-        frame: &[u8],
+        frame: FrameParts<'_>,
         release: bool,
     ) -> Result<(), LinkError> {
         let now = Instant::now();
@@ -663,7 +671,7 @@ impl<T: StreamTransport> StreamLink<T> {
         to: SystemId,
         entry: &PeerEntry<T>,
         slot: &mut PeerSlot<T::Socket>,
-        frame: Option<&[u8]>,
+        frame: Option<FrameParts<'_>>,
     ) -> Result<(), LinkError> {
         let cfg = &self.shared.config;
         let counters = &self.shared.counters;
@@ -678,9 +686,9 @@ impl<T: StreamTransport> StreamLink<T> {
             return Err(LinkError::Closed);
         };
         let head = frame.map_or([0; RECORD_HEADER_LEN], |f| record_header(f.len()));
-        let parts: [&[u8]; 3] = match frame {
-            Some(f) => [&out[..], &head, f],
-            None => [&out[..], &[], &[]],
+        let parts: [&[u8]; 4] = match frame {
+            Some(f) => [&out[..], &head, f.head, f.body],
+            None => [&out[..], &[], &[], &[]],
         };
         let result = write_parts(socket, &parts, cfg.write_timeout);
         let held = std::mem::take(held_frames);
@@ -820,17 +828,18 @@ impl<T: StreamTransport> Link for StreamLink<T> {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let entry = self.entry_for(to, frame)?;
-        let mut slot = lock(&entry.slot);
-        if slot.conn.is_none() {
-            return self.queue_for_connection(to, entry, &mut slot, frame, true);
-        }
-        // Held frames first, in the same write: order kept, one syscall for both.
-        self.write_batch(to, entry, &mut slot, Some(frame))
+        self.send_frame(to, FrameParts::whole(frame))
+    }
+
+    /// Writes the record header, `head` and `body` with one vectored write: a large payload
+    /// goes from the caller's buffer to the socket without a copy in user space.
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        self.send_frame(to, FrameParts { head, body })
     }
 
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let entry = self.entry_for(to, frame)?;
+        let entry = self.entry_for(to, frame.len())?;
+        let frame = FrameParts::whole(frame);
         let cap = self.shared.config.batch_bytes;
         let mut slot = lock(&entry.slot);
         if slot.conn.is_none() {
@@ -938,9 +947,30 @@ fn record_header(len: usize) -> [u8; RECORD_HEADER_LEN] {
     head
 }
 
-fn append_record(out: &mut Vec<u8>, frame: &[u8]) {
+fn append_record(out: &mut Vec<u8>, frame: FrameParts<'_>) {
     out.extend_from_slice(&record_header(frame.len()));
-    out.extend_from_slice(frame);
+    out.extend_from_slice(frame.head);
+    out.extend_from_slice(frame.body);
+}
+
+/// One frame, given as `head` followed by `body` ([`Link::send_parts`]), or whole in `head`.
+#[derive(Clone, Copy)]
+struct FrameParts<'a> {
+    head: &'a [u8],
+    body: &'a [u8],
+}
+
+impl<'a> FrameParts<'a> {
+    fn whole(frame: &'a [u8]) -> Self {
+        FrameParts {
+            head: frame,
+            body: &[],
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.head.len() + self.body.len()
+    }
 }
 
 /// Writes all of `parts`, in order, with as few vectored writes as the socket allows, bounded
@@ -1539,7 +1569,7 @@ mod tests {
     fn stream_of(frames: &[Vec<u8>]) -> Vec<u8> {
         let mut s = Vec::new();
         for f in frames {
-            append_record(&mut s, f);
+            append_record(&mut s, FrameParts::whole(f));
         }
         s
     }
@@ -1642,7 +1672,7 @@ mod tests {
             tx.write_all(&stream).unwrap();
             // Cut in the middle of a large frame at the end.
             let mut last = Vec::new();
-            append_record(&mut last, &frame_of(100_000, 9));
+            append_record(&mut last, FrameParts::whole(&frame_of(100_000, 9)));
             tx.write_all(&last[..50_000]).unwrap();
         });
         let (got, end) = read_all_handed_out(&mut rx, 2 << 20);

@@ -172,6 +172,9 @@ impl Link for TcpLink {
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         self.inner.send(to, frame)
     }
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        self.inner.send_parts(to, head, body)
+    }
     fn stats(&self) -> LinkStats {
         self.inner.stats()
     }

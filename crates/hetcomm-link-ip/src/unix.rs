@@ -165,6 +165,12 @@ impl Link for UnixLink {
             .ok_or(LinkError::Closed)?
             .send(to, frame)
     }
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        self.inner
+            .as_ref()
+            .ok_or(LinkError::Closed)?
+            .send_parts(to, head, body)
+    }
     fn stats(&self) -> LinkStats {
         self.inner.as_ref().map(Link::stats).unwrap_or_default()
     }

@@ -325,6 +325,36 @@ fn megabyte_frames_arrive_intact_between_held_frames() {
 }
 
 #[test]
+fn frames_sent_in_two_pieces_arrive_whole_and_in_order() {
+    // Before the connection is up (queued for the connector), after it, and behind held
+    // frames: each `send_parts` arrives as the one frame `head` + `body`.
+    let mut h = TcpHarness::new(StreamConfig::default());
+    let a = h.open_tcp(A, CollectSink::new());
+    let mut expected = Vec::new();
+    let send = |expected: &mut Vec<Vec<u8>>, f: Vec<u8>, split: usize| {
+        a.send_parts(B, &f[..split], &f[split..]).unwrap();
+        expected.push(f);
+    };
+    send(&mut expected, frame(0, 70_000), 48);
+    send(&mut expected, frame(1, 100), 100);
+    let sink_b = CollectSink::new();
+    let _b = h.open_tcp(B, sink_b.clone());
+    wait_until("A connected", DEADLINE, || a.stream_stats().connects == 1);
+    send(&mut expected, frame(2, 1 << 20), 48);
+    let held = frame(3, 40);
+    a.send_held(B, &held).unwrap();
+    expected.push(held);
+    send(&mut expected, frame(4, 30_000), 4);
+    let max = StreamConfig::default().max_frame();
+    match a.send_parts(B, &[0; 48], &vec![0; max]) {
+        Err(LinkError::TooLarge { len, .. }) => assert_eq!(len, max + 48),
+        other => panic!("expected TooLarge, got {other:?}"),
+    }
+    assert_received(&sink_b, &expected);
+    assert_eq!(a.stream_stats().frames_sent, expected.len() as u64);
+}
+
+#[test]
 fn frames_held_while_connecting_wait_for_the_flush_then_follow_the_queue() {
     // TCP only: a bound listener that nobody accepts on yet completes connections in its
     // backlog, so A's connector succeeds before B's link exists.

@@ -133,6 +133,20 @@ pub trait Link: Send + Sync {
     /// not that it arrived.
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError>;
 
+    /// Like [`send`](Link::send), for the frame `head` followed by `body`: a sender can put a
+    /// large payload behind its header without copying it into one buffer first. Links that
+    /// write with vectored I/O (the stream links) send the pieces as they are; the default
+    /// joins them and calls `send`.
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        if body.is_empty() {
+            return self.send(to, head);
+        }
+        let mut frame = Vec::with_capacity(head.len() + body.len());
+        frame.extend_from_slice(head);
+        frame.extend_from_slice(body);
+        self.send(to, &frame)
+    }
+
     /// Counters kept by the link (frames, drops, reconnects, …), for tools and tests.
     fn stats(&self) -> LinkStats {
         LinkStats::default()
@@ -213,6 +227,9 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         (**self).send(to, frame)
+    }
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        (**self).send_parts(to, head, body)
     }
     fn stats(&self) -> LinkStats {
         (**self).stats()

@@ -292,14 +292,14 @@ pub enum TransmitError {
 
 /// How [`Router::send_unqueued`] took a send.
 #[derive(Debug)]
-pub enum Admitted {
+pub enum Admitted<'a> {
     /// Queued exactly as by [`Router::send`]: its frame comes out of
     /// [`Router::poll_transmit`], its outcome out of [`Router::poll_event`]. Acknowledged sends
     /// take this way, since the router must keep them for retransmission.
     Queued(SendId),
     /// An unacknowledged send, numbered and counted but kept nowhere: put its frame on the
     /// link now and report what the link did through [`Router::unqueued_result`].
-    Transmit(Unqueued),
+    Transmit(Unqueued<'a>),
 }
 
 /// The frame of an unacknowledged send that the router handed straight to the driver
@@ -307,18 +307,23 @@ pub enum Admitted {
 /// the send counts as in flight.
 #[derive(Debug)]
 #[must_use = "an unqueued send stays in flight until given to Router::unqueued_result"]
-pub struct Unqueued {
+pub struct Unqueued<'a> {
     /// Which link.
     pub link: usize,
     /// Destination system.
     pub to: SystemId,
-    /// The encoded frame.
+    /// The encoded frame; only its header when `body` is not empty.
     pub frame: Vec<u8>,
+    /// The rest of the frame: the caller's payload, left where it is. A payload of at least
+    /// [`SPLIT_PAYLOAD_MIN`] bytes on a link that checksums payloads is not copied behind its
+    /// header; the driver writes both pieces with one vectored write (`Link::send_parts`).
+    /// Empty otherwise.
+    pub body: &'a [u8],
     /// The send it carries.
     id: SendId,
 }
 
-impl Unqueued {
+impl Unqueued<'_> {
     /// The send this frame carries.
     pub fn id(&self) -> SendId {
         self.id
@@ -470,6 +475,11 @@ pub struct Router<T> {
 const SPARE_FRAMES: usize = 4;
 /// Buffers larger than this are freed rather than kept.
 const SPARE_FRAME_MAX: usize = 4 << 20;
+/// Unacknowledged payloads this large, on a link that checksums payloads, are not copied into
+/// the frame buffer but sent from the caller's memory behind their header
+/// ([`Unqueued::body`]). Smaller ones cost less to copy than the extra piece costs the link
+/// (and stay eligible for batching, which needs the whole frame).
+pub const SPLIT_PAYLOAD_MIN: usize = 16 * 1024;
 
 enum TransmitItem {
     Send(SendId),
@@ -558,20 +568,32 @@ impl<T> Router<T> {
     }
 
     /// Encodes a send's frame (into a spare buffer when one is big enough).
-    fn encode(&mut self, route: &Route, mut header: Header, payload: &[u8]) -> Vec<u8> {
+    fn encode(&mut self, route: &Route, header: Header, payload: &[u8]) -> Vec<u8> {
+        let (header, mut frame) = self.frame_buffer(route, header, HEADER_LEN + payload.len());
+        wire::encode_into(&header, payload, &mut frame);
+        frame
+    }
+
+    /// Only the header of the frame [`Router::encode`] would make.
+    fn encode_header(&mut self, route: &Route, header: Header, payload: &[u8]) -> Vec<u8> {
+        let (header, mut frame) = self.frame_buffer(route, header, HEADER_LEN);
+        wire::encode_header_into(&header, payload, &mut frame);
+        frame
+    }
+
+    /// The header as sent on `route`'s link, and an empty buffer for `len` bytes of frame.
+    fn frame_buffer(&mut self, route: &Route, mut header: Header, len: usize) -> (Header, Vec<u8>) {
         if self.link_checksums_payload(route.link) {
             header.flags |= FLAG_HEADER_CRC;
         }
-        let len = HEADER_LEN + payload.len();
-        let mut frame = match self.spare_frames.pop() {
+        let frame = match self.spare_frames.pop() {
             Some(mut f) if f.capacity() >= len => {
                 f.clear();
                 f
             }
             _ => Vec::with_capacity(len),
         };
-        wire::encode_into(&header, payload, &mut frame);
-        frame
+        (header, frame)
     }
 
     /// Keeps an admitted send as pending and queues its first transmission.
@@ -605,12 +627,12 @@ impl<T> Router<T> {
     /// queued as by [`Router::send`] ([`Admitted::Queued`]); `token` is only called then,
     /// or later by `unqueued_result` should a refused frame be retried, so a driver whose
     /// token is costly (a shared slot for the outcome) makes one only when it is needed.
-    pub fn send_unqueued(
+    pub fn send_unqueued<'a>(
         &mut self,
         now: Time,
-        req: SendRequest<'_>,
+        req: SendRequest<'a>,
         token: impl FnOnce() -> T,
-    ) -> Result<Admitted, SendError> {
+    ) -> Result<Admitted<'a>, SendError> {
         let (route, header) = self.admit(now, &req)?;
         if route.acknowledged {
             return Ok(Admitted::Queued(self.queue(
@@ -624,13 +646,20 @@ impl<T> Router<T> {
             to: header.destination.system,
             seq: header.seq,
         };
-        let frame = self.encode(&route, header, req.payload);
+        let split =
+            req.payload.len() >= SPLIT_PAYLOAD_MIN && self.link_checksums_payload(route.link);
+        let (frame, body) = if split {
+            (self.encode_header(&route, header, req.payload), req.payload)
+        } else {
+            (self.encode(&route, header, req.payload), &[][..])
+        };
         self.stats.sends += 1;
         self.stats.transmissions += 1;
         Ok(Admitted::Transmit(Unqueued {
             link: route.link,
             to: id.to,
             frame,
+            body,
             id,
         }))
     }
@@ -644,11 +673,16 @@ impl<T> Router<T> {
     pub fn unqueued_result(
         &mut self,
         now: Time,
-        tx: Unqueued,
+        tx: Unqueued<'_>,
         result: Result<(), TransmitError>,
         token: impl FnOnce() -> T,
     ) -> Option<Outcome> {
-        let Unqueued { frame, id, .. } = tx;
+        let Unqueued {
+            mut frame,
+            body,
+            id,
+            ..
+        } = tx;
         let err = match result {
             Ok(()) => {
                 self.recycle(frame);
@@ -674,7 +708,9 @@ impl<T> Router<T> {
                 attempts: 1,
             });
         };
-        // The first attempt failed: from here on the send is an ordinary pending one.
+        // The first attempt failed: from here on the send is an ordinary pending one, which
+        // keeps its whole frame.
+        frame.extend_from_slice(body);
         let deadline = now + self.config.timing.link_retry;
         self.pending.insert(
             id,
@@ -1332,7 +1368,7 @@ mod tests {
         }
     }
 
-    fn unqueued(a: &mut Router<u32>, now: Time, bytes: &[u8]) -> Unqueued {
+    fn unqueued<'a>(a: &mut Router<u32>, now: Time, bytes: &'a [u8]) -> Unqueued<'a> {
         let req = SendRequest::new(ModuleId(0), to_b(), MessageType(1), bytes);
         match a.send_unqueued(now, req, || panic!("no token for an unacknowledged send")) {
             Ok(Admitted::Transmit(tx)) => tx,
@@ -1377,6 +1413,48 @@ mod tests {
         let tx = unqueued(&mut a, now, b"again");
         assert_eq!((tx.frame.as_ptr(), tx.id().seq), (ptr, 2));
         let _ = a.unqueued_result(now, tx, Ok(()), || 0);
+    }
+
+    #[test]
+    fn a_large_unqueued_payload_is_left_out_of_the_frame_on_a_link_that_checksums_it() {
+        let now = Time::from_micros(1_000);
+        let big = payload(SPLIT_PAYLOAD_MIN);
+        // A link that does not checksum payloads: the whole frame, as always.
+        let mut a = router_with(false, 3);
+        let tx = unqueued(&mut a, now, &big);
+        assert_eq!((tx.frame.len(), tx.body.len()), (HEADER_LEN + big.len(), 0));
+        let _ = a.unqueued_result(now, tx, Ok(()), || 0);
+        // One that does: only the header, the payload is the caller's own bytes.
+        let mut a = router_with(false, 3);
+        a.set_link_checksums_payload(0, true);
+        let (_, mut b) = pair(false);
+        b.set_link_checksums_payload(0, true);
+        let tx = unqueued(&mut a, now, &big);
+        assert_eq!(tx.frame.len(), HEADER_LEN);
+        assert_eq!(tx.body.as_ptr(), big.as_ptr());
+        let mut whole = tx.frame.clone();
+        whole.extend_from_slice(tx.body);
+        b.handle_frame(now, 0, &whole);
+        assert_eq!(b.poll_delivery().unwrap().payload, big);
+        assert_eq!(
+            a.unqueued_result(now, tx, Ok(()), || 0),
+            Some(Outcome::Sent { attempts: 1 })
+        );
+        // Just under the threshold: copied.
+        let tx = unqueued(&mut a, now, &big[1..]);
+        assert!(tx.body.is_empty());
+        let _ = a.unqueued_result(now, tx, Ok(()), || 0);
+        // Refused with attempts left: the pending retry keeps the whole frame.
+        let tx = unqueued(&mut a, now, &big);
+        let err = Err(TransmitError::Other("congested".into()));
+        assert_eq!(a.unqueued_result(now, tx, err, || 5), None);
+        let later = a.poll_timeout().unwrap();
+        a.handle_timeout(later);
+        let tx = a.poll_transmit(later).expect("a retransmission");
+        b.handle_frame(later, 0, &tx.frame);
+        let d = b.poll_delivery().unwrap();
+        assert_eq!((d.payload.as_slice(), d.header.seq), (&big[..], 3));
+        a.transmit_result(later, tx, Ok(()));
     }
 
     #[test]

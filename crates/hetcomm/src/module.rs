@@ -207,7 +207,7 @@ impl Module {
         // nothing else queued; the frame goes out without a trip through `pump`, and its
         // outcome is known when the link answers.
         drop(router);
-        let result = core.transmit_on(tx.link, tx.to, &tx.frame, now);
+        let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now);
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {

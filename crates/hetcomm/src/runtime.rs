@@ -248,6 +248,7 @@ pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
 
 /// Frames larger than this are never held for batching (see [`SystemCore::transmit`]).
 const BATCH_FRAME_MAX: usize = 8 * 1024;
+const _: () = assert!(hetcomm_router::SPLIT_PAYLOAD_MIN > BATCH_FRAME_MAX);
 
 /// The batching policy of one link. A frame goes out at once when the link was idle for
 /// the linger time, so sporadic messages never wait; while frames come faster than that,
@@ -587,28 +588,31 @@ impl SystemCore {
             .min()
     }
 
-    /// Puts one frame on link `index`, holding it back to share a write with the next ones
-    /// when the link batches and is busy (see [`Batching`]).
+    /// Puts one frame, `frame` followed by `body`, on link `index`, holding it back to share a
+    /// write with the next ones when the link batches and is busy (see [`Batching`]).
     fn transmit(
         &self,
         index: usize,
         link: &dyn Link,
         to: SystemId,
         frame: &[u8],
+        body: &[u8],
         now: Time,
     ) -> Result<(), LinkError> {
         let Some(b) = self.batching.get().and_then(|v| v.get(index)) else {
-            return link.send(to, frame);
+            return link.send_parts(to, frame, body);
         };
         if b.linger_us == 0 {
-            return link.send(to, frame);
+            return link.send_parts(to, frame, body);
         }
         let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
-        if frame.len() > BATCH_FRAME_MAX {
+        if frame.len() + body.len() > BATCH_FRAME_MAX {
             // A large frame fills a write on its own: holding it would only cost a timer
-            // wake-up. It goes now, after whatever is held for the same peer.
-            return link.send(to, frame);
+            // wake-up. It goes now, after whatever is held for the same peer. (Only such
+            // frames come in two pieces: SPLIT_PAYLOAD_MIN > BATCH_FRAME_MAX.)
+            return link.send_parts(to, frame, body);
         }
+        debug_assert!(body.is_empty(), "small frames come whole");
         if now.as_micros().saturating_sub(last) >= b.linger_us {
             // The link was idle: this frame goes now (with anything still held for this
             // peer before it), so sporadic traffic never waits. Frames held for other peers
@@ -629,17 +633,19 @@ impl SystemCore {
         result
     }
 
-    /// Puts `frame` on link `index` (see [`SystemCore::transmit`]), in the router's terms.
+    /// Puts the frame `frame` + `body` on link `index` (see [`SystemCore::transmit`]), in the
+    /// router's terms.
     pub(crate) fn transmit_on(
         &self,
         index: usize,
         to: SystemId,
         frame: &[u8],
+        body: &[u8],
         now: Time,
     ) -> Result<(), TransmitError> {
         match self.links().get(index) {
             Some(link) => self
-                .transmit(index, &**link, to, frame, now)
+                .transmit(index, &**link, to, frame, body, now)
                 .map_err(transmit_error),
             None => Err(TransmitError::Other("no such link".into())),
         }
@@ -724,7 +730,7 @@ impl SystemCore {
                 }
             }
             for tx in transmits.drain(..) {
-                let result = self.transmit_on(tx.link, tx.to, &tx.frame, now);
+                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now);
                 if tx.send.is_some() {
                     transmit_results.push((tx, result));
                 }
