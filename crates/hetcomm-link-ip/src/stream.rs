@@ -131,9 +131,10 @@
 //!   (TCP reports the reset on a later write). The link does not retry: acknowledgements and
 //!   retries are the router's.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::{self, IoSlice, IoSliceMut, Read, Write};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -141,7 +142,7 @@ use std::time::{Duration, Instant};
 
 use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
 /// Size of the hello a connector sends in [`IdentityMode::Hello`].
 pub const HELLO_LEN: usize = 8;
@@ -192,6 +193,13 @@ pub trait StreamSocket: Read + Write + Send + Sized + 'static {
     /// first. `None` (the default) is always correct.
     fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
         None
+    }
+    /// Makes reads return [`io::ErrorKind::WouldBlock`] instead of waiting. Needed for
+    /// [`StreamConfig::driven`] receiving, which falls back to a reader thread per connection
+    /// when this fails (the default: unsupported) or [`raw_fd`](StreamSocket::raw_fd) is
+    /// `None`.
+    fn set_nonblocking(&self, _on: bool) -> io::Result<()> {
+        Err(io::ErrorKind::Unsupported.into())
     }
 }
 /// A bound, listening socket that accepts [`StreamSocket`]s.
@@ -286,6 +294,10 @@ pub struct StreamConfig {
     /// [`Link::send_held`] writes it (default [`DEFAULT_BATCH_BYTES`]); 0 turns holding off.
     /// See the module docs.
     pub batch_bytes: usize,
+    /// Accepted connections are read by whichever thread calls [`Readable::read_ready`]
+    /// ([`Link::readable`]) instead of a reader thread each (see "Driven receive" in the
+    /// module docs). Nothing is received until someone does. Default `false`.
+    pub driven: bool,
 }
 
 impl Default for StreamConfig {
@@ -299,6 +311,7 @@ impl Default for StreamConfig {
             connect_queue_frames: 1024,
             max_message_bytes: None,
             batch_bytes: DEFAULT_BATCH_BYTES,
+            driven: false,
         }
     }
 }
@@ -452,6 +465,8 @@ struct Shared<T: StreamTransport> {
     closing: AtomicBool,
     counters: Counters,
     readers: Mutex<Vec<Reader<T::Socket>>>,
+    /// With [`StreamConfig::driven`]: the connections the driving thread reads.
+    driven: Option<Driven<T::Socket>>,
 }
 
 struct Reader<S> {
@@ -501,9 +516,15 @@ impl<T: StreamTransport> StreamLink<T> {
                 (id, entry)
             })
             .collect();
+        let driven = if config.driven {
+            Some(Driven::new()?)
+        } else {
+            None
+        };
         let shared = Arc::new(Shared {
             transport,
             sink,
+            driven,
             config,
             fleet: peers.keys().map(|id| (*id, ())).collect(),
             closing: AtomicBool::new(false),
@@ -837,6 +858,10 @@ impl<T: StreamTransport> Link for StreamLink<T> {
         self.send_frame(to, FrameParts { head, body })
     }
 
+    fn readable(&self) -> Option<&dyn Readable> {
+        self.shared.driven.as_ref().map(|_| self as &dyn Readable)
+    }
+
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         let entry = self.entry_for(to, frame.len())?;
         let frame = FrameParts::whole(frame);
@@ -910,6 +935,29 @@ impl<T: StreamTransport> Link for StreamLink<T> {
     }
 }
 
+/// With [`StreamConfig::driven`]: the receive side, read by whichever thread calls
+/// `read_ready` (see "Driven receive" in the module docs).
+impl<T: StreamTransport> Readable for StreamLink<T> {
+    /// An epoll descriptor over every accepted connection (readable when any of them is).
+    /// Without `driven`, a descriptor that never polls readable is not offered: -1.
+    fn fd(&self) -> std::os::fd::RawFd {
+        self.shared
+            .driven
+            .as_ref()
+            .map_or(-1, |d| d.epoll.as_raw_fd())
+    }
+
+    /// Reads up to `budget` records from each connection that has bytes (and then whatever
+    /// records are already buffered), handing them to the sink; closes connections that
+    /// ended, counted as the reader threads would.
+    fn read_ready(&self, budget: usize) -> io::Result<usize> {
+        match &self.shared.driven {
+            Some(d) => d.read_ready(&self.shared, budget.max(1)),
+            None => Ok(0),
+        }
+    }
+}
+
 impl<T: StreamTransport> Drop for StreamLink<T> {
     fn drop(&mut self) {
         // Best effort: held frames would otherwise be lost without a trace (a peer that does
@@ -927,6 +975,9 @@ impl<T: StreamTransport> Drop for StreamLink<T> {
         }
         for r in readers {
             let _ = r.handle.join();
+        }
+        if let Some(driven) = &self.shared.driven {
+            driven.shutdown();
         }
         for peer in self.peers.values() {
             if let Some(s) = lock(&peer.slot).conn.take() {
@@ -1148,6 +1199,9 @@ enum StreamEnd {
     Cut,
     /// A record header that is malformed or announces more than `max_frame`.
     Bad,
+    /// Not an end: a non-blocking socket has nothing more for now. The reader keeps what it
+    /// has read and resumes with the next call.
+    Pending,
 }
 
 /// Where [`RecordReader::next_record`] left a complete frame.
@@ -1220,6 +1274,9 @@ struct RecordReader {
     /// Large frames are given away ([`take_large`](Self::take_large)) rather than reused, in
     /// buffers that come back to this pool when the sink drops them.
     pool: Option<Arc<BufferPool>>,
+    /// A large frame whose reading a non-blocking socket interrupted: its length, and how
+    /// many of its bytes are in `large`.
+    partial: Option<(usize, usize)>,
 }
 
 impl RecordReader {
@@ -1232,6 +1289,7 @@ impl RecordReader {
             after_large: false,
             large: Vec::new(),
             pool: None,
+            partial: None,
         }
     }
 
@@ -1288,6 +1346,7 @@ impl RecordReader {
                 Ok(0) => break,
                 Ok(n) => self.end += n,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Err(StreamEnd::Pending),
                 Err(_) => break,
             }
         }
@@ -1301,6 +1360,10 @@ impl RecordReader {
     /// Reads the next record; its frame is then [`frame`](Self::frame)`(at)` until the next
     /// call.
     fn next_record<R: RecordSource>(&mut self, r: &mut R) -> Result<FrameAt, StreamEnd> {
+        if let Some((len, got)) = self.partial {
+            self.finish_large(r, len, got)?;
+            return Ok(FrameAt::Large(len));
+        }
         self.fill(r, RECORD_HEADER_LEN)?;
         let mut head = [0u8; RECORD_HEADER_LEN];
         head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
@@ -1311,8 +1374,10 @@ impl RecordReader {
             if body + len > self.end {
                 // A small partial record: completing it in the buffer costs at most a move of
                 // DIRECT_READ_MIN bytes per buffer's worth of records.
-                self.fill(r, RECORD_HEADER_LEN + len)
-                    .map_err(|_| StreamEnd::Cut)?;
+                self.fill(r, RECORD_HEADER_LEN + len).map_err(|e| match e {
+                    StreamEnd::Pending => StreamEnd::Pending,
+                    _ => StreamEnd::Cut,
+                })?;
             }
             let from = self.start + RECORD_HEADER_LEN;
             self.start = from + len;
@@ -1336,13 +1401,10 @@ impl RecordReader {
             // Rounded up so that frames of similar sizes can reuse each other's buffers.
             self.large = pool.take(len.next_multiple_of(POOLED_BUF_STEP));
             self.large.extend_from_slice(&self.buf[body..self.end]);
-            self.start = 0;
-            self.end = 0;
-            self.after_large = true;
-            if let Some(fd) = r.fd() {
-                return self.read_large_uninit(fd, len);
+            if r.fd().is_none() {
+                // Read through `Read`, which needs initialised memory.
+                self.large.resize(len, 0);
             }
-            self.large.resize(len, 0);
         } else {
             if self.large.len() > LARGE_BUF_KEEP && len < LARGE_BUF_KEEP / 4 {
                 self.large = Vec::new();
@@ -1353,56 +1415,73 @@ impl RecordReader {
                 self.large = vec![0; len];
             }
             self.large[..have].copy_from_slice(&self.buf[body..self.end]);
-            self.start = 0;
-            self.end = 0;
-            self.after_large = true;
         }
-        let mut got = have;
+        self.start = 0;
+        self.end = 0;
+        self.after_large = true;
+        self.finish_large(r, len, have)
+    }
+
+    /// Reads the rest of a large frame, of which `got` bytes are in `large`: in place, with
+    /// whatever follows it (the next record header, with luck) into the front of the read
+    /// buffer in the same read, but at most [`READ_AHEAD_AFTER_LARGE`] bytes of it. A handed-out
+    /// buffer is read into straight from the descriptor, uninitialised (`large.len()` is then
+    /// `got`). On [`StreamEnd::Pending`] the progress is kept in `partial`.
+    fn finish_large<R: RecordSource>(
+        &mut self,
+        r: &mut R,
+        len: usize,
+        mut got: usize,
+    ) -> Result<(), StreamEnd> {
+        self.partial = None;
+        let uninit = if self.pool.is_some() { r.fd() } else { None };
         while got < len {
-            // The rest of the frame in place, and whatever follows it (the next record header,
-            // with luck) into the front of the read buffer, in one read.
-            let (frame, ahead) = (
-                &mut self.large[got..len],
-                &mut self.buf[..READ_AHEAD_AFTER_LARGE],
-            );
-            let want = frame.len();
-            match r.read_vectored(&mut [IoSliceMut::new(frame), IoSliceMut::new(ahead)]) {
+            let want = len - got;
+            let ahead = &mut self.buf[..READ_AHEAD_AFTER_LARGE];
+            let result = match uninit {
+                Some(fd) => readv_uninit(fd, &mut self.large.spare_capacity_mut()[..want], ahead),
+                None => r.read_vectored(&mut [
+                    IoSliceMut::new(&mut self.large[got..len]),
+                    IoSliceMut::new(ahead),
+                ]),
+            };
+            match result {
                 Ok(0) => return Err(StreamEnd::Cut),
-                Ok(n) if n <= want => got += n,
                 Ok(n) => {
-                    got = len;
-                    self.end = n - want;
+                    let into_frame = n.min(want);
+                    if uninit.is_some() {
+                        // SAFETY: the kernel wrote the first `into_frame` bytes of the spare
+                        // capacity (and the rest of n into `buf`).
+                        unsafe { self.large.set_len(got + into_frame) };
+                    }
+                    got += into_frame;
+                    if n > want {
+                        self.end = n - want;
+                    }
                 }
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                    self.partial = Some((len, got));
+                    return Err(StreamEnd::Pending);
+                }
                 Err(_) => return Err(StreamEnd::Cut),
             }
         }
         Ok(())
     }
 
-    /// The rest of a handed-out frame (`large` holds its first bytes, `len` is reserved), read
-    /// from `fd` straight into the uninitialised capacity, with a little read-ahead into `buf`
-    /// as in [`read_large`](Self::read_large).
-    fn read_large_uninit(&mut self, fd: std::os::fd::RawFd, len: usize) -> Result<(), StreamEnd> {
-        while self.large.len() < len {
-            let got = self.large.len();
-            let want = len - got;
-            let spare = &mut self.large.spare_capacity_mut()[..want];
-            match readv_uninit(fd, spare, &mut self.buf[..READ_AHEAD_AFTER_LARGE]) {
-                Ok(0) => return Err(StreamEnd::Cut),
-                Ok(n) => {
-                    // SAFETY: the kernel wrote the first min(n, want) bytes of the spare
-                    // capacity (and the rest of n into `buf`).
-                    unsafe { self.large.set_len(got + n.min(want)) };
-                    if n > want {
-                        self.end = n - want;
-                    }
-                }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(_) => return Err(StreamEnd::Cut),
-            }
+    /// Whether the read buffer holds a whole record (or a bad header) that
+    /// [`next_record`](Self::next_record) can return without reading the socket.
+    fn has_buffered_record(&self) -> bool {
+        if self.partial.is_some() || self.end - self.start < RECORD_HEADER_LEN {
+            return false;
         }
-        Ok(())
+        let mut head = [0u8; RECORD_HEADER_LEN];
+        head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
+        match decode_record_header(&head, self.max_frame) {
+            None => true,
+            Some(len) => self.start + RECORD_HEADER_LEN + len <= self.end,
+        }
     }
 }
 
@@ -1422,42 +1501,217 @@ fn serve_connection<T: StreamTransport>(
         let _ = socket.shutdown_both();
         return;
     };
-    // A sink that keeps frames gets each large one in a buffer of its own (its payload then
-    // needs no copy); others borrow from the reader's reused buffers.
-    let mut reader = if shared.sink.takes_frames() {
+    let mut conn = Connection {
+        reader: new_reader(shared),
+        socket,
+        from,
+    };
+    if let Some(driven) = &shared.driven {
+        // From here on whoever drives the link reads this connection.
+        match driven.register(conn) {
+            Ok(()) => return,
+            Err(back) => conn = back,
+        }
+    }
+    let end = loop {
+        match conn.read_records(shared, usize::MAX) {
+            Ok(_) => continue,
+            // A blocking socket has no "later": treat it as cut.
+            Err(StreamEnd::Pending) => break StreamEnd::Cut,
+            Err(end) => break end,
+        }
+    };
+    conn.end(shared, end);
+}
+
+/// A reader for a new connection. A sink that keeps frames gets each large one in a buffer of
+/// its own (its payload then needs no copy); others borrow from the reader's reused buffers.
+fn new_reader<T: StreamTransport>(shared: &Shared<T>) -> RecordReader {
+    if shared.sink.takes_frames() {
         RecordReader::handing_out(
             shared.config.max_frame(),
             BufferPool::new(RECEIVE_POOL_BYTES),
         )
     } else {
         RecordReader::new(shared.config.max_frame())
-    };
-    let end = loop {
-        match reader.next_record(&mut socket) {
-            Ok(at) => {
-                // Counted first so that whoever the sink wakes sees the counter already updated.
-                bump(&counters.frames_received);
-                match at {
-                    FrameAt::Large(_) if reader.hands_out() => {
-                        shared.sink.on_frame_owned(reader.take_large(), from)
-                    }
-                    _ => shared.sink.on_frame(reader.frame(at), from),
-                }
-            }
-            Err(end) => break end,
-        }
-    };
-    // Truncated, desynchronised or oversized: nothing after it can be trusted. A record cut
-    // by our own shutdown is not the peer's fault.
-    let count = match end {
-        StreamEnd::Clean => false,
-        StreamEnd::Cut => !shared.closing.load(Ordering::SeqCst),
-        StreamEnd::Bad => true,
-    };
-    if count {
-        bump(&counters.frames_dropped);
     }
-    let _ = socket.shutdown_both();
+}
+
+/// An accepted, identified connection and its record reader.
+struct Connection<S> {
+    socket: S,
+    reader: RecordReader,
+    from: Peer,
+}
+
+impl<S: StreamSocket> Connection<S> {
+    /// Hands records to the sink: `budget` of them at most, then any more that are already
+    /// buffered (a driven socket reports readable only for bytes it still holds). `Err` when
+    /// the stream ended, or is [`StreamEnd::Pending`].
+    fn read_records<T>(&mut self, shared: &Shared<T>, budget: usize) -> Result<usize, StreamEnd>
+    where
+        T: StreamTransport<Socket = S>,
+    {
+        let mut n = 0;
+        while n < budget || self.reader.has_buffered_record() {
+            let at = self.reader.next_record(&mut self.socket)?;
+            n += 1;
+            // Counted first so that whoever the sink wakes sees the counter already updated.
+            bump(&shared.counters.frames_received);
+            match at {
+                FrameAt::Large(_) if self.reader.hands_out() => shared
+                    .sink
+                    .on_frame_owned(self.reader.take_large(), self.from),
+                _ => shared.sink.on_frame(self.reader.frame(at), self.from),
+            }
+        }
+        Ok(n)
+    }
+
+    /// Closes the connection after its stream ended with `end`.
+    fn end<T: StreamTransport>(self, shared: &Shared<T>, end: StreamEnd) {
+        // Truncated, desynchronised or oversized: nothing after it can be trusted. A record
+        // cut by our own shutdown is not the peer's fault.
+        let count = match end {
+            StreamEnd::Clean | StreamEnd::Pending => false,
+            StreamEnd::Cut => !shared.closing.load(Ordering::SeqCst),
+            StreamEnd::Bad => true,
+        };
+        if count {
+            bump(&shared.counters.frames_dropped);
+        }
+        let _ = self.socket.shutdown_both();
+    }
+}
+
+/// The receive side of a [`StreamConfig::driven`] link: every accepted connection, registered
+/// with one epoll instance whose descriptor the driving thread polls.
+struct Driven<S> {
+    epoll: OwnedFd,
+    /// Keyed by the token registered with epoll.
+    conns: Mutex<HashMap<u64, Arc<Mutex<Connection<S>>>>>,
+    next_token: AtomicU64,
+}
+
+impl<S: StreamSocket> Driven<S> {
+    fn new() -> io::Result<Self> {
+        // SAFETY: no memory-safety preconditions; the result is checked.
+        let fd = unsafe { libc::epoll_create1(libc::EPOLL_CLOEXEC) };
+        if fd < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        Ok(Driven {
+            // SAFETY: a fresh descriptor that nothing else owns.
+            epoll: unsafe { OwnedFd::from_raw_fd(fd) },
+            conns: Mutex::new(HashMap::new()),
+            next_token: AtomicU64::new(1),
+        })
+    }
+
+    /// Makes `conn` readable through [`Driven::read_ready`]; gives it back if its socket cannot
+    /// be read without blocking (the caller then reads it on a thread).
+    fn register(&self, conn: Connection<S>) -> Result<(), Connection<S>> {
+        let Some(fd) = conn.socket.raw_fd() else {
+            return Err(conn);
+        };
+        if conn.socket.set_nonblocking(true).is_err() {
+            return Err(conn);
+        }
+        let token = self.next_token.fetch_add(1, Ordering::Relaxed);
+        // In the map before epoll can report it.
+        lock(&self.conns).insert(token, Arc::new(Mutex::new(conn)));
+        let mut ev = libc::epoll_event {
+            events: (libc::EPOLLIN | libc::EPOLLRDHUP) as u32,
+            u64: token,
+        };
+        // SAFETY: `ev` is a valid event for the call; `fd` is open (its connection is in the
+        // map).
+        let rc = unsafe {
+            libc::epoll_ctl(self.epoll.as_raw_fd(), libc::EPOLL_CTL_ADD, fd, &mut ev)
+        };
+        if rc != 0 {
+            let conn = lock(&self.conns).remove(&token).expect("inserted above");
+            let conn = Arc::try_unwrap(conn).ok().expect("nobody else has it yet");
+            let conn = conn.into_inner().unwrap_or_else(|e| e.into_inner());
+            let _ = conn.socket.set_nonblocking(false);
+            return Err(conn);
+        }
+        Ok(())
+    }
+
+    /// Reads the connections epoll reports ready: see [`Readable::read_ready`].
+    fn read_ready<T>(&self, shared: &Shared<T>, budget: usize) -> io::Result<usize>
+    where
+        T: StreamTransport<Socket = S>,
+    {
+        const EVENTS: usize = 16;
+        let mut events = [libc::epoll_event { events: 0, u64: 0 }; EVENTS];
+        // SAFETY: `events` has room for EVENTS entries; timeout 0 never blocks.
+        let n = unsafe {
+            libc::epoll_wait(
+                self.epoll.as_raw_fd(),
+                events.as_mut_ptr(),
+                EVENTS as i32,
+                0,
+            )
+        };
+        if n < 0 {
+            let e = io::Error::last_os_error();
+            return if e.kind() == io::ErrorKind::Interrupted {
+                Ok(0)
+            } else {
+                Err(e)
+            };
+        }
+        let mut frames = 0;
+        for ev in &events[..n as usize] {
+            let token = ev.u64;
+            let Some(conn) = lock(&self.conns).get(&token).cloned() else {
+                continue;
+            };
+            let result = lock(&conn).read_records(shared, budget);
+            drop(conn);
+            match result {
+                Ok(got) => frames += got,
+                Err(StreamEnd::Pending) => {}
+                Err(end) => self.close(shared, token, end),
+            }
+        }
+        Ok(frames)
+    }
+
+    /// Forgets connection `token`, whose stream ended with `end`.
+    fn close<T>(&self, shared: &Shared<T>, token: u64, end: StreamEnd)
+    where
+        T: StreamTransport<Socket = S>,
+    {
+        let Some(conn) = lock(&self.conns).remove(&token) else {
+            return;
+        };
+        let c = match Arc::try_unwrap(conn) {
+            Ok(m) => m.into_inner().unwrap_or_else(|e| e.into_inner()),
+            Err(_) => return, // only `read_ready` clones it, and it has let go
+        };
+        if let Some(fd) = c.socket.raw_fd() {
+            // SAFETY: `fd` is still open (we own its socket); a null event is allowed for DEL.
+            unsafe {
+                libc::epoll_ctl(
+                    self.epoll.as_raw_fd(),
+                    libc::EPOLL_CTL_DEL,
+                    fd,
+                    std::ptr::null_mut(),
+                )
+            };
+        }
+        c.end(shared, end);
+    }
+
+    /// Shuts every connection down (the link is closing).
+    fn shutdown(&self) {
+        for conn in std::mem::take(&mut *lock(&self.conns)).into_values() {
+            let _ = lock(&conn).socket.shutdown_both();
+        }
+    }
 }
 
 #[cfg(test)]

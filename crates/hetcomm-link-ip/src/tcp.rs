@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 
 use crate::stream::{
     StreamConfig, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
@@ -40,6 +40,9 @@ impl StreamSocket for TcpStream {
     fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
         // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
         Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        TcpStream::set_nonblocking(self, on)
     }
 }
 
@@ -189,5 +192,8 @@ impl Link for TcpLink {
     }
     fn checksums_payload(&self) -> bool {
         self.inner.checksums_payload()
+    }
+    fn readable(&self) -> Option<&dyn Readable> {
+        self.inner.readable()
     }
 }

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 
 use crate::stream::{
     StreamConfig, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
@@ -36,6 +36,9 @@ impl StreamSocket for UnixStream {
     fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
         // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
         Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        UnixStream::set_nonblocking(self, on)
     }
 }
 
@@ -188,6 +191,9 @@ impl Link for UnixLink {
     }
     fn checksums_payload(&self) -> bool {
         self.inner.as_ref().is_some_and(Link::checksums_payload)
+    }
+    fn readable(&self) -> Option<&dyn Readable> {
+        self.inner.as_ref().and_then(|l| l.readable())
     }
 }
 

@@ -136,7 +136,11 @@ pub(crate) fn open_link(
             })
         }
         (TransportKind::Tcp, TransportSettings::Ip(ip)) => {
-            let mut config = StreamConfig::default();
+            // Read by the waiting module (or the system's background thread), as UDP is.
+            let mut config = StreamConfig {
+                driven: true,
+                ..StreamConfig::default()
+            };
             if let Some(max) = ip.max_message_bytes {
                 config.max_message_bytes = Some(max);
             }
