@@ -1514,8 +1514,8 @@ fn serve_connection<T: StreamTransport>(
         }
     }
     let end = loop {
-        match conn.read_records(shared, usize::MAX) {
-            Ok(_) => continue,
+        match conn.read_records(shared, usize::MAX).1 {
+            Ok(()) => continue,
             // A blocking socket has no "later": treat it as cut.
             Err(StreamEnd::Pending) => break StreamEnd::Cut,
             Err(end) => break end,
@@ -1546,15 +1546,23 @@ struct Connection<S> {
 
 impl<S: StreamSocket> Connection<S> {
     /// Hands records to the sink: `budget` of them at most, then any more that are already
-    /// buffered (a driven socket reports readable only for bytes it still holds). `Err` when
-    /// the stream ended, or is [`StreamEnd::Pending`].
-    fn read_records<T>(&mut self, shared: &Shared<T>, budget: usize) -> Result<usize, StreamEnd>
+    /// buffered (a driven socket reports readable only for bytes it still holds). Returns how
+    /// many, and why it stopped: `Ok` at the budget, `Err` when the stream ended or is
+    /// [`StreamEnd::Pending`].
+    fn read_records<T>(
+        &mut self,
+        shared: &Shared<T>,
+        budget: usize,
+    ) -> (usize, Result<(), StreamEnd>)
     where
         T: StreamTransport<Socket = S>,
     {
         let mut n = 0;
         while n < budget || self.reader.has_buffered_record() {
-            let at = self.reader.next_record(&mut self.socket)?;
+            let at = match self.reader.next_record(&mut self.socket) {
+                Ok(at) => at,
+                Err(end) => return (n, Err(end)),
+            };
             n += 1;
             // Counted first so that whoever the sink wakes sees the counter already updated.
             bump(&shared.counters.frames_received);
@@ -1565,7 +1573,7 @@ impl<S: StreamSocket> Connection<S> {
                 _ => shared.sink.on_frame(self.reader.frame(at), self.from),
             }
         }
-        Ok(n)
+        (n, Ok(()))
     }
 
     /// Closes the connection after its stream ended with `end`.
@@ -1626,9 +1634,8 @@ impl<S: StreamSocket> Driven<S> {
         };
         // SAFETY: `ev` is a valid event for the call; `fd` is open (its connection is in the
         // map).
-        let rc = unsafe {
-            libc::epoll_ctl(self.epoll.as_raw_fd(), libc::EPOLL_CTL_ADD, fd, &mut ev)
-        };
+        let rc =
+            unsafe { libc::epoll_ctl(self.epoll.as_raw_fd(), libc::EPOLL_CTL_ADD, fd, &mut ev) };
         if rc != 0 {
             let conn = lock(&self.conns).remove(&token).expect("inserted above");
             let conn = Arc::try_unwrap(conn).ok().expect("nobody else has it yet");
@@ -1669,11 +1676,11 @@ impl<S: StreamSocket> Driven<S> {
             let Some(conn) = lock(&self.conns).get(&token).cloned() else {
                 continue;
             };
-            let result = lock(&conn).read_records(shared, budget);
+            let (got, result) = lock(&conn).read_records(shared, budget);
             drop(conn);
+            frames += got;
             match result {
-                Ok(got) => frames += got,
-                Err(StreamEnd::Pending) => {}
+                Ok(()) | Err(StreamEnd::Pending) => {}
                 Err(end) => self.close(shared, token, end),
             }
         }
@@ -1865,6 +1872,97 @@ mod tests {
                 Err(end) => return (got, end),
             }
         }
+    }
+
+    /// A non-blocking stream: pieces of up to `max` bytes, with "would block" between many of
+    /// them (and in the middle of large frames).
+    struct NonBlocking<'a> {
+        data: &'a [u8],
+        max: usize,
+        calls: usize,
+    }
+
+    impl Read for NonBlocking<'_> {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            self.calls += 1;
+            if !self.calls.is_multiple_of(3) {
+                return Err(io::ErrorKind::WouldBlock.into());
+            }
+            if self.data.is_empty() {
+                return Err(io::ErrorKind::WouldBlock.into());
+            }
+            let n = (self.calls % self.max + 1)
+                .min(buf.len())
+                .min(self.data.len());
+            buf[..n].copy_from_slice(&self.data[..n]);
+            self.data = &self.data[n..];
+            Ok(n)
+        }
+    }
+
+    impl RecordSource for NonBlocking<'_> {}
+
+    #[test]
+    fn a_reader_resumes_where_a_non_blocking_socket_left_it() {
+        let frames = mixed_frames();
+        let stream = stream_of(&frames);
+        for hand_out in [false, true] {
+            for max in [7, 5000, 200_000] {
+                let mut reader = if hand_out {
+                    RecordReader::handing_out(2 << 20, BufferPool::new(1 << 20))
+                } else {
+                    RecordReader::new(2 << 20)
+                };
+                let mut r = NonBlocking {
+                    data: &stream,
+                    max,
+                    calls: 0,
+                };
+                let (mut got, mut pending) = (Vec::new(), 0);
+                while got.len() < frames.len() {
+                    match reader.next_record(&mut r) {
+                        Ok(FrameAt::Large(len)) if hand_out => {
+                            got.push(reader.take_large().into_vec());
+                            assert_eq!(got.last().unwrap().len(), len);
+                        }
+                        Ok(at) => got.push(reader.frame(at).to_vec()),
+                        Err(StreamEnd::Pending) => pending += 1,
+                        Err(end) => panic!("hand_out {hand_out}, max {max}: ended with {end:?}"),
+                    }
+                    assert!(pending < 10_000_000, "no progress");
+                }
+                assert!(pending > 0);
+                for (i, (g, f)) in got.iter().zip(&frames).enumerate() {
+                    assert!(g == f, "hand_out {hand_out}, max {max}: frame {i}");
+                }
+                assert!(!reader.has_buffered_record());
+                assert_eq!(reader.next_record(&mut r), Err(StreamEnd::Pending));
+            }
+        }
+    }
+
+    #[test]
+    fn buffered_records_are_seen_without_reading() {
+        let stream = stream_of(&[vec![1; 10], vec![2; 20], vec![3; 100_000]]);
+        let mut reader = RecordReader::new(1 << 20);
+        let mut r = &stream[..];
+        // One read fills the buffer: the first record comes from it, the second is whole in
+        // it, the third (large) is not.
+        assert_eq!(reader.next_record(&mut r), Ok(FrameAt::Buffered(8, 18)));
+        assert!(reader.has_buffered_record());
+        assert!(matches!(
+            reader.next_record(&mut r),
+            Ok(FrameAt::Buffered(..))
+        ));
+        assert!(!reader.has_buffered_record());
+        // A bad header counts as "there is something to report".
+        let mut bad = stream_of(&[vec![1; 10], vec![2; 10]]);
+        bad[18] = b'X';
+        let mut reader = RecordReader::new(1 << 20);
+        let mut r = &bad[..];
+        assert!(reader.next_record(&mut r).is_ok());
+        assert!(reader.has_buffered_record());
+        assert_eq!(reader.next_record(&mut r), Err(StreamEnd::Bad));
     }
 
     #[test]

@@ -7,17 +7,16 @@
 mod common;
 
 use std::net::UdpSocket;
-use std::os::fd::RawFd;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use common::driven::{poll_readable, DrivenLink, Driver};
 use common::{udp_sockets, wait_until, UdpHarness, DEADLINE};
 use hetcomm_core::wire::{self, Header, HEADER_LEN};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId};
 use hetcomm_link::conformance::{self, CollectSink, Harness};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
+use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_link_ip::udp::{parse_fragment, FragmentHeader, FRAGMENT_MAGIC};
 use hetcomm_link_ip::{UdpConfig, UdpLink};
 
@@ -406,65 +405,6 @@ fn a_datagram_that_is_not_a_batch_is_handed_up_whole() {
 
 // --- Driven receive -------------------------------------------------------------------------
 
-/// Waits up to `timeout_ms` for `fd` to poll readable.
-fn poll_readable(fd: RawFd, timeout_ms: i32) -> bool {
-    let mut p = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    // SAFETY: one valid, exclusively borrowed pollfd for the duration of the call.
-    let n = unsafe { libc::poll(&mut p, 1, timeout_ms) };
-    n > 0 && p.revents & libc::POLLIN != 0
-}
-
-/// A thread that drives a link's receive side the way a waiting runtime thread would: poll,
-/// then read what is ready. Stopped (and joined) on drop.
-struct Driver {
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<usize>>,
-}
-
-impl Driver {
-    fn start(link: Arc<UdpLink>) -> Driver {
-        let stop = Arc::new(AtomicBool::new(false));
-        let stopping = stop.clone();
-        let thread = std::thread::spawn(move || {
-            let rx = link.readable().expect("a driven link");
-            let mut handed_on = 0;
-            while !stopping.load(Ordering::SeqCst) {
-                // A short timeout so that a stop is noticed promptly; read_ready also expires
-                // incomplete messages.
-                poll_readable(rx.fd(), 20);
-                handed_on += rx.read_ready(64).expect("read_ready");
-            }
-            handed_on
-        });
-        Driver {
-            stop,
-            thread: Some(thread),
-        }
-    }
-
-    /// Stops the thread; returns how many frames its `read_ready` calls reported.
-    fn finish(mut self) -> usize {
-        self.stop.store(true, Ordering::SeqCst);
-        self.thread
-            .take()
-            .map(|t| t.join().expect("driver thread"))
-            .unwrap_or(0)
-    }
-}
-
-impl Drop for Driver {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-    }
-}
-
 fn driven(config: UdpConfig) -> UdpConfig {
     UdpConfig {
         driven: true,
@@ -585,52 +525,11 @@ fn a_driven_link_expires_incomplete_messages_when_read() {
     assert!(sink.frames().is_empty());
 }
 
-/// A driven UDP link with a driver thread of its own, so that the conformance suite (which
-/// expects frames to arrive by themselves) can run on it.
-struct DrivenLink {
-    link: Arc<UdpLink>,
-    driver: Option<Driver>,
-}
-
-impl Drop for DrivenLink {
-    fn drop(&mut self) {
-        // Stop the driver first: it holds the other reference to the link, whose drop closes
-        // the socket (the suite rebinds the port to restart a peer).
-        self.driver.take();
-    }
-}
-
-impl Link for DrivenLink {
-    fn caps(&self) -> LinkCaps {
-        self.link.caps()
-    }
-    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.link.send(to, frame)
-    }
-    fn stats(&self) -> LinkStats {
-        self.link.stats()
-    }
-    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.link.send_held(to, frame)
-    }
-    fn flush(&self) -> Result<(), LinkError> {
-        self.link.flush()
-    }
-    fn batches(&self) -> bool {
-        self.link.batches()
-    }
-    fn readable(&self) -> Option<&dyn Readable> {
-        self.link.readable()
-    }
-}
-
 struct DrivenHarness(UdpHarness);
 
 impl Harness for DrivenHarness {
     fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
-        let link = Arc::new(self.0.open_udp(system, sink));
-        let driver = Some(Driver::start(link.clone()));
-        Box::new(DrivenLink { link, driver })
+        Box::new(DrivenLink::new(self.0.open_udp(system, sink)))
     }
 }
 

@@ -3,6 +3,8 @@
 
 #![allow(dead_code)] // each test binary uses a different subset
 
+pub mod driven;
+
 use std::collections::{BTreeMap, HashMap};
 use std::net::{TcpListener, UdpSocket};
 use std::path::PathBuf;

@@ -1,0 +1,204 @@
+//! Driven receive on the stream links (`StreamConfig::driven`): accepted connections are read
+//! by whoever calls `Readable::read_ready`, as the runtime's waiting modules do. Real sockets
+//! on 127.0.0.1 (port 0) and in a temporary directory.
+
+mod common;
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use common::driven::{poll_readable, DrivenLink, Driver};
+use common::{wait_until, TcpHarness, UnixHarness, DEADLINE};
+use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::conformance::{self, CollectSink, Harness};
+use hetcomm_link::{FrameSink, Link, Peer};
+use hetcomm_link_ip::stream::{encode_hello, StreamConfig, RECORD_MAGIC, STREAM_VERSION};
+use hetcomm_link_ip::UnixLink;
+
+const A: SystemId = SystemId(1);
+const B: SystemId = SystemId(2);
+
+fn driven() -> StreamConfig {
+    StreamConfig {
+        driven: true,
+        ..StreamConfig::default()
+    }
+}
+
+struct DrivenTcp(TcpHarness);
+
+impl Harness for DrivenTcp {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        Box::new(DrivenLink::new(self.0.open_tcp(system, sink)))
+    }
+}
+
+struct DrivenUnix(UnixHarness);
+
+impl Harness for DrivenUnix {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        let link = UnixLink::bind(system, &self.0.paths, sink, self.0.config.clone())
+            .expect("open unix link");
+        Box::new(DrivenLink::new(link))
+    }
+}
+
+#[test]
+fn driven_tcp_passes_conformance() {
+    conformance::run_all(&mut DrivenTcp(TcpHarness::new(driven())));
+}
+
+#[test]
+fn driven_unix_passes_conformance() {
+    conformance::run_all(&mut DrivenUnix(UnixHarness::new(driven())));
+}
+
+/// Records each frame and whether it came as an owned (pooled) buffer.
+#[derive(Default)]
+struct OwningSink {
+    frames: Mutex<Vec<(Vec<u8>, bool)>>,
+}
+
+impl FrameSink for OwningSink {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.frames.lock().unwrap().push((frame.to_vec(), false));
+    }
+    fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
+        let pooled = frame.is_pooled();
+        self.frames.lock().unwrap().push((frame.into_vec(), pooled));
+    }
+    fn takes_frames(&self) -> bool {
+        true
+    }
+}
+
+fn frame(index: u8, len: usize) -> Vec<u8> {
+    (0..len)
+        .map(|i| (i as u8).wrapping_mul(31) ^ index)
+        .collect()
+}
+
+#[test]
+fn frames_wait_for_read_ready_then_arrive_whole_and_in_order() {
+    let mut h = TcpHarness::new(driven());
+    let sink = Arc::new(OwningSink::default());
+    let b = h.open_tcp(B, sink.clone());
+    let a = h.open_tcp(A, CollectSink::new());
+    let rx = b.readable().expect("a driven link is readable");
+    let sizes = [10, 20_000, 1 << 20, 0, 64, 70_000, 3, 16 * 1024 + 1];
+    let frames: Vec<_> = (0..40u8)
+        .map(|i| frame(i, sizes[usize::from(i) % sizes.len()]))
+        .collect();
+    // From a thread: more bytes than the socket buffers hold, so the sender waits for B.
+    let sender = {
+        let frames = frames.clone();
+        std::thread::spawn(move || {
+            for f in &frames {
+                a.send(B, f).unwrap();
+            }
+            a
+        })
+    };
+    // Nobody drives B: the bytes wait in its socket.
+    assert!(poll_readable(rx.fd(), 10_000), "epoll never reported data");
+    std::thread::sleep(Duration::from_millis(100));
+    assert!(sink.frames.lock().unwrap().is_empty());
+    assert_eq!(b.stats().frames_received, 0);
+    // Driving it hands them over, a budget's worth per connection and call.
+    let mut handed = 0;
+    let deadline = Instant::now() + DEADLINE;
+    while handed < frames.len() {
+        assert!(
+            Instant::now() < deadline,
+            "only {handed} frames arrived; B: {:?}, readable now: {}",
+            b.stream_stats(),
+            poll_readable(rx.fd(), 0)
+        );
+        poll_readable(rx.fd(), 100);
+        let n = rx.read_ready(4).unwrap();
+        assert!(n <= 4 + 64, "budget ignored: {n}");
+        handed += n;
+    }
+    assert_eq!(handed, frames.len());
+    let got = sink.frames.lock().unwrap();
+    for (i, ((g, pooled), f)) in got.iter().zip(&frames).enumerate() {
+        assert!(g == f, "frame {i}");
+        // Large frames are read into pooled buffers of their own.
+        assert_eq!(*pooled, f.len() > 16 * 1024 && *pooled, "frame {i}");
+    }
+    assert!(got.iter().any(|(_, pooled)| *pooled), "no pooled frame");
+    assert_eq!(b.stats().frames_received, frames.len() as u64);
+    assert_eq!(rx.read_ready(64).unwrap(), 0);
+    let a = sender.join().unwrap();
+    assert_eq!(a.stats().frames_sent, frames.len() as u64);
+}
+
+fn record(frame: &[u8]) -> Vec<u8> {
+    let mut r = RECORD_MAGIC.to_vec();
+    r.extend_from_slice(&[STREAM_VERSION, 0]);
+    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    r.extend_from_slice(frame);
+    r
+}
+
+/// Waits until the server closes `s` (a read returns end-of-stream or an error).
+fn assert_closed_by_peer(s: &mut TcpStream) {
+    s.set_read_timeout(Some(DEADLINE)).unwrap();
+    let started = Instant::now();
+    let mut buf = [0u8; 64];
+    while let Ok(n) = s.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+    }
+    assert!(started.elapsed() < DEADLINE, "the link kept the connection");
+}
+
+#[test]
+fn bad_and_cut_streams_close_only_their_connection_and_are_counted() {
+    let mut h = TcpHarness::new(driven());
+    let sink = CollectSink::new();
+    let b = Arc::new(h.open_tcp(B, sink.clone()));
+    let a = h.open_tcp(A, CollectSink::new());
+    let addr = b.local_addr();
+    let _driver = Driver::start(b.clone());
+
+    // A good record, then garbage where the next header should be.
+    let mut raw = TcpStream::connect(addr).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    raw.write_all(&record(b"fine")).unwrap();
+    raw.write_all(b"\xde\xad\xbe\xef garbage").unwrap();
+    assert_closed_by_peer(&mut raw);
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    wait_until("the bad record counted", DEADLINE, || {
+        b.stats().frames_dropped == 1
+    });
+
+    // Half of a large frame, then the connection closes: the frame is lost and counted.
+    let mut raw = TcpStream::connect(addr).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    let big = record(&frame(7, 300_000));
+    raw.write_all(&big[..150_000]).unwrap();
+    drop(raw);
+    wait_until("the cut frame counted", DEADLINE, || {
+        b.stats().frames_dropped == 2
+    });
+
+    // A peer that closes between records costs nothing.
+    let mut raw = TcpStream::connect(addr).unwrap();
+    raw.write_all(&encode_hello(A)).unwrap();
+    raw.write_all(&record(b"bye")).unwrap();
+    drop(raw);
+    assert_eq!(sink.wait_for(2, DEADLINE), 2);
+
+    // The link still serves well-behaved peers.
+    a.send(B, b"after").unwrap();
+    assert_eq!(sink.wait_for(3, DEADLINE), 3);
+    let bytes: Vec<_> = sink.frames().into_iter().map(|f| f.bytes).collect();
+    assert_eq!(bytes, [&b"fine"[..], b"bye", b"after"]);
+    std::thread::sleep(Duration::from_millis(50));
+    let s = b.stream_stats();
+    assert_eq!((s.frames_received, s.frames_dropped), (3, 2), "{s:?}");
+}
