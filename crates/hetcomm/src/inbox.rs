@@ -133,10 +133,11 @@ pub(crate) struct Inbox {
     config: InboxConfig,
     /// Arrivals of any priority, in order.
     intake: SegQueue<Entry>,
-    /// The highest priority pushed into the intake since a consumer last emptied it, plus
-    /// one (0: none). A consumer whose stash front is at least that takes from the stash
-    /// without looking at the intake, so a consumer that lags takes whole batches touching
-    /// nothing producers write.
+    /// At least the highest priority in the intake, plus one (0: the intake is empty): the
+    /// highest pushed since a consumer last cleared it, which consumers do only when their
+    /// stash is not empty (see [`Inbox::drain`]). A consumer whose stash front is at least
+    /// that takes from the stash without looking at the intake, so a consumer that lags
+    /// takes whole batches touching nothing producers write.
     intake_top: CachePadded<AtomicU16>,
     /// Places reserved by producers minus places given back by consumers: the messages
     /// queued or being pushed, plus [`Stash::unreleased`].
@@ -184,8 +185,11 @@ impl Inbox {
 
     /// Moves everything in the intake into the stash (locked by the caller).
     fn drain(&self, stash: &mut Stash) {
-        // Cleared before the pops: a push that lands after them raises it again.
-        if self.intake_top.load(Ordering::Relaxed) != 0 {
+        // Cleared before the pops (a push that lands after them raises it again), but only
+        // when the stash holds something it must be compared with. A consumer that keeps up
+        // drains into an empty stash whatever the mark says; leaving the mark high then spares
+        // every push a write to a line this thread would otherwise write at every take.
+        if stash.len > 0 && self.intake_top.load(Ordering::Relaxed) != 0 {
             self.intake_top.swap(0, Ordering::AcqRel);
         }
         while let Some(e) = self.intake.pop() {
