@@ -104,8 +104,9 @@
 //!
 //! The point is the hand-off: with a reader thread per connection, every message read wakes
 //! the module's thread, and three threads (sender, reader, module) share the CPUs that two
-//! would use. Read by the module itself, a 64 KiB stream reaches about 85% of raw TCP's
-//! throughput here, against about 65% through a reader thread (`benchmarks/RESULTS.md`).
+//! would use. Read by the module itself, a 64 KiB stream reached 83–90% of raw TCP's
+//! throughput on the 2-core test VM, against about 65% through a reader thread
+//! (`benchmarks/RESULTS.md`).
 //!
 //! # Integrity
 //!
