@@ -2,7 +2,7 @@
 //! every [`Link`] implementation (as iceoryx2 does for its backends).
 //!
 //! A transport's tests implement [`Harness`] (how to open an endpoint for a system) and call
-//! [`run_all`]. Checks adapt to the link's declared [`LinkCaps`]: an unreliable link is not
+//! [`run_all`]. Checks adapt to the link's declared [`LinkCaps`](crate::LinkCaps): an unreliable link is not
 //! required to deliver everything, but must never corrupt, invent or mislabel a frame.
 
 use std::sync::{Arc, Condvar, Mutex};
