@@ -1790,17 +1790,41 @@ mod tests {
     }
 
     /// A stream that hands out its bytes in pieces of varying size (at most `max` per call),
-    /// filling only the first buffer of a vectored read, as many sockets do.
+    /// filling only the first buffer of a vectored read, as many sockets do. A blocking one is
+    /// interrupted now and then; a `non_blocking` one would block between most pieces (in the
+    /// middle of large frames too) and once it has nothing left.
     struct Chunky<'a> {
         data: &'a [u8],
         max: usize,
         calls: usize,
+        non_blocking: bool,
+    }
+
+    impl<'a> Chunky<'a> {
+        fn new(data: &'a [u8], max: usize) -> Self {
+            Chunky {
+                data,
+                max,
+                calls: 0,
+                non_blocking: false,
+            }
+        }
+
+        fn non_blocking(data: &'a [u8], max: usize) -> Self {
+            Chunky {
+                non_blocking: true,
+                ..Chunky::new(data, max)
+            }
+        }
     }
 
     impl Read for Chunky<'_> {
         fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
             self.calls += 1;
-            if self.calls % 5 == 4 {
+            if self.non_blocking && (!self.calls.is_multiple_of(3) || self.data.is_empty()) {
+                return Err(io::ErrorKind::WouldBlock.into());
+            }
+            if !self.non_blocking && self.calls % 5 == 4 {
                 return Err(io::ErrorKind::Interrupted.into());
             }
             // 1, 2, … max, 1, 2, …: every split point shows up sooner or later.
@@ -1894,34 +1918,6 @@ mod tests {
         }
     }
 
-    /// A non-blocking stream: pieces of up to `max` bytes, with "would block" between many of
-    /// them (and in the middle of large frames).
-    struct NonBlocking<'a> {
-        data: &'a [u8],
-        max: usize,
-        calls: usize,
-    }
-
-    impl Read for NonBlocking<'_> {
-        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-            self.calls += 1;
-            if !self.calls.is_multiple_of(3) {
-                return Err(io::ErrorKind::WouldBlock.into());
-            }
-            if self.data.is_empty() {
-                return Err(io::ErrorKind::WouldBlock.into());
-            }
-            let n = (self.calls % self.max + 1)
-                .min(buf.len())
-                .min(self.data.len());
-            buf[..n].copy_from_slice(&self.data[..n]);
-            self.data = &self.data[n..];
-            Ok(n)
-        }
-    }
-
-    impl RecordSource for NonBlocking<'_> {}
-
     #[test]
     fn a_reader_resumes_where_a_non_blocking_socket_left_it() {
         let frames = mixed_frames();
@@ -1933,11 +1929,7 @@ mod tests {
                 } else {
                     RecordReader::new(2 << 20)
                 };
-                let mut r = NonBlocking {
-                    data: &stream,
-                    max,
-                    calls: 0,
-                };
+                let mut r = Chunky::non_blocking(&stream, max);
                 let (mut got, mut pending) = (Vec::new(), 0);
                 while got.len() < frames.len() {
                     match reader.next_record(&mut r) {
@@ -2028,11 +2020,7 @@ mod tests {
         assert_eq!(end, StreamEnd::Clean);
         check(&got, "whole reads");
         for max in [1, 4096, 100_000] {
-            let mut r = Chunky {
-                data: &stream,
-                max,
-                calls: 0,
-            };
+            let mut r = Chunky::new(&stream, max);
             let (got, end) = read_all_handed_out(&mut r, 2 << 20);
             assert_eq!(end, StreamEnd::Clean, "chunks of up to {max}");
             check(&got, &format!("chunks of up to {max}"));
@@ -2062,11 +2050,7 @@ mod tests {
         assert_eq!(end, StreamEnd::Clean);
         assert!(got == frames, "whole reads");
         for max in [1, 7, 4096, 100_000] {
-            let mut r = Chunky {
-                data: &stream,
-                max,
-                calls: 0,
-            };
+            let mut r = Chunky::new(&stream, max);
             let (got, end) = read_all(&mut r, 2 << 20);
             assert_eq!(end, StreamEnd::Clean, "chunks of up to {max}");
             assert!(got == frames, "chunks of up to {max}");
@@ -2098,11 +2082,7 @@ mod tests {
     fn record_reader_reuses_its_buffers() {
         let frames: Vec<Vec<u8>> = (0..50).map(|i| frame_of(65_584, i)).collect();
         let stream = stream_of(&frames);
-        let mut r = Chunky {
-            data: &stream,
-            max: 70_000,
-            calls: 0,
-        };
+        let mut r = Chunky::new(&stream, 70_000);
         let mut reader = RecordReader::new(1 << 20);
         let first = reader.next_record(&mut r).unwrap();
         assert_eq!(first, FrameAt::Large(65_584));
