@@ -1616,8 +1616,9 @@ impl<S: StreamSocket> Connection<S> {
 /// with one epoll instance whose descriptor the driving thread polls.
 struct Driven<S> {
     epoll: OwnedFd,
-    /// Keyed by the token registered with epoll.
-    conns: Mutex<HashMap<u64, Arc<Mutex<Connection<S>>>>>,
+    /// Keyed by the token registered with epoll. Locked while a reader reads them (one
+    /// reader at a time drives a link; a new connection's registration waits for it).
+    conns: Mutex<HashMap<u64, Connection<S>>>,
     next_token: AtomicU64,
 }
 
@@ -1646,23 +1647,22 @@ impl<S: StreamSocket> Driven<S> {
             return Err(conn);
         }
         let token = self.next_token.fetch_add(1, Ordering::Relaxed);
-        // In the map before epoll can report it.
-        lock(&self.conns).insert(token, Arc::new(Mutex::new(conn)));
         let mut ev = libc::epoll_event {
             events: (libc::EPOLLIN | libc::EPOLLRDHUP) as u32,
             u64: token,
         };
-        // SAFETY: `ev` is a valid event for the call; `fd` is open (its connection is in the
-        // map).
+        // Registered and inserted under the map's lock: a reader that epoll tells about the
+        // token finds the connection.
+        let mut conns = lock(&self.conns);
+        // SAFETY: `ev` is a valid event for the call; `fd` is open (we own its socket).
         let rc =
             unsafe { libc::epoll_ctl(self.epoll.as_raw_fd(), libc::EPOLL_CTL_ADD, fd, &mut ev) };
         if rc != 0 {
-            let conn = lock(&self.conns).remove(&token).expect("inserted above");
-            let conn = Arc::try_unwrap(conn).ok().expect("nobody else has it yet");
-            let conn = conn.into_inner().unwrap_or_else(|e| e.into_inner());
+            drop(conns);
             let _ = conn.socket.set_nonblocking(false);
             return Err(conn);
         }
+        conns.insert(token, conn);
         Ok(())
     }
 
@@ -1691,34 +1691,31 @@ impl<S: StreamSocket> Driven<S> {
             };
         }
         let mut frames = 0;
+        let mut conns = lock(&self.conns);
         for ev in &events[..n as usize] {
             let token = ev.u64;
-            let Some(conn) = lock(&self.conns).get(&token).cloned() else {
+            let Some(conn) = conns.get_mut(&token) else {
                 continue;
             };
-            let (got, result) = lock(&conn).read_records(shared, budget);
-            drop(conn);
+            let (got, result) = conn.read_records(shared, budget);
             frames += got;
             match result {
                 Ok(()) | Err(StreamEnd::Pending) => {}
-                Err(end) => self.close(shared, token, end),
+                Err(end) => {
+                    if let Some(conn) = conns.remove(&token) {
+                        self.close(shared, conn, end);
+                    }
+                }
             }
         }
         Ok(frames)
     }
 
-    /// Forgets connection `token`, whose stream ended with `end`.
-    fn close<T>(&self, shared: &Shared<T>, token: u64, end: StreamEnd)
+    /// Forgets connection `c`, whose stream ended with `end`.
+    fn close<T>(&self, shared: &Shared<T>, c: Connection<S>, end: StreamEnd)
     where
         T: StreamTransport<Socket = S>,
     {
-        let Some(conn) = lock(&self.conns).remove(&token) else {
-            return;
-        };
-        let c = match Arc::try_unwrap(conn) {
-            Ok(m) => m.into_inner().unwrap_or_else(|e| e.into_inner()),
-            Err(_) => return, // only `read_ready` clones it, and it has let go
-        };
         if let Some(fd) = c.socket.raw_fd() {
             // SAFETY: `fd` is still open (we own its socket); a null event is allowed for DEL.
             unsafe {
@@ -1736,7 +1733,7 @@ impl<S: StreamSocket> Driven<S> {
     /// Shuts every connection down (the link is closing).
     fn shutdown(&self) {
         for conn in std::mem::take(&mut *lock(&self.conns)).into_values() {
-            let _ = lock(&conn).socket.shutdown_both();
+            let _ = conn.socket.shutdown_both();
         }
     }
 }
