@@ -4,17 +4,17 @@
 
 mod common;
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::TcpStream;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::driven::{poll_readable, DrivenLink, Driver};
-use common::{wait_until, TcpHarness, UnixHarness, DEADLINE};
+use common::{assert_closed_by_peer, record, wait_until, TcpHarness, UnixHarness, DEADLINE};
 use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::conformance::{self, CollectSink, Harness};
 use hetcomm_link::{FrameSink, Link, Peer};
-use hetcomm_link_ip::stream::{encode_hello, StreamConfig, RECORD_MAGIC, STREAM_VERSION};
+use hetcomm_link_ip::stream::{encode_hello, StreamConfig};
 use hetcomm_link_ip::UnixLink;
 
 const A: SystemId = SystemId(1);
@@ -133,27 +133,6 @@ fn frames_wait_for_read_ready_then_arrive_whole_and_in_order() {
     assert_eq!(rx.read_ready(64).unwrap(), 0);
     let a = sender.join().unwrap();
     assert_eq!(a.stats().frames_sent, frames.len() as u64);
-}
-
-fn record(frame: &[u8]) -> Vec<u8> {
-    let mut r = RECORD_MAGIC.to_vec();
-    r.extend_from_slice(&[STREAM_VERSION, 0]);
-    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
-    r.extend_from_slice(frame);
-    r
-}
-
-/// Waits until the server closes `s` (a read returns end-of-stream or an error).
-fn assert_closed_by_peer(s: &mut TcpStream) {
-    s.set_read_timeout(Some(DEADLINE)).unwrap();
-    let started = Instant::now();
-    let mut buf = [0u8; 64];
-    while let Ok(n) = s.read(&mut buf) {
-        if n == 0 {
-            break;
-        }
-    }
-    assert!(started.elapsed() < DEADLINE, "the link kept the connection");
 }
 
 #[test]

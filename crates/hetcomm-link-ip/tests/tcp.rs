@@ -3,11 +3,11 @@
 
 mod common;
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::{TcpListener, TcpStream};
 use std::time::{Duration, Instant};
 
-use common::{wait_until, TcpHarness, DEADLINE};
+use common::{assert_closed_by_peer, record, wait_until, TcpHarness, DEADLINE};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::CollectSink;
 use hetcomm_link::{Link, LinkError, Peer};
@@ -16,31 +16,6 @@ use hetcomm_link_ip::TcpLink;
 
 const A: SystemId = SystemId(1);
 const B: SystemId = SystemId(2);
-
-/// Waits until the server closes `s` (a read returns end-of-stream or an error).
-fn assert_closed_by_peer(s: &mut TcpStream) {
-    s.set_read_timeout(Some(DEADLINE)).unwrap();
-    let started = Instant::now();
-    let mut buf = [0u8; 64];
-    loop {
-        match s.read(&mut buf) {
-            Ok(0) | Err(_) => break,
-            Ok(_) => {}
-        }
-    }
-    assert!(
-        started.elapsed() < DEADLINE,
-        "the link did not close the connection"
-    );
-}
-
-fn record(frame: &[u8]) -> Vec<u8> {
-    let mut r = RECORD_MAGIC.to_vec();
-    r.extend_from_slice(&[STREAM_VERSION, 0]);
-    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
-    r.extend_from_slice(frame);
-    r
-}
 
 #[test]
 fn garbage_closes_only_that_connection() {

@@ -6,7 +6,8 @@
 pub mod driven;
 
 use std::collections::{BTreeMap, HashMap};
-use std::net::{TcpListener, UdpSocket};
+use std::io::Read;
+use std::net::{TcpListener, TcpStream, UdpSocket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
@@ -15,7 +16,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::Harness;
 use hetcomm_link::{FrameSink, Link};
-use hetcomm_link_ip::stream::StreamConfig;
+use hetcomm_link_ip::stream::{StreamConfig, RECORD_MAGIC, STREAM_VERSION};
 use hetcomm_link_ip::{TcpLink, UdpConfig, UdpLink, UnixLink};
 
 /// How long a test waits for something that should happen promptly.
@@ -177,4 +178,30 @@ impl Harness for UnixHarness {
             UnixLink::bind(system, &self.paths, sink, self.config.clone()).expect("open unix link"),
         )
     }
+}
+
+/// Waits until the server closes `s` (a read returns end-of-stream or an error).
+pub fn assert_closed_by_peer(s: &mut TcpStream) {
+    s.set_read_timeout(Some(DEADLINE)).unwrap();
+    let started = Instant::now();
+    let mut buf = [0u8; 64];
+    loop {
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(_) => {}
+        }
+    }
+    assert!(
+        started.elapsed() < DEADLINE,
+        "the link did not close the connection"
+    );
+}
+
+/// `frame` as one stream record (header and bytes).
+pub fn record(frame: &[u8]) -> Vec<u8> {
+    let mut r = RECORD_MAGIC.to_vec();
+    r.extend_from_slice(&[STREAM_VERSION, 0]);
+    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    r.extend_from_slice(frame);
+    r
 }
