@@ -41,6 +41,22 @@ impl Time {
 
     /// The current wall-clock time (microseconds since the UNIX epoch). Only drivers call this.
     pub fn now_wall() -> Time {
+        #[cfg(unix)]
+        {
+            // Straight from clock_gettime: `SystemTime::now` and `duration_since` add about
+            // 8 ns of checks to the 20 ns read here, and every in-process send reads the clock.
+            let mut ts = libc::timespec {
+                tv_sec: 0,
+                tv_nsec: 0,
+            };
+            // SAFETY: clock_gettime writes into the timespec we pass; CLOCK_REALTIME exists
+            // everywhere, so it only fails for a bad pointer.
+            if unsafe { libc::clock_gettime(libc::CLOCK_REALTIME, &mut ts) } == 0 {
+                let secs = u64::try_from(ts.tv_sec).unwrap_or(0);
+                let micros = u64::try_from(ts.tv_nsec).unwrap_or(0) / 1_000;
+                return Time(secs.saturating_mul(1_000_000).saturating_add(micros));
+            }
+        }
         let since = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .unwrap_or_default();
@@ -67,5 +83,24 @@ impl Sub<Time> for Time {
     type Output = Duration;
     fn sub(self, earlier: Time) -> Duration {
         self.saturating_since(earlier)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wall_clock_reads_microseconds_since_the_unix_epoch() {
+        let micros = |t: std::time::SystemTime| {
+            t.duration_since(std::time::UNIX_EPOCH).unwrap().as_micros() as u64
+        };
+        let before = micros(std::time::SystemTime::now());
+        let now = Time::now_wall().as_micros();
+        let after = micros(std::time::SystemTime::now());
+        assert!(
+            before <= now && now <= after,
+            "{before} <= {now} <= {after}"
+        );
     }
 }
