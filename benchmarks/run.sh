@@ -84,9 +84,10 @@ fi
     echo "How each path is measured: README of this folder. Round trips: 64 B and 1 KiB 20 000"
     echo "round trips (after 2 000 warm-up; raw and hetcomm paths in 3 interleaved rounds, keeping"
     echo "each path's round with the median p50, as in the pinning table), 64 KiB 5 000, 1 MiB 500;"
-    echo "one-way: 1 s of sending per"
-    echo "row; processes unpinned except in the pinning table. Cyclone DDS rows are ddsperf's own"
-    echo "figures (its one-way latency doubled; throughput = median of its per-second rates)."
+    echo "one-way: 1 s of sending per run, raw and hetcomm paths in 3 interleaved rounds, keeping"
+    echo "each path's median rate (in-process hand-off: 3 rounds, median rate); processes"
+    echo "unpinned except in the pinning table. Cyclone DDS rows are ddsperf's own figures (its"
+    echo "one-way latency doubled; throughput = median of its per-second rates)."
     echo
     echo "## Results"
     echo

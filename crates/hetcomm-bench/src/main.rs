@@ -185,9 +185,20 @@ type RttRun = dyn Fn() -> Result<stats::Latency, String>;
 /// Rounds of each small round-trip measurement (see `run`).
 const RTT_ROUNDS: usize = 3;
 
+/// One one-way measurement, run again in each round.
+type OnewayRun = dyn Fn() -> Result<stats::Throughput, String>;
+
+/// Rounds of each one-way measurement (see `run`).
+const ONEWAY_ROUNDS: usize = 3;
+
 /// The run with the median p50 among those that succeeded (the first error if none did).
-fn median_run(mut runs: Vec<Result<stats::Latency, String>>) -> Result<stats::Latency, String> {
-    let mut ok: Vec<stats::Latency> = Vec::new();
+fn median_run(runs: Vec<Result<stats::Latency, String>>) -> Result<stats::Latency, String> {
+    median_by(runs, |l| l.p50)
+}
+
+/// The run with the median `key` among those that succeeded (the first error if none did).
+fn median_by<T>(mut runs: Vec<Result<T, String>>, key: impl Fn(&T) -> f64) -> Result<T, String> {
+    let mut ok: Vec<T> = Vec::new();
     let mut first_err = None;
     for r in runs.drain(..) {
         match r {
@@ -200,7 +211,7 @@ fn median_run(mut runs: Vec<Result<stats::Latency, String>>) -> Result<stats::La
     if ok.is_empty() {
         return Err(first_err.unwrap_or_else(|| "no run".into()));
     }
-    ok.sort_by(|a, b| a.p50.total_cmp(&b.p50));
+    ok.sort_by(|a, b| key(a).total_cmp(&key(b)));
     let mid = ok.len() / 2;
     Ok(ok.swap_remove(mid))
 }
@@ -295,17 +306,36 @@ fn run(o: &Options) -> Vec<Row> {
     }
     if want("oneway") {
         for &size in &p.sizes {
-            for k in raws.into_iter().filter(|k| o.path_wanted(k.name())) {
-                log(o.quick, &format!("oneway {} {size} B", k.name()));
-                rows.push(tp_row(k.name(), size, raw::oneway(k, size, p.oneway)));
-            }
-            for (k, acked) in hc_paths {
-                let name = hc::path_name(k, acked);
-                if !o.path_wanted(&name) {
-                    continue;
+            // This VM's speed drifts (raw TCP at 8 or 19 GB/s minutes apart): run the raw and
+            // hetcomm paths interleaved, several rounds, and keep each path's median rate, so
+            // a ratio compares paths measured in the same stretch of time.
+            let rounds = if o.quick { 1 } else { ONEWAY_ROUNDS };
+            let duration = p.oneway;
+            let paths: Vec<(String, Box<OnewayRun>)> = raws
+                .iter()
+                .map(|&k| {
+                    let f: Box<OnewayRun> = Box::new(move || raw::oneway(k, size, duration));
+                    (k.name().to_string(), f)
+                })
+                .chain(hc_paths.iter().map(|&(k, acked)| {
+                    let f: Box<OnewayRun> = Box::new(move || hc::oneway(k, acked, size, duration));
+                    (hc::path_name(k, acked), f)
+                }))
+                .filter(|(name, _)| o.path_wanted(name))
+                .collect();
+            let mut results: Vec<Vec<Result<stats::Throughput, String>>> =
+                paths.iter().map(|_| Vec::new()).collect();
+            for round in 0..rounds {
+                for ((name, f), out) in paths.iter().zip(results.iter_mut()) {
+                    log(
+                        o.quick,
+                        &format!("oneway {name} {size} B (round {})", round + 1),
+                    );
+                    out.push(f());
                 }
-                log(o.quick, &format!("oneway {name} {size} B"));
-                rows.push(tp_row(&name, size, hc::oneway(k, acked, size, p.oneway)));
+            }
+            for ((name, _), out) in paths.iter().zip(results) {
+                rows.push(tp_row(name, size, median_by(out, |t| t.msgs_per_s())));
             }
             if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("oneway zenoh-tcp {size} B"));
@@ -329,7 +359,11 @@ fn run(o: &Options) -> Vec<Row> {
         for acked in [false, true] {
             let name = hc::path_name(hc::Kind::Inproc, acked);
             log(o.quick, &format!("inproc hand-off {name}"));
-            match hc::inproc_oneway(acked, 64, p.oneway.max(Duration::from_millis(100))) {
+            let rounds = if o.quick { 1 } else { ONEWAY_ROUNDS };
+            let runs = (0..rounds)
+                .map(|_| hc::inproc_oneway(acked, 64, p.oneway.max(Duration::from_millis(100))))
+                .collect();
+            match median_by(runs, |(t, _)| t.msgs_per_s()) {
                 Ok((t, l)) => {
                     rows.push(Row::handoff(&name, "saturated", 64, Some(&t), &l));
                 }
