@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use crossbeam_queue::SegQueue;
 use hetcomm_config::{InboxConfig, OverflowPolicy};
 
-use crate::padded::CachePadded;
+use crossbeam_utils::CachePadded;
 use hetcomm_core::{Header, MessageType, PayloadBuf};
 
 /// One queued message.
@@ -164,10 +164,10 @@ impl Inbox {
         Inbox {
             config: InboxConfig { capacity, ..config },
             intake: SegQueue::new(),
-            intake_top: CachePadded(AtomicU16::new(0)),
-            reserved: CachePadded(AtomicUsize::new(0)),
-            stash: CachePadded(Mutex::new(Stash::default())),
-            stash_len: CachePadded(AtomicUsize::new(0)),
+            intake_top: CachePadded::new(AtomicU16::new(0)),
+            reserved: CachePadded::new(AtomicUsize::new(0)),
+            stash: CachePadded::new(Mutex::new(Stash::default())),
+            stash_len: CachePadded::new(AtomicUsize::new(0)),
             empty_waiters: AtomicUsize::new(0),
             closed: AtomicBool::new(false),
             // A producer may find the inbox full up to this many places early (it then

@@ -46,7 +46,6 @@ mod comm;
 mod error;
 mod inbox;
 mod module;
-mod padded;
 mod reactor;
 mod received;
 mod runtime;

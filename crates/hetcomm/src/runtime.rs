@@ -20,7 +20,7 @@ use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitE
 use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
-use crate::padded::CachePadded;
+use crossbeam_utils::CachePadded;
 use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
