@@ -82,7 +82,7 @@ use std::time::Duration;
 
 use hetcomm_config::{BdAddr, BluetoothSettings};
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
+use hetcomm_link::FrameSink;
 use hetcomm_link_ip::stream::{
     IdentityMode, StreamConfig, StreamLink, StreamStats, StreamTransport,
 };
@@ -451,32 +451,7 @@ impl<F: AddressFamily> BluetoothLink<F> {
     }
 }
 
-impl<F: AddressFamily> Link for BluetoothLink<F> {
-    fn caps(&self) -> LinkCaps {
-        self.inner.caps()
-    }
-    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.inner.send(to, frame)
-    }
-    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        self.inner.send_parts(to, head, body)
-    }
-    fn stats(&self) -> LinkStats {
-        self.inner.stats()
-    }
-    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.inner.send_held(to, frame)
-    }
-    fn flush(&self) -> Result<(), LinkError> {
-        self.inner.flush()
-    }
-    fn batches(&self) -> bool {
-        self.inner.batches()
-    }
-    fn checksums_payload(&self) -> bool {
-        self.inner.checksums_payload()
-    }
-}
+hetcomm_link::forward_link!(impl<F: AddressFamily> BluetoothLink<F>, inner);
 
 #[cfg(test)]
 mod tests {

@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
+use hetcomm_link::FrameSink;
 
 use crate::stream::{
     StreamConfig, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
@@ -168,32 +168,4 @@ impl TcpLink {
     }
 }
 
-impl Link for TcpLink {
-    fn caps(&self) -> LinkCaps {
-        self.inner.caps()
-    }
-    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.inner.send(to, frame)
-    }
-    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        self.inner.send_parts(to, head, body)
-    }
-    fn stats(&self) -> LinkStats {
-        self.inner.stats()
-    }
-    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.inner.send_held(to, frame)
-    }
-    fn flush(&self) -> Result<(), LinkError> {
-        self.inner.flush()
-    }
-    fn batches(&self) -> bool {
-        self.inner.batches()
-    }
-    fn checksums_payload(&self) -> bool {
-        self.inner.checksums_payload()
-    }
-    fn readable(&self) -> Option<&dyn Readable> {
-        self.inner.readable()
-    }
-}
+hetcomm_link::forward_link!(TcpLink, inner);

@@ -221,6 +221,69 @@ pub struct LinkStats {
     pub buffered_bytes: u64,
 }
 
+/// What [`forward_link!`] names, reachable from any crate that uses it.
+#[doc(hidden)]
+pub use hetcomm_core as __core;
+
+/// Implements [`Link`] for a type that wraps another link in field `$field`, forwarding every
+/// method to it: `forward_link!(TcpLink, inner);` or, with generics,
+/// `forward_link!(impl<F: Family> RfcommLink<F>, inner);`.
+#[macro_export]
+macro_rules! forward_link {
+    (impl<$($g:ident : $bound:path),+> $ty:ty, $field:ident) => {
+        impl<$($g: $bound),+> $crate::Link for $ty {
+            $crate::forward_link!(@methods $field);
+        }
+    };
+    ($ty:ty, $field:ident) => {
+        impl $crate::Link for $ty {
+            $crate::forward_link!(@methods $field);
+        }
+    };
+    (@methods $field:ident) => {
+        fn caps(&self) -> $crate::LinkCaps {
+            $crate::Link::caps(&self.$field)
+        }
+        fn send(
+            &self,
+            to: $crate::__core::SystemId,
+            frame: &[u8],
+        ) -> ::std::result::Result<(), $crate::LinkError> {
+            $crate::Link::send(&self.$field, to, frame)
+        }
+        fn send_parts(
+            &self,
+            to: $crate::__core::SystemId,
+            head: &[u8],
+            body: &[u8],
+        ) -> ::std::result::Result<(), $crate::LinkError> {
+            $crate::Link::send_parts(&self.$field, to, head, body)
+        }
+        fn stats(&self) -> $crate::LinkStats {
+            $crate::Link::stats(&self.$field)
+        }
+        fn send_held(
+            &self,
+            to: $crate::__core::SystemId,
+            frame: &[u8],
+        ) -> ::std::result::Result<(), $crate::LinkError> {
+            $crate::Link::send_held(&self.$field, to, frame)
+        }
+        fn flush(&self) -> ::std::result::Result<(), $crate::LinkError> {
+            $crate::Link::flush(&self.$field)
+        }
+        fn batches(&self) -> bool {
+            $crate::Link::batches(&self.$field)
+        }
+        fn readable(&self) -> ::std::option::Option<&dyn $crate::Readable> {
+            $crate::Link::readable(&self.$field)
+        }
+        fn checksums_payload(&self) -> bool {
+            $crate::Link::checksums_payload(&self.$field)
+        }
+    };
+}
+
 impl<L: Link + ?Sized> Link for Arc<L> {
     fn caps(&self) -> LinkCaps {
         (**self).caps()

@@ -20,11 +20,11 @@ use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitE
 use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
-use crossbeam_utils::CachePadded;
 use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
 use crate::ticket::OutcomeSlot;
 use crate::transports::Hubs;
+use crossbeam_utils::CachePadded;
 
 /// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
 /// clock under the simulator.
