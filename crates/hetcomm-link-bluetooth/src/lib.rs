@@ -1,6 +1,6 @@
 //! # hetcomm-link-bluetooth — the `bluetooth` transport kind (RFCOMM)
 //!
-//! A [`Link`] over Bluetooth Classic RFCOMM sockets, as the thesis's `BlueComm` class (§4.3.1):
+//! A [`Link`](hetcomm_link::Link) over Bluetooth Classic RFCOMM sockets, as the thesis's `BlueComm` class (§4.3.1):
 //! each system listens on one RFCOMM channel, and sends to a peer over one connection to that
 //! peer's device address, opened on first send. The fleet's `bluetooth` transport gives the
 //! channel and each system's adapter address (Tables 3 and 8).
