@@ -179,14 +179,53 @@ fn lat_row(
     }
 }
 
-/// One round-trip measurement, run again in each round.
-type RttRun = dyn Fn() -> Result<stats::Latency, String>;
+/// One measurement of one path, run again in each round.
+type Run<T> = Box<dyn Fn() -> Result<T, String>>;
+
+/// The raw and hetcomm paths the options ask for, each with its measurement.
+fn bench_paths<T>(
+    o: &Options,
+    raws: &[raw::RawKind],
+    hc_paths: &[(hc::Kind, bool)],
+    raw_run: impl Fn(raw::RawKind) -> Run<T>,
+    hc_run: impl Fn(hc::Kind, bool) -> Run<T>,
+) -> Vec<(String, Run<T>)> {
+    raws.iter()
+        .map(|&k| (k.name().to_string(), raw_run(k)))
+        .chain(
+            hc_paths
+                .iter()
+                .map(|&(k, acked)| (hc::path_name(k, acked), hc_run(k, acked))),
+        )
+        .filter(|(name, _)| o.path_wanted(name))
+        .collect()
+}
+
+/// Runs every path once per round, the paths interleaved within each round, and gives each
+/// path's run with the median `key` (see [`median_by`]).
+fn interleaved<T>(
+    quick: bool,
+    what: &str,
+    paths: Vec<(String, Run<T>)>,
+    rounds: usize,
+    key: impl Fn(&T) -> f64 + Copy,
+) -> Vec<(String, Result<T, String>)> {
+    let mut results: Vec<Vec<Result<T, String>>> = paths.iter().map(|_| Vec::new()).collect();
+    for round in 0..rounds {
+        for ((name, run), out) in paths.iter().zip(results.iter_mut()) {
+            log(quick, &format!("{what} {name} (round {})", round + 1));
+            out.push(run());
+        }
+    }
+    paths
+        .into_iter()
+        .zip(results)
+        .map(|((name, _), runs)| (name, median_by(runs, key)))
+        .collect()
+}
 
 /// Rounds of each small round-trip measurement (see `run`).
 const RTT_ROUNDS: usize = 3;
-
-/// One one-way measurement, run again in each round.
-type OnewayRun = dyn Fn() -> Result<stats::Throughput, String>;
 
 /// Rounds of each one-way measurement (see `run`).
 const ONEWAY_ROUNDS: usize = 3;
@@ -257,32 +296,17 @@ fn run(o: &Options) -> Vec<Row> {
             } else {
                 RTT_ROUNDS
             };
-            let paths: Vec<(String, Box<RttRun>)> = raws
-                .iter()
-                .map(|&k| {
-                    let f: Box<dyn Fn() -> _> = Box::new(move || raw::rtt(k, size, warmup, iters));
-                    (k.name().to_string(), f)
-                })
-                .chain(hc_paths.iter().map(|&(k, acked)| {
-                    let f: Box<dyn Fn() -> _> =
-                        Box::new(move || hc::rtt(k, acked, size, warmup, iters));
-                    (hc::path_name(k, acked), f)
-                }))
-                .filter(|(name, _)| o.path_wanted(name))
-                .collect();
-            let mut results: Vec<Vec<Result<stats::Latency, String>>> =
-                paths.iter().map(|_| Vec::new()).collect();
-            for round in 0..rounds {
-                for ((name, f), out) in paths.iter().zip(results.iter_mut()) {
-                    log(
-                        o.quick,
-                        &format!("rtt {name} {size} B (round {})", round + 1),
-                    );
-                    out.push(f());
-                }
-            }
-            for ((name, _), out) in paths.iter().zip(results) {
-                rows.push(lat_row("rtt", name, size, median_run(out)));
+            let paths = bench_paths(
+                o,
+                &raws,
+                &hc_paths,
+                |k| Box::new(move || raw::rtt(k, size, warmup, iters)),
+                |k, acked| Box::new(move || hc::rtt(k, acked, size, warmup, iters)),
+            );
+            for (name, r) in
+                interleaved(o.quick, &format!("rtt {size} B"), paths, rounds, |l| l.p50)
+            {
+                rows.push(lat_row("rtt", &name, size, r));
             }
             if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("rtt zenoh-tcp {size} B"));
@@ -311,31 +335,17 @@ fn run(o: &Options) -> Vec<Row> {
             // a ratio compares paths measured in the same stretch of time.
             let rounds = if o.quick { 1 } else { ONEWAY_ROUNDS };
             let duration = p.oneway;
-            let paths: Vec<(String, Box<OnewayRun>)> = raws
-                .iter()
-                .map(|&k| {
-                    let f: Box<OnewayRun> = Box::new(move || raw::oneway(k, size, duration));
-                    (k.name().to_string(), f)
-                })
-                .chain(hc_paths.iter().map(|&(k, acked)| {
-                    let f: Box<OnewayRun> = Box::new(move || hc::oneway(k, acked, size, duration));
-                    (hc::path_name(k, acked), f)
-                }))
-                .filter(|(name, _)| o.path_wanted(name))
-                .collect();
-            let mut results: Vec<Vec<Result<stats::Throughput, String>>> =
-                paths.iter().map(|_| Vec::new()).collect();
-            for round in 0..rounds {
-                for ((name, f), out) in paths.iter().zip(results.iter_mut()) {
-                    log(
-                        o.quick,
-                        &format!("oneway {name} {size} B (round {})", round + 1),
-                    );
-                    out.push(f());
-                }
-            }
-            for ((name, _), out) in paths.iter().zip(results) {
-                rows.push(tp_row(name, size, median_by(out, |t| t.msgs_per_s())));
+            let paths = bench_paths(
+                o,
+                &raws,
+                &hc_paths,
+                |k| Box::new(move || raw::oneway(k, size, duration)),
+                |k, acked| Box::new(move || hc::oneway(k, acked, size, duration)),
+            );
+            let rate = |t: &stats::Throughput| t.msgs_per_s();
+            for (name, r) in interleaved(o.quick, &format!("oneway {size} B"), paths, rounds, rate)
+            {
+                rows.push(tp_row(&name, size, r));
             }
             if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("oneway zenoh-tcp {size} B"));
