@@ -166,18 +166,16 @@ impl Module {
         let direct = router
             .route_link(to.system)
             .and_then(|link| core.direct_peer(link, to.system));
-        if let Some(peer) = direct {
-            let what = (to, message_type, opts, broadcast);
-            return self.hand_over(router, &peer, what, payload, now);
-        }
-        let req = SendRequest {
-            from: self.core.id,
+        let what = Outgoing {
             to,
             message_type,
-            priority: opts.priority,
-            payload: payload.as_slice(),
+            opts,
             broadcast,
         };
+        if let Some(peer) = direct {
+            return self.hand_over(router, &peer, what, payload, now);
+        }
+        let req = what.request(self.core.id, payload.as_slice());
         // A slot for the outcome is shared with the runtime only when the outcome comes
         // later (an acknowledged send, or a refused frame that is retried).
         let mut slot = None;
@@ -235,19 +233,12 @@ impl Module {
         &self,
         mut router: MutexGuard<'_, hetcomm_router::Router<Arc<OutcomeSlot>>>,
         peer: &SystemCore,
-        (to, message_type, opts, broadcast): (Address, MessageType, SendOptions, bool),
+        what: Outgoing,
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
         let core = &self.sys.core;
-        let req = SendRequest {
-            from: self.core.id,
-            to,
-            message_type,
-            priority: opts.priority,
-            payload: payload.as_slice(),
-            broadcast,
-        };
+        let req = what.request(self.core.id, payload.as_slice());
         let header = router
             .send_direct(now, req)
             .map_err(|e| send_error(&core.directory, e))?;
@@ -261,7 +252,7 @@ impl Module {
         };
         Ok(Ticket {
             slot: TicketSlot::Ready(outcome),
-            destination: core.directory.system_name(to.system),
+            destination: core.directory.system_name(what.to.system),
         })
     }
 
@@ -547,6 +538,28 @@ fn send_error(dir: &Directory, e: hetcomm_router::SendError) -> SendError {
     }
 }
 
+/// What a send asks for, besides its payload.
+#[derive(Clone, Copy)]
+struct Outgoing {
+    to: Address,
+    message_type: MessageType,
+    opts: SendOptions,
+    broadcast: bool,
+}
+
+impl Outgoing {
+    fn request<'a>(&self, from: hetcomm_core::ModuleId, payload: &'a [u8]) -> SendRequest<'a> {
+        SendRequest {
+            from,
+            to: self.to,
+            message_type: self.message_type,
+            priority: self.opts.priority,
+            payload,
+            broadcast: self.broadcast,
+        }
+    }
+}
+
 /// A resolved destination: the sending module, the address, and the destination system
 /// itself when it lives in this process behind an in-process route.
 #[derive(Clone)]
@@ -568,7 +581,12 @@ impl Route {
         match &self.direct {
             Some(peer) if !peer.is_closed() && !core.is_closed() => {
                 let now = core.clock.now();
-                let what = (self.to, message_type, opts, false);
+                let what = Outgoing {
+                    to: self.to,
+                    message_type,
+                    opts,
+                    broadcast: false,
+                };
                 self.from.hand_over(core.router(), peer, what, payload, now)
             }
             // Not in-process, or that system was closed (it may have been opened again):

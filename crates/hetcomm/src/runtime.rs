@@ -855,6 +855,23 @@ struct SystemSink {
     link: usize,
 }
 
+impl SystemSink {
+    /// Gives arriving frames to the open system's router (`handle`, with one clock reading),
+    /// then carries out what they caused.
+    fn handle(&self, handle: impl FnOnce(&mut Router<Arc<OutcomeSlot>>, Time)) {
+        let Some(core) = self.core.upgrade() else {
+            return;
+        };
+        if core.is_closed() {
+            return;
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        handle(&mut router, now);
+        core.pump_at(router, now);
+    }
+}
+
 impl FrameSink for SystemSink {
     fn on_frame(&self, frame: &[u8], from: Peer) {
         self.on_frames(&mut std::iter::once(frame), from);
@@ -863,32 +880,16 @@ impl FrameSink for SystemSink {
     /// The frames of one batch datagram: one clock reading, one router lock and one pump for
     /// all of them instead of one each (they arrived at the same moment).
     fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
-        let Some(core) = self.core.upgrade() else {
-            return;
-        };
-        if core.is_closed() {
-            return;
-        }
-        let now = core.clock.now();
-        let mut router = core.router();
-        for frame in frames {
-            router.handle_frame(now, self.link, frame);
-        }
-        core.pump_at(router, now);
+        self.handle(|router, now| {
+            for frame in frames {
+                router.handle_frame(now, self.link, frame);
+            }
+        });
     }
 
     /// A large frame in a buffer of its own: the router delivers its payload in that buffer.
     fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
-        let Some(core) = self.core.upgrade() else {
-            return;
-        };
-        if core.is_closed() {
-            return;
-        }
-        let now = core.clock.now();
-        let mut router = core.router();
-        router.handle_frame_owned(now, self.link, frame);
-        core.pump_at(router, now);
+        self.handle(|router, now| router.handle_frame_owned(now, self.link, frame));
     }
 
     fn takes_frames(&self) -> bool {
