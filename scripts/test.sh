@@ -7,6 +7,8 @@
 # CI (.ci/run) runs exactly this.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# One build from scratch: incremental state would only add gigabytes of disk (CI ran out once).
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 
 step() { printf '\n=== %s ===\n' "$*"; }
 
