@@ -17,6 +17,7 @@ fn route(acknowledged: bool) -> Route {
         acknowledged,
         attempts: 3,
         max_frame: 1 << 20,
+        max_in_flight: 1024,
     }
 }
 

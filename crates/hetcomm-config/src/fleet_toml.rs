@@ -39,10 +39,11 @@ pub(crate) const SYSTEM_KEYS: [&str; 2] = ["id", "modules"];
 /// Keys of `[legacy]`.
 pub(crate) const LEGACY_KEYS: [&str; 3] = ["ids", "table", "bluetooth"];
 /// Keys every transport accepts.
-pub(crate) const COMMON_KEYS: [&str; 6] = [
+pub(crate) const COMMON_KEYS: [&str; 7] = [
     "kind",
     "delivery",
     "attempts",
+    "max_in_flight",
     "letter",
     "ordered",
     "batch_linger_us",
@@ -877,6 +878,22 @@ impl P<'_> {
                 .map_or(3, |a| u32::try_from(a).unwrap_or(3))
             }
         };
+        let default_window = crate::model::DEFAULT_MAX_IN_FLIGHT;
+        let max_in_flight = match t.get("max_in_flight") {
+            None => default_window,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.max_in_flight"),
+                    &vl,
+                    1,
+                    1_000_000,
+                    "sends to one destination that may await their outcome at once; the default is 1024",
+                )
+                .map_or(default_window, |a| u32::try_from(a).unwrap_or(default_window))
+            }
+        };
         let ordered = match t.get("ordered") {
             None => false,
             Some(v) => {
@@ -922,6 +939,7 @@ impl P<'_> {
             kind,
             delivery,
             attempts,
+            max_in_flight,
             ordered,
             batch_linger_us,
             letter,

@@ -171,6 +171,9 @@ pub struct TransportDef {
     pub delivery: DeliveryMode,
     /// Transmission attempts before a send is reported failed (the thesis used 3).
     pub attempts: u32,
+    /// Sends to one destination that may await their outcome at once; a send beyond it is
+    /// refused (backpressure) instead of being kept without bound.
+    pub max_in_flight: u32,
     /// Receivers deliver each sender's messages carried by this transport in the order they
     /// were sent (holding early arrivals until the gap fills or a hold timeout passes).
     pub ordered: bool,
@@ -184,6 +187,10 @@ pub struct TransportDef {
 /// The default [`TransportDef::batch_linger_us`]: long enough to gather a burst, short
 /// against a robot's control period.
 pub const DEFAULT_BATCH_LINGER_US: u32 = 50;
+
+/// The default [`TransportDef::max_in_flight`]: far more than a round trip's worth of messages
+/// on any link here, small enough that the frames kept for retransmission stay bounded.
+pub const DEFAULT_MAX_IN_FLIGHT: u32 = 1024;
 
 /// Kind-specific settings, checked against each kind's schema.
 #[derive(Clone, Debug, PartialEq)]

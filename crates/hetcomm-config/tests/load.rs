@@ -251,9 +251,15 @@ fn every_key_reaches_the_model() {
     );
     let wired = &f.transports[0];
     assert_eq!(
-        (wired.tag, wired.delivery, wired.attempts),
-        (b'w', DeliveryMode::Unacknowledged, 1)
+        (
+            wired.tag,
+            wired.delivery,
+            wired.attempts,
+            wired.max_in_flight
+        ),
+        (b'w', DeliveryMode::Unacknowledged, 1, 64)
     );
+    assert_eq!(f.transports[1].max_in_flight, DEFAULT_MAX_IN_FLIGHT);
     let TransportSettings::Ip(ip) = &f.transports[1].settings else {
         panic!()
     };

@@ -1221,6 +1221,7 @@ fn reason_name(reason: &FailReason) -> String {
         FailReason::InboxFull => "inbox-full".into(),
         FailReason::UnknownModule => "unknown-module".into(),
         FailReason::Link(_) => "link".into(),
+        FailReason::Backpressure => "backpressure".into(),
         FailReason::Shutdown => "shutdown".into(),
         #[allow(unreachable_patterns)]
         _ => "other".into(),

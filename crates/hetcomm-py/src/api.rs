@@ -121,7 +121,7 @@ impl Outcome {
         }
     }
     /// Why it failed, as a short code: "no_acknowledgement", "unreachable", "inbox_full",
-    /// "unknown_module", "link", "shutdown" (failed only).
+    /// "unknown_module", "link", "backpressure", "shutdown" (failed only).
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
         match &self.inner {
@@ -131,6 +131,7 @@ impl Outcome {
                 FailReason::InboxFull => "inbox_full",
                 FailReason::UnknownModule => "unknown_module",
                 FailReason::Link(_) => "link",
+                FailReason::Backpressure => "backpressure",
                 FailReason::Shutdown => "shutdown",
                 _ => "other",
             }),

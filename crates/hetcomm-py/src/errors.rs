@@ -64,6 +64,7 @@ pub fn send_error(e: SendError) -> PyErr {
         SendError::UnknownModule(_) => new_err("UnknownModuleError", msg),
         SendError::NoRoute { .. } => new_err("NoRouteError", msg),
         SendError::TooLarge { .. } => new_err("TooLargeError", msg),
+        SendError::Backpressure { .. } => new_err("BackpressureError", msg),
         SendError::Encode(_) => new_err("EncodeError", msg),
         SendError::TypeConflict(_) => new_err("TypeConflictError", msg),
         SendError::Closed => new_err("ClosedError", msg),

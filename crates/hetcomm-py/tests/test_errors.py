@@ -27,7 +27,7 @@ Bravo = ["lan", "X"]
 
 KINDS = [
     "ConfigError", "UnknownSystemError", "UnknownModuleError", "NoRouteError", "TooLargeError",
-    "EncodeError", "DecodeError", "WrongTypeError", "RecvTimeout", "ClosedError",
+    "BackpressureError", "EncodeError", "DecodeError", "WrongTypeError", "RecvTimeout", "ClosedError",
     "TypeConflictError", "TransportUnavailableError", "TransportError",
 ]
 

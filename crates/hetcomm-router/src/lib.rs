@@ -29,7 +29,7 @@
 //! use hetcomm_core::*;
 //! use hetcomm_router::*;
 //!
-//! let route = Route { link: 0, tag: b'R', acknowledged: true, attempts: 3, max_frame: 1 << 20 };
+//! let route = Route { link: 0, tag: b'R', acknowledged: true, attempts: 3, max_frame: 1 << 20, max_in_flight: 1024 };
 //! let mut a = Router::<()>::new(RouterConfig::new(SystemId(0), 1, vec![(SystemId(1), route)]));
 //! let mut b = Router::<()>::new(RouterConfig::new(SystemId(1), 2, vec![(SystemId(0), route)]));
 //! let now = Time::ZERO;
@@ -66,6 +66,7 @@ mod tests {
             acknowledged: true,
             attempts: 3,
             max_frame: 1 << 20,
+            max_in_flight: 1024,
         };
         let mut a = Router::<()>::new(RouterConfig::new(
             SystemId(0),
@@ -118,6 +119,7 @@ mod tests {
             acknowledged,
             attempts: 3,
             max_frame: 64,
+            max_in_flight: 1024,
         };
         let mut a = Router::<()>::new(RouterConfig::new(
             SystemId(0),

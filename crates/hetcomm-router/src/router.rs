@@ -30,6 +30,11 @@ pub struct Route {
     pub attempts: u32,
     /// Largest frame the link takes.
     pub max_frame: usize,
+    /// Sends to this destination that may await their outcome at once (an acknowledgement,
+    /// or a retry after the link refused the frame). A send beyond it is refused with
+    /// [`SendError::Backpressure`] before it is numbered, so a sender faster than the peer
+    /// (or a peer that is gone) cannot make the router keep frames without bound.
+    pub max_in_flight: u32,
 }
 
 /// Retransmission timing.
@@ -155,6 +160,14 @@ pub enum SendError {
         /// Destination system.
         to: SystemId,
     },
+    /// [`Route::max_in_flight`] sends to this destination already await their outcome.
+    #[error("{limit} sends to system {to} already await their outcome (the transport's max_in_flight): wait for an earlier outcome and send again")]
+    Backpressure {
+        /// Destination system.
+        to: SystemId,
+        /// The limit.
+        limit: u32,
+    },
 }
 
 /// Names one send: the destination and the sequence number the router gave it.
@@ -185,6 +198,11 @@ pub enum FailReason {
     /// The link refused the frame for another reason.
     #[error("transport error: {0}")]
     Link(String),
+    /// Not sent: the destination's [`Route::max_in_flight`] sends already awaited their
+    /// outcome (a broadcast reports this per destination; a single send is refused with
+    /// [`SendError::Backpressure`] instead).
+    #[error("not sent: max_in_flight sends to that system already await their outcome")]
+    Backpressure,
     /// The router was shut down with the send unresolved.
     #[error("shut down before an outcome")]
     Shutdown,
@@ -397,6 +415,8 @@ pub struct RouterStats {
     pub held: u64,
     /// Gaps given up after the hold timeout (in-order delivery moved past a missing message).
     pub gaps_skipped: u64,
+    /// Sends refused because their destination's [`Route::max_in_flight`] was reached.
+    pub backpressured: u64,
 }
 
 impl RouterStats {
@@ -452,6 +472,8 @@ pub struct Router<T> {
     next_seq: HashMap<SystemId, u64>,
     rtt: HashMap<SystemId, RttEstimator>,
     pending: HashMap<SendId, Pending<T>>,
+    /// Pending sends per destination (for [`Route::max_in_flight`]).
+    pending_to: HashMap<SystemId, u32>,
     /// Retransmission deadlines, possibly stale (checked against `Pending::deadline`).
     timers: BTreeSet<(Time, SendId)>,
     transmits: VecDeque<TransmitItem>,
@@ -501,6 +523,7 @@ impl<T> Router<T> {
             next_seq: HashMap::default(),
             rtt: HashMap::default(),
             pending: HashMap::default(),
+            pending_to: HashMap::default(),
             timers: BTreeSet::new(),
             transmits: VecDeque::new(),
             deliveries: VecDeque::new(),
@@ -603,7 +626,7 @@ impl<T> Router<T> {
             seq: header.seq,
         };
         let frame = self.encode(&route, header, payload);
-        self.pending.insert(
+        self.keep_pending(
             id,
             Pending {
                 token,
@@ -712,7 +735,7 @@ impl<T> Router<T> {
         // keeps its whole frame.
         frame.extend_from_slice(body);
         let deadline = now + self.config.timing.link_retry;
-        self.pending.insert(
+        self.keep_pending(
             id,
             Pending {
                 token: token(),
@@ -725,6 +748,17 @@ impl<T> Router<T> {
         );
         self.timers.insert((deadline, id));
         None
+    }
+
+    /// Records an unresolved send (counted against its destination's window).
+    fn keep_pending(&mut self, id: SendId, p: Pending<T>) {
+        *self.pending_to.entry(id.to).or_insert(0) += 1;
+        self.pending.insert(id, p);
+    }
+
+    /// Sends to `to` awaiting their outcome (at most its route's [`Route::max_in_flight`]).
+    pub fn pending_to(&self, to: SystemId) -> u32 {
+        self.pending_to.get(&to).copied().unwrap_or(0)
     }
 
     /// Keeps an ended send's frame buffer for the next sends (see [`SPARE_FRAMES`]).
@@ -746,6 +780,14 @@ impl<T> Router<T> {
         let max = route.max_frame.min(HEADER_LEN + wire::MAX_PAYLOAD);
         if len > max {
             return Err(SendError::TooLarge { len, max, to });
+        }
+        // Refused before numbering: a refused send leaves no gap in the sequence.
+        if self.pending_to(to) >= route.max_in_flight {
+            self.stats.backpressured += 1;
+            return Err(SendError::Backpressure {
+                to,
+                limit: route.max_in_flight,
+            });
         }
         let seq = self.next_seq.entry(to).or_insert(0);
         *seq += 1;
@@ -915,6 +957,9 @@ impl<T> Router<T> {
 
     fn finish(&mut self, id: SendId, outcome: Outcome) {
         if let Some(p) = self.pending.remove(&id) {
+            if let Some(n) = self.pending_to.get_mut(&id.to) {
+                *n -= 1;
+            }
             // Its retransmission timer would only wake the driver for nothing.
             if let Some(deadline) = p.deadline {
                 self.timers.remove(&(deadline, id));
@@ -1251,6 +1296,7 @@ mod tests {
             acknowledged,
             attempts: 3,
             max_frame: 1 << 20,
+            max_in_flight: 1024,
         }
     }
 
@@ -1624,5 +1670,137 @@ mod tests {
         let frame = sent_frame(&mut a, now, &bigger);
         assert_eq!(wire::decode(&frame).unwrap().payload, &bigger[..]);
         assert!(a.spare_frames.len() <= SPARE_FRAMES);
+    }
+
+    /// A router from A with one route to each of `to`, acknowledged, window `window`.
+    fn windowed(acknowledged: bool, window: u32, to: &[SystemId]) -> Router<u32> {
+        let r = Route {
+            max_in_flight: window,
+            ..route(acknowledged)
+        };
+        Router::new(RouterConfig::new(
+            A,
+            1,
+            to.iter().map(|&s| (s, r)).collect(),
+        ))
+    }
+
+    fn request(to: SystemId) -> SendRequest<'static> {
+        let to = Address {
+            system: to,
+            module: ModuleId(0),
+        };
+        SendRequest::new(ModuleId(0), to, MessageType(1), b"w")
+    }
+
+    #[test]
+    fn acknowledged_sends_beyond_the_window_are_refused_unnumbered_until_an_outcome_frees_a_place()
+    {
+        let now = Time::from_micros(1_000);
+        let mut a = windowed(true, 3, &[B]);
+        let (_, mut b) = pair(true);
+        for seq in 1..=3 {
+            assert_eq!(a.send(now, request(B), 0), Ok(SendId { to: B, seq }));
+        }
+        assert_eq!(a.pending_to(B), 3);
+        for _ in 0..2 {
+            assert_eq!(
+                a.send(now, request(B), 0),
+                Err(SendError::Backpressure { to: B, limit: 3 })
+            );
+        }
+        let s = a.stats();
+        assert_eq!((s.sends, s.backpressured, s.in_flight()), (3, 2, 3));
+        // The first send is acknowledged: one place frees, and the next send takes the next
+        // number (the refused ones left no gap for an ordered receiver to wait on).
+        let tx = a.poll_transmit(now).unwrap();
+        b.handle_frame(now, 0, &tx.frame);
+        a.transmit_result(now, tx, Ok(()));
+        let d = b.poll_delivery().unwrap();
+        b.delivery_result(now, d.token.unwrap(), AckStatus::Delivered);
+        let ack = b.poll_transmit(now).unwrap();
+        a.handle_frame(now, ack.link, &ack.frame);
+        assert!(matches!(
+            a.poll_event(),
+            Some(Event::Outcome {
+                outcome: Outcome::Delivered { .. },
+                ..
+            })
+        ));
+        assert_eq!(a.pending_to(B), 2);
+        assert_eq!(a.send(now, request(B), 0), Ok(SendId { to: B, seq: 4 }));
+        assert_eq!(
+            a.send(now, request(B), 0),
+            Err(SendError::Backpressure { to: B, limit: 3 })
+        );
+    }
+
+    #[test]
+    fn a_send_that_fails_frees_its_place_and_windows_are_per_destination() {
+        let c = SystemId(2);
+        let t0 = Time::from_micros(1_000);
+        let mut a = windowed(true, 1, &[B, c]);
+        a.send(t0, request(B), 0).unwrap();
+        assert!(matches!(
+            a.send(t0, request(B), 0),
+            Err(SendError::Backpressure { .. })
+        ));
+        // Another destination has a window of its own.
+        assert_eq!(a.send(t0, request(c), 0), Ok(SendId { to: c, seq: 1 }));
+        // Nothing answers: every attempt times out and both sends fail.
+        let mut now = t0;
+        loop {
+            while let Some(tx) = a.poll_transmit(now) {
+                a.transmit_result(now, tx, Ok(()));
+            }
+            match a.poll_timeout() {
+                Some(t) => {
+                    now = t;
+                    a.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+        let mut failed = 0;
+        while let Some(e) = a.poll_event() {
+            if let Event::Outcome {
+                outcome: Outcome::Failed { .. },
+                ..
+            } = e
+            {
+                failed += 1;
+            }
+        }
+        assert_eq!(failed, 2);
+        assert_eq!((a.pending_to(B), a.pending_to(c)), (0, 0));
+        assert_eq!(a.send(now, request(B), 0), Ok(SendId { to: B, seq: 2 }));
+    }
+
+    #[test]
+    fn unacknowledged_sends_wait_for_nothing_unless_their_link_refuses_them() {
+        let now = Time::from_micros(1_000);
+        let mut a = windowed(false, 1, &[B]);
+        // Taken by the link: never pending, so the window of one never fills.
+        for seq in 1..=5 {
+            let tx = match a.send_unqueued(now, request(B), || 0) {
+                Ok(Admitted::Transmit(tx)) => tx,
+                other => panic!("expected an unqueued frame, got {other:?}"),
+            };
+            assert_eq!(tx.id().seq, seq);
+            assert!(a.unqueued_result(now, tx, Ok(()), || 0).is_some());
+        }
+        assert_eq!(a.pending_to(B), 0);
+        // Refused with attempts left: it waits for its retry, and fills the window.
+        let tx = match a.send_unqueued(now, request(B), || 0) {
+            Ok(Admitted::Transmit(tx)) => tx,
+            other => panic!("expected an unqueued frame, got {other:?}"),
+        };
+        let refused = Err(TransmitError::Unreachable("peer down".into()));
+        assert_eq!(a.unqueued_result(now, tx, refused, || 9), None);
+        assert_eq!(a.pending_to(B), 1);
+        assert!(matches!(
+            a.send_unqueued(now, request(B), || 0),
+            Err(SendError::Backpressure { to: B, limit: 1 })
+        ));
     }
 }

@@ -205,6 +205,7 @@ impl Comm {
                         acknowledged: def.delivery == DeliveryMode::Acknowledged,
                         attempts: def.attempts.max(1),
                         max_frame: links[link].caps().max_frame,
+                        max_in_flight: def.max_in_flight.max(1),
                     },
                 )
             })

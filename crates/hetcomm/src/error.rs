@@ -81,6 +81,16 @@ pub enum SendError {
         /// The limit.
         max: usize,
     },
+    /// The transport's `max_in_flight` sends to that system already await their outcome
+    /// (acknowledgements not yet back, or retries after the link refused frames). Nothing was
+    /// sent. Wait for an earlier send's outcome ([`crate::Ticket::wait`]) and send again.
+    #[error("{limit} sends to `{to}` already await their outcome (max_in_flight of the transport): nothing was sent; wait for an earlier outcome and send again")]
+    Backpressure {
+        /// Destination system.
+        to: String,
+        /// The transport's `max_in_flight`.
+        limit: u32,
+    },
     /// The message could not be encoded.
     #[error(transparent)]
     Encode(#[from] PayloadError),

@@ -346,13 +346,26 @@ impl Module {
                 system,
                 module: module_id,
             };
-            tickets.push(self.send_encoded(
+            let sent = self.send_encoded(
                 to,
                 message_type,
                 PayloadSource::Borrowed(payload),
                 opts,
                 true,
-            )?);
+            );
+            // One destination's full window must not cut the broadcast short: the others
+            // are sent, and that one's ticket tells it was not.
+            let ticket = match sent {
+                Err(SendError::Backpressure { .. }) => Ticket {
+                    slot: TicketSlot::Ready(hetcomm_router::Outcome::Failed {
+                        reason: hetcomm_router::FailReason::Backpressure,
+                        attempts: 0,
+                    }),
+                    destination: self.sys.core.directory.system_name(system),
+                },
+                other => other?,
+            };
+            tickets.push(ticket);
         }
         Ok(BroadcastTicket { tickets })
     }
@@ -533,6 +546,10 @@ fn send_error(dir: &Directory, e: hetcomm_router::SendError) -> SendError {
             to: dir.system_name(to).to_string(),
             len,
             max,
+        },
+        hetcomm_router::SendError::Backpressure { to, limit } => SendError::Backpressure {
+            to: dir.system_name(to).to_string(),
+            limit,
         },
         other => SendError::UnknownSystem(other.to_string()),
     }

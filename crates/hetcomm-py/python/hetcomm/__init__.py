@@ -25,6 +25,7 @@ and fields exchange messages.
 from __future__ import annotations
 
 from ._errors import (
+    BackpressureError,
     ClosedError,
     ConfigError,
     DecodeError,
@@ -70,6 +71,7 @@ PRIORITY_NORMAL = 100
 PRIORITY_HIGHEST = 255
 
 __all__ = [
+    "BackpressureError",
     "BroadcastTicket",
     "ClosedError",
     "Comm",

@@ -40,6 +40,11 @@ class TooLargeError(HetcommError, ValueError):
     """The message is larger than the route's transport takes: nothing was sent."""
 
 
+class BackpressureError(HetcommError):
+    """The transport's ``max_in_flight`` sends to that system already await their outcome:
+    nothing was sent. Wait for an earlier ticket's outcome and send again."""
+
+
 class EncodeError(HetcommError, TypeError):
     """The message could not be encoded as a payload."""
 
@@ -79,6 +84,7 @@ __all__ = [
     "UnknownModuleError",
     "NoRouteError",
     "TooLargeError",
+    "BackpressureError",
     "EncodeError",
     "DecodeError",
     "WrongTypeError",
