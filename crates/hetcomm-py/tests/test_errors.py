@@ -127,6 +127,45 @@ B = ["lan", "X"]
     assert str(e.value) == "message to `B` is 248 bytes with its header, over the transport's limit of 148 bytes"
 
 
+def test_backpressure_when_the_window_is_full():
+    import socket
+
+    # A peer socket that nobody reads: no acknowledgement ever comes back.
+    silent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    silent.bind(("127.0.0.1", 0))
+    port = silent.getsockname()[1]
+    toml = f"""
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[transports.lan]
+kind = "udp"
+max_in_flight = 3
+[transports.lan.endpoints]
+A = "127.0.0.1:0"
+B = "127.0.0.1:{port}"
+[table]
+columns = ["A", "B"]
+A = ["X", "lan"]
+B = ["lan", "X"]
+"""
+    try:
+        with hetcomm.Comm.from_toml(toml, "A", "window.toml") as a:
+            m = a.module("M")
+            tickets = [m.send_raw("B", "M", 5, b"hello?") for _ in range(3)]
+            with pytest.raises(hetcomm.BackpressureError) as e:
+                m.send_raw("B", "M", 5, b"hello?")
+            assert all(t.try_outcome() is None for t in tickets)
+    finally:
+        silent.close()
+    assert str(e.value) == (
+        "3 sends to `B` already await their outcome (max_in_flight of the transport): "
+        "nothing was sent; wait for an earlier outcome and send again"
+    )
+
+
 def test_transport_unavailable():
     toml = """
 [systems]

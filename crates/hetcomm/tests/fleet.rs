@@ -665,3 +665,71 @@ fn a_sender_handle_follows_its_destination_closing_and_reopening() {
     let got = bravo.module("Act").unwrap().try_recv::<Command>().unwrap();
     assert_eq!(got.map(|r| r.message.code), Some(3));
 }
+
+#[test]
+fn a_full_window_refuses_sends_until_an_outcome_frees_a_place() {
+    // Alpha and Charlie are opened, Bravo and Delta are not: sends to them are refused by
+    // the link and wait for their retries, each holding a place of Bravo's window of two.
+    let text = fleet_text("2", "acknowledged").replace(
+        "delivery = \"acknowledged\"",
+        "delivery = \"acknowledged\"\nmax_in_flight = 2",
+    );
+    let fleet = hetcomm::config::parse_str(&text, "five.toml", None).unwrap();
+    let alpha = hetcomm::Comm::open_fleet(&fleet, "Alpha").unwrap();
+    let charlie = hetcomm::Comm::open_fleet(&fleet, "Charlie").unwrap();
+    let plan = alpha.module("Plan").unwrap();
+    let waiting: Vec<_> = (0..2)
+        .map(|code| plan.send("Bravo", "Act", &Command { code }).unwrap())
+        .collect();
+    assert!(waiting.iter().all(|t| t.try_outcome().is_none()));
+    let refused = plan.send("Bravo", "Act", &Command { code: 2 }).unwrap_err();
+    assert!(
+        matches!(&refused, SendError::Backpressure { to, limit: 2 } if to == "Bravo"),
+        "{refused:?}"
+    );
+    assert!(refused.to_string().contains("max_in_flight"), "{refused}");
+
+    // A broadcast still reaches the others; Bravo's ticket says why it was not sent.
+    let outcomes = plan.broadcast("Act", &Command { code: 3 }).unwrap().wait();
+    let of = |name: &str| {
+        outcomes
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, o)| o.clone())
+            .unwrap_or_else(|| panic!("no outcome for {name}: {outcomes:?}"))
+    };
+    assert_eq!(
+        of("Bravo"),
+        Outcome::Failed {
+            reason: FailReason::Backpressure,
+            attempts: 0
+        }
+    );
+    assert!(matches!(of("Charlie"), Outcome::Delivered { .. }));
+    assert!(matches!(
+        of("Delta"),
+        Outcome::Failed {
+            reason: FailReason::Unreachable(_),
+            ..
+        }
+    ));
+    let act = charlie.module("Act").unwrap();
+    assert_eq!(act.try_recv::<Command>().unwrap().unwrap().message.code, 3);
+
+    // The two waiting sends end (Bravo stays unreachable), which frees the window.
+    for t in &waiting {
+        assert!(matches!(
+            t.wait(),
+            Outcome::Failed {
+                reason: FailReason::Unreachable(_),
+                attempts: 3
+            }
+        ));
+    }
+    let again = plan.send("Bravo", "Act", &Command { code: 4 }).unwrap();
+    assert!(again.try_outcome().is_none(), "accepted and waiting again");
+    let stats = alpha.stats().router;
+    assert_eq!(stats.backpressured, 2, "one send and one broadcast copy");
+    // Two waiting, two broadcast copies and the last one; the refused ones are not sends.
+    assert_eq!(stats.sends, 5);
+}

@@ -217,3 +217,52 @@ fn spinning_waiters_read_their_links_and_still_time_out() {
         "{waited:?}"
     );
 }
+
+#[test]
+fn acknowledged_sends_to_a_silent_udp_peer_stop_at_the_window() {
+    // Only A is opened: its frames reach a socket nobody reads, so no acknowledgement comes.
+    let (pa, pb) = (free_udp_port(), free_udp_port());
+    let silent = std::net::UdpSocket::bind(("127.0.0.1", pb)).expect("bind the silent peer");
+    let text = format!(
+        r#"
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[transports.u]
+kind = "udp"
+max_in_flight = 8
+endpoints = {{ A = "127.0.0.1:{pa}", B = "127.0.0.1:{pb}" }}
+[table]
+columns = ["A", "B"]
+A = ["X", "u"]
+B = ["u", "X"]
+"#
+    );
+    let fleet = hetcomm::config::parse_str(&text, "window.toml", None).unwrap();
+    let a = hetcomm::Comm::open_fleet(&fleet, "A").unwrap();
+    let m = a.module("M").unwrap();
+    let mut tickets = Vec::new();
+    let refused = loop {
+        match m.send_raw("B", "M", TY, b"are you there", Default::default()) {
+            Ok(t) => tickets.push(t),
+            Err(e) => break e,
+        }
+        assert!(tickets.len() <= 8, "the window of 8 was not enforced");
+    };
+    assert_eq!(tickets.len(), 8);
+    assert!(
+        matches!(&refused, hetcomm::SendError::Backpressure { to, limit: 8 } if to == "B"),
+        "{refused:?}"
+    );
+    // The frames did go out: the silent peer's socket holds them.
+    silent.set_nonblocking(true).unwrap();
+    let mut buf = [0u8; 2048];
+    assert!(silent.recv(&mut buf).is_ok(), "a frame reached the peer");
+    let stats = a.stats().router;
+    assert_eq!(
+        (stats.sends, stats.backpressured, stats.in_flight()),
+        (8, 1, 8)
+    );
+}
