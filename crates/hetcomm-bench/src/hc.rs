@@ -204,17 +204,14 @@ pub fn oneway(
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {
-            if pair
-                .m
-                .send_raw("B", "M", DATA, &msg, Default::default())
-                .is_ok()
-            {
+            if send_with_room(&pair.m, DATA, &msg, end).is_ok() {
                 sent += 1;
             }
         }
     }
     for _ in 0..3 {
-        let _ = pair.m.send_raw("B", "M", STOP, &[0], Default::default());
+        let stop_by = Instant::now() + Duration::from_secs(5);
+        let _ = send_with_room(&pair.m, STOP, &[0], stop_by);
         std::thread::sleep(Duration::from_millis(5));
     }
     pair.peer.close_input();
@@ -222,6 +219,24 @@ pub fn oneway(
     let Pair { peer, .. } = pair;
     peer.finish(Duration::from_secs(3));
     parse_sink_line(&line, sent).ok_or(format!("bad sink line {line:?}"))
+}
+
+/// Sends to B's `M`; while the acknowledged window is full (backpressure), gives the CPU to
+/// the threads that handle acknowledgements and tries again, until `deadline`.
+fn send_with_room(
+    m: &Module,
+    ty: hetcomm::MessageType,
+    payload: &[u8],
+    deadline: Instant,
+) -> Result<hetcomm::Ticket, hetcomm::SendError> {
+    loop {
+        match m.send_raw("B", "M", ty, payload, Default::default()) {
+            Err(hetcomm::SendError::Backpressure { .. }) if Instant::now() < deadline => {
+                std::thread::yield_now()
+            }
+            other => return other,
+        }
+    }
 }
 
 fn local(acked: bool) -> Result<(LocalFleet, Module, Module), String> {
