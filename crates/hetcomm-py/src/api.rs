@@ -900,6 +900,9 @@ impl Comm {
             ("malformed", r.malformed),
             ("unknown_origin", r.unknown_origin),
             ("misrouted", r.misrouted),
+            ("held", r.held),
+            ("gaps_skipped", r.gaps_skipped),
+            ("backpressured", r.backpressured),
         ] {
             router.set_item(k, v)?;
         }

@@ -158,6 +158,8 @@ B = ["lan", "X"]
             with pytest.raises(hetcomm.BackpressureError) as e:
                 m.send_raw("B", "M", 5, b"hello?")
             assert all(t.try_outcome() is None for t in tickets)
+            router = a.stats()["router"]
+            assert (router["sends"], router["backpressured"]) == (3, 1)
     finally:
         silent.close()
     assert str(e.value) == (

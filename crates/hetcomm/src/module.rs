@@ -106,7 +106,8 @@ impl Module {
 
     /// Sends `msg` to `module` of `system` (friendly names). Returns at once with a
     /// [`Ticket`] for the outcome; errors here mean nothing was sent (unknown name, `X` pair,
-    /// too large, type id conflict).
+    /// too large, type id conflict, or [`SendError::Backpressure`]: the transport's
+    /// `max_in_flight` sends to that system still await their outcome).
     pub fn send<M: Message>(
         &self,
         system: &str,
@@ -303,7 +304,9 @@ impl Module {
     }
 
     /// Sends `msg` to `module` on every other system this one may talk to (the thesis's
-    /// "All"). Systems whose pair is `X` are skipped. One outcome per destination.
+    /// "All"). Systems whose pair is `X` are skipped. One outcome per destination; a
+    /// destination whose window is full gets one that failed with
+    /// [`FailReason::Backpressure`](crate::FailReason::Backpressure), and the others are sent.
     pub fn broadcast<M: Message>(
         &self,
         module: &str,
