@@ -103,8 +103,9 @@ def test_no_route(fleet):
     )
 
 
-def test_too_large():
-    toml = """
+def udp_pair(extra: str = "", a: str = "127.0.0.1:0", b: str = "127.0.0.1:0") -> str:
+    """Systems A and B with module M, joined by one UDP transport `lan` (`extra`: more keys)."""
+    return f"""
 [systems]
 A = 0
 B = 1
@@ -112,15 +113,19 @@ B = 1
 M = 0
 [transports.lan]
 kind = "udp"
-max_message_bytes = 100
+{extra}
 [transports.lan.endpoints]
-A = "127.0.0.1:0"
-B = "127.0.0.1:0"
+A = "{a}"
+B = "{b}"
 [table]
 columns = ["A", "B"]
 A = ["X", "lan"]
 B = ["lan", "X"]
 """
+
+
+def test_too_large():
+    toml = udp_pair("max_message_bytes = 100")
     with hetcomm.Comm.from_toml(toml, "A", "small.toml") as a:
         with pytest.raises(hetcomm.TooLargeError) as e:
             a.module("M").send_raw("B", "M", 5, bytes(200))
@@ -134,23 +139,7 @@ def test_backpressure_when_the_window_is_full():
     silent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     silent.bind(("127.0.0.1", 0))
     port = silent.getsockname()[1]
-    toml = f"""
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-max_in_flight = 3
-[transports.lan.endpoints]
-A = "127.0.0.1:0"
-B = "127.0.0.1:{port}"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
+    toml = udp_pair("max_in_flight = 3", b=f"127.0.0.1:{port}")
     try:
         with hetcomm.Comm.from_toml(toml, "A", "window.toml") as a:
             m = a.module("M")
@@ -193,22 +182,7 @@ def test_transport_error_when_the_port_is_taken():
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
-    toml = f"""
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-[transports.lan.endpoints]
-A = "127.0.0.1:{port}"
-B = "127.0.0.1:0"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
+    toml = udp_pair(a=f"127.0.0.1:{port}")
     try:
         with pytest.raises(hetcomm.TransportError) as e:
             hetcomm.Comm.from_toml(toml, "A", "taken.toml")
