@@ -1672,7 +1672,8 @@ mod tests {
         assert!(a.spare_frames.len() <= SPARE_FRAMES);
     }
 
-    /// A router from A with one route to each of `to`, acknowledged, window `window`.
+    /// A router from A with a route to each of `to` (acknowledged or not) and a window of
+    /// `window` sends.
     fn windowed(acknowledged: bool, window: u32, to: &[SystemId]) -> Router<u32> {
         let r = Route {
             max_in_flight: window,
