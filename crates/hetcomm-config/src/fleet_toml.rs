@@ -889,7 +889,7 @@ impl P<'_> {
                     &vl,
                     1,
                     1_000_000,
-                    "sends to one destination that may await their outcome at once; the default is 1024",
+                    &format!("sends to one destination that may await their outcome at once; the default is {default_window}"),
                 )
                 .map_or(default_window, |a| u32::try_from(a).unwrap_or(default_window))
             }

@@ -464,16 +464,24 @@ struct PendingDelivery {
     ack_header: Header,
 }
 
+/// What a router keeps per destination system.
+#[derive(Default)]
+struct Towards {
+    /// The last sequence number given (the first send gets 1).
+    last_seq: u64,
+    /// Sends awaiting their outcome (bounded by [`Route::max_in_flight`]).
+    pending: u32,
+}
+
 /// The per-system routing and reliability state machine. `T` is an opaque token the driver
 /// attaches to each send and gets back with its outcome.
 pub struct Router<T> {
     config: RouterConfig,
     routes: HashMap<SystemId, Route>,
-    next_seq: HashMap<SystemId, u64>,
+    /// Numbering and the window, per destination (one lookup per send).
+    towards: HashMap<SystemId, Towards>,
     rtt: HashMap<SystemId, RttEstimator>,
     pending: HashMap<SendId, Pending<T>>,
-    /// Pending sends per destination (for [`Route::max_in_flight`]).
-    pending_to: HashMap<SystemId, u32>,
     /// Retransmission deadlines, possibly stale (checked against `Pending::deadline`).
     timers: BTreeSet<(Time, SendId)>,
     transmits: VecDeque<TransmitItem>,
@@ -520,10 +528,9 @@ impl<T> Router<T> {
         Router {
             config,
             routes,
-            next_seq: HashMap::default(),
+            towards: HashMap::default(),
             rtt: HashMap::default(),
             pending: HashMap::default(),
-            pending_to: HashMap::default(),
             timers: BTreeSet::new(),
             transmits: VecDeque::new(),
             deliveries: VecDeque::new(),
@@ -752,13 +759,13 @@ impl<T> Router<T> {
 
     /// Records an unresolved send (counted against its destination's window).
     fn keep_pending(&mut self, id: SendId, p: Pending<T>) {
-        *self.pending_to.entry(id.to).or_insert(0) += 1;
+        self.towards.entry(id.to).or_default().pending += 1;
         self.pending.insert(id, p);
     }
 
     /// Sends to `to` awaiting their outcome (at most its route's [`Route::max_in_flight`]).
     pub fn pending_to(&self, to: SystemId) -> u32 {
-        self.pending_to.get(&to).copied().unwrap_or(0)
+        self.towards.get(&to).map_or(0, |t| t.pending)
     }
 
     /// Keeps an ended send's frame buffer for the next sends (see [`SPARE_FRAMES`]).
@@ -781,16 +788,17 @@ impl<T> Router<T> {
         if len > max {
             return Err(SendError::TooLarge { len, max, to });
         }
+        let towards = self.towards.entry(to).or_default();
         // Refused before numbering: a refused send leaves no gap in the sequence.
-        if self.pending_to(to) >= route.max_in_flight {
+        if towards.pending >= route.max_in_flight {
             self.stats.backpressured += 1;
             return Err(SendError::Backpressure {
                 to,
                 limit: route.max_in_flight,
             });
         }
-        let seq = self.next_seq.entry(to).or_insert(0);
-        *seq += 1;
+        towards.last_seq += 1;
+        let seq = towards.last_seq;
         let mut flags = 0;
         if route.acknowledged {
             flags |= FLAG_ACK_REQUESTED;
@@ -809,7 +817,7 @@ impl<T> Router<T> {
             },
             destination: req.to,
             incarnation: self.config.incarnation,
-            seq: *seq,
+            seq,
             message_type: req.message_type,
             timestamp: now,
         };
@@ -957,8 +965,8 @@ impl<T> Router<T> {
 
     fn finish(&mut self, id: SendId, outcome: Outcome) {
         if let Some(p) = self.pending.remove(&id) {
-            if let Some(n) = self.pending_to.get_mut(&id.to) {
-                *n -= 1;
+            if let Some(t) = self.towards.get_mut(&id.to) {
+                t.pending -= 1;
             }
             // Its retransmission timer would only wake the driver for nothing.
             if let Some(deadline) = p.deadline {
@@ -1783,19 +1791,13 @@ mod tests {
         let mut a = windowed(false, 1, &[B]);
         // Taken by the link: never pending, so the window of one never fills.
         for seq in 1..=5 {
-            let tx = match a.send_unqueued(now, request(B), || 0) {
-                Ok(Admitted::Transmit(tx)) => tx,
-                other => panic!("expected an unqueued frame, got {other:?}"),
-            };
+            let tx = unqueued(&mut a, now, b"w");
             assert_eq!(tx.id().seq, seq);
             assert!(a.unqueued_result(now, tx, Ok(()), || 0).is_some());
         }
         assert_eq!(a.pending_to(B), 0);
         // Refused with attempts left: it waits for its retry, and fills the window.
-        let tx = match a.send_unqueued(now, request(B), || 0) {
-            Ok(Admitted::Transmit(tx)) => tx,
-            other => panic!("expected an unqueued frame, got {other:?}"),
-        };
+        let tx = unqueued(&mut a, now, b"w");
         let refused = Err(TransmitError::Unreachable("peer down".into()));
         assert_eq!(a.unqueued_result(now, tx, refused, || 9), None);
         assert_eq!(a.pending_to(B), 1);
