@@ -250,6 +250,11 @@ pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
 const BATCH_FRAME_MAX: usize = 8 * 1024;
 const _: () = assert!(hetcomm_router::SPLIT_PAYLOAD_MIN > BATCH_FRAME_MAX);
 
+/// Acknowledgements are held for company only on links whose linger is at most this (µs):
+/// well under the router's smallest retransmission timeout (2 ms), so a held
+/// acknowledgement never makes its sender retransmit.
+const ACK_HOLD_MAX_US: u64 = 1000;
+
 /// The batching policy of one link. A frame goes out at once when the link was idle for
 /// the linger time, so sporadic messages never wait; while frames come faster than that,
 /// they are held and leave together when the link's batch is full, when the oldest has waited
@@ -619,18 +624,52 @@ impl SystemCore {
             // stay on the timer.
             return link.send(to, frame);
         }
+        self.hold(b, link, to, frame, now)
+    }
+
+    /// Holds `frame` in link's batch (see [`Batching`]); the timer sends it should nothing
+    /// else come along.
+    fn hold(
+        &self,
+        b: &Batching,
+        link: &dyn Link,
+        to: SystemId,
+        frame: &[u8],
+        now: Time,
+    ) -> Result<(), LinkError> {
         let result = link.send_held(to, frame);
         let since = b.held_since.load(Ordering::Relaxed);
         if since == 0 {
             b.held_since
                 .store(now.as_micros().max(1), Ordering::Relaxed);
-            // The timer thread sends the batch should nothing else come along.
             self.timer
                 .arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
         } else if b.take_due(Some(now)) {
             let _ = link.flush();
         }
         result
+    }
+
+    /// Puts an acknowledgement on link `index`. On a link that batches it is always held
+    /// (at most the linger time): the receiving module usually answers, or waits again, well
+    /// within that, and the acknowledgement then shares the answer's datagram or write.
+    /// A round trip of acknowledged messages so costs one datagram each way instead of two,
+    /// and the sender is woken once per answer instead of once more for the
+    /// acknowledgement. It does not count as traffic for the idle test, so the answer
+    /// itself is not held because of it.
+    fn transmit_ack(&self, index: usize, to: SystemId, frame: &[u8], now: Time) {
+        let Some(link) = self.links().get(index) else {
+            return;
+        };
+        // An acknowledgement lost here is counted by the link; the sender retransmits and is
+        // acknowledged again.
+        let _ = match self.batching.get().and_then(|v| v.get(index)) {
+            Some(b) if (1..=ACK_HOLD_MAX_US).contains(&b.linger_us) => {
+                self.hold(b, &**link, to, frame, now)
+            }
+            // A longer linger could outlast the sender's retransmission timeout.
+            _ => self.transmit(index, &**link, to, frame, &[], now),
+        };
     }
 
     /// Puts the frame `frame` + `body` on link `index` (see [`SystemCore::transmit`]), in the
@@ -730,10 +769,12 @@ impl SystemCore {
                 }
             }
             for tx in transmits.drain(..) {
-                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now);
-                if tx.send.is_some() {
-                    transmit_results.push((tx, result));
+                if tx.send.is_none() {
+                    self.transmit_ack(tx.link, tx.to, &tx.frame, now);
+                    continue;
                 }
+                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now);
+                transmit_results.push((tx, result));
             }
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
