@@ -880,7 +880,7 @@ impl Comm {
         })
     }
     /// Counters: {"router": {...}, "inboxes": {module: {...}}, "links": {transport: {...}},
-    /// "callback_failures": n}.
+    /// "callback_failures": n, "held_frames": n}.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.get()?.stats();
         let r = &s.router;
@@ -925,6 +925,7 @@ impl Comm {
         out.set_item("inboxes", inboxes)?;
         out.set_item("links", links)?;
         out.set_item("callback_failures", s.callback_failures)?;
+        out.set_item("held_frames", s.held_frames)?;
         Ok(out)
     }
     /// Drops this handle to the system (it closes once no Module object of it is left).

@@ -204,6 +204,8 @@ def test_stats(fleet):
     assert set(s["inboxes"]) == {"Plan", "Act", "World"}
     assert set(s["links"]) == {"wired"}
     assert s["callback_failures"] == 0
+    # In-process links never hold frames for batching.
+    assert s["held_frames"] == 0
     charlie = fleet.system("Charlie")
     assert charlie.stats()["router"]["received"] == 1
     assert charlie.module("Act").inbox_stats()["accepted"] == 1

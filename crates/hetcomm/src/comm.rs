@@ -104,6 +104,9 @@ pub struct SystemStats {
     pub links: Vec<(String, LinkStats)>,
     /// Callback invocations that panicked or could not decode their message.
     pub callback_failures: u64,
+    /// Frames this system's links held back for a moment to share a datagram or write with
+    /// the frames after them (see `batch_linger_us`); 0 while every frame went at once.
+    pub held_frames: u64,
 }
 
 impl Comm {
@@ -332,6 +335,7 @@ impl Comm {
             inboxes,
             links,
             callback_failures,
+            held_frames: core.held_frames(),
         }
     }
 }

@@ -250,11 +250,6 @@ pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
 const BATCH_FRAME_MAX: usize = 8 * 1024;
 const _: () = assert!(hetcomm_router::SPLIT_PAYLOAD_MIN > BATCH_FRAME_MAX);
 
-/// Acknowledgements are held for company only on links whose linger is at most this (µs):
-/// well under the router's smallest retransmission timeout (2 ms), so a held
-/// acknowledgement never makes its sender retransmit.
-const ACK_HOLD_MAX_US: u64 = 1000;
-
 /// The batching policy of one link. A frame goes out at once when the link was idle for
 /// the linger time, so sporadic messages never wait; while frames come faster than that,
 /// they are held and leave together when the link's batch is full, when the oldest has waited
@@ -263,10 +258,14 @@ const ACK_HOLD_MAX_US: u64 = 1000;
 pub(crate) struct Batching {
     /// 0: never hold.
     linger_us: u64,
-    /// When the last frame was handed to this link (µs, the system's clock).
+    /// When the last data frame was handed to this link (µs, the system's clock).
     last_send: AtomicU64,
+    /// When the last acknowledgement was.
+    last_ack: AtomicU64,
     /// When the oldest frame still held was held (0: nothing held).
     held_since: AtomicU64,
+    /// Frames held back to share a datagram or write ([`crate::SystemStats::held_frames`]).
+    held: AtomicU64,
 }
 
 impl Batching {
@@ -274,7 +273,9 @@ impl Batching {
         Batching {
             linger_us: u64::from(linger_us),
             last_send: AtomicU64::new(0),
+            last_ack: AtomicU64::new(0),
             held_since: AtomicU64::new(0),
+            held: AtomicU64::new(0),
         }
     }
 
@@ -294,6 +295,13 @@ impl Batching {
             .compare_exchange(since, 0, Ordering::Relaxed, Ordering::Relaxed)
             .is_ok()
     }
+}
+
+/// Which idle test a frame takes ([`SystemCore::transmit`]).
+#[derive(Clone, Copy)]
+enum Traffic {
+    Data,
+    Ack,
 }
 
 #[derive(Default)]
@@ -500,6 +508,8 @@ impl SystemCore {
                 Ok(None) => {}
                 other => return other,
             }
+            // (Links that batch are links with a readable side, so they have a reactor.)
+            self.idle_before_blocking();
             let deadline = *deadline.get_or_insert_with(|| timeout.map(|t| Instant::now() + t));
             let left = match deadline {
                 None => Duration::MAX,
@@ -581,6 +591,28 @@ impl SystemCore {
         }
     }
 
+    /// Counts the links as idle, as a thread of this system is about to block for a
+    /// message: the first frame after the wait (typically the answer to what arrives, or the
+    /// next request) goes at once instead of being held. A request–answer exchange so holds
+    /// nothing and never arms the batching timer, whose wake-ups would land on the
+    /// exchange's path; a stream sent, or taken, without blocking still batches.
+    fn idle_before_blocking(&self) {
+        for b in self.batching.get().into_iter().flatten() {
+            b.last_send.store(0, Ordering::Relaxed);
+            b.last_ack.store(0, Ordering::Relaxed);
+        }
+    }
+
+    /// Frames held back for batching so far, all links together.
+    pub(crate) fn held_frames(&self) -> u64 {
+        self.batching
+            .get()
+            .into_iter()
+            .flatten()
+            .map(|b| b.held.load(Ordering::Relaxed))
+            .sum()
+    }
+
     /// When the oldest batch still held is due.
     fn next_flush(&self) -> Option<Time> {
         self.batching
@@ -595,6 +627,7 @@ impl SystemCore {
 
     /// Puts one frame, `frame` followed by `body`, on link `index`, holding it back to share a
     /// write with the next ones when the link batches and is busy (see [`Batching`]).
+    #[allow(clippy::too_many_arguments)] // one frame's whole description
     fn transmit(
         &self,
         index: usize,
@@ -603,6 +636,7 @@ impl SystemCore {
         frame: &[u8],
         body: &[u8],
         now: Time,
+        traffic: Traffic,
     ) -> Result<(), LinkError> {
         let Some(b) = self.batching.get().and_then(|v| v.get(index)) else {
             return link.send_parts(to, frame, body);
@@ -610,7 +644,11 @@ impl SystemCore {
         if b.linger_us == 0 {
             return link.send_parts(to, frame, body);
         }
-        let last = b.last_send.swap(now.as_micros(), Ordering::Relaxed);
+        let stamp = match traffic {
+            Traffic::Data => &b.last_send,
+            Traffic::Ack => &b.last_ack,
+        };
+        let last = stamp.swap(now.as_micros(), Ordering::Relaxed);
         if frame.len() + body.len() > BATCH_FRAME_MAX {
             // A large frame fills a write on its own: holding it would only cost a timer
             // wake-up. It goes now, after whatever is held for the same peer. (Only such
@@ -624,24 +662,13 @@ impl SystemCore {
             // stay on the timer.
             return link.send(to, frame);
         }
-        self.hold(b, link, to, frame, now)
-    }
-
-    /// Holds `frame` in link's batch (see [`Batching`]); the timer sends it should nothing
-    /// else come along.
-    fn hold(
-        &self,
-        b: &Batching,
-        link: &dyn Link,
-        to: SystemId,
-        frame: &[u8],
-        now: Time,
-    ) -> Result<(), LinkError> {
         let result = link.send_held(to, frame);
+        b.held.fetch_add(1, Ordering::Relaxed);
         let since = b.held_since.load(Ordering::Relaxed);
         if since == 0 {
             b.held_since
                 .store(now.as_micros().max(1), Ordering::Relaxed);
+            // The timer thread sends the batch should nothing else come along.
             self.timer
                 .arm(Some(Time::from_micros(now.as_micros() + b.linger_us)));
         } else if b.take_due(Some(now)) {
@@ -650,26 +677,16 @@ impl SystemCore {
         result
     }
 
-    /// Puts an acknowledgement on link `index`. On a link that batches it is always held
-    /// (at most the linger time): the receiving module usually answers, or waits again, well
-    /// within that, and the acknowledgement then shares the answer's datagram or write.
-    /// A round trip of acknowledged messages so costs one datagram each way instead of two,
-    /// and the sender is woken once per answer instead of once more for the
-    /// acknowledgement. It does not count as traffic for the idle test, so the answer
-    /// itself is not held because of it.
+    /// Puts an acknowledgement on link `index` (see [`SystemCore::transmit`]). Acknowledgements
+    /// keep their own idle test: a stream's acknowledgements share datagrams, while the one
+    /// acknowledgement of a request goes at once and does not make the answer after it
+    /// count as busy traffic (which would hold the answer and wake the batching timer).
     fn transmit_ack(&self, index: usize, to: SystemId, frame: &[u8], now: Time) {
-        let Some(link) = self.links().get(index) else {
-            return;
-        };
-        // An acknowledgement lost here is counted by the link; the sender retransmits and is
-        // acknowledged again.
-        let _ = match self.batching.get().and_then(|v| v.get(index)) {
-            Some(b) if (1..=ACK_HOLD_MAX_US).contains(&b.linger_us) => {
-                self.hold(b, &**link, to, frame, now)
-            }
-            // A longer linger could outlast the sender's retransmission timeout.
-            _ => self.transmit(index, &**link, to, frame, &[], now),
-        };
+        if let Some(link) = self.links().get(index) {
+            // An acknowledgement lost here is counted by the link; the sender retransmits
+            // and is acknowledged again.
+            let _ = self.transmit(index, &**link, to, frame, &[], now, Traffic::Ack);
+        }
     }
 
     /// Puts the frame `frame` + `body` on link `index` (see [`SystemCore::transmit`]), in the
@@ -684,7 +701,7 @@ impl SystemCore {
     ) -> Result<(), TransmitError> {
         match self.links().get(index) {
             Some(link) => self
-                .transmit(index, &**link, to, frame, body, now)
+                .transmit(index, &**link, to, frame, body, now, Traffic::Data)
                 .map_err(transmit_error),
             None => Err(TransmitError::Other("no such link".into())),
         }
