@@ -51,23 +51,30 @@ fn ping_pong_over_udp_with_waiting_modules() {
         let f = fleet(delivery);
         let a = f.system("A").unwrap().module("M").unwrap();
         let b = f.system("B").unwrap().module("M").unwrap();
-        let echo = std::thread::spawn(move || {
-            for _ in 0..500 {
-                let m = b.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
-                b.send_raw("A", "M", TY, &m.payload, Default::default())
-                    .unwrap();
-            }
-        });
-        for i in 0..500u32 {
-            a.send_raw("B", "M", TY, &i.to_le_bytes(), Default::default())
-                .unwrap();
-            let back = a
-                .recv_raw_timeout(Some(Duration::from_secs(5)))
-                .unwrap_or_else(|e| panic!("{delivery}: round trip {i}: {e}"));
-            assert_eq!(back.payload, i.to_le_bytes(), "{delivery}: round trip {i}");
-        }
-        echo.join().unwrap();
+        ping_pong(&a, b, 500, delivery);
     }
+}
+
+/// `rounds` round trips, back to back: `a` (module M of A) sends to M of B and waits for
+/// `b` (module M of B, on a thread of its own) to send each message back. Returns `b`.
+fn ping_pong(a: &hetcomm::Module, b: hetcomm::Module, rounds: u32, what: &str) -> hetcomm::Module {
+    let echo = std::thread::spawn(move || {
+        for _ in 0..rounds {
+            let m = b.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
+            b.send_raw("A", "M", TY, &m.payload, Default::default())
+                .unwrap();
+        }
+        b
+    });
+    for i in 0..rounds {
+        a.send_raw("B", "M", TY, &i.to_le_bytes(), Default::default())
+            .unwrap();
+        let back = a
+            .recv_raw_timeout(Some(Duration::from_secs(5)))
+            .unwrap_or_else(|e| panic!("{what}: round trip {i}: {e}"));
+        assert_eq!(back.payload, i.to_le_bytes(), "{what}: round trip {i}");
+    }
+    echo.join().unwrap()
 }
 
 #[test]
@@ -273,25 +280,10 @@ fn request_and_answer_hold_nothing_while_a_stream_batches() {
         let f = fleet(delivery);
         let (sys_a, sys_b) = (f.system("A").unwrap(), f.system("B").unwrap());
         let (a, b) = (sys_a.module("M").unwrap(), sys_b.module("M").unwrap());
-        const ROUNDS: u32 = 300;
-        let echo = std::thread::spawn(move || {
-            for _ in 0..ROUNDS {
-                let m = b.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
-                b.send_raw("A", "M", TY, &m.payload, Default::default())
-                    .unwrap();
-            }
-            b
-        });
         // Back to back, well within the linger (50 µs) of each other: each request and each
         // answer follows a wait, so it goes at once; nothing is held, and the batching timer
         // is never armed.
-        for i in 0..ROUNDS {
-            a.send_raw("B", "M", TY, &i.to_le_bytes(), Default::default())
-                .unwrap();
-            let back = a.recv_raw_timeout(Some(Duration::from_secs(5))).unwrap();
-            assert_eq!(back.payload, i.to_le_bytes(), "{delivery}: round trip {i}");
-        }
-        let b = echo.join().unwrap();
+        let b = ping_pong(&a, b, 300, delivery);
         let (sa, sb) = (sys_a.stats(), sys_b.stats());
         // A retransmission is traffic too: the send right after it may be held (at most one
         // per retransmission). Unacknowledged sends are never retransmitted.
