@@ -568,6 +568,7 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
         .iter()
         .filter_map(|p| g("oneway", p, 64, "msgs_per_s").map(|v| (*p, v)))
         .max_by(|a, b| a.1.total_cmp(&b.1));
+    let raw_udp = g("oneway", "raw-udp", 64, "msgs_per_s");
     t.push(match best {
         Some((p, v)) => Target {
             name: "throughput 64 B, one sender → one receiver (two processes): ≥ 3 M msg/s",
@@ -575,12 +576,12 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
             figure: format!(
                 "best {p}: {:.2} M msg/s{} (raw TCP one write per message: {}, raw UDP: {}){}",
                 v / 1e6,
-                match g("oneway", "raw-udp", 64, "msgs_per_s") {
+                match raw_udp {
                     Some(r) if r > 0.0 => format!(" = {:.2}× raw UDP", v / r),
                     _ => String::new(),
                 },
                 si(g("oneway", "raw-tcp", 64, "msgs_per_s")),
-                si(g("oneway", "raw-udp", 64, "msgs_per_s")),
+                si(raw_udp),
                 if v < 3e6 {
                     format!("; misses by {:.1}×", 3e6 / v.max(1.0))
                 } else {

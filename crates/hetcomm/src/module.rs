@@ -14,7 +14,7 @@ use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::received::{RawMessage, Received};
-use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore};
+use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore, Traffic};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
 
 thread_local! {
@@ -206,7 +206,7 @@ impl Module {
         // nothing else queued; the frame goes out without a trip through `pump`, and its
         // outcome is known when the link answers.
         drop(router);
-        let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now);
+        let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now, Traffic::Data);
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {

@@ -297,10 +297,15 @@ impl Batching {
     }
 }
 
-/// Which idle test a frame takes ([`SystemCore::transmit`]).
+/// Which idle test a frame takes ([`SystemCore::transmit`]). Acknowledgements keep their
+/// own: a stream's acknowledgements share datagrams, while the one acknowledgement of a
+/// request goes at once and does not make the answer after it count as busy traffic (which
+/// would hold the answer and wake the batching timer).
 #[derive(Clone, Copy)]
-enum Traffic {
+pub(crate) enum Traffic {
+    /// Messages (first transmissions and retransmissions).
     Data,
+    /// Acknowledgements.
     Ack,
 }
 
@@ -677,18 +682,6 @@ impl SystemCore {
         result
     }
 
-    /// Puts an acknowledgement on link `index` (see [`SystemCore::transmit`]). Acknowledgements
-    /// keep their own idle test: a stream's acknowledgements share datagrams, while the one
-    /// acknowledgement of a request goes at once and does not make the answer after it
-    /// count as busy traffic (which would hold the answer and wake the batching timer).
-    fn transmit_ack(&self, index: usize, to: SystemId, frame: &[u8], now: Time) {
-        if let Some(link) = self.links().get(index) {
-            // An acknowledgement lost here is counted by the link; the sender retransmits
-            // and is acknowledged again.
-            let _ = self.transmit(index, &**link, to, frame, &[], now, Traffic::Ack);
-        }
-    }
-
     /// Puts the frame `frame` + `body` on link `index` (see [`SystemCore::transmit`]), in the
     /// router's terms.
     pub(crate) fn transmit_on(
@@ -698,10 +691,11 @@ impl SystemCore {
         frame: &[u8],
         body: &[u8],
         now: Time,
+        traffic: Traffic,
     ) -> Result<(), TransmitError> {
         match self.links().get(index) {
             Some(link) => self
-                .transmit(index, &**link, to, frame, body, now, Traffic::Data)
+                .transmit(index, &**link, to, frame, body, now, traffic)
                 .map_err(transmit_error),
             None => Err(TransmitError::Other("no such link".into())),
         }
@@ -786,12 +780,16 @@ impl SystemCore {
                 }
             }
             for tx in transmits.drain(..) {
-                if tx.send.is_none() {
-                    self.transmit_ack(tx.link, tx.to, &tx.frame, now);
-                    continue;
+                // Only sends need their result: an acknowledgement lost here is counted by
+                // the link, and its sender retransmits and is acknowledged again.
+                let traffic = match tx.send {
+                    Some(_) => Traffic::Data,
+                    None => Traffic::Ack,
+                };
+                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic);
+                if tx.send.is_some() {
+                    transmit_results.push((tx, result));
                 }
-                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now);
-                transmit_results.push((tx, result));
             }
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
