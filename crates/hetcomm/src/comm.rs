@@ -353,7 +353,7 @@ fn directory(fleet: &Fleet) -> Directory {
         systems: fleet
             .systems
             .iter()
-            .map(|s| (s.id, intern(&s.name)))
+            .map(|s| (s.id.0, intern(&s.name)))
             .collect(),
         system_ids: fleet
             .systems
@@ -363,7 +363,7 @@ fn directory(fleet: &Fleet) -> Directory {
         modules: fleet
             .modules
             .iter()
-            .map(|m| (m.id, intern(&m.name)))
+            .map(|m| (m.id.0, intern(&m.name)))
             .collect(),
         module_ids: fleet
             .modules

@@ -174,7 +174,12 @@ impl Module {
             broadcast,
         };
         if let Some(peer) = direct {
-            return self.hand_over(router, &peer, what, payload, now);
+            let to = DirectTarget {
+                peer: &peer,
+                module: None,
+                name: core.directory.system_name(to.system),
+            };
+            return self.hand_over(router, to, what, payload, now);
         }
         let req = what.request(self.core.id, payload.as_slice());
         // A slot for the outcome is shared with the runtime only when the outcome comes
@@ -233,7 +238,7 @@ impl Module {
     fn hand_over(
         &self,
         mut router: MutexGuard<'_, hetcomm_router::Router<Arc<OutcomeSlot>>>,
-        peer: &SystemCore,
+        to: DirectTarget<'_>,
         what: Outgoing,
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
@@ -244,7 +249,9 @@ impl Module {
             .send_direct(now, req)
             .map_err(|e| send_error(&core.directory, e))?;
         drop(router);
-        let status = peer.deliver_direct(header, payload.into_buf(), now);
+        let status = to
+            .peer
+            .deliver_direct(to.module, header, payload.into_buf(), now);
         // An unacknowledged send's outcome needs no second trip through the router lock.
         let outcome = if header.ack_requested() {
             core.router().direct_result(&header, status)
@@ -253,7 +260,7 @@ impl Module {
         };
         Ok(Ticket {
             slot: TicketSlot::Ready(outcome),
-            destination: core.directory.system_name(what.to.system),
+            destination: to.name,
         })
     }
 
@@ -293,7 +300,10 @@ impl Module {
                     to: system.to_string(),
                 })?;
             drop(router);
-            core.direct_peer(link, to.system)
+            core.direct_peer(link, to.system).map(|peer| {
+                let module = peer.modules.get(&to.module).cloned();
+                (peer, module)
+            })
         };
         Ok(Route {
             from: self.clone(),
@@ -587,7 +597,17 @@ struct Route {
     from: Module,
     to: Address,
     destination: &'static str,
-    direct: Option<Arc<SystemCore>>,
+    /// The destination system and module when they live in this process.
+    direct: Option<(Arc<SystemCore>, Option<Arc<ModuleCore>>)>,
+}
+
+/// Where an in-process send goes ([`Module::hand_over`]).
+struct DirectTarget<'a> {
+    peer: &'a SystemCore,
+    /// The destination module, when the caller has it at hand (else looked up).
+    module: Option<&'a ModuleCore>,
+    /// The destination system's name, for the ticket.
+    name: &'static str,
 }
 
 impl Route {
@@ -599,7 +619,7 @@ impl Route {
     ) -> Result<Ticket, SendError> {
         let core = &self.from.sys.core;
         match &self.direct {
-            Some(peer) if !peer.is_closed() && !core.is_closed() => {
+            Some((peer, module)) if !peer.is_closed() && !core.is_closed() => {
                 let now = core.clock.now();
                 let what = Outgoing {
                     to: self.to,
@@ -607,7 +627,12 @@ impl Route {
                     opts,
                     broadcast: false,
                 };
-                self.from.hand_over(core.router(), peer, what, payload, now)
+                let to = DirectTarget {
+                    peer,
+                    module: module.as_deref(),
+                    name: self.destination,
+                };
+                self.from.hand_over(core.router(), to, what, payload, now)
             }
             // Not in-process, or that system was closed (it may have been opened again):
             // the general path finds the route afresh.

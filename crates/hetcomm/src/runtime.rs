@@ -67,24 +67,60 @@ pub(crate) fn intern(name: &str) -> &'static str {
 /// Friendly names of the fleet's systems and modules, shared by every system of a process.
 #[derive(Debug)]
 pub(crate) struct Directory {
-    pub systems: HashMap<SystemId, &'static str>,
+    pub systems: IdNames,
     pub system_ids: HashMap<String, SystemId>,
-    pub modules: HashMap<ModuleId, &'static str>,
+    pub modules: IdNames,
     pub module_ids: HashMap<String, ModuleId>,
 }
 
 impl Directory {
     pub(crate) fn system_name(&self, id: SystemId) -> &'static str {
-        self.systems
-            .get(&id)
-            .copied()
-            .unwrap_or_else(|| intern(&format!("#{id}")))
+        self.systems.get(id.0)
     }
     pub(crate) fn module_name(&self, id: ModuleId) -> &'static str {
-        self.modules
-            .get(&id)
-            .copied()
-            .unwrap_or_else(|| intern(&format!("#{id}")))
+        self.modules.get(id.0)
+    }
+}
+
+/// Names by numeric id: a table indexed by the id for the small ids fleets use (every
+/// received message looks up two names), a map for the rest.
+#[derive(Debug, Default)]
+pub(crate) struct IdNames {
+    dense: Vec<Option<&'static str>>,
+    sparse: HashMap<u16, &'static str>,
+}
+
+/// Ids below this are looked up in [`IdNames`]' table (8 KiB on 64-bit machines at most).
+const DENSE_IDS: usize = 512;
+
+impl IdNames {
+    fn get(&self, id: u16) -> &'static str {
+        match self.dense.get(usize::from(id)) {
+            Some(Some(name)) => name,
+            _ => self
+                .sparse
+                .get(&id)
+                .copied()
+                .unwrap_or_else(|| intern(&format!("#{id}"))),
+        }
+    }
+}
+
+impl FromIterator<(u16, &'static str)> for IdNames {
+    fn from_iter<I: IntoIterator<Item = (u16, &'static str)>>(iter: I) -> Self {
+        let mut names = IdNames::default();
+        for (id, name) in iter {
+            let i = usize::from(id);
+            if i < DENSE_IDS {
+                if names.dense.len() <= i {
+                    names.dense.resize(i + 1, None);
+                }
+                names.dense[i] = Some(name);
+            } else {
+                names.sparse.insert(id, name);
+            }
+        }
+        names
     }
 }
 
@@ -555,14 +591,26 @@ impl SystemCore {
 
     /// Puts a message handed over directly by another system of this process into its
     /// module's inbox. `now` is the sender's clock reading: one process, one wall clock.
+    /// `module`: the destination module, when the caller has it (else looked up).
     pub(crate) fn deliver_direct(
         &self,
+        module: Option<&ModuleCore>,
         header: Header,
         payload: PayloadBuf,
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        self.deliver_entry(header, payload, now)
+        match module {
+            Some(m) => {
+                let entry = Entry {
+                    header,
+                    payload,
+                    received_at: now,
+                };
+                self.deliver_to(m, entry)
+            }
+            None => self.deliver_entry(header, payload, now),
+        }
     }
 
     /// The router's next retransmission deadline.
@@ -819,6 +867,12 @@ impl SystemCore {
             payload,
             received_at: now,
         };
+        self.deliver_to(module, entry)
+    }
+
+    /// Puts `entry` into `module`'s inbox, or hands it to the module's callbacks.
+    fn deliver_to(&self, module: &ModuleCore, entry: Entry) -> AckStatus {
+        let header = entry.header;
         let wants_callback = module.wants_callback(header.message_type);
         if wants_callback && module.inline_callbacks {
             module.run_callback(&self.directory, entry);
