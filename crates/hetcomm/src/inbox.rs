@@ -164,6 +164,9 @@ struct Shared {
     closed: AtomicBool,
 }
 
+/// Entries an empty intake makes room for at its first push.
+const INTAKE_FIRST: usize = 32;
+
 /// The largest intake vector (in entries) a consumer keeps for reuse.
 const SPARE_MAX: usize = 1024;
 
@@ -299,6 +302,10 @@ impl Inbox {
             let top = u16::from(e.header.priority.0) + 1;
             if self.intake.top.load(Ordering::Relaxed) < top {
                 self.intake.top.store(top, Ordering::Release);
+            }
+            if queue.capacity() == 0 {
+                // A first block that holds a burst, rather than growing by copying from 4.
+                queue.reserve(INTAKE_FIRST);
             }
             queue.push(e);
             self.intake.len.store(queue.len(), Ordering::Release);
