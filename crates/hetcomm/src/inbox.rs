@@ -257,11 +257,16 @@ impl Inbox {
         std::mem::swap(queue, &mut batch);
         self.intake.len.store(0, Ordering::Relaxed);
         self.intake.top.store(0, Ordering::Relaxed);
-        let held = stash.len + batch.len();
+        self.count_at_least(stash.len + batch.len());
+        batch
+    }
+
+    /// Raises [`Shared::counted`] to `held` messages in the stash (intake and stash locked),
+    /// writing the line producers read only when it must.
+    fn count_at_least(&self, held: usize) {
         if self.shared.counted.load(Ordering::Relaxed) < held {
             self.shared.counted.store(held, Ordering::Release);
         }
-        batch
     }
 
     /// Moves everything in the intake into the stash (locked by the caller).
@@ -382,9 +387,7 @@ impl Inbox {
             if admitted {
                 // Straight into the stash, behind everything that arrived before.
                 stash.insert(e);
-                if self.shared.counted.load(Ordering::Relaxed) < stash.len {
-                    self.shared.counted.store(stash.len, Ordering::Release);
-                }
+                self.count_at_least(stash.len);
                 drop(queue);
                 self.publish_len(&stash);
                 // A sleeping consumer looked at the stash under this lock before it slept.

@@ -176,7 +176,7 @@ impl Module {
         if let Some(peer) = direct {
             let to = DirectTarget {
                 peer: &peer,
-                module: None,
+                module: peer.modules.get(&to.module).map(|m| &**m),
                 name: core.directory.system_name(to.system),
             };
             return self.hand_over(router, to, what, payload, now);
@@ -597,14 +597,15 @@ struct Route {
     from: Module,
     to: Address,
     destination: &'static str,
-    /// The destination system and module when they live in this process.
+    /// The destination system when it lives in this process, with its module (None: that
+    /// system has no such module).
     direct: Option<(Arc<SystemCore>, Option<Arc<ModuleCore>>)>,
 }
 
 /// Where an in-process send goes ([`Module::hand_over`]).
 struct DirectTarget<'a> {
     peer: &'a SystemCore,
-    /// The destination module, when the caller has it at hand (else looked up).
+    /// The destination module (None: the peer has no such module).
     module: Option<&'a ModuleCore>,
     /// The destination system's name, for the ticket.
     name: &'static str,

@@ -591,7 +591,8 @@ impl SystemCore {
 
     /// Puts a message handed over directly by another system of this process into its
     /// module's inbox. `now` is the sender's clock reading: one process, one wall clock.
-    /// `module`: the destination module, when the caller has it (else looked up).
+    /// `module`: this system's module the message is for, looked up by the caller (None:
+    /// there is no such module).
     pub(crate) fn deliver_direct(
         &self,
         module: Option<&ModuleCore>,
@@ -600,17 +601,15 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        match module {
-            Some(m) => {
-                let entry = Entry {
-                    header,
-                    payload,
-                    received_at: now,
-                };
-                self.deliver_to(m, entry)
-            }
-            None => self.deliver_entry(header, payload, now),
-        }
+        let Some(module) = module else {
+            return AckStatus::UnknownModule;
+        };
+        let entry = Entry {
+            header,
+            payload,
+            received_at: now,
+        };
+        self.deliver_to(module, entry)
     }
 
     /// The router's next retransmission deadline.
