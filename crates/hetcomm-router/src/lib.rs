@@ -19,6 +19,7 @@
 //! | [`Router::delivery_result`] | after the inbox took (or refused) a delivery that wants an ack |
 //! | [`Router::poll_timeout`] / [`Router::handle_timeout`] | arm a timer / when it fires |
 //! | [`Router::poll_event`] | after any input: outcomes of sends |
+//! | [`Router::direct_lane`] | once per in-process destination: a [`DirectLane`] numbers and counts sends the driver hands straight to an inbox of the same process, without the router's lock |
 //!
 //! Reliability is end to end: the sender keeps an acknowledged frame until the destination
 //! router says the message is in the module's inbox, retransmitting after a timeout derived from
@@ -47,9 +48,11 @@
 //! ```
 
 mod dedup;
+mod lane;
 mod router;
 mod rtt;
 
+pub use lane::DirectLane;
 pub use router::*;
 pub use rtt::RttEstimator;
 
@@ -57,6 +60,7 @@ pub use rtt::RttEstimator;
 mod tests {
     use super::*;
     use hetcomm_core::*;
+    use std::sync::Arc;
 
     #[test]
     fn an_acknowledged_send_leaves_no_timer_behind() {
@@ -111,43 +115,59 @@ mod tests {
         );
     }
 
-    #[test]
-    fn direct_sends_are_numbered_checked_and_counted() {
-        let route = |acknowledged| Route {
+    fn direct_route(acknowledged: bool) -> Route {
+        Route {
             link: 0,
             tag: b'I',
             acknowledged,
             attempts: 3,
             max_frame: 64,
             max_in_flight: 1024,
-        };
+        }
+    }
+
+    fn to(s: u16) -> Address {
+        Address {
+            system: SystemId(s),
+            module: ModuleId(0),
+        }
+    }
+
+    fn req(s: u16, p: &[u8]) -> SendRequest<'_> {
+        SendRequest::new(ModuleId(0), to(s), MessageType(1), p)
+    }
+
+    #[test]
+    fn direct_sends_are_numbered_checked_and_counted() {
         let mut a = Router::<()>::new(RouterConfig::new(
             SystemId(0),
             1,
-            vec![(SystemId(1), route(true)), (SystemId(2), route(false))],
+            vec![
+                (SystemId(1), direct_route(true)),
+                (SystemId(2), direct_route(false)),
+            ],
         ));
         let now = Time::from_micros(5);
-        let to = |s| Address {
-            system: SystemId(s),
-            module: ModuleId(0),
-        };
-        let req = |s, p: &'static [u8]| SendRequest::new(ModuleId(0), to(s), MessageType(1), p);
-        let h1 = a.send_direct(now, req(1, b"a")).unwrap();
-        let h2 = a.send_direct(now, req(1, b"b")).unwrap();
+        let acked = a.direct_lane(SystemId(1)).unwrap();
+        assert!(Arc::ptr_eq(&acked, &a.direct_lane(SystemId(1)).unwrap()));
+        let h1 = acked.send(now, &req(1, b"a")).unwrap();
+        let h2 = acked.send(now, &req(1, b"b")).unwrap();
         assert_eq!((h1.seq, h2.seq), (1, 2), "numbered per destination");
         assert!(h1.ack_requested());
+        assert_eq!((h1.source.system, h1.incarnation), (SystemId(0), 1));
         assert_eq!(a.route_link(SystemId(1)), Some(0));
         assert!(matches!(
-            a.send_direct(now, req(3, b"x")),
+            a.direct_lane(SystemId(3)),
             Err(SendError::NoRoute { .. })
         ));
         assert!(matches!(
-            a.send_direct(now, req(1, &[0; 64])),
+            acked.send(now, &req(1, &[0; 64])),
             Err(SendError::TooLarge { .. })
         ));
-        let delivered = a.direct_result(&h1, wire::AckStatus::Delivered);
+        assert_eq!(a.stats().in_flight(), 2, "counted as sent before they end");
+        let delivered = acked.result(&h1, wire::AckStatus::Delivered);
         assert!(matches!(delivered, Outcome::Delivered { attempts: 1, .. }));
-        let full = a.direct_result(&h2, wire::AckStatus::InboxFull);
+        let full = acked.result(&h2, wire::AckStatus::InboxFull);
         assert!(matches!(
             full,
             Outcome::Failed {
@@ -156,8 +176,9 @@ mod tests {
             }
         ));
         // Unacknowledged: `Sent` whatever the inbox said, as over a link.
-        let h3 = a.send_direct(now, req(2, b"c")).unwrap();
-        let sent = a.direct_result(&h3, wire::AckStatus::InboxFull);
+        let unacked = a.direct_lane(SystemId(2)).unwrap();
+        let h3 = unacked.send(now, &req(2, b"c")).unwrap();
+        let sent = unacked.result(&h3, wire::AckStatus::InboxFull);
         assert_eq!(sent, Outcome::Sent { attempts: 1 });
         let s = a.stats();
         assert_eq!(
@@ -169,6 +190,82 @@ mod tests {
                 s.sent_unconfirmed
             ),
             (3, 3, 1, 1, 1)
+        );
+        assert_eq!(s.in_flight(), 0);
+    }
+
+    #[test]
+    fn a_lane_and_the_router_number_one_destination_from_one_counter() {
+        let mut a = Router::<()>::new(RouterConfig::new(
+            SystemId(0),
+            1,
+            vec![(SystemId(1), direct_route(false))],
+        ));
+        let now = Time::from_micros(5);
+        // Two sends through the router before the lane exists, then alternating.
+        let mut numbers = Vec::new();
+        for _ in 0..2 {
+            a.send(now, req(1, b"r"), ()).unwrap();
+            let t = a.poll_transmit(now).unwrap();
+            numbers.push(wire::decode(&t.frame).unwrap().header.seq);
+            a.transmit_result(now, t, Ok(()));
+        }
+        let lane = a.direct_lane(SystemId(1)).unwrap();
+        for _ in 0..3 {
+            numbers.push(lane.send(now, &req(1, b"l")).unwrap().seq);
+            a.send(now, req(1, b"r"), ()).unwrap();
+            let t = a.poll_transmit(now).unwrap();
+            numbers.push(wire::decode(&t.frame).unwrap().header.seq);
+            a.transmit_result(now, t, Ok(()));
+        }
+        assert_eq!(numbers, (1..=8).collect::<Vec<_>>());
+        let s = a.stats();
+        assert_eq!((s.sends, s.sent_unconfirmed), (8, 8));
+    }
+
+    #[test]
+    fn lane_sends_from_many_threads_get_unique_numbers_and_are_all_counted() {
+        let mut a = Router::<()>::new(RouterConfig::new(
+            SystemId(0),
+            1,
+            vec![(SystemId(1), direct_route(true))],
+        ));
+        let lane = a.direct_lane(SystemId(1)).unwrap();
+        let threads: Vec<_> = (0..4)
+            .map(|t| {
+                let lane = lane.clone();
+                std::thread::spawn(move || {
+                    (0..1000)
+                        .map(|i| {
+                            let h = lane.send(Time::ZERO, &req(1, b"x")).unwrap();
+                            let status = if (i + t) % 3 == 0 {
+                                wire::AckStatus::InboxFull
+                            } else {
+                                wire::AckStatus::Delivered
+                            };
+                            lane.result(&h, status);
+                            h.seq
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        // Stats read while the threads run never count an outcome before its send.
+        while !threads.iter().all(|t| t.is_finished()) {
+            let s = a.stats();
+            assert!(s.delivered + s.failed <= s.sends, "{s:?}");
+        }
+        let mut all: Vec<u64> = threads
+            .into_iter()
+            .flat_map(|t| t.join().unwrap())
+            .collect();
+        all.sort_unstable();
+        assert_eq!(all, (1..=4000).collect::<Vec<_>>());
+        let s = a.stats();
+        assert_eq!((s.sends, s.delivered + s.failed), (4000, 4000));
+        assert_eq!(
+            s.failed, 1334,
+            "(i + t) % 3 == 0 for 1334 of the 4000 sends"
         );
         assert_eq!(s.in_flight(), 0);
     }

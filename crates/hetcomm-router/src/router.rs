@@ -4,6 +4,8 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 // Keys are small integers chosen by us, not by an attacker: a fast hash is safe here.
 use rustc_hash::FxHashMap as HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::wire::{
@@ -15,6 +17,7 @@ use hetcomm_core::{
 };
 
 use crate::dedup::Dedup;
+use crate::lane::DirectLane;
 use crate::rtt::RttEstimator;
 
 /// How traffic from this system to one destination system is carried.
@@ -234,7 +237,7 @@ pub enum Outcome {
 
 impl Outcome {
     /// The outcome an acknowledgement with `status` reports.
-    fn acknowledged(status: AckStatus, attempts: u32, latency: Duration) -> Outcome {
+    pub(crate) fn acknowledged(status: AckStatus, attempts: u32, latency: Duration) -> Outcome {
         match status {
             AckStatus::Delivered => Outcome::Delivered { attempts, latency },
             AckStatus::InboxFull => Outcome::Failed {
@@ -467,8 +470,12 @@ struct PendingDelivery {
 /// What a router keeps per destination system.
 #[derive(Default)]
 struct Towards {
-    /// The last sequence number given (the first send gets 1).
+    /// The last sequence number given (the first send gets 1), when there is no lane.
     last_seq: u64,
+    /// Numbers given by the router itself while a lane exists (the rest are the lane's).
+    numbered_here: u64,
+    /// Sends handed straight to an inbox of this process, numbered from the same counter.
+    lane: Option<Arc<DirectLane>>,
     /// Sends awaiting their outcome (bounded by [`Route::max_in_flight`]).
     pending: u32,
 }
@@ -580,9 +587,15 @@ impl<T> Router<T> {
         d
     }
 
-    /// Counters.
-    pub fn stats(&self) -> &RouterStats {
-        &self.stats
+    /// Counters, including the sends of [direct lanes](Router::direct_lane).
+    pub fn stats(&self) -> RouterStats {
+        let mut stats = self.stats.clone();
+        for t in self.towards.values() {
+            if let Some(lane) = &t.lane {
+                lane.add_to(&mut stats, t.numbered_here);
+            }
+        }
+        stats
     }
 
     /// The smoothed round-trip time to `to`, once measured.
@@ -797,8 +810,16 @@ impl<T> Router<T> {
                 limit: route.max_in_flight,
             });
         }
-        towards.last_seq += 1;
-        let seq = towards.last_seq;
+        let seq = match &towards.lane {
+            Some(lane) => {
+                towards.numbered_here += 1;
+                lane.last_seq.fetch_add(1, Ordering::Relaxed) + 1
+            }
+            None => {
+                towards.last_seq += 1;
+                towards.last_seq
+            }
+        };
         let mut flags = 0;
         if route.acknowledged {
             flags |= FLAG_ACK_REQUESTED;
@@ -829,36 +850,31 @@ impl<T> Router<T> {
         self.routes.get(&to).map(|r| r.link)
     }
 
-    /// A send that the driver hands straight to a destination in the same process (an
+    /// The lane for sends that the driver hands straight to `to` in the same process (an
     /// in-process link, which is reliable, ordered and synchronous), skipping the frame, its
-    /// checksum and the destination's router. The router still checks the route and size,
-    /// numbers the message and counts it. Returns the header to deliver. An unacknowledged
-    /// send ends `Sent` here, whatever the inbox will say, exactly as over a link (so the
-    /// driver need not come back); an acknowledged one ends with [`Router::direct_result`].
-    pub fn send_direct(&mut self, now: Time, req: SendRequest<'_>) -> Result<Header, SendError> {
-        let (_, header) = self.admit(now, &req)?;
-        self.stats.sends += 1;
-        self.stats.transmissions += 1;
-        if !header.ack_requested() {
-            self.stats.sent_unconfirmed += 1;
+    /// checksum, the destination's router and this router's lock ([`DirectLane`]). Made at
+    /// the first call; later calls return the same lane.
+    pub fn direct_lane(&mut self, to: SystemId) -> Result<Arc<DirectLane>, SendError> {
+        let route = self.routes.get(&to).copied().ok_or(SendError::NoRoute {
+            from: self.config.local,
+            to,
+        })?;
+        let (local, incarnation) = (self.config.local, self.config.incarnation);
+        let towards = self.towards.entry(to).or_default();
+        if towards.lane.is_none() {
+            // The numbers given so far were the router's.
+            towards.numbered_here = towards.last_seq;
         }
-        Ok(header)
-    }
-
-    /// The outcome of a [`Router::send_direct`] send, given what the destination's inbox said
-    /// (`status`). An unacknowledged send is `Sent` (already counted by `send_direct`); an
-    /// acknowledged one is counted here like any other outcome.
-    pub fn direct_result(&mut self, header: &Header, status: AckStatus) -> Outcome {
-        if !header.ack_requested() {
-            return Outcome::Sent { attempts: 1 };
-        }
-        let outcome = Outcome::acknowledged(status, 1, Duration::ZERO);
-        match outcome {
-            Outcome::Delivered { .. } => self.stats.delivered += 1,
-            Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
-            Outcome::Failed { .. } => self.stats.failed += 1,
-        }
-        outcome
+        let lane = towards.lane.get_or_insert_with(|| {
+            Arc::new(DirectLane::new(
+                local,
+                incarnation,
+                to,
+                route,
+                towards.last_seq,
+            ))
+        });
+        Ok(lane.clone())
     }
 
     /// The next frame to put on a link. `now` is when the driver hands it to the link: an

@@ -304,7 +304,7 @@ impl Comm {
     /// Counters for this system.
     pub fn stats(&self) -> SystemStats {
         let core = &self.handle.core;
-        let mut router = core.router().stats().clone();
+        let mut router = core.router().stats();
         // Messages other systems of this process handed over directly never pass this
         // system's router; they are still messages it received.
         router.received += core

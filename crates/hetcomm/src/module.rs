@@ -4,11 +4,11 @@
 
 use std::cell::RefCell;
 use std::marker::PhantomData;
-use std::sync::{Arc, MutexGuard};
+use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
-use hetcomm_router::{Admitted, SendRequest};
+use hetcomm_router::{Admitted, DirectLane, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
@@ -174,12 +174,17 @@ impl Module {
             broadcast,
         };
         if let Some(peer) = direct {
+            let lane = router
+                .direct_lane(to.system)
+                .map_err(|e| send_error(&core.directory, e))?;
+            drop(router);
             let to = DirectTarget {
                 peer: &peer,
                 module: peer.modules.get(&to.module).map(|m| &**m),
+                lane: &lane,
                 name: core.directory.system_name(to.system),
             };
-            return self.hand_over(router, to, what, payload, now);
+            return self.hand_over(to, what, payload, now);
         }
         let req = what.request(self.core.id, payload.as_slice());
         // A slot for the outcome is shared with the runtime only when the outcome comes
@@ -233,33 +238,25 @@ impl Module {
         }
     }
 
-    /// Sends straight into `peer`'s inbox (an in-process route): the router numbers and
-    /// counts the message under the lock the caller holds; no frame is built.
+    /// Sends straight into `peer`'s inbox (an in-process route): the destination's lane
+    /// numbers and counts the message without the router's lock; no frame is built.
     fn hand_over(
         &self,
-        mut router: MutexGuard<'_, hetcomm_router::Router<Arc<OutcomeSlot>>>,
         to: DirectTarget<'_>,
         what: Outgoing,
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
-        let core = &self.sys.core;
         let req = what.request(self.core.id, payload.as_slice());
-        let header = router
-            .send_direct(now, req)
-            .map_err(|e| send_error(&core.directory, e))?;
-        drop(router);
+        let header = to
+            .lane
+            .send(now, &req)
+            .map_err(|e| send_error(&self.sys.core.directory, e))?;
         let status = to
             .peer
             .deliver_direct(to.module, header, payload.into_buf(), now);
-        // An unacknowledged send's outcome needs no second trip through the router lock.
-        let outcome = if header.ack_requested() {
-            core.router().direct_result(&header, status)
-        } else {
-            hetcomm_router::Outcome::Sent { attempts: 1 }
-        };
         Ok(Ticket {
-            slot: TicketSlot::Ready(outcome),
+            slot: TicketSlot::Ready(to.lane.result(&header, status)),
             destination: to.name,
         })
     }
@@ -291,20 +288,24 @@ impl Module {
     fn route(&self, system: &str, module: &str) -> Result<Route, SendError> {
         let to = self.resolve(system, module)?;
         let core = &self.sys.core;
-        let direct = {
-            let router = core.router();
-            let link = router
-                .route_link(to.system)
-                .ok_or_else(|| SendError::NoRoute {
-                    from: core.name.to_string(),
-                    to: system.to_string(),
-                })?;
-            drop(router);
-            core.direct_peer(link, to.system).map(|peer| {
-                let module = peer.modules.get(&to.module).cloned();
-                (peer, module)
-            })
+        let mut router = core.router();
+        let link = router
+            .route_link(to.system)
+            .ok_or_else(|| SendError::NoRoute {
+                from: core.name.to_string(),
+                to: system.to_string(),
+            })?;
+        let direct = match core.direct_peer(link, to.system) {
+            Some(peer) => Some(DirectRoute {
+                module: peer.modules.get(&to.module).cloned(),
+                peer,
+                lane: router
+                    .direct_lane(to.system)
+                    .map_err(|e| send_error(&core.directory, e))?,
+            }),
+            None => None,
         };
+        drop(router);
         Ok(Route {
             from: self.clone(),
             to,
@@ -597,9 +598,17 @@ struct Route {
     from: Module,
     to: Address,
     destination: &'static str,
-    /// The destination system when it lives in this process, with its module (None: that
-    /// system has no such module).
-    direct: Option<(Arc<SystemCore>, Option<Arc<ModuleCore>>)>,
+    /// The destination when it lives in this process.
+    direct: Option<DirectRoute>,
+}
+
+/// A destination system in this process, resolved once for a [`Route`].
+#[derive(Clone)]
+struct DirectRoute {
+    peer: Arc<SystemCore>,
+    /// The destination module (None: that system has no such module).
+    module: Option<Arc<ModuleCore>>,
+    lane: Arc<DirectLane>,
 }
 
 /// Where an in-process send goes ([`Module::hand_over`]).
@@ -607,6 +616,8 @@ struct DirectTarget<'a> {
     peer: &'a SystemCore,
     /// The destination module (None: the peer has no such module).
     module: Option<&'a ModuleCore>,
+    /// Numbers and counts the send.
+    lane: &'a DirectLane,
     /// The destination system's name, for the ticket.
     name: &'static str,
 }
@@ -620,7 +631,7 @@ impl Route {
     ) -> Result<Ticket, SendError> {
         let core = &self.from.sys.core;
         match &self.direct {
-            Some((peer, module)) if !peer.is_closed() && !core.is_closed() => {
+            Some(d) if !d.peer.is_closed() && !core.is_closed() => {
                 let now = core.clock.now();
                 let what = Outgoing {
                     to: self.to,
@@ -629,11 +640,12 @@ impl Route {
                     broadcast: false,
                 };
                 let to = DirectTarget {
-                    peer,
-                    module: module.as_deref(),
+                    peer: &d.peer,
+                    module: d.module.as_deref(),
+                    lane: &d.lane,
                     name: self.destination,
                 };
-                self.from.hand_over(core.router(), to, what, payload, now)
+                self.from.hand_over(to, what, payload, now)
             }
             // Not in-process, or that system was closed (it may have been opened again):
             // the general path finds the route afresh.
