@@ -140,16 +140,18 @@ impl Stash {
     }
 }
 
-/// The producers' side: arrivals not yet seen by a consumer, in order, and what consumers
-/// read of it without the lock. One cache line, written by producers.
+/// The producers' side: arrivals not yet seen by a consumer, in order.
 struct Intake {
-    queue: Mutex<Vec<Entry>>,
-    /// `queue.len()`, stored under the lock: consumers look at it without the lock.
-    len: AtomicUsize,
-    /// The highest priority in the queue, plus one (0: empty); stored under the lock. A
-    /// consumer whose stash front is at least that takes from the stash without locking the
-    /// intake, so a consumer that lags takes whole batches touching nothing producers write.
-    top: AtomicU16,
+    /// Written by producers at every push: on a line of its own.
+    queue: CachePadded<Mutex<Vec<Entry>>>,
+    /// The highest priority in the queue, plus one (0: empty); stored under the lock, and
+    /// only when it changes: once per batch in a stream of one priority. Consumers look at
+    /// it at every take without the lock, so it has a line of its own that producers leave
+    /// alone (a line written at every push would move between the cores at every message).
+    /// A consumer whose stash front is at least that takes from the stash without locking
+    /// the intake, so a consumer that lags takes whole batches touching nothing producers
+    /// write.
+    top: CachePadded<AtomicU16>,
 }
 
 /// What consumers publish for producers, who read it at every push; written rarely.
@@ -196,7 +198,7 @@ pub(crate) enum PushError {
 /// `intake`.
 pub(crate) struct Inbox {
     config: InboxConfig,
-    intake: CachePadded<Intake>,
+    intake: Intake,
     shared: CachePadded<Shared>,
     stash: CachePadded<Mutex<Stash>>,
     /// [`Stash::len`] as last stored by a consumer, for the lock-free [`Inbox::is_empty`]:
@@ -216,11 +218,10 @@ impl Inbox {
         let capacity = config.capacity.max(1);
         Inbox {
             config: InboxConfig { capacity, ..config },
-            intake: CachePadded::new(Intake {
-                queue: Mutex::new(Vec::new()),
-                len: AtomicUsize::new(0),
-                top: AtomicU16::new(0),
-            }),
+            intake: Intake {
+                queue: CachePadded::new(Mutex::new(Vec::new())),
+                top: CachePadded::new(AtomicU16::new(0)),
+            },
             shared: CachePadded::new(Shared {
                 counted: AtomicUsize::new(0),
                 sleepers: AtomicUsize::new(0),
@@ -255,7 +256,6 @@ impl Inbox {
     fn take_intake(&self, stash: &mut Stash, queue: &mut Vec<Entry>) -> Vec<Entry> {
         let mut batch = std::mem::take(&mut stash.spare);
         std::mem::swap(queue, &mut batch);
-        self.intake.len.store(0, Ordering::Relaxed);
         self.intake.top.store(0, Ordering::Relaxed);
         self.count_at_least(stash.len + batch.len());
         batch
@@ -271,7 +271,7 @@ impl Inbox {
 
     /// Moves everything in the intake into the stash (locked by the caller).
     fn drain(&self, stash: &mut Stash) {
-        if self.intake.len.load(Ordering::Acquire) == 0 {
+        if self.intake.top.load(Ordering::Acquire) == 0 {
             return;
         }
         let batch = {
@@ -313,7 +313,6 @@ impl Inbox {
                 queue.reserve(INTAKE_FIRST);
             }
             queue.push(e);
-            self.intake.len.store(queue.len(), Ordering::Release);
             // Read under the intake lock, under which a consumer registers before it sleeps:
             // either it saw this message, or this sees it.
             let wake = self.shared.sleepers.load(Ordering::Relaxed) > 0;
@@ -421,7 +420,7 @@ impl Inbox {
 
     /// Whether anything is queued (no lock taken).
     pub(crate) fn is_empty(&self) -> bool {
-        self.intake.len.load(Ordering::Acquire) == 0 && self.stash_len.load(Ordering::Acquire) == 0
+        self.intake.top.load(Ordering::Acquire) == 0 && self.stash_len.load(Ordering::Acquire) == 0
     }
 
     pub(crate) fn next_type(&self) -> Option<MessageType> {
@@ -439,6 +438,21 @@ impl Inbox {
     ) -> Result<Option<Entry>, Header> {
         let mut stash = self.lock_stash();
         self.take_locked(&mut stash, &accept)
+    }
+
+    /// Takes up to `max` messages, highest priority first, without waiting, handing each to
+    /// `each`: the stash is locked once for all of them. Returns how many.
+    pub(crate) fn take_up_to(&self, max: usize, mut each: impl FnMut(Entry)) -> usize {
+        let mut stash = self.lock_stash();
+        let mut taken = 0;
+        while taken < max {
+            match self.take_locked(&mut stash, &|_: &Header| true) {
+                Ok(Some(e)) => each(e),
+                _ => break,
+            }
+            taken += 1;
+        }
+        taken
     }
 
     /// One take with the stash locked.

@@ -195,6 +195,46 @@ fn polling_order_is_priority_then_arrival() {
 }
 
 #[test]
+fn many_at_once_keeps_priority_order_and_the_bound() {
+    let f = default_fleet();
+    let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
+    let act = f.system("Delta").unwrap().module("Act").unwrap();
+    let mut out = Vec::new();
+    assert!(matches!(
+        act.recv_raw_many(&mut out, 4, Some(Duration::from_millis(20))),
+        Err(RecvError::Timeout(_))
+    ));
+    assert!(out.is_empty());
+    for (code, prio) in [(1, 10), (2, 200), (3, 10), (4, 100), (5, 200), (6, 100)] {
+        plan.send_with(
+            "Delta",
+            "Act",
+            &Command { code },
+            SendOptions::priority(prio),
+        )
+        .unwrap()
+        .wait();
+    }
+    let code = |m: &hetcomm::RawMessage| {
+        hetcomm::payload::decode::<Command>(&m.payload)
+            .unwrap()
+            .code
+    };
+    assert_eq!(act.recv_raw_many(&mut out, 4, None).unwrap(), 4);
+    assert_eq!(out.iter().map(code).collect::<Vec<_>>(), vec![2, 5, 4, 6]);
+    assert_eq!(out[0].envelope.source_system, "Alpha");
+    // Appended after what `out` held; the rest, fewer than asked for.
+    assert_eq!(act.recv_raw_many(&mut out, 10, None).unwrap(), 2);
+    assert_eq!(
+        out.iter().map(code).collect::<Vec<_>>(),
+        vec![2, 5, 4, 6, 1, 3]
+    );
+    assert_eq!(act.recv_raw_many(&mut out, 0, None).unwrap(), 0);
+    let s = act.inbox_stats();
+    assert_eq!((s.taken, s.len), (6, 0));
+}
+
+#[test]
 fn wrong_type_recv_errors_and_keeps_the_message() {
     let f = default_fleet();
     let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
