@@ -205,11 +205,19 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
             } else {
                 let mut c = SinkCounter::default();
                 let mut last = Instant::now();
-                loop {
-                    match m.recv_raw_timeout(Some(Duration::from_millis(20))) {
-                        Ok(msg) if msg.envelope.message_type() == STOP => break,
-                        Ok(msg) => {
-                            c.add(msg.payload.len());
+                // Taken in batches, as a consumer of a fast stream would (`recv_raw_many`);
+                // the clock is read once per batch, not per message.
+                let mut batch = Vec::with_capacity(crate::hc::RECV_BATCH);
+                'recv: loop {
+                    let wait = Some(Duration::from_millis(20));
+                    match m.recv_raw_many(&mut batch, crate::hc::RECV_BATCH, wait) {
+                        Ok(_) => {
+                            for msg in batch.drain(..) {
+                                if msg.envelope.message_type() == STOP {
+                                    break 'recv;
+                                }
+                                c.add(msg.payload.len());
+                            }
                             last = Instant::now();
                         }
                         Err(_) => {

@@ -292,8 +292,8 @@ fn age_ns(buf: &[u8], epoch: Instant) -> Option<u64> {
     (sent != UNSTAMPED).then(|| (epoch.elapsed().as_nanos() as u64).saturating_sub(sent))
 }
 
-/// Messages the in-process receiver takes per call at most.
-const RECV_BATCH: usize = 256;
+/// Messages a benchmark receiver takes per call at most.
+pub(crate) const RECV_BATCH: usize = 256;
 
 /// In-process one-way: one thread sends as fast as it can, another receives (in batches). One payload in
 /// 64 carries its send time, so the receiver also measures hand-off latency (queueing

@@ -25,6 +25,10 @@ const RATE_SPAN_NS: u64 = 20_000_000;
 /// again (a preempted read would skew every estimate made from it).
 const ANCHOR_TOLERANCE_NS: u64 = 2_000;
 
+/// The range of counter rates believed, in [`RATE`]'s units: 20 GHz to 100 MHz.
+const MIN_RATE: u64 = (1 << 32) / 20;
+const MAX_RATE: u64 = 10 << 32;
+
 /// Nanoseconds per tick, as a 32.32 fixed-point number (0: not measured yet).
 static RATE: AtomicU64 = AtomicU64::new(0);
 
@@ -62,16 +66,31 @@ pub(super) fn now_ns(os_now_ns: impl Fn() -> u64) -> Option<u64> {
             return Some(wall0 + elapsed);
         }
     }
-    // No anchor yet, no rate yet, or the anchor is old: read the OS clock, and learn the
-    // rate from the span since the last anchor when it is long enough.
+    if tsc0 != 0 && rate == 0 {
+        // Waiting for a span long enough to measure the rate: one OS read until then.
+        let wall = os_now_ns();
+        if wall < wall0 + RATE_SPAN_NS {
+            return Some(wall);
+        }
+    }
+    // No anchor yet, the span to measure the rate is complete, or the anchor is old: take
+    // a new anchor from the OS clock, and learn the rate from the span since the last one.
     let (tsc1, wall1) = anchor(&os_now_ns)?;
     if tsc0 != 0 && tsc1 > tsc0 && wall1 >= wall0 + RATE_SPAN_NS {
         let measured = (u128::from(wall1 - wall0) << 32) / u128::from(tsc1 - tsc0);
-        RATE.store(u64::try_from(measured).unwrap_or(0), Ordering::Relaxed);
+        let measured = u64::try_from(measured).unwrap_or(0);
+        // A step of the system clock inside the span shows as a rate far from the known
+        // one (or from any counter's): the span is not used, the new anchor is.
+        let plausible = if rate == 0 {
+            (MIN_RATE..=MAX_RATE).contains(&measured)
+        } else {
+            measured.abs_diff(rate) <= rate / 1_000
+        };
+        if plausible {
+            RATE.store(measured, Ordering::Relaxed);
+        }
     }
-    if tsc0 == 0 || wall1 >= wall0 + RATE_SPAN_NS || rate != 0 {
-        ANCHOR.set((tsc1, wall1));
-    }
+    ANCHOR.set((tsc1, wall1));
     Some(wall1)
 }
 
@@ -116,6 +135,39 @@ mod tests {
         let read = now_ns(|| panic!("the OS clock was read")).unwrap();
         let os = os_ns();
         assert!(read.abs_diff(os) < 50_000, "{read} against {os}");
+    }
+
+    #[test]
+    fn a_step_of_the_system_clock_is_followed_and_leaves_the_rate_alone() {
+        if !usable() {
+            return;
+        }
+        let offset = std::sync::atomic::AtomicU64::new(0);
+        let stepped = || os_ns() + offset.load(Ordering::Relaxed);
+        let start = std::time::Instant::now();
+        let until = |ms| {
+            while start.elapsed() < std::time::Duration::from_millis(ms) {
+                now_ns(stepped);
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        };
+        until(3 * RATE_SPAN_NS / 1_000_000);
+        let rate = RATE.load(Ordering::Relaxed);
+        assert_ne!(rate, 0);
+        // The system clock jumps 10 s ahead: within an anchor's life the reads follow it.
+        offset.store(10_000_000_000, Ordering::Relaxed);
+        until(3 * RATE_SPAN_NS / 1_000_000 + 2 * ANCHOR_LIFE_NS / 1_000_000);
+        let read = now_ns(stepped).unwrap();
+        assert!(
+            read.abs_diff(stepped()) < 50_000,
+            "{read} against {}",
+            stepped()
+        );
+        let after = RATE.load(Ordering::Relaxed);
+        assert!(
+            after.abs_diff(rate) <= rate / 1_000,
+            "{rate} became {after}"
+        );
     }
 
     #[test]
