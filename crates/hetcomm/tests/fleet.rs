@@ -173,11 +173,9 @@ fn x_pairs_are_refused_naming_both_systems() {
     ));
 }
 
-#[test]
-fn polling_order_is_priority_then_arrival() {
-    let f = default_fleet();
-    let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
-    let act = f.system("Delta").unwrap().module("Act").unwrap();
+/// Commands 1 to 6 from `plan` to Delta's Act at priorities 10, 200, 10, 100, 200, 100:
+/// taken by priority, then arrival, they come as 2, 5, 4, 6, 1, 3.
+fn send_six_priorities(plan: &hetcomm::Module) {
     for (code, prio) in [(1, 10), (2, 200), (3, 10), (4, 100), (5, 200), (6, 100)] {
         plan.send_with(
             "Delta",
@@ -188,6 +186,14 @@ fn polling_order_is_priority_then_arrival() {
         .unwrap()
         .wait();
     }
+}
+
+#[test]
+fn polling_order_is_priority_then_arrival() {
+    let f = default_fleet();
+    let plan = f.system("Alpha").unwrap().module("Plan").unwrap();
+    let act = f.system("Delta").unwrap().module("Act").unwrap();
+    send_six_priorities(&plan);
     let order: Vec<u8> = std::iter::from_fn(|| act.try_recv::<Command>().unwrap())
         .map(|r| r.message.code)
         .collect();
@@ -205,16 +211,7 @@ fn many_at_once_keeps_priority_order_and_the_bound() {
         Err(RecvError::Timeout(_))
     ));
     assert!(out.is_empty());
-    for (code, prio) in [(1, 10), (2, 200), (3, 10), (4, 100), (5, 200), (6, 100)] {
-        plan.send_with(
-            "Delta",
-            "Act",
-            &Command { code },
-            SendOptions::priority(prio),
-        )
-        .unwrap()
-        .wait();
-    }
+    send_six_priorities(&plan);
     let code = |m: &hetcomm::RawMessage| {
         hetcomm::payload::decode::<Command>(&m.payload)
             .unwrap()
