@@ -54,11 +54,6 @@ impl DirectLane {
         }
     }
 
-    /// The destination system.
-    pub fn destination(&self) -> SystemId {
-        self.to
-    }
-
     /// Accepts a send to this lane's destination: checks its size, numbers it and returns the
     /// header to deliver. An unacknowledged send ends `Sent` here, whatever the inbox will
     /// say, exactly as over a link; an acknowledged one ends with [`DirectLane::result`].

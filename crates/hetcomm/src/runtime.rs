@@ -601,15 +601,7 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        let Some(module) = module else {
-            return AckStatus::UnknownModule;
-        };
-        let entry = Entry {
-            header,
-            payload,
-            received_at: now,
-        };
-        self.deliver_to(module, entry)
+        self.deliver_to(module, header, payload, now)
     }
 
     /// The router's next retransmission deadline.
@@ -854,11 +846,20 @@ impl SystemCore {
 
     /// Puts a delivery into its module's inbox (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
-        self.deliver_entry(d.header, d.payload, now)
+        let module = self.modules.get(&d.header.destination.module);
+        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now)
     }
 
-    fn deliver_entry(&self, header: Header, payload: PayloadBuf, now: Time) -> AckStatus {
-        let Some(module) = self.modules.get(&header.destination.module) else {
+    /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
+    /// there is no such module).
+    fn deliver_to(
+        &self,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+    ) -> AckStatus {
+        let Some(module) = module else {
             return AckStatus::UnknownModule;
         };
         let entry = Entry {
@@ -866,12 +867,6 @@ impl SystemCore {
             payload,
             received_at: now,
         };
-        self.deliver_to(module, entry)
-    }
-
-    /// Puts `entry` into `module`'s inbox, or hands it to the module's callbacks.
-    fn deliver_to(&self, module: &ModuleCore, entry: Entry) -> AckStatus {
-        let header = entry.header;
         let wants_callback = module.wants_callback(header.message_type);
         if wants_callback && module.inline_callbacks {
             module.run_callback(&self.directory, entry);
