@@ -94,7 +94,9 @@ enum Command {
         json: bool,
     },
     /// Send one message from a system of a live fleet and print its outcome (like
-    /// `rostopic pub`). Exits 0 when delivered (or sent), 1 when it failed.
+    /// `rostopic pub`). Exits 0 when delivered (in the destination module's inbox) or sent
+    /// without confirmation, 3 when unconfirmed (frames left but no acknowledgement came back:
+    /// it may or may not have arrived), 1 when it certainly failed.
     Send {
         /// The fleet file.
         fleet: PathBuf,
@@ -207,7 +209,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             priority,
             timeout,
         } => {
-            let ok = poke::send(poke::SendArgs {
+            let verdict = poke::send(poke::SendArgs {
                 fleet: &fleet,
                 system: &system,
                 from_module: from_module.as_deref(),
@@ -218,11 +220,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 priority,
                 timeout: secs(timeout)?,
             })?;
-            Ok(if ok {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            })
+            Ok(verdict.exit_code())
         }
         Command::Experiment { experiment } => experiment::run(experiment),
         Command::Demo {

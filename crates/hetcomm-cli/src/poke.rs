@@ -159,9 +159,33 @@ pub struct SendArgs<'a> {
     pub timeout: Duration,
 }
 
+/// What `hetcomm send` learned about its sends, worst first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum SendVerdict {
+    /// Every send was delivered (in the destination module's inbox) or sent without
+    /// confirmation on a transport that cannot confirm. Exit code 0.
+    Success,
+    /// At least one send may or may not have arrived (frames left, no acknowledgement, or no
+    /// outcome before the timeout), none certainly failed. Exit code 3.
+    Unconfirmed,
+    /// At least one send certainly did not arrive. Exit code 1.
+    Failed,
+}
+
+impl SendVerdict {
+    /// The process exit code for this verdict.
+    pub fn exit_code(self) -> std::process::ExitCode {
+        std::process::ExitCode::from(match self {
+            SendVerdict::Success => 0,
+            SendVerdict::Failed => 1,
+            SendVerdict::Unconfirmed => 3,
+        })
+    }
+}
+
 /// Sends one message (payload given as JSON, encoded as the language-neutral payload) and
-/// prints its outcome. `--to All` broadcasts. Returns whether every outcome was a success.
-pub fn send(args: SendArgs<'_>) -> anyhow::Result<bool> {
+/// prints its outcome. `--to All` broadcasts. Returns the worst outcome's verdict.
+pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     let value: serde_json::Value =
         serde_json::from_str(args.json).context("--json is not valid JSON")?;
     let payload = hetcomm::payload::from_json(&value)?;
@@ -187,22 +211,31 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<bool> {
     } else {
         vec![module.send_raw(args.to, args.module, ty, &payload, opts)?]
     };
-    let mut ok = true;
+    let mut verdict = SendVerdict::Success;
     for t in tickets {
-        let outcome = t.wait_timeout(args.timeout);
-        match outcome {
-            Some(o) => {
-                ok &= o.is_success();
-                println!("{}: {o}", t.destination());
-                if let Outcome::Failed { .. } = o {
-                    ok = false;
-                }
+        let (line, this) = match t.wait_timeout(args.timeout) {
+            Some(o @ (Outcome::Delivered { .. } | Outcome::Sent { .. })) => {
+                (o.to_string(), SendVerdict::Success)
             }
-            None => {
-                ok = false;
-                println!("{}: no outcome within {:?}", t.destination(), args.timeout);
+            Some(o @ Outcome::Unconfirmed { .. }) => {
+                let hint = format!(
+                    "\n  hint: is `hetcomm listen {} --as {}` (or the system itself) running?",
+                    args.fleet.display(),
+                    t.destination()
+                );
+                (format!("{o}{hint}"), SendVerdict::Unconfirmed)
             }
-        }
+            Some(o) => (o.to_string(), SendVerdict::Failed),
+            None => (
+                format!(
+                    "no outcome within {:.1} s: it may or may not have arrived",
+                    args.timeout.as_secs_f64()
+                ),
+                SendVerdict::Unconfirmed,
+            ),
+        };
+        println!("{}: {line}", t.destination());
+        verdict = verdict.max(this);
     }
-    Ok(ok)
+    Ok(verdict)
 }

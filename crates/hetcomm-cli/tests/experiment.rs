@@ -62,7 +62,7 @@ fn reliability_prints_json_and_writes_files() {
         assert_eq!(n("accepted"), 42, "{mode}");
         assert_eq!(
             n("accepted"),
-            n("delivered") + n("sent_unconfirmed") + n("failed") + n("in_flight"),
+            n("delivered") + n("sent") + n("failed") + n("in_flight"),
             "{mode}: {a}"
         );
         assert_eq!(a["balanced"], true, "{mode}");

@@ -357,7 +357,10 @@ pub struct TransportCounts {
     pub receivals: u64,
     /// Transmissions beyond the first.
     pub additional_attempts: u64,
-    /// Sends that failed.
+    /// Sends that ended unconfirmed: frames left, no acknowledgement came back (the message
+    /// may or may not have arrived; compare `receivals`).
+    pub unconfirmed: u64,
+    /// Sends that failed (certainly not delivered).
     pub failed: u64,
 }
 
@@ -412,14 +415,16 @@ pub struct Accounting {
     /// Ended delivered (acknowledged).
     pub delivered: u64,
     /// Ended sent without confirmation (unacknowledged).
-    pub sent_unconfirmed: u64,
-    /// Ended failed.
+    pub sent: u64,
+    /// Ended unconfirmed: frames left, no acknowledgement came back.
+    pub unconfirmed: u64,
+    /// Ended failed (certainly not delivered).
     pub failed: u64,
     /// Not ended when the trial stopped (`RouterStats::in_flight`, summed).
     pub in_flight: u64,
     /// Tickets without an outcome when the trial stopped (should equal `in_flight`).
     pub unresolved_tickets: u64,
-    /// `accepted == delivered + sent_unconfirmed + failed + in_flight`, and the tickets agree
+    /// `accepted == delivered + sent + unconfirmed + failed + in_flight`, and the tickets agree
     /// with the routers' counters.
     pub balanced: bool,
 }
@@ -525,6 +530,7 @@ impl ThesisReference {
                     transmit_successes: s,
                     receivals: rx,
                     additional_attempts: add,
+                    unconfirmed: 0,
                     failed: a - s,
                 })
                 .collect(),
@@ -1080,6 +1086,7 @@ fn run_mode(
                             c.failed += 1;
                             *failure_reasons.entry(reason_name(reason)).or_insert(0) += 1;
                         }
+                        Outcome::Unconfirmed { .. } => c.unconfirmed += 1,
                         Outcome::Delivered { .. } | Outcome::Sent { .. } => {
                             c.transmit_successes += 1
                         }
@@ -1142,7 +1149,8 @@ fn run_mode(
             let r = comm.stats().router;
             acc.accepted += r.sends;
             acc.delivered += r.delivered;
-            acc.sent_unconfirmed += r.sent_unconfirmed;
+            acc.sent += r.sent;
+            acc.unconfirmed += r.unconfirmed;
             acc.failed += r.failed;
             acc.in_flight += r.in_flight();
             duplicates_suppressed += r.duplicates;
@@ -1154,15 +1162,14 @@ fn run_mode(
             *network_drops.entry(k).or_insert(0) += v;
         }
     }
-    let outcome_failed: u64 = rows
-        .iter()
-        .flat_map(|r| &r.per_transport)
-        .map(|c| c.failed)
-        .sum();
+    let cells = || rows.iter().flat_map(|r| &r.per_transport);
+    let outcome_failed: u64 = cells().map(|c| c.failed).sum();
+    let outcome_unconfirmed: u64 = cells().map(|c| c.unconfirmed).sum();
     acc.balanced = acc.accepted
-        == acc.delivered + acc.sent_unconfirmed + acc.failed + acc.in_flight
+        == acc.delivered + acc.sent + acc.unconfirmed + acc.failed + acc.in_flight
         && acc.accepted == messages
         && acc.failed == outcome_failed
+        && acc.unconfirmed == outcome_unconfirmed
         && acc.unresolved_tickets == acc.in_flight;
     let description = match mode {
         Mode::Thesis => format!(

@@ -106,29 +106,33 @@ pub fn table19(rows: &[SystemRow]) -> String {
     table(&header, &body)
 }
 
-/// Table 20's shape: additional attempts per system and transport, with failures.
+/// Table 20's shape: additional attempts per system and transport, with the sends that ended
+/// unconfirmed (may have arrived) and failed (certainly did not).
 pub fn table20(rows: &[SystemRow]) -> String {
+    type Get = fn(&crate::reliability::TransportCounts) -> u64;
+    let columns: [(&str, Get); 3] = [
+        ("additional attempts", |c| c.additional_attempts),
+        ("unconfirmed sends", |c| c.unconfirmed),
+        ("failed sends", |c| c.failed),
+    ];
     let ls = letters(rows);
     let mut header = vec!["System".to_string()];
-    for l in &ls {
-        header.push(format!("{l} additional attempts"));
-    }
-    for l in &ls {
-        header.push(format!("{l} failed sends"));
+    for (what, _) in &columns {
+        for l in &ls {
+            header.push(format!("{l} {what}"));
+        }
     }
     let n = ls.len();
-    let mut totals = vec![0u64; 2 * n];
+    let mut totals = vec![0u64; columns.len() * n];
     let mut body: Vec<Vec<String>> = rows
         .iter()
         .map(|r| {
             let mut cells = vec![r.system.clone()];
-            for (j, c) in r.per_transport.iter().enumerate() {
-                totals[j] += c.additional_attempts;
-                cells.push(c.additional_attempts.to_string());
-            }
-            for (j, c) in r.per_transport.iter().enumerate() {
-                totals[n + j] += c.failed;
-                cells.push(c.failed.to_string());
+            for (k, (_, get)) in columns.iter().enumerate() {
+                for (j, c) in r.per_transport.iter().enumerate() {
+                    totals[k * n + j] += get(c);
+                    cells.push(get(c).to_string());
+                }
             }
             cells
         })
@@ -200,14 +204,20 @@ fn mode_text(out: &mut String, report: &ReliabilityReport, m: &ModeReport) {
             .collect();
         format!(" ({})", r.join(", "))
     };
-    let _ = writeln!(out, "Failed sends: {}{}", m.accounting.failed, reasons);
+    let _ = writeln!(out, "Failed sends (certainly not delivered): {}{}", m.accounting.failed, reasons);
+    let _ = writeln!(
+        out,
+        "Unconfirmed sends (frames left, no acknowledgement; may or may not have arrived): {}",
+        m.accounting.unconfirmed
+    );
     let a = &m.accounting;
     let _ = writeln!(
         out,
-        "Accounting: accepted {} = delivered {} + sent unconfirmed {} + failed {} + in flight {}  [{}]",
+        "Accounting: accepted {} = delivered {} + sent without confirmation {} + unconfirmed {} + failed {} + in flight {}  [{}]",
         a.accepted,
         a.delivered,
-        a.sent_unconfirmed,
+        a.sent,
+        a.unconfirmed,
         a.failed,
         a.in_flight,
         if a.balanced { "balanced" } else { "NOT BALANCED" }
@@ -282,7 +292,7 @@ pub fn text(report: &ReliabilityReport) -> String {
 /// `thesis-published`.
 pub fn tables_csv(report: &ReliabilityReport) -> String {
     let mut out = String::from(
-        "mode,system,transport,transmit_attempts,transmit_successes,receivals,additional_attempts,failed\n",
+        "mode,system,transport,transmit_attempts,transmit_successes,receivals,additional_attempts,unconfirmed,failed\n",
     );
     let groups = report
         .modes
@@ -297,7 +307,7 @@ pub fn tables_csv(report: &ReliabilityReport) -> String {
             for c in &r.per_transport {
                 let _ = writeln!(
                     out,
-                    "{},{},{},{},{},{},{},{}",
+                    "{},{},{},{},{},{},{},{},{}",
                     mode,
                     csv_field(&r.system),
                     csv_field(&c.transport),
@@ -305,6 +315,7 @@ pub fn tables_csv(report: &ReliabilityReport) -> String {
                     c.transmit_successes,
                     c.receivals,
                     c.additional_attempts,
+                    c.unconfirmed,
                     c.failed
                 );
             }
@@ -317,7 +328,7 @@ pub fn tables_csv(report: &ReliabilityReport) -> String {
 pub fn summary_csv(report: &ReliabilityReport) -> String {
     let mut out = String::from(
         "mode,trials,seed,loss,messages,received,delivery_ratio_percent,duplicates_delivered,\
-         duplicates_suppressed,accepted,delivered,sent_unconfirmed,failed,in_flight,balanced,\
+         duplicates_suppressed,accepted,delivered,sent,unconfirmed,failed,in_flight,balanced,\
          transmissions,attempts_per_message,max_attempts,delay_mean_ms,delay_p50_ms,delay_p99_ms,\
          delay_max_ms\n",
     );
@@ -325,7 +336,7 @@ pub fn summary_csv(report: &ReliabilityReport) -> String {
         let a = &m.accounting;
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{:.4},{},{:.4},{:.4},{:.4},{:.4}",
+            "{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{:.4},{},{:.4},{:.4},{:.4},{:.4}",
             m.mode,
             report.trials,
             report.seed,
@@ -337,7 +348,8 @@ pub fn summary_csv(report: &ReliabilityReport) -> String {
             m.duplicates_suppressed,
             a.accepted,
             a.delivered,
-            a.sent_unconfirmed,
+            a.sent,
+            a.unconfirmed,
             a.failed,
             a.in_flight,
             a.balanced,

@@ -53,7 +53,9 @@ pub struct SweepPoint {
     pub delivery_ratio_percent: f64,
     /// Messages delivered more than once.
     pub duplicates_delivered: u64,
-    /// Sends that failed.
+    /// Sends that ended unconfirmed (may or may not have arrived).
+    pub unconfirmed: u64,
+    /// Sends that failed (certainly not delivered).
     pub failed: u64,
     /// Mean send-to-receipt delay, ms (virtual time).
     pub delay_mean_ms: f64,
@@ -111,6 +113,7 @@ pub fn run(fleet: &Fleet, config: &SweepConfig) -> Result<SweepReport, Experimen
                     received: m.received,
                     delivery_ratio_percent: m.delivery_ratio_percent,
                     duplicates_delivered: m.duplicates_delivered,
+                    unconfirmed: m.accounting.unconfirmed,
                     failed: m.accounting.failed,
                     delay_mean_ms: m.delay.mean_ms,
                     delay_p99_ms: m.delay.p99_ms,
@@ -133,12 +136,12 @@ pub fn run(fleet: &Fleet, config: &SweepConfig) -> Result<SweepReport, Experimen
 pub fn csv(report: &SweepReport) -> String {
     let mut out = String::from(
         "mode,loss_model,loss_percent,messages,received,delivery_ratio_percent,duplicates_delivered,\
-         failed,delay_mean_ms,delay_p99_ms,attempts_per_message,balanced\n",
+         unconfirmed,failed,delay_mean_ms,delay_p99_ms,attempts_per_message,balanced\n",
     );
     for p in &report.points {
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{:.4},{},{},{:.4},{:.4},{:.4},{}",
+            "{},{},{},{},{},{:.4},{},{},{},{:.4},{:.4},{:.4},{}",
             p.mode,
             p.loss_model,
             p.loss_percent,
@@ -146,6 +149,7 @@ pub fn csv(report: &SweepReport) -> String {
             p.received,
             p.delivery_ratio_percent,
             p.duplicates_delivered,
+            p.unconfirmed,
             p.failed,
             p.delay_mean_ms,
             p.delay_p99_ms,
@@ -167,13 +171,14 @@ pub fn text(report: &SweepReport) -> String {
     );
     let _ = writeln!(
         out,
-        "{:<13} {:<7} {:>6} {:>9} {:>9} {:>5} {:>6} {:>10} {:>10} {:>9}",
+        "{:<13} {:<7} {:>6} {:>9} {:>9} {:>5} {:>6} {:>6} {:>10} {:>10} {:>9}",
         "mode",
         "loss",
         "rate%",
         "received",
         "ratio%",
         "dups",
+        "unconf",
         "failed",
         "mean ms",
         "p99 ms",
@@ -182,13 +187,14 @@ pub fn text(report: &SweepReport) -> String {
     for p in &report.points {
         let _ = writeln!(
             out,
-            "{:<13} {:<7} {:>6} {:>9} {:>9.2} {:>5} {:>6} {:>10.3} {:>10.3} {:>9.3}",
+            "{:<13} {:<7} {:>6} {:>9} {:>9.2} {:>5} {:>6} {:>6} {:>10.3} {:>10.3} {:>9.3}",
             p.mode.name(),
             p.loss_model,
             p.loss_percent,
             format!("{}/{}", p.received, p.messages),
             p.delivery_ratio_percent,
             p.duplicates_delivered,
+            p.unconfirmed,
             p.failed,
             p.delay_mean_ms,
             p.delay_p99_ms,

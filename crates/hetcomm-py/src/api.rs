@@ -67,8 +67,14 @@ fn drop_detached<T: Send>(value: T) {
 // ---------------------------------------------------------------------------------------------
 // Outcome
 
-/// How a send ended: `kind` is "delivered" (acknowledged by the receiving router), "sent"
-/// (unacknowledged transport took it) or "failed" (with `reason`).
+/// How a send ended. `kind` is one of:
+///
+/// - "delivered": the receiving router put the message in the destination module's inbox and
+///   acknowledged it (in the inbox, not necessarily read yet);
+/// - "sent": an unacknowledged transport took it; it cannot confirm delivery;
+/// - "unconfirmed": frames left but no acknowledgement came back; it may or may not have
+///   arrived (`reason` says why the sender stopped waiting);
+/// - "failed": certainly not delivered (`reason` says why).
 #[pyclass(module = "hetcomm", frozen, eq)]
 #[derive(Clone, PartialEq)]
 pub struct Outcome {
@@ -77,16 +83,17 @@ pub struct Outcome {
 
 #[pymethods]
 impl Outcome {
-    /// "delivered", "sent" or "failed".
+    /// "delivered", "sent", "unconfirmed" or "failed".
     #[getter]
     fn kind(&self) -> &'static str {
         match self.inner {
             hetcomm::Outcome::Delivered { .. } => "delivered",
             hetcomm::Outcome::Sent { .. } => "sent",
+            hetcomm::Outcome::Unconfirmed { .. } => "unconfirmed",
             hetcomm::Outcome::Failed { .. } => "failed",
         }
     }
-    /// Transmissions made.
+    /// Transmissions attempted.
     #[getter]
     fn attempts(&self) -> u32 {
         self.inner.attempts()
@@ -96,13 +103,20 @@ impl Outcome {
     fn is_success(&self) -> bool {
         self.inner.is_success()
     }
+    /// In the destination module's inbox (acknowledged).
     #[getter]
     fn delivered(&self) -> bool {
         matches!(self.inner, hetcomm::Outcome::Delivered { .. })
     }
+    /// Frames left but no acknowledgement came back: it may or may not have arrived.
+    #[getter]
+    fn unconfirmed(&self) -> bool {
+        self.inner.is_unconfirmed()
+    }
+    /// Certainly not delivered.
     #[getter]
     fn failed(&self) -> bool {
-        matches!(self.inner, hetcomm::Outcome::Failed { .. })
+        self.inner.is_failed()
     }
     /// Seconds from the first transmission to the acknowledgement (delivered only).
     #[getter]
@@ -112,31 +126,25 @@ impl Outcome {
             _ => None,
         }
     }
-    /// Why it failed (failed only): the Rust `FailReason`'s message.
+    /// Why it failed or went unconfirmed: the Rust `FailReason`'s message (None otherwise).
     #[getter]
     fn reason(&self) -> Option<String> {
-        match &self.inner {
-            hetcomm::Outcome::Failed { reason, .. } => Some(reason.to_string()),
-            _ => None,
-        }
+        self.inner.reason().map(|r| r.to_string())
     }
-    /// Why it failed, as a short code: "no_acknowledgement", "unreachable", "inbox_full",
-    /// "unknown_module", "link", "backpressure", "shutdown" (failed only).
+    /// Why it failed or went unconfirmed, as a short code: "no_acknowledgement",
+    /// "unreachable", "inbox_full", "unknown_module", "link", "backpressure", "shutdown".
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
-        match &self.inner {
-            hetcomm::Outcome::Failed { reason, .. } => Some(match reason {
-                FailReason::NoAcknowledgement => "no_acknowledgement",
-                FailReason::Unreachable(_) => "unreachable",
-                FailReason::InboxFull => "inbox_full",
-                FailReason::UnknownModule => "unknown_module",
-                FailReason::Link(_) => "link",
-                FailReason::Backpressure => "backpressure",
-                FailReason::Shutdown => "shutdown",
-                _ => "other",
-            }),
-            _ => None,
-        }
+        self.inner.reason().map(|reason| match reason {
+            FailReason::NoAcknowledgement => "no_acknowledgement",
+            FailReason::Unreachable(_) => "unreachable",
+            FailReason::InboxFull => "inbox_full",
+            FailReason::UnknownModule => "unknown_module",
+            FailReason::Link(_) => "link",
+            FailReason::Backpressure => "backpressure",
+            FailReason::Shutdown => "shutdown",
+            _ => "other",
+        })
     }
     fn __str__(&self) -> String {
         self.inner.to_string()
@@ -890,7 +898,8 @@ impl Comm {
             ("transmissions", r.transmissions),
             ("retransmissions", r.retransmissions),
             ("delivered", r.delivered),
-            ("sent_unconfirmed", r.sent_unconfirmed),
+            ("sent", r.sent),
+            ("unconfirmed", r.unconfirmed),
             ("failed", r.failed),
             ("received", r.received),
             ("acks_sent", r.acks_sent),

@@ -115,6 +115,35 @@ B = ["lan", "X"]
         assert "Ticket to B" in repr(t)
 
 
+def test_unconfirmed_outcome_when_frames_left_but_nobody_acknowledged():
+    # Frames went out to a UDP port where nothing answers: the sender cannot know whether they
+    # arrived, so the outcome is "unconfirmed", never "failed".
+    toml = """
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[transports.lan]
+kind = "udp"
+attempts = 2
+[transports.lan.endpoints]
+A = "127.0.0.1:0"
+B = "127.0.0.1:9"
+[table]
+columns = ["A", "B"]
+A = ["X", "lan"]
+B = ["lan", "X"]
+"""
+    with hetcomm.Comm.from_toml(toml, "A", "unconfirmed.toml") as a:
+        o = a.module("M").send("B", "M", Command(1)).wait(timeout=60)
+        assert o is not None and o.kind == "unconfirmed", o
+        assert o.unconfirmed and not o.failed and not o.delivered and not o.is_success
+        assert o.reason_code == "no_acknowledgement" and o.attempts == 2
+        assert "may or may not have arrived" in str(o)
+        assert a.stats()["router"]["unconfirmed"] == 1
+
+
 def test_callbacks(fleet):
     plan = fleet.module("Alpha", "Plan")
     act = fleet.module("Charlie", "Act")

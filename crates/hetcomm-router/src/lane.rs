@@ -105,8 +105,11 @@ impl DirectLane {
         let outcome = Outcome::acknowledged(status, 1, Duration::ZERO);
         let counter = match outcome {
             Outcome::Delivered { .. } => &self.delivered,
-            // An acknowledgement's outcome is delivered or failed, never `Sent`.
-            Outcome::Sent { .. } | Outcome::Failed { .. } => &self.failed,
+            // An acknowledgement's outcome is delivered or failed: never `Sent`, and never
+            // unconfirmed, since the inbox answered on this thread.
+            Outcome::Sent { .. } | Outcome::Unconfirmed { .. } | Outcome::Failed { .. } => {
+                &self.failed
+            }
         };
         // Release, with the acquiring loads in `add_to`: whoever sees the outcome counted
         // also sees the send's number, so `in_flight` never goes below zero.
@@ -130,7 +133,7 @@ impl DirectLane {
             stats.delivered += delivered;
             stats.failed += failed;
         } else {
-            stats.sent_unconfirmed += sends;
+            stats.sent += sends;
         }
     }
 }

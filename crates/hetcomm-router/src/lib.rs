@@ -187,7 +187,7 @@ mod tests {
                 s.transmissions,
                 s.delivered,
                 s.failed,
-                s.sent_unconfirmed
+                s.sent
             ),
             (3, 3, 1, 1, 1)
         );
@@ -220,7 +220,7 @@ mod tests {
         }
         assert_eq!(numbers, (1..=8).collect::<Vec<_>>());
         let s = a.stats();
-        assert_eq!((s.sends, s.sent_unconfirmed), (8, 8));
+        assert_eq!((s.sends, s.sent), (8, 8));
     }
 
     #[test]

@@ -182,11 +182,13 @@ pub struct SendId {
     pub seq: u64,
 }
 
-/// Why a send failed.
+/// Why a send failed ([`Outcome::Failed`]) or why the sender stopped waiting for its
+/// confirmation ([`Outcome::Unconfirmed`]).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum FailReason {
-    /// Every attempt went out but no acknowledgement came back.
+    /// Frames went out but no acknowledgement came back within the attempt budget (only in
+    /// [`Outcome::Unconfirmed`]: the message may have arrived and its acknowledgement been lost).
     #[error("no acknowledgement")]
     NoAcknowledgement,
     /// The link could not reach the peer on the last attempt.
@@ -211,10 +213,18 @@ pub enum FailReason {
     Shutdown,
 }
 
-/// The one result every send ends with.
+/// The one result every send ends with. Each variant says only what the sender knows:
+///
+/// | outcome | the message is … |
+/// |---|---|
+/// | [`Delivered`](Outcome::Delivered) | in the destination module's inbox (not necessarily read yet) |
+/// | [`Sent`](Outcome::Sent) | handed to the transport, which cannot confirm (unacknowledged mode) |
+/// | [`Unconfirmed`](Outcome::Unconfirmed) | maybe delivered: frames left, no acknowledgement came back |
+/// | [`Failed`](Outcome::Failed) | certainly not delivered |
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Outcome {
-    /// The destination router put the message into the module's inbox and said so.
+    /// The destination router put the message into the module's inbox and said so. Delivered
+    /// means in the inbox, not read by the module.
     Delivered {
         /// Transmissions it took.
         attempts: u32,
@@ -226,11 +236,22 @@ pub enum Outcome {
         /// Transmissions it took (more than one if the transport refused earlier ones).
         attempts: u32,
     },
-    /// Given up.
+    /// At least one frame left this system but no acknowledgement came back before the
+    /// attempt budget ran out (or the link was lost, or the router shut down): the message may
+    /// or may not have arrived. The sender cannot tell which; only the receiver can.
+    Unconfirmed {
+        /// Why the sender stopped waiting.
+        reason: FailReason,
+        /// Transmissions attempted.
+        attempts: u32,
+    },
+    /// Certainly not delivered: no frame left this system (refused, unreachable on every
+    /// attempt, too large, shut down before sending), or the receiver answered that it did not
+    /// take the message (inbox full, no such module).
     Failed {
         /// Why.
         reason: FailReason,
-        /// Transmissions made.
+        /// Transmissions attempted.
         attempts: u32,
     },
 }
@@ -251,16 +272,35 @@ impl Outcome {
         }
     }
 
-    /// Delivered, or sent without confirmation.
+    /// Delivered, or sent without confirmation on a transport that cannot confirm.
     pub fn is_success(&self) -> bool {
-        !matches!(self, Outcome::Failed { .. })
+        matches!(self, Outcome::Delivered { .. } | Outcome::Sent { .. })
     }
 
-    /// Transmissions made.
+    /// Maybe delivered: frames left but no acknowledgement came back.
+    pub fn is_unconfirmed(&self) -> bool {
+        matches!(self, Outcome::Unconfirmed { .. })
+    }
+
+    /// Certainly not delivered.
+    pub fn is_failed(&self) -> bool {
+        matches!(self, Outcome::Failed { .. })
+    }
+
+    /// Why the send failed or went unconfirmed (`None` for the two successes).
+    pub fn reason(&self) -> Option<&FailReason> {
+        match self {
+            Outcome::Unconfirmed { reason, .. } | Outcome::Failed { reason, .. } => Some(reason),
+            Outcome::Delivered { .. } | Outcome::Sent { .. } => None,
+        }
+    }
+
+    /// Transmissions attempted.
     pub fn attempts(&self) -> u32 {
         match *self {
             Outcome::Delivered { attempts, .. }
             | Outcome::Sent { attempts }
+            | Outcome::Unconfirmed { attempts, .. }
             | Outcome::Failed { attempts, .. } => attempts,
         }
     }
@@ -278,6 +318,12 @@ impl std::fmt::Display for Outcome {
             }
             Outcome::Sent { attempts } => {
                 write!(f, "sent without confirmation (attempts: {attempts})")
+            }
+            Outcome::Unconfirmed { reason, attempts } => {
+                write!(
+                    f,
+                    "unconfirmed: {reason}; it may or may not have arrived (attempts: {attempts})"
+                )
             }
             Outcome::Failed { reason, attempts } => {
                 write!(f, "failed: {reason} (attempts: {attempts})")
@@ -394,9 +440,12 @@ pub struct RouterStats {
     pub retransmissions: u64,
     /// Sends that ended delivered.
     pub delivered: u64,
-    /// Sends that ended sent without confirmation.
-    pub sent_unconfirmed: u64,
-    /// Sends that ended failed.
+    /// Sends that ended [`Outcome::Sent`]: taken by a transport that cannot confirm
+    /// (unacknowledged mode).
+    pub sent: u64,
+    /// Sends that ended [`Outcome::Unconfirmed`]: frames left, no acknowledgement came back.
+    pub unconfirmed: u64,
+    /// Sends that ended [`Outcome::Failed`]: certainly not delivered.
     pub failed: u64,
     /// Messages handed to local inboxes.
     pub received: u64,
@@ -425,7 +474,7 @@ pub struct RouterStats {
 impl RouterStats {
     /// Sends accepted but not yet ended.
     pub fn in_flight(&self) -> u64 {
-        self.sends - self.delivered - self.sent_unconfirmed - self.failed
+        self.sends - self.delivered - self.sent - self.unconfirmed - self.failed
     }
 }
 
@@ -436,9 +485,25 @@ struct Pending<T> {
     /// The frame; `None` while the driver holds it in a [`Transmit`].
     frame: Option<Vec<u8>>,
     attempts: u32,
+    /// Whether any attempt left this system (the link took the frame): from then on, giving up
+    /// is [`Outcome::Unconfirmed`], never [`Outcome::Failed`].
+    transmitted: bool,
     first_sent: Option<Time>,
     /// When to retransmit (acknowledged sends that are on the wire).
     deadline: Option<Time>,
+}
+
+impl<T> Pending<T> {
+    /// The outcome of giving up on this send for `reason`: unconfirmed once any frame left
+    /// (it may have arrived), failed while none has.
+    fn give_up(&self, reason: FailReason) -> Outcome {
+        let attempts = self.attempts;
+        if self.transmitted {
+            Outcome::Unconfirmed { reason, attempts }
+        } else {
+            Outcome::Failed { reason, attempts }
+        }
+    }
 }
 
 /// In-order delivery state for one (origin, incarnation).
@@ -653,6 +718,7 @@ impl<T> Router<T> {
                 route,
                 frame: Some(frame),
                 attempts: 0,
+                transmitted: false,
                 first_sent: None,
                 deadline: None,
             },
@@ -729,7 +795,7 @@ impl<T> Router<T> {
         let err = match result {
             Ok(()) => {
                 self.recycle(frame);
-                self.stats.sent_unconfirmed += 1;
+                self.stats.sent += 1;
                 return Some(Outcome::Sent { attempts: 1 });
             }
             Err(err) => err,
@@ -762,6 +828,7 @@ impl<T> Router<T> {
                 route,
                 frame: Some(frame),
                 attempts: 1,
+                transmitted: false,
                 first_sent: Some(now),
                 deadline: Some(deadline),
             },
@@ -929,6 +996,9 @@ impl<T> Router<T> {
             return;
         };
         p.frame = Some(tx.frame);
+        if result.is_ok() {
+            p.transmitted = true;
+        }
         match result {
             Ok(()) => {
                 if p.route.acknowledged {
@@ -941,14 +1011,8 @@ impl<T> Router<T> {
                 }
             }
             Err(TransmitError::TooLarge(reason)) => {
-                let attempts = p.attempts;
-                self.finish(
-                    id,
-                    Outcome::Failed {
-                        reason: FailReason::Link(reason),
-                        attempts,
-                    },
-                );
+                let outcome = p.give_up(FailReason::Link(reason));
+                self.finish(id, outcome);
             }
             Err(err) => {
                 if p.attempts < p.route.attempts {
@@ -957,12 +1021,12 @@ impl<T> Router<T> {
                     p.deadline = Some(deadline);
                     self.timers.insert((deadline, id));
                 } else {
-                    let attempts = p.attempts;
                     let reason = match err {
                         TransmitError::Unreachable(r) => FailReason::Unreachable(r),
                         TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
                     };
-                    self.finish(id, Outcome::Failed { reason, attempts });
+                    let outcome = p.give_up(reason);
+                    self.finish(id, outcome);
                 }
             }
         }
@@ -993,7 +1057,8 @@ impl<T> Router<T> {
             }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,
-                Outcome::Sent { .. } => self.stats.sent_unconfirmed += 1,
+                Outcome::Sent { .. } => self.stats.sent += 1,
+                Outcome::Unconfirmed { .. } => self.stats.unconfirmed += 1,
                 Outcome::Failed { .. } => self.stats.failed += 1,
             }
             self.events.push_back(Event::Outcome {
@@ -1276,9 +1341,8 @@ impl<T> Router<T> {
             if p.attempts < p.route.attempts {
                 self.transmits.push_back(TransmitItem::Send(id));
             } else {
-                let attempts = p.attempts;
-                let reason = FailReason::NoAcknowledgement;
-                self.finish(id, Outcome::Failed { reason, attempts });
+                let outcome = p.give_up(FailReason::NoAcknowledgement);
+                self.finish(id, outcome);
             }
         }
     }
@@ -1293,14 +1357,8 @@ impl<T> Router<T> {
     pub fn shutdown(&mut self) {
         let ids: Vec<SendId> = self.pending.keys().copied().collect();
         for id in ids {
-            let attempts = self.pending[&id].attempts;
-            self.finish(
-                id,
-                Outcome::Failed {
-                    reason: FailReason::Shutdown,
-                    attempts,
-                },
-            );
+            let outcome = self.pending[&id].give_up(FailReason::Shutdown);
+            self.finish(id, outcome);
         }
         self.timers.clear();
     }
@@ -1474,7 +1532,7 @@ mod tests {
         let outcome = a.unqueued_result(now, tx, Ok(()), || panic!("no token when sent"));
         assert_eq!(outcome, Some(Outcome::Sent { attempts: 1 }));
         let s = a.stats().clone();
-        assert_eq!((s.sent_unconfirmed, s.failed, s.in_flight()), (1, 0, 0));
+        assert_eq!((s.sent, s.failed, s.in_flight()), (1, 0, 0));
         assert!(
             a.poll_event().is_none(),
             "the outcome was returned, not queued"
@@ -1563,7 +1621,7 @@ mod tests {
             (s.sends, s.transmissions, s.retransmissions, s.failed),
             (1, 3, 2, 1)
         );
-        assert_eq!((s.sent_unconfirmed, s.in_flight()), (0, 0));
+        assert_eq!((s.sent, s.in_flight()), (0, 0));
         assert!(a.poll_timeout().is_none());
     }
 
@@ -1588,7 +1646,7 @@ mod tests {
         ));
         let s = a.stats().clone();
         assert_eq!(
-            (s.sent_unconfirmed, s.retransmissions, s.in_flight()),
+            (s.sent, s.retransmissions, s.in_flight()),
             (1, 1, 0)
         );
     }
@@ -1772,7 +1830,7 @@ mod tests {
         ));
         // Another destination has a window of its own.
         assert_eq!(a.send(t0, request(c), 0), Ok(SendId { to: c, seq: 1 }));
-        // Nothing answers: every attempt times out and both sends fail.
+        // Nothing answers: every attempt times out and both sends end unconfirmed.
         let mut now = t0;
         loop {
             while let Some(tx) = a.poll_transmit(now) {
@@ -1786,17 +1844,17 @@ mod tests {
                 None => break,
             }
         }
-        let mut failed = 0;
+        let mut unconfirmed = 0;
         while let Some(e) = a.poll_event() {
             if let Event::Outcome {
-                outcome: Outcome::Failed { .. },
+                outcome: Outcome::Unconfirmed { .. },
                 ..
             } = e
             {
-                failed += 1;
+                unconfirmed += 1;
             }
         }
-        assert_eq!(failed, 2);
+        assert_eq!(unconfirmed, 2);
         assert_eq!((a.pending_to(B), a.pending_to(c)), (0, 0));
         assert_eq!(a.send(now, request(B), 0), Ok(SendId { to: B, seq: 2 }));
     }

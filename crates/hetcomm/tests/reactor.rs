@@ -172,7 +172,7 @@ fn an_unacknowledged_udp_stream_ends_sent_at_once_and_counts_exactly() {
     }
     let sa = f.system("A").unwrap().stats().router;
     assert_eq!(
-        (sa.sends, sa.transmissions, sa.sent_unconfirmed, sa.failed),
+        (sa.sends, sa.transmissions, sa.sent, sa.failed),
         (N, N, N, 0)
     );
     assert_eq!(sa.in_flight(), 0);

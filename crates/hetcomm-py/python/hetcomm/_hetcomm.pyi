@@ -11,16 +11,21 @@ _Path = Union[str, os.PathLike[str]]
 __version__: str
 
 class Outcome:
-    """How a send ended."""
+    """How a send ended: "delivered" (in the destination module's inbox, acknowledged; not
+    necessarily read yet), "sent" (an unacknowledged transport took it), "unconfirmed" (frames
+    left, no acknowledgement came back: it may or may not have arrived) or "failed" (certainly
+    not delivered)."""
 
     @property
-    def kind(self) -> Literal["delivered", "sent", "failed"]: ...
+    def kind(self) -> Literal["delivered", "sent", "unconfirmed", "failed"]: ...
     @property
     def attempts(self) -> int: ...
     @property
     def is_success(self) -> bool: ...
     @property
     def delivered(self) -> bool: ...
+    @property
+    def unconfirmed(self) -> bool: ...
     @property
     def failed(self) -> bool: ...
     @property
