@@ -204,7 +204,11 @@ fn mode_text(out: &mut String, report: &ReliabilityReport, m: &ModeReport) {
             .collect();
         format!(" ({})", r.join(", "))
     };
-    let _ = writeln!(out, "Failed sends (certainly not delivered): {}{}", m.accounting.failed, reasons);
+    let _ = writeln!(
+        out,
+        "Failed sends (certainly not delivered): {}{}",
+        m.accounting.failed, reasons
+    );
     let _ = writeln!(
         out,
         "Unconfirmed sends (frames left, no acknowledgement; may or may not have arrived): {}",

@@ -57,8 +57,8 @@ fn assert_exactly_once(m: &ModeReport, seed: u64, what: &str) {
     assert_eq!(a.accepted, 420, "{ctx}: accepted");
     assert_eq!(
         a.accepted,
-        a.delivered + a.sent + a.failed + a.in_flight,
-        "{ctx}: accepted = delivered + failed + in flight: {a:?}"
+        a.delivered + a.sent + a.unconfirmed + a.failed + a.in_flight,
+        "{ctx}: accepted = delivered + sent + unconfirmed + failed + in flight: {a:?}"
     );
     assert_eq!(a.delivered, 420, "{ctx}: every send acknowledged: {a:?}");
     assert_eq!(a.in_flight, 0, "{ctx}: nothing left in flight: {a:?}");
@@ -418,5 +418,52 @@ fn sweep_writes_csv_json_and_png() {
     assert!(
         colours.len() > 20,
         "the plot has lines and text, not a blank image"
+    );
+}
+
+/// A budget too small for the loss: sends whose frames left but whose acknowledgements never
+/// came back end unconfirmed, never failed, and some of them did arrive (the case that used to
+/// be reported as a failure). The totals add up with the new column.
+#[test]
+fn a_small_budget_under_loss_reports_unconfirmed_not_failed() {
+    let seed = seed(20);
+    let config = ReliabilityConfig {
+        seed,
+        attempts: 2,
+        modes: vec![Mode::Acknowledged],
+        loss: LossModel::Iid { percent: 30.0 },
+        ..ReliabilityConfig::default()
+    };
+    let ctx = format!("30% loss, 2 attempts, seed {seed} (rerun with HETCOMM_SEED={seed})");
+    let report = run(&config);
+    let m = report.mode(Mode::Acknowledged).expect("mode ran");
+    let a = &m.accounting;
+    assert_eq!(a.failed, 0, "{ctx}: nothing certainly failed: {a:?}");
+    assert!(a.unconfirmed > 0, "{ctx}: some sends unconfirmed: {a:?}");
+    assert!(a.balanced, "{ctx}: accounting balanced: {a:?}");
+    assert_eq!(
+        a.accepted,
+        a.delivered + a.unconfirmed + a.in_flight,
+        "{ctx}: {a:?}"
+    );
+    // Every delivered send arrived; of the unconfirmed ones, some arrived too.
+    assert!(
+        m.received > a.delivered && m.received <= a.delivered + a.unconfirmed,
+        "{ctx}: received {} of delivered {} + unconfirmed {}",
+        m.received,
+        a.delivered,
+        a.unconfirmed
+    );
+    let cells: u64 = m
+        .systems
+        .iter()
+        .flat_map(|r| &r.per_transport)
+        .map(|c| c.unconfirmed)
+        .sum();
+    assert_eq!(cells, a.unconfirmed, "{ctx}: the table's column adds up");
+    let text = report::text(&report);
+    assert!(
+        text.contains("unconfirmed sends") && text.contains("+ unconfirmed"),
+        "{ctx}: the tables show the column:\n{text}"
     );
 }

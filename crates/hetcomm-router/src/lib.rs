@@ -182,13 +182,7 @@ mod tests {
         assert_eq!(sent, Outcome::Sent { attempts: 1 });
         let s = a.stats();
         assert_eq!(
-            (
-                s.sends,
-                s.transmissions,
-                s.delivered,
-                s.failed,
-                s.sent
-            ),
+            (s.sends, s.transmissions, s.delivered, s.failed, s.sent),
             (3, 3, 1, 1, 1)
         );
         assert_eq!(s.in_flight(), 0);

@@ -1645,10 +1645,7 @@ mod tests {
             })
         ));
         let s = a.stats().clone();
-        assert_eq!(
-            (s.sent, s.retransmissions, s.in_flight()),
-            (1, 1, 0)
-        );
+        assert_eq!((s.sent, s.retransmissions, s.in_flight()), (1, 1, 0));
     }
 
     #[test]

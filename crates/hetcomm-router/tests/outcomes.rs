@@ -213,12 +213,19 @@ fn lossy_exchange(seed: u64, loss: f64, attempts: u32, sends: u32) {
             None => {}
         }
     }
-    assert_eq!(outcomes.len(), sends as usize, "seed {seed}: every send ends");
+    assert_eq!(
+        outcomes.len(),
+        sends as usize,
+        "seed {seed}: every send ends"
+    );
     let (mut delivered, mut unconfirmed) = (0, 0);
     for (token, outcome) in &outcomes {
         match outcome {
             Outcome::Delivered { .. } => {
-                assert!(arrived.contains(token), "seed {seed}: delivered {token} never arrived");
+                assert!(
+                    arrived.contains(token),
+                    "seed {seed}: delivered {token} never arrived"
+                );
                 delivered += 1;
             }
             Outcome::Unconfirmed { .. } => unconfirmed += 1,
