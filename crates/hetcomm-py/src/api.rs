@@ -776,6 +776,7 @@ fn inbox_stats<'py>(py: Python<'py>, s: &hetcomm::InboxStats) -> PyResult<Bound<
     d.set_item("dropped_oldest", s.dropped_oldest)?;
     d.set_item("dropped_newest", s.dropped_newest)?;
     d.set_item("dropped_after_wait", s.dropped_after_wait)?;
+    d.set_item("refused_from_link", s.refused_from_link)?;
     d.set_item("len", s.len)?;
     d.set_item("capacity", s.capacity)?;
     Ok(d)

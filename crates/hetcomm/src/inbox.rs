@@ -33,6 +33,10 @@ pub struct InboxStats {
     pub dropped_newest: u64,
     /// Arriving messages refused after waiting for room (`block`).
     pub dropped_after_wait: u64,
+    /// Messages from a link refused at once because the inbox was full under `block`: a link
+    /// is never stopped waiting for room (its socket would stop being read and the kernel
+    /// would drop frames nobody counts). Acknowledged senders are answered "inbox full".
+    pub refused_from_link: u64,
     /// Messages queued now.
     pub len: usize,
     /// The bound.
@@ -42,7 +46,7 @@ pub struct InboxStats {
 impl InboxStats {
     /// Every message lost to overflow, whatever the policy.
     pub fn dropped(&self) -> u64 {
-        self.dropped_oldest + self.dropped_newest + self.dropped_after_wait
+        self.dropped_oldest + self.dropped_newest + self.dropped_after_wait + self.refused_from_link
     }
 }
 
@@ -58,6 +62,7 @@ struct Stash {
     dropped_oldest: u64,
     dropped_newest: u64,
     dropped_after_wait: u64,
+    refused_from_link: u64,
     /// Places freed (taken or evicted) since [`Shared::counted`] was last lowered: they are
     /// given back in batches, so a consumer does not write a line producers read per message.
     unreleased: usize,
@@ -297,8 +302,20 @@ impl Inbox {
         }
     }
 
-    /// Puts a message in, applying the overflow policy.
+    /// Puts a message in, applying the overflow policy (`block` waits for room on the
+    /// caller's thread: use this for senders of the same process).
     pub(crate) fn push(&self, e: Entry) -> Result<(), PushError> {
+        self.push_with(e, true)
+    }
+
+    /// Puts a message that came from a link in: like [`push`](Inbox::push), except that under
+    /// `block` a full inbox refuses it at once (counted in
+    /// [`InboxStats::refused_from_link`]) instead of stopping the link's reader.
+    pub(crate) fn push_from_link(&self, e: Entry) -> Result<(), PushError> {
+        self.push_with(e, false)
+    }
+
+    fn push_with(&self, e: Entry, may_wait: bool) -> Result<(), PushError> {
         let mut queue = self.lock_intake();
         if self.is_closed() {
             return Err(PushError::Closed);
@@ -328,13 +345,13 @@ impl Inbox {
             return Ok(());
         }
         drop(queue);
-        self.push_when_full(e)
+        self.push_when_full(e, may_wait)
     }
 
     /// A push that found no place: collects the places consumers have freed but not given
     /// back, then applies the overflow policy if the inbox is still full. The intake stays
     /// locked from the look to the insertion, so the bound is exact.
-    fn push_when_full(&self, e: Entry) -> Result<(), PushError> {
+    fn push_when_full(&self, e: Entry, may_wait: bool) -> Result<(), PushError> {
         let mut stash = self.lock_stash();
         let mut deadline = None;
         loop {
@@ -346,6 +363,7 @@ impl Inbox {
             // empty, or it would give up): resuming at every take would make producer and
             // consumer fight for this lock per message while the inbox stays full.
             let collect = !matches!(self.config.overflow, OverflowPolicy::Block { .. })
+                || !may_wait
                 || stash.unreleased >= self.release_batch
                 || stash.len == 0
                 || waited_enough;
@@ -374,6 +392,10 @@ impl Inbox {
                     OverflowPolicy::DropOldest if stash.evict_for(e.header.priority.0) => true,
                     OverflowPolicy::DropOldest => {
                         stash.dropped_newest += 1;
+                        return Err(PushError::Full);
+                    }
+                    OverflowPolicy::Block { .. } if !may_wait => {
+                        stash.refused_from_link += 1;
                         return Err(PushError::Full);
                     }
                     OverflowPolicy::Block { .. } if waited_enough => {
@@ -619,6 +641,7 @@ impl Inbox {
             dropped_oldest: stash.dropped_oldest,
             dropped_newest: stash.dropped_newest,
             dropped_after_wait: stash.dropped_after_wait,
+            refused_from_link: stash.refused_from_link,
             len: stash.len,
             capacity: self.config.capacity,
         }

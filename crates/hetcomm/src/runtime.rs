@@ -601,7 +601,7 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        self.deliver_to(module, header, payload, now)
+        self.deliver_to(module, header, payload, now, Source::SameProcess)
     }
 
     /// The router's next retransmission deadline.
@@ -844,20 +844,23 @@ impl SystemCore {
         }
     }
 
-    /// Puts a delivery into its module's inbox (or callback queue).
+    /// Puts a delivery that came through the router (from a link) into its module's inbox
+    /// (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let module = self.modules.get(&d.header.destination.module);
-        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now)
+        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, Source::Link)
     }
 
     /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
-    /// there is no such module).
+    /// there is no such module). Only a sender of this process waits for room under the
+    /// `block` policy; a link is never stopped.
     fn deliver_to(
         &self,
         module: Option<&ModuleCore>,
         header: Header,
         payload: PayloadBuf,
         now: Time,
+        source: Source,
     ) -> AckStatus {
         let Some(module) = module else {
             return AckStatus::UnknownModule;
@@ -877,7 +880,11 @@ impl SystemCore {
         } else {
             &module.inbox
         };
-        match inbox.push(entry) {
+        let pushed = match source {
+            Source::SameProcess => inbox.push(entry),
+            Source::Link => inbox.push_from_link(entry),
+        };
+        match pushed {
             Ok(()) => {
                 if !wants_callback && module.leading.load(Ordering::SeqCst) && !leading_here() {
                     if let Some(r) = self.reactor.get() {
@@ -921,6 +928,16 @@ impl SystemCore {
             m.close();
         }
     }
+}
+
+/// Where a message being delivered comes from: it decides whether a full `block` inbox may
+/// make the deliverer wait.
+#[derive(Clone, Copy)]
+enum Source {
+    /// Handed over by a sender of this process, on its own thread: it may wait for room.
+    SameProcess,
+    /// From a link, through the router: refused at once when there is no room.
+    Link,
 }
 
 /// A leading module set to spin ([`crate::Module::set_wait_spin`]) looks at its links
