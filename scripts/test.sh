@@ -42,6 +42,7 @@ cargo run -q -p hetcomm-bench -- --quick >/dev/null
 
 step "examples"
 cargo run -q -p hetcomm-examples --example two_systems >/dev/null
+cargo run -q -p hetcomm-examples --example readme >/dev/null
 cargo run -q -p hetcomm-cli -- validate crates/hetcomm-config/fleet.example.toml
 
 echo
