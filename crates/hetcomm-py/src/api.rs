@@ -188,6 +188,25 @@ fn wait_ticket(
     }
 }
 
+/// Keeps the calling thread alive, with the GIL released, while callbacks run on their
+/// dispatcher threads: until `timeout` seconds pass (None: forever), a signal handler raises
+/// (Ctrl-C: KeyboardInterrupt), or `open` says the handle was closed.
+fn spin(py: Python<'_>, timeout: Option<f64>, open: impl Fn() -> bool) -> PyResult<()> {
+    let deadline = timeout_arg(timeout)?.map(|d| Instant::now() + d);
+    loop {
+        py.check_signals()?;
+        if !open() {
+            return Ok(());
+        }
+        let slice = match deadline {
+            Some(d) if Instant::now() >= d => return Ok(()),
+            Some(d) => d.saturating_duration_since(Instant::now()).min(SLICE),
+            None => SLICE,
+        };
+        py.detach(|| std::thread::sleep(slice));
+    }
+}
+
 #[pymethods]
 impl Ticket {
     /// The destination system's name.
@@ -938,6 +957,19 @@ impl Comm {
         out.set_item("held_frames", s.held_frames)?;
         Ok(out)
     }
+    /// Runs this system's callbacks until `timeout` seconds pass (None: until interrupted,
+    /// e.g. by Ctrl-C, which raises KeyboardInterrupt) or this handle is closed, like rospy's
+    /// `spin()`. Callbacks run on their own threads; this only keeps the caller waiting,
+    /// with the GIL released.
+    #[pyo3(signature = (timeout=None))]
+    fn spin(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
+        spin(py, timeout, || {
+            self.inner
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .is_some()
+        })
+    }
     /// Drops this handle to the system (it closes once no Module object of it is left).
     fn close(&self) {
         let c = self.inner.lock().unwrap_or_else(|e| e.into_inner()).take();
@@ -1023,6 +1055,17 @@ impl LocalFleet {
     #[getter]
     fn systems(&self) -> PyResult<Vec<Comm>> {
         self.with(|f| Ok(f.systems().iter().cloned().map(Comm::wrap).collect()))
+    }
+    /// Runs the fleet's callbacks until `timeout` seconds pass (None: until interrupted, e.g.
+    /// by Ctrl-C, which raises KeyboardInterrupt) or the fleet is closed; see `Comm.spin`.
+    #[pyo3(signature = (timeout=None))]
+    fn spin(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
+        spin(py, timeout, || {
+            self.inner
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .is_some()
+        })
     }
     /// Drops this handle to the fleet (systems close once no Comm or Module of them is left).
     fn close(&self) {

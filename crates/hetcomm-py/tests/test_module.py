@@ -3,6 +3,8 @@ polling, priorities, envelopes, callbacks, raw messages, statistics, closing."""
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -273,3 +275,40 @@ def test_closed_system_raises_closed_error(fleet):
     comm.close()
     with pytest.raises(hetcomm.ClosedError, match="the system is closed"):
         comm.module("Plan")
+
+
+def test_spin_runs_callbacks_until_its_timeout(fleet):
+    act = fleet.module("Charlie", "Act")
+    got = []
+    act.on(Wheels, lambda r: got.append(r.message))
+    plan = fleet.module("Alpha", "Plan")
+
+    def sender():
+        for i in range(3):
+            plan.send("Charlie", "Act", Wheels(float(i), 0.0)).wait(timeout=5)
+            time.sleep(0.05)
+
+    threading.Thread(target=sender).start()
+    started = time.monotonic()
+    fleet.spin(timeout=0.6)
+    elapsed = time.monotonic() - started
+    assert 0.6 <= elapsed < 5, elapsed
+    assert got == [Wheels(0.0, 0.0), Wheels(1.0, 0.0), Wheels(2.0, 0.0)]
+    # A Comm spins too, and returns at once once its handle is closed.
+    charlie = fleet.system("Charlie")
+    charlie.spin(timeout=0.05)
+    charlie.close()
+    started = time.monotonic()
+    charlie.spin()
+    assert time.monotonic() - started < 1
+
+
+def test_spin_is_interrupted_by_ctrl_c(fleet):
+    # Ctrl-C arrives as SIGINT at the main thread: spin raises KeyboardInterrupt within a
+    # slice instead of sleeping on.
+    timer = threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        fleet.spin()
+    assert time.monotonic() - started < 5
