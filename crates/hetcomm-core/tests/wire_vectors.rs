@@ -161,6 +161,81 @@ struct VectorFile {
     generated_by: &'static str,
     valid: Vec<ValidVector>,
     invalid: Vec<InvalidVector>,
+    udp_datagrams: Vec<DatagramVector>,
+    udp_fragmented_frames: Vec<FragmentedVector>,
+    udp_reassembly: Vec<ReassemblyVector>,
+    udp_fragment_errors: Vec<FragmentErrorVector>,
+    stream_hellos: Vec<HelloVector>,
+    stream_records: Vec<RecordsVector>,
+}
+
+/// A UDP datagram that is not a fragment, and what the receiving link hands up.
+#[derive(Serialize)]
+struct DatagramVector {
+    name: String,
+    description: String,
+    datagram_hex: String,
+    /// "whole" (handed up as it is) or "batch" (split into frames).
+    handling: &'static str,
+    frames_hex: Vec<String>,
+    /// The malformed tail of a batch, dropped (and the datagram counted as bad); "" if none.
+    dropped_tail_hex: String,
+}
+
+/// A frame the UDP sender cuts into fragments, and the datagrams it sends.
+#[derive(Serialize)]
+struct FragmentedVector {
+    name: String,
+    description: String,
+    datagram_payload: usize,
+    sender: u16,
+    message_id: u32,
+    frame_hex: String,
+    fragments_hex: Vec<String>,
+}
+
+/// Fragment datagrams arriving (from one address) and what reassembly makes of them.
+#[derive(Serialize)]
+struct ReassemblyVector {
+    name: String,
+    description: String,
+    max_frame: usize,
+    datagrams_hex: Vec<String>,
+    frames_hex: Vec<String>,
+    rejected: usize,
+    pending: usize,
+}
+
+/// A malformed fragment datagram.
+#[derive(Serialize)]
+struct FragmentErrorVector {
+    name: String,
+    description: String,
+    max_frame: usize,
+    datagram_hex: String,
+    error: &'static str,
+}
+
+/// A stream hello and the system it names (None: the connection is refused).
+#[derive(Serialize)]
+struct HelloVector {
+    name: String,
+    description: String,
+    hello_hex: String,
+    system: Option<u16>,
+}
+
+/// The bytes of a stream after the hello, the frames a reader hands up and how it ends.
+#[derive(Serialize)]
+struct RecordsVector {
+    name: String,
+    description: String,
+    max_frame: usize,
+    stream_hex: String,
+    frames_hex: Vec<String>,
+    /// "clean" (ends between records), "cut" (ends inside a record) or "bad" (a malformed or
+    /// oversized record header: the reader drops the connection).
+    end: &'static str,
 }
 
 fn valid(name: &str, description: &str, h: Header, payload: &[u8]) -> ValidVector {
@@ -625,12 +700,807 @@ fn generate() -> VectorFile {
         "BadKind",
     ));
 
+    let ack = wire::encode(&ack_of(&wheels_h), &[AckStatus::Delivered as u8]);
+    let broadcast = wire::encode(&broadcast_h, &payload::encode("hello").expect("encodes"));
+    let frames = LinkFrames {
+        wheels: good,
+        ack,
+        broadcast,
+        header_crc,
+    };
     VectorFile {
         format: "hetcomm wire format version 1; see docs/wire-format.md",
         generated_by: "cargo test -p hetcomm-core -- --ignored regenerate_wire_vectors",
         valid: valid_vectors,
         invalid: invalid_vectors,
+        udp_datagrams: udp_datagram_vectors(&frames),
+        udp_fragmented_frames: fragmented_vectors(&frames),
+        udp_reassembly: reassembly_vectors(&frames),
+        udp_fragment_errors: fragment_error_vectors(&frames),
+        stream_hellos: hello_vectors(),
+        stream_records: record_vectors(&frames),
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Link framing (docs/wire-format.md, "On the links"), encoded here from the spec
+// ---------------------------------------------------------------------------------------------
+//
+// hetcomm-core cannot use hetcomm-link-ip (which depends on it), so these bytes are built from
+// the document alone; crates/hetcomm-link-ip/tests/wire_vectors.rs checks the real UDP and
+// stream encoders and decoders against the committed file.
+
+/// The default largest frame of a UDP or stream link: the 48-byte header plus MAX_PAYLOAD.
+const DEFAULT_MAX_FRAME: usize = HEADER_LEN + MAX_PAYLOAD;
+const FRAGMENT_HEADER_LEN: usize = 20;
+const RECORD_HEADER_LEN: usize = 8;
+
+/// Frames the link vectors carry.
+struct LinkFrames {
+    /// data_struct_wheels.
+    wheels: Vec<u8>,
+    /// ack_delivered.
+    ack: Vec<u8>,
+    /// data_broadcast_ack_requested.
+    broadcast: Vec<u8>,
+    /// data_header_crc.
+    header_crc: Vec<u8>,
+}
+
+/// A data frame from (1, 2) to (3, 4) whose payload is `payload`.
+fn frame_with_payload(seq: u64, payload: &[u8]) -> Vec<u8> {
+    wire::encode(
+        &Header {
+            seq,
+            message_type: MessageType(9),
+            ..wheels_header()
+        },
+        payload,
+    )
+}
+
+/// A 100-byte data frame: its payload is a 50-character MessagePack string (str 8).
+fn hundred_byte_frame() -> Vec<u8> {
+    let mut payload = vec![0xd9, 50];
+    payload.extend((0..50u8).map(|i| b'a' + i % 26));
+    let f = frame_with_payload(4, &payload);
+    assert_eq!(f.len(), 100);
+    f
+}
+
+/// One fragment datagram: the 20-byte fragment header and the piece.
+fn fragment(
+    sender: u16,
+    index: u16,
+    count: u16,
+    message_id: u32,
+    total: u32,
+    piece: &[u8],
+) -> Vec<u8> {
+    let mut d = Vec::with_capacity(FRAGMENT_HEADER_LEN + piece.len());
+    d.extend_from_slice(b"HF");
+    d.extend_from_slice(&[1, 0]);
+    d.extend_from_slice(&sender.to_le_bytes());
+    d.extend_from_slice(&index.to_le_bytes());
+    d.extend_from_slice(&count.to_le_bytes());
+    d.extend_from_slice(&[0, 0]);
+    d.extend_from_slice(&message_id.to_le_bytes());
+    d.extend_from_slice(&total.to_le_bytes());
+    d.extend_from_slice(piece);
+    d
+}
+
+/// The fragments a sender with `datagram_payload`-byte datagrams cuts `frame` into: as few as
+/// fit, pieces cut evenly.
+fn fragments(frame: &[u8], datagram_payload: usize, sender: u16, message_id: u32) -> Vec<Vec<u8>> {
+    let total = frame.len();
+    let count = total
+        .div_ceil(datagram_payload - FRAGMENT_HEADER_LEN)
+        .max(1);
+    let chunk = total.div_ceil(count);
+    (0..count)
+        .map(|i| {
+            let piece = &frame[i * chunk..((i + 1) * chunk).min(total)];
+            fragment(
+                sender,
+                i as u16,
+                count as u16,
+                message_id,
+                total as u32,
+                piece,
+            )
+        })
+        .collect()
+}
+
+fn hello(system: u16) -> Vec<u8> {
+    let mut h = b"HL\x01\x00".to_vec();
+    h.extend_from_slice(&system.to_le_bytes());
+    h.extend_from_slice(&[0, 0]);
+    h
+}
+
+fn record(frame: &[u8]) -> Vec<u8> {
+    let mut r = b"HR\x01\x00".to_vec();
+    r.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    r.extend_from_slice(frame);
+    r
+}
+
+fn hexes(frames: &[&[u8]]) -> Vec<String> {
+    frames.iter().map(|f| hex(f)).collect()
+}
+
+fn datagram(
+    name: &str,
+    description: &str,
+    datagram: &[u8],
+    frames: &[&[u8]],
+    dropped_tail: &[u8],
+) -> DatagramVector {
+    let handling = if frames.len() == 1 && frames[0] == datagram {
+        "whole"
+    } else {
+        "batch"
+    };
+    DatagramVector {
+        name: name.into(),
+        description: description.into(),
+        datagram_hex: hex(datagram),
+        handling,
+        frames_hex: hexes(frames),
+        dropped_tail_hex: hex(dropped_tail),
+    }
+}
+
+fn udp_datagram_vectors(f: &LinkFrames) -> Vec<DatagramVector> {
+    let (wheels, ack) = (&f.wheels[..], &f.ack[..]);
+    let mut bad_crc = f.wheels.clone();
+    bad_crc[44] ^= 0x01;
+    let mut bad_version = f.wheels.clone();
+    bad_version[2] = 2;
+    let second = frame_with_payload(2, &payload::encode(&7u8).expect("encodes"));
+    let garbage = b"HX not a frame header at all, but long enough to be one";
+    let cat = |parts: &[&[u8]]| parts.concat();
+    vec![
+        datagram(
+            "whole_data_frame",
+            "data_struct_wheels alone in a datagram: the usual case for a frame that fits.",
+            wheels,
+            &[wheels],
+            &[],
+        ),
+        datagram(
+            "whole_ack_frame",
+            "ack_delivered alone in a datagram.",
+            ack,
+            &[ack],
+            &[],
+        ),
+        datagram(
+            "batch_data_and_ack",
+            "A batch: data_struct_wheels followed by ack_delivered, back to back. This is how \
+             an acknowledgement rides along with data going the same way (the runtime holds \
+             both for the peer and they leave in one datagram); each is an ordinary frame.",
+            &cat(&[wheels, ack]),
+            &[wheels, ack],
+            &[],
+        ),
+        datagram(
+            "batch_of_three",
+            "A batch of ack_delivered, data_broadcast_ack_requested and a data frame whose \
+             payload is 7.",
+            &cat(&[ack, &f.broadcast, &second]),
+            &[ack, &f.broadcast, &second],
+            &[],
+        ),
+        datagram(
+            "batch_with_a_corrupt_frame",
+            "A batch whose middle frame has a wrong CRC: the link walks frames by their \
+             headers' lengths only and hands all three up; the router's decoder then drops \
+             the middle one (BadChecksum).",
+            &cat(&[wheels, &bad_crc, ack]),
+            &[wheels, &bad_crc, ack],
+            &[],
+        ),
+        datagram(
+            "batch_trailing_byte",
+            "data_struct_wheels followed by one stray byte. The datagram starts with a frame \
+             shorter than itself, so it is taken for a batch: the frame is handed up, the byte \
+             that cannot be a frame is dropped and the datagram counted as bad.",
+            &cat(&[wheels, &[0xc0]]),
+            &[wheels],
+            &[0xc0],
+        ),
+        datagram(
+            "batch_truncated_last_frame",
+            "data_struct_wheels followed by the first 60 bytes of another 78-byte frame: the \
+             last header declares more bytes than are left, so that piece is dropped.",
+            &cat(&[wheels, &wheels[..60]]),
+            &[wheels],
+            &wheels[..60],
+        ),
+        datagram(
+            "batch_short_tail",
+            "ack_delivered followed by 10 bytes, too few for a header: dropped.",
+            &cat(&[ack, &wheels[..10]]),
+            &[ack],
+            &wheels[..10],
+        ),
+        datagram(
+            "batch_garbage_tail",
+            "data_struct_wheels followed by bytes that are not a frame header: dropped.",
+            &cat(&[wheels, garbage]),
+            &[wheels],
+            garbage,
+        ),
+        datagram(
+            "whole_truncated_frame",
+            "data_struct_wheels without its last byte: the header declares more than the \
+             datagram holds, so it is no batch and is handed up whole; the router's decoder \
+             rejects it (LengthMismatch).",
+            &wheels[..wheels.len() - 1],
+            &[&wheels[..wheels.len() - 1]],
+            &[],
+        ),
+        datagram(
+            "whole_bad_first_header",
+            "data_struct_wheels with version 2, then ack_delivered: the first header does not \
+             parse, so the datagram is no batch and is handed up whole (and rejected by the \
+             decoder, BadVersion). A batch is recognised by its first frame alone.",
+            &cat(&[&bad_version, ack]),
+            &[&cat(&[&bad_version, ack])],
+            &[],
+        ),
+        datagram(
+            "whole_not_a_frame",
+            "Twelve ASCII bytes: not a fragment, not a batch, handed up whole (the decoder \
+             rejects it: BadMagic).",
+            b"hello, world",
+            &[b"hello, world"],
+            &[],
+        ),
+        datagram(
+            "whole_empty",
+            "An empty datagram: handed up as a zero-byte frame (the decoder rejects it: \
+             TooShort).",
+            &[],
+            &[&[]],
+            &[],
+        ),
+    ]
+}
+
+fn fragmented(
+    name: &str,
+    description: &str,
+    frame: &[u8],
+    datagram_payload: usize,
+    message_id: u32,
+) -> FragmentedVector {
+    FragmentedVector {
+        name: name.into(),
+        description: description.into(),
+        datagram_payload,
+        sender: 1,
+        message_id,
+        frame_hex: hex(frame),
+        fragments_hex: fragments(frame, datagram_payload, 1, message_id)
+            .iter()
+            .map(|d| hex(d))
+            .collect(),
+    }
+}
+
+fn big_frame() -> Vec<u8> {
+    // bin 16 of 2949 bytes: a 2952-byte payload, a 3000-byte frame.
+    let mut payload = vec![0xc5, 0x0b, 0x85];
+    payload.extend((0..2949u32).map(|i| (i * 7 % 251) as u8));
+    let f = frame_with_payload(5, &payload);
+    assert_eq!(f.len(), 3000);
+    f
+}
+
+fn fragmented_vectors(f: &LinkFrames) -> Vec<FragmentedVector> {
+    let mut trailing = f.wheels.clone();
+    trailing.push(0xc0);
+    vec![
+        fragmented(
+            "wheels_in_three",
+            "data_struct_wheels (78 bytes) from system 1 over a link with 50-byte datagrams: \
+             pieces of at most 30 bytes, so 3 fragments; cut evenly, 26 bytes each.",
+            &f.wheels,
+            50,
+            0x0102_0304,
+        ),
+        fragmented(
+            "uneven_pieces",
+            "A 100-byte frame over 60-byte datagrams: pieces of at most 40 bytes, so 3 \
+             fragments of ceil(100 / 3) = 34, 34 and 32 bytes.",
+            &hundred_byte_frame(),
+            60,
+            7,
+        ),
+        fragmented(
+            "default_datagrams",
+            "A 3000-byte frame over the default 1472-byte datagrams (1452-byte pieces): 3 \
+             fragments of 1000 bytes. The message id is near the top of its range; ids wrap.",
+            &big_frame(),
+            1472,
+            0xffff_fffe,
+        ),
+        fragmented(
+            "one_fragment_ambiguous_frame",
+            "data_struct_wheels plus a stray byte (79 bytes). It fits a datagram, but as a \
+             datagram of its own it would be read as a batch, so the sender sends it as a \
+             message of one fragment, which the receiver hands up whole.",
+            &trailing,
+            1472,
+            42,
+        ),
+        fragmented(
+            "one_fragment_hf_bytes",
+            "Bytes starting with \"HF\" (no frame; links carry any bytes): sent as a message \
+             of one fragment so that the receiver does not take them for a fragment header.",
+            b"HF is not a fragment",
+            1472,
+            43,
+        ),
+    ]
+}
+
+fn reassembly(
+    name: &str,
+    description: &str,
+    max_frame: usize,
+    datagrams: &[&[u8]],
+    frames: &[&[u8]],
+    rejected: usize,
+    pending: usize,
+) -> ReassemblyVector {
+    ReassemblyVector {
+        name: name.into(),
+        description: description.into(),
+        max_frame,
+        datagrams_hex: hexes(datagrams),
+        frames_hex: hexes(frames),
+        rejected,
+        pending,
+    }
+}
+
+fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
+    let w = fragments(&f.wheels, 50, 1, 1);
+    let hundred = hundred_byte_frame();
+    let h = fragments(&hundred, 60, 1, 2);
+    let mut trailing = f.wheels.clone();
+    trailing.push(0xc0);
+    let one = fragments(&trailing, 1472, 1, 3);
+    // Same message id as `w`, another total: the message is inconsistent.
+    let other = fragments(&hundred, 60, 1, 1);
+    let mut long_piece = w[1].clone();
+    long_piece.push(0);
+    let m = DEFAULT_MAX_FRAME;
+    vec![
+        reassembly(
+            "in_order",
+            "The fragments of wheels_in_three (message id 1) in order.",
+            m,
+            &[&w[0], &w[1], &w[2]],
+            &[&f.wheels],
+            0,
+            0,
+        ),
+        reassembly(
+            "reversed",
+            "The same fragments, last first: order does not matter.",
+            m,
+            &[&w[2], &w[1], &w[0]],
+            &[&f.wheels],
+            0,
+            0,
+        ),
+        reassembly(
+            "duplicate_fragment",
+            "Fragment 0 twice: the copy is ignored.",
+            m,
+            &[&w[0], &w[0], &w[1], &w[2]],
+            &[&f.wheels],
+            0,
+            0,
+        ),
+        reassembly(
+            "interleaved_messages",
+            "Two messages from one sender (ids 1 and 2, the second the 100-byte frame of \
+             uneven_pieces) interleaved: each completes with its own last fragment.",
+            m,
+            &[&w[0], &h[0], &w[1], &h[1], &w[2], &h[2]],
+            &[&f.wheels, &hundred],
+            0,
+            0,
+        ),
+        reassembly(
+            "one_fragment_message",
+            "A message of one fragment (one_fragment_ambiguous_frame) is complete at once and \
+             handed up whole: a reassembled frame is never split as a batch.",
+            m,
+            &[&one[0]],
+            &[&trailing],
+            0,
+            0,
+        ),
+        reassembly(
+            "missing_fragment",
+            "Fragments 0 and 2 only: nothing is handed up; the incomplete message is held \
+             until its reassembly timeout.",
+            m,
+            &[&w[0], &w[2]],
+            &[],
+            0,
+            1,
+        ),
+        reassembly(
+            "inconsistent_message",
+            "Fragment 0 of message 1 (78 bytes in 3), then a fragment of message 1 claiming \
+             100 bytes in 3: the second is rejected and the incomplete message dropped with \
+             it. Fragments 1 and 2 of the first then start a new message that can never \
+             complete (fragment 0 is gone).",
+            m,
+            &[&w[0], &other[1], &w[1], &w[2]],
+            &[],
+            1,
+            1,
+        ),
+        reassembly(
+            "malformed_fragment_among_good_ones",
+            "A copy of fragment 1 with one byte too many is rejected; the good fragments still \
+             complete the message.",
+            m,
+            &[&w[0], &long_piece, &w[1], &w[2]],
+            &[&f.wheels],
+            1,
+            0,
+        ),
+        reassembly(
+            "late_duplicate_after_completion",
+            "Fragment 1 again after the message completed: it starts a new incomplete message \
+             (the receiver keeps no memory of completed ones), held until the timeout.",
+            m,
+            &[&w[0], &w[1], &w[2], &w[1]],
+            &[&f.wheels],
+            0,
+            1,
+        ),
+        reassembly(
+            "over_the_receivers_max_frame",
+            "wheels_in_three at a receiver whose largest frame is 77 bytes: every fragment is \
+             rejected (BadGeometry).",
+            77,
+            &[&w[0], &w[1], &w[2]],
+            &[],
+            3,
+            0,
+        ),
+    ]
+}
+
+fn fragment_error_vectors(f: &LinkFrames) -> Vec<FragmentErrorVector> {
+    let w = fragments(&f.wheels, 50, 1, 1);
+    let h = fragments(&hundred_byte_frame(), 60, 1, 2);
+    let base = &w[0];
+    let with = |at: usize, bytes: &[u8]| {
+        let mut d = base.clone();
+        d[at..at + bytes.len()].copy_from_slice(bytes);
+        d
+    };
+    let e =
+        |name: &str, description: &str, max_frame: usize, d: &[u8], error| FragmentErrorVector {
+            name: name.into(),
+            description: description.into(),
+            max_frame,
+            datagram_hex: hex(d),
+            error,
+        };
+    let m = 1000;
+    let mut long = base.clone();
+    long.push(0);
+    let mut last_long = h[2].clone();
+    last_long.extend_from_slice(&[0, 0]);
+    vec![
+        e(
+            "truncated",
+            "The first 19 bytes of a fragment header.",
+            m,
+            &base[..19],
+            "Truncated",
+        ),
+        e("magic_only", "Just \"HF\".", m, b"HF", "Truncated"),
+        e(
+            "bad_version",
+            "Fragment 0 of wheels_in_three with version 2.",
+            m,
+            &with(2, &[2]),
+            "BadHeader",
+        ),
+        e(
+            "reserved_byte_3",
+            "Byte 3 (reserved) set to 1.",
+            m,
+            &with(3, &[1]),
+            "BadHeader",
+        ),
+        e(
+            "reserved_bytes_10",
+            "Byte 11 (reserved) set to 1.",
+            m,
+            &with(10, &[0, 1]),
+            "BadHeader",
+        ),
+        e(
+            "count_zero",
+            "Fragment count 0.",
+            m,
+            &with(8, &[0, 0]),
+            "BadGeometry",
+        ),
+        e(
+            "index_not_below_count",
+            "Index 3 of 3.",
+            m,
+            &with(6, &[3, 0]),
+            "BadGeometry",
+        ),
+        e(
+            "total_zero",
+            "A one-fragment message of total length 0 with no piece.",
+            m,
+            &fragment(1, 0, 1, 1, 0, &[]),
+            "BadGeometry",
+        ),
+        e(
+            "total_over_max_frame",
+            "Fragment 0 of wheels_in_three (total 78) at a receiver whose largest frame is 77.",
+            77,
+            base,
+            "BadGeometry",
+        ),
+        e(
+            "count_over_total",
+            "3 fragments for a 2-byte frame.",
+            m,
+            &fragment(1, 0, 3, 1, 2, &[0]),
+            "BadGeometry",
+        ),
+        e(
+            "empty_last_piece",
+            "4 fragments for 5 bytes: pieces of ceil(5 / 4) = 2 bytes leave nothing for the \
+             fourth, so that count is impossible.",
+            m,
+            &fragment(1, 0, 4, 1, 5, &[0, 0]),
+            "BadGeometry",
+        ),
+        e(
+            "piece_too_long",
+            "Fragment 0 of wheels_in_three with one byte appended (27, expected 26).",
+            m,
+            &long,
+            "BadLength",
+        ),
+        e(
+            "piece_too_short",
+            "Fragment 0 of wheels_in_three without its last byte.",
+            m,
+            &base[..base.len() - 1],
+            "BadLength",
+        ),
+        e(
+            "last_piece_too_long",
+            "The last fragment of uneven_pieces carrying 34 bytes instead of 32.",
+            m,
+            &last_long,
+            "BadLength",
+        ),
+    ]
+}
+
+fn hello_vectors() -> Vec<HelloVector> {
+    let v = |name: &str, description: &str, bytes: Vec<u8>, system: Option<u16>| HelloVector {
+        name: name.into(),
+        description: description.into(),
+        hello_hex: hex(&bytes),
+        system,
+    };
+    let with = |at: usize, byte: u8| {
+        let mut h = hello(1);
+        h[at] = byte;
+        h
+    };
+    vec![
+        v("system_1", "The hello of system 1.", hello(1), Some(1)),
+        v(
+            "system_513",
+            "System 513 (0x0201): little-endian.",
+            hello(513),
+            Some(513),
+        ),
+        v(
+            "system_65535",
+            "The largest system id.",
+            hello(u16::MAX),
+            Some(u16::MAX),
+        ),
+        v(
+            "bad_magic",
+            "\"HX\" instead of \"HL\".",
+            with(1, b'X'),
+            None,
+        ),
+        v(
+            "record_instead_of_hello",
+            "A record header where the hello belongs.",
+            record(&[])[..8].to_vec(),
+            None,
+        ),
+        v("bad_version", "Version 2.", with(2, 2), None),
+        v(
+            "reserved_byte_3",
+            "Byte 3 (reserved) set to 1.",
+            with(3, 1),
+            None,
+        ),
+        v(
+            "reserved_byte_7",
+            "Byte 7 (reserved) set to 1.",
+            with(7, 1),
+            None,
+        ),
+    ]
+}
+
+fn record_vectors(f: &LinkFrames) -> Vec<RecordsVector> {
+    let v = |name: &str,
+             description: &str,
+             max_frame: usize,
+             stream: Vec<u8>,
+             frames: &[&[u8]],
+             end: &'static str| RecordsVector {
+        name: name.into(),
+        description: description.into(),
+        max_frame,
+        stream_hex: hex(&stream),
+        frames_hex: hexes(frames),
+        end,
+    };
+    let m = DEFAULT_MAX_FRAME;
+    let (wheels, ack) = (&f.wheels[..], &f.ack[..]);
+    let cat = |parts: &[&[u8]]| parts.concat();
+    let mut bad_version = record(ack);
+    bad_version[2] = 2;
+    let mut reserved = record(ack);
+    reserved[3] = 1;
+    let mut all_ones = record(&[]);
+    all_ones[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
+    vec![
+        v(
+            "one_record",
+            "data_struct_wheels in one record.",
+            m,
+            record(wheels),
+            &[wheels],
+            "clean",
+        ),
+        v(
+            "data_and_ack",
+            "What a TCP connection carries: data_header_crc (FLAG_HEADER_CRC, as senders write \
+             data on TCP) and then ack_delivered, one record each.",
+            m,
+            cat(&[&record(&f.header_crc), &record(ack)]),
+            &[&f.header_crc, ack],
+            "clean",
+        ),
+        v(
+            "empty_record",
+            "A record of length 0 between two others: a zero-byte frame is handed up (and \
+             rejected by the decoder).",
+            m,
+            cat(&[&record(ack), &record(&[]), &record(ack)]),
+            &[ack, &[], ack],
+            "clean",
+        ),
+        v(
+            "any_bytes",
+            "The link does not look inside records: bytes that are no frame are handed up.",
+            m,
+            record(b"not a frame"),
+            &[b"not a frame"],
+            "clean",
+        ),
+        v(
+            "nothing",
+            "A connection that ends right after its hello.",
+            m,
+            Vec::new(),
+            &[],
+            "clean",
+        ),
+        v(
+            "at_max_frame",
+            "data_struct_wheels (78 bytes) at a reader whose largest frame is 78.",
+            78,
+            record(wheels),
+            &[wheels],
+            "clean",
+        ),
+        v(
+            "cut_in_record_header",
+            "One record, then the first 5 bytes of another header, then the end of the \
+             stream.",
+            m,
+            cat(&[&record(wheels), &record(ack)[..5]]),
+            &[wheels],
+            "cut",
+        ),
+        v(
+            "cut_in_frame",
+            "The first 50 bytes of the record of data_struct_wheels, then the end of the \
+             stream.",
+            m,
+            record(wheels)[..50].to_vec(),
+            &[],
+            "cut",
+        ),
+        v(
+            "bad_magic_after_one_record",
+            "A good record, then a header with magic \"HX\": the reader drops the connection; \
+             nothing after the bad header is read.",
+            m,
+            cat(&[&record(wheels), b"HX\x01\x00\x01\x00\x00\x00\x00"]),
+            &[wheels],
+            "bad",
+        ),
+        v(
+            "frame_without_record",
+            "data_struct_wheels written straight onto the stream without a record header: \
+             \"HC\" is not \"HR\".",
+            m,
+            wheels.to_vec(),
+            &[],
+            "bad",
+        ),
+        v(
+            "bad_version",
+            "A record header with version 2.",
+            m,
+            bad_version,
+            &[],
+            "bad",
+        ),
+        v(
+            "reserved_byte",
+            "A record header with byte 3 (reserved) set to 1.",
+            m,
+            reserved,
+            &[],
+            "bad",
+        ),
+        v(
+            "over_max_frame",
+            "data_struct_wheels (78 bytes) at a reader whose largest frame is 77: refused from \
+             the header, before the frame is read.",
+            77,
+            record(wheels),
+            &[],
+            "bad",
+        ),
+        v(
+            "length_all_ones",
+            "A record header announcing 0xffffffff bytes.",
+            m,
+            all_ones,
+            &[],
+            "bad",
+        ),
+    ]
 }
 
 fn generate_text() -> String {
@@ -800,4 +1670,147 @@ fn regenerate_wire_vectors() {
     std::fs::write(&path, generate_text())
         .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
     println!("wrote {}", path.display());
+}
+
+// ---------------------------------------------------------------------------------------------
+// The link framing vectors, checked against the document's rules with the frame codec alone
+// (the real UDP and stream code is checked in crates/hetcomm-link-ip/tests/wire_vectors.rs)
+// ---------------------------------------------------------------------------------------------
+
+fn str_of<'a>(v: &'a Value, key: &str) -> &'a str {
+    v[key]
+        .as_str()
+        .unwrap_or_else(|| panic!("field {key} is not a string in {v}"))
+}
+
+fn hex_list(v: &Value, key: &str) -> Vec<Vec<u8>> {
+    v[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("field {key} is not an array in {v}"))
+        .iter()
+        .map(|h| unhex(h.as_str().expect("hex string")))
+        .collect()
+}
+
+fn section<'a>(file: &'a Value, key: &str) -> &'a Vec<Value> {
+    let vectors = file[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("{key} is not an array"));
+    assert!(!vectors.is_empty(), "{key} is empty");
+    vectors
+}
+
+#[test]
+fn udp_datagrams_split_as_documented() {
+    let file = load();
+    let (mut batches, mut tails) = (0, 0);
+    for v in section(&file, "udp_datagrams") {
+        let name = str_of(v, "name");
+        let d = unhex(str_of(v, "datagram_hex"));
+        assert!(!d.starts_with(b"HF"), "{name}: fragments are elsewhere");
+        // A batch: the first header parses and declares fewer bytes than the datagram holds.
+        let is_batch = wire::peek_frame_len(&d).is_ok_and(|n| n < d.len());
+        let (frames, rest) = if is_batch {
+            let mut rest = &d[..];
+            let mut frames = Vec::new();
+            while let Ok(n) = wire::peek_frame_len(rest) {
+                if n > rest.len() {
+                    break;
+                }
+                frames.push(rest[..n].to_vec());
+                rest = &rest[n..];
+            }
+            (frames, rest.to_vec())
+        } else {
+            (vec![d.clone()], Vec::new())
+        };
+        let handling = if is_batch { "batch" } else { "whole" };
+        assert_eq!(handling, str_of(v, "handling"), "{name}");
+        assert_eq!(frames, hex_list(v, "frames_hex"), "{name}: frames");
+        assert_eq!(hex(&rest), str_of(v, "dropped_tail_hex"), "{name}: tail");
+        batches += usize::from(is_batch);
+        tails += usize::from(!rest.is_empty());
+    }
+    assert!(batches >= 3 && tails >= 3, "too few batch vectors");
+}
+
+#[test]
+fn udp_fragments_cut_frames_as_documented() {
+    let file = load();
+    for v in section(&file, "udp_fragmented_frames") {
+        let name = str_of(v, "name");
+        let frame = unhex(str_of(v, "frame_hex"));
+        let mtu = num(v, "datagram_payload") as usize;
+        let datagrams = hex_list(v, "fragments_hex");
+        let count = frame.len().div_ceil(mtu - FRAGMENT_HEADER_LEN);
+        assert_eq!(datagrams.len(), count.max(1), "{name}: fragment count");
+        let chunk = frame.len().div_ceil(datagrams.len());
+        let mut joined = Vec::new();
+        for (i, d) in datagrams.iter().enumerate() {
+            assert!(
+                d.len() <= mtu,
+                "{name}: fragment {i} exceeds the datagram size"
+            );
+            let u16_at = |at: usize| u16::from_le_bytes([d[at], d[at + 1]]);
+            let u32_at = |at: usize| u32::from_le_bytes(d[at..at + 4].try_into().unwrap());
+            assert_eq!(&d[..4], b"HF\x01\x00", "{name}: magic, version, reserved");
+            assert_eq!(u16_at(4) as u64, num(v, "sender"), "{name}: sender");
+            assert_eq!(usize::from(u16_at(6)), i, "{name}: index");
+            assert_eq!(usize::from(u16_at(8)), datagrams.len(), "{name}: count");
+            assert_eq!(&d[10..12], &[0, 0], "{name}: reserved");
+            assert_eq!(
+                u32_at(12) as u64,
+                num(v, "message_id"),
+                "{name}: message id"
+            );
+            assert_eq!(u32_at(16) as usize, frame.len(), "{name}: total");
+            let piece = &d[FRAGMENT_HEADER_LEN..];
+            assert_eq!(
+                piece.len(),
+                chunk.min(frame.len() - i * chunk),
+                "{name}: piece {i}"
+            );
+            joined.extend_from_slice(piece);
+        }
+        assert_eq!(joined, frame, "{name}: the pieces are the frame");
+    }
+}
+
+#[test]
+fn stream_records_parse_as_documented() {
+    let file = load();
+    for v in section(&file, "stream_hellos") {
+        let name = str_of(v, "name");
+        let h = unhex(str_of(v, "hello_hex"));
+        assert_eq!(h.len(), 8, "{name}");
+        let ok = h[..4] == *b"HL\x01\x00" && h[6..8] == [0, 0];
+        let system = ok.then(|| u64::from(u16::from_le_bytes([h[4], h[5]])));
+        assert_eq!(system, v["system"].as_u64(), "{name}");
+    }
+    for v in section(&file, "stream_records") {
+        let name = str_of(v, "name");
+        let stream = unhex(str_of(v, "stream_hex"));
+        let max_frame = num(v, "max_frame") as usize;
+        let mut rest = &stream[..];
+        let mut frames = Vec::new();
+        let end = loop {
+            if rest.is_empty() {
+                break "clean";
+            }
+            if rest.len() < RECORD_HEADER_LEN {
+                break "cut";
+            }
+            let len = u32::from_le_bytes(rest[4..8].try_into().unwrap()) as usize;
+            if rest[..4] != *b"HR\x01\x00" || len > max_frame {
+                break "bad";
+            }
+            if rest.len() < RECORD_HEADER_LEN + len {
+                break "cut";
+            }
+            frames.push(rest[RECORD_HEADER_LEN..RECORD_HEADER_LEN + len].to_vec());
+            rest = &rest[RECORD_HEADER_LEN + len..];
+        };
+        assert_eq!(end, str_of(v, "end"), "{name}: end");
+        assert_eq!(frames, hex_list(v, "frames_hex"), "{name}: frames");
+    }
 }

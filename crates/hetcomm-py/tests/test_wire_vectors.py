@@ -1,62 +1,26 @@
 """docs/wire-vectors.json, the language-neutral test vectors, read from Python: headers by a
 small pure-Python decoder of the 48-byte header and by the Rust codec (`hetcomm.decode_frame`),
-payloads by hetcomm's decoder (`hetcomm.unpack`)."""
+payloads by hetcomm's decoder (`hetcomm.unpack`); the link sections (UDP datagrams, batches,
+fragments and reassembly, stream hellos and records) by `docport`, a port of the whole
+document to pure Python that uses nothing of hetcomm."""
 
 from __future__ import annotations
 
 import json
-import struct
-import zlib
+import random
 
 import pytest
 
+import docport
 import hetcomm
 from conftest import ROOT, Wheels
 
 VECTORS = json.loads((ROOT / "docs" / "wire-vectors.json").read_text())
-HEADER = struct.Struct("<2sBBBBBBHHHHIQIQII")
-ACK_STATUS = {0: "delivered", 1: "inbox_full", 2: "unknown_module"}
-FLAG_HEADER_CRC = 0x04  # the CRC covers the 48 header bytes only
-
-
-def py_decode(frame: bytes):
-    """The decoder of docs/wire-format.md, checks in the documented order."""
-    if len(frame) < 48:
-        raise ValueError("TooShort")
-    (magic, version, kind, flags, priority, transport, _reserved, src_sys, src_mod, dst_sys,
-     dst_mod, incarnation, seq, message_type, timestamp, payload_len, crc) = HEADER.unpack_from(frame)
-    if magic != b"HC":
-        raise ValueError("BadMagic")
-    if version != 1:
-        raise ValueError("BadVersion")
-    if payload_len > 16 * 1024 * 1024:
-        raise ValueError("TooLong")
-    if payload_len != len(frame) - 48:
-        raise ValueError("LengthMismatch")
-    if kind not in (0, 1):
-        raise ValueError("BadKind")
-    if flags & ~0x07:
-        raise ValueError("BadFlags")
-    covered = b"" if flags & FLAG_HEADER_CRC else frame[48:]
-    if zlib.crc32(frame[:44] + b"\0\0\0\0" + covered) != crc:
-        raise ValueError("BadChecksum")
-    header = {
-        "kind": kind, "flags": flags, "priority": priority, "transport": transport,
-        "source": {"system": src_sys, "module": src_mod},
-        "destination": {"system": dst_sys, "module": dst_mod},
-        "incarnation": incarnation, "seq": seq, "message_type": message_type,
-        "timestamp": timestamp, "payload_len": payload_len,
-    }
-    return header, frame[48:]
-
-
-def py_encode(h, payload: bytes) -> bytes:
-    head = HEADER.pack(b"HC", 1, h["kind"], h["flags"], h["priority"], h["transport"], 0,
-                       h["source"]["system"], h["source"]["module"],
-                       h["destination"]["system"], h["destination"]["module"],
-                       h["incarnation"], h["seq"], h["message_type"], h["timestamp"], len(payload), 0)
-    crc = zlib.crc32(head if h["flags"] & FLAG_HEADER_CRC else head + payload)
-    return head[:44] + struct.pack("<I", crc) + payload
+ACK_STATUS = docport.ACK_STATUS
+# The decoder and encoder of docs/wire-format.md (checks in the documented order), written
+# from the document alone.
+py_decode = docport.decode_frame
+py_encode = docport.encode_frame
 
 
 def as_json(value):
@@ -114,3 +78,100 @@ def test_worked_example_as_a_python_message():
 
 def test_there_are_vectors():
     assert len(VECTORS["valid"]) >= 8 and len(VECTORS["invalid"]) >= 8
+
+
+# --- the links (docs/wire-format.md, "On the links"), read by docport alone ---------------------
+
+def by_name(section):
+    return pytest.mark.parametrize("v", VECTORS[section], ids=[v["name"] for v in VECTORS[section]])
+
+
+def unhex_all(hexes):
+    return [bytes.fromhex(h) for h in hexes]
+
+
+@by_name("udp_datagrams")
+def test_udp_datagram_vector(v):
+    d = bytes.fromhex(v["datagram_hex"])
+    handling, frames, tail = docport.split_datagram(d)
+    assert handling == v["handling"]
+    assert frames == unhex_all(v["frames_hex"])
+    assert tail.hex() == v["dropped_tail_hex"]
+    if not tail:
+        # What a sender writes: one frame, or the batch of frames back to back.
+        assert b"".join(frames) == d
+        if handling == "whole" and docport.peek_frame_len(d) == len(d):
+            assert docport.datagrams_for(d, 1, 0) == [d]
+
+
+@by_name("udp_fragmented_frames")
+def test_udp_fragmented_vector(v):
+    frame = bytes.fromhex(v["frame_hex"])
+    expected = unhex_all(v["fragments_hex"])
+    sent = docport.datagrams_for(frame, v["sender"], v["message_id"], v["datagram_payload"])
+    assert sent == expected
+    assert all(len(d) <= v["datagram_payload"] for d in sent)
+    # Any arrival order reassembles to the frame.
+    shuffled = list(expected)
+    random.Random(v["name"]).shuffle(shuffled)
+    r = docport.Reassembler()
+    out = [f for f in (r.on_fragment(d, "peer", v["sender"]) for d in shuffled) if f is not None]
+    assert out == [frame] and r.pending == 0
+
+
+@by_name("udp_reassembly")
+def test_udp_reassembly_vector(v):
+    r = docport.Reassembler(v["max_frame"])
+    frames, rejected = [], 0
+    for d in unhex_all(v["datagrams_hex"]):
+        try:
+            f = r.on_fragment(d, "peer")
+        except ValueError:
+            rejected += 1
+            continue
+        if f is not None:
+            frames.append(f)
+    assert frames == unhex_all(v["frames_hex"])
+    assert rejected == v["rejected"]
+    assert r.pending == v["pending"]
+
+
+@by_name("udp_fragment_errors")
+def test_udp_fragment_error_vector(v):
+    with pytest.raises(ValueError) as e:
+        docport.parse_fragment(bytes.fromhex(v["datagram_hex"]), v["max_frame"])
+    assert str(e.value) == v["error"]
+
+
+def test_a_fragment_naming_another_sender_is_refused():
+    v = VECTORS["udp_fragmented_frames"][0]
+    first = bytes.fromhex(v["fragments_hex"][0])
+    with pytest.raises(ValueError, match="WrongSender"):
+        docport.Reassembler().on_fragment(first, "peer", src_system=v["sender"] + 1)
+
+
+@by_name("stream_hellos")
+def test_stream_hello_vector(v):
+    h = bytes.fromhex(v["hello_hex"])
+    assert docport.decode_hello(h) == v["system"]
+    if v["system"] is not None:
+        assert docport.encode_hello(v["system"]) == h
+
+
+@by_name("stream_records")
+def test_stream_records_vector(v):
+    stream = bytes.fromhex(v["stream_hex"])
+    frames, end = docport.read_records(stream, v["max_frame"])
+    assert frames == unhex_all(v["frames_hex"])
+    assert end == v["end"]
+    if end == "clean":
+        assert b"".join(docport.encode_record(f) for f in frames) == stream
+
+
+def test_link_vectors_cover_the_document():
+    assert {v["handling"] for v in VECTORS["udp_datagrams"]} == {"whole", "batch"}
+    assert any(v["dropped_tail_hex"] for v in VECTORS["udp_datagrams"])
+    assert {v["error"] for v in VECTORS["udp_fragment_errors"]} == {"Truncated", "BadHeader", "BadGeometry", "BadLength"}
+    assert {v["end"] for v in VECTORS["stream_records"]} == {"clean", "cut", "bad"}
+    assert any(v["system"] is None for v in VECTORS["stream_hellos"])
+    assert len(VECTORS["udp_reassembly"]) >= 5 and len(VECTORS["udp_fragmented_frames"]) >= 3
