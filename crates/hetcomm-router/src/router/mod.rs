@@ -1,0 +1,231 @@
+//! The router state machine, split along its concepts:
+//!
+//! | file | what |
+//! |---|---|
+//! | `types.rs` | what goes in and out: routes, requests, outcomes, transmits, events, stats |
+//! | `mod.rs` | the router's state and accessors |
+//! | `send.rs` | admitting a send: the window, numbering, framing, direct lanes |
+//! | `retransmit.rs` | transmitting, link results, retransmission and giving up |
+//! | `receive.rs` | frames in: acknowledgements, duplicates, ordering, deliveries |
+//! | `timers.rs` | the timer table, outcomes out, shutdown |
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+// Keys are small integers chosen by us, not by an attacker: a fast hash is safe here.
+use rustc_hash::FxHashMap as HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+use hetcomm_core::wire::{
+    self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN,
+};
+use hetcomm_core::{
+    Address, FrameBuf, FrameKind, Header, PayloadBuf, PayloadSource, SystemId, Time,
+};
+
+use crate::dedup::Dedup;
+use crate::lane::DirectLane;
+use crate::rtt::RttEstimator;
+
+mod receive;
+mod retransmit;
+mod send;
+mod timers;
+mod types;
+
+pub use types::*;
+
+/// One unresolved send.
+struct Pending<T> {
+    token: T,
+    route: Route,
+    /// The frame; `None` while the driver holds it in a [`Transmit`].
+    frame: Option<Vec<u8>>,
+    attempts: u32,
+    /// Whether any attempt left this system (the link took the frame): from then on, giving up
+    /// is [`Outcome::Unconfirmed`], never [`Outcome::Failed`].
+    transmitted: bool,
+    first_sent: Option<Time>,
+    /// When to retransmit (acknowledged sends that are on the wire).
+    deadline: Option<Time>,
+}
+
+impl<T> Pending<T> {
+    /// The outcome of giving up on this send for `reason`: unconfirmed once any frame left
+    /// (it may have arrived), failed while none has.
+    fn give_up(&self, reason: FailReason) -> Outcome {
+        let attempts = self.attempts;
+        if self.transmitted {
+            Outcome::Unconfirmed { reason, attempts }
+        } else {
+            Outcome::Failed { reason, attempts }
+        }
+    }
+}
+
+/// In-order delivery state for one (origin, incarnation).
+#[derive(Default)]
+struct OrderState {
+    /// The sequence number to deliver next.
+    next: u64,
+    /// Early arrivals, by sequence number.
+    held: BTreeMap<u64, Held>,
+    /// When the oldest early arrival gives up on the gap.
+    deadline: Option<Time>,
+}
+
+struct Held {
+    header: Header,
+    payload: PayloadBuf,
+    link: usize,
+    ack_header: Header,
+}
+
+struct PendingDelivery {
+    origin: SystemId,
+    incarnation: u32,
+    seq: u64,
+    link: usize,
+    ack_header: Header,
+}
+
+/// What a router keeps per destination system.
+#[derive(Default)]
+struct Towards {
+    /// The last sequence number given (the first send gets 1), when there is no lane.
+    last_seq: u64,
+    /// Numbers given by the router itself while a lane exists (the rest are the lane's).
+    numbered_here: u64,
+    /// Sends handed straight to an inbox of this process, numbered from the same counter.
+    lane: Option<Arc<DirectLane>>,
+    /// Sends awaiting their outcome (bounded by [`Route::max_in_flight`]).
+    pending: u32,
+}
+
+/// The per-system routing and reliability state machine. `T` is an opaque token the driver
+/// attaches to each send and gets back with its outcome.
+pub struct Router<T> {
+    config: RouterConfig,
+    routes: HashMap<SystemId, Route>,
+    /// Numbering and the window, per destination (one lookup per send).
+    towards: HashMap<SystemId, Towards>,
+    rtt: HashMap<SystemId, RttEstimator>,
+    pending: HashMap<SendId, Pending<T>>,
+    /// Retransmission deadlines, possibly stale (checked against `Pending::deadline`).
+    timers: BTreeSet<(Time, SendId)>,
+    transmits: VecDeque<TransmitItem>,
+    deliveries: VecDeque<Delivery>,
+    awaiting: HashMap<DeliveryToken, PendingDelivery>,
+    next_token: u64,
+    events: VecDeque<Event<T>>,
+    dedup: Dedup,
+    order: BTreeMap<(SystemId, u32), OrderState>,
+    stats: RouterStats,
+    /// Per link index: whether the link guarantees the payload's integrity itself (see
+    /// [`Router::set_link_checksums_payload`]). Links past the end do not.
+    link_checks_payload: Vec<bool>,
+    /// Frame buffers of ended sends, reused by the next sends (see [`SPARE_FRAMES`]).
+    spare_frames: Vec<Vec<u8>>,
+}
+
+/// How many buffers of ended sends a router keeps for reuse: a sender that keeps sending
+/// large messages then neither allocates nor frees a frame per message (an allocation of tens
+/// of kilobytes, freed at once, is returned to the system and faulted in again each time).
+const SPARE_FRAMES: usize = 4;
+/// Buffers larger than this are freed rather than kept.
+const SPARE_FRAME_MAX: usize = 4 << 20;
+/// Unacknowledged payloads this large, on a link that checksums payloads, are not copied into
+/// the frame buffer but sent from the caller's memory behind their header
+/// ([`Unqueued::body`]). Smaller ones cost less to copy than the extra piece costs the link
+/// (and stay eligible for batching, which needs the whole frame).
+pub const SPLIT_PAYLOAD_MIN: usize = 16 * 1024;
+
+enum TransmitItem {
+    Send(SendId),
+    Ack {
+        link: usize,
+        to: SystemId,
+        frame: Vec<u8>,
+    },
+}
+
+impl<T> Router<T> {
+    /// A router for `config.local`.
+    pub fn new(config: RouterConfig) -> Self {
+        let routes = config.routes.iter().copied().collect::<HashMap<_, _>>();
+        let dedup = Dedup::new(config.dedup_window);
+        Router {
+            config,
+            routes,
+            towards: HashMap::default(),
+            rtt: HashMap::default(),
+            pending: HashMap::default(),
+            timers: BTreeSet::new(),
+            transmits: VecDeque::new(),
+            deliveries: VecDeque::new(),
+            awaiting: HashMap::default(),
+            next_token: 0,
+            events: VecDeque::new(),
+            dedup,
+            order: BTreeMap::new(),
+            stats: RouterStats::default(),
+            link_checks_payload: Vec::new(),
+            spare_frames: Vec::new(),
+        }
+    }
+
+    /// Declares whether link `link` guarantees the integrity of the bytes it carries (a
+    /// reliable, checksummed byte stream such as TCP: `Link::checksums_payload` in
+    /// `hetcomm-link`). Data frames sent on such a link carry a CRC of their header only
+    /// ([`FLAG_HEADER_CRC`]), which spares both sides a pass over every payload byte; frames
+    /// with a header-only CRC are accepted only from such links (elsewhere they count as
+    /// malformed). Links are assumed not to until declared.
+    pub fn set_link_checksums_payload(&mut self, link: usize, checks: bool) {
+        if self.link_checks_payload.len() <= link {
+            self.link_checks_payload.resize(link + 1, false);
+        }
+        self.link_checks_payload[link] = checks;
+    }
+
+    /// Whether link `link` was declared to guarantee payload integrity.
+    pub fn link_checksums_payload(&self, link: usize) -> bool {
+        self.link_checks_payload.get(link).copied().unwrap_or(false)
+    }
+
+    /// This system.
+    pub fn local(&self) -> SystemId {
+        self.config.local
+    }
+
+    /// The route to `to`, if the table allows traffic.
+    pub fn route(&self, to: SystemId) -> Option<Route> {
+        self.routes.get(&to).copied()
+    }
+
+    /// Destinations this system may send to, ascending.
+    pub fn destinations(&self) -> Vec<SystemId> {
+        let mut d: Vec<_> = self.routes.keys().copied().collect();
+        d.sort_unstable();
+        d
+    }
+
+    /// Counters, including the sends of [direct lanes](Router::direct_lane).
+    pub fn stats(&self) -> RouterStats {
+        let mut stats = self.stats.clone();
+        for t in self.towards.values() {
+            if let Some(lane) = &t.lane {
+                lane.add_to(&mut stats, t.numbered_here);
+            }
+        }
+        stats
+    }
+
+    /// The smoothed round-trip time to `to`, once measured.
+    pub fn srtt(&self, to: SystemId) -> Option<Duration> {
+        self.rtt.get(&to).and_then(|r| r.srtt())
+    }
+}
+
+#[cfg(test)]
+mod tests;

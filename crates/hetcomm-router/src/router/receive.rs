@@ -1,0 +1,252 @@
+//! Frames in: acknowledgements, duplicates, in-order release, deliveries.
+
+use super::*;
+
+impl<T> Router<T> {
+    /// Handles a frame a link received. Bad frames are counted and dropped.
+    pub fn handle_frame(&mut self, now: Time, link: usize, bytes: &[u8]) {
+        let frame = match wire::decode(bytes) {
+            Ok(f) => f,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        self.handle_decoded(
+            now,
+            link,
+            frame.header,
+            PayloadSource::Borrowed(frame.payload),
+        );
+    }
+
+    /// Like [`Router::handle_frame`], for a frame the link handed over in a buffer of its own:
+    /// a data frame's payload is delivered in that same buffer, without a copy.
+    pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: impl Into<FrameBuf>) {
+        let frame = frame.into();
+        let header = match wire::decode(&frame) {
+            Ok(f) => f.header,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        self.handle_decoded(
+            now,
+            link,
+            header,
+            PayloadSource::Owned(PayloadBuf::from_frame(frame, HEADER_LEN)),
+        );
+    }
+
+    pub(super) fn handle_decoded(
+        &mut self,
+        now: Time,
+        link: usize,
+        h: Header,
+        body: PayloadSource<'_>,
+    ) {
+        if !h.payload_checked() && !self.link_checksums_payload(link) {
+            // Only the header was checksummed, on a link that does not vouch for the rest.
+            self.stats.malformed += 1;
+            return;
+        }
+        if !self.config.known_systems.contains(&h.source.system) {
+            self.stats.unknown_origin += 1;
+            return;
+        }
+        if h.destination.system != self.config.local {
+            self.stats.misrouted += 1;
+            return;
+        }
+        match h.kind {
+            FrameKind::Ack => self.handle_ack(now, &h, body.as_slice()),
+            FrameKind::Data => self.handle_data(now, link, &h, body),
+        }
+    }
+
+    pub(super) fn handle_ack(&mut self, now: Time, h: &Header, payload: &[u8]) {
+        let status = match payload {
+            [b] => AckStatus::from_u8(*b),
+            _ => None,
+        };
+        let Some(status) = status else {
+            self.stats.malformed += 1;
+            return;
+        };
+        let id = SendId {
+            to: h.source.system,
+            seq: h.seq,
+        };
+        let matches = h.incarnation == self.config.incarnation
+            && self.pending.get(&id).is_some_and(|p| p.attempts > 0);
+        if !matches {
+            self.stats.stale_acks += 1;
+            return;
+        }
+        self.stats.acks_received += 1;
+        let p = &self.pending[&id];
+        let attempts = p.attempts;
+        let latency = now.saturating_since(p.first_sent.unwrap_or(now));
+        if attempts == 1 {
+            // Karn: only unambiguous samples.
+            let t = self.config.timing;
+            self.rtt
+                .entry(id.to)
+                .or_insert_with(|| RttEstimator::new(t.initial_rto, t.min_rto, t.max_rto))
+                .sample(latency);
+        }
+        self.finish(id, Outcome::acknowledged(status, attempts, latency));
+    }
+
+    pub(super) fn handle_data(
+        &mut self,
+        now: Time,
+        link: usize,
+        h: &Header,
+        payload: PayloadSource<'_>,
+    ) {
+        let origin = h.source.system;
+        let ack_header = Header {
+            kind: FrameKind::Ack,
+            flags: 0,
+            priority: h.priority,
+            transport: h.transport,
+            source: h.destination,
+            destination: h.source,
+            incarnation: h.incarnation,
+            seq: h.seq,
+            message_type: h.message_type,
+            timestamp: h.timestamp,
+        };
+        let key = (origin, h.incarnation);
+        if !self.dedup.insert_new(origin, h.incarnation, h.seq) {
+            self.stats.duplicates += 1;
+            // The earlier acknowledgement may have been lost: say it again, unless the first
+            // copy is still waiting for its inbox or its turn (its ack comes then).
+            let waiting =
+                self.awaiting.values().any(|d| {
+                    d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
+                }) || self
+                    .order
+                    .get(&key)
+                    .is_some_and(|o| o.held.contains_key(&h.seq));
+            if h.ack_requested() && !waiting {
+                self.queue_ack(link, ack_header, AckStatus::Delivered);
+            }
+            return;
+        }
+        if !self.config.ordered_sources.contains(&origin) {
+            self.accept(link, *h, payload.into_buf(), ack_header);
+            return;
+        }
+        let hold = self.config.timing.hold_timeout;
+        let state = self.order.entry(key).or_insert_with(|| OrderState {
+            next: 1,
+            ..OrderState::default()
+        });
+        if h.seq > state.next {
+            self.stats.held += 1;
+            state.held.insert(
+                h.seq,
+                Held {
+                    header: *h,
+                    payload: payload.into_buf(),
+                    link,
+                    ack_header,
+                },
+            );
+            state.deadline.get_or_insert(now + hold);
+            return;
+        }
+        if h.seq == state.next {
+            state.next += 1;
+        }
+        // In order (or older than a gap already given up): deliver, then whatever it unblocks.
+        self.accept(link, *h, payload.into_buf(), ack_header);
+        self.release_in_order(now, key);
+    }
+
+    /// Delivers held messages that are now next in line.
+    pub(super) fn release_in_order(&mut self, now: Time, key: (SystemId, u32)) {
+        let hold = self.config.timing.hold_timeout;
+        let mut ready = Vec::new();
+        if let Some(state) = self.order.get_mut(&key) {
+            while let Some(held) = state.held.remove(&state.next) {
+                state.next += 1;
+                ready.push(held);
+            }
+            state.deadline = if state.held.is_empty() {
+                None
+            } else {
+                Some(now + hold)
+            };
+        }
+        for held in ready {
+            self.accept(held.link, held.header, held.payload, held.ack_header);
+        }
+    }
+
+    /// Hands a message to the driver for its inbox (with a token when it wants an ack).
+    pub(super) fn accept(
+        &mut self,
+        link: usize,
+        header: Header,
+        payload: PayloadBuf,
+        ack_header: Header,
+    ) {
+        self.stats.received += 1;
+        let token = if header.ack_requested() {
+            let token = DeliveryToken(self.next_token);
+            self.next_token += 1;
+            self.awaiting.insert(
+                token,
+                PendingDelivery {
+                    origin: header.source.system,
+                    incarnation: header.incarnation,
+                    seq: header.seq,
+                    link,
+                    ack_header,
+                },
+            );
+            Some(token)
+        } else {
+            None
+        };
+        self.deliveries.push_back(Delivery {
+            header,
+            payload,
+            link,
+            token,
+        });
+    }
+
+    pub(super) fn queue_ack(&mut self, link: usize, header: Header, status: AckStatus) {
+        let frame = wire::encode(&header, &[status as u8]);
+        self.stats.acks_sent += 1;
+        self.transmits.push_back(TransmitItem::Ack {
+            link,
+            to: header.destination.system,
+            frame,
+        });
+    }
+
+    /// The next message for a local module.
+    pub fn poll_delivery(&mut self) -> Option<Delivery> {
+        self.deliveries.pop_front()
+    }
+
+    /// Reports what the destination inbox did with a delivery that carried a token; the
+    /// router acknowledges accordingly. A refused message is forgotten by the duplicate filter,
+    /// so a retransmission may try again.
+    pub fn delivery_result(&mut self, _now: Time, token: DeliveryToken, status: AckStatus) {
+        let Some(d) = self.awaiting.remove(&token) else {
+            return;
+        };
+        if status != AckStatus::Delivered {
+            self.dedup.remove(d.origin, d.incarnation, d.seq);
+            self.stats.received -= 1;
+        }
+        self.queue_ack(d.link, d.ack_header, status);
+    }
+}

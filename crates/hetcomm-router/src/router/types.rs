@@ -1,0 +1,468 @@
+//! What goes into a router and what comes out of it.
+
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+use hetcomm_core::wire::AckStatus;
+use hetcomm_core::{Address, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId};
+
+#[cfg(doc)]
+use super::{Router, SPLIT_PAYLOAD_MIN};
+
+/// How traffic from this system to one destination system is carried.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Route {
+    /// Index of the link (the driver's numbering).
+    pub link: usize,
+    /// The transport's one-byte tag written into each frame (the table letter).
+    pub tag: u8,
+    /// Whether the receiver must acknowledge.
+    pub acknowledged: bool,
+    /// Transmission attempts before the send fails (at least 1).
+    pub attempts: u32,
+    /// Largest frame the link takes.
+    pub max_frame: usize,
+    /// Sends to this destination that may await their outcome at once (an acknowledgement,
+    /// or a retry after the link refused the frame). A send beyond it is refused with
+    /// [`SendError::Backpressure`] before it is numbered, so a sender faster than the peer
+    /// (or a peer that is gone) cannot make the router keep frames without bound.
+    pub max_in_flight: u32,
+}
+
+/// Retransmission timing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Timing {
+    /// Retransmission timeout before the first RTT sample.
+    pub initial_rto: Duration,
+    /// Lower bound of the timeout.
+    pub min_rto: Duration,
+    /// Upper bound of the timeout (also of the backed-off timeout).
+    pub max_rto: Duration,
+    /// Factor the timeout grows by after each unanswered attempt.
+    pub backoff: f64,
+    /// After a link refuses a frame (peer unreachable, congested), how long before the next
+    /// attempt; doubles per attempt. A reconnecting link gets a chance to come back instead of
+    /// every attempt failing within the same millisecond.
+    pub link_retry: Duration,
+    /// Under in-order delivery, how long an early message waits for a missing earlier one
+    /// before the gap is given up and delivery moves on.
+    pub hold_timeout: Duration,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing {
+            initial_rto: Duration::from_millis(100),
+            min_rto: Duration::from_millis(2),
+            max_rto: Duration::from_secs(5),
+            backoff: 2.0,
+            link_retry: Duration::from_millis(20),
+            hold_timeout: Duration::from_secs(2),
+        }
+    }
+}
+
+/// Everything a router needs to know, built by the driver from the fleet.
+#[derive(Clone, Debug)]
+pub struct RouterConfig {
+    /// This system.
+    pub local: SystemId,
+    /// A number new to each start of this system's process (see [`Header::incarnation`]).
+    pub incarnation: u32,
+    /// Routes from this system, by destination. A destination without a route is `X`.
+    pub routes: Vec<(SystemId, Route)>,
+    /// Every system of the fleet: frames claiming another origin are dropped.
+    pub known_systems: BTreeSet<SystemId>,
+    /// Retransmission timing.
+    pub timing: Timing,
+    /// Sequence numbers remembered per sender beyond the contiguous prefix.
+    pub dedup_window: usize,
+    /// Senders whose messages are delivered in the order sent (see [`Timing::hold_timeout`]).
+    pub ordered_sources: BTreeSet<SystemId>,
+}
+
+impl RouterConfig {
+    /// A configuration with default timing; the known systems are `local` and the route
+    /// destinations.
+    pub fn new(local: SystemId, incarnation: u32, routes: Vec<(SystemId, Route)>) -> Self {
+        let mut known: BTreeSet<SystemId> = routes.iter().map(|(s, _)| *s).collect();
+        known.insert(local);
+        RouterConfig {
+            local,
+            incarnation,
+            routes,
+            known_systems: known,
+            timing: Timing::default(),
+            dedup_window: 4096,
+            ordered_sources: BTreeSet::new(),
+        }
+    }
+}
+
+/// What a module asks to send.
+#[derive(Clone, Copy, Debug)]
+pub struct SendRequest<'a> {
+    /// The sending module.
+    pub from: ModuleId,
+    /// The destination module and system.
+    pub to: Address,
+    /// The payload's message type.
+    pub message_type: MessageType,
+    /// Receive priority.
+    pub priority: Priority,
+    /// Encoded payload.
+    pub payload: &'a [u8],
+    /// Marks the frame as one copy of a broadcast.
+    pub broadcast: bool,
+}
+
+impl<'a> SendRequest<'a> {
+    /// A point-to-point request with normal priority.
+    pub fn new(from: ModuleId, to: Address, message_type: MessageType, payload: &'a [u8]) -> Self {
+        SendRequest {
+            from,
+            to,
+            message_type,
+            priority: Priority::NORMAL,
+            payload,
+            broadcast: false,
+        }
+    }
+}
+
+/// A send refused before anything was transmitted.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SendError {
+    /// The communication table says `X` for this pair.
+    #[error("no traffic allowed from system {from} to system {to}: the communication table says X for this pair")]
+    NoRoute {
+        /// Sending system.
+        from: SystemId,
+        /// Destination system.
+        to: SystemId,
+    },
+    /// The message does not fit the link.
+    #[error("message of {len} bytes (with header) exceeds the {max}-byte limit of the transport to system {to}")]
+    TooLarge {
+        /// Frame length.
+        len: usize,
+        /// The limit.
+        max: usize,
+        /// Destination system.
+        to: SystemId,
+    },
+    /// [`Route::max_in_flight`] sends to this destination already await their outcome.
+    #[error("{limit} sends to system {to} already await their outcome (the transport's max_in_flight): wait for an earlier outcome and send again")]
+    Backpressure {
+        /// Destination system.
+        to: SystemId,
+        /// The limit.
+        limit: u32,
+    },
+}
+
+/// Names one send: the destination and the sequence number the router gave it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SendId {
+    /// Destination system.
+    pub to: SystemId,
+    /// Sequence number within (this incarnation, destination).
+    pub seq: u64,
+}
+
+/// Why a send failed ([`Outcome::Failed`]) or why the sender stopped waiting for its
+/// confirmation ([`Outcome::Unconfirmed`]).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FailReason {
+    /// Frames went out but no acknowledgement came back within the attempt budget (only in
+    /// [`Outcome::Unconfirmed`]: the message may have arrived and its acknowledgement been lost).
+    #[error("no acknowledgement")]
+    NoAcknowledgement,
+    /// The link could not reach the peer on the last attempt.
+    #[error("peer unreachable: {0}")]
+    Unreachable(String),
+    /// The destination module's inbox was full and refused the message.
+    #[error("destination inbox full")]
+    InboxFull,
+    /// The destination system does not host that module.
+    #[error("destination system has no such module")]
+    UnknownModule,
+    /// The link refused the frame for another reason.
+    #[error("transport error: {0}")]
+    Link(String),
+    /// Not sent: the destination's [`Route::max_in_flight`] sends already awaited their
+    /// outcome (a broadcast reports this per destination; a single send is refused with
+    /// [`SendError::Backpressure`] instead).
+    #[error("not sent: max_in_flight sends to that system already await their outcome")]
+    Backpressure,
+    /// The router was shut down with the send unresolved.
+    #[error("shut down before an outcome")]
+    Shutdown,
+}
+
+/// The one result every send ends with. Each variant says only what the sender knows:
+///
+/// | outcome | the message is … |
+/// |---|---|
+/// | [`Delivered`](Outcome::Delivered) | in the destination module's inbox (not necessarily read yet) |
+/// | [`Sent`](Outcome::Sent) | handed to the transport, which cannot confirm (unacknowledged mode) |
+/// | [`Unconfirmed`](Outcome::Unconfirmed) | maybe delivered: frames left, no acknowledgement came back |
+/// | [`Failed`](Outcome::Failed) | certainly not delivered |
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// The destination router put the message into the module's inbox and said so. Delivered
+    /// means in the inbox, not read by the module.
+    Delivered {
+        /// Transmissions it took.
+        attempts: u32,
+        /// From the first transmission to the acknowledgement.
+        latency: Duration,
+    },
+    /// The transport took the frame; it cannot confirm delivery (unacknowledged mode).
+    Sent {
+        /// Transmissions it took (more than one if the transport refused earlier ones).
+        attempts: u32,
+    },
+    /// At least one frame left this system but no acknowledgement came back before the
+    /// attempt budget ran out (or the link was lost, or the router shut down): the message may
+    /// or may not have arrived. The sender cannot tell which; only the receiver can.
+    Unconfirmed {
+        /// Why the sender stopped waiting.
+        reason: FailReason,
+        /// Transmissions attempted.
+        attempts: u32,
+    },
+    /// Certainly not delivered: no frame left this system (refused, unreachable on every
+    /// attempt, too large, shut down before sending), or the receiver answered that it did not
+    /// take the message (inbox full, no such module).
+    Failed {
+        /// Why.
+        reason: FailReason,
+        /// Transmissions attempted.
+        attempts: u32,
+    },
+}
+
+impl Outcome {
+    /// The outcome an acknowledgement with `status` reports.
+    pub(crate) fn acknowledged(status: AckStatus, attempts: u32, latency: Duration) -> Outcome {
+        match status {
+            AckStatus::Delivered => Outcome::Delivered { attempts, latency },
+            AckStatus::InboxFull => Outcome::Failed {
+                reason: FailReason::InboxFull,
+                attempts,
+            },
+            AckStatus::UnknownModule => Outcome::Failed {
+                reason: FailReason::UnknownModule,
+                attempts,
+            },
+        }
+    }
+
+    /// Delivered, or sent without confirmation on a transport that cannot confirm.
+    pub fn is_success(&self) -> bool {
+        matches!(self, Outcome::Delivered { .. } | Outcome::Sent { .. })
+    }
+
+    /// Maybe delivered: frames left but no acknowledgement came back.
+    pub fn is_unconfirmed(&self) -> bool {
+        matches!(self, Outcome::Unconfirmed { .. })
+    }
+
+    /// Certainly not delivered.
+    pub fn is_failed(&self) -> bool {
+        matches!(self, Outcome::Failed { .. })
+    }
+
+    /// Why the send failed or went unconfirmed (`None` for the two successes).
+    pub fn reason(&self) -> Option<&FailReason> {
+        match self {
+            Outcome::Unconfirmed { reason, .. } | Outcome::Failed { reason, .. } => Some(reason),
+            Outcome::Delivered { .. } | Outcome::Sent { .. } => None,
+        }
+    }
+
+    /// Transmissions attempted.
+    pub fn attempts(&self) -> u32 {
+        match *self {
+            Outcome::Delivered { attempts, .. }
+            | Outcome::Sent { attempts }
+            | Outcome::Unconfirmed { attempts, .. }
+            | Outcome::Failed { attempts, .. } => attempts,
+        }
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Outcome::Delivered { attempts, latency } => {
+                write!(
+                    f,
+                    "delivered (attempts: {attempts}, {} µs)",
+                    latency.as_micros()
+                )
+            }
+            Outcome::Sent { attempts } => {
+                write!(f, "sent without confirmation (attempts: {attempts})")
+            }
+            Outcome::Unconfirmed { reason, attempts } => {
+                write!(
+                    f,
+                    "unconfirmed: {reason}; it may or may not have arrived (attempts: {attempts})"
+                )
+            }
+            Outcome::Failed { reason, attempts } => {
+                write!(f, "failed: {reason} (attempts: {attempts})")
+            }
+        }
+    }
+}
+
+/// A frame for the driver to put on a link. Hand it back through
+/// [`Router::transmit_result`] if [`Transmit::send`] is set.
+#[derive(Debug)]
+pub struct Transmit {
+    /// Which link.
+    pub link: usize,
+    /// Destination system.
+    pub to: SystemId,
+    /// The encoded frame.
+    pub frame: Vec<u8>,
+    /// The send this frame belongs to (None for acknowledgements, which need no result).
+    pub send: Option<SendId>,
+}
+
+/// Why a link refused a frame, as the router needs to know it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TransmitError {
+    /// The peer cannot be reached now (retried while attempts remain).
+    Unreachable(String),
+    /// The frame can never fit (not retried).
+    TooLarge(String),
+    /// Anything else (retried while attempts remain).
+    Other(String),
+}
+
+/// How [`Router::send_unqueued`] took a send.
+#[derive(Debug)]
+pub enum Admitted<'a> {
+    /// Queued exactly as by [`Router::send`]: its frame comes out of
+    /// [`Router::poll_transmit`], its outcome out of [`Router::poll_event`]. Acknowledged sends
+    /// take this way, since the router must keep them for retransmission.
+    Queued(SendId),
+    /// An unacknowledged send, numbered and counted but kept nowhere: put its frame on the
+    /// link now and report what the link did through [`Router::unqueued_result`].
+    Transmit(Unqueued<'a>),
+}
+
+/// The frame of an unacknowledged send that the router handed straight to the driver
+/// ([`Admitted::Transmit`]). It must go back through [`Router::unqueued_result`]: until then
+/// the send counts as in flight.
+#[derive(Debug)]
+#[must_use = "an unqueued send stays in flight until given to Router::unqueued_result"]
+pub struct Unqueued<'a> {
+    /// Which link.
+    pub link: usize,
+    /// Destination system.
+    pub to: SystemId,
+    /// The encoded frame; only its header when `body` is not empty.
+    pub frame: Vec<u8>,
+    /// The rest of the frame: the caller's payload, left where it is. A payload of at least
+    /// [`SPLIT_PAYLOAD_MIN`] bytes on a link that checksums payloads is not copied behind its
+    /// header; the driver writes both pieces with one vectored write (`Link::send_parts`).
+    /// Empty otherwise.
+    pub body: &'a [u8],
+    /// The send it carries.
+    pub(super) id: SendId,
+}
+
+impl Unqueued<'_> {
+    /// The send this frame carries.
+    pub fn id(&self) -> SendId {
+        self.id
+    }
+}
+
+/// A message for a local module's inbox.
+#[derive(Debug)]
+pub struct Delivery {
+    /// The envelope header.
+    pub header: Header,
+    /// The encoded payload.
+    pub payload: PayloadBuf,
+    /// The link it arrived on.
+    pub link: usize,
+    /// Present when the sender wants an acknowledgement: report what the inbox did through
+    /// [`Router::delivery_result`].
+    pub token: Option<DeliveryToken>,
+}
+
+/// Names a delivery awaiting its inbox's verdict.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct DeliveryToken(pub(super) u64);
+
+/// Something the driver should know.
+#[derive(Debug)]
+pub enum Event<T> {
+    /// A send ended.
+    Outcome {
+        /// Which send.
+        id: SendId,
+        /// The token given to [`Router::send`].
+        token: T,
+        /// How it ended.
+        outcome: Outcome,
+    },
+}
+
+/// Counters of everything the router did and dropped.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RouterStats {
+    /// Sends accepted.
+    pub sends: u64,
+    /// Frames handed out for transmission (first attempts and retransmissions).
+    pub transmissions: u64,
+    /// Retransmissions after a timeout or a link error.
+    pub retransmissions: u64,
+    /// Sends that ended delivered.
+    pub delivered: u64,
+    /// Sends that ended [`Outcome::Sent`]: taken by a transport that cannot confirm
+    /// (unacknowledged mode).
+    pub sent: u64,
+    /// Sends that ended [`Outcome::Unconfirmed`]: frames left, no acknowledgement came back.
+    pub unconfirmed: u64,
+    /// Sends that ended [`Outcome::Failed`]: certainly not delivered.
+    pub failed: u64,
+    /// Messages handed to local inboxes.
+    pub received: u64,
+    /// Acknowledgements sent.
+    pub acks_sent: u64,
+    /// Acknowledgements received for a pending send.
+    pub acks_received: u64,
+    /// Acknowledgements for nothing pending (late duplicates): ignored.
+    pub stale_acks: u64,
+    /// Duplicate data frames suppressed.
+    pub duplicates: u64,
+    /// Frames that failed to decode (truncated, bad version, bad checksum, …).
+    pub malformed: u64,
+    /// Frames from a system not in the fleet.
+    pub unknown_origin: u64,
+    /// Frames addressed to another system.
+    pub misrouted: u64,
+    /// Messages that arrived early and waited for an earlier one (in-order delivery).
+    pub held: u64,
+    /// Gaps given up after the hold timeout (in-order delivery moved past a missing message).
+    pub gaps_skipped: u64,
+    /// Sends refused because their destination's [`Route::max_in_flight`] was reached.
+    pub backpressured: u64,
+}
+
+impl RouterStats {
+    /// Sends accepted but not yet ended.
+    pub fn in_flight(&self) -> u64 {
+        self.sends - self.delivered - self.sent - self.unconfirmed - self.failed
+    }
+}
