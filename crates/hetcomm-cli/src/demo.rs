@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use anyhow::Context;
-use hetcomm_examples::leader_follower::{self, DemoOptions, Layout};
+use hetcomm_examples::leader_follower::{self, DemoOptions, Layout, CONTROL_PERIOD};
+use hetcomm_sim::report::notes::{self, RunFacts};
 
 /// Flags of `hetcomm demo`.
 pub struct DemoArgs<'a> {
@@ -110,8 +111,23 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
-    let files =
+    // How and why these figures differ from the thesis's: printed after the tables and
+    // written beside them.
+    let note = notes::thesis_comparison(
+        &report.commands,
+        &report.samples,
+        &RunFacts {
+            realtime,
+            control_period_s: CONTROL_PERIOD.as_secs_f64(),
+        },
+    );
+    println!("{note}");
+    let mut files =
         leader_follower::write_outputs(&report, args.out).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let note_path = args.out.join(notes::NOTES_FILE);
+    std::fs::write(&note_path, &note)
+        .with_context(|| format!("writing {}", note_path.display()))?;
+    files.push(note_path);
     eprintln!(
         "{:.1} s of scenario in {:.3} s of wall time; wrote:",
         report.simulated_s,

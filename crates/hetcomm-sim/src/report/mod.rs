@@ -11,6 +11,7 @@
 //! spaces, ends each line with `\n`, and depends only on its input, so snapshots can be
 //! compared byte for byte.
 
+pub mod notes;
 pub mod plot;
 
 use crate::scenario::{ALPHA, CHARLIE, TANGO};
