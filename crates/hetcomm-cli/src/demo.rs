@@ -68,6 +68,19 @@ fn embedded_fleet(single_ve: bool, r: &str, b: &str) -> anyhow::Result<hetcomm::
     )?)
 }
 
+/// What to say before a run whose progress bar will not be seen: the bar (drawn on stderr,
+/// once per simulated second) needs a terminal, and a real-time run takes as long as the
+/// scenario, so without one the user is told to wait.
+fn progress_notice(realtime: bool, stderr_is_terminal: bool) -> Option<String> {
+    (realtime && !stderr_is_terminal).then(|| {
+        // leader_follower::run goes on 2 s past the end of the leader's plan.
+        let seconds = hetcomm_sim::Scenario::thesis().schedule.end_s() + 2.0;
+        format!(
+            "running in real time for about {seconds:.0} s (the progress bar is drawn only when stderr is a terminal)"
+        )
+    })
+}
+
 /// Runs the demonstration and prints its tables and the files written.
 pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let fleet = match args.fleet {
@@ -101,13 +114,17 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         args.b,
         args.seed
     );
+    let terminal = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    if let Some(notice) = progress_notice(realtime, terminal) {
+        eprintln!("{notice}");
+    }
     let report = leader_follower::run(&DemoOptions {
         seed: args.seed,
         layout,
         fleet: Some(fleet),
         realtime,
         external: args.external.clone(),
-        progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        progress: terminal,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
@@ -137,4 +154,20 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         eprintln!("  {}", f.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::progress_notice;
+
+    #[test]
+    fn real_time_without_a_terminal_says_how_long_to_wait() {
+        assert_eq!(
+            progress_notice(true, false).as_deref(),
+            Some("running in real time for about 15 s (the progress bar is drawn only when stderr is a terminal)")
+        );
+        // A terminal shows the bar; virtual time is over in milliseconds.
+        assert_eq!(progress_notice(true, true), None);
+        assert_eq!(progress_notice(false, false), None);
+    }
 }

@@ -2,8 +2,8 @@
 //!
 //! The demonstration reproduces the thesis's set-up (starting poses, the leader's plan, the
 //! relay Alpha → Charlie → Tango) but not its numbers: times are elapsed seconds, speeds are
-//! constant, the followers' delay comes from the control loop rather than from Bluetooth
-//! retries, and the tables run two seconds longer. [`thesis_comparison`] says so with the
+//! constant, the followers' delay comes from the control loop (in virtual time) or the
+//! transports (in real time) rather than from Bluetooth retries, and the tables run two seconds longer. [`thesis_comparison`] says so with the
 //! run's own figures (delays, rows, when each rover started turning), so the note stays true
 //! for any seed or transport.
 
@@ -136,9 +136,11 @@ pub fn thesis_comparison(
             delay_range(records, rover).map(|d| format!("{rover} {}", fmt_range(d)))
         })
         .collect();
-    out.push_str(
-        "- **The followers' delay comes from the control loop, not from radio retries.** ",
-    );
+    out.push_str(if facts.realtime {
+        "- **The followers' delay is this machine's transport latency, not radio retries.** "
+    } else {
+        "- **The followers' delay comes from the control loop, not from radio retries.** "
+    });
     if delays.is_empty() {
         out.push_str("No follower's received commands were recorded in this run. ");
     } else {
@@ -150,8 +152,8 @@ pub fn thesis_comparison(
     }
     if facts.realtime {
         out.push_str(&format!(
-            "Every rover acts once per {} s control step, and in real time the delays also \
-             include the transports' own latency on this machine.",
+            "Every rover reads its messages once per {} s control step; the tables record \
+             when a message arrived, not when it was read.",
             super::fmt_fixed(facts.control_period_s, 1)
         ));
     } else {
@@ -218,14 +220,15 @@ pub fn thesis_comparison(
     ));
     let missing: usize = rows.iter().map(|(_, (_, _, m))| m).sum();
     if missing == 0 {
-        out.push_str("No second is missing: ");
+        out.push_str("No second is missing here");
     } else {
-        out.push_str(&format!("{missing} second(s) have no data here; "));
+        out.push_str(&format!("{missing} second(s) have no data here"));
     }
     out.push_str(
-        "the thesis's Table 14 has no Charlie data at 08:36:55 and 08:37:03, which it puts \
-         down to Bluetooth retransmissions holding up Charlie's Wheels messages, while the \
-         virtual environment here logs every rover at 10 Hz whatever the links do.\n",
+        " (the thesis's Table 14 has no Charlie data at 08:36:55 and 08:37:03, which it \
+         puts down to Bluetooth retransmissions holding up Charlie's Wheels messages; the \
+         virtual environment here logs every rover at 10 Hz from its own model, whatever \
+         the links do).\n",
     );
 
     // Headings.
@@ -290,6 +293,7 @@ mod tests {
             "{note}"
         );
         assert!(note.contains("machine's clock"), "{note}");
+        assert!(note.contains("transport latency"), "{note}");
         assert!(!note.contains("virtual time"), "{note}");
         let empty = thesis_comparison(&[], &[], &facts);
         assert!(empty.contains("No follower's received commands were recorded"));
