@@ -889,7 +889,7 @@ mod tests {
 
     #[test]
     fn plotted_theta_of_the_demo_has_no_jumps() {
-        // Every rover of the open-loop demonstration turns past 360° (Tango twice over 180).
+        // Charlie and Tango turn past 360° in the open-loop demonstration.
         let run = crate::Scenario::thesis()
             .run_open_loop(&[("Charlie", 0.0), ("Tango", 0.5)])
             .unwrap();
