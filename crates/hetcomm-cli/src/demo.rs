@@ -8,13 +8,21 @@ use hetcomm_sim::report::notes::{self, RunFacts};
 
 /// Flags of `hetcomm demo`.
 pub struct DemoArgs<'a> {
+    /// Seed of the emulated links.
     pub seed: u64,
+    /// Folder for the tables, CSV files, plots and NOTES.md.
     pub out: &'a Path,
+    /// A fleet file to use instead of the embedded one.
     pub fleet: Option<&'a Path>,
+    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1).
     pub r: &'a str,
+    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth).
     pub b: &'a str,
+    /// One VE with callbacks instead of one polling VE per rover.
     pub single_ve: bool,
+    /// Run in real time instead of virtual time.
     pub realtime: bool,
+    /// Followers whose autonomy code runs in another process.
     pub external: Vec<String>,
 }
 
