@@ -295,7 +295,7 @@ fn tick_labels(lo: f64, hi: f64, n: usize) -> Vec<(f64, String)> {
 }
 
 /// Whether the labels plotters draws for `n` requested ticks on a horizontal axis
-/// `axis_px` pixels wide, spanning `lo..hi`, leave at least [`TICK_GAP_PX`] between
+/// `axis_px` pixels wide, spanning `lo..hi`, leave at least 8 pixels between
 /// neighbours (each label is centred on its tick).
 pub fn x_ticks_fit(lo: f64, hi: f64, axis_px: u32, n: usize) -> bool {
     if !(lo.is_finite() && hi.is_finite() && hi > lo) {
