@@ -3,17 +3,26 @@
 use std::path::Path;
 
 use anyhow::Context;
-use hetcomm_examples::leader_follower::{self, DemoOptions, Layout};
+use hetcomm_examples::leader_follower::{self, DemoOptions, Layout, CONTROL_PERIOD};
+use hetcomm_sim::report::notes::{self, RunFacts};
 
 /// Flags of `hetcomm demo`.
 pub struct DemoArgs<'a> {
+    /// Seed of the emulated links.
     pub seed: u64,
+    /// Folder for the tables, CSV files, plots and NOTES.md.
     pub out: &'a Path,
+    /// A fleet file to use instead of the embedded one.
     pub fleet: Option<&'a Path>,
+    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1).
     pub r: &'a str,
+    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth).
     pub b: &'a str,
+    /// One VE with callbacks instead of one polling VE per rover.
     pub single_ve: bool,
+    /// Run in real time instead of virtual time.
     pub realtime: bool,
+    /// Followers whose autonomy code runs in another process.
     pub external: Vec<String>,
 }
 
@@ -67,6 +76,19 @@ fn embedded_fleet(single_ve: bool, r: &str, b: &str) -> anyhow::Result<hetcomm::
     )?)
 }
 
+/// What to say before a run whose progress bar will not be seen: the bar (drawn on stderr,
+/// once per simulated second) needs a terminal, and a real-time run takes as long as the
+/// scenario, so without one the user is told to wait.
+fn progress_notice(realtime: bool, stderr_is_terminal: bool) -> Option<String> {
+    (realtime && !stderr_is_terminal).then(|| {
+        // leader_follower::run goes on 2 s past the end of the leader's plan.
+        let seconds = hetcomm_sim::Scenario::thesis().schedule.end_s() + 2.0;
+        format!(
+            "running in real time for about {seconds:.0} s (the progress bar is drawn only when stderr is a terminal)"
+        )
+    })
+}
+
 /// Runs the demonstration and prints its tables and the files written.
 pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let fleet = match args.fleet {
@@ -100,18 +122,37 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         args.b,
         args.seed
     );
+    let terminal = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    if let Some(notice) = progress_notice(realtime, terminal) {
+        eprintln!("{notice}");
+    }
     let report = leader_follower::run(&DemoOptions {
         seed: args.seed,
         layout,
         fleet: Some(fleet),
         realtime,
         external: args.external.clone(),
-        progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        progress: terminal,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
-    let files =
+    // How and why these figures differ from the thesis's: printed after the tables and
+    // written beside them.
+    let note = notes::thesis_comparison(
+        &report.commands,
+        &report.samples,
+        &RunFacts {
+            realtime,
+            control_period_s: CONTROL_PERIOD.as_secs_f64(),
+        },
+    );
+    println!("{note}");
+    let mut files =
         leader_follower::write_outputs(&report, args.out).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let note_path = args.out.join(notes::NOTES_FILE);
+    std::fs::write(&note_path, &note)
+        .with_context(|| format!("writing {}", note_path.display()))?;
+    files.push(note_path);
     eprintln!(
         "{:.1} s of scenario in {:.3} s of wall time; wrote:",
         report.simulated_s,
@@ -121,4 +162,20 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         eprintln!("  {}", f.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::progress_notice;
+
+    #[test]
+    fn real_time_without_a_terminal_says_how_long_to_wait() {
+        assert_eq!(
+            progress_notice(true, false).as_deref(),
+            Some("running in real time for about 15 s (the progress bar is drawn only when stderr is a terminal)")
+        );
+        // A terminal shows the bar; virtual time is over in milliseconds.
+        assert_eq!(progress_notice(true, true), None);
+        assert_eq!(progress_notice(false, false), None);
+    }
 }

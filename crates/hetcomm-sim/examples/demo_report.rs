@@ -1,8 +1,8 @@
 //! Writes the open-loop demonstration's tables, CSV files and plots into a directory.
 //!
 //! `cargo run -p hetcomm-sim --example demo_report -- OUT_DIR` (default `target/demo-report`).
-//! The docs' `docs/img/demo-trajectory.png` and `docs/img/demo-theta.png` are this
-//! example's `trajectory.png` and `theta.png`.
+//! This is the open-loop reference run (no communication). The README's images,
+//! `docs/img/demo-*.png`, come from `hetcomm demo` instead: `bash scripts/readme-images.sh`.
 
 use hetcomm_sim::report::{self, plot};
 use hetcomm_sim::scenario::{CHARLIE, TANGO};

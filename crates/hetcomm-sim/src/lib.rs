@@ -28,7 +28,7 @@
 //! let run = Scenario::thesis().run_open_loop(&[("Charlie", 0.0), ("Tango", 0.5)]).unwrap();
 //! let table = report::command_timing_matrix(&run.commands);
 //! assert!(table.contains("Tango"));
-//! assert!(report::pose_table(&run.samples, "Alpha").starts_with("Alpha location data\n"));
+//! assert!(report::pose_table(&run.samples, "Alpha").starts_with("Table 13: Alpha location data\n"));
 //! ```
 
 pub mod kinematics;

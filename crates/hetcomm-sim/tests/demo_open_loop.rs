@@ -119,7 +119,7 @@ fn run_is_deterministic() {
 fn command_tables_of_the_run() {
     let run = run();
     let expected = "\
-Command timing (s)
+Table 12: Command timing (s)
          Left Turn Command  Straight Command  Left Turn Command  Straight Command
 Alpha                2.000             5.000              8.000            10.000
 Charlie              2.000             5.000              8.000            10.000
@@ -127,10 +127,12 @@ Tango                2.500             5.500              8.500            10.50
 ";
     assert_eq!(report::command_timing_matrix(&run.commands), expected);
     let tables = report::command_tables(&run.commands);
-    assert!(tables
-        .starts_with("Alpha command data\nTime (s)  Command (Sent)\n   2.000  1 – Turn Left\n"));
-    assert!(tables
-        .contains("Tango command data\nTime (s)  Command (Received)\n   2.500  1 – Turn Left\n"));
+    assert!(tables.starts_with(
+        "Table 9: Alpha command data\nTime (s)  Command (Sent)\n   2.000  1 – Turn Left\n"
+    ));
+    assert!(tables.contains(
+        "Table 11: Tango command data\nTime (s)  Command (Received)\n   2.500  1 – Turn Left\n"
+    ));
     assert_eq!(
         run.commands
             .iter()

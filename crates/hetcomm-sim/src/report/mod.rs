@@ -1,14 +1,20 @@
 //! The demonstration's reporting: command tables (Tables 9–12), location tables
 //! (Tables 13–15), CSV files, and the Appendix A plots (see [`plot`]).
 //!
+//! Each table's title starts with the number of the thesis's table it corresponds to
+//! ("Table 9: Alpha command data", see [`thesis_command_table`], [`THESIS_TIMING_TABLE`] and
+//! [`thesis_location_table`]); tables of other rovers carry no number.
+//!
 //! Times are simulated seconds from the start of the scenario (the thesis's 08:36:52 is
 //! 0.000) and are printed with three decimals. Every text output is plain ASCII except
 //! the en dash in command labels ("1 – Turn Left", as in the thesis), has no trailing
 //! spaces, ends each line with `\n`, and depends only on its input, so snapshots can be
 //! compared byte for byte.
 
+pub mod notes;
 pub mod plot;
 
+use crate::scenario::{ALPHA, CHARLIE, TANGO};
 use crate::schedule::Command;
 use crate::world::PoseSample;
 use std::io::{self, Write};
@@ -74,6 +80,46 @@ pub fn command_column_name(code: i64) -> String {
         Some(Command::Straight) => "Straight Command".to_string(),
         Some(Command::Stop) => "Stop Command".to_string(),
         None => format!("Command {code}"),
+    }
+}
+
+/// The number of the thesis's table that lists `rover`'s commands of this `kind`: Alpha's sent
+/// commands are Table 9, Charlie's received ones Table 10, Tango's Table 11; anything else
+/// has no counterpart in the thesis.
+///
+/// ```
+/// use hetcomm_sim::report::{thesis_command_table, CommandKind};
+/// assert_eq!(thesis_command_table("Tango", CommandKind::Received), Some(11));
+/// assert_eq!(thesis_command_table("Tango", CommandKind::Sent), None);
+/// ```
+pub fn thesis_command_table(rover: &str, kind: CommandKind) -> Option<u32> {
+    match (rover, kind) {
+        (ALPHA, CommandKind::Sent) => Some(9),
+        (CHARLIE, CommandKind::Received) => Some(10),
+        (TANGO, CommandKind::Received) => Some(11),
+        _ => None,
+    }
+}
+
+/// The number of the thesis's command timing table (Table 12), used by
+/// [`command_timing_matrix`] when the leader is Alpha, as in the thesis.
+pub const THESIS_TIMING_TABLE: u32 = 12;
+
+/// The number of the thesis's location table for `rover`: Alpha 13, Charlie 14, Tango 15.
+pub fn thesis_location_table(rover: &str) -> Option<u32> {
+    match rover {
+        ALPHA => Some(13),
+        CHARLIE => Some(14),
+        TANGO => Some(15),
+        _ => None,
+    }
+}
+
+/// A table title, prefixed with "Table N: " when the thesis has a table `N` for it.
+fn numbered(number: Option<u32>, title: &str) -> String {
+    match number {
+        Some(n) => format!("Table {n}: {title}"),
+        None => title.to_string(),
     }
 }
 
@@ -165,15 +211,16 @@ fn records_of<'a>(
     v
 }
 
-/// One command table in the shape of Tables 9–11 for a rover and kind: a title line, a
-/// header, and one row per record (time, labelled command), sorted by time.
+/// One command table in the shape of Tables 9–11 for a rover and kind: a title line
+/// (numbered as in the thesis, see [`thesis_command_table`]), a header, and one row per
+/// record (time, labelled command), sorted by time.
 ///
 /// ```
 /// use hetcomm_sim::report::{command_table, CommandKind, CommandRecord};
 /// let recs = [CommandRecord::new("Alpha", 2.0, 1, CommandKind::Sent)];
 /// assert_eq!(
 ///     command_table(&recs, "Alpha", CommandKind::Sent),
-///     "Alpha command data\nTime (s)  Command (Sent)\n   2.000  1 – Turn Left\n"
+///     "Table 9: Alpha command data\nTime (s)  Command (Sent)\n   2.000  1 – Turn Left\n"
 /// );
 /// ```
 pub fn command_table(records: &[CommandRecord], rover: &str, kind: CommandKind) -> String {
@@ -184,7 +231,14 @@ pub fn command_table(records: &[CommandRecord], rover: &str, kind: CommandKind) 
     for r in records_of(records, rover, kind) {
         rows.push(vec![fmt3(r.t_s), command_label(r.code)]);
     }
-    format!("{rover} command data\n{}", layout(&rows, &[true, false]))
+    format!(
+        "{}\n{}",
+        numbered(
+            thesis_command_table(rover, kind),
+            &format!("{rover} command data")
+        ),
+        layout(&rows, &[true, false])
+    )
 }
 
 /// All command tables: for each rover in order of first appearance, its Sent table (if it
@@ -209,7 +263,8 @@ pub fn command_tables(records: &[CommandRecord]) -> String {
 /// command, named after the reference sequence: the first rover with Sent records (the
 /// leader), else the first rover. A cell holds the time of that rover's n-th command;
 /// if its code differs from the column's it is followed by `[code]`, and `-` marks a
-/// command the rover never got.
+/// command the rover never got. The title is numbered [`THESIS_TIMING_TABLE`] when the
+/// reference rover is Alpha.
 pub fn command_timing_matrix(records: &[CommandRecord]) -> String {
     let rovers = rovers_in_order(records.iter().map(|r| r.rover.as_str()));
     let row_records = |rover: &str| {
@@ -261,7 +316,12 @@ pub fn command_timing_matrix(records: &[CommandRecord]) -> String {
     }
     let mut right = vec![false];
     right.extend(std::iter::repeat(true).take(ncols));
-    format!("Command timing (s)\n{}", layout(&rows, &right))
+    let number = (reference_rover == Some(ALPHA)).then_some(THESIS_TIMING_TABLE);
+    format!(
+        "{}\n{}",
+        numbered(number, "Command timing (s)"),
+        layout(&rows, &right)
+    )
 }
 
 /// True when `t` is within a microsecond of a whole second.
@@ -270,7 +330,8 @@ fn whole_second(t: f64) -> Option<i64> {
     ((t - r).abs() < 1e-6 && r.abs() < 1e15).then_some(r as i64)
 }
 
-/// One location table in the shape of Tables 13–15 for a rover: one row per simulated
+/// One location table in the shape of Tables 13–15 for a rover (its title numbered as in
+/// the thesis, see [`thesis_location_table`]): one row per simulated
 /// second (time, X, Y, Theta with three decimals), from its first to its last whole-second
 /// sample. A second with no sample gets a row with the time only, as the thesis's Table 14
 /// shows Charlie's missing seconds.
@@ -305,7 +366,11 @@ pub fn pose_table(samples: &[PoseSample], rover: &str) -> String {
         }
     }
     format!(
-        "{rover} location data\n{}",
+        "{}\n{}",
+        numbered(
+            thesis_location_table(rover),
+            &format!("{rover} location data")
+        ),
         layout(&rows, &[true, true, true, true])
     )
 }
@@ -430,18 +495,18 @@ mod tests {
     #[test]
     fn command_tables_snapshot() {
         let expected = "\
-Alpha command data
+Table 9: Alpha command data
 Time (s)  Command (Sent)
    2.000  1 – Turn Left
    5.000  0 – Go Straight
   10.000  2 – Stop
 
-Charlie command data
+Table 10: Charlie command data
 Time (s)  Command (Received)
    2.000  1 – Turn Left
    5.000  0 – Go Straight
 
-Tango command data
+Table 11: Tango command data
 Time (s)  Command (Received)
    4.000  1 – Turn Left
    5.250  2 – Stop
@@ -450,9 +515,41 @@ Time (s)  Command (Received)
     }
 
     #[test]
+    fn titles_carry_the_thesis_table_numbers() {
+        use CommandKind::*;
+        let all = format!(
+            "{}{}{}",
+            command_tables(&records()),
+            command_timing_matrix(&records()),
+            pose_tables(&samples())
+        );
+        let titles: Vec<&str> = all.lines().filter(|l| l.starts_with("Table ")).collect();
+        assert_eq!(
+            titles,
+            [
+                "Table 9: Alpha command data",
+                "Table 10: Charlie command data",
+                "Table 11: Tango command data",
+                "Table 12: Command timing (s)",
+                "Table 13: Alpha location data",
+                "Table 14: Charlie location data",
+            ]
+        );
+        assert_eq!(thesis_location_table(TANGO), Some(15));
+        // Tables with no counterpart in the thesis keep a plain title.
+        let other = [
+            CommandRecord::new("Bravo", 1.0, 0, Sent),
+            CommandRecord::new("Tango", 1.0, 0, Sent),
+        ];
+        assert!(command_table(&other, "Bravo", Sent).starts_with("Bravo command data\n"));
+        assert!(command_table(&other, "Tango", Sent).starts_with("Tango command data\n"));
+        assert!(command_timing_matrix(&other).starts_with("Command timing (s)\n"));
+    }
+
+    #[test]
     fn timing_matrix_snapshot() {
         let expected = "\
-Command timing (s)
+Table 12: Command timing (s)
          Left Turn Command  Straight Command  Stop Command
 Alpha                2.000             5.000        10.000
 Charlie              2.000             5.000             -
@@ -482,13 +579,13 @@ Tango                4.000         5.250 [2]             -
     #[test]
     fn pose_tables_snapshot() {
         let expected = "\
-Alpha location data
+Table 13: Alpha location data
 Time (s)         X         Y   Theta
    0.000  -190.494  -200.000   0.000
    1.000  -180.494  -200.000   0.000
    2.000  -170.494     0.000  12.450
 
-Charlie location data
+Table 14: Charlie location data
 Time (s)        X       Y   Theta
    0.000  200.000   5.733  90.000
    1.000  200.000  15.733  90.000

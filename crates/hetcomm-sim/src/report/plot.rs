@@ -10,7 +10,9 @@
 //! lookup happens at run time.
 
 use super::CommandRecord;
+use crate::kinematics::angle_diff_deg;
 use crate::world::PoseSample;
+use plotters::coord::ranged1d::Ranged;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -43,7 +45,8 @@ pub enum Quantity {
     X,
     /// The y coordinate.
     Y,
-    /// The heading θ in degrees, in `[0, 360)`.
+    /// The heading θ in degrees. Samples hold it in `[0, 360)`; plots unwrap it (see
+    /// [`plotted_series`]).
     Theta,
 }
 
@@ -80,7 +83,7 @@ impl Quantity {
         match self {
             Quantity::X => "X (units)",
             Quantity::Y => "Y (units)",
-            Quantity::Theta => "θ (degrees)",
+            Quantity::Theta => "θ (°, unwrapped)",
         }
     }
 }
@@ -212,44 +215,38 @@ fn series_of<'a>(samples: &'a [PoseSample], rover: &str) -> Vec<&'a PoseSample> 
     v
 }
 
-/// Splits a θ series where it wraps across 0/360, so the line does not draw a spurious
-/// vertical stroke through the whole plot. The pieces are extended to the 360/0 edge at
-/// the interpolated crossing time, so the line visibly leaves at the top and re-enters at
-/// the bottom instead of stopping one sample short.
-fn split_segments(points: Vec<(f64, f64)>, wraps: bool) -> Vec<Vec<(f64, f64)>> {
-    let mut segments: Vec<Vec<(f64, f64)>> = Vec::new();
-    for p in points {
-        let prev = segments.last().and_then(|seg| seg.last().copied());
-        match prev {
-            Some(q) if wraps && (q.1 - p.1).abs() > 180.0 => {
-                // Upward wrap (355 → 1) crosses 360; downward (2 → 358) crosses 0.
-                let up = q.1 > p.1;
-                let (unwrapped, edge_from, edge_to) = if up {
-                    (p.1 + 360.0, 360.0, 0.0)
-                } else {
-                    (p.1 - 360.0, 0.0, 360.0)
-                };
-                let frac = (edge_from - q.1) / (unwrapped - q.1);
-                let t = q.0 + frac.clamp(0.0, 1.0) * (p.0 - q.0);
-                if let Some(seg) = segments.last_mut() {
-                    seg.push((t, edge_from));
-                }
-                // A sample exactly on the edge would otherwise be repeated.
-                if (t, edge_to) == p {
-                    segments.push(vec![p]);
-                } else {
-                    segments.push(vec![(t, edge_to), p]);
-                }
-            }
-            Some(_) => {
-                if let Some(seg) = segments.last_mut() {
-                    seg.push(p);
-                }
-            }
-            None => segments.push(vec![p]),
+/// Unwraps headings in degrees: each value is moved by a multiple of 360 so that it lies
+/// within 180° of the one before, so a heading that turns past 360 keeps counting
+/// (350, 355, 361, …) instead of jumping back to 1. The first value is kept as it is.
+///
+/// ```
+/// use hetcomm_sim::report::plot::unwrap_degrees;
+/// assert_eq!(unwrap_degrees(&[350.0, 355.0, 1.0, 10.0]), [350.0, 355.0, 361.0, 370.0]);
+/// assert_eq!(unwrap_degrees(&[10.0, 350.0]), [10.0, -10.0]);
+/// ```
+pub fn unwrap_degrees(degrees: &[f64]) -> Vec<f64> {
+    let mut out: Vec<f64> = Vec::with_capacity(degrees.len());
+    for &d in degrees {
+        match out.last() {
+            Some(&prev) => out.push(prev + angle_diff_deg(prev, d)),
+            None => out.push(d),
         }
     }
-    segments
+    out
+}
+
+/// The points a time-series plot draws for one rover: (simulated time, value) for each of
+/// its finite samples, in time order. θ is unwrapped ([`unwrap_degrees`]), so the line has no
+/// jump where the heading passes 360°; the tables and CSV files keep θ in `[0, 360)`.
+pub fn plotted_series(samples: &[PoseSample], rover: &str, quantity: Quantity) -> Vec<(f64, f64)> {
+    let series = series_of(samples, rover);
+    let values: Vec<f64> = series.iter().map(|s| quantity.value(s)).collect();
+    let values = if quantity == Quantity::Theta {
+        unwrap_degrees(&values)
+    } else {
+        values
+    };
+    series.iter().map(|s| s.t_s).zip(values).collect()
 }
 
 /// A padded `[lo, hi]` range around the values, at least `min_span` wide.
@@ -270,6 +267,63 @@ fn tick(v: &f64) -> String {
     }
 }
 
+/// Font size in pixels of tick labels.
+const TICK_FONT_PX: u32 = 15;
+/// Room in pixels kept free between neighbouring tick labels on a horizontal axis.
+const TICK_GAP_PX: f64 = 8.0;
+/// Most tick labels ever asked for on one axis (plotters' default).
+const MAX_TICKS: usize = 11;
+
+/// Width in pixels of a tick label drawn in the embedded font at [`TICK_FONT_PX`].
+fn tick_width_px(text: &str) -> f64 {
+    ensure_font();
+    match ("sans-serif", TICK_FONT_PX).into_font().box_size(text) {
+        Ok((w, _)) => f64::from(w),
+        // Cannot happen with the embedded font; a generous estimate keeps labels apart.
+        Err(_) => text.chars().count() as f64 * f64::from(TICK_FONT_PX) * 0.7,
+    }
+}
+
+/// The labels plotters draws on an axis spanning `lo..hi` when asked for at most `n`,
+/// formatted as on the plots.
+fn tick_labels(lo: f64, hi: f64, n: usize) -> Vec<(f64, String)> {
+    RangedCoordf64::from(lo..hi)
+        .key_points(n)
+        .into_iter()
+        .map(|v| (v, tick(&v)))
+        .collect()
+}
+
+/// Whether the labels plotters draws for `n` requested ticks on a horizontal axis
+/// `axis_px` pixels wide, spanning `lo..hi`, leave at least 8 pixels between
+/// neighbours (each label is centred on its tick).
+pub fn x_ticks_fit(lo: f64, hi: f64, axis_px: u32, n: usize) -> bool {
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        return true;
+    }
+    let scale = f64::from(axis_px) / (hi - lo);
+    let placed: Vec<(f64, f64)> = tick_labels(lo, hi, n)
+        .iter()
+        .map(|(v, text)| ((v - lo) * scale, tick_width_px(text)))
+        .collect();
+    placed
+        .windows(2)
+        .all(|w| w[1].0 - w[0].0 >= (w[0].1 + w[1].1) / 2.0 + TICK_GAP_PX)
+}
+
+/// How many x tick labels to ask plotters for on an axis `axis_px` pixels wide spanning
+/// `lo..hi`: the most, up to plotters' default of 11, whose labels do not overlap ([`x_ticks_fit`]); at least 1.
+///
+/// A narrow panel (the trajectory plot's per-rover zooms, about 280 pixels for a
+/// 60-unit range) gets fewer labels than a wide one instead of labels printed over each
+/// other.
+pub fn x_tick_count(lo: f64, hi: f64, axis_px: u32) -> usize {
+    (2..=MAX_TICKS)
+        .rev()
+        .find(|&n| x_ticks_fit(lo, hi, axis_px, n))
+        .unwrap_or(1)
+}
+
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
 /// Height in pixels of a time-series plot with `n_rovers` panels (one panel per rover).
@@ -278,8 +332,8 @@ pub fn time_series_height(n_rovers: usize) -> u32 {
     TS_HEADER + n * TS_PANEL
 }
 
-/// Header (title and marker key) height of a time-series plot.
-const TS_HEADER: u32 = 80;
+/// Header (title and two lines of key) height of a time-series plot.
+const TS_HEADER: u32 = 104;
 /// Height of one rover's panel in a time-series plot.
 const TS_PANEL: u32 = 230;
 
@@ -293,22 +347,33 @@ pub fn render_time_series(
     let mut rovers = rover_order(samples);
     // Panels beyond a dozen would be unreadably thin; the height helper caps them too.
     rovers.truncate(12);
-    let series: Vec<Vec<&PoseSample>> = rovers.iter().map(|r| series_of(samples, r)).collect();
-    let all: Vec<&PoseSample> = series.iter().flatten().copied().collect();
+    let series: Vec<Vec<(f64, f64)>> = rovers
+        .iter()
+        .map(|r| plotted_series(samples, r, quantity))
+        .collect();
+    let all: Vec<(f64, f64)> = series.iter().flatten().copied().collect();
     if all.is_empty() {
         return Err(PlotError::NoData);
     }
     // One shared time axis, so the panels can be compared vertically (e.g. Tango's delay).
     let t_min = all
         .iter()
-        .map(|s| s.t_s)
+        .map(|p| p.0)
         .fold(f64::INFINITY, f64::min)
         .min(0.0);
     let t_max = all
         .iter()
-        .map(|s| s.t_s)
+        .map(|p| p.0)
         .fold(f64::NEG_INFINITY, f64::max)
         .max(t_min + 1.0);
+    // Unwrapped headings share one axis too, in whole quarter turns: x and y get a range
+    // per panel (the rovers are far apart), headings are comparable across rovers.
+    let theta_range = {
+        let lo = all.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+        let hi = all.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+        let lo = (lo / 90.0).floor() * 90.0;
+        (lo, ((hi / 90.0).ceil() * 90.0).max(lo + 90.0))
+    };
     let height = time_series_height(rovers.len());
     let mut img = RgbImage::blank(WIDTH, height);
     {
@@ -325,19 +390,39 @@ pub fn render_time_series(
                     .pos(Pos::new(HPos::Center, VPos::Top)),
             ))
             .map_err(draw_err)?;
-        header
-            .draw(&Text::new(
-                "one panel per rover · dashed lines: commands, code above (1 = turn left, 0 = straight, 2 = stop)",
-                (WIDTH as i32 / 2, 52),
-                ("sans-serif", 17)
-                    .into_font()
-                    .color(&RGBColor(90, 90, 90))
-                    .pos(Pos::new(HPos::Center, VPos::Top)),
-            ))
-            .map_err(draw_err)?;
+        let mut notes = vec![
+            "one panel per rover · dashed lines: commands, code above (1 = turn left, 0 = straight, 2 = stop)",
+        ];
+        if quantity == Quantity::Theta {
+            notes.push("θ unwrapped: it keeps counting past 360° instead of jumping back to 0 (the tables give θ modulo 360)");
+        }
+        for (k, note) in notes.iter().enumerate() {
+            header
+                .draw(&Text::new(
+                    *note,
+                    (WIDTH as i32 / 2, 52 + 24 * k as i32),
+                    ("sans-serif", 17)
+                        .into_font()
+                        .color(&RGBColor(90, 90, 90))
+                        .pos(Pos::new(HPos::Center, VPos::Top)),
+                ))
+                .map_err(draw_err)?;
+        }
         let panels = body.split_evenly((rovers.len(), 1));
         for (i, ((rover, s), panel)) in rovers.iter().zip(&series).zip(&panels).enumerate() {
             let last = i + 1 == rovers.len();
+            let y_range = match quantity {
+                Quantity::Theta => theta_range,
+                _ => {
+                    let lo = s.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+                    let hi = s.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+                    if lo.is_finite() && hi.is_finite() {
+                        padded_range(lo, hi, 0.08, 10.0)
+                    } else {
+                        (-1.0, 1.0)
+                    }
+                }
+            };
             draw_time_panel(
                 panel,
                 rover,
@@ -346,6 +431,7 @@ pub fn render_time_series(
                 commands,
                 quantity,
                 (t_min, t_max),
+                y_range,
                 last,
             )?;
         }
@@ -354,37 +440,20 @@ pub fn render_time_series(
     Ok(img)
 }
 
-/// Draws one rover's panel of a time-series plot.
+/// Draws one rover's panel of a time-series plot: `points` as plotted (see
+/// [`plotted_series`]) over `t_min..t_max` and `y_lo..y_hi`.
 #[allow(clippy::too_many_arguments)]
 fn draw_time_panel(
     panel: &Area<'_>,
     rover: &str,
     color: RGBColor,
-    series: &[&PoseSample],
+    points: &[(f64, f64)],
     commands: &[CommandRecord],
     quantity: Quantity,
     (t_min, t_max): (f64, f64),
+    (y_lo, y_hi): (f64, f64),
     last: bool,
 ) -> Result<(), PlotError> {
-    let (y_lo, y_hi) = match quantity {
-        // Headings live in [0, 360); a fixed axis keeps the panels comparable.
-        Quantity::Theta => (0.0, 360.0),
-        _ => {
-            let lo = series
-                .iter()
-                .map(|s| quantity.value(s))
-                .fold(f64::INFINITY, f64::min);
-            let hi = series
-                .iter()
-                .map(|s| quantity.value(s))
-                .fold(f64::NEG_INFINITY, f64::max);
-            if lo.is_finite() && hi.is_finite() {
-                padded_range(lo, hi, 0.08, 10.0)
-            } else {
-                (-1.0, 1.0)
-            }
-        }
-    };
     let mut chart = ChartBuilder::on(panel)
         .margin_left(15)
         .margin_right(30)
@@ -394,15 +463,17 @@ fn draw_time_panel(
         .y_label_area_size(85)
         .build_cartesian_2d(t_min..t_max, y_lo..y_hi)
         .map_err(draw_err)?;
+    let axis_px = chart.plotting_area().dim_in_pixel().0;
     let mut mesh = chart.configure_mesh();
     mesh.y_desc(quantity.axis())
+        .x_labels(x_tick_count(t_min, t_max, axis_px))
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
         .axis_desc_style(("sans-serif", 18))
-        .label_style(("sans-serif", 15))
+        .label_style(("sans-serif", TICK_FONT_PX))
         .light_line_style(RGBColor(238, 238, 238))
         .bold_line_style(RGBColor(205, 205, 205))
-        .y_labels(if quantity == Quantity::Theta { 5 } else { 6 });
+        .y_labels(6);
     if last {
         mesh.x_desc("Simulated time (s)");
     }
@@ -451,10 +522,7 @@ fn draw_time_panel(
             .map_err(draw_err)?;
     }
 
-    let points: Vec<(f64, f64)> = series.iter().map(|s| (s.t_s, quantity.value(s))).collect();
-    for seg in split_segments(points, quantity == Quantity::Theta) {
-        draw_thick_line(&chart, &simplify(seg), color, LINE_WIDTH)?;
-    }
+    draw_thick_line(&chart, &simplify(points.iter().copied()), color, LINE_WIDTH)?;
     Ok(())
 }
 
@@ -606,14 +674,17 @@ fn draw_xy_panel(
     let mut chart = builder
         .build_cartesian_2d(x_lo..x_hi, y_lo..y_hi)
         .map_err(draw_err)?;
+    // Narrow panels get fewer x labels, so that labels such as "-205" never overlap.
+    let axis_px = chart.plotting_area().dim_in_pixel().0;
     chart
         .configure_mesh()
         .x_desc("X (units)")
         .y_desc("Y (units)")
+        .x_labels(x_tick_count(x_lo, x_hi, axis_px))
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
         .axis_desc_style(("sans-serif", 18))
-        .label_style(("sans-serif", 15))
+        .label_style(("sans-serif", TICK_FONT_PX))
         .light_line_style(RGBColor(238, 238, 238))
         .bold_line_style(RGBColor(205, 205, 205))
         .draw()
@@ -742,8 +813,9 @@ fn save(dir: &Path, name: &str, img: &RgbImage) -> Result<PathBuf, PlotError> {
 /// `dir/<quantity.file_name()>`, returning that path.
 ///
 /// Each rover is a solid line in its own colour; each of its command records is a dashed
-/// vertical line of the same colour with the command code at the top. θ lines are broken
-/// where the heading wraps from 360 back to 0.
+/// vertical line of the same colour with the command code at the top. θ is unwrapped (see
+/// [`plotted_series`]), so a heading that turns past 360° keeps rising instead of jumping
+/// back to 0; the axis label says so.
 pub fn plot_time_series(
     dir: &Path,
     samples: &[PoseSample],
@@ -781,31 +853,98 @@ pub fn write_all(
 mod tests {
     use super::*;
 
+    fn sample(t_s: f64, rover: &str, theta_deg: f64) -> PoseSample {
+        PoseSample {
+            t_s,
+            rover: rover.into(),
+            pose: crate::Pose::new(0.0, 0.0, theta_deg),
+        }
+    }
+
     #[test]
-    fn wrap_split_meets_the_edges() {
-        let segs = split_segments(
-            vec![(0.0, 340.0), (1.0, 350.0), (2.0, 0.0), (3.0, 10.0)],
-            true,
+    fn plotted_theta_is_unwrapped() {
+        // Out of time order on purpose: the series is sorted first.
+        let samples = [
+            sample(2.0, "A", 2.0),
+            sample(0.0, "A", 340.0),
+            sample(1.0, "A", 350.0),
+            sample(3.0, "A", 10.0),
+            sample(0.0, "B", 10.0),
+            sample(1.0, "B", 350.0),
+        ];
+        assert_eq!(
+            plotted_series(&samples, "A", Quantity::Theta),
+            [(0.0, 340.0), (1.0, 350.0), (2.0, 362.0), (3.0, 370.0)]
         );
         assert_eq!(
-            segs,
-            vec![
-                vec![(0.0, 340.0), (1.0, 350.0), (2.0, 360.0)],
-                vec![(2.0, 0.0), (3.0, 10.0)]
-            ]
+            plotted_series(&samples, "B", Quantity::Theta),
+            [(0.0, 10.0), (1.0, -10.0)]
         );
-        let segs = split_segments(vec![(0.0, 10.0), (1.0, 350.0)], true);
+        // Other quantities are drawn as they are.
         assert_eq!(
-            segs,
-            vec![
-                vec![(0.0, 10.0), (0.5, 0.0)],
-                vec![(0.5, 360.0), (1.0, 350.0)]
-            ]
+            plotted_series(&samples, "B", Quantity::X),
+            [(0.0, 0.0), (1.0, 0.0)]
         );
-        assert_eq!(
-            split_segments(vec![(0.0, 10.0), (1.0, 350.0)], false).len(),
-            1
-        );
+    }
+
+    #[test]
+    fn plotted_theta_of_the_demo_has_no_jumps() {
+        // Charlie and Tango turn past 360° in the open-loop demonstration.
+        let run = crate::Scenario::thesis()
+            .run_open_loop(&[("Charlie", 0.0), ("Tango", 0.5)])
+            .unwrap();
+        let mut wrapped = 0;
+        for rover in ["Alpha", "Charlie", "Tango"] {
+            let raw: Vec<f64> = series_of(&run.samples, rover)
+                .iter()
+                .map(|s| s.pose.theta_deg)
+                .collect();
+            wrapped += raw
+                .windows(2)
+                .filter(|w| (w[1] - w[0]).abs() > 180.0)
+                .count();
+            let plotted = plotted_series(&run.samples, rover, Quantity::Theta);
+            assert_eq!(plotted.len(), raw.len());
+            for w in plotted.windows(2) {
+                assert!((w[1].1 - w[0].1).abs() <= 180.0, "{rover}: {w:?}");
+            }
+            // Same heading, modulo whole turns.
+            for (p, r) in plotted.iter().zip(&raw) {
+                assert!(
+                    angle_diff_deg(*r, p.1).abs() < 1e-9,
+                    "{rover}: {p:?} vs {r}"
+                );
+            }
+        }
+        assert!(wrapped > 0, "the run should cross 0/360 somewhere");
+    }
+
+    #[test]
+    fn x_tick_labels_do_not_overlap() {
+        // A per-rover zoom of the trajectory plot: about 280 px for Alpha's -212..-158.
+        // plotters' default of 11 labels prints "-210-205-200…" as one smear.
+        assert!(!x_ticks_fit(-212.0, -158.0, 280, MAX_TICKS));
+        let n = x_tick_count(-212.0, -158.0, 280);
+        assert!((2..MAX_TICKS).contains(&n), "{n}");
+        assert!(x_ticks_fit(-212.0, -158.0, 280, n));
+        assert!(tick_labels(-212.0, -158.0, n).len() >= 2);
+        // Wide axes keep the full count; every width and range gets labels that fit.
+        assert_eq!(x_tick_count(0.0, 15.0, 1070), MAX_TICKS);
+        for (lo, hi) in [
+            (-212.0, -158.0),
+            (0.0, 15.0),
+            (-440.0, 480.0),
+            (160.0, 210.0),
+            (-0.5, 0.5),
+        ] {
+            for px in [60, 120, 200, 280, 400, 800, 1100] {
+                let n = x_tick_count(lo, hi, px);
+                assert!(n >= 1);
+                if n > 1 {
+                    assert!(x_ticks_fit(lo, hi, px, n), "{lo}..{hi} at {px} px: {n}");
+                }
+            }
+        }
     }
 
     #[test]
