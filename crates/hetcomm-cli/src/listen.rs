@@ -346,6 +346,13 @@ fn describe(module: &str, raw: &RawMessage, json: bool, clock: &Clock) -> String
 /// The payload as JSON, or why it is not one MessagePack value.
 fn decode_payload(bytes: &[u8]) -> Result<serde_json::Value, String> {
     if let Some(value) = hetcomm::payload::to_json(bytes) {
+        // The decoder reads the one byte MessagePack never uses, 0xc1, as nil.
+        if value.is_null() && bytes != [0xc0] {
+            return Err(format!(
+                "not MessagePack: 0x{:02x} is no MessagePack value",
+                bytes[0]
+            ));
+        }
         return Ok(value);
     }
     if bytes.is_empty() {
@@ -447,6 +454,9 @@ mod tests {
         assert_eq!(decode_payload(&[0xc0]), Ok(serde_json::Value::Null));
         assert!(decode_payload(&[]).unwrap_err().contains("empty"));
         assert!(decode_payload(&[0xc1])
+            .unwrap_err()
+            .contains("not MessagePack"));
+        assert!(decode_payload(&[0xa5, b'h'])
             .unwrap_err()
             .contains("not MessagePack"));
         assert_eq!(
