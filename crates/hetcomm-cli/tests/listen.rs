@@ -11,7 +11,7 @@ use std::net::UdpSocket;
 use std::process::Command;
 use std::time::Duration;
 
-use serde_json::{json, Value};
+use serde_json::Value;
 use support::*;
 
 /// The message the send tests use (type 7 to Act).
