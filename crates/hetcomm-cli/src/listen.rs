@@ -54,7 +54,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     if let Some(m) = args.module {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
-    let comm = Comm::open(args.fleet, args.system)?;
+    let comm = names::open_system(args.fleet, args.system)?;
     let start = Time::now_wall();
     let started = Instant::now();
     let modules: Vec<String> = match args.module {

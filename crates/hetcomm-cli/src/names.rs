@@ -1,10 +1,22 @@
-//! Checking the system and module names given on the command line against the fleet file,
-//! before anything is opened: a typo gets "did you mean" and the list to choose from, said
-//! once.
+//! The fleet file as the commands see it: the system and module names given on the command
+//! line are checked before anything is opened (a typo gets "did you mean" and the list to
+//! choose from, said once), and opening a system says what to check when it fails.
 
 use std::path::Path;
 
 use hetcomm::config::Fleet;
+use hetcomm::{Comm, OpenError};
+
+/// Opens `system` of the fleet file; an endpoint already taken gets a hint.
+pub fn open_system(path: &Path, system: &str) -> anyhow::Result<Comm> {
+    Comm::open(path, system).map_err(|e| match &e {
+        OpenError::Transport { reason, .. } if reason.contains("in use") => anyhow::anyhow!(
+            "{e}; is another program running as `{system}` (e.g. `hetcomm listen {} --as {system}`)?",
+            path.display()
+        ),
+        _ => e.into(),
+    })
+}
 
 /// Loads the fleet file; its errors (each with file:line:column) are the whole message.
 pub fn load_fleet(path: &Path) -> anyhow::Result<Fleet> {

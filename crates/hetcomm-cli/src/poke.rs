@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use hetcomm::config::{Fleet, TransportKind};
-use hetcomm::{Comm, FailReason, MessageType, Outcome, SendOptions};
+use hetcomm::{FailReason, MessageType, Outcome, SendOptions};
 
 use crate::names;
 
@@ -36,7 +36,7 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<bool> {
     if let Some(m) = args.from_module {
         names::check_module(&fleet, args.fleet, "--from-module", m)?;
     }
-    let comm = Comm::open(args.fleet, args.system)?;
+    let comm = names::open_system(args.fleet, args.system)?;
     let from = match args.from_module {
         Some(m) => m.to_string(),
         None => comm

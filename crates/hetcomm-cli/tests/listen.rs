@@ -426,3 +426,23 @@ fn a_kind_built_out_names_the_command_that_builds_it_in() {
     );
     assert_eq!(line.matches("--features").count(), 1, "{line}");
 }
+
+#[test]
+fn an_endpoint_in_use_asks_whether_the_system_already_runs() {
+    let deadline = Deadline::after(30);
+    let (_dir, fleet, _) = alpha_bravo();
+    let _bravo = listen(&fleet, "Bravo", &[], deadline);
+    let path = fleet.to_str().unwrap();
+    let f = hetcomm(
+        &["listen", path, "--as", "Bravo", "--timeout", "5"],
+        deadline,
+    );
+    let line = error_line(&f, 1);
+    assert!(line.contains("in use"), "{line}");
+    assert!(
+        line.ends_with(&format!(
+            "; is another program running as `Bravo` (e.g. `hetcomm listen {path} --as Bravo`)?"
+        )),
+        "{line}"
+    );
+}
