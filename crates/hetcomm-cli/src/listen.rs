@@ -360,6 +360,13 @@ fn decode_payload(bytes: &[u8]) -> Result<serde_json::Value, String> {
     }
     let mut cursor = io::Cursor::new(bytes);
     match rmpv::decode::read_value(&mut cursor) {
+        Err(
+            rmpv::decode::Error::InvalidMarkerRead(e) | rmpv::decode::Error::InvalidDataRead(e),
+        ) if e.kind() == io::ErrorKind::UnexpectedEof => Err(format!(
+            "not MessagePack: the value is cut short after {} byte{}",
+            bytes.len(),
+            if bytes.len() == 1 { "" } else { "s" }
+        )),
         Err(e) => Err(format!("not MessagePack: {e}")),
         Ok(_) if (cursor.position() as usize) < bytes.len() => {
             let left = bytes.len() - cursor.position() as usize;
@@ -456,9 +463,10 @@ mod tests {
         assert!(decode_payload(&[0xc1])
             .unwrap_err()
             .contains("not MessagePack"));
-        assert!(decode_payload(&[0xa5, b'h'])
-            .unwrap_err()
-            .contains("not MessagePack"));
+        assert_eq!(
+            decode_payload(&[0xa5, b'h']).unwrap_err(),
+            "not MessagePack: the value is cut short after 2 bytes"
+        );
         assert_eq!(
             decode_payload(&[0x01, 0x02]).unwrap_err(),
             "1 byte after the first MessagePack value"
