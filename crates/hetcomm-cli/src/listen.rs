@@ -8,7 +8,8 @@
 
 use std::io;
 use std::path::Path;
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use hetcomm::{Comm, RawMessage, SystemStats, Time};
@@ -49,6 +50,22 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     // First, before any thread exists: every thread started later inherits the mask, so
     // the signals reach only the thread that waits for them.
     let signals = StopSignals::block()?;
+    let (tx, rx) = mpsc::channel::<Event>();
+    // Until the system is open and listening there is nothing to summarise: a signal then
+    // ends the process at once, as it would without this thread (opening may wait, e.g. for
+    // a ROS master).
+    let listening = Arc::new(AtomicBool::new(false));
+    {
+        let listening = listening.clone();
+        let tx = tx.clone();
+        signals.watch(move |signal| {
+            if listening.load(Ordering::SeqCst) {
+                let _ = tx.send(Event::Stop(signal_name(signal)));
+            } else {
+                std::process::exit(128 + signal);
+            }
+        })?;
+    }
     let fleet = names::load_fleet(args.fleet)?;
     names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
     if let Some(m) = args.module {
@@ -66,7 +83,6 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
             .map(|m| m.name.clone())
             .collect(),
     };
-    let (tx, rx) = mpsc::channel::<Event>();
     for name in &modules {
         let module = comm.module(name)?;
         let tx = tx.clone();
@@ -75,9 +91,8 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
             let _ = tx.send(Event::Message(name.clone(), raw));
         });
     }
-    signals.watch(move |name| {
-        let _ = tx.send(Event::Stop(name));
-    })?;
+    drop(tx);
+    listening.store(true, Ordering::SeqCst);
     let endpoints: Vec<String> = comm
         .endpoints()
         .iter()
@@ -411,9 +426,9 @@ impl StopSignals {
     }
 
     /// Starts the thread that waits for the signals: the first calls `on_stop` with its
-    /// name; a second one (the user insisting) ends the process at once, with the shell's
+    /// number; a second one (the user insisting) ends the process at once, with the shell's
     /// code for death by that signal (128 + its number).
-    pub fn watch(self, on_stop: impl Fn(&'static str) + Send + 'static) -> io::Result<()> {
+    pub fn watch(self, on_stop: impl Fn(libc::c_int) + Send + 'static) -> io::Result<()> {
         let set = self.set;
         std::thread::Builder::new()
             .name("signals".into())
@@ -429,14 +444,19 @@ impl StopSignals {
                         std::process::exit(128 + signal);
                     }
                     stopping = true;
-                    on_stop(if signal == libc::SIGINT {
-                        "SIGINT"
-                    } else {
-                        "SIGTERM"
-                    });
+                    on_stop(signal);
                 }
             })?;
         Ok(())
+    }
+}
+
+/// SIGINT's or SIGTERM's name.
+fn signal_name(signal: libc::c_int) -> &'static str {
+    if signal == libc::SIGINT {
+        "SIGINT"
+    } else {
+        "SIGTERM"
     }
 }
 
