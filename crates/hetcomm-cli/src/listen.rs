@@ -6,7 +6,7 @@
 //! with `--verbose`), and a summary of the counters when it ends — after `--count` messages,
 //! at `--timeout`, or on Ctrl-C (SIGINT) or SIGTERM. A second Ctrl-C exits at once.
 
-use std::io;
+use std::io::{self, Write};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
@@ -119,7 +119,9 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     let mut shown = Drops::default();
     let mut seen = 0usize;
     let mut owed_acks = 0u64;
-    let mut stopped_by = None;
+    // Why the loop ended early, when it did.
+    let mut stopped = None;
+    let mut out = io::stdout().lock();
     while args.count.is_none_or(|c| seen < c) {
         let now = Instant::now();
         if deadline.is_some_and(|d| now >= d) {
@@ -147,10 +149,15 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
                 if raw.envelope.header.ack_requested() {
                     owed_acks += 1;
                 }
-                println!("{}", describe(&module, &raw, args.json, &clock));
+                // A reader that went away (`hetcomm listen … | head -3`) ends the listener
+                // like a signal, summary included.
+                if writeln!(out, "{}", describe(&module, &raw, args.json, &clock)).is_err() {
+                    stopped = Some("stopped: standard output was closed".to_string());
+                    break;
+                }
             }
             Ok(Event::Stop(signal)) => {
-                stopped_by = Some(signal);
+                stopped = Some(format!("stopped by {signal}"));
                 break;
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -158,8 +165,8 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         }
     }
     wait_for_acks(&comm, owed_acks, Duration::from_secs(1));
-    if let Some(signal) = stopped_by {
-        eprintln!("stopped by {signal}");
+    if let Some(why) = stopped {
+        eprintln!("{why}");
     }
     eprintln!("{}", summary(seen, &comm.stats()));
     Ok(())

@@ -456,3 +456,40 @@ fn an_endpoint_in_use_asks_whether_the_system_already_runs() {
         "{line}"
     );
 }
+
+#[test]
+fn a_closed_output_ends_listen_with_its_summary() {
+    let deadline = Deadline::after(40);
+    let (_dir, fleet, _) = alpha_bravo();
+    // `hetcomm listen … | head -1`, the listener's exit code kept by pipefail.
+    let mut cmd = Command::new("bash");
+    cmd.arg("-c").arg(format!(
+        "set -o pipefail; '{HETCOMM}' listen '{}' --as Bravo --timeout 30 | head -1",
+        fleet.display()
+    ));
+    let mut pipeline = ChildGuard::spawn("listen | head -1", cmd);
+    pipeline.wait_stderr("listening as Bravo ", deadline);
+    // The first line ends `head`; a later one finds the pipe closed (how many later depends
+    // on when `head` is gone).
+    for n in 0..10 {
+        let sent = send(&fleet, "Alpha", "Bravo", &format!("{n}"), deadline);
+        if sent.status.code() != Some(0)
+            || pipeline
+                .stderr_lines()
+                .iter()
+                .any(|l| l.starts_with("stopped: "))
+        {
+            break;
+        }
+    }
+    assert_eq!(pipeline.wait_exit(deadline).code(), Some(0));
+    assert_eq!(pipeline.stdout_lines().len(), 1);
+    assert!(
+        pipeline
+            .stderr_lines()
+            .contains(&"stopped: standard output was closed".to_string()),
+        "{:?}",
+        pipeline.stderr_lines()
+    );
+    assert!(counters_line(&pipeline).contains("; router: "));
+}
