@@ -79,9 +79,11 @@ enum Command {
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     ///
-    /// Messages go to stdout. On stderr: a status line when something was dropped (at most
-    /// once a second), and a summary of every counter at the end — after --count, at
-    /// --timeout, or on Ctrl-C / SIGTERM (exit code 0 in every case).
+    /// Messages go to stdout, one a line, starting with when it arrived (`+1.234 s` since the
+    /// start); `sent=` is the sender's timestamp. On stderr: a status line when something was
+    /// dropped (at most once a second), and a summary of every counter at the end — after
+    /// --count, at --timeout, on Ctrl-C / SIGTERM, or when stdout is closed (exit code 0 in
+    /// every case).
     Listen {
         /// The fleet file.
         fleet: PathBuf,
@@ -97,8 +99,9 @@ enum Command {
         /// Exit after this many seconds.
         #[arg(long)]
         timeout: Option<f64>,
-        /// One JSON object per line instead of text (times in it are always raw
-        /// microseconds: `timestamp_us`, `received_us`).
+        /// One JSON object per line instead of text. Times in it are always raw microseconds
+        /// (`timestamp_us`, `received_us`); the payload is `payload` when it decodes (a nil
+        /// also has `payload_hex`), else `payload_error` and `payload_hex`.
         #[arg(long)]
         json: bool,
         /// A line on stderr for every drop as soon as it is counted, instead of a status line

@@ -89,6 +89,8 @@ fn hint(
     destination: &str,
 ) -> Option<String> {
     match outcome {
+        // Frames went out, nothing came back. (Should such sends get an outcome of their own,
+        // this hint goes with it.)
         Outcome::Failed {
             reason: FailReason::NoAcknowledgement,
             ..
