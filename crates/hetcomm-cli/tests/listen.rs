@@ -435,6 +435,20 @@ fn a_kind_built_out_names_the_command_that_builds_it_in() {
         "{line}"
     );
     assert_eq!(line.matches("--features").count(), 1, "{line}");
+
+    // The demonstration with R = ROS 1 says the same.
+    let out = dir.path().join("demo");
+    let f = hetcomm(
+        &["demo", "--r", "ros1", "--out", out.to_str().unwrap()],
+        deadline,
+    );
+    let line = error_line(&f, 1);
+    assert!(
+        line.contains(
+            "rebuild this command with `cargo build --release -p hetcomm-cli --features ros1`"
+        ),
+        "{line}"
+    );
 }
 
 #[test]
