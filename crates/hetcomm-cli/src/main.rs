@@ -8,6 +8,8 @@ use clap::{Parser, Subcommand};
 
 mod demo;
 mod experiment;
+mod listen;
+mod names;
 mod poke;
 
 /// hetcomm: a heterogeneous communication layer and test harness for teams of robots.
@@ -55,11 +57,13 @@ enum Command {
         fleet: Option<PathBuf>,
         /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated
         /// profiles), or ros1.
-        #[arg(long, default_value = "inproc")]
+        #[arg(long, default_value = "inproc",
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1"])]
         r: String,
         /// What the table letter B means: inproc, wired, wifi, bluetooth-classic (emulated
         /// profiles), or bluetooth (real RFCOMM; Table 8 addresses).
-        #[arg(long, default_value = "bluetooth-classic")]
+        #[arg(long, default_value = "bluetooth-classic",
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth"])]
         b: String,
         /// One virtual environment receiving every rover's Wheels through callbacks, instead
         /// of one polling VE per rover.
@@ -74,6 +78,12 @@ enum Command {
         external: Vec<String>,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
+    ///
+    /// Messages go to stdout, one a line, starting with when it arrived (`+1.234 s` since the
+    /// start); `sent=` is the sender's timestamp. On stderr: a status line when something was
+    /// dropped (at most once a second), and a summary of every counter at the end — after
+    /// --count, at --timeout, on Ctrl-C / SIGTERM, or when stdout is closed (exit code 0 in
+    /// every case).
     Listen {
         /// The fleet file.
         fleet: PathBuf,
@@ -89,9 +99,19 @@ enum Command {
         /// Exit after this many seconds.
         #[arg(long)]
         timeout: Option<f64>,
-        /// One JSON object per line instead of text.
+        /// One JSON object per line instead of text. Times in it are always raw microseconds
+        /// (`timestamp_us`, `received_us`); the payload is `payload` when it decodes (a nil
+        /// also has `payload_hex`), else `payload_error` and `payload_hex`.
         #[arg(long)]
         json: bool,
+        /// A line on stderr for every drop as soon as it is counted, instead of a status line
+        /// at most once a second.
+        #[arg(long, short)]
+        verbose: bool,
+        /// Print times as microseconds since the UNIX epoch instead of seconds since the
+        /// listener started (`+1.234 s`).
+        #[arg(long)]
+        raw_times: bool,
     },
     /// Send one message from a system of a live fleet and print its outcome (like
     /// `rostopic pub`). Exits 0 when delivered (in the destination module's inbox) or sent
@@ -142,10 +162,25 @@ fn main() -> ExitCode {
     match run(cli.command) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", for_this_command(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The library tells a program depending on it to "rebuild with `--features ros1`"; for this
+/// command that means rebuilding the `hetcomm-cli` package with its feature of that name.
+fn for_this_command(message: &str) -> String {
+    let mut out = message.to_string();
+    for feature in ["ros1", "bluetooth"] {
+        out = out.replace(
+            &format!("rebuild with `--features {feature}`"),
+            &format!(
+                "rebuild this command with `cargo build --release -p hetcomm-cli --features {feature}`"
+            ),
+        );
+    }
+    out
 }
 
 fn run(command: Command) -> anyhow::Result<ExitCode> {
@@ -187,14 +222,18 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             count,
             timeout,
             json,
+            verbose,
+            raw_times,
         } => {
-            poke::listen(poke::ListenArgs {
+            listen::listen(listen::ListenArgs {
                 fleet: &fleet,
                 system: &system,
                 module: module.as_deref(),
                 count,
                 timeout: timeout.map(secs).transpose()?,
                 json,
+                verbose,
+                raw_times,
             })?;
             Ok(ExitCode::SUCCESS)
         }

@@ -1,150 +1,14 @@
-//! `hetcomm listen` and `hetcomm send`: poking at a live fleet, as `rostopic echo` / `pub` do
-//! for ROS.
+//! `hetcomm send`: poking at a live fleet, as `rostopic pub` does for ROS (`hetcomm listen`,
+//! its counterpart, is in `listen.rs`).
 
 use std::path::Path;
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::Context;
-use hetcomm::{Comm, MessageType, Outcome, RawMessage, SendOptions};
+use hetcomm::config::{Fleet, TransportKind};
+use hetcomm::{FailReason, MessageType, Outcome, SendOptions};
 
-/// Options of `hetcomm listen`.
-pub struct ListenArgs<'a> {
-    pub fleet: &'a Path,
-    pub system: &'a str,
-    pub module: Option<&'a str>,
-    pub count: Option<usize>,
-    pub timeout: Option<Duration>,
-    pub json: bool,
-}
-
-/// Prints every message arriving at a system (all modules, or one), until `count` messages or
-/// `timeout`, then a line of counters on stderr.
-pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
-    let comm = Comm::open(args.fleet, args.system)
-        .with_context(|| format!("opening `{}` of {}", args.system, args.fleet.display()))?;
-    let modules: Vec<String> = match args.module {
-        Some(m) => vec![m.to_string()],
-        None => comm
-            .fleet()
-            .modules
-            .iter()
-            .map(|m| m.name.clone())
-            .collect(),
-    };
-    let (tx, rx) = mpsc::channel::<(String, RawMessage)>();
-    for name in &modules {
-        let module = comm.module(name)?;
-        let tx = tx.clone();
-        let name = name.clone();
-        module.on_any(move |raw| {
-            let _ = tx.send((name.clone(), raw));
-        });
-    }
-    drop(tx);
-    let endpoints: Vec<String> = comm
-        .endpoints()
-        .iter()
-        .map(|(t, a)| format!("{t} {}", a.as_deref().unwrap_or("(in-process)")))
-        .collect();
-    eprintln!(
-        "listening as {} (modules: {}) on {}",
-        comm.name(),
-        modules.join(", "),
-        endpoints.join(", ")
-    );
-    let deadline = args.timeout.map(|t| Instant::now() + t);
-    let mut seen = 0usize;
-    let mut owed_acks = 0u64;
-    while args.count.is_none_or(|c| seen < c) {
-        let wait = match deadline {
-            Some(d) => d.saturating_duration_since(Instant::now()),
-            None => Duration::from_secs(3600),
-        };
-        if wait.is_zero() {
-            break;
-        }
-        match rx.recv_timeout(wait) {
-            Ok((module, raw)) => {
-                seen += 1;
-                if raw.envelope.header.ack_requested() {
-                    owed_acks += 1;
-                }
-                println!("{}", describe(&module, &raw, args.json));
-            }
-            Err(mpsc::RecvTimeoutError::Timeout) if deadline.is_none() => continue,
-            Err(_) => break,
-        }
-    }
-    wait_for_acks(&comm, owed_acks, Duration::from_secs(1));
-    let s = comm.stats();
-    let dropped_links: u64 = s.links.iter().map(|(_, l)| l.frames_dropped).sum();
-    eprintln!(
-        "received {seen} messages; router: {} received, {} duplicates, {} malformed, {} unknown origin, {} misrouted; links dropped {dropped_links}",
-        s.router.received, s.router.duplicates, s.router.malformed, s.router.unknown_origin, s.router.misrouted
-    );
-    Ok(())
-}
-
-/// Waits (at most `limit`) until the acknowledgements of the `owed` messages printed are on
-/// the wire. The router acknowledges a message on the link's receive thread only after it is
-/// in the module's inbox, so the message can be printed — and with `--count` this process
-/// exit — before its acknowledgement went out; the sender would then report a failure for a
-/// message that arrived. This system sends nothing but acknowledgements, so every frame its
-/// links sent is one.
-fn wait_for_acks(comm: &Comm, owed: u64, limit: Duration) {
-    let give_up = Instant::now() + limit;
-    loop {
-        let s = comm.stats();
-        let on_wire: u64 = s.links.iter().map(|(_, l)| l.frames_sent).sum();
-        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent)
-            || Instant::now() >= give_up
-        {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
-}
-
-fn describe(module: &str, raw: &RawMessage, json: bool) -> String {
-    let e = &raw.envelope;
-    let payload = hetcomm::payload::to_json(&raw.payload);
-    if json {
-        serde_json::json!({
-            "to_module": module,
-            "from_system": e.source_system,
-            "from_module": e.source_module,
-            "id": { "origin": e.id().origin.0, "seq": e.id().seq },
-            "type": e.message_type().0,
-            "priority": e.priority().0,
-            "timestamp_us": e.timestamp().as_micros(),
-            "received_us": e.received_at.as_micros(),
-            "broadcast": e.is_broadcast(),
-            "size": raw.payload.len(),
-            "payload": payload,
-            "payload_hex": if payload.is_none() { Some(hex(&raw.payload)) } else { None },
-        })
-        .to_string()
-    } else {
-        let body = payload
-            .map(|p| p.to_string())
-            .unwrap_or_else(|| format!("hex:{}", hex(&raw.payload)));
-        format!(
-            "{}.{} -> {module}  type={} prio={} ts={}us size={}{}  {body}",
-            e.source_system,
-            e.source_module,
-            e.message_type(),
-            e.priority(),
-            e.timestamp().as_micros(),
-            raw.payload.len(),
-            if e.is_broadcast() { " broadcast" } else { "" },
-        )
-    }
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
+use crate::names;
 
 /// Options of `hetcomm send`.
 pub struct SendArgs<'a> {
@@ -189,8 +53,14 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     let value: serde_json::Value =
         serde_json::from_str(args.json).context("--json is not valid JSON")?;
     let payload = hetcomm::payload::from_json(&value)?;
-    let comm = Comm::open(args.fleet, args.system)
-        .with_context(|| format!("opening `{}` of {}", args.system, args.fleet.display()))?;
+    let fleet = names::load_fleet(args.fleet)?;
+    names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
+    names::check_system(&fleet, args.fleet, "--to", args.to, &["All"])?;
+    names::check_module(&fleet, args.fleet, "--module", args.module)?;
+    if let Some(m) = args.from_module {
+        names::check_module(&fleet, args.fleet, "--from-module", m)?;
+    }
+    let comm = names::open_system(args.fleet, args.system)?;
     let from = match args.from_module {
         Some(m) => m.to_string(),
         None => comm
@@ -213,18 +83,12 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     };
     let mut verdict = SendVerdict::Success;
     for t in tickets {
-        let (line, this) = match t.wait_timeout(args.timeout) {
+        let outcome = t.wait_timeout(args.timeout);
+        let (line, this) = match &outcome {
             Some(o @ (Outcome::Delivered { .. } | Outcome::Sent { .. })) => {
                 (o.to_string(), SendVerdict::Success)
             }
-            Some(o @ Outcome::Unconfirmed { .. }) => {
-                let hint = format!(
-                    "\n  hint: is `hetcomm listen {} --as {}` (or the system itself) running?",
-                    args.fleet.display(),
-                    t.destination()
-                );
-                (format!("{o}{hint}"), SendVerdict::Unconfirmed)
-            }
+            Some(o @ Outcome::Unconfirmed { .. }) => (o.to_string(), SendVerdict::Unconfirmed),
             Some(o) => (o.to_string(), SendVerdict::Failed),
             None => (
                 format!(
@@ -235,7 +99,50 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
             ),
         };
         println!("{}: {line}", t.destination());
+        let hint = outcome
+            .as_ref()
+            .and_then(|o| hint(o, args.fleet, &fleet, args.system, t.destination()));
+        if let Some(hint) = hint {
+            eprintln!("hint: {hint}");
+        }
         verdict = verdict.max(this);
     }
     Ok(verdict)
+}
+
+/// What to check when an outcome suggests a mistake in how the fleet is run.
+fn hint(
+    outcome: &Outcome,
+    path: &Path,
+    fleet: &Fleet,
+    from: &str,
+    destination: &str,
+) -> Option<String> {
+    match outcome {
+        // Frames went out, nothing came back.
+        Outcome::Unconfirmed {
+            reason: FailReason::NoAcknowledgement,
+            ..
+        } => Some(format!(
+            "nothing acknowledged it: is `{destination}` running, e.g. `hetcomm listen {} --as {destination}`?",
+            path.display()
+        )),
+        Outcome::Failed {
+            reason: FailReason::Unreachable(_),
+            ..
+        } if transport_kind(fleet, from, destination) == Some(TransportKind::Inproc) => {
+            Some(format!(
+                "`{from}` reaches `{destination}` over an in-process transport, which reaches only systems opened by the same process: give the pair a udp or tcp transport in {} to reach another process",
+                path.display()
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// The kind of transport carrying `from` → `to` in the fleet's table.
+fn transport_kind(fleet: &Fleet, from: &str, to: &str) -> Option<TransportKind> {
+    let id = |name: &str| fleet.systems.iter().find(|s| s.name == name).map(|s| s.id);
+    let index = fleet.table.get(&(id(from)?, id(to)?))?;
+    fleet.transports.get(*index).map(|t| t.kind)
 }

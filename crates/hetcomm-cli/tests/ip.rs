@@ -33,7 +33,7 @@ fn delivery_across_processes(kind: &str) {
 
     let line = bravo.next_stdout(deadline);
     assert!(
-        line.starts_with("Alpha.Plan -> Act  type=7 prio=100 "),
+        message_text(&line).starts_with("Alpha.Plan -> Act  type=7 prio=100 "),
         "{line}"
     );
     assert!(line.ends_with(r#"{"code":1,"text":"hello"}"#), "{line}");
@@ -41,7 +41,7 @@ fn delivery_across_processes(kind: &str) {
     assert_eq!(status.code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
-        "received 1 messages; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted; links dropped 0"
+        "received 1 message; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0"
     );
 }
 
@@ -76,7 +76,10 @@ fn broadcast_to_all_reaches_two_listeners() {
     );
     for listener in [&mut bravo, &mut charlie] {
         let line = listener.next_stdout(deadline);
-        assert!(line.starts_with("Alpha.Plan -> Act  type=7 "), "{line}");
+        assert!(
+            message_text(&line).starts_with("Alpha.Plan -> Act  type=7 "),
+            "{line}"
+        );
         assert!(line.contains(" broadcast "), "{line}");
         assert!(line.ends_with(HELLO), "{line}");
         assert_eq!(listener.wait_exit(deadline).code(), Some(0));
@@ -173,7 +176,7 @@ fn udp_duplicates_are_suppressed_and_reacknowledged() {
     }
     assert_eq!(
         counters_line(&bravo),
-        "received 2 messages; router: 2 received, 2 duplicates, 0 malformed, 0 unknown origin, 0 misrouted; links dropped 0"
+        "received 2 messages; router: 2 received, 2 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0"
     );
     // Nothing else came back (e.g. a fourth acknowledgement for the first incarnation).
     raw.set_nonblocking(true).unwrap();
@@ -277,7 +280,10 @@ fn tcp_peer_killed_and_restarted() {
         std::thread::sleep(Duration::from_millis(50));
     };
     let line = bravo.wait_stdout(&format!(r#"{{"n":{n}}}"#), deadline);
-    assert!(line.starts_with("Alpha.Plan -> Act  type=7 "), "{line}");
+    assert!(
+        message_text(&line).starts_with("Alpha.Plan -> Act  type=7 "),
+        "{line}"
+    );
     eprintln!("after the restart: message {n} {delivered}");
 }
 
@@ -297,14 +303,7 @@ fn udp_receiver_that_never_acknowledges() {
     // sender must not call that a failure.
     assert_eq!(
         sent.stdout,
-        [
-            "Bravo: unconfirmed: no acknowledgement; it may or may not have arrived (attempts: 3)"
-                .to_string(),
-            format!(
-                "  hint: is `hetcomm listen {} --as Bravo` (or the system itself) running?",
-                fleet.display()
-            )
-        ],
+        ["Bravo: unconfirmed: no acknowledgement; it may or may not have arrived (attempts: 3)"],
         "{sent:?}"
     );
     assert_eq!(sent.status.code(), Some(3), "{sent:?}");
@@ -379,13 +378,16 @@ fn udp_bad_frames_are_counted_and_the_system_keeps_serving() {
         "{sent:?}"
     );
     let line = bravo.next_stdout(deadline);
-    assert!(line.starts_with("Alpha.Plan -> Act  type=7 "), "{line}");
+    assert!(
+        message_text(&line).starts_with("Alpha.Plan -> Act  type=7 "),
+        "{line}"
+    );
     assert!(line.ends_with(HELLO), "{line}");
     assert_eq!(bravo.wait_exit(deadline).code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
         format!(
-            "received 1 messages; router: 1 received, 0 duplicates, {} malformed, 1 unknown origin, 1 misrouted; links dropped 0",
+            "received 1 message; router: 1 received, 0 duplicates, {} malformed, 1 unknown origin, 1 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0",
             malformed.len()
         )
     );
@@ -455,6 +457,6 @@ fn tcp_garbage_is_dropped_and_the_system_keeps_serving() {
     assert_eq!(bravo.wait_exit(deadline).code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
-        "received 1 messages; router: 1 received, 0 duplicates, 1 malformed, 0 unknown origin, 0 misrouted; links dropped 2"
+        "received 1 message; router: 1 received, 0 duplicates, 1 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 2"
     );
 }

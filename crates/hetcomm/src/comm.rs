@@ -107,6 +107,9 @@ pub struct SystemStats {
     /// Frames this system's links held back for a moment to share a datagram or write with
     /// the frames after them (see `batch_linger_us`); 0 while every frame went at once.
     pub held_frames: u64,
+    /// Messages dropped because they were for a module id this system's fleet file does not
+    /// have: the sender's fleet file differs from this one.
+    pub unknown_module: u64,
 }
 
 impl Comm {
@@ -336,6 +339,9 @@ impl Comm {
             links,
             callback_failures,
             held_frames: core.held_frames(),
+            unknown_module: core
+                .unknown_module
+                .load(std::sync::atomic::Ordering::Relaxed),
         }
     }
 }

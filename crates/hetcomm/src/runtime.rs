@@ -397,6 +397,9 @@ pub(crate) struct SystemCore {
     /// Bumped by other systems' threads for every message they hand over: on lines of its
     /// own, away from what this system's threads read.
     pub direct_received: CachePadded<AtomicU64>,
+    /// Messages for a module id this system's fleet file does not have (the sender's fleet
+    /// file differs), dropped (and refused, when an acknowledgement was asked for).
+    pub unknown_module: AtomicU64,
 }
 
 /// The in-process links of a system, through which a message skips framing, checksums and
@@ -448,6 +451,7 @@ impl SystemCore {
             in_progress: std::sync::atomic::AtomicUsize::new(0),
             direct: OnceLock::new(),
             direct_received: CachePadded::default(),
+            unknown_module: AtomicU64::new(0),
             reactor: OnceLock::new(),
             reactor_thread: Mutex::new(None),
         })
@@ -735,7 +739,7 @@ impl SystemCore {
         match self.links().get(index) {
             Some(link) => self
                 .transmit(index, &**link, to, frame, body, now, traffic)
-                .map_err(transmit_error),
+                .map_err(|e| transmit_error(&self.directory, e)),
             None => Err(TransmitError::Other("no such link".into())),
         }
     }
@@ -863,6 +867,7 @@ impl SystemCore {
         source: Source,
     ) -> AckStatus {
         let Some(module) = module else {
+            self.unknown_module.fetch_add(1, Ordering::Relaxed);
             return AckStatus::UnknownModule;
         };
         let entry = Entry {
@@ -963,10 +968,17 @@ fn spin_on_links(reactor: &Reactor, module: &ModuleCore, left: Duration) -> bool
     }
 }
 
-fn transmit_error(e: LinkError) -> TransmitError {
+/// A link's refusal in the router's terms. The outcome it ends up in belongs to a ticket that
+/// names its destination, so the text says why, not who again; where a peer is named, it is by
+/// its name in the fleet, not its id.
+fn transmit_error(directory: &Directory, e: LinkError) -> TransmitError {
     match e {
-        LinkError::Unreachable { .. } => TransmitError::Unreachable(e.to_string()),
+        LinkError::Unreachable { reason, .. } => TransmitError::Unreachable(reason),
         LinkError::TooLarge { .. } => TransmitError::TooLarge(e.to_string()),
+        LinkError::Congested { peer, reason } => TransmitError::Other(format!(
+            "link to {} is congested: {reason}",
+            directory.system_name(peer)
+        )),
         other => TransmitError::Other(other.to_string()),
     }
 }

@@ -397,3 +397,43 @@ pub fn counters_line(child: &ChildGuard) -> String {
         .find(|l| l.starts_with("received "))
         .unwrap_or_else(|| panic!("no counters line: {:?}", child.stderr_lines()))
 }
+
+/// A `hetcomm listen` text line without its leading time column (`+1.234 s  ` by default,
+/// `1732432042123456us  ` with `--raw-times`): from the sending system on.
+pub fn message_text(line: &str) -> &str {
+    match line.split_once("  ") {
+        Some((time, rest)) if time.starts_with('+') || time.ends_with("us") => rest,
+        _ => panic!("no time column at the start of {line:?}"),
+    }
+}
+
+/// A data frame from system `from` (module Plan = 0) to `to`'s module `module`, type 7,
+/// acknowledgement requested, carrying `payload` as given (not re-encoded).
+pub fn raw_data_frame(from: u16, to: u16, module: u16, seq: u64, payload: &[u8]) -> Vec<u8> {
+    use hetcomm::wire::{self, Header};
+    use hetcomm::{Address, MessageType, ModuleId, SystemId, Time};
+    let mut h = Header::data(
+        Address {
+            system: SystemId(from),
+            module: ModuleId(0),
+        },
+        Address {
+            system: SystemId(to),
+            module: ModuleId(module),
+        },
+        MessageType(7),
+    );
+    h.flags = wire::FLAG_ACK_REQUESTED;
+    h.incarnation = 0x5eed;
+    h.seq = seq;
+    h.timestamp = Time::from_micros(1_000_000);
+    wire::encode(&h, payload)
+}
+
+/// Sends `signal` (e.g. `libc::SIGINT`) to the child.
+pub fn signal(child: &ChildGuard, signal: i32) {
+    let pid = libc::pid_t::try_from(child.id()).expect("a pid fits pid_t");
+    // SAFETY: kill(2) with the pid of our own, not yet reaped, child.
+    let rc = unsafe { libc::kill(pid, signal) };
+    assert_eq!(rc, 0, "kill {pid}: {}", std::io::Error::last_os_error());
+}

@@ -1,0 +1,520 @@
+//! `hetcomm listen`: prints every message arriving at a system of a live fleet, as
+//! `rostopic echo` does for ROS, and what that system dropped while it ran.
+//!
+//! Output: one line per message on stdout (text or `--json`); on stderr the `listening as`
+//! line, a status line when a drop counter moved (at most once a second, or a line per change
+//! with `--verbose`), and a summary of the counters when it ends — after `--count` messages,
+//! at `--timeout`, or on Ctrl-C (SIGINT) or SIGTERM. A second Ctrl-C exits at once.
+
+use std::io::{self, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+
+use hetcomm::{Comm, RawMessage, SystemStats, Time};
+
+use crate::names;
+
+/// Options of `hetcomm listen`.
+pub struct ListenArgs<'a> {
+    pub fleet: &'a Path,
+    pub system: &'a str,
+    pub module: Option<&'a str>,
+    pub count: Option<usize>,
+    pub timeout: Option<Duration>,
+    pub json: bool,
+    /// A stderr line per drop counter change as soon as it is seen, instead of a status line
+    /// at most once a second.
+    pub verbose: bool,
+    /// Times as raw microseconds since the UNIX epoch instead of seconds since the start.
+    pub raw_times: bool,
+}
+
+/// What the main loop waits for.
+enum Event {
+    /// A message for module `.0`.
+    Message(String, RawMessage),
+    /// SIGINT or SIGTERM (its name).
+    Stop(&'static str),
+}
+
+/// How often the counters are looked at: the status line comes at most this often.
+const STATUS_EVERY: Duration = Duration::from_secs(1);
+/// How often `--verbose` looks at the counters.
+const VERBOSE_EVERY: Duration = Duration::from_millis(20);
+
+/// Prints every message arriving at a system (all modules, or one) until `count` messages,
+/// `timeout`, or SIGINT/SIGTERM, with drop counters on stderr while it runs and at the end.
+pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
+    // First, before any thread exists: every thread started later inherits the mask, so
+    // the signals reach only the thread that waits for them.
+    let signals = StopSignals::block()?;
+    let (tx, rx) = mpsc::channel::<Event>();
+    // Until the system is open and listening there is nothing to summarise: a signal then
+    // ends the process at once, as it would without this thread (opening may wait, e.g. for
+    // a ROS master).
+    let listening = Arc::new(AtomicBool::new(false));
+    {
+        let listening = listening.clone();
+        let tx = tx.clone();
+        signals.watch(move |signal| {
+            if listening.load(Ordering::SeqCst) {
+                let _ = tx.send(Event::Stop(signal_name(signal)));
+            } else {
+                std::process::exit(128 + signal);
+            }
+        })?;
+    }
+    let fleet = names::load_fleet(args.fleet)?;
+    names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
+    if let Some(m) = args.module {
+        names::check_module(&fleet, args.fleet, "--module", m)?;
+    }
+    let comm = names::open_system(args.fleet, args.system)?;
+    let start = Time::now_wall();
+    let started = Instant::now();
+    let modules: Vec<String> = match args.module {
+        Some(m) => vec![m.to_string()],
+        None => comm
+            .fleet()
+            .modules
+            .iter()
+            .map(|m| m.name.clone())
+            .collect(),
+    };
+    for name in &modules {
+        let module = comm.module(name)?;
+        let tx = tx.clone();
+        let name = name.clone();
+        module.on_any(move |raw| {
+            let _ = tx.send(Event::Message(name.clone(), raw));
+        });
+    }
+    drop(tx);
+    listening.store(true, Ordering::SeqCst);
+    let endpoints: Vec<String> = comm
+        .endpoints()
+        .iter()
+        .map(|(t, a)| format!("{t} {}", a.as_deref().unwrap_or("(in-process)")))
+        .collect();
+    eprintln!(
+        "listening as {} (modules: {}) on {}; Ctrl-C to stop",
+        comm.name(),
+        modules.join(", "),
+        endpoints.join(", ")
+    );
+    let clock = Clock {
+        start,
+        raw: args.raw_times,
+    };
+    let deadline = args.timeout.map(|t| started + t);
+    let every = if args.verbose {
+        VERBOSE_EVERY
+    } else {
+        STATUS_EVERY
+    };
+    let mut next_look = Instant::now() + every;
+    // Shown so far: drops before the first look (e.g. while opening) show at the first look.
+    let mut shown = Drops::default();
+    let mut seen = 0usize;
+    let mut owed_acks = 0u64;
+    // Why the loop ended early, when it did.
+    let mut stopped = None;
+    let mut out = io::stdout().lock();
+    while args.count.is_none_or(|c| seen < c) {
+        let now = Instant::now();
+        if deadline.is_some_and(|d| now >= d) {
+            break;
+        }
+        if now >= next_look {
+            let drops = Drops::of(&comm.stats());
+            if drops != shown {
+                let at = clock.format(Time::now_wall());
+                if args.verbose {
+                    for line in drops.changes_since(&shown) {
+                        eprintln!("{at}  {line}");
+                    }
+                } else {
+                    eprintln!("{at}  {}", drops.status(seen));
+                }
+                shown = drops;
+            }
+            next_look = now + every;
+        }
+        let wait = deadline.map_or(next_look, |d| d.min(next_look)) - now;
+        match rx.recv_timeout(wait) {
+            Ok(Event::Message(module, raw)) => {
+                seen += 1;
+                if raw.envelope.header.ack_requested() {
+                    owed_acks += 1;
+                }
+                // A reader that went away (`hetcomm listen … | head -3`) ends the listener
+                // like a signal, summary included.
+                if writeln!(out, "{}", describe(&module, &raw, args.json, &clock)).is_err() {
+                    stopped = Some("stopped: standard output was closed".to_string());
+                    break;
+                }
+            }
+            Ok(Event::Stop(signal)) => {
+                stopped = Some(format!("stopped by {signal}"));
+                break;
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        }
+    }
+    wait_for_acks(&comm, owed_acks, Duration::from_secs(1));
+    if let Some(why) = stopped {
+        eprintln!("{why}");
+    }
+    eprintln!("{}", summary(seen, &comm.stats()));
+    Ok(())
+}
+
+/// The line printed at the end: messages printed, then every counter (zeros included, so
+/// scripts can parse it).
+fn summary(seen: usize, s: &SystemStats) -> String {
+    let d = Drops::of(s);
+    let mut line = format!(
+        "received {seen} message{}; router: {} received, {} duplicates, {} malformed, {} unknown origin, {} misrouted, {} unknown module; inboxes dropped {}; links dropped {}",
+        if seen == 1 { "" } else { "s" },
+        s.router.received,
+        d.duplicates,
+        d.malformed,
+        d.unknown_origin,
+        d.misrouted,
+        d.unknown_module,
+        d.inbox,
+        d.links,
+    );
+    if let Some(k) = d.kernel {
+        line.push_str(&format!("; kernel dropped {k}"));
+    }
+    line
+}
+
+/// Everything this system threw away (or, for duplicates, did not deliver twice), from its
+/// counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Drops {
+    malformed: u64,
+    unknown_origin: u64,
+    misrouted: u64,
+    unknown_module: u64,
+    duplicates: u64,
+    /// Lost to full inboxes, whatever the policy.
+    inbox: u64,
+    /// Dropped by the links (frames they could not make sense of, failed batch flushes).
+    links: u64,
+    /// Datagrams the kernel dropped because the receive buffer was full; None while the
+    /// links do not count them.
+    kernel: Option<u64>,
+}
+
+impl Drops {
+    fn of(s: &SystemStats) -> Drops {
+        Drops {
+            malformed: s.router.malformed,
+            unknown_origin: s.router.unknown_origin,
+            misrouted: s.router.misrouted,
+            unknown_module: s.unknown_module,
+            duplicates: s.router.duplicates,
+            inbox: s.inboxes.iter().map(|(_, i)| i.dropped()).sum(),
+            links: s.links.iter().map(|(_, l)| l.frames_dropped).sum(),
+            kernel: kernel_drops(s),
+        }
+    }
+
+    /// Each counter with its label, in the order they are printed.
+    fn labelled(&self) -> [(&'static str, u64); 8] {
+        [
+            ("malformed", self.malformed),
+            ("unknown origin", self.unknown_origin),
+            ("misrouted", self.misrouted),
+            ("unknown module", self.unknown_module),
+            ("duplicates", self.duplicates),
+            ("inbox full", self.inbox),
+            ("dropped by links", self.links),
+            ("dropped by the kernel", self.kernel.unwrap_or(0)),
+        ]
+    }
+
+    /// The status line: the messages printed so far and every counter that is not zero.
+    fn status(&self, seen: usize) -> String {
+        let mut parts = vec![format!(
+            "{seen} message{} so far",
+            if seen == 1 { "" } else { "s" }
+        )];
+        parts.extend(
+            self.labelled()
+                .iter()
+                .filter(|(_, n)| *n > 0)
+                .map(|(label, n)| format!("{n} {label}")),
+        );
+        parts.join(", ")
+    }
+
+    /// One line per counter that moved since `before` (`--verbose`).
+    fn changes_since(&self, before: &Drops) -> Vec<String> {
+        self.labelled()
+            .iter()
+            .zip(before.labelled())
+            .filter(|((_, now), (_, then))| now > then)
+            .map(|((label, now), (_, then))| format!("+{} {label} ({now} in all)", now - then))
+            .collect()
+    }
+}
+
+/// Datagrams the kernel dropped for this system (SO_RXQ_OVFL), once the links count them:
+/// this is the one place that reads it, and the status line and summary show it when it is
+/// `Some`. No link counts them yet.
+fn kernel_drops(_stats: &SystemStats) -> Option<u64> {
+    None
+}
+
+/// Waits (at most `limit`) until the acknowledgements of the `owed` messages printed are on
+/// the wire. The router acknowledges a message on the link's receive thread only after it is
+/// in the module's inbox, so the message can be printed — and with `--count` this process
+/// exit — before its acknowledgement went out; the sender would then report a failure for a
+/// message that arrived. This system sends nothing but acknowledgements, so every frame its
+/// links sent is one.
+fn wait_for_acks(comm: &Comm, owed: u64, limit: Duration) {
+    let give_up = Instant::now() + limit;
+    loop {
+        let s = comm.stats();
+        let on_wire: u64 = s.links.iter().map(|(_, l)| l.frames_sent).sum();
+        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent)
+            || Instant::now() >= give_up
+        {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// How times are printed: seconds since the listener started (`+1.234 s`), or with
+/// `--raw-times` the clock's microseconds since the UNIX epoch (`1732432042123456us`).
+struct Clock {
+    start: Time,
+    raw: bool,
+}
+
+impl Clock {
+    fn format(&self, t: Time) -> String {
+        if self.raw {
+            return format!("{}us", t.as_micros());
+        }
+        let (sign, us) = match t.as_micros().checked_sub(self.start.as_micros()) {
+            Some(after) => ('+', after),
+            None => ('-', self.start.as_micros() - t.as_micros()),
+        };
+        format!("{sign}{}.{:03} s", us / 1_000_000, us % 1_000_000 / 1_000)
+    }
+}
+
+/// One message as a line: text, or a JSON object (times always as raw microseconds there).
+fn describe(module: &str, raw: &RawMessage, json: bool, clock: &Clock) -> String {
+    let e = &raw.envelope;
+    let payload = decode_payload(&raw.payload);
+    if json {
+        let mut line = serde_json::json!({
+            "to_module": module,
+            "from_system": e.source_system,
+            "from_module": e.source_module,
+            "id": { "origin": e.id().origin.0, "seq": e.id().seq },
+            "type": e.message_type().0,
+            "priority": e.priority().0,
+            "timestamp_us": e.timestamp().as_micros(),
+            "received_us": e.received_at.as_micros(),
+            "broadcast": e.is_broadcast(),
+            "size": raw.payload.len(),
+        });
+        // `payload` is present only when the bytes decoded; a decoded nil (`null`) also
+        // carries its bytes, so it can never be mistaken for a payload that did not decode.
+        match payload {
+            Ok(value) => {
+                if value.is_null() {
+                    line["payload_hex"] = hex(&raw.payload).into();
+                }
+                line["payload"] = value;
+            }
+            Err(why) => {
+                line["payload_error"] = why.into();
+                line["payload_hex"] = hex(&raw.payload).into();
+            }
+        }
+        line.to_string()
+    } else {
+        let body = match payload {
+            Ok(value) => value.to_string(),
+            Err(why) => format!("undecodable ({why}): hex:{}", hex(&raw.payload)),
+        };
+        let sent = if clock.raw { "ts=" } else { "sent=" };
+        format!(
+            "{}  {}.{} -> {module}  type={} prio={} {sent}{} size={}{}  {body}",
+            clock.format(e.received_at),
+            e.source_system,
+            e.source_module,
+            e.message_type(),
+            e.priority(),
+            clock.format(e.timestamp()).replace(' ', ""),
+            raw.payload.len(),
+            if e.is_broadcast() { " broadcast" } else { "" },
+        )
+    }
+}
+
+/// The payload as JSON, or why it is not one MessagePack value.
+fn decode_payload(bytes: &[u8]) -> Result<serde_json::Value, String> {
+    if let Some(value) = hetcomm::payload::to_json(bytes) {
+        // The decoder reads the one byte MessagePack never uses, 0xc1, as nil.
+        if value.is_null() && bytes != [0xc0] {
+            return Err(format!(
+                "not MessagePack: 0x{:02x} is no MessagePack value",
+                bytes[0]
+            ));
+        }
+        return Ok(value);
+    }
+    if bytes.is_empty() {
+        return Err("empty: no MessagePack value".into());
+    }
+    let mut cursor = io::Cursor::new(bytes);
+    match rmpv::decode::read_value(&mut cursor) {
+        Err(
+            rmpv::decode::Error::InvalidMarkerRead(e) | rmpv::decode::Error::InvalidDataRead(e),
+        ) if e.kind() == io::ErrorKind::UnexpectedEof => Err(format!(
+            "not MessagePack: the value is cut short after {} byte{}",
+            bytes.len(),
+            if bytes.len() == 1 { "" } else { "s" }
+        )),
+        Err(e) => Err(format!("not MessagePack: {e}")),
+        Ok(_) if (cursor.position() as usize) < bytes.len() => {
+            let left = bytes.len() - cursor.position() as usize;
+            Err(format!(
+                "{left} byte{} after the first MessagePack value",
+                if left == 1 { "" } else { "s" }
+            ))
+        }
+        Ok(_) => Err("MessagePack that has no JSON form".into()),
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SIGINT and SIGTERM, blocked in every thread and taken by one thread that waits for them
+/// (sigwait): no handler runs inside another thread's system call, and the main loop learns
+/// of the signal as an event like a message.
+pub struct StopSignals {
+    set: libc::sigset_t,
+}
+
+impl StopSignals {
+    /// Blocks SIGINT and SIGTERM in the calling thread. Call it before any thread starts:
+    /// threads inherit the mask, and a thread that does not block them would be killed by
+    /// them as before.
+    pub fn block() -> io::Result<StopSignals> {
+        // SAFETY: sigemptyset/sigaddset write into the set we own; pthread_sigmask reads it
+        // and changes only this thread's mask.
+        unsafe {
+            let mut set: libc::sigset_t = std::mem::zeroed();
+            libc::sigemptyset(&mut set);
+            libc::sigaddset(&mut set, libc::SIGINT);
+            libc::sigaddset(&mut set, libc::SIGTERM);
+            let rc = libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut());
+            if rc != 0 {
+                return Err(io::Error::from_raw_os_error(rc));
+            }
+            Ok(StopSignals { set })
+        }
+    }
+
+    /// Starts the thread that waits for the signals: the first calls `on_stop` with its
+    /// number; a second one (the user insisting) ends the process at once, with the shell's
+    /// code for death by that signal (128 + its number).
+    pub fn watch(self, on_stop: impl Fn(libc::c_int) + Send + 'static) -> io::Result<()> {
+        let set = self.set;
+        std::thread::Builder::new()
+            .name("signals".into())
+            .spawn(move || {
+                let mut stopping = false;
+                loop {
+                    let mut signal: libc::c_int = 0;
+                    // SAFETY: sigwait reads the set we own and writes the signal number.
+                    if unsafe { libc::sigwait(&set, &mut signal) } != 0 {
+                        return;
+                    }
+                    if stopping {
+                        std::process::exit(128 + signal);
+                    }
+                    stopping = true;
+                    on_stop(signal);
+                }
+            })?;
+        Ok(())
+    }
+}
+
+/// SIGINT's or SIGTERM's name.
+fn signal_name(signal: libc::c_int) -> &'static str {
+    if signal == libc::SIGINT {
+        "SIGINT"
+    } else {
+        "SIGTERM"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn times_relative_to_the_start_or_raw() {
+        let clock = Clock {
+            start: Time::from_micros(10_000_000),
+            raw: false,
+        };
+        assert_eq!(clock.format(Time::from_micros(11_234_567)), "+1.234 s");
+        assert_eq!(clock.format(Time::from_micros(9_500_000)), "-0.500 s");
+        let raw = Clock { raw: true, ..clock };
+        assert_eq!(raw.format(Time::from_micros(11_234_567)), "11234567us");
+    }
+
+    #[test]
+    fn payload_errors_say_why() {
+        assert_eq!(decode_payload(&[0xc0]), Ok(serde_json::Value::Null));
+        assert!(decode_payload(&[]).unwrap_err().contains("empty"));
+        assert!(decode_payload(&[0xc1])
+            .unwrap_err()
+            .contains("not MessagePack"));
+        assert_eq!(
+            decode_payload(&[0xa5, b'h']).unwrap_err(),
+            "not MessagePack: the value is cut short after 2 bytes"
+        );
+        assert_eq!(
+            decode_payload(&[0x01, 0x02]).unwrap_err(),
+            "1 byte after the first MessagePack value"
+        );
+    }
+
+    #[test]
+    fn verbose_lines_name_what_moved() {
+        let before = Drops {
+            malformed: 2,
+            ..Drops::default()
+        };
+        let now = Drops {
+            malformed: 5,
+            misrouted: 1,
+            ..Drops::default()
+        };
+        assert_eq!(
+            now.changes_since(&before),
+            ["+3 malformed (5 in all)", "+1 misrouted (1 in all)"]
+        );
+        assert_eq!(now.status(1), "1 message so far, 5 malformed, 1 misrouted");
+    }
+}

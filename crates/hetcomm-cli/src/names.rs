@@ -1,0 +1,125 @@
+//! The fleet file as the commands see it: the system and module names given on the command
+//! line are checked before anything is opened (a typo gets "did you mean" and the list to
+//! choose from, said once), and opening a system says what to check when it fails.
+
+use std::path::Path;
+
+use hetcomm::config::Fleet;
+use hetcomm::{Comm, OpenError};
+
+/// Opens `system` of the fleet file; an endpoint already taken gets a hint.
+pub fn open_system(path: &Path, system: &str) -> anyhow::Result<Comm> {
+    Comm::open(path, system).map_err(|e| match &e {
+        OpenError::Transport { reason, .. } if reason.contains("in use") => anyhow::anyhow!(
+            "{e}; is another program running as `{system}` (e.g. `hetcomm listen {} --as {system}`)?",
+            path.display()
+        ),
+        _ => e.into(),
+    })
+}
+
+/// Loads the fleet file; its errors (each with file:line:column) are the whole message.
+pub fn load_fleet(path: &Path) -> anyhow::Result<Fleet> {
+    hetcomm::config::load(path).map_err(|errors| anyhow::anyhow!("{errors}"))
+}
+
+/// Fails unless `name` is a system of `fleet`. `flag` is the option that gave it (`--as`);
+/// `extra` are words the option also takes (`All` for `--to`).
+pub fn check_system(
+    fleet: &Fleet,
+    path: &Path,
+    flag: &str,
+    name: &str,
+    extra: &[&str],
+) -> anyhow::Result<()> {
+    let mut known: Vec<&str> = fleet.systems.iter().map(|s| s.name.as_str()).collect();
+    if known.contains(&name) || extra.contains(&name) {
+        return Ok(());
+    }
+    known.extend_from_slice(extra);
+    anyhow::bail!(
+        "`{flag} {name}`: {} has no such system; {}",
+        path.display(),
+        help(name, &known, "systems")
+    )
+}
+
+/// Fails unless `name` is a module of `fleet` (see [`check_system`]).
+pub fn check_module(fleet: &Fleet, path: &Path, flag: &str, name: &str) -> anyhow::Result<()> {
+    let known: Vec<&str> = fleet.modules.iter().map(|m| m.name.as_str()).collect();
+    if known.contains(&name) {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "`{flag} {name}`: {} has no such module; {}",
+        path.display(),
+        help(name, &known, "modules")
+    )
+}
+
+/// "did you mean `X`? (systems: A, B, C)", or just the list when nothing is close.
+fn help(word: &str, candidates: &[&str], list_name: &str) -> String {
+    let list = format!("{list_name}: {}", candidates.join(", "));
+    match closest(word, candidates) {
+        Some(c) => format!("did you mean `{c}`? ({list})"),
+        None => list,
+    }
+}
+
+/// Levenshtein distance, in characters. (hetcomm-config has the same few lines for its own
+/// messages, crate-private; a dozen lines are cheaper than a dependency.)
+fn distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    let mut cur = vec![0; b.len() + 1];
+    for (i, ca) in a.chars().enumerate() {
+        cur[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let subst = prev[j] + usize::from(ca != cb);
+            cur[j + 1] = subst.min(prev[j + 1] + 1).min(cur[j] + 1);
+        }
+        std::mem::swap(&mut prev, &mut cur);
+    }
+    prev[b.len()]
+}
+
+/// The candidate closest to `word`, if close enough to be a plausible typo (a different case
+/// always is).
+fn closest<'a>(word: &str, candidates: &[&'a str]) -> Option<&'a str> {
+    if let Some(c) = candidates.iter().find(|c| c.eq_ignore_ascii_case(word)) {
+        return Some(c);
+    }
+    let limit = match word.chars().count() {
+        0..=1 => 0,
+        2..=3 => 1,
+        4..=8 => 2,
+        _ => 3,
+    };
+    candidates
+        .iter()
+        .map(|c| (distance(word, c), *c))
+        .filter(|(d, _)| *d <= limit)
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, c)| c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn suggests_the_nearest_name_or_lists_them() {
+        let names = ["Alpha", "Bravo", "Charlie", "All"];
+        assert_eq!(closest("Bravoo", &names), Some("Bravo"));
+        assert_eq!(closest("all", &names), Some("All"));
+        assert_eq!(closest("Zulu", &names), None);
+        assert_eq!(
+            help("Zulu", &names, "systems"),
+            "systems: Alpha, Bravo, Charlie, All"
+        );
+        assert_eq!(
+            help("Alpah", &names, "systems"),
+            "did you mean `Alpha`? (systems: Alpha, Bravo, Charlie, All)"
+        );
+    }
+}
