@@ -54,6 +54,14 @@ impl StreamListener for TcpListener {
         TcpListener::accept(self)
     }
 
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        TcpListener::set_nonblocking(self, on)
+    }
+
     fn wake(&self) {
         // On Linux, shutting a listening socket down makes a blocked accept fail at once. Where
         // that is not supported, a connection to ourselves wakes it instead.

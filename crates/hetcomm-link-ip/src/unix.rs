@@ -50,6 +50,14 @@ impl StreamListener for UnixListener {
         UnixListener::accept(self)
     }
 
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        UnixListener::set_nonblocking(self, on)
+    }
+
     fn wake(&self) {
         // As for TCP: shutdown works on Linux, a connection to ourselves elsewhere.
         let _ = socket2::SockRef::from(self).shutdown(Shutdown::Both);
