@@ -142,6 +142,9 @@ impl UnixLink {
             .iter()
             .map(|(id, p)| (*id, UnixAddr(p.clone())))
             .collect();
+        // As for TCP: a burst of connects must not overflow std's backlog of 128.
+        let backlog = config.max_connections.clamp(128, i32::MAX as usize) as i32;
+        let _ = socket2::SockRef::from(&listener).listen(backlog);
         let inner = StreamLink::new(UnixTransport, local, listener, peers, sink, config)?;
         Ok(UnixLink {
             inner: Some(inner),
