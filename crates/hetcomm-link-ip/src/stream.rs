@@ -408,7 +408,7 @@ pub struct StreamStats {
     pub frames_dropped: u64,
     /// Outgoing connections established.
     pub connects: u64,
-    /// Connections accepted by the listener.
+    /// Connections accepted by the listener (refused ones included).
     pub accepted: u64,
     /// Accepted connections closed because their sender is not a fleet system (or sent a
     /// malformed hello, or none within [`StreamConfig::hello_timeout`]).
@@ -531,7 +531,7 @@ struct Backoff {
     reason: String,
 }
 
-/// State shared by the link, its listener thread and its reader threads.
+/// State shared by the link, its poller (or accept) thread and any reader threads.
 struct Shared<T: StreamTransport> {
     transport: T,
     sink: Arc<dyn FrameSink>,
@@ -1062,7 +1062,7 @@ impl<T: StreamTransport> Readable for StreamLink<T> {
 
     /// Reads up to `budget` records from each connection that has bytes (and then whatever
     /// records are already buffered), handing them to the sink; closes connections that
-    /// ended, counted as the reader threads would.
+    /// ended, counted as without `driven`.
     fn read_ready(&self, budget: usize) -> io::Result<usize> {
         match self.driven() {
             Some(d) => d.read_ready(&self.shared, budget.max(1)),

@@ -8,16 +8,19 @@
 mod common;
 
 use std::io::Write;
-use std::net::TcpStream;
+use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use common::driven::Driver;
 use common::{assert_closed_by_peer, record, wait_until, TcpHarness, DEADLINE};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::CollectSink;
 use hetcomm_link::{Link, Peer};
-use hetcomm_link_ip::stream::{encode_hello, StreamConfig};
+use hetcomm_link_ip::stream::{
+    encode_hello, StreamConfig, StreamLink, StreamListener, StreamTransport,
+};
+use hetcomm_link_ip::tcp::TcpTransport;
 
 const A: SystemId = SystemId(1);
 const B: SystemId = SystemId(2);
@@ -63,7 +66,7 @@ fn allow_descriptors(need: usize) {
 }
 
 /// Opens `n` connections to `addr`; those with an even index send `hello` first.
-fn connect_many(addr: std::net::SocketAddr, n: usize, hello: Option<SystemId>) -> Vec<TcpStream> {
+fn connect_many(addr: SocketAddr, n: usize, hello: Option<SystemId>) -> Vec<TcpStream> {
     (0..n)
         .map(|i| {
             let mut s = TcpStream::connect(addr).unwrap_or_else(|e| panic!("connect {i}: {e}"));
@@ -76,7 +79,7 @@ fn connect_many(addr: std::net::SocketAddr, n: usize, hello: Option<SystemId>) -
 }
 
 /// A frame sent on a fresh connection arrives: the link still serves peers.
-fn still_served(addr: std::net::SocketAddr, sink: &CollectSink, text: &[u8]) {
+fn still_served(addr: SocketAddr, sink: &CollectSink, text: &[u8]) {
     let before = sink.frames().len();
     let mut s = TcpStream::connect(addr).unwrap();
     s.write_all(&encode_hello(A)).unwrap();
@@ -201,4 +204,123 @@ fn connections_over_the_limit_are_refused_and_counted_on_a_driven_link() {
     // The slots are free again.
     still_served(addr, &sink, b"after the crowd");
     drop(driver);
+}
+
+#[test]
+fn a_hello_may_come_in_pieces_but_not_late() {
+    let _serial = serial();
+    const HELLO_TIMEOUT: Duration = Duration::from_millis(300);
+    let mut h = TcpHarness::new(StreamConfig {
+        hello_timeout: HELLO_TIMEOUT,
+        ..StreamConfig::default()
+    });
+    let sink = CollectSink::new();
+    let b = h.open_tcp(B, sink.clone());
+    let addr = b.local_addr();
+    let started = Instant::now();
+    // Silent, and three bytes of a hello: both closed once the timeout has passed.
+    let mut silent = TcpStream::connect(addr).unwrap();
+    let mut partial = TcpStream::connect(addr).unwrap();
+    partial.write_all(&encode_hello(A)[..3]).unwrap();
+    // A hello and a record one byte per write: read as they come, then served.
+    let mut slow = TcpStream::connect(addr).unwrap();
+    slow.set_nodelay(true).unwrap();
+    let mut bytes = encode_hello(A).to_vec();
+    bytes.extend_from_slice(&record(b"byte by byte"));
+    for byte in &bytes {
+        slow.write_all(std::slice::from_ref(byte)).unwrap();
+    }
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    assert_eq!(sink.frames()[0].bytes, b"byte by byte");
+    assert_closed_by_peer(&mut silent);
+    assert_closed_by_peer(&mut partial);
+    assert!(
+        started.elapsed() >= HELLO_TIMEOUT,
+        "closed before the timeout"
+    );
+    wait_until("both late hellos counted", DEADLINE, || {
+        b.stream_stats().rejected_connections == 2
+    });
+    let s = b.stream_stats();
+    assert_eq!((s.open_connections, s.frames_dropped), (1, 2), "{s:?}");
+}
+
+/// A TCP listener the link cannot poll (as an RFCOMM one): the link falls back to an accept
+/// thread and a reader thread per connection.
+struct Unpolled(TcpListener);
+
+impl StreamListener for Unpolled {
+    type Socket = TcpStream;
+    type PeerAddr = SocketAddr;
+    fn accept(&self) -> std::io::Result<(TcpStream, SocketAddr)> {
+        self.0.accept()
+    }
+    fn wake(&self) {
+        StreamListener::wake(&self.0)
+    }
+}
+
+struct UnpolledTcp;
+
+impl StreamTransport for UnpolledTcp {
+    type Socket = TcpStream;
+    type Listener = Unpolled;
+    type Addr = String;
+    const NAME: &'static str = "unpolled";
+    fn connect(&self, addr: &String, timeout: Duration) -> std::io::Result<TcpStream> {
+        TcpTransport.connect(addr, timeout)
+    }
+}
+
+#[test]
+fn reader_threads_are_bounded_too_and_close_with_their_peers() {
+    let _serial = serial();
+    const N: usize = 200;
+    const LIMIT: usize = 50;
+    allow_descriptors(3 * N + 256);
+    let (endpoints, mut listeners) = common::tcp_listeners(&[A, B]);
+    let sink = CollectSink::new();
+    let config = StreamConfig {
+        max_connections: LIMIT,
+        ..StreamConfig::default()
+    };
+    let listener = Unpolled(listeners.remove(&B).unwrap());
+    let addr = listener.0.local_addr().unwrap();
+    let b = StreamLink::new(UnpolledTcp, B, listener, endpoints, sink.clone(), config).unwrap();
+    let (threads_before, fds_before) = (threads(), fds());
+
+    let clients = connect_many(addr, N, Some(A));
+    wait_until("every connection accepted or refused", DEADLINE, || {
+        b.stream_stats().accepted == N as u64
+    });
+    let s = b.stream_stats();
+    assert_eq!(
+        (s.open_connections, s.refused_connections),
+        (LIMIT as u64, (N - LIMIT) as u64),
+        "{s:?}"
+    );
+    let (threads_during, fds_during) = (threads(), fds());
+    assert!(
+        threads_during <= threads_before + LIMIT,
+        "threads: {threads_before} -> {threads_during}"
+    );
+    // A reader keeps a second handle to its connection to shut it down at close.
+    assert!(
+        fds_during <= fds_before + N + 2 * LIMIT + SLACK,
+        "descriptors: {fds_before} -> {fds_during}"
+    );
+
+    drop(clients);
+    wait_until("descriptors back to the baseline", DEADLINE, || {
+        fds() <= fds_before
+    });
+    wait_until("reader threads gone", DEADLINE, || {
+        threads() <= threads_before
+    });
+    assert_eq!(b.stream_stats().open_connections, 0);
+    still_served(addr, &sink, b"served by a thread");
+    eprintln!(
+        "{N} connections, limit {LIMIT}, a thread each: threads {threads_before}/{threads_during}, \
+         descriptors {fds_before}/{fds_during} (before/during)"
+    );
 }
