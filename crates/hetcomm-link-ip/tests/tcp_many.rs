@@ -2,14 +2,15 @@
 //! connections, descriptors close as soon as the peers do, and connections over
 //! `max_connections` are refused and counted. Real sockets on 127.0.0.1, port 0.
 //!
-//! Each test measures the whole process (`/proc/self/task`, `/proc/self/fd`), so the tests of
-//! this file run one at a time.
+//! The scenarios measure the whole process (`/proc/self/task`, `/proc/self/fd`), so they run
+//! one after the other in a single test: nothing else in this process opens sockets or
+//! starts threads meanwhile (not even the test harness, which runs each test on a thread).
 
 mod common;
 
 use std::io::Write;
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::driven::Driver;
@@ -29,12 +30,6 @@ const CONNECTIONS: usize = 2000;
 /// Descriptors and threads the process may open or start besides the ones counted, e.g. the
 /// directory handle that counting descriptors opens.
 const SLACK: usize = 8;
-
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn serial() -> MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 fn threads() -> usize {
     std::fs::read_dir("/proc/self/task").unwrap().count()
@@ -90,8 +85,13 @@ fn still_served(addr: SocketAddr, sink: &CollectSink, text: &[u8]) {
 }
 
 #[test]
+fn many_connections() {
+    two_thousand_connections_add_no_thread_and_close_with_their_peers();
+    connections_over_the_limit_are_refused_and_counted_on_a_driven_link();
+    reader_threads_are_bounded_too_and_close_with_their_peers();
+}
+
 fn two_thousand_connections_add_no_thread_and_close_with_their_peers() {
-    let _serial = serial();
     allow_descriptors(3 * CONNECTIONS + 256);
     let mut h = TcpHarness::new(StreamConfig {
         max_connections: 4096,
@@ -144,9 +144,7 @@ fn two_thousand_connections_add_no_thread_and_close_with_their_peers() {
     );
 }
 
-#[test]
 fn connections_over_the_limit_are_refused_and_counted_on_a_driven_link() {
-    let _serial = serial();
     allow_descriptors(3 * CONNECTIONS + 256);
     const LIMIT: usize = 300;
     let mut h = TcpHarness::new(StreamConfig {
@@ -206,45 +204,6 @@ fn connections_over_the_limit_are_refused_and_counted_on_a_driven_link() {
     drop(driver);
 }
 
-#[test]
-fn a_hello_may_come_in_pieces_but_not_late() {
-    let _serial = serial();
-    const HELLO_TIMEOUT: Duration = Duration::from_millis(300);
-    let mut h = TcpHarness::new(StreamConfig {
-        hello_timeout: HELLO_TIMEOUT,
-        ..StreamConfig::default()
-    });
-    let sink = CollectSink::new();
-    let b = h.open_tcp(B, sink.clone());
-    let addr = b.local_addr();
-    let started = Instant::now();
-    // Silent, and three bytes of a hello: both closed once the timeout has passed.
-    let mut silent = TcpStream::connect(addr).unwrap();
-    let mut partial = TcpStream::connect(addr).unwrap();
-    partial.write_all(&encode_hello(A)[..3]).unwrap();
-    // A hello and a record one byte per write: read as they come, then served.
-    let mut slow = TcpStream::connect(addr).unwrap();
-    slow.set_nodelay(true).unwrap();
-    let mut bytes = encode_hello(A).to_vec();
-    bytes.extend_from_slice(&record(b"byte by byte"));
-    for byte in &bytes {
-        slow.write_all(std::slice::from_ref(byte)).unwrap();
-    }
-    assert_eq!(sink.wait_for(1, DEADLINE), 1);
-    assert_eq!(sink.frames()[0].bytes, b"byte by byte");
-    assert_closed_by_peer(&mut silent);
-    assert_closed_by_peer(&mut partial);
-    assert!(
-        started.elapsed() >= HELLO_TIMEOUT,
-        "closed before the timeout"
-    );
-    wait_until("both late hellos counted", DEADLINE, || {
-        b.stream_stats().rejected_connections == 2
-    });
-    let s = b.stream_stats();
-    assert_eq!((s.open_connections, s.frames_dropped), (1, 2), "{s:?}");
-}
-
 /// A TCP listener the link cannot poll (as an RFCOMM one): the link falls back to an accept
 /// thread and a reader thread per connection.
 struct Unpolled(TcpListener);
@@ -272,9 +231,7 @@ impl StreamTransport for UnpolledTcp {
     }
 }
 
-#[test]
 fn reader_threads_are_bounded_too_and_close_with_their_peers() {
-    let _serial = serial();
     const N: usize = 200;
     const LIMIT: usize = 50;
     allow_descriptors(3 * N + 256);
