@@ -50,6 +50,8 @@ pub(crate) const COMMON_KEYS: [&str; 7] = [
 ];
 /// Keys of `udp` / `tcp` transports besides the common ones.
 pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
+/// Keys of `tcp` transports besides the common ones.
+pub(crate) const TCP_KEYS: [&str; 3] = ["endpoints", "max_message_bytes", "max_connections"];
 /// Keys of `ros1` transports besides the common ones.
 pub(crate) const ROS1_KEYS: [&str; 2] = ["master_uri", "namespace"];
 /// Keys of `bluetooth` transports besides the common ones.
@@ -953,7 +955,8 @@ impl P<'_> {
         let errors_before = self.diag.errors.len();
         let extra: &[&str] = match kind {
             TransportKind::Inproc => &[],
-            TransportKind::Udp | TransportKind::Tcp => &IP_KEYS,
+            TransportKind::Udp => &IP_KEYS,
+            TransportKind::Tcp => &TCP_KEYS,
             TransportKind::Ros1 => &ROS1_KEYS,
             TransportKind::Bluetooth => &BLUETOOTH_KEYS,
             TransportKind::Emulated => &EMULATED_KEYS,
@@ -996,9 +999,17 @@ impl P<'_> {
                     )
                     .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
                 });
+                let max_connections = t.get("max_connections").and_then(|v| {
+                    let vl = self.vloc(v, &tloc);
+                    let help = "a number of connections, e.g. 256";
+                    let n =
+                        self.int_in(v, &format!("{path}.max_connections"), &vl, 1, 1 << 20, help);
+                    n.map(|n| n as usize)
+                });
                 TransportSettings::Ip(IpSettings {
                     endpoints,
                     max_message_bytes,
+                    max_connections,
                 })
             }
             TransportKind::Ros1 => {

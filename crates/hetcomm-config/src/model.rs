@@ -217,6 +217,9 @@ pub struct IpSettings {
     pub endpoints: BTreeMap<SystemId, String>,
     /// Largest message accepted for sending, bytes (None: the codec's limit).
     pub max_message_bytes: Option<usize>,
+    /// `tcp` only: most inbound connections a system's listener keeps open at once; further
+    /// ones are refused and counted (None: the link's default, 256).
+    pub max_connections: Option<usize>,
 }
 
 /// Settings of a `ros1` transport.

@@ -4,8 +4,8 @@
 //! move whole frames between systems over the network, using only `std` threads and sockets.
 //!
 //! - [`stream`]: a stream-link layer generic over a connector/listener pair — framing, one
-//!   cached connection per peer, reconnect with backoff, write deadlines, reader threads,
-//!   clean shutdown. TCP and Unix sockets are built on it; Bluetooth RFCOMM can be.
+//!   cached connection per peer, reconnect with backoff, write deadlines, receiving on one
+//!   poller thread per link with a bound on accepted connections, clean shutdown. TCP and Unix sockets are built on it; Bluetooth RFCOMM can be.
 //! - [`tcp`]: [`TcpLink`], reliable and ordered while connected.
 //! - [`udp`]: [`UdpLink`], unreliable and unordered, fragmenting frames larger than one
 //!   datagram and reassembling them with bounded memory and a timeout.

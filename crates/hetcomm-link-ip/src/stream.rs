@@ -5,8 +5,8 @@
 //! stream), [`StreamListener`] (accepts connections) and [`StreamTransport`] (connects to an
 //! address and says how a receiver learns who is on the other end). [`StreamLink`] does the
 //! rest: framing, one cached outgoing connection per peer, reconnection with backoff, write
-//! deadlines, batching of held frames, a listener thread with one reader thread per accepted
-//! connection, statistics and clean shutdown.
+//! deadlines, batching of held frames, receiving on one poller thread (not a thread per
+//! connection), a bound on accepted connections, statistics and clean shutdown.
 //!
 //! # Connections
 //!
@@ -77,36 +77,58 @@
 //!
 //! # Receiving
 //!
-//! Each accepted connection has a reader thread with a 64 KiB read buffer. Small records are
-//! read through it, as many per read as have arrived, and handed to the sink straight from the
-//! buffer. A frame larger than 16 KiB that is not already in the buffer is read directly into
-//! a reused buffer of its own size (the bytes already buffered are copied once; after a large
-//! frame the reader reads at most 1 KiB ahead into its buffer, so a run of large frames costs
-//! almost no copy in user space). Nothing is allocated per frame in steady state, unless the
-//! sink keeps frames ([`FrameSink::takes_frames`], as the runtime's does): then each such large
-//! frame is read into a fresh buffer of exactly its size (not zero-filled first when the
-//! socket offers [`StreamSocket::raw_fd`]) and handed over with [`FrameSink::on_frame_owned`],
-//! so that it becomes the message's payload without a copy. Those buffers come from a pool per
-//! connection ([`BufferPool`], up to 8 MiB) and go back to it when the sink drops them, so that
-//! a steady stream of large frames allocates nothing either.
+//! A listener that can be polled ([`StreamListener::raw_fd`]: TCP and Unix sockets) is served
+//! by one poller thread per link, whatever the number of connections: it accepts, reads each
+//! connection's hello without blocking (a connection waiting for its hello costs a descriptor
+//! and a few bytes, no thread), and reads the records of identified connections, all through
+//! one `epoll` instance. A connection whose peer closes is closed as soon as its end of stream
+//! is read, so its descriptor does not outlive the peer's. Frames are handed to the sink on
+//! that thread, one connection after the other (at most 64 records of one connection before
+//! the others get their turn), so a sink that blocks delays every connection of the link.
+//! Listeners that cannot be polled (RFCOMM) keep an accept thread and a reader thread per
+//! connection; that thread's descriptors are closed when the connection ends.
+//!
+//! Each connection has a 64 KiB read buffer, allocated when its first record arrives (an
+//! idle connection holds none). Small records are read through it, as many per read as have
+//! arrived, and handed to the sink straight from the buffer. A frame larger than 16 KiB that
+//! is not already in the buffer is read directly into a reused buffer of its own size (the
+//! bytes already buffered are copied once; after a large frame the reader reads at most 1 KiB
+//! ahead into its buffer, so a run of large frames costs almost no copy in user space). A
+//! record interrupted by an empty socket is resumed when more bytes arrive. Nothing is
+//! allocated per frame in steady state, unless the sink keeps frames
+//! ([`FrameSink::takes_frames`], as the runtime's does): then each such large frame is read
+//! into a fresh buffer of exactly its size (not zero-filled first when the socket offers
+//! [`StreamSocket::raw_fd`]) and handed over with [`FrameSink::on_frame_owned`], so that it
+//! becomes the message's payload without a copy. Those buffers come from a pool per
+//! connection ([`BufferPool`], up to 8 MiB) and go back to it when the sink drops them, so
+//! that a steady stream of large frames allocates nothing either.
+//!
+//! # Connection limits
+//!
+//! At most [`StreamConfig::max_connections`] accepted connections (256 by default) are open
+//! at once, counting those still waiting for their hello. A connection beyond that is accepted
+//! and closed at once, counted in [`StreamStats::refused_connections`] and as one dropped
+//! frame (what its sender wrote on it is lost). [`StreamStats::open_connections`] says how
+//! many are open now. A connection that has not sent its whole hello within
+//! [`StreamConfig::hello_timeout`] is closed and counted as rejected (below), so idle
+//! connections cannot hold the slots for long.
 //!
 //! # Driven receive
 //!
-//! With [`StreamConfig::driven`] (what the runtime uses for TCP) a connection gets a thread
-//! only for its hello. Once identified it is made non-blocking and registered with one
-//! `epoll` instance per link, and [`Link::readable`] offers that descriptor: whoever calls
+//! With [`StreamConfig::driven`] (what the runtime uses for TCP) the poller thread only
+//! accepts and reads hellos. Identified connections are registered with one `epoll` instance
+//! per link, and [`Link::readable`] offers that descriptor: whoever calls
 //! [`Readable::read_ready`] (in the runtime, the module waiting for a message) reads every
 //! connection that has bytes, up to the budget of records each plus whatever records are
-//! already buffered. A record interrupted by an empty socket is resumed at the next call.
-//! Nothing is received until someone calls it. Ends of streams are counted as above. Sockets
-//! without [`StreamSocket::raw_fd`] or [`StreamSocket::set_nonblocking`] (RFCOMM) are read by
-//! a thread each, as without `driven`.
+//! already buffered, and closes connections that ended. Nothing is received until someone
+//! calls it. Ends of streams are counted as without `driven`. Sockets without
+//! [`StreamSocket::raw_fd`] or [`StreamSocket::set_nonblocking`] (RFCOMM) are read by a thread
+//! each, as without `driven`.
 //!
-//! The point is the hand-off: with a reader thread per connection, every message read wakes
-//! the module's thread, and three threads (sender, reader, module) share the CPUs that two
-//! would use. Read by the module itself, a 64 KiB stream reached 83–90% of raw TCP's
-//! throughput on the 2-core test VM, against about 65% through a reader thread
-//! (`benchmarks/RESULTS.md`).
+//! The point is the hand-off: with a reader thread, every message read wakes the module's
+//! thread, and three threads (sender, reader, module) share the CPUs that two would use. Read
+//! by the module itself, a 64 KiB stream reached 83–90% of raw TCP's throughput on the 2-core
+//! test VM, against about 65% through a reader thread (`benchmarks/RESULTS.md`).
 //!
 //! # Integrity
 //!
@@ -127,7 +149,8 @@
 //!
 //! In the first two modes a connection from a system that is not in the fleet (a hello naming
 //! an unknown system, a malformed hello, an address with no system) is closed before any frame
-//! is read, and counted as one dropped frame and one rejected connection.
+//! is read, and counted as one dropped frame and one rejected connection; so is a connection
+//! whose hello does not arrive in full within the timeout, or that ends before it does.
 //!
 //! # Failures and backpressure
 //!
@@ -151,11 +174,13 @@
 //!   (TCP reports the reset on a later write). The link does not retry: acknowledgements and
 //!   retries are the router's.
 
+mod poller;
+
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::{self, IoSlice, IoSliceMut, Read, Write};
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::os::fd::AsRawFd;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -163,6 +188,8 @@ use std::time::{Duration, Instant};
 use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
+
+use poller::{refuse, reject, ConnSet, Permit, Poller, Waker};
 
 /// Size of the hello a connector sends in [`IdentityMode::Hello`].
 pub const HELLO_LEN: usize = 8;
@@ -176,6 +203,8 @@ pub const RECORD_MAGIC: [u8; 2] = *b"HR";
 pub const STREAM_VERSION: u8 = 1;
 /// Default of [`StreamConfig::batch_bytes`]: 64 KiB.
 pub const DEFAULT_BATCH_BYTES: usize = 64 * 1024;
+/// Default of [`StreamConfig::max_connections`].
+pub const DEFAULT_MAX_CONNECTIONS: usize = 256;
 
 /// Each reader's buffer for small records.
 const READ_BUF_LEN: usize = 64 * 1024;
@@ -231,8 +260,22 @@ pub trait StreamListener: Send + Sync + 'static {
     /// Blocks until a connection arrives.
     fn accept(&self) -> io::Result<(Self::Socket, Self::PeerAddr)>;
     /// Makes an `accept` blocked on another thread return (with a connection or an error). The
-    /// link sets its closing flag first, so whatever `accept` returns then is discarded.
+    /// link sets its closing flag first, so whatever `accept` returns then is discarded. Not
+    /// used for listeners the link polls ([`raw_fd`](StreamListener::raw_fd)).
     fn wake(&self);
+    /// The listening socket's descriptor, if it polls readable (`POLLIN`) when a connection
+    /// waits and [`accept`](StreamListener::accept) can be made non-blocking with
+    /// [`set_nonblocking`](StreamListener::set_nonblocking). The link then accepts, reads
+    /// hellos and receives on one thread for all connections (see "Receiving" in the module
+    /// docs). `None` (the default): an accept thread and a thread per connection.
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        None
+    }
+    /// Makes [`accept`](StreamListener::accept) return [`io::ErrorKind::WouldBlock`] instead
+    /// of waiting. The default: unsupported.
+    fn set_nonblocking(&self, _on: bool) -> io::Result<()> {
+        Err(io::ErrorKind::Unsupported.into())
+    }
 }
 
 /// How a receiver learns which system is on the other end of an accepted connection.
@@ -318,6 +361,11 @@ pub struct StreamConfig {
     /// ([`Link::readable`]) instead of a reader thread each (see "Driven receive" in the
     /// module docs). Nothing is received until someone does. Default `false`.
     pub driven: bool,
+    /// Most accepted connections open at once, those still waiting for their hello included;
+    /// further ones are closed at once and counted in [`StreamStats::refused_connections`]
+    /// (see "Connection limits" in the module docs). Default [`DEFAULT_MAX_CONNECTIONS`]; 0
+    /// refuses every connection.
+    pub max_connections: usize,
 }
 
 impl Default for StreamConfig {
@@ -332,6 +380,7 @@ impl Default for StreamConfig {
             max_message_bytes: None,
             batch_bytes: DEFAULT_BATCH_BYTES,
             driven: false,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
         }
     }
 }
@@ -355,15 +404,21 @@ pub struct StreamStats {
     /// Frames handed to the sink.
     pub frames_received: u64,
     /// Frames dropped on receive: desynchronised or oversized records, frames cut short by a
-    /// closed connection, and rejected connections (one each).
+    /// closed connection, and rejected and refused connections (one each).
     pub frames_dropped: u64,
     /// Outgoing connections established.
     pub connects: u64,
-    /// Connections accepted by the listener.
+    /// Connections accepted by the listener (refused ones included).
     pub accepted: u64,
     /// Accepted connections closed because their sender is not a fleet system (or sent a
-    /// malformed hello).
+    /// malformed hello, or none within [`StreamConfig::hello_timeout`]).
     pub rejected_connections: u64,
+    /// Accepted connections closed at once because [`StreamConfig::max_connections`] were
+    /// open (or a thread to read one could not be started). Each is also counted in
+    /// `frames_dropped`.
+    pub refused_connections: u64,
+    /// Accepted connections open now (a gauge, not a counter).
+    pub open_connections: u64,
     /// Writes that failed after a connection was up (write errors and write timeouts).
     pub write_failures: u64,
     /// Frames queued or held while connecting whose connection then failed (never sent).
@@ -381,6 +436,7 @@ struct Counters {
     connects: AtomicU64,
     accepted: AtomicU64,
     rejected_connections: AtomicU64,
+    refused_connections: AtomicU64,
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
     held_frames_dropped: AtomicU64,
@@ -475,7 +531,7 @@ struct Backoff {
     reason: String,
 }
 
-/// State shared by the link, its listener thread and its reader threads.
+/// State shared by the link, its poller (or accept) thread and any reader threads.
 struct Shared<T: StreamTransport> {
     transport: T,
     sink: Arc<dyn FrameSink>,
@@ -484,9 +540,16 @@ struct Shared<T: StreamTransport> {
     fleet: BTreeMap<SystemId, ()>,
     closing: AtomicBool,
     counters: Counters,
-    readers: Mutex<Vec<Reader<T::Socket>>>,
-    /// With [`StreamConfig::driven`]: the connections the driving thread reads.
-    driven: Option<Driven<T::Socket>>,
+    /// Accepted connections open now (each holds a [`Permit`]).
+    open: Arc<AtomicUsize>,
+    /// Connections read by a thread of their own, by reader number; a reader removes its
+    /// entry (and so closes the second handle) when its connection ends.
+    readers: Mutex<HashMap<u64, Reader<T::Socket>>>,
+    next_reader: AtomicU64,
+    /// Identified connections read without a thread each: by the driving thread with
+    /// [`StreamConfig::driven`], otherwise by the poller thread. `None` when neither reads
+    /// them (not driven, listener not polled: every connection has a reader thread).
+    conns: Option<ConnSet<T::Socket>>,
 }
 
 struct Reader<S> {
@@ -509,13 +572,16 @@ pub struct StreamLink<T: StreamTransport> {
     peers: Arc<BTreeMap<SystemId, PeerEntry<T>>>,
     /// Set when any peer's `held` flag is; lets `flush` return at once when nothing is held.
     held_any: AtomicBool,
+    /// The poller thread, or the accept thread of a listener that cannot be polled.
     accept_thread: Option<JoinHandle<()>>,
+    /// Wakes the poller thread (`None`: the accept thread, woken through the listener).
+    waker: Option<Arc<Waker>>,
 }
 
 impl<T: StreamTransport> StreamLink<T> {
     /// Starts a link for system `local` that accepts on `listener` and connects to the
     /// addresses in `peers` (an entry for `local` itself is ignored). Received frames go to
-    /// `sink`. Fails only if the listener thread cannot be started.
+    /// `sink`. Fails only if the receiving thread (or its `epoll` instance) cannot be set up.
     pub fn new(
         transport: T,
         local: SystemId,
@@ -536,28 +602,47 @@ impl<T: StreamTransport> StreamLink<T> {
                 (id, entry)
             })
             .collect();
-        let driven = if config.driven {
-            Some(Driven::new()?)
+        let polled = listener
+            .raw_fd()
+            .filter(|_| listener.set_nonblocking(true).is_ok());
+        let conns = if config.driven || polled.is_some() {
+            Some(ConnSet::new()?)
         } else {
             None
         };
         let shared = Arc::new(Shared {
             transport,
             sink,
-            driven,
+            conns,
             config,
             fleet: peers.keys().map(|id| (*id, ())).collect(),
             closing: AtomicBool::new(false),
             counters: Counters::default(),
-            readers: Mutex::new(Vec::new()),
+            open: Arc::new(AtomicUsize::new(0)),
+            readers: Mutex::new(HashMap::new()),
+            next_reader: AtomicU64::new(1),
         });
         let listener = Arc::new(listener);
-        let accept_thread = {
+        let (accept_thread, waker) = {
             let shared = shared.clone();
             let listener = listener.clone();
-            std::thread::Builder::new()
-                .name(format!("hetcomm-{}-accept-{local}", T::NAME))
-                .spawn(move || accept_loop(&shared, &listener))?
+            let thread = std::thread::Builder::new();
+            match polled {
+                Some(fd) => {
+                    let waker = Arc::new(Waker::new()?);
+                    let poller = Poller::new(shared, listener, fd, waker.clone())?;
+                    let handle = thread
+                        .name(format!("hetcomm-{}-rx-{local}", T::NAME))
+                        .spawn(move || poller.run())?;
+                    (handle, Some(waker))
+                }
+                None => {
+                    let handle = thread
+                        .name(format!("hetcomm-{}-accept-{local}", T::NAME))
+                        .spawn(move || accept_loop(&shared, &listener))?;
+                    (handle, None)
+                }
+            }
         };
         Ok(StreamLink {
             local,
@@ -566,6 +651,7 @@ impl<T: StreamTransport> StreamLink<T> {
             peers: Arc::new(peers),
             held_any: AtomicBool::new(false),
             accept_thread: Some(accept_thread),
+            waker,
         })
     }
 
@@ -579,6 +665,14 @@ impl<T: StreamTransport> StreamLink<T> {
         &self.listener
     }
 
+    /// The connections a driving thread reads, with [`StreamConfig::driven`].
+    fn driven(&self) -> Option<&ConnSet<T::Socket>> {
+        self.shared
+            .conns
+            .as_ref()
+            .filter(|_| self.shared.config.driven)
+    }
+
     /// All counters, including those [`LinkStats`] has no field for.
     pub fn stream_stats(&self) -> StreamStats {
         let c = &self.shared.counters;
@@ -590,6 +684,8 @@ impl<T: StreamTransport> StreamLink<T> {
             connects: get(&c.connects),
             accepted: get(&c.accepted),
             rejected_connections: get(&c.rejected_connections),
+            refused_connections: get(&c.refused_connections),
+            open_connections: self.shared.open.load(Ordering::Relaxed) as u64,
             write_failures: get(&c.write_failures),
             frames_lost_connecting: get(&c.frames_lost_connecting),
             held_frames_dropped: get(&c.held_frames_dropped),
@@ -879,7 +975,7 @@ impl<T: StreamTransport> Link for StreamLink<T> {
     }
 
     fn readable(&self) -> Option<&dyn Readable> {
-        self.shared.driven.as_ref().map(|_| self as &dyn Readable)
+        self.driven().map(|_| self as &dyn Readable)
     }
 
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
@@ -961,17 +1057,14 @@ impl<T: StreamTransport> Readable for StreamLink<T> {
     /// An epoll descriptor over every accepted connection (readable when any of them is).
     /// Without `driven`, a descriptor that never polls readable is not offered: -1.
     fn fd(&self) -> std::os::fd::RawFd {
-        self.shared
-            .driven
-            .as_ref()
-            .map_or(-1, |d| d.epoll.as_raw_fd())
+        self.driven().map_or(-1, |d| d.epoll.as_raw_fd())
     }
 
     /// Reads up to `budget` records from each connection that has bytes (and then whatever
     /// records are already buffered), handing them to the sink; closes connections that
-    /// ended, counted as the reader threads would.
+    /// ended, counted as without `driven`.
     fn read_ready(&self, budget: usize) -> io::Result<usize> {
-        match &self.shared.driven {
+        match self.driven() {
             Some(d) => d.read_ready(&self.shared, budget.max(1)),
             None => Ok(0),
         }
@@ -984,20 +1077,23 @@ impl<T: StreamTransport> Drop for StreamLink<T> {
         // not read makes this wait up to the write timeout).
         let _ = self.flush();
         self.shared.closing.store(true, Ordering::SeqCst);
-        self.listener.wake();
+        match &self.waker {
+            Some(w) => w.wake(),
+            None => self.listener.wake(),
+        }
         if let Some(h) = self.accept_thread.take() {
             let _ = h.join();
         }
-        // The accept thread is gone, so no reader can be added any more.
+        // The accepting thread is gone, so no reader can be added any more.
         let readers = std::mem::take(&mut *lock(&self.shared.readers));
-        for r in &readers {
+        for r in readers.values() {
             let _ = r.socket.shutdown_both();
         }
-        for r in readers {
+        for r in readers.into_values() {
             let _ = r.handle.join();
         }
-        if let Some(driven) = &self.shared.driven {
-            driven.shutdown();
+        if let Some(conns) = &self.shared.conns {
+            conns.shutdown();
         }
         for peer in self.peers.values() {
             if let Some(s) = lock(&peer.slot).conn.take() {
@@ -1119,8 +1215,8 @@ pub fn decode_record_header(h: &[u8; RECORD_HEADER_LEN], max_frame: usize) -> Op
     (len <= max_frame).then_some(len)
 }
 
+/// The accept thread of a listener that cannot be polled: a reader thread per connection.
 fn accept_loop<T: StreamTransport>(shared: &Arc<Shared<T>>, listener: &T::Listener) {
-    let mut next_id = 0u64;
     loop {
         let accepted = listener.accept();
         if shared.closing.load(Ordering::SeqCst) {
@@ -1137,36 +1233,71 @@ fn accept_loop<T: StreamTransport>(shared: &Arc<Shared<T>>, listener: &T::Listen
             }
         };
         bump(&shared.counters.accepted);
-        reap_finished(shared);
-        let Ok(handle_copy) = socket.try_clone() else {
-            continue;
-        };
-        next_id += 1;
-        let thread_shared = shared.clone();
-        let spawned = std::thread::Builder::new()
-            .name(format!("hetcomm-{}-rx-{next_id}", T::NAME))
-            .spawn(move || serve_connection(&thread_shared, socket, addr));
-        if let Ok(handle) = spawned {
-            lock(&shared.readers).push(Reader {
-                socket: handle_copy,
-                handle,
-            });
+        match Permit::take(&shared.open, shared.config.max_connections) {
+            Some(permit) => spawn_reader(shared, socket, addr, permit),
+            None => refuse(shared, socket),
         }
     }
 }
 
-/// Joins reader threads whose connections have ended, so their entries do not pile up.
-fn reap_finished<T: StreamTransport>(shared: &Shared<T>) {
-    let finished: Vec<_> = {
-        let mut readers = lock(&shared.readers);
-        let (done, live): (Vec<_>, Vec<_>) = std::mem::take(&mut *readers)
-            .into_iter()
-            .partition(|r| r.handle.is_finished());
-        *readers = live;
-        done
+/// Identifies and reads an accepted connection on a thread of its own.
+fn spawn_reader<T: StreamTransport>(
+    shared: &Arc<Shared<T>>,
+    socket: T::Socket,
+    addr: <T::Listener as StreamListener>::PeerAddr,
+    permit: Permit,
+) {
+    let Ok(handle) = socket.try_clone() else {
+        refuse(shared, socket);
+        return;
     };
-    for r in finished {
-        let _ = r.handle.join();
+    spawn_thread(shared, handle, move |shared| {
+        serve_connection(shared, socket, addr, permit)
+    });
+}
+
+/// Reads an identified connection whose socket cannot be polled on a thread of its own.
+fn spawn_conn_reader<T: StreamTransport>(shared: &Arc<Shared<T>>, conn: Connection<T::Socket>) {
+    let Ok(handle) = conn.socket.try_clone() else {
+        refuse(shared, conn.socket);
+        return;
+    };
+    spawn_thread(shared, handle, move |shared| read_on_thread(shared, conn));
+}
+
+/// Starts a reader thread running `run`, with `handle` (a second handle to its connection)
+/// kept to shut the connection down when the link closes. The thread forgets its entry, and
+/// so closes `handle`, when `run` returns. If no thread can be started the connection is
+/// closed (with `run`) and counted as refused.
+fn spawn_thread<T: StreamTransport>(
+    shared: &Arc<Shared<T>>,
+    handle: T::Socket,
+    run: impl FnOnce(&Shared<T>) + Send + 'static,
+) {
+    let id = shared.next_reader.fetch_add(1, Ordering::Relaxed);
+    let thread_shared = shared.clone();
+    // Locked until the entry is in: a thread that ends at once waits to remove it.
+    let mut readers = lock(&shared.readers);
+    let spawned = std::thread::Builder::new()
+        .name(format!("hetcomm-{}-rx-{id}", T::NAME))
+        .spawn(move || {
+            run(&thread_shared);
+            lock(&thread_shared.readers).remove(&id);
+        });
+    match spawned {
+        Ok(thread) => {
+            readers.insert(
+                id,
+                Reader {
+                    socket: handle,
+                    handle: thread,
+                },
+            );
+        }
+        Err(_) => {
+            drop(readers);
+            refuse(shared, handle);
+        }
     }
 }
 
@@ -1281,6 +1412,8 @@ fn readv_uninit(
 /// many per read as have arrived), large frames straight into a buffer of their own size.
 struct RecordReader {
     max_frame: usize,
+    /// The read buffer, [`READ_BUF_LEN`] bytes once the first read needs it (empty before, so
+    /// that idle connections cost no buffer).
     buf: Box<[u8]>,
     /// Unconsumed bytes are `buf[start..end]`.
     start: usize,
@@ -1303,7 +1436,7 @@ impl RecordReader {
     fn new(max_frame: usize) -> Self {
         RecordReader {
             max_frame,
-            buf: vec![0; READ_BUF_LEN].into_boxed_slice(),
+            buf: Box::default(),
             start: 0,
             end: 0,
             after_large: false,
@@ -1348,6 +1481,9 @@ impl RecordReader {
     /// Reads until `buf[start..]` holds at least `need` bytes (`need` ≤ the buffer's size),
     /// first moving what is left to the front if it would not fit.
     fn fill<R: Read>(&mut self, r: &mut R, need: usize) -> Result<(), StreamEnd> {
+        if self.buf.is_empty() {
+            self.buf = vec![0; READ_BUF_LEN].into_boxed_slice();
+        }
         if self.start == self.end {
             self.start = 0;
             self.end = 0;
@@ -1510,29 +1646,31 @@ fn serve_connection<T: StreamTransport>(
     shared: &Shared<T>,
     mut socket: T::Socket,
     addr: <T::Listener as StreamListener>::PeerAddr,
+    permit: Permit,
 ) {
-    let counters = &shared.counters;
     let _ = shared.transport.configure(&socket);
     let Some(from) = identify(shared, &mut socket, &addr) else {
-        if !shared.closing.load(Ordering::SeqCst) {
-            bump(&counters.rejected_connections);
-            bump(&counters.frames_dropped);
-        }
-        let _ = socket.shutdown_both();
+        reject(shared, socket);
         return;
     };
     let mut conn = Connection {
         reader: new_reader(shared),
         socket,
         from,
+        _permit: permit,
     };
-    if let Some(driven) = &shared.driven {
+    if let Some(conns) = &shared.conns {
         // From here on whoever drives the link reads this connection.
-        match driven.register(conn) {
+        match conns.register(conn) {
             Ok(()) => return,
             Err(back) => conn = back,
         }
     }
+    read_on_thread(shared, conn);
+}
+
+/// Reads an identified connection with blocking reads until it ends, then closes it.
+fn read_on_thread<T: StreamTransport>(shared: &Shared<T>, mut conn: Connection<T::Socket>) {
     let end = loop {
         match conn.read_records(shared, usize::MAX).1 {
             Ok(()) => continue,
@@ -1562,6 +1700,8 @@ struct Connection<S> {
     socket: S,
     reader: RecordReader,
     from: Peer,
+    /// Its share of `max_connections`, given back when the connection is dropped (closed).
+    _permit: Permit,
 }
 
 impl<S: StreamSocket> Connection<S> {
@@ -1609,132 +1749,6 @@ impl<S: StreamSocket> Connection<S> {
             bump(&shared.counters.frames_dropped);
         }
         let _ = self.socket.shutdown_both();
-    }
-}
-
-/// The receive side of a [`StreamConfig::driven`] link: every accepted connection, registered
-/// with one epoll instance whose descriptor the driving thread polls.
-struct Driven<S> {
-    epoll: OwnedFd,
-    /// Keyed by the token registered with epoll. Locked while a reader reads them (one
-    /// reader at a time drives a link; a new connection's registration waits for it).
-    conns: Mutex<HashMap<u64, Connection<S>>>,
-    next_token: AtomicU64,
-}
-
-impl<S: StreamSocket> Driven<S> {
-    fn new() -> io::Result<Self> {
-        // SAFETY: no memory-safety preconditions; the result is checked.
-        let fd = unsafe { libc::epoll_create1(libc::EPOLL_CLOEXEC) };
-        if fd < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        Ok(Driven {
-            // SAFETY: a fresh descriptor that nothing else owns.
-            epoll: unsafe { OwnedFd::from_raw_fd(fd) },
-            conns: Mutex::new(HashMap::new()),
-            next_token: AtomicU64::new(1),
-        })
-    }
-
-    /// Makes `conn` readable through [`Driven::read_ready`]; gives it back if its socket cannot
-    /// be read without blocking (the caller then reads it on a thread).
-    fn register(&self, conn: Connection<S>) -> Result<(), Connection<S>> {
-        let Some(fd) = conn.socket.raw_fd() else {
-            return Err(conn);
-        };
-        if conn.socket.set_nonblocking(true).is_err() {
-            return Err(conn);
-        }
-        let token = self.next_token.fetch_add(1, Ordering::Relaxed);
-        let mut ev = libc::epoll_event {
-            events: (libc::EPOLLIN | libc::EPOLLRDHUP) as u32,
-            u64: token,
-        };
-        // Registered and inserted under the map's lock: a reader that epoll tells about the
-        // token finds the connection.
-        let mut conns = lock(&self.conns);
-        // SAFETY: `ev` is a valid event for the call; `fd` is open (we own its socket).
-        let rc =
-            unsafe { libc::epoll_ctl(self.epoll.as_raw_fd(), libc::EPOLL_CTL_ADD, fd, &mut ev) };
-        if rc != 0 {
-            drop(conns);
-            let _ = conn.socket.set_nonblocking(false);
-            return Err(conn);
-        }
-        conns.insert(token, conn);
-        Ok(())
-    }
-
-    /// Reads the connections epoll reports ready: see [`Readable::read_ready`].
-    fn read_ready<T>(&self, shared: &Shared<T>, budget: usize) -> io::Result<usize>
-    where
-        T: StreamTransport<Socket = S>,
-    {
-        const EVENTS: usize = 16;
-        let mut events = [libc::epoll_event { events: 0, u64: 0 }; EVENTS];
-        // SAFETY: `events` has room for EVENTS entries; timeout 0 never blocks.
-        let n = unsafe {
-            libc::epoll_wait(
-                self.epoll.as_raw_fd(),
-                events.as_mut_ptr(),
-                EVENTS as i32,
-                0,
-            )
-        };
-        if n < 0 {
-            let e = io::Error::last_os_error();
-            return if e.kind() == io::ErrorKind::Interrupted {
-                Ok(0)
-            } else {
-                Err(e)
-            };
-        }
-        let mut frames = 0;
-        let mut conns = lock(&self.conns);
-        for ev in &events[..n as usize] {
-            let token = ev.u64;
-            let Some(conn) = conns.get_mut(&token) else {
-                continue;
-            };
-            let (got, result) = conn.read_records(shared, budget);
-            frames += got;
-            match result {
-                Ok(()) | Err(StreamEnd::Pending) => {}
-                Err(end) => {
-                    if let Some(conn) = conns.remove(&token) {
-                        self.close(shared, conn, end);
-                    }
-                }
-            }
-        }
-        Ok(frames)
-    }
-
-    /// Forgets connection `c`, whose stream ended with `end`.
-    fn close<T>(&self, shared: &Shared<T>, c: Connection<S>, end: StreamEnd)
-    where
-        T: StreamTransport<Socket = S>,
-    {
-        if let Some(fd) = c.socket.raw_fd() {
-            // SAFETY: `fd` is still open (we own its socket); a null event is allowed for DEL.
-            unsafe {
-                libc::epoll_ctl(
-                    self.epoll.as_raw_fd(),
-                    libc::EPOLL_CTL_DEL,
-                    fd,
-                    std::ptr::null_mut(),
-                )
-            };
-        }
-        c.end(shared, end);
-    }
-
-    /// Shuts every connection down (the link is closing).
-    fn shutdown(&self) {
-        for conn in std::mem::take(&mut *lock(&self.conns)).into_values() {
-            let _ = conn.socket.shutdown_both();
-        }
     }
 }
 

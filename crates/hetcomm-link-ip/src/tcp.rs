@@ -54,6 +54,14 @@ impl StreamListener for TcpListener {
         TcpListener::accept(self)
     }
 
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        TcpListener::set_nonblocking(self, on)
+    }
+
     fn wake(&self) {
         // On Linux, shutting a listening socket down makes a blocked accept fail at once. Where
         // that is not supported, a connection to ourselves wakes it instead.
@@ -137,7 +145,9 @@ impl TcpLink {
 
     /// Starts the link on an already-bound `listener` (tests bind port 0 for every system
     /// first, then build `endpoints` from the bound ports). `local`'s own entry in
-    /// `endpoints`, if any, is not used.
+    /// `endpoints`, if any, is not used. The listen backlog is raised to
+    /// [`StreamConfig::max_connections`] (at least 128; the kernel caps it at
+    /// `net.core.somaxconn`).
     pub fn with_listener(
         local: SystemId,
         listener: TcpListener,
@@ -146,6 +156,10 @@ impl TcpLink {
         config: StreamConfig,
     ) -> Result<TcpLink, OpenError> {
         let local_addr = listener.local_addr()?;
+        // A burst of connects must not overflow the listen backlog (std's is 128), or the
+        // connects that do wait for SYN retries. Listening again only changes the backlog.
+        let backlog = config.max_connections.clamp(128, i32::MAX as usize) as i32;
+        let _ = socket2::SockRef::from(&listener).listen(backlog);
         let inner = StreamLink::new(
             TcpTransport,
             local,

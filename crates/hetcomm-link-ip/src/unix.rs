@@ -50,6 +50,14 @@ impl StreamListener for UnixListener {
         UnixListener::accept(self)
     }
 
+    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    }
+
+    fn set_nonblocking(&self, on: bool) -> io::Result<()> {
+        UnixListener::set_nonblocking(self, on)
+    }
+
     fn wake(&self) {
         // As for TCP: shutdown works on Linux, a connection to ourselves elsewhere.
         let _ = socket2::SockRef::from(self).shutdown(Shutdown::Both);
@@ -134,6 +142,9 @@ impl UnixLink {
             .iter()
             .map(|(id, p)| (*id, UnixAddr(p.clone())))
             .collect();
+        // As for TCP: a burst of connects must not overflow std's backlog of 128.
+        let backlog = config.max_connections.clamp(128, i32::MAX as usize) as i32;
+        let _ = socket2::SockRef::from(&listener).listen(backlog);
         let inner = StreamLink::new(UnixTransport, local, listener, peers, sink, config)?;
         Ok(UnixLink {
             inner: Some(inner),

@@ -143,6 +143,11 @@ fn connected(t: &mut dyn Transport, config: &StreamConfig) -> Connected {
     let first = frame(u32::MAX, 16);
     a.send(B, &first).unwrap();
     assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    // A's connector thread counts the frame after its write returns, which may be after B
+    // has read it: tests compare A's counter with this starting point.
+    wait_until("A counts the first frame", DEADLINE, || {
+        a.stream().frames_sent == 1
+    });
     Connected {
         a,
         _b: b,

@@ -267,3 +267,42 @@ fn bind_reports_the_real_port_and_oversize_is_refused() {
         Err(hetcomm_link_ip::OpenError::NoLocalEndpoint { system: B })
     ));
 }
+
+#[test]
+fn a_hello_may_come_in_pieces_but_not_late() {
+    const HELLO_TIMEOUT: Duration = Duration::from_millis(300);
+    let mut h = TcpHarness::new(StreamConfig {
+        hello_timeout: HELLO_TIMEOUT,
+        ..StreamConfig::default()
+    });
+    let sink = CollectSink::new();
+    let b = h.open_tcp(B, sink.clone());
+    let addr = b.local_addr();
+    let started = Instant::now();
+    // Silent, and three bytes of a hello: both closed once the timeout has passed.
+    let mut silent = TcpStream::connect(addr).unwrap();
+    let mut partial = TcpStream::connect(addr).unwrap();
+    partial.write_all(&encode_hello(A)[..3]).unwrap();
+    // A hello and a record one byte per write: read as they come, then served.
+    let mut slow = TcpStream::connect(addr).unwrap();
+    slow.set_nodelay(true).unwrap();
+    let mut bytes = encode_hello(A).to_vec();
+    bytes.extend_from_slice(&record(b"byte by byte"));
+    for byte in &bytes {
+        slow.write_all(std::slice::from_ref(byte)).unwrap();
+    }
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    assert_eq!(sink.frames()[0].bytes, b"byte by byte");
+    assert_closed_by_peer(&mut silent);
+    assert_closed_by_peer(&mut partial);
+    assert!(
+        started.elapsed() >= HELLO_TIMEOUT,
+        "closed before the timeout"
+    );
+    // Counted, then closed (which gives its slot back): two updates to wait for.
+    wait_until("both late hellos counted and closed", DEADLINE, || {
+        let s = b.stream_stats();
+        (s.rejected_connections, s.open_connections) == (2, 1)
+    });
+    assert_eq!(b.stats().frames_dropped, 2);
+}

@@ -46,3 +46,50 @@ fn garbage_on_a_unix_connection_is_dropped() {
     });
     assert_eq!(b.stream_stats().rejected_connections, 1);
 }
+
+#[test]
+fn unix_connections_over_the_limit_are_refused_until_a_slot_frees() {
+    let dir = TempDir::new("unix-limit");
+    let paths = [(A, dir.0.join("a.sock")), (B, dir.0.join("b.sock"))].into();
+    let config = StreamConfig {
+        max_connections: 2,
+        ..StreamConfig::default()
+    };
+    let sink = CollectSink::new();
+    let b = UnixLink::bind(B, &paths, sink.clone(), config).unwrap();
+    let hello = hetcomm_link_ip::stream::encode_hello(A);
+    let mut held: Vec<UnixStream> = (0..2)
+        .map(|_| {
+            let mut s = UnixStream::connect(b.path()).unwrap();
+            s.write_all(&hello).unwrap();
+            s
+        })
+        .collect();
+    wait_until("two connections open", DEADLINE, || {
+        b.stream_stats().open_connections == 2
+    });
+    // The third is closed at once, and counted where the runtime reports drops.
+    let mut third = UnixStream::connect(b.path()).unwrap();
+    third.set_read_timeout(Some(DEADLINE)).unwrap();
+    let mut byte = [0u8; 1];
+    assert!(matches!(
+        std::io::Read::read(&mut third, &mut byte),
+        Ok(0) | Err(_)
+    ));
+    wait_until("refusal counted", DEADLINE, || {
+        b.stream_stats().refused_connections == 1
+    });
+    assert_eq!(b.stats().frames_dropped, 1);
+    // A peer that leaves frees its slot for the next.
+    held.pop();
+    wait_until("a slot freed", DEADLINE, || {
+        b.stream_stats().open_connections == 1
+    });
+    let mut next = UnixStream::connect(b.path()).unwrap();
+    next.write_all(&hello).unwrap();
+    next.write_all(&common::record(b"in the freed slot"))
+        .unwrap();
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    assert_eq!(sink.frames()[0].bytes, b"in the freed slot");
+    assert_eq!(b.stream_stats().refused_connections, 1);
+}

@@ -144,6 +144,9 @@ pub(crate) fn open_link(
             if let Some(max) = ip.max_message_bytes {
                 config.max_message_bytes = Some(max);
             }
+            if let Some(max) = ip.max_connections {
+                config.max_connections = max;
+            }
             let link = TcpLink::bind(local, &ip.endpoints, sink, config)
                 .map_err(|e| failed(e.to_string()))?;
             let local_address = Some(format!("tcp://{}", link.local_addr()));
