@@ -1225,6 +1225,7 @@ fn reason_name(reason: &FailReason) -> String {
     match reason {
         FailReason::NoAcknowledgement => "no-acknowledgement".into(),
         FailReason::Unreachable(_) => "unreachable".into(),
+        FailReason::Congested(_) => "congested".into(),
         FailReason::InboxFull => "inbox-full".into(),
         FailReason::UnknownModule => "unknown-module".into(),
         FailReason::Link(_) => "link".into(),

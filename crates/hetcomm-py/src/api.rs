@@ -132,7 +132,8 @@ impl Outcome {
         self.inner.reason().map(|r| r.to_string())
     }
     /// Why it failed or went unconfirmed, as a short code: "no_acknowledgement",
-    /// "unreachable", "inbox_full", "unknown_module", "link", "backpressure", "shutdown".
+    /// "unreachable", "congested", "inbox_full", "unknown_module", "link", "backpressure",
+    /// "shutdown".
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
         self.inner.reason().map(|reason| match reason {
@@ -142,6 +143,7 @@ impl Outcome {
             FailReason::UnknownModule => "unknown_module",
             FailReason::Link(_) => "link",
             FailReason::Backpressure => "backpressure",
+            FailReason::Congested(_) => "congested",
             FailReason::Shutdown => "shutdown",
             _ => "other",
         })

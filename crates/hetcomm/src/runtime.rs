@@ -975,7 +975,7 @@ fn transmit_error(directory: &Directory, e: LinkError) -> TransmitError {
     match e {
         LinkError::Unreachable { reason, .. } => TransmitError::Unreachable(reason),
         LinkError::TooLarge { .. } => TransmitError::TooLarge(e.to_string()),
-        LinkError::Congested { peer, reason } => TransmitError::Other(format!(
+        LinkError::Congested { peer, reason } => TransmitError::Congested(format!(
             "link to {} is congested: {reason}",
             directory.system_name(peer)
         )),

@@ -6,6 +6,7 @@
 //! | `mod.rs` | the router's state and accessors |
 //! | `send.rs` | admitting a send: the window, numbering, framing, direct lanes |
 //! | `retransmit.rs` | transmitting, link results, retransmission and giving up |
+//! | `paths.rs` | paths to each destination: health, link events, failover |
 //! | `receive.rs` | frames in: acknowledgements, duplicates, ordering, deliveries |
 //! | `timers.rs` | the timer table, outcomes out, shutdown |
 
@@ -28,6 +29,7 @@ use crate::dedup::Dedup;
 use crate::lane::DirectLane;
 use crate::rtt::RttEstimator;
 
+mod paths;
 mod receive;
 mod retransmit;
 mod send;
@@ -90,6 +92,77 @@ struct PendingDelivery {
     ack_header: Header,
 }
 
+/// What a deadline in the timer table is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Timer {
+    /// A send's retransmission (or retry after its link refused it).
+    Retransmit(SendId),
+    /// In-order delivery of (origin, incarnation) gives up on its gap.
+    Hold(SystemId, u32),
+}
+
+/// A route and the state of each of its paths.
+struct RouteState {
+    /// The delivery settings, with the route's own path.
+    route: Route,
+    /// The route's own path first, then its fallbacks.
+    paths: Vec<PathState>,
+    /// The index in `paths` sends take now.
+    active: usize,
+}
+
+/// What the router knows of one path.
+struct PathState {
+    path: Path,
+    up: bool,
+    congested: bool,
+    rtt: Option<RttEstimator>,
+}
+
+impl RouteState {
+    fn new(route: Route) -> RouteState {
+        RouteState {
+            route,
+            paths: vec![PathState::new(route.path())],
+            active: 0,
+        }
+    }
+
+    /// The route as sends take it now: its settings on the active path.
+    fn current(&self) -> Route {
+        let path = self.paths[self.active].path;
+        Route {
+            link: path.link,
+            tag: path.tag,
+            ..self.route
+        }
+    }
+
+    /// The first path that is up and not congested, else the first that is up, else the
+    /// active one (with every path down, sends keep trying where they are).
+    fn best(&self) -> usize {
+        let first = |ok: &dyn Fn(&PathState) -> bool| self.paths.iter().position(ok);
+        first(&|p| p.up && !p.congested)
+            .or_else(|| first(&|p| p.up))
+            .unwrap_or(self.active)
+    }
+
+    fn path_mut(&mut self, link: usize) -> Option<&mut PathState> {
+        self.paths.iter_mut().find(|p| p.path.link == link)
+    }
+}
+
+impl PathState {
+    fn new(path: Path) -> PathState {
+        PathState {
+            path,
+            up: true,
+            congested: false,
+            rtt: None,
+        }
+    }
+}
+
 /// What a router keeps per destination system.
 #[derive(Default)]
 struct Towards {
@@ -107,13 +180,19 @@ struct Towards {
 /// attaches to each send and gets back with its outcome.
 pub struct Router<T> {
     config: RouterConfig,
-    routes: HashMap<SystemId, Route>,
+    /// Per destination: the route and its paths, with the one sends take now.
+    routes: HashMap<SystemId, RouteState>,
     /// Numbering and the window, per destination (one lookup per send).
     towards: HashMap<SystemId, Towards>,
-    rtt: HashMap<SystemId, RttEstimator>,
     pending: HashMap<SendId, Pending<T>>,
-    /// Retransmission deadlines, possibly stale (checked against `Pending::deadline`).
-    timers: BTreeSet<(Time, SendId)>,
+    /// Every deadline: retransmissions and in-order holds, possibly stale (checked against
+    /// `Pending::deadline` and `OrderState::deadline`).
+    timers: BTreeSet<(Time, Timer)>,
+    /// Path changes not yet polled.
+    path_changes: VecDeque<PathChange>,
+    /// Paths marked down or congested: while there are none, frames and link results need
+    /// not look their path up.
+    unhealthy_paths: u32,
     transmits: VecDeque<TransmitItem>,
     deliveries: VecDeque<Delivery>,
     awaiting: HashMap<DeliveryToken, PendingDelivery>,
@@ -153,15 +232,27 @@ enum TransmitItem {
 impl<T> Router<T> {
     /// A router for `config.local`.
     pub fn new(config: RouterConfig) -> Self {
-        let routes = config.routes.iter().copied().collect::<HashMap<_, _>>();
+        let mut routes: HashMap<SystemId, RouteState> = config
+            .routes
+            .iter()
+            .map(|(to, route)| (*to, RouteState::new(*route)))
+            .collect();
+        for (to, path) in &config.fallbacks {
+            if let Some(r) = routes.get_mut(to) {
+                if !r.paths.iter().any(|p| p.path.link == path.link) {
+                    r.paths.push(PathState::new(*path));
+                }
+            }
+        }
         let dedup = Dedup::new(config.dedup_window);
         Router {
             config,
             routes,
             towards: HashMap::default(),
-            rtt: HashMap::default(),
             pending: HashMap::default(),
             timers: BTreeSet::new(),
+            path_changes: VecDeque::new(),
+            unhealthy_paths: 0,
             transmits: VecDeque::new(),
             deliveries: VecDeque::new(),
             awaiting: HashMap::default(),
@@ -198,9 +289,28 @@ impl<T> Router<T> {
         self.config.local
     }
 
-    /// The route to `to`, if the table allows traffic.
+    /// The route to `to` as sends take it now (on its active path), if the table allows
+    /// traffic.
     pub fn route(&self, to: SystemId) -> Option<Route> {
-        self.routes.get(&to).copied()
+        self.routes.get(&to).map(RouteState::current)
+    }
+
+    /// Every path to `to`, in order of preference, with what the router knows of each.
+    pub fn paths(&self, to: SystemId) -> Vec<PathHealth> {
+        let Some(r) = self.routes.get(&to) else {
+            return Vec::new();
+        };
+        r.paths
+            .iter()
+            .enumerate()
+            .map(|(i, p)| PathHealth {
+                path: p.path,
+                up: p.up,
+                congested: p.congested,
+                srtt: p.rtt.as_ref().and_then(|r| r.srtt()),
+                active: i == r.active,
+            })
+            .collect()
     }
 
     /// Destinations this system may send to, ascending.
@@ -221,9 +331,10 @@ impl<T> Router<T> {
         stats
     }
 
-    /// The smoothed round-trip time to `to`, once measured.
+    /// The smoothed round-trip time to `to` on its active path, once measured.
     pub fn srtt(&self, to: SystemId) -> Option<Duration> {
-        self.rtt.get(&to).and_then(|r| r.srtt())
+        let r = self.routes.get(&to)?;
+        r.paths[r.active].rtt.as_ref().and_then(|r| r.srtt())
     }
 }
 

@@ -59,6 +59,7 @@ impl<T> Router<T> {
             self.stats.misrouted += 1;
             return;
         }
+        self.path_heard(now, h.source.system, link);
         match h.kind {
             FrameKind::Ack => self.handle_ack(now, &h, body.as_slice()),
             FrameKind::Data => self.handle_data(now, link, &h, body),
@@ -90,11 +91,8 @@ impl<T> Router<T> {
         let latency = now.saturating_since(p.first_sent.unwrap_or(now));
         if attempts == 1 {
             // Karn: only unambiguous samples.
-            let t = self.config.timing;
-            self.rtt
-                .entry(id.to)
-                .or_insert_with(|| RttEstimator::new(t.initial_rto, t.min_rto, t.max_rto))
-                .sample(latency);
+            let link = p.route.link;
+            self.rtt_sample(id.to, link, latency);
         }
         self.finish(id, Outcome::acknowledged(status, attempts, latency));
     }
@@ -156,7 +154,10 @@ impl<T> Router<T> {
                     ack_header,
                 },
             );
-            state.deadline.get_or_insert(now + hold);
+            if state.deadline.is_none() {
+                state.deadline = Some(now + hold);
+                self.timers.insert((now + hold, Timer::Hold(key.0, key.1)));
+            }
             return;
         }
         if h.seq == state.next {
@@ -176,11 +177,20 @@ impl<T> Router<T> {
                 state.next += 1;
                 ready.push(held);
             }
-            state.deadline = if state.held.is_empty() {
+            let deadline = if state.held.is_empty() {
                 None
             } else {
                 Some(now + hold)
             };
+            if state.deadline != deadline {
+                if let Some(old) = state.deadline {
+                    self.timers.remove(&(old, Timer::Hold(key.0, key.1)));
+                }
+                if let Some(new) = deadline {
+                    self.timers.insert((new, Timer::Hold(key.0, key.1)));
+                }
+                state.deadline = deadline;
+            }
         }
         for held in ready {
             self.accept(held.link, held.header, held.payload, held.ack_header);

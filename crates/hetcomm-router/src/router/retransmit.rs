@@ -22,9 +22,24 @@ impl<T> Router<T> {
                     let Some(p) = self.pending.get_mut(&id) else {
                         continue;
                     };
-                    let Some(frame) = p.frame.take() else {
+                    let Some(mut frame) = p.frame.take() else {
                         continue;
                     };
+                    let written_for = p.route.link;
+                    // After a failover the frame leaves on another path than it was written
+                    // for: rewrite it for the path it takes now.
+                    let current = self.routes.get(&id.to).map(RouteState::current);
+                    let moved = current.filter(|c| c.link != written_for);
+                    if let Some(current) = moved {
+                        frame = self.frame_for_path(&current, frame);
+                    }
+                    let Some(p) = self.pending.get_mut(&id) else {
+                        continue;
+                    };
+                    if let Some(current) = moved {
+                        p.route.link = current.link;
+                        p.route.tag = current.tag;
+                    }
                     p.attempts += 1;
                     p.first_sent.get_or_insert(now);
                     self.stats.transmissions += 1;
@@ -46,11 +61,15 @@ impl<T> Router<T> {
     /// Reports what the link did with a frame from [`Router::poll_transmit`], handing the
     /// frame back (the router keeps it for retransmission).
     pub fn transmit_result(&mut self, now: Time, tx: Transmit, result: Result<(), TransmitError>) {
+        self.path_result(now, tx.to, tx.link, &result);
         let Some(id) = tx.send else { return };
         let Some(attempts) = self.pending.get(&id).map(|p| p.attempts) else {
             return; // already ended (an ack overtook the result)
         };
-        let rto = self.rto_for(id.to, attempts);
+        let rto = self.rto_for(id.to, tx.link, attempts);
+        // A failover just happened (this refusal took the path down): retry on the new path
+        // at once rather than after the link's back-off.
+        let moved = self.route(id.to).is_some_and(|r| r.link != tx.link);
         let Some(p) = self.pending.get_mut(&id) else {
             return;
         };
@@ -63,43 +82,32 @@ impl<T> Router<T> {
                 if p.route.acknowledged {
                     let deadline = now + rto;
                     p.deadline = Some(deadline);
-                    self.timers.insert((deadline, id));
+                    self.timers.insert((deadline, Timer::Retransmit(id)));
                 } else {
                     let attempts = p.attempts;
                     self.finish(id, Outcome::Sent { attempts });
                 }
             }
-            Err(TransmitError::TooLarge(reason)) => {
-                let outcome = p.give_up(FailReason::Link(reason));
+            Err(err @ TransmitError::TooLarge(_)) => {
+                let outcome = p.give_up(err.into());
                 self.finish(id, outcome);
             }
             Err(err) => {
                 if p.attempts < p.route.attempts {
                     let factor = 1u32 << p.attempts.saturating_sub(1).min(16);
-                    let deadline = now + self.config.timing.link_retry * factor;
-                    p.deadline = Some(deadline);
-                    self.timers.insert((deadline, id));
-                } else {
-                    let reason = match err {
-                        TransmitError::Unreachable(r) => FailReason::Unreachable(r),
-                        TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
+                    let deadline = if moved {
+                        now
+                    } else {
+                        now + self.config.timing.link_retry * factor
                     };
-                    let outcome = p.give_up(reason);
+                    p.deadline = Some(deadline);
+                    self.timers.insert((deadline, Timer::Retransmit(id)));
+                } else {
+                    let outcome = p.give_up(err.into());
                     self.finish(id, outcome);
                 }
             }
         }
-    }
-
-    /// The timeout for the given attempt: the destination's RTO, backed off per earlier attempt.
-    pub(super) fn rto_for(&self, to: SystemId, attempt: u32) -> Duration {
-        let t = self.config.timing;
-        let base = self.rtt.get(&to).map(|r| r.rto()).unwrap_or(t.initial_rto);
-        let factor = t
-            .backoff
-            .max(1.0)
-            .powi(attempt.saturating_sub(1).min(30) as i32);
-        base.mul_f64(factor).min(t.max_rto).max(t.min_rto)
     }
 
     pub(super) fn finish(&mut self, id: SendId, outcome: Outcome) {
@@ -109,7 +117,7 @@ impl<T> Router<T> {
             }
             // Its retransmission timer would only wake the driver for nothing.
             if let Some(deadline) = p.deadline {
-                self.timers.remove(&(deadline, id));
+                self.timers.remove(&(deadline, Timer::Retransmit(id)));
             }
             if let Some(frame) = p.frame {
                 self.recycle(frame);

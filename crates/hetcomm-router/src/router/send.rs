@@ -141,6 +141,7 @@ impl<T> Router<T> {
             mut frame,
             body,
             id,
+            link: tx_link,
             ..
         } = tx;
         let err = match result {
@@ -151,20 +152,20 @@ impl<T> Router<T> {
             }
             Err(err) => err,
         };
-        let route = self.routes.get(&id.to).copied();
+        self.path_result(now, id.to, tx_link, &Err(err.clone()));
+        let route = self.route(id.to);
         let retry = match (&err, route) {
             (TransmitError::TooLarge(_), _) | (_, None) => None,
             (_, Some(route)) => Some(route).filter(|r| r.attempts > 1),
         };
+        // The frame stays written for the path it was refused on; a retry on another path
+        // rewrites it (see `poll_transmit`).
+        let retry = retry.map(|r| self.route_written_for(id.to, tx_link, r));
         let Some(route) = retry else {
             self.recycle(frame);
             self.stats.failed += 1;
-            let reason = match err {
-                TransmitError::Unreachable(r) => FailReason::Unreachable(r),
-                TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
-            };
             return Some(Outcome::Failed {
-                reason,
+                reason: err.into(),
                 attempts: 1,
             });
         };
@@ -184,7 +185,7 @@ impl<T> Router<T> {
                 deadline: Some(deadline),
             },
         );
-        self.timers.insert((deadline, id));
+        self.timers.insert((deadline, Timer::Retransmit(id)));
         None
     }
 
@@ -214,7 +215,7 @@ impl<T> Router<T> {
         req: &SendRequest<'_>,
     ) -> Result<(Route, Header), SendError> {
         let to = req.to.system;
-        let route = self.routes.get(&to).copied().ok_or(SendError::NoRoute {
+        let route = self.route(to).ok_or(SendError::NoRoute {
             from: self.config.local,
             to,
         })?;
@@ -269,7 +270,7 @@ impl<T> Router<T> {
 
     /// The link a send to `to` would take.
     pub fn route_link(&self, to: SystemId) -> Option<usize> {
-        self.routes.get(&to).map(|r| r.link)
+        self.route(to).map(|r| r.link)
     }
 
     /// The lane for sends that the driver hands straight to `to` in the same process (an
@@ -277,7 +278,7 @@ impl<T> Router<T> {
     /// checksum, the destination's router and this router's lock ([`DirectLane`]). Made at
     /// the first call; later calls return the same lane.
     pub fn direct_lane(&mut self, to: SystemId) -> Result<Arc<DirectLane>, SendError> {
-        let route = self.routes.get(&to).copied().ok_or(SendError::NoRoute {
+        let route = self.route(to).ok_or(SendError::NoRoute {
             from: self.config.local,
             to,
         })?;

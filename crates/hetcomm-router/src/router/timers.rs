@@ -5,51 +5,58 @@ use super::*;
 impl<T> Router<T> {
     /// When [`Router::handle_timeout`] should next be called.
     pub fn poll_timeout(&self) -> Option<Time> {
-        let retransmit = self.timers.first().map(|(t, _)| *t);
-        let hold = self.order.values().filter_map(|o| o.deadline).min();
-        match (retransmit, hold) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        self.timers.first().map(|(t, _)| *t)
     }
 
-    /// Retransmits or fails sends whose acknowledgement is overdue, and moves in-order
-    /// delivery past gaps that waited longer than the hold timeout.
+    /// Retransmits or gives up on sends whose acknowledgement is overdue, and moves in-order
+    /// delivery past gaps that waited longer than the hold timeout: every deadline due at
+    /// `now`, in the order they fall due.
     pub fn handle_timeout(&mut self, now: Time) {
-        let overdue: Vec<(SystemId, u32)> = self
-            .order
-            .iter()
-            .filter(|(_, o)| o.deadline.is_some_and(|d| d <= now))
-            .map(|(k, _)| *k)
-            .collect();
-        for key in overdue {
-            if let Some(state) = self.order.get_mut(&key) {
-                if let Some(&first) = state.held.keys().next() {
-                    self.stats.gaps_skipped += 1;
-                    state.next = first;
-                }
-            }
-            self.release_in_order(now, key);
-        }
-        while let Some(&(deadline, id)) = self.timers.first() {
+        while let Some(&(deadline, timer)) = self.timers.first() {
             if deadline > now {
                 break;
             }
             self.timers.pop_first();
-            let Some(p) = self.pending.get_mut(&id) else {
-                continue;
-            };
-            if p.deadline != Some(deadline) {
-                continue; // superseded
-            }
-            p.deadline = None;
-            if p.attempts < p.route.attempts {
-                self.transmits.push_back(TransmitItem::Send(id));
-            } else {
-                let outcome = p.give_up(FailReason::NoAcknowledgement);
-                self.finish(id, outcome);
+            match timer {
+                Timer::Retransmit(id) => self.retransmit_due(id, deadline),
+                Timer::Hold(origin, incarnation) => {
+                    self.hold_due(now, (origin, incarnation), deadline)
+                }
             }
         }
+    }
+
+    /// A send's deadline fell due: transmit it again, or give up without attempts left.
+    fn retransmit_due(&mut self, id: SendId, deadline: Time) {
+        let Some(p) = self.pending.get_mut(&id) else {
+            return;
+        };
+        if p.deadline != Some(deadline) {
+            return; // superseded
+        }
+        p.deadline = None;
+        if p.attempts < p.route.attempts {
+            self.transmits.push_back(TransmitItem::Send(id));
+        } else {
+            let outcome = p.give_up(FailReason::NoAcknowledgement);
+            self.finish(id, outcome);
+        }
+    }
+
+    /// An in-order hold fell due: give the gap up and deliver what waited behind it.
+    fn hold_due(&mut self, now: Time, key: (SystemId, u32), deadline: Time) {
+        let Some(state) = self.order.get_mut(&key) else {
+            return;
+        };
+        if state.deadline != Some(deadline) {
+            return; // superseded
+        }
+        state.deadline = None;
+        if let Some(&first) = state.held.keys().next() {
+            self.stats.gaps_skipped += 1;
+            state.next = first;
+        }
+        self.release_in_order(now, key);
     }
 
     /// The next outcome.

@@ -29,6 +29,81 @@ pub struct Route {
     pub max_in_flight: u32,
 }
 
+impl Route {
+    /// The route's own path (its first choice).
+    pub fn path(&self) -> Path {
+        Path {
+            link: self.link,
+            tag: self.tag,
+        }
+    }
+}
+
+/// One way to reach a destination: a link and the tag its frames carry there. A route has
+/// its own path first and may have fallbacks ([`RouterConfig::fallbacks`]); the router sends
+/// on the first path that is up and fails over when a link says the peer is gone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Path {
+    /// Index of the link (the driver's numbering).
+    pub link: usize,
+    /// The transport's one-byte tag written into frames sent on this path.
+    pub tag: u8,
+}
+
+/// What a link reports about a peer, as an input to the router
+/// ([`Router::handle_link_event`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkEvent {
+    /// The link can reach `peer` (a connection came up, or frames from it arrived).
+    PeerUp {
+        /// Which link.
+        link: usize,
+        /// The peer system.
+        peer: SystemId,
+    },
+    /// The link lost `peer` (a connection closed, a presence service said it left).
+    PeerDown {
+        /// Which link.
+        link: usize,
+        /// The peer system.
+        peer: SystemId,
+    },
+    /// The link to `peer` is congested (its queue is full): frames are refused for now.
+    Congested {
+        /// Which link.
+        link: usize,
+        /// The peer system.
+        peer: SystemId,
+    },
+}
+
+/// What the router knows of one path to a destination ([`Router::paths`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PathHealth {
+    /// The path.
+    pub path: Path,
+    /// Whether sends may take it: false after its link said the peer is down or refused a
+    /// frame as unreachable, until it says the peer is up or a frame goes through.
+    pub up: bool,
+    /// Whether its link last refused a frame as congested.
+    pub congested: bool,
+    /// The smoothed round-trip time measured on this path, once measured.
+    pub srtt: Option<Duration>,
+    /// Whether sends take this path now.
+    pub active: bool,
+}
+
+/// Sends to a destination moved from one path to another ([`Router::poll_path_change`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PathChange {
+    /// The destination system.
+    pub to: SystemId,
+    /// The path sends took until now.
+    pub from: Path,
+    /// The path they take from now on.
+    pub now: Path,
+}
+
 /// Retransmission timing.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Timing {
@@ -79,6 +154,10 @@ pub struct RouterConfig {
     pub dedup_window: usize,
     /// Senders whose messages are delivered in the order sent (see [`Timing::hold_timeout`]).
     pub ordered_sources: BTreeSet<SystemId>,
+    /// Fallback paths, in order of preference after each route's own path: a destination's
+    /// sends fail over to the first that is up when the paths before it are down. The
+    /// route's delivery settings (acknowledgement, attempts, sizes) hold on every path.
+    pub fallbacks: Vec<(SystemId, Path)>,
 }
 
 impl RouterConfig {
@@ -95,7 +174,14 @@ impl RouterConfig {
             timing: Timing::default(),
             dedup_window: 4096,
             ordered_sources: BTreeSet::new(),
+            fallbacks: Vec::new(),
         }
+    }
+
+    /// Adds a fallback path to `to`, after its route's own path and earlier fallbacks.
+    pub fn with_fallback(mut self, to: SystemId, path: Path) -> Self {
+        self.fallbacks.push((to, path));
+        self
     }
 }
 
@@ -183,6 +269,9 @@ pub enum FailReason {
     /// The link could not reach the peer on the last attempt.
     #[error("peer unreachable: {0}")]
     Unreachable(String),
+    /// The link's queue towards the peer was full on the last attempt.
+    #[error("link congested: {0}")]
+    Congested(String),
     /// The destination module's inbox was full and refused the message.
     #[error("destination inbox full")]
     InboxFull,
@@ -338,12 +427,26 @@ pub struct Transmit {
 /// Why a link refused a frame, as the router needs to know it.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum TransmitError {
-    /// The peer cannot be reached now (retried while attempts remain).
+    /// The peer cannot be reached now (retried while attempts remain; the path counts as down
+    /// until it works again, so a fallback path takes the retries).
     Unreachable(String),
+    /// The link's queue towards the peer is full (retried while attempts remain).
+    Congested(String),
     /// The frame can never fit (not retried).
     TooLarge(String),
     /// Anything else (retried while attempts remain).
     Other(String),
+}
+
+impl From<TransmitError> for FailReason {
+    /// The reason a send gives up with after its link refused the last attempt.
+    fn from(err: TransmitError) -> FailReason {
+        match err {
+            TransmitError::Unreachable(r) => FailReason::Unreachable(r),
+            TransmitError::Congested(r) => FailReason::Congested(r),
+            TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
+        }
+    }
 }
 
 /// How [`Router::send_unqueued`] took a send.
@@ -458,6 +561,8 @@ pub struct RouterStats {
     pub gaps_skipped: u64,
     /// Sends refused because their destination's [`Route::max_in_flight`] was reached.
     pub backpressured: u64,
+    /// Times a destination's sends moved to another path ([`PathChange`]).
+    pub path_changes: u64,
 }
 
 impl RouterStats {
