@@ -1,3 +1,5 @@
+//! Two systems of the leader–follower fleet: Alpha's Plan tells Charlie's Act what to do.
+
 use hetcomm::{LocalFleet, Message};
 use serde::{Deserialize, Serialize};
 

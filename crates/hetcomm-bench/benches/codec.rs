@@ -3,6 +3,9 @@
 //!
 //! `cargo bench -p hetcomm-bench --bench codec`
 
+// criterion_group! makes public functions it cannot document; benches are no API.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use hetcomm::{payload, wire, Address, Header, MessageType, ModuleId, SystemId};
 use serde::{Deserialize, Serialize};

@@ -5,6 +5,9 @@
 //!
 //! `cargo bench -p hetcomm-bench --bench router`
 
+// criterion_group! makes public functions it cannot document; benches are no API.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
 use hetcomm::wire::AckStatus;
 use hetcomm::{Address, MessageType, ModuleId, SystemId, Time};
