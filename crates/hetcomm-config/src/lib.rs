@@ -113,7 +113,7 @@ pub fn load_legacy(
         Ok(t) => Some(t),
         Err(e) => {
             diag.err_help(
-                &Loc::start(name),
+                &Loc::whole(name),
                 format!("cannot read `{name}`: {e}"),
                 "check the path",
             );
@@ -179,8 +179,8 @@ pub fn load_legacy(
 fn unreadable(origin: &str, e: &std::io::Error) -> ConfigErrors {
     ConfigErrors(vec![ConfigError {
         file: origin.to_string(),
-        line: 1,
-        column: 1,
+        line: 0,
+        column: 0,
         message: format!("cannot read the fleet file: {e}"),
         help: Some("check the path and the file's permissions".to_string()),
     }])
