@@ -3,16 +3,18 @@
 //! table into a [`Fleet`]. Keeping one path means a legacy table gets exactly the same
 //! validation whether it is loaded alone or through a fleet file's `[legacy]` section.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::rc::Rc;
 
 use hetcomm_core::{ModuleId, SystemId};
+use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::error::{ConfigErrors, Diag, Loc};
 use crate::legacy::check_id;
 use crate::model::*;
-use crate::suggest;
+use crate::{names, suggest};
 
 /// One `<id> <name>` line of a legacy id file.
 pub(crate) struct IdLine {
@@ -31,17 +33,99 @@ pub(crate) struct Label {
     pub by_id: bool,
 }
 
-/// One table cell as written.
+/// One table cell as written: which of the table's distinct texts it is, and where. Tables
+/// can hold millions of cells, so a cell is 12 bytes: its text is interned and its file is
+/// the table's.
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct RawCell {
-    pub text: String,
-    pub loc: Loc,
+    /// Index into [`RawTable::texts`].
+    pub text: u32,
+    /// 1-based line.
+    pub line: u32,
+    /// 1-based column, in characters.
+    pub column: u32,
+}
+
+/// One row of a table: the source system as written and its cells, in column order.
+pub(crate) struct RawRow {
+    pub label: Label,
+    /// Where the row's cells are in [`RawTable::cells`].
+    pub cells: std::ops::Range<usize>,
 }
 
 /// A communication table before its systems and letters are resolved.
 pub(crate) struct RawTable {
+    /// The file every cell is in.
+    pub file: Rc<str>,
     pub header_loc: Loc,
     pub columns: Vec<Label>,
-    pub rows: Vec<(Label, Vec<RawCell>)>,
+    pub rows: Vec<RawRow>,
+    /// The distinct cell texts, in order of first appearance.
+    pub texts: Vec<String>,
+    /// Every row's cells, row after row.
+    pub cells: Vec<RawCell>,
+    /// `texts` by text, while cells are added.
+    index: FxHashMap<String, u32>,
+}
+
+impl RawTable {
+    /// An empty table with these columns; rows are added with [`RawTable::start_row`] and
+    /// [`RawTable::push_cell`].
+    pub fn new(file: Rc<str>, header_loc: Loc, columns: Vec<Label>) -> RawTable {
+        RawTable {
+            file,
+            header_loc,
+            columns,
+            rows: Vec::new(),
+            texts: Vec::new(),
+            cells: Vec::new(),
+            index: FxHashMap::default(),
+        }
+    }
+
+    /// Starts a row; the cells pushed next belong to it.
+    pub fn start_row(&mut self, label: Label) {
+        let at = self.cells.len();
+        self.rows.push(RawRow {
+            label,
+            cells: at..at,
+        });
+    }
+
+    /// Adds a cell to the last row started.
+    pub fn push_cell(&mut self, text: &str, line: usize, column: usize) {
+        let id = match self.index.get(text) {
+            Some(&id) => id,
+            None => {
+                let id = u32::try_from(self.texts.len()).unwrap_or(u32::MAX);
+                self.texts.push(text.to_string());
+                self.index.insert(text.to_string(), id);
+                id
+            }
+        };
+        self.cells.push(RawCell {
+            text: id,
+            line: u32::try_from(line).unwrap_or(u32::MAX),
+            column: u32::try_from(column).unwrap_or(u32::MAX),
+        });
+        if let Some(row) = self.rows.last_mut() {
+            row.cells.end = self.cells.len();
+        }
+    }
+
+    /// Where a cell is.
+    pub fn loc(&self, c: &RawCell) -> Loc {
+        Loc {
+            file: self.file.clone(),
+            line: c.line as usize,
+            column: c.column as usize,
+        }
+    }
+
+    /// A cell's text.
+    pub fn text(&self, c: &RawCell) -> &str {
+        &self.texts[c.text as usize]
+    }
 }
 
 /// One `<id> <address>` entry (legacy file) or `name = "address"` entry (fleet file).
@@ -128,9 +212,15 @@ pub(crate) struct Parts {
 
 /// The fleet's systems after duplicate checks, with name and id lookups.
 pub(crate) struct Systems {
+    /// Sorted by id.
     pub list: Vec<SysSpec>,
-    /// Names dropped as duplicates: already reported, so references to them stay quiet.
-    rejected: Vec<String>,
+    /// Index into `list` by name (in NFC).
+    by_name: FxHashMap<String, usize>,
+    /// Names dropped as duplicates or for their characters: already reported, so references
+    /// to them stay quiet.
+    rejected: FxHashSet<String>,
+    /// Ids of dropped systems that no kept system has, likewise.
+    rejected_ids: FxHashSet<u16>,
 }
 
 /// The modules the thesis's framework uses, for fleets that do not list their own.
@@ -142,10 +232,16 @@ const BDADDR_HELP: &str =
     "write six two-digit hex bytes separated by colons, e.g. 68:A3:C4:4A:B3:BA";
 
 impl Systems {
-    /// Checks ids and names for duplicates (reporting the later one) and sorts by id.
+    /// Normalises names to NFC, checks their characters, checks ids and names for duplicates
+    /// (reporting the later one) and sorts by id.
     pub fn new(mut list: Vec<SysSpec>, diag: &mut Diag) -> Systems {
-        let mut ids: HashMap<u16, usize> = HashMap::new();
-        let mut names: HashMap<&str, usize> = HashMap::new();
+        for s in &mut list {
+            if let Cow::Owned(n) = names::nfc(&s.name) {
+                s.name = n;
+            }
+        }
+        let mut ids: FxHashMap<u16, usize> = FxHashMap::default();
+        let mut by_name: FxHashMap<&str, usize> = FxHashMap::default();
         let mut keep = vec![true; list.len()];
         for (i, s) in list.iter().enumerate() {
             if s.name.is_empty() {
@@ -154,6 +250,17 @@ impl Systems {
                     "a system name cannot be empty",
                     "give the system a name, e.g. `Alpha`",
                 );
+            } else if let Some(c) = names::bad_char(&s.name) {
+                diag.err_help(
+                    &s.name_loc,
+                    format!(
+                        "system name `{}` contains {}, which a name cannot contain",
+                        s.name,
+                        names::describe(c)
+                    ),
+                    format!("a name may contain {}", names::NAME_CHARS),
+                );
+                keep[i] = false;
             }
             if let Some(&j) = ids.get(&s.id) {
                 let first = &list[j];
@@ -170,10 +277,10 @@ impl Systems {
                     ),
                 );
                 keep[i] = false;
-            } else {
+            } else if keep[i] {
                 ids.insert(s.id, i);
             }
-            if let Some(&j) = names.get(s.name.as_str()) {
+            if let Some(&j) = by_name.get(s.name.as_str()) {
                 let first = &list[j];
                 diag.err_help(
                     &s.name_loc,
@@ -187,39 +294,64 @@ impl Systems {
                     ),
                 );
                 keep[i] = false;
-            } else {
-                names.insert(&s.name, i);
+            } else if keep[i] {
+                by_name.insert(&s.name, i);
             }
         }
-        let rejected = list
+        // A dropped system's name and id stay known as "already reported", unless a kept
+        // system has them, so the table and the address lists do not report them again.
+        let kept_ids: FxHashSet<u16> = list
             .iter()
             .zip(&keep)
-            .filter(|(_, k)| !**k)
-            .map(|(s, _)| s.name.clone())
+            .filter(|(_, k)| **k)
+            .map(|(s, _)| s.id)
             .collect();
+        let kept_names: FxHashSet<&str> = list
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(s, _)| s.name.as_str())
+            .collect();
+        let mut rejected = FxHashSet::default();
+        let mut rejected_ids = FxHashSet::default();
+        for (s, _) in list.iter().zip(&keep).filter(|(_, k)| !**k) {
+            if !kept_names.contains(s.name.as_str()) {
+                rejected.insert(s.name.clone());
+            }
+            if !kept_ids.contains(&s.id) {
+                rejected_ids.insert(s.id);
+            }
+        }
+        drop(by_name);
         let mut it = keep.into_iter();
         list.retain(|_| it.next().unwrap_or(false));
         list.sort_by_key(|s| s.id);
-        Systems { list, rejected }
+        let by_name = list
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.name.clone(), i))
+            .collect();
+        Systems {
+            list,
+            by_name,
+            rejected,
+            rejected_ids,
+        }
     }
 
-    fn by_name(&self, name: &str) -> Option<SystemId> {
-        self.list
-            .iter()
-            .find(|s| s.name == name)
-            .map(|s| SystemId(s.id))
+    /// The position in `list` of the system with this id.
+    pub fn index_of(&self, id: SystemId) -> Option<usize> {
+        self.list.binary_search_by_key(&id.0, |s| s.id).ok()
     }
 
     fn has_id(&self, id: u16) -> bool {
-        self.list.iter().any(|s| s.id == id)
+        self.index_of(SystemId(id)).is_some()
     }
 
     /// The name of a system, for messages.
     pub fn name(&self, id: SystemId) -> &str {
-        self.list
-            .iter()
-            .find(|s| s.id == id.0)
-            .map_or("?", |s| s.name.as_str())
+        self.index_of(id)
+            .map_or("?", |i| self.list[i].name.as_str())
     }
 
     fn names(&self) -> Vec<&str> {
@@ -228,7 +360,7 @@ impl Systems {
 
     /// Resolves a written system reference, reporting an unknown one. `context` says where it
     /// was written ("the table's columns"); `extra` are other words that are valid at that
-    /// spot, so a typo of them is suggested too.
+    /// spot, so a typo of them is suggested too (but they are not listed as systems).
     pub fn resolve(
         &self,
         label: &Label,
@@ -240,6 +372,9 @@ impl Systems {
             let id = check_id(diag, &label.text, &label.loc, "system", "a system id")?;
             if self.has_id(id) {
                 return Some(SystemId(id));
+            }
+            if self.rejected_ids.contains(&id) {
+                return None;
             }
             let known: Vec<String> = self.list.iter().map(|s| s.id.to_string()).collect();
             diag.err_help(
@@ -253,24 +388,36 @@ impl Systems {
             );
             return None;
         }
-        if let Some(id) = self.by_name(&label.text) {
-            return Some(id);
+        let name = names::nfc(&label.text);
+        if let Some(&i) = self.by_name.get(name.as_ref()) {
+            return Some(SystemId(self.list[i].id));
         }
-        if self.rejected.contains(&label.text) {
+        if self.rejected.contains(name.as_ref()) {
             return None;
         }
         // A numeric key is taken as an id, so `addresses = { 1 = "…" }` works like Table 3.
         if let Ok(id) = label.text.parse::<u16>() {
-            if self.has_id(id) && label.text.bytes().all(|b| b.is_ascii_digit()) {
-                return Some(SystemId(id));
+            if label.text.bytes().all(|b| b.is_ascii_digit()) {
+                if self.has_id(id) {
+                    return Some(SystemId(id));
+                }
+                if self.rejected_ids.contains(&id) {
+                    return None;
+                }
             }
         }
-        let mut cands = self.names();
+        let names = self.names();
+        let mut cands = names.clone();
         cands.extend_from_slice(extra);
+        let help = match suggest::closest(&name, &cands) {
+            Some(c) => format!("did you mean `{c}`?"),
+            None if names.is_empty() => "there are no known systems".to_string(),
+            None => format!("known systems: {}", names.join(", ")),
+        };
         diag.err_help(
             &label.loc,
             format!("unknown system `{}` in {context}", label.text),
-            suggest::help(&label.text, &cands, "known systems"),
+            help,
         );
         None
     }
@@ -293,8 +440,36 @@ pub(crate) fn at(loc: &Loc) -> String {
 /// Checks module ids for duplicates and sorts by id.
 pub(crate) fn modules(mut list: Vec<ModSpec>, diag: &mut Diag) -> Vec<ModuleDef> {
     let mut seen: HashMap<u16, usize> = HashMap::new();
+    let mut by_name: HashMap<&str, usize> = HashMap::new();
     let mut keep = vec![true; list.len()];
     for (i, m) in list.iter().enumerate() {
+        if let Some(c) = names::bad_char(&m.name) {
+            diag.err_help(
+                &m.id_loc,
+                format!(
+                    "module name `{}` contains {}, which a name cannot contain",
+                    m.name,
+                    names::describe(c)
+                ),
+                format!("a name may contain {}", names::NAME_CHARS),
+            );
+        }
+        if let Some(&j) = by_name.get(m.name.as_str()) {
+            diag.err_help(
+                &m.id_loc,
+                format!(
+                    "duplicate module name `{}` (spelled differently in Unicode)",
+                    m.name
+                ),
+                format!(
+                    "give each module its own name (the first has its id at {})",
+                    at(&list[j].id_loc)
+                ),
+            );
+            keep[i] = false;
+            continue;
+        }
+        by_name.insert(&m.name, i);
         if let Some(&j) = seen.get(&m.id) {
             let first = &list[j];
             diag.err_help(
@@ -446,9 +621,9 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     // Emulated transports must wrap a defined, non-emulated-cycle transport.
     check_over(&transports, &mut diag);
 
-    // The table.
-    let mut pairs: BTreeMap<(SystemId, SystemId), usize> = BTreeMap::new();
-    let mut pair_locs: Vec<((SystemId, SystemId), usize, Loc)> = Vec::new();
+    // The table. Pairs are collected in file order (so that each problem is reported at the
+    // first cell showing it) and sorted into the map only once the fleet is known to be valid.
+    let mut pairs: Vec<((SystemId, SystemId), usize)> = Vec::new();
     if let Some(table) = table.as_ref().filter(|t| {
         let empty = t.columns.is_empty() && !t.rows.is_empty();
         if empty {
@@ -460,118 +635,17 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         }
         !empty
     }) {
-        let cols: Vec<Option<SystemId>> = table
-            .columns
-            .iter()
-            .map(|c| systems.resolve(c, "the table's columns", &[], &mut diag))
-            .collect();
-        let rows: Vec<Option<SystemId>> = table
-            .rows
-            .iter()
-            .map(|(r, _)| systems.resolve(r, "the table's rows", &["columns"], &mut diag))
-            .collect();
-        // With an unresolved label, "no matching row/column" would only repeat that error.
-        let cols_ok = cols.iter().all(Option::is_some);
-        let rows_ok = rows.iter().all(Option::is_some);
-        let mut seen = BTreeSet::new();
-        for (c, label) in cols.iter().zip(&table.columns) {
-            if let Some(id) = c {
-                if !seen.insert(*id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("column `{}` appears twice", label.text),
-                        "list each system once among the columns",
-                    );
-                }
-            }
-        }
-        let col_set = seen;
-        let mut row_set = BTreeSet::new();
-        for (r, (label, _)) in rows.iter().zip(&table.rows) {
-            if let Some(id) = r {
-                if !row_set.insert(*id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("row `{}` appears twice", label.text),
-                        "give each system one row",
-                    );
-                } else if cols_ok && !col_set.contains(id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("row `{}` has no matching column", label.text),
-                        "the table is square: add this system to the columns too",
-                    );
-                }
-            }
-        }
-        for (c, label) in cols.iter().zip(&table.columns) {
-            if let Some(id) = c {
-                if rows_ok && !row_set.contains(id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("column `{}` has no matching row", label.text),
-                        format!("the table is square: add a row for `{}`", label.text),
-                    );
-                }
-            }
-        }
-        let mut implicit: HashMap<&'static str, usize> = HashMap::new();
-        let mut b_reported = false;
-        for (r, (label, cells)) in rows.iter().zip(&table.rows) {
-            let Some(src) = *r else { continue };
-            if cells.len() != table.columns.len() {
-                diag.err_help(
-                    &label.loc,
-                    format!(
-                        "row `{}` has {} but there {} {}",
-                        label.text,
-                        plural(cells.len(), "cell"),
-                        if table.columns.len() == 1 {
-                            "is"
-                        } else {
-                            "are"
-                        },
-                        plural(table.columns.len(), "column"),
-                    ),
-                    "give every row one cell per column, in column order (X for no traffic)",
-                );
-                continue;
-            }
-            for (cell, c) in cells.iter().zip(&cols) {
-                let Some(dst) = *c else { continue };
-                if cell.text == "X" {
-                    continue;
-                }
-                if src == dst {
-                    let n = systems.name(src);
-                    diag.err_help(
-                        &cell.loc,
-                        format!(
-                            "system `{n}` cannot send to itself: its own cell is `{}`",
-                            cell.text
-                        ),
-                        format!("write X in row `{}`, column `{}`", label.text, label.text),
-                    );
-                    continue;
-                }
-                let resolved = resolve_cell(
-                    cell,
-                    &letter_map,
-                    &mut transports,
-                    &mut tag_of,
-                    &mut implicit,
-                    legacy_bt.as_ref(),
-                    &mut b_reported,
-                    &mut diag,
-                );
-                if let Some(i) = resolved {
-                    pairs.insert((src, dst), i);
-                    pair_locs.push(((src, dst), i, cell.loc.clone()));
-                }
-            }
-        }
+        pairs = table_pairs(
+            table,
+            &systems,
+            &letter_map,
+            &mut transports,
+            &mut tag_of,
+            legacy_bt.as_ref(),
+            &mut diag,
+        );
     }
-    check_addresses(&pair_locs, &transports, &systems, &mut diag);
+    drop(table);
 
     // Systems' module lists.
     let mut system_defs = Vec::new();
@@ -634,14 +708,275 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             settings,
         });
     }
+    // Sorting is linear when the rows and columns are already in id order; building the map
+    // from sorted pairs fills its nodes.
+    pairs.sort_unstable_by_key(|&(k, _)| k);
     Ok(Fleet {
         name,
         source,
         systems: system_defs,
         modules,
         transports: defs,
-        table: pairs,
+        table: pairs.into_iter().collect(),
     })
+}
+
+/// Resolves the table's rows, columns and cells: reports unknown or repeated systems, a
+/// non-square table, ragged rows, self-pairs, cells naming nothing and systems a transport has
+/// no endpoint or address for; returns the (source, destination) → transport pairs in file
+/// order.
+fn table_pairs(
+    table: &RawTable,
+    systems: &Systems,
+    letter_map: &BTreeMap<u8, (usize, Loc)>,
+    transports: &mut Vec<TransportSpec>,
+    tag_of: &mut Vec<Option<u8>>,
+    legacy_bt: Option<&LegacyBt>,
+    diag: &mut Diag,
+) -> Vec<((SystemId, SystemId), usize)> {
+    let cols: Vec<Option<SystemId>> = table
+        .columns
+        .iter()
+        .map(|c| systems.resolve(c, "the table's columns", &[], diag))
+        .collect();
+    let rows: Vec<Option<SystemId>> = table
+        .rows
+        .iter()
+        .map(|r| systems.resolve(&r.label, "the table's rows", &["columns"], diag))
+        .collect();
+    // With an unresolved label, "no matching row/column" would only repeat that error.
+    let cols_ok = cols.iter().all(Option::is_some);
+    let rows_ok = rows.iter().all(Option::is_some);
+    let mut col_set = vec![false; systems.list.len()];
+    for (c, label) in cols.iter().zip(&table.columns) {
+        if let Some(i) = c.and_then(|id| systems.index_of(id)) {
+            if std::mem::replace(&mut col_set[i], true) {
+                diag.err_help(
+                    &label.loc,
+                    format!("column `{}` appears twice", label.text),
+                    "list each system once among the columns",
+                );
+            }
+        }
+    }
+    let mut row_set = vec![false; systems.list.len()];
+    for (r, row) in rows.iter().zip(&table.rows) {
+        let label = &row.label;
+        if let Some(i) = r.and_then(|id| systems.index_of(id)) {
+            if std::mem::replace(&mut row_set[i], true) {
+                diag.err_help(
+                    &label.loc,
+                    format!("row `{}` appears twice", label.text),
+                    "give each system one row",
+                );
+            } else if cols_ok && !col_set[i] {
+                diag.err_help(
+                    &label.loc,
+                    format!("row `{}` has no matching column", label.text),
+                    "the table is square: add this system to the columns too",
+                );
+            }
+        }
+    }
+    for (c, label) in cols.iter().zip(&table.columns) {
+        if let Some(i) = c.and_then(|id| systems.index_of(id)) {
+            if rows_ok && !row_set[i] {
+                diag.err_help(
+                    &label.loc,
+                    format!("column `{}` has no matching row", label.text),
+                    format!("the table is square: add a row for `{}`", label.text),
+                );
+            }
+        }
+    }
+
+    let is_x: Vec<bool> = table.texts.iter().map(|t| t == "X").collect();
+    // Each distinct text is resolved once; a text that names nothing is resolved (and
+    // reported) again at each cell, as every such cell is an error of its own.
+    let mut resolved: Vec<Option<usize>> = vec![None; table.texts.len()];
+    let mut implicit: HashMap<&'static str, usize> = HashMap::new();
+    let mut b_reported = false;
+    let mut addresses = AddressCheck::default();
+    let mut pairs = Vec::with_capacity(table.cells.len());
+    for (r, row) in rows.iter().zip(&table.rows) {
+        let Some(src) = *r else { continue };
+        let label = &row.label;
+        let cells = &table.cells[row.cells.clone()];
+        if cells.len() != table.columns.len() {
+            diag.err_help(
+                &label.loc,
+                format!(
+                    "row `{}` has {} but there {} {}",
+                    label.text,
+                    plural(cells.len(), "cell"),
+                    if table.columns.len() == 1 {
+                        "is"
+                    } else {
+                        "are"
+                    },
+                    plural(table.columns.len(), "column"),
+                ),
+                "give every row one cell per column, in column order (X for no traffic)",
+            );
+            continue;
+        }
+        for (cell, c) in cells.iter().zip(&cols) {
+            let Some(dst) = *c else { continue };
+            if is_x[cell.text as usize] {
+                continue;
+            }
+            if src == dst {
+                let n = systems.name(src);
+                diag.err_help(
+                    &table.loc(cell),
+                    format!(
+                        "system `{n}` cannot send to itself: its own cell is `{}`",
+                        table.text(cell)
+                    ),
+                    format!("write X in row `{}`, column `{}`", label.text, label.text),
+                );
+                continue;
+            }
+            let i = match resolved[cell.text as usize] {
+                Some(i) => i,
+                None => {
+                    let Some(i) = resolve_cell(
+                        table.text(cell),
+                        &table.loc(cell),
+                        letter_map,
+                        transports,
+                        tag_of,
+                        &mut implicit,
+                        legacy_bt,
+                        &mut b_reported,
+                        diag,
+                    ) else {
+                        continue;
+                    };
+                    resolved[cell.text as usize] = Some(i);
+                    i
+                }
+            };
+            addresses.check(i, src, dst, || table.loc(cell), transports, systems, diag);
+            pairs.push(((src, dst), i));
+        }
+    }
+    pairs
+}
+
+/// Checks that every system at either end of a pair has an endpoint / address on each
+/// transport carrying the pair (including the ones an emulated transport wraps). Each missing
+/// (transport, system) is reported once, at the first cell needing it. Per transport it keeps
+/// which systems are fully addressed along the transport's chain, so a cell costs two
+/// look-ups in a vector.
+#[derive(Default)]
+struct AddressCheck {
+    /// By transport index: per system position, whether every transport of its chain has an
+    /// endpoint or address for it. Built when the transport is first seen in the table.
+    ready: Vec<Option<Vec<bool>>>,
+    reported: FxHashSet<(usize, SystemId)>,
+}
+
+impl AddressCheck {
+    #[allow(clippy::too_many_arguments)]
+    fn check(
+        &mut self,
+        first: usize,
+        src: SystemId,
+        dst: SystemId,
+        loc: impl Fn() -> Loc,
+        transports: &[TransportSpec],
+        systems: &Systems,
+        diag: &mut Diag,
+    ) {
+        if self.ready.len() <= first {
+            self.ready.resize(first + 1, None);
+        }
+        let ok = self.ready[first].get_or_insert_with(|| {
+            let chain = chain(first, transports);
+            systems
+                .list
+                .iter()
+                .map(|s| {
+                    chain
+                        .iter()
+                        .all(|&i| has_address(&transports[i], SystemId(s.id)) != Some(false))
+                })
+                .collect()
+        });
+        let fine = |id: SystemId| systems.index_of(id).is_some_and(|i| ok[i]);
+        if fine(src) && fine(dst) {
+            return;
+        }
+        let loc = loc();
+        for i in chain(first, transports) {
+            let t = &transports[i];
+            for sys in [src, dst] {
+                if has_address(t, sys) != Some(false) || !self.reported.insert((i, sys)) {
+                    continue;
+                }
+                let sname = systems.name(sys);
+                let (what, help) = match &t.settings {
+                    Some(TransportSettings::Bluetooth(_)) => (
+                        "Bluetooth address",
+                        match &t.addr_source {
+                            AddrSource::File(f) => {
+                                format!("add a line `{} XX:XX:XX:XX:XX:XX` to {f}", sys.0)
+                            }
+                            AddrSource::Inline => format!(
+                                "add `{sname} = \"XX:XX:XX:XX:XX:XX\"` to `addresses` of transport `{}`",
+                                t.name
+                            ),
+                        },
+                    ),
+                    _ => (
+                        "endpoint",
+                        format!(
+                            "add `{sname} = \"host:port\"` to `endpoints` of transport `{}`",
+                            t.name
+                        ),
+                    ),
+                };
+                diag.err_help(
+                    &loc,
+                    format!(
+                        "transport `{}` carries `{}` → `{}` but has no {what} for `{sname}`",
+                        t.name,
+                        systems.name(src),
+                        systems.name(dst)
+                    ),
+                    help,
+                );
+            }
+        }
+    }
+}
+
+/// A transport and the ones it wraps, in order, each once.
+fn chain(first: usize, transports: &[TransportSpec]) -> Vec<usize> {
+    let mut out = vec![first];
+    let mut cur = first;
+    while let Some(next) = transports[cur]
+        .over
+        .as_ref()
+        .and_then(|(n, _)| transports.iter().position(|o| &o.name == n))
+    {
+        if out.contains(&next) {
+            break;
+        }
+        out.push(next);
+        cur = next;
+    }
+    out
+}
+
+/// Whether a transport has an endpoint / address for `sys`; None for kinds that need none.
+fn has_address(t: &TransportSpec, sys: SystemId) -> Option<bool> {
+    match &t.settings {
+        Some(TransportSettings::Ip(ip)) => Some(ip.endpoints.contains_key(&sys)),
+        Some(TransportSettings::Bluetooth(bt)) => Some(bt.addresses.contains_key(&sys)),
+        _ => None,
+    }
 }
 
 /// Records that `letter` means transport `i`, reporting a conflicting earlier definition.
@@ -673,7 +1008,8 @@ fn define_letter(
 /// None when it names nothing usable (already reported).
 #[allow(clippy::too_many_arguments)]
 fn resolve_cell(
-    cell: &RawCell,
+    text: &str,
+    loc: &Loc,
     letter_map: &BTreeMap<u8, (usize, Loc)>,
     transports: &mut Vec<TransportSpec>,
     tag_of: &mut Vec<Option<u8>>,
@@ -682,13 +1018,13 @@ fn resolve_cell(
     b_reported: &mut bool,
     diag: &mut Diag,
 ) -> Option<usize> {
-    let text = cell.text.as_str();
     if let [b] = text.as_bytes() {
         if let Some((i, _)) = letter_map.get(b) {
             return Some(*i);
         }
     }
-    if let Some(i) = transports.iter().position(|t| t.name == text) {
+    let name = names::nfc(text);
+    if let Some(i) = transports.iter().position(|t| t.name == name) {
         return Some(i);
     }
     let key: &'static str = match text {
@@ -706,6 +1042,10 @@ fn resolve_cell(
                 cands.push("B");
             }
             cands.push("X");
+            // A transport named by one letter, or a letter defined twice alike, is one
+            // candidate.
+            let mut seen = FxHashSet::default();
+            cands.retain(|c| seen.insert(*c));
             let help = match suggest::closest(text, &cands) {
                 Some(c) => format!("did you mean `{c}`?"),
                 None => format!(
@@ -714,11 +1054,7 @@ fn resolve_cell(
                     if text.chars().count() == 1 { text } else { "Q" }
                 ),
             };
-            diag.err_help(
-                &cell.loc,
-                format!("`{text}` names no transport or letter"),
-                help,
-            );
+            diag.err_help(loc, format!("`{text}` names no transport or letter"), help);
             return None;
         }
     };
@@ -735,7 +1071,7 @@ fn resolve_cell(
             if !*b_reported {
                 *b_reported = true;
                 diag.err_help(
-                    &cell.loc,
+                    loc,
                     "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
                     "add `bluetooth = \"bt.txt\"` (the Table 3 format) under [legacy], or map B to a transport in [letters]",
                 );
@@ -754,7 +1090,7 @@ fn resolve_cell(
     };
     transports.push(TransportSpec {
         name: key.to_string(),
-        name_loc: cell.loc.clone(),
+        name_loc: loc.clone(),
         kind: Some(kind),
         delivery: DeliveryMode::Acknowledged,
         attempts: 3,
@@ -835,66 +1171,6 @@ fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
                 Some(next) => cur = next,
                 None => break,
             }
-        }
-    }
-}
-
-/// Checks that every system at either end of a pair has an endpoint / address on each
-/// transport carrying the pair (including the ones an emulated transport wraps). Each missing
-/// (transport, system) is reported once, at the first cell needing it.
-fn check_addresses(
-    pairs: &[((SystemId, SystemId), usize, Loc)],
-    transports: &[TransportSpec],
-    systems: &Systems,
-    diag: &mut Diag,
-) {
-    let mut reported = BTreeSet::new();
-    for &((src, dst), first, ref loc) in pairs {
-        let mut cur = Some(first);
-        let mut seen = BTreeSet::new();
-        while let Some(i) = cur {
-            if !seen.insert(i) {
-                break;
-            }
-            let t = &transports[i];
-            for sys in [src, dst] {
-                let sname = systems.name(sys);
-                let (missing, what, help) = match &t.settings {
-                    Some(TransportSettings::Ip(ip)) => (
-                        !ip.endpoints.contains_key(&sys),
-                        "endpoint",
-                        format!("add `{sname} = \"host:port\"` to `endpoints` of transport `{}`", t.name),
-                    ),
-                    Some(TransportSettings::Bluetooth(bt)) => (
-                        !bt.addresses.contains_key(&sys),
-                        "Bluetooth address",
-                        match &t.addr_source {
-                            AddrSource::File(f) => format!("add a line `{} XX:XX:XX:XX:XX:XX` to {f}", sys.0),
-                            AddrSource::Inline => format!(
-                                "add `{sname} = \"XX:XX:XX:XX:XX:XX\"` to `addresses` of transport `{}`",
-                                t.name
-                            ),
-                        },
-                    ),
-                    _ => (false, "", String::new()),
-                };
-                if missing && reported.insert((i, sys)) {
-                    diag.err_help(
-                        loc,
-                        format!(
-                            "transport `{}` carries `{}` → `{}` but has no {what} for `{sname}`",
-                            t.name,
-                            systems.name(src),
-                            systems.name(dst)
-                        ),
-                        help,
-                    );
-                }
-            }
-            cur = t
-                .over
-                .as_ref()
-                .and_then(|(n, _)| transports.iter().position(|o| &o.name == n));
         }
     }
 }

@@ -59,6 +59,7 @@ mod error;
 mod fleet_toml;
 mod legacy;
 pub mod model;
+mod names;
 mod suggest;
 
 use std::path::Path;

@@ -29,7 +29,7 @@ impl P<'_> {
                 &vl,
                 "write the wrapped transport's name in quotes",
             )
-            .map(|s| (s.to_string(), vl))
+            .map(|s| (crate::names::nfc(s).into_owned(), vl))
         });
         let seed = t.get("seed").map_or(0, |v| {
             let vl = self.vloc(v, tloc);

@@ -20,8 +20,8 @@ use std::time::Duration;
 use toml_edit::{ImDocument, Item, TableLike, Value};
 
 use crate::assemble::{
-    self, AddrSource, BtLine, Label, LegacyBt, LetterSpec, ModSpec, Parts, RawCell, RawTable,
-    SysSpec, Systems, TransportSpec, DEFAULT_MODULES,
+    self, AddrSource, BtLine, Label, LegacyBt, LetterSpec, ModSpec, Parts, RawTable, SysSpec,
+    Systems, TransportSpec, DEFAULT_MODULES,
 };
 use crate::error::{ConfigErrors, Diag, LineIndex, Loc};
 use crate::legacy;
@@ -316,6 +316,24 @@ impl P<'_> {
                 for (name, v) in t.iter() {
                     let nloc = self.kloc(t, name, &loc);
                     if let Some(spec) = self.transport(name, v, &nloc, &systems) {
+                        // TOML keeps keys apart that Unicode spells two ways; names do not.
+                        if let Some(first) = transports
+                            .iter()
+                            .find(|t: &&assemble::TransportSpec| t.name == spec.name)
+                        {
+                            self.diag.err_help(
+                                &nloc,
+                                format!(
+                                    "duplicate transport name `{}` (spelled differently in Unicode)",
+                                    spec.name
+                                ),
+                                format!(
+                                    "give each transport its own name (the first is at {})",
+                                    assemble::at(&first.name_loc)
+                                ),
+                            );
+                            continue;
+                        }
                         transports.push(spec);
                     }
                 }
@@ -341,7 +359,7 @@ impl P<'_> {
                         letters.push(LetterSpec {
                             letter,
                             letter_loc: kl,
-                            target: target.to_string(),
+                            target: crate::names::nfc(target).into_owned(),
                             target_loc: vl,
                         });
                     }

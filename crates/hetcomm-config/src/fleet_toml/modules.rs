@@ -109,7 +109,7 @@ impl P<'_> {
                 out.push(ModSpec {
                     id,
                     id_loc,
-                    name: name.to_string(),
+                    name: crate::names::nfc(name).into_owned(),
                     inbox: policy(inbox),
                 });
             }

@@ -89,7 +89,7 @@ impl P<'_> {
         for v in arr.iter() {
             let vl = self.at(v.span(), loc);
             match v.as_str() {
-                Some(s) => out.push((s.to_string(), vl)),
+                Some(s) => out.push((crate::names::nfc(s).into_owned(), vl)),
                 None => {
                     let found = format!(
                         "{} `{}`",

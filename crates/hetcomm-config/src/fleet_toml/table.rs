@@ -73,7 +73,7 @@ impl P<'_> {
         if !columns_ok {
             return None;
         }
-        let mut rows = Vec::new();
+        let mut table = RawTable::new(self.file.clone(), loc.clone(), columns);
         for (k, v) in t.iter() {
             if k == "columns" {
                 continue;
@@ -91,14 +91,11 @@ impl P<'_> {
                 );
                 continue;
             };
-            let mut cells = Vec::new();
+            table.start_row(label(k, &kl));
             for c in arr.iter() {
                 let cl = self.at(c.span(), &vl);
                 match c.as_str() {
-                    Some(s) => cells.push(RawCell {
-                        text: s.to_string(),
-                        loc: cl,
-                    }),
+                    Some(s) => table.push_cell(s, cl.line, cl.column),
                     None => {
                         let found = format!(
                             "{} `{}`",
@@ -111,19 +108,11 @@ impl P<'_> {
                             "write a transport name, a letter or \"X\" in quotes",
                         );
                         // A placeholder keeps the row's length right for the shape checks.
-                        cells.push(RawCell {
-                            text: "X".to_string(),
-                            loc: cl,
-                        });
+                        table.push_cell("X", cl.line, cl.column);
                     }
                 }
             }
-            rows.push((label(k, &kl), cells));
         }
-        Some(RawTable {
-            header_loc: loc,
-            columns,
-            rows,
-        })
+        Some(table)
     }
 }

@@ -144,7 +144,7 @@ impl P<'_> {
             self.letter(s, &vl).map(|b| (b, vl))
         });
         let mut spec = TransportSpec {
-            name: name.to_string(),
+            name: crate::names::nfc(name).into_owned(),
             name_loc: nloc.clone(),
             kind,
             delivery,
