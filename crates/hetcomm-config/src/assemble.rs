@@ -798,8 +798,14 @@ fn table_pairs(
     let mut b_reported = false;
     let mut addresses = AddressCheck::default();
     let mut pairs = Vec::with_capacity(table.cells.len());
+    // Positions in `systems.list`, looked up once rather than per cell.
+    let col_pos: Vec<usize> = cols
+        .iter()
+        .map(|c| c.and_then(|id| systems.index_of(id)).unwrap_or(0))
+        .collect();
     for (r, row) in rows.iter().zip(&table.rows) {
         let Some(src) = *r else { continue };
+        let src_pos = systems.index_of(src).unwrap_or(0);
         let label = &row.label;
         let cells = &table.cells[row.cells.clone()];
         if cells.len() != table.columns.len() {
@@ -820,7 +826,7 @@ fn table_pairs(
             );
             continue;
         }
-        for (cell, c) in cells.iter().zip(&cols) {
+        for ((cell, c), &dst_pos) in cells.iter().zip(&cols).zip(&col_pos) {
             let Some(dst) = *c else { continue };
             if is_x[cell.text as usize] {
                 continue;
@@ -857,7 +863,15 @@ fn table_pairs(
                     i
                 }
             };
-            addresses.check(i, src, dst, || table.loc(cell), transports, systems, diag);
+            addresses.check(
+                i,
+                (src, src_pos),
+                (dst, dst_pos),
+                || table.loc(cell),
+                transports,
+                systems,
+                diag,
+            );
             pairs.push(((src, dst), i));
         }
     }
@@ -871,7 +885,7 @@ fn table_pairs(
 /// look-ups in a vector.
 #[derive(Default)]
 struct AddressCheck {
-    /// By transport index: per system position, whether every transport of its chain has an
+    /// By transport index: per system position in `Systems::list`, whether every transport of its chain has an
     /// endpoint or address for it. Built when the transport is first seen in the table.
     ready: Vec<Option<Vec<bool>>>,
     reported: FxHashSet<(usize, SystemId)>,
@@ -882,8 +896,8 @@ impl AddressCheck {
     fn check(
         &mut self,
         first: usize,
-        src: SystemId,
-        dst: SystemId,
+        (src, src_pos): (SystemId, usize),
+        (dst, dst_pos): (SystemId, usize),
         loc: impl Fn() -> Loc,
         transports: &[TransportSpec],
         systems: &Systems,
@@ -904,8 +918,7 @@ impl AddressCheck {
                 })
                 .collect()
         });
-        let fine = |id: SystemId| systems.index_of(id).is_some_and(|i| ok[i]);
-        if fine(src) && fine(dst) {
+        if ok[src_pos] && ok[dst_pos] {
             return;
         }
         let loc = loc();

@@ -4,6 +4,7 @@
 
 mod emulation;
 mod modules;
+mod scan;
 mod systems;
 mod table;
 mod transports;
@@ -133,8 +134,39 @@ pub(crate) fn parse(
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
 ) -> Result<Fleet, ConfigErrors> {
+    parse_with(text, origin, base_dir, source, true).0
+}
+
+/// [`parse`], reading a plain `[table]` with [`scan`] when `fast` (and it can); also says
+/// whether it did.
+fn parse_with(
+    text: &str,
+    origin: &str,
+    base_dir: Option<&Path>,
+    source: Option<PathBuf>,
+    fast: bool,
+) -> (Result<Fleet, ConfigErrors>, bool) {
+    let file: Rc<str> = Rc::from(origin);
+    if let Some(scanned) = fast.then(|| scan::scan(text, &file)).flatten() {
+        // The rest must not define `table` again (that is an error the long way reports) nor
+        // `[legacy]` (which decides whether `[table]` is allowed at all).
+        if let Ok(doc) = ImDocument::parse(scanned.rest.as_str()) {
+            let root = doc.as_table();
+            if !root.contains_key("table") && !root.contains_key("legacy") {
+                let mut p = P {
+                    file,
+                    text: &scanned.rest,
+                    idx: LineIndex::new(&scanned.rest),
+                    diag: Diag::default(),
+                    base_dir,
+                };
+                let parts = p.walk(root, source, Some(scanned.table));
+                return (assemble::finish(parts, p.diag), true);
+            }
+        }
+    }
     let mut p = P {
-        file: Rc::from(origin),
+        file,
         text,
         idx: LineIndex::new(text),
         diag: Diag::default(),
@@ -158,11 +190,11 @@ pub(crate) fn parse(
                 format!("TOML syntax error: {msg}"),
                 "fix the TOML syntax at this spot; see docs/config.md for the file format",
             );
-            return Err(ConfigErrors(p.diag.errors));
+            return (Err(ConfigErrors(p.diag.errors)), false);
         }
     };
-    let parts = p.walk(doc.as_table(), source);
-    assemble::finish(parts, p.diag)
+    let parts = p.walk(doc.as_table(), source, None);
+    (assemble::finish(parts, p.diag), false)
 }
 
 /// Quotes a key for a dotted path when it is not a bare key.
@@ -192,7 +224,14 @@ fn type_name(item: &Item) -> &'static str {
 }
 
 impl P<'_> {
-    fn walk(&mut self, root: &dyn TableLike, source: Option<PathBuf>) -> Parts {
+    /// Walks the document's sections in dependency order. `table` is the `[table]` section
+    /// when [`scan`] already read it (the document then has none).
+    fn walk(
+        &mut self,
+        root: &dyn TableLike,
+        source: Option<PathBuf>,
+        table: Option<RawTable>,
+    ) -> Parts {
         let top = Loc::start(&self.file);
         self.unknown_keys(root, &TOP_KEYS, None, &top);
         let get = |k: &str| root.get(k).filter(|i| !i.is_none());
@@ -369,6 +408,7 @@ impl P<'_> {
 
         // The table.
         let table = match (&l_table, get("table")) {
+            _ if table.is_some() => table,
             (Some(lp), other) => {
                 if other.is_some() {
                     let loc = self.kloc(root, "table", &top);
