@@ -125,7 +125,10 @@ fn main() {
                 println!(
                     "config validation at {n} systems: failed ({}): {}",
                     out.status,
-                    String::from_utf8_lossy(&out.stderr).lines().next().unwrap_or("")
+                    String::from_utf8_lossy(&out.stderr)
+                        .lines()
+                        .next()
+                        .unwrap_or("")
                 );
             }
         }

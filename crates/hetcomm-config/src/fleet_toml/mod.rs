@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::time::Duration;
 
+use rustc_hash::FxHashMap;
 use toml_edit::{ImDocument, Item, TableLike, Value};
 
 use crate::assemble::{
@@ -125,6 +126,16 @@ struct P<'a> {
     idx: LineIndex,
     diag: Diag,
     base_dir: Option<&'a Path>,
+    /// Every `udp` / `tcp` endpoint so far, by (kind, host in lower case, port).
+    endpoints_seen: FxHashMap<(TransportKind, String, u16), SeenEndpoint>,
+}
+
+/// Where an endpoint was first given, for the error about a second system using it.
+struct SeenEndpoint {
+    transport: String,
+    system: String,
+    endpoint: String,
+    loc: Loc,
 }
 
 /// Parses and validates a fleet file's text.
@@ -159,6 +170,7 @@ fn parse_with(
                     idx: LineIndex::new(&scanned.rest),
                     diag: Diag::default(),
                     base_dir,
+                    endpoints_seen: FxHashMap::default(),
                 };
                 let parts = p.walk(root, source, Some(scanned.table));
                 return (assemble::finish(parts, p.diag), true);
@@ -171,6 +183,7 @@ fn parse_with(
         idx: LineIndex::new(text),
         diag: Diag::default(),
         base_dir,
+        endpoints_seen: FxHashMap::default(),
     };
     let doc = match ImDocument::parse(text) {
         Ok(d) => d,

@@ -192,7 +192,13 @@ impl P<'_> {
                         );
                         BTreeMap::new()
                     }
-                    Some(v) => self.endpoints(v, &format!("{path}.endpoints"), &tloc, systems),
+                    Some(v) => self.endpoints(
+                        v,
+                        &format!("{path}.endpoints"),
+                        &tloc,
+                        (&spec.name, kind),
+                        systems,
+                    ),
                 };
                 let max_message_bytes = t.get("max_message_bytes").and_then(|v| {
                     let vl = self.vloc(v, &tloc);
@@ -344,6 +350,7 @@ impl P<'_> {
         item: &Item,
         path: &str,
         tloc: &Loc,
+        (transport, kind): (&str, TransportKind),
         systems: &Systems,
     ) -> BTreeMap<hetcomm_core::SystemId, String> {
         let mut out = BTreeMap::new();
@@ -359,16 +366,58 @@ impl P<'_> {
             let Some(s) = self.string(v, &format!("{path}.{}", key_part(k)), &vl, help) else {
                 continue;
             };
-            let ok = s.rsplit_once(':').is_some_and(|(h, p)| {
-                !h.is_empty()
-                    && !p.is_empty()
-                    && p.bytes().all(|b| b.is_ascii_digit())
-                    && p.parse::<u16>().is_ok()
+            let parsed = s.rsplit_once(':').and_then(|(h, p)| {
+                let ok = !h.is_empty() && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit());
+                ok.then(|| p.parse::<u16>().ok().map(|port| (h, port)))
+                    .flatten()
             });
-            if !ok {
+            let Some((host, port)) = parsed else {
                 self.diag
                     .err_help(&vl, format!("malformed endpoint `{s}` for `{k}`"), help);
                 continue;
+            };
+            // One socket per protocol, address and port: a second system there (on this
+            // transport or another of the same kind) could not be opened. Port 0 picks a free
+            // port each time.
+            if port != 0 {
+                let key = (kind, host.to_ascii_lowercase(), port);
+                if let Some(first) = self.endpoints_seen.get(&key) {
+                    let (what, whose) = if first.transport == transport {
+                        (
+                            format!("`{k}` and `{}`", first.system),
+                            format!("on transport `{transport}`"),
+                        )
+                    } else {
+                        (
+                            format!(
+                                "`{k}` (transport `{transport}`) and `{}` (transport `{}`)",
+                                first.system, first.transport
+                            ),
+                            format!("({kind})"),
+                        )
+                    };
+                    self.diag.err_help(
+                        &vl,
+                        format!("{what} have the same endpoint `{s}` {whose}"),
+                        format!(
+                            "give each system its own address or port (`{}` has `{}` at {}); \
+                             port 0 picks a free one",
+                            first.system,
+                            first.endpoint,
+                            assemble::at(&first.loc)
+                        ),
+                    );
+                } else {
+                    self.endpoints_seen.insert(
+                        key,
+                        SeenEndpoint {
+                            transport: transport.to_string(),
+                            system: k.to_string(),
+                            endpoint: s.to_string(),
+                            loc: vl.clone(),
+                        },
+                    );
+                }
             }
             if let Some(sys) = sys {
                 out.insert(sys, s.to_string());
