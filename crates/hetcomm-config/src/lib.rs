@@ -66,7 +66,7 @@ use std::path::Path;
 use std::rc::Rc;
 
 pub use error::{ConfigError, ConfigErrors};
-pub use fleet_toml::EMULATED_PARAMS;
+pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
 pub use model::*;
 
 use crate::assemble::{LegacyBt, ModSpec, Parts, SysSpec, Systems, DEFAULT_MODULES};

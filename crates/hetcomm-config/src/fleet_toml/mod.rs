@@ -10,6 +10,7 @@ mod table;
 mod transports;
 mod values;
 
+pub use emulation::emulated_profile;
 use modules::policy;
 
 use std::collections::BTreeMap;
