@@ -255,7 +255,7 @@ impl Systems {
                     &s.name_loc,
                     format!(
                         "system name `{}` contains {}, which a name cannot contain",
-                        s.name,
+                        names::visible(&s.name),
                         names::describe(c)
                     ),
                     format!("a name may contain {}", names::NAME_CHARS),
@@ -448,7 +448,7 @@ pub(crate) fn modules(mut list: Vec<ModSpec>, diag: &mut Diag) -> Vec<ModuleDef>
                 &m.id_loc,
                 format!(
                     "module name `{}` contains {}, which a name cannot contain",
-                    m.name,
+                    names::visible(&m.name),
                     names::describe(c)
                 ),
                 format!("a name may contain {}", names::NAME_CHARS),

@@ -55,6 +55,24 @@ pub(crate) fn describe(c: char) -> String {
     }
 }
 
+/// `name` for a message, with characters that may not show (controls, invisible and other
+/// non-graphic characters, spaces other than U+0020) written as `\u{XXXX}`.
+pub(crate) fn visible(name: &str) -> String {
+    name.chars()
+        .map(|c| {
+            if c == ' '
+                || c.is_ascii_graphic()
+                || (!c.is_ascii()
+                    && (c.is_alphanumeric() || unicode_normalization::char::is_combining_mark(c)))
+            {
+                c.to_string()
+            } else {
+                format!("\\u{{{:04X}}}", u32::from(c))
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -88,5 +106,6 @@ mod tests {
         assert_eq!(bad_char("trail "), Some(' '));
         assert_eq!(describe('\u{200b}'), "U+200B");
         assert_eq!(describe('#'), "`#` (U+0023)");
+        assert_eq!(visible("a\u{200b}b\tc d#"), "a\\u{200B}b\\u{0009}c d#");
     }
 }
