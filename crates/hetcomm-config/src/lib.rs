@@ -61,6 +61,7 @@ mod legacy;
 pub mod model;
 mod names;
 mod suggest;
+mod table;
 
 use std::path::Path;
 use std::rc::Rc;
