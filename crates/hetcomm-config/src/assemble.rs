@@ -247,6 +247,17 @@ impl Systems {
         }
     }
 
+    /// Records systems that were left out for an error already reported (a bad id), so that
+    /// references to them stay quiet too.
+    pub fn mark_reported(&mut self, names: Vec<String>) {
+        for n in names {
+            let n = names::nfc(&n).into_owned();
+            if !self.by_name.contains_key(&n) {
+                self.rejected.insert(n);
+            }
+        }
+    }
+
     /// The position in `list` of the system with this id.
     pub fn index_of(&self, id: SystemId) -> Option<usize> {
         self.list.binary_search_by_key(&id.0, |s| s.id).ok()

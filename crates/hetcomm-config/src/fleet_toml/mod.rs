@@ -127,6 +127,8 @@ struct P<'a> {
     idx: LineIndex,
     diag: Diag,
     base_dir: Option<&'a Path>,
+    /// Systems of `[systems]` left out for an error in their entry (a bad or missing id).
+    unusable_systems: Vec<String>,
     /// Every `udp` / `tcp` endpoint so far, by (kind, host in lower case, port).
     endpoints_seen: FxHashMap<(TransportKind, String, u16), SeenEndpoint>,
 }
@@ -171,6 +173,7 @@ fn parse_with(
                     idx: LineIndex::new(&scanned.rest),
                     diag: Diag::default(),
                     base_dir,
+                    unusable_systems: Vec::new(),
                     endpoints_seen: FxHashMap::default(),
                 };
                 let parts = p.walk(root, source, Some(scanned.table));
@@ -184,6 +187,7 @@ fn parse_with(
         idx: LineIndex::new(text),
         diag: Diag::default(),
         base_dir,
+        unusable_systems: Vec::new(),
         endpoints_seen: FxHashMap::default(),
     };
     let doc = match ImDocument::parse(text) {
@@ -332,7 +336,8 @@ impl P<'_> {
                 Vec::new()
             }
         };
-        let systems = Systems::new(specs, &mut self.diag);
+        let mut systems = Systems::new(specs, &mut self.diag);
+        systems.mark_reported(std::mem::take(&mut self.unusable_systems));
 
         // Inbox defaults, then modules.
         let mut defaults = InboxDefaults {

@@ -22,6 +22,7 @@ impl P<'_> {
                         v,
                         "write `Name = 0` or `Name = { id = 0, modules = [\"Plan\"] }`",
                     );
+                    self.unusable_systems.push(name.to_string());
                     continue;
                 }
                 (
@@ -31,6 +32,7 @@ impl P<'_> {
                 )
             } else {
                 let Some(st) = v.as_table_like() else {
+                    self.unusable_systems.push(name.to_string());
                     continue;
                 };
                 self.unknown_keys(st, &SYSTEM_KEYS, Some(&path), &vl);
@@ -55,14 +57,16 @@ impl P<'_> {
                 });
                 (id, modules)
             };
-            if let Some((id, id_loc)) = id {
-                out.push(SysSpec {
+            match id {
+                Some((id, id_loc)) => out.push(SysSpec {
                     id,
                     id_loc,
                     name: name.to_string(),
                     name_loc: nloc,
                     modules,
-                });
+                }),
+                // Already reported (its id): references to it should not be reported again.
+                None => self.unusable_systems.push(name.to_string()),
             }
         }
         out
