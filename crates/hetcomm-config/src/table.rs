@@ -183,6 +183,9 @@ pub(crate) fn table_pairs(
     // Each distinct text is resolved once; a text that names nothing is resolved (and
     // reported) again at each cell, as every such cell is an error of its own.
     let mut resolved: Vec<Option<usize>> = vec![None; table.texts.len()];
+    // Per text naming nothing: errors reported, cells not reported, the first of those.
+    let mut unresolved: Vec<(usize, usize, Option<RawCell>)> =
+        vec![(0, 0, None); table.texts.len()];
     let mut implicit: HashMap<&'static str, usize> = HashMap::new();
     let mut b_reported = false;
     let mut addresses = AddressCheck::default();
@@ -234,8 +237,17 @@ pub(crate) fn table_pairs(
             }
             let i = match resolved[cell.text as usize] {
                 Some(i) => i,
+                None if unresolved[cell.text as usize].0 >= MAX_SAME_CELL_ERRORS => {
+                    // Reported often enough: a renamed transport must not make millions of
+                    // errors. Counted, and summed up once below.
+                    let u = &mut unresolved[cell.text as usize];
+                    u.1 += 1;
+                    u.2.get_or_insert(*cell);
+                    continue;
+                }
                 None => {
-                    let Some(i) = resolve_cell(
+                    let before = diag.errors.len();
+                    let resolved_now = resolve_cell(
                         table.text(cell),
                         &table.loc(cell),
                         letter_map,
@@ -245,7 +257,11 @@ pub(crate) fn table_pairs(
                         legacy_bt,
                         &mut b_reported,
                         diag,
-                    ) else {
+                    );
+                    let Some(i) = resolved_now else {
+                        if diag.errors.len() > before {
+                            unresolved[cell.text as usize].0 += 1;
+                        }
                         continue;
                     };
                     resolved[cell.text as usize] = Some(i);
@@ -264,8 +280,25 @@ pub(crate) fn table_pairs(
             pairs.push(((src, dst), i));
         }
     }
+    for (text, (_, more, first)) in table.texts.iter().zip(&unresolved) {
+        if let Some(cell) = first {
+            diag.err_help(
+                &table.loc(cell),
+                format!(
+                    "`{text}` names no transport or letter: {} from here on (the first \
+                     {MAX_SAME_CELL_ERRORS} are listed above)",
+                    plural(*more, "more cell")
+                ),
+                "the same fix applies to every one of them",
+            );
+        }
+    }
     pairs
 }
+
+/// Cells of one text naming nothing that are each reported; the rest are counted in one
+/// more error.
+const MAX_SAME_CELL_ERRORS: usize = 10;
 
 /// Checks that every system at either end of a pair has an endpoint / address on each
 /// transport carrying the pair (including the ones an emulated transport wraps). Each missing

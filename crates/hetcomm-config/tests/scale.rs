@@ -87,3 +87,24 @@ fn a_big_table_with_one_mistake_reports_just_that_one() {
 fn ten_thousand_systems_with_a_full_table_validate() {
     check_full(10_000);
 }
+
+#[test]
+fn a_transport_renamed_but_not_in_the_table_gives_a_bounded_list() {
+    // 90 000 cells name `wifi`, which no longer exists: ten are listed, the rest counted.
+    let text = fleet(300, true).replace("[transports.wifi]", "[transports.wlan]");
+    let e = parse_str(&text, "big.toml", None).unwrap_err();
+    let unknown: Vec<_> =
+        e.0.iter()
+            .filter(|e| e.message.starts_with("`wifi` names no transport"))
+            .collect();
+    assert_eq!(unknown.len(), 11, "{e}");
+    let cells = 300 * 300 / 4; // the cells with (i + j) % 4 == 1, none on the diagonal
+    assert_eq!(
+        unknown[10].message,
+        format!(
+            "`wifi` names no transport or letter: {} more cells from here on (the first 10 are \
+             listed above)",
+            cells - 10
+        )
+    );
+}
