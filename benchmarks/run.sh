@@ -87,7 +87,9 @@ fi
     echo "one-way: 1 s of sending per run, raw and hetcomm paths in 3 interleaved rounds, keeping"
     echo "each path's median rate (in-process hand-off: 3 rounds, median rate); processes"
     echo "unpinned except in the pinning table. Cyclone DDS rows are ddsperf's own figures (its"
-    echo "one-way latency doubled; throughput = median of its per-second rates)."
+    echo "one-way latency doubled; throughput = median of its per-second rates). Config validation:"
+    echo "a generated fleet file with a full table, validated by a child process that reports its"
+    echo "wall time and peak RSS (getrusage)."
     echo
     echo "## Results"
     echo

@@ -7,7 +7,8 @@
 //!               [--only SECTION[,SECTION…]] [--sizes BYTES[,BYTES…]] [--paths PATH[,PATH…]]
 //! ```
 //!
-//! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`. `--quick` runs every
+//! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config` (validating a
+//! fleet file of 3 000 and 10 000 systems, in a child process). `--quick` runs every
 //! measurement briefly (small payloads, few iterations) for CI: it checks that everything
 //! runs, never how fast. See `benchmarks/README.md`.
 //!
@@ -20,6 +21,7 @@
 //! process) they used per message received.
 
 mod child;
+mod config_scale;
 mod ext;
 mod hc;
 mod raw;
@@ -67,7 +69,7 @@ fn comma_list(v: &str) -> Vec<String> {
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim] [--sizes BYTES,…] [--paths ROW,…]";
+[--only rtt,oneway,inproc,pinning,scale,sim,config] [--sizes BYTES,…] [--paths ROW,…]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
     let mut o = Options::default();
@@ -105,6 +107,8 @@ struct Plan {
     rtt_iters: fn(usize) -> (u64, u64),
     oneway: Duration,
     scale_ns: Vec<usize>,
+    /// Fleet sizes of the `config` section.
+    config_ns: Vec<usize>,
     sim_systems: usize,
     sim_seconds: f64,
     dds_seconds: f64,
@@ -117,6 +121,7 @@ fn plan(quick: bool) -> Plan {
             rtt_iters: |_| (50, 300),
             oneway: Duration::from_millis(100),
             scale_ns: vec![10, 100],
+            config_ns: vec![300],
             sim_systems: 100,
             sim_seconds: 1.0,
             dds_seconds: 3.0,
@@ -131,6 +136,7 @@ fn plan(quick: bool) -> Plan {
             },
             oneway: Duration::from_secs(1),
             scale_ns: vec![10, 100, 1000],
+            config_ns: vec![3000, 10_000],
             sim_systems: 1000,
             sim_seconds: 10.0,
             dds_seconds: 5.0,
@@ -435,6 +441,15 @@ fn run(o: &Options) -> Vec<Row> {
             });
         }
     }
+    if want("config") {
+        for &n in &p.config_ns {
+            log(o.quick, &format!("config validation {n} systems"));
+            rows.push(match config_scale::measure(n) {
+                Ok(v) => Row::config(&v),
+                Err(e) => Row::failed("config", &format!("{n} systems"), 0, &e),
+            });
+        }
+    }
     if want("sim") {
         log(o.quick, "sim leader-follower demo");
         rows.push(match scale::leader_follower() {
@@ -453,6 +468,15 @@ fn run(o: &Options) -> Vec<Row> {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("__validate") {
+        match config_scale::child(&args[1..]) {
+            Ok(()) => std::process::exit(0),
+            Err(e) => {
+                eprintln!("hetcomm-bench __validate: {e}");
+                std::process::exit(2);
+            }
+        }
+    }
     if args.first().map(String::as_str) == Some("__peer") {
         match child::run_peer(&args[1..]) {
             Ok(()) => std::process::exit(0),

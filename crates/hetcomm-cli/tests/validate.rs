@@ -88,3 +88,14 @@ fn generate_config_prints_a_fleet_that_validates() {
     assert!(out.starts_with("ok: "));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_missing_fleet_file_is_named_without_a_made_up_position() {
+    let (code, stdout, stderr) = hetcomm(&["validate", "no-such-fleet.toml"]);
+    assert_eq!(code, 2, "{stdout}{stderr}");
+    let first = stderr.lines().next().unwrap_or_default();
+    assert!(
+        first.starts_with("no-such-fleet.toml: cannot read the fleet file: "),
+        "{first}"
+    );
+}

@@ -3,16 +3,21 @@
 //! table into a [`Fleet`]. Keeping one path means a legacy table gets exactly the same
 //! validation whether it is loaded alone or through a fleet file's `[legacy]` section.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::rc::Rc;
 
 use hetcomm_core::{ModuleId, SystemId};
+use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::error::{ConfigErrors, Diag, Loc};
 use crate::legacy::check_id;
 use crate::model::*;
-use crate::suggest;
+use crate::{names, suggest};
+
+use crate::table::table_pairs;
+pub(crate) use crate::table::RawTable;
 
 /// One `<id> <name>` line of a legacy id file.
 pub(crate) struct IdLine {
@@ -29,19 +34,6 @@ pub(crate) struct Label {
     /// True when `text` must be a numeric id (legacy files), false when it is a name (a
     /// numeric id is still accepted if no system has that name).
     pub by_id: bool,
-}
-
-/// One table cell as written.
-pub(crate) struct RawCell {
-    pub text: String,
-    pub loc: Loc,
-}
-
-/// A communication table before its systems and letters are resolved.
-pub(crate) struct RawTable {
-    pub header_loc: Loc,
-    pub columns: Vec<Label>,
-    pub rows: Vec<(Label, Vec<RawCell>)>,
 }
 
 /// One `<id> <address>` entry (legacy file) or `name = "address"` entry (fleet file).
@@ -128,9 +120,15 @@ pub(crate) struct Parts {
 
 /// The fleet's systems after duplicate checks, with name and id lookups.
 pub(crate) struct Systems {
+    /// Sorted by id.
     pub list: Vec<SysSpec>,
-    /// Names dropped as duplicates: already reported, so references to them stay quiet.
-    rejected: Vec<String>,
+    /// Index into `list` by name (in NFC).
+    by_name: FxHashMap<String, usize>,
+    /// Names dropped as duplicates or for their characters: already reported, so references
+    /// to them stay quiet.
+    rejected: FxHashSet<String>,
+    /// Ids of dropped systems that no kept system has, likewise.
+    rejected_ids: FxHashSet<u16>,
 }
 
 /// The modules the thesis's framework uses, for fleets that do not list their own.
@@ -142,10 +140,16 @@ const BDADDR_HELP: &str =
     "write six two-digit hex bytes separated by colons, e.g. 68:A3:C4:4A:B3:BA";
 
 impl Systems {
-    /// Checks ids and names for duplicates (reporting the later one) and sorts by id.
+    /// Normalises names to NFC, checks their characters, checks ids and names for duplicates
+    /// (reporting the later one) and sorts by id.
     pub fn new(mut list: Vec<SysSpec>, diag: &mut Diag) -> Systems {
-        let mut ids: HashMap<u16, usize> = HashMap::new();
-        let mut names: HashMap<&str, usize> = HashMap::new();
+        for s in &mut list {
+            if let Cow::Owned(n) = names::nfc(&s.name) {
+                s.name = n;
+            }
+        }
+        let mut ids: FxHashMap<u16, usize> = FxHashMap::default();
+        let mut by_name: FxHashMap<&str, usize> = FxHashMap::default();
         let mut keep = vec![true; list.len()];
         for (i, s) in list.iter().enumerate() {
             if s.name.is_empty() {
@@ -154,6 +158,17 @@ impl Systems {
                     "a system name cannot be empty",
                     "give the system a name, e.g. `Alpha`",
                 );
+            } else if let Some(c) = names::bad_char(&s.name) {
+                diag.err_help(
+                    &s.name_loc,
+                    format!(
+                        "system name `{}` contains {}, which a name cannot contain",
+                        names::visible(&s.name),
+                        names::describe(c)
+                    ),
+                    format!("a name may contain {}", names::NAME_CHARS),
+                );
+                keep[i] = false;
             }
             if let Some(&j) = ids.get(&s.id) {
                 let first = &list[j];
@@ -170,10 +185,10 @@ impl Systems {
                     ),
                 );
                 keep[i] = false;
-            } else {
+            } else if keep[i] {
                 ids.insert(s.id, i);
             }
-            if let Some(&j) = names.get(s.name.as_str()) {
+            if let Some(&j) = by_name.get(s.name.as_str()) {
                 let first = &list[j];
                 diag.err_help(
                     &s.name_loc,
@@ -187,39 +202,75 @@ impl Systems {
                     ),
                 );
                 keep[i] = false;
-            } else {
-                names.insert(&s.name, i);
+            } else if keep[i] {
+                by_name.insert(&s.name, i);
             }
         }
-        let rejected = list
+        // A dropped system's name and id stay known as "already reported", unless a kept
+        // system has them, so the table and the address lists do not report them again.
+        let kept_ids: FxHashSet<u16> = list
             .iter()
             .zip(&keep)
-            .filter(|(_, k)| !**k)
-            .map(|(s, _)| s.name.clone())
+            .filter(|(_, k)| **k)
+            .map(|(s, _)| s.id)
             .collect();
+        let kept_names: FxHashSet<&str> = list
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(s, _)| s.name.as_str())
+            .collect();
+        let mut rejected = FxHashSet::default();
+        let mut rejected_ids = FxHashSet::default();
+        for (s, _) in list.iter().zip(&keep).filter(|(_, k)| !**k) {
+            if !kept_names.contains(s.name.as_str()) {
+                rejected.insert(s.name.clone());
+            }
+            if !kept_ids.contains(&s.id) {
+                rejected_ids.insert(s.id);
+            }
+        }
+        drop(by_name);
         let mut it = keep.into_iter();
         list.retain(|_| it.next().unwrap_or(false));
         list.sort_by_key(|s| s.id);
-        Systems { list, rejected }
+        let by_name = list
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.name.clone(), i))
+            .collect();
+        Systems {
+            list,
+            by_name,
+            rejected,
+            rejected_ids,
+        }
     }
 
-    fn by_name(&self, name: &str) -> Option<SystemId> {
-        self.list
-            .iter()
-            .find(|s| s.name == name)
-            .map(|s| SystemId(s.id))
+    /// Records systems that were left out for an error already reported (a bad id), so that
+    /// references to them stay quiet too.
+    pub fn mark_reported(&mut self, names: Vec<String>) {
+        for n in names {
+            let n = names::nfc(&n).into_owned();
+            if !self.by_name.contains_key(&n) {
+                self.rejected.insert(n);
+            }
+        }
+    }
+
+    /// The position in `list` of the system with this id.
+    pub fn index_of(&self, id: SystemId) -> Option<usize> {
+        self.list.binary_search_by_key(&id.0, |s| s.id).ok()
     }
 
     fn has_id(&self, id: u16) -> bool {
-        self.list.iter().any(|s| s.id == id)
+        self.index_of(SystemId(id)).is_some()
     }
 
     /// The name of a system, for messages.
     pub fn name(&self, id: SystemId) -> &str {
-        self.list
-            .iter()
-            .find(|s| s.id == id.0)
-            .map_or("?", |s| s.name.as_str())
+        self.index_of(id)
+            .map_or("?", |i| self.list[i].name.as_str())
     }
 
     fn names(&self) -> Vec<&str> {
@@ -228,7 +279,7 @@ impl Systems {
 
     /// Resolves a written system reference, reporting an unknown one. `context` says where it
     /// was written ("the table's columns"); `extra` are other words that are valid at that
-    /// spot, so a typo of them is suggested too.
+    /// spot, so a typo of them is suggested too (but they are not listed as systems).
     pub fn resolve(
         &self,
         label: &Label,
@@ -240,6 +291,9 @@ impl Systems {
             let id = check_id(diag, &label.text, &label.loc, "system", "a system id")?;
             if self.has_id(id) {
                 return Some(SystemId(id));
+            }
+            if self.rejected_ids.contains(&id) {
+                return None;
             }
             let known: Vec<String> = self.list.iter().map(|s| s.id.to_string()).collect();
             diag.err_help(
@@ -253,35 +307,38 @@ impl Systems {
             );
             return None;
         }
-        if let Some(id) = self.by_name(&label.text) {
-            return Some(id);
+        let name = names::nfc(&label.text);
+        if let Some(&i) = self.by_name.get(name.as_ref()) {
+            return Some(SystemId(self.list[i].id));
         }
-        if self.rejected.contains(&label.text) {
+        if self.rejected.contains(name.as_ref()) {
             return None;
         }
         // A numeric key is taken as an id, so `addresses = { 1 = "…" }` works like Table 3.
         if let Ok(id) = label.text.parse::<u16>() {
-            if self.has_id(id) && label.text.bytes().all(|b| b.is_ascii_digit()) {
-                return Some(SystemId(id));
+            if label.text.bytes().all(|b| b.is_ascii_digit()) {
+                if self.has_id(id) {
+                    return Some(SystemId(id));
+                }
+                if self.rejected_ids.contains(&id) {
+                    return None;
+                }
             }
         }
-        let mut cands = self.names();
+        let names = self.names();
+        let mut cands = names.clone();
         cands.extend_from_slice(extra);
+        let help = match suggest::closest(&name, &cands) {
+            Some(c) => format!("did you mean `{c}`?"),
+            None if names.is_empty() => "there are no known systems".to_string(),
+            None => format!("known systems: {}", names.join(", ")),
+        };
         diag.err_help(
             &label.loc,
             format!("unknown system `{}` in {context}", label.text),
-            suggest::help(&label.text, &cands, "known systems"),
+            help,
         );
         None
-    }
-}
-
-/// "1 cell", "2 cells".
-fn plural(n: usize, word: &str) -> String {
-    if n == 1 {
-        format!("1 {word}")
-    } else {
-        format!("{n} {word}s")
     }
 }
 
@@ -293,8 +350,36 @@ pub(crate) fn at(loc: &Loc) -> String {
 /// Checks module ids for duplicates and sorts by id.
 pub(crate) fn modules(mut list: Vec<ModSpec>, diag: &mut Diag) -> Vec<ModuleDef> {
     let mut seen: HashMap<u16, usize> = HashMap::new();
+    let mut by_name: HashMap<&str, usize> = HashMap::new();
     let mut keep = vec![true; list.len()];
     for (i, m) in list.iter().enumerate() {
+        if let Some(c) = names::bad_char(&m.name) {
+            diag.err_help(
+                &m.id_loc,
+                format!(
+                    "module name `{}` contains {}, which a name cannot contain",
+                    names::visible(&m.name),
+                    names::describe(c)
+                ),
+                format!("a name may contain {}", names::NAME_CHARS),
+            );
+        }
+        if let Some(&j) = by_name.get(m.name.as_str()) {
+            diag.err_help(
+                &m.id_loc,
+                format!(
+                    "duplicate module name `{}` (spelled differently in Unicode)",
+                    m.name
+                ),
+                format!(
+                    "give each module its own name (the first has its id at {})",
+                    at(&list[j].id_loc)
+                ),
+            );
+            keep[i] = false;
+            continue;
+        }
+        by_name.insert(&m.name, i);
         if let Some(&j) = seen.get(&m.id) {
             let first = &list[j];
             diag.err_help(
@@ -446,9 +531,9 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     // Emulated transports must wrap a defined, non-emulated-cycle transport.
     check_over(&transports, &mut diag);
 
-    // The table.
-    let mut pairs: BTreeMap<(SystemId, SystemId), usize> = BTreeMap::new();
-    let mut pair_locs: Vec<((SystemId, SystemId), usize, Loc)> = Vec::new();
+    // The table. Pairs are collected in file order (so that each problem is reported at the
+    // first cell showing it) and sorted into the map only once the fleet is known to be valid.
+    let mut pairs: Vec<((SystemId, SystemId), usize)> = Vec::new();
     if let Some(table) = table.as_ref().filter(|t| {
         let empty = t.columns.is_empty() && !t.rows.is_empty();
         if empty {
@@ -460,118 +545,17 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         }
         !empty
     }) {
-        let cols: Vec<Option<SystemId>> = table
-            .columns
-            .iter()
-            .map(|c| systems.resolve(c, "the table's columns", &[], &mut diag))
-            .collect();
-        let rows: Vec<Option<SystemId>> = table
-            .rows
-            .iter()
-            .map(|(r, _)| systems.resolve(r, "the table's rows", &["columns"], &mut diag))
-            .collect();
-        // With an unresolved label, "no matching row/column" would only repeat that error.
-        let cols_ok = cols.iter().all(Option::is_some);
-        let rows_ok = rows.iter().all(Option::is_some);
-        let mut seen = BTreeSet::new();
-        for (c, label) in cols.iter().zip(&table.columns) {
-            if let Some(id) = c {
-                if !seen.insert(*id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("column `{}` appears twice", label.text),
-                        "list each system once among the columns",
-                    );
-                }
-            }
-        }
-        let col_set = seen;
-        let mut row_set = BTreeSet::new();
-        for (r, (label, _)) in rows.iter().zip(&table.rows) {
-            if let Some(id) = r {
-                if !row_set.insert(*id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("row `{}` appears twice", label.text),
-                        "give each system one row",
-                    );
-                } else if cols_ok && !col_set.contains(id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("row `{}` has no matching column", label.text),
-                        "the table is square: add this system to the columns too",
-                    );
-                }
-            }
-        }
-        for (c, label) in cols.iter().zip(&table.columns) {
-            if let Some(id) = c {
-                if rows_ok && !row_set.contains(id) {
-                    diag.err_help(
-                        &label.loc,
-                        format!("column `{}` has no matching row", label.text),
-                        format!("the table is square: add a row for `{}`", label.text),
-                    );
-                }
-            }
-        }
-        let mut implicit: HashMap<&'static str, usize> = HashMap::new();
-        let mut b_reported = false;
-        for (r, (label, cells)) in rows.iter().zip(&table.rows) {
-            let Some(src) = *r else { continue };
-            if cells.len() != table.columns.len() {
-                diag.err_help(
-                    &label.loc,
-                    format!(
-                        "row `{}` has {} but there {} {}",
-                        label.text,
-                        plural(cells.len(), "cell"),
-                        if table.columns.len() == 1 {
-                            "is"
-                        } else {
-                            "are"
-                        },
-                        plural(table.columns.len(), "column"),
-                    ),
-                    "give every row one cell per column, in column order (X for no traffic)",
-                );
-                continue;
-            }
-            for (cell, c) in cells.iter().zip(&cols) {
-                let Some(dst) = *c else { continue };
-                if cell.text == "X" {
-                    continue;
-                }
-                if src == dst {
-                    let n = systems.name(src);
-                    diag.err_help(
-                        &cell.loc,
-                        format!(
-                            "system `{n}` cannot send to itself: its own cell is `{}`",
-                            cell.text
-                        ),
-                        format!("write X in row `{}`, column `{}`", label.text, label.text),
-                    );
-                    continue;
-                }
-                let resolved = resolve_cell(
-                    cell,
-                    &letter_map,
-                    &mut transports,
-                    &mut tag_of,
-                    &mut implicit,
-                    legacy_bt.as_ref(),
-                    &mut b_reported,
-                    &mut diag,
-                );
-                if let Some(i) = resolved {
-                    pairs.insert((src, dst), i);
-                    pair_locs.push(((src, dst), i, cell.loc.clone()));
-                }
-            }
-        }
+        pairs = table_pairs(
+            table,
+            &systems,
+            &letter_map,
+            &mut transports,
+            &mut tag_of,
+            legacy_bt.as_ref(),
+            &mut diag,
+        );
     }
-    check_addresses(&pair_locs, &transports, &systems, &mut diag);
+    drop(table);
 
     // Systems' module lists.
     let mut system_defs = Vec::new();
@@ -634,13 +618,16 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             settings,
         });
     }
+    // Sorting is linear when the rows and columns are already in id order; building the map
+    // from sorted pairs fills its nodes.
+    pairs.sort_unstable_by_key(|&(k, _)| k);
     Ok(Fleet {
         name,
         source,
         systems: system_defs,
         modules,
         transports: defs,
-        table: pairs,
+        table: pairs.into_iter().collect(),
     })
 }
 
@@ -667,112 +654,6 @@ fn define_letter(
             map.insert(letter, (i, loc.clone()));
         }
     }
-}
-
-/// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
-/// None when it names nothing usable (already reported).
-#[allow(clippy::too_many_arguments)]
-fn resolve_cell(
-    cell: &RawCell,
-    letter_map: &BTreeMap<u8, (usize, Loc)>,
-    transports: &mut Vec<TransportSpec>,
-    tag_of: &mut Vec<Option<u8>>,
-    implicit: &mut HashMap<&'static str, usize>,
-    legacy_bt: Option<&LegacyBt>,
-    b_reported: &mut bool,
-    diag: &mut Diag,
-) -> Option<usize> {
-    let text = cell.text.as_str();
-    if let [b] = text.as_bytes() {
-        if let Some((i, _)) = letter_map.get(b) {
-            return Some(*i);
-        }
-    }
-    if let Some(i) = transports.iter().position(|t| t.name == text) {
-        return Some(i);
-    }
-    let key: &'static str = match text {
-        "R" => "R",
-        "B" => "B",
-        _ => {
-            let mut cands: Vec<&str> = transports.iter().map(|t| t.name.as_str()).collect();
-            let letters: Vec<String> = letter_map
-                .keys()
-                .map(|&b| (b as char).to_string())
-                .collect();
-            cands.extend(letters.iter().map(String::as_str));
-            cands.push("R");
-            if legacy_bt.is_some() {
-                cands.push("B");
-            }
-            cands.push("X");
-            let help = match suggest::closest(text, &cands) {
-                Some(c) => format!("did you mean `{c}`?"),
-                None => format!(
-                    "defined transports and letters: {}; a new letter needs a [letters] entry, e.g. `{} = \"<transport>\"`",
-                    cands.join(", "),
-                    if text.chars().count() == 1 { text } else { "Q" }
-                ),
-            };
-            diag.err_help(
-                &cell.loc,
-                format!("`{text}` names no transport or letter"),
-                help,
-            );
-            return None;
-        }
-    };
-    if let Some(&i) = implicit.get(key) {
-        return Some(i);
-    }
-    let settings = if key == "R" {
-        TransportSettings::Ros1(Ros1Settings {
-            master_uri: default_master_uri(),
-            namespace: None,
-        })
-    } else {
-        let Some(bt) = legacy_bt else {
-            if !*b_reported {
-                *b_reported = true;
-                diag.err_help(
-                    &cell.loc,
-                    "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
-                    "add `bluetooth = \"bt.txt\"` (the Table 3 format) under [legacy], or map B to a transport in [letters]",
-                );
-            }
-            return None;
-        };
-        TransportSettings::Bluetooth(BluetoothSettings {
-            channel: 1,
-            addresses: bt.addresses.clone(),
-        })
-    };
-    let kind = if key == "R" {
-        TransportKind::Ros1
-    } else {
-        TransportKind::Bluetooth
-    };
-    transports.push(TransportSpec {
-        name: key.to_string(),
-        name_loc: cell.loc.clone(),
-        kind: Some(kind),
-        delivery: DeliveryMode::Acknowledged,
-        attempts: 3,
-        max_in_flight: crate::model::DEFAULT_MAX_IN_FLIGHT,
-        ordered: false,
-        batch_linger_us: crate::model::DEFAULT_BATCH_LINGER_US,
-        letter: None,
-        settings: Some(settings),
-        over: None,
-        addr_source: match legacy_bt {
-            Some(bt) => AddrSource::File(bt.file.clone()),
-            None => AddrSource::Inline,
-        },
-    });
-    tag_of.push(Some(key.as_bytes()[0]));
-    let i = transports.len() - 1;
-    implicit.insert(key, i);
-    Some(i)
 }
 
 /// Checks every emulated transport's `over`: it names a transport, not itself, and the chain
@@ -835,66 +716,6 @@ fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
                 Some(next) => cur = next,
                 None => break,
             }
-        }
-    }
-}
-
-/// Checks that every system at either end of a pair has an endpoint / address on each
-/// transport carrying the pair (including the ones an emulated transport wraps). Each missing
-/// (transport, system) is reported once, at the first cell needing it.
-fn check_addresses(
-    pairs: &[((SystemId, SystemId), usize, Loc)],
-    transports: &[TransportSpec],
-    systems: &Systems,
-    diag: &mut Diag,
-) {
-    let mut reported = BTreeSet::new();
-    for &((src, dst), first, ref loc) in pairs {
-        let mut cur = Some(first);
-        let mut seen = BTreeSet::new();
-        while let Some(i) = cur {
-            if !seen.insert(i) {
-                break;
-            }
-            let t = &transports[i];
-            for sys in [src, dst] {
-                let sname = systems.name(sys);
-                let (missing, what, help) = match &t.settings {
-                    Some(TransportSettings::Ip(ip)) => (
-                        !ip.endpoints.contains_key(&sys),
-                        "endpoint",
-                        format!("add `{sname} = \"host:port\"` to `endpoints` of transport `{}`", t.name),
-                    ),
-                    Some(TransportSettings::Bluetooth(bt)) => (
-                        !bt.addresses.contains_key(&sys),
-                        "Bluetooth address",
-                        match &t.addr_source {
-                            AddrSource::File(f) => format!("add a line `{} XX:XX:XX:XX:XX:XX` to {f}", sys.0),
-                            AddrSource::Inline => format!(
-                                "add `{sname} = \"XX:XX:XX:XX:XX:XX\"` to `addresses` of transport `{}`",
-                                t.name
-                            ),
-                        },
-                    ),
-                    _ => (false, "", String::new()),
-                };
-                if missing && reported.insert((i, sys)) {
-                    diag.err_help(
-                        loc,
-                        format!(
-                            "transport `{}` carries `{}` → `{}` but has no {what} for `{sname}`",
-                            t.name,
-                            systems.name(src),
-                            systems.name(dst)
-                        ),
-                        help,
-                    );
-                }
-            }
-            cur = t
-                .over
-                .as_ref()
-                .and_then(|(n, _)| transports.iter().position(|o| &o.name == n));
         }
     }
 }

@@ -10,9 +10,10 @@ pub struct ConfigError {
     /// The file the problem is in, as the user named it (the origin given to
     /// [`parse_str`](crate::parse_str), or a path).
     pub file: String,
-    /// 1-based line of the offending token.
+    /// 1-based line of the offending token; 0 when the problem concerns the whole file and
+    /// has no position in it (the file cannot be read).
     pub line: usize,
-    /// 1-based column (in characters) of the offending token.
+    /// 1-based column (in characters) of the offending token; 0 together with `line`.
     pub column: usize,
     /// What is wrong, quoting the offending value.
     pub message: String,
@@ -21,12 +22,18 @@ pub struct ConfigError {
 }
 
 impl fmt::Display for ConfigError {
+    /// `file:line:column: message`, or `file: message` for a problem with no position, then
+    /// `\n  help: …` when there is a fix to suggest.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "{}:{}:{}: {}",
-            self.file, self.line, self.column, self.message
-        )?;
+        if self.line == 0 {
+            write!(f, "{}: {}", self.file, self.message)?;
+        } else {
+            write!(
+                f,
+                "{}:{}:{}: {}",
+                self.file, self.line, self.column, self.message
+            )?;
+        }
         if let Some(help) = &self.help {
             write!(f, "\n  help: {help}")?;
         }
@@ -72,6 +79,16 @@ impl Loc {
             file: file.clone(),
             line: 1,
             column: 1,
+        }
+    }
+
+    /// The whole of a file, with no position in it: for a file that cannot be read, where
+    /// any line and column would be made up.
+    pub fn whole(file: &Rc<str>) -> Loc {
+        Loc {
+            file: file.clone(),
+            line: 0,
+            column: 0,
         }
     }
 }

@@ -5,7 +5,7 @@
 
 use std::rc::Rc;
 
-use crate::assemble::{BtLine, IdLine, Label, RawCell, RawTable};
+use crate::assemble::{BtLine, IdLine, Label, RawTable};
 use crate::error::{Diag, Loc};
 
 /// One whitespace-separated token with its position.
@@ -25,32 +25,42 @@ struct Line<'a> {
 /// Splits a legacy file into content lines: CRLF and a leading byte-order mark are accepted
 /// because these files are often edited on Windows; blank lines and `#` comments are skipped.
 fn lines<'a>(file: &Rc<str>, text: &'a str) -> Vec<Line<'a>> {
+    content_lines(text)
+        .map(|(lno, line)| Line {
+            text: line,
+            toks: tokens(file, line, lno),
+        })
+        .collect()
+}
+
+/// The content lines of a legacy file with their 1-based numbers (see [`lines`]).
+fn content_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut out = Vec::new();
-    for (i, raw) in text.split('\n').enumerate() {
+    text.split('\n').enumerate().filter_map(|(i, raw)| {
         let line = raw.strip_suffix('\r').unwrap_or(raw);
         let trimmed = line.trim();
-        if trimmed.is_empty() || trimmed.starts_with('#') {
-            continue;
-        }
-        let mut toks = Vec::new();
-        let mut start: Option<(usize, usize)> = None; // (byte, column)
-        for (col0, (byte, ch)) in line.char_indices().enumerate() {
-            match (ch.is_whitespace(), start) {
-                (false, None) => start = Some((byte, col0 + 1)),
-                (true, Some((b, c))) => {
-                    toks.push(tok(file, line, b, byte, i + 1, c));
-                    start = None;
-                }
-                _ => {}
+        (!trimmed.is_empty() && !trimmed.starts_with('#')).then_some((i + 1, line))
+    })
+}
+
+/// The whitespace-separated tokens of one content line (never empty).
+fn tokens<'a>(file: &Rc<str>, line: &'a str, lno: usize) -> Vec<Tok<'a>> {
+    let mut toks = Vec::new();
+    let mut start: Option<(usize, usize)> = None; // (byte, column)
+    for (col0, (byte, ch)) in line.char_indices().enumerate() {
+        match (ch.is_whitespace(), start) {
+            (false, None) => start = Some((byte, col0 + 1)),
+            (true, Some((b, c))) => {
+                toks.push(tok(file, line, b, byte, lno, c));
+                start = None;
             }
+            _ => {}
         }
-        if let Some((b, c)) = start {
-            toks.push(tok(file, line, b, line.len(), i + 1, c));
-        }
-        out.push(Line { text: line, toks });
     }
-    out
+    if let Some((b, c)) = start {
+        toks.push(tok(file, line, b, line.len(), lno, c));
+    }
+    toks
 }
 
 fn tok<'a>(file: &Rc<str>, line: &'a str, b: usize, e: usize, lno: usize, col: usize) -> Tok<'a> {
@@ -172,10 +182,11 @@ pub(crate) fn parse_ids(file: &Rc<str>, text: &str, diag: &mut Diag) -> Vec<IdLi
 }
 
 /// Reads a communication table file (Tables 2, 7, 17): a header line of column ids, then
-/// `<row id> <cell> <cell> …` lines.
+/// `<row id> <cell> <cell> …` lines. Lines are split one at a time, straight into the table's
+/// compact cells, so a big table costs little more than its cells.
 pub(crate) fn parse_table(file: &Rc<str>, text: &str, diag: &mut Diag) -> Option<RawTable> {
-    let lines = lines(file, text);
-    let Some(header) = lines.first() else {
+    let mut content = content_lines(text);
+    let Some((lno, header)) = content.next() else {
         diag.err_help(
             &Loc::start(file),
             "the communication table file is empty",
@@ -188,25 +199,17 @@ pub(crate) fn parse_table(file: &Rc<str>, text: &str, diag: &mut Diag) -> Option
         loc: t.loc.clone(),
         by_id: true,
     };
-    let columns = header.toks.iter().map(label).collect();
-    let rows = lines[1..]
-        .iter()
-        .map(|l| {
-            let cells = l.toks[1..]
-                .iter()
-                .map(|t| RawCell {
-                    text: t.text.to_string(),
-                    loc: t.loc.clone(),
-                })
-                .collect();
-            (label(&l.toks[0]), cells)
-        })
-        .collect();
-    Some(RawTable {
-        header_loc: header.toks[0].loc.clone(),
-        columns,
-        rows,
-    })
+    let header = tokens(file, header, lno);
+    let columns = header.iter().map(label).collect();
+    let mut table = RawTable::new(file.clone(), header[0].loc.clone(), columns);
+    for (lno, line) in content {
+        let toks = tokens(file, line, lno);
+        table.start_row(label(&toks[0]));
+        for t in &toks[1..] {
+            table.push_cell(t.text, t.loc.line, t.loc.column);
+        }
+    }
+    Some(table)
 }
 
 /// Reads a Bluetooth address file (Tables 3, 8, 18): `<id> <XX:XX:XX:XX:XX:XX>` lines.

@@ -59,13 +59,15 @@ mod error;
 mod fleet_toml;
 mod legacy;
 pub mod model;
+mod names;
 mod suggest;
+mod table;
 
 use std::path::Path;
 use std::rc::Rc;
 
 pub use error::{ConfigError, ConfigErrors};
-pub use fleet_toml::EMULATED_PARAMS;
+pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
 pub use model::*;
 
 use crate::assemble::{LegacyBt, ModSpec, Parts, SysSpec, Systems, DEFAULT_MODULES};
@@ -113,7 +115,7 @@ pub fn load_legacy(
         Ok(t) => Some(t),
         Err(e) => {
             diag.err_help(
-                &Loc::start(name),
+                &Loc::whole(name),
                 format!("cannot read `{name}`: {e}"),
                 "check the path",
             );
@@ -179,8 +181,8 @@ pub fn load_legacy(
 fn unreadable(origin: &str, e: &std::io::Error) -> ConfigErrors {
     ConfigErrors(vec![ConfigError {
         file: origin.to_string(),
-        line: 1,
-        column: 1,
+        line: 0,
+        column: 0,
         message: format!("cannot read the fleet file: {e}"),
         help: Some("check the path and the file's permissions".to_string()),
     }])

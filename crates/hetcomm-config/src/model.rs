@@ -303,16 +303,18 @@ impl Fleet {
 
     /// One line: systems, modules, and pairs per transport — what `hetcomm validate` prints.
     pub fn summary(&self) -> String {
+        // One pass over the pairs, however many transports: a big fleet has millions.
+        let mut counts = vec![0usize; self.transports.len()];
+        for &i in self.table.values() {
+            if let Some(c) = counts.get_mut(i) {
+                *c += 1;
+            }
+        }
         let mut per: Vec<(String, usize)> = self
             .transports
             .iter()
-            .enumerate()
-            .map(|(i, t)| {
-                (
-                    t.name.clone(),
-                    self.table.values().filter(|&&j| j == i).count(),
-                )
-            })
+            .zip(counts)
+            .map(|(t, n)| (t.name.clone(), n))
             .collect();
         per.retain(|(_, n)| *n > 0);
         let pairs = per

@@ -68,7 +68,13 @@ fn missing_files_are_errors_not_panics() {
         e.0[0].message.starts_with("cannot read the fleet file: "),
         "{e}"
     );
-    assert_eq!((e.0[0].line, e.0[0].column), (1, 1));
+    // No position is made up for a file that could not be read.
+    assert_eq!((e.0[0].line, e.0[0].column), (0, 0));
+    assert!(
+        e.to_string()
+            .starts_with("tests/no-such-fleet.toml: cannot read the fleet file: "),
+        "{e}"
+    );
 
     let e = load_legacy(
         Path::new("tests/nope-ids.txt"),
@@ -79,6 +85,12 @@ fn missing_files_are_errors_not_panics() {
     assert_eq!(e.0.len(), 2, "{e}");
     assert_eq!(e.0[0].file, "tests/nope-ids.txt");
     assert_eq!(e.0[1].file, "tests/nope-table.txt");
+    assert!(e.0.iter().all(|e| (e.line, e.column) == (0, 0)), "{e}");
+    assert!(
+        e.to_string()
+            .starts_with("tests/nope-ids.txt: cannot read `tests/nope-ids.txt`: "),
+        "{e}"
+    );
 
     let e = parse_str(
         "[legacy]\nids = \"missing.txt\"\n",

@@ -350,3 +350,22 @@ fn example_fleet_is_the_file_on_disk() {
     let on_disk = std::fs::read_to_string("fleet.example.toml").expect("example file");
     assert_eq!(on_disk, EXAMPLE_FLEET);
 }
+
+#[test]
+fn names_are_compared_in_nfc() {
+    // `Café` declared with U+00E9 and referred to as `e` + U+0301; the transport declared with
+    // `e` + U+0301 and referred to both ways: one name each, stored in NFC.
+    let text = "[systems]\n\"Caf\u{e9}\" = 0\nBob = 1\n\n\
+                [transports.\"re\u{301}seau\"]\nkind = \"udp\"\n\
+                endpoints = { \"Cafe\u{301}\" = \"127.0.0.1:7400\", Bob = \"127.0.0.1:7401\" }\n\n\
+                [table]\ncolumns = [\"Cafe\u{301}\", \"Bob\"]\n\
+                \"Cafe\u{301}\" = [\"X\", \"re\u{301}seau\"]\nBob = [\"r\u{e9}seau\", \"X\"]\n";
+    let f = parse_str(text, "nfc.toml", None).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(f.systems[0].name, "Caf\u{e9}");
+    assert_eq!(
+        f.system_by_name("Caf\u{e9}").map(|s| s.id),
+        Some(SystemId(0))
+    );
+    assert_eq!(f.transports[0].name, "r\u{e9}seau");
+    assert_eq!(pairs_of(&f, "r\u{e9}seau"), [(0, 1), (1, 0)]);
+}

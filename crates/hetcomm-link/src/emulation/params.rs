@@ -615,6 +615,80 @@ mod tests {
     }
 
     #[test]
+    fn the_fleet_loader_counts_the_same_profile_values() {
+        for name in PROFILES {
+            assert_eq!(
+                hetcomm_config::emulated_profile(name),
+                profile(name),
+                "profile {name}: the fleet loader's copy differs"
+            );
+        }
+    }
+
+    /// `hetcomm validate` must reject exactly the parameters this model cannot be built with,
+    /// so that a fleet that validates also opens.
+    #[test]
+    fn the_fleet_loader_rejects_what_the_model_cannot_build() {
+        let sets: &[&[(&str, f64)]] = &[
+            &[],
+            &[("burst_loss_percent", 90.0), ("burst_length_mean", 1.0)],
+            &[("burst_loss_percent", 50.0), ("burst_length_mean", 1.0)],
+            &[("burst_loss_percent", 50.5), ("burst_length_mean", 1.0)],
+            &[("burst_loss_percent", 10.0)],
+            &[("burst_loss_percent", 10.0), ("burst_length_mean", 0.5)],
+            &[("burst_loss_percent", 74.0)],
+            &[("burst_loss_percent", 76.0)],
+            &[("burst_loss_percent", 100.0), ("burst_length_mean", 1000.0)],
+            &[("burst_length_mean", 0.5)],
+            &[("preserve_order", 2.0)],
+            &[("preserve_order", 1.0), ("reorder_percent", 1.0)],
+            &[("reorder_percent", 1.0)],
+            &[("preserve_order", 0.0)],
+            &[("queue_frames", 2.5), ("bandwidth_kbps", 1.0)],
+            &[("queue_frames", 4.0)],
+            &[("queue_frames", 0.0), ("bandwidth_kbps", 1.0)],
+            &[("queue_frames", 4.0), ("bandwidth_kbps", 1.0)],
+            &[("mtu_bytes", 0.0)],
+            &[("mtu_bytes", 1.5)],
+            &[("mtu_bytes", 1500.0)],
+            &[("bandwidth_kbps", 0.0)],
+            &[("outage_start_ms", 5.0)],
+            &[("outage_period_ms", 10.0)],
+            &[("outage_duration_ms", 50.0), ("outage_period_ms", 10.0)],
+            &[("outage_duration_ms", 50.0), ("outage_period_ms", 50.0)],
+            &[("outage_duration_ms", 0.0), ("outage_period_ms", 0.0)],
+            &[("outage_duration_ms", 20.0)],
+            &[("tx_power_dbm", 5.0)],
+            &[("margin_slope_db", 0.0)],
+            &[("sensitivity_dbm", -80.0)],
+            &[("sensitivity_dbm", -80.0), ("reference_distance_m", 0.0)],
+            &[("sensitivity_dbm", -80.0), ("tx_power_dbm", -5.0)],
+            &[("latency_ms", 5.0), ("jitter_ms", 1.0), ("range_m", 0.0)],
+        ];
+        for prof in [None, Some("wired"), Some("wifi"), Some("bluetooth-classic")] {
+            for set in sets {
+                let mut text =
+                    String::from("[systems]\nA = 0\n[transports.e]\nkind = \"emulated\"\n");
+                if let Some(p) = prof {
+                    text.push_str(&format!("profile = \"{p}\"\n"));
+                }
+                for (k, v) in *set {
+                    text.push_str(&format!("{k} = {v:?}\n"));
+                }
+                let loader = hetcomm_config::parse_str(&text, "e.toml", None);
+                let model = ModelParams::from_keys(prof, &keys(set));
+                assert_eq!(
+                    loader.is_ok(),
+                    model.is_ok(),
+                    "profile {prof:?}, {set:?}: the loader says {:?}, the model {:?}",
+                    loader.err().map(|e| e.to_string()),
+                    model.err().map(|e| e.to_string()),
+                );
+            }
+        }
+    }
+
+    #[test]
     fn unknown_profile_lists_the_valid_ones() {
         let e = ModelParams::from_keys(Some("lora"), &BTreeMap::new()).unwrap_err();
         let msg = e.to_string();

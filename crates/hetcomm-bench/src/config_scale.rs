@@ -1,0 +1,124 @@
+//! Config validation at scale: how long `hetcomm validate`'s work (load the fleet file, then
+//! summarise it) takes on a fleet of N systems whose communication table is full (N² cells),
+//! and the peak memory it needs.
+//!
+//! The fleet file is generated and written to a temporary file by this process; a child
+//! process (this binary, `__validate FILE`) validates it and reports its wall time and its own
+//! peak resident set size (`getrusage`, `ru_maxrss`), so the figure is the validation's alone,
+//! not this process's. `cargo bench -p hetcomm-config --bench validate_scale` measures the
+//! same without the rest of the benchmarks.
+
+use std::io::Write;
+use std::process::Command;
+use std::time::Instant;
+
+/// What one fleet size gave.
+#[derive(Clone, Debug)]
+pub struct ValidateResult {
+    /// Systems in the fleet.
+    pub systems: usize,
+    /// Table cells (systems²).
+    pub cells: usize,
+    /// Size of the fleet file, bytes.
+    pub file_bytes: usize,
+    /// Wall time of load + summary in the child, seconds.
+    pub seconds: f64,
+    /// Peak resident set size of the child, bytes.
+    pub peak_rss_bytes: f64,
+}
+
+/// A fleet of `n` systems, each with a UDP endpoint, whose every off-diagonal cell carries
+/// traffic over a transport name, a letter, an emulated transport or an in-process one.
+pub fn full_fleet_text(n: usize) -> String {
+    let mut t = String::with_capacity(n * n * 7 + n * 64);
+    t.push_str("name = \"scale\"\n\n[systems]\n");
+    for i in 0..n {
+        t.push_str(&format!("S{i} = {i}\n"));
+    }
+    t.push_str("\n[transports.lan]\nkind = \"udp\"\n\n[transports.lan.endpoints]\n");
+    for i in 0..n {
+        t.push_str(&format!("S{i} = \"10.{}.{}.1:7400\"\n", i / 250, i % 250));
+    }
+    t.push_str("\n[transports.wifi]\nkind = \"emulated\"\nprofile = \"wifi\"\nover = \"lan\"\n");
+    t.push_str("\n[transports.local]\nkind = \"inproc\"\n\n[letters]\nL = \"lan\"\n\n[table]\n");
+    t.push_str("columns = [");
+    for i in 0..n {
+        t.push_str(&format!("{}\"S{i}\"", if i == 0 { "" } else { ", " }));
+    }
+    t.push_str("]\n");
+    const CELLS: [&str; 4] = ["lan", "wifi", "L", "local"];
+    for i in 0..n {
+        t.push_str(&format!("S{i} = ["));
+        for j in 0..n {
+            let cell = if i == j { "X" } else { CELLS[(i + j) % 4] };
+            t.push_str(if j == 0 { "\"" } else { ", \"" });
+            t.push_str(cell);
+            t.push('"');
+        }
+        t.push_str("]\n");
+    }
+    t
+}
+
+/// Peak resident set size of this process, bytes (0 if getrusage fails).
+fn peak_rss_bytes() -> u64 {
+    // SAFETY: a zeroed rusage is a valid out-parameter for getrusage.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `ru` is a valid, writable rusage.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
+        return 0;
+    }
+    u64::try_from(ru.ru_maxrss).unwrap_or(0) * 1024 // kilobytes on Linux
+}
+
+/// The child (`__validate FILE`): validates the file and prints `seconds peak_rss_bytes`.
+pub fn child(args: &[String]) -> Result<(), String> {
+    let path = args.first().ok_or("__validate needs a file")?;
+    let start = Instant::now();
+    let fleet = hetcomm::config::load(std::path::Path::new(path)).map_err(|e| e.to_string())?;
+    let summary = fleet.summary();
+    let seconds = start.elapsed().as_secs_f64();
+    println!("{seconds:.4} {} {summary}", peak_rss_bytes());
+    Ok(())
+}
+
+/// Generates a fleet of `n` systems and validates it in a child process.
+pub fn measure(n: usize) -> Result<ValidateResult, String> {
+    let text = full_fleet_text(n);
+    let path = std::env::temp_dir().join(format!(
+        "hetcomm-bench-validate-{}-{n}.toml",
+        std::process::id()
+    ));
+    std::fs::File::create(&path)
+        .and_then(|mut f| f.write_all(text.as_bytes()))
+        .map_err(|e| format!("writing {}: {e}", path.display()))?;
+    let file_bytes = text.len();
+    drop(text);
+    let exe = std::env::current_exe().map_err(|e| e.to_string())?;
+    let out = Command::new(exe).arg("__validate").arg(&path).output();
+    let _ = std::fs::remove_file(&path);
+    let out = out.map_err(|e| format!("running the child: {e}"))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        return Err(format!(
+            "the child failed ({}): {}",
+            out.status,
+            err.lines().next().unwrap_or("")
+        ));
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let mut parts = stdout.split_whitespace();
+    let mut next = |what: &str| {
+        parts
+            .next()
+            .and_then(|s| s.parse::<f64>().ok())
+            .ok_or(format!("the child printed no {what}: {stdout}"))
+    };
+    Ok(ValidateResult {
+        systems: n,
+        cells: n * n,
+        file_bytes,
+        seconds: next("time")?,
+        peak_rss_bytes: next("peak RSS")?,
+    })
+}

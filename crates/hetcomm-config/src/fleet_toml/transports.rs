@@ -1,0 +1,505 @@
+//! `[transports.<name>]`: the keys every kind shares, and the settings of `udp`, `tcp`,
+//! `ros1`, `bluetooth` and the raw kinds (`emulated` is in `emulation.rs`).
+
+use super::*;
+
+impl P<'_> {
+    pub(super) fn letter(&mut self, s: &str, loc: &Loc) -> Option<u8> {
+        match s.as_bytes() {
+            [b] if b.is_ascii_graphic() && *b != b'X' => Some(*b),
+            _ => {
+                self.diag.err_help(
+                    loc,
+                    format!("`{s}` is not a usable table letter"),
+                    "a letter is one ASCII character other than X (X means no traffic), e.g. `R`",
+                );
+                None
+            }
+        }
+    }
+
+    pub(super) fn transport(
+        &mut self,
+        name: &str,
+        item: &Item,
+        nloc: &Loc,
+        systems: &Systems,
+    ) -> Option<TransportSpec> {
+        let path = format!("transports.{}", key_part(name));
+        let tloc = self.vloc(item, nloc);
+        let t = self.table(item, &path, &tloc)?;
+        if name.is_empty() || name == "X" {
+            self.diag.err_help(
+                nloc,
+                format!("`{name}` cannot be a transport name"),
+                "X means no traffic in the table and an empty name has no tag byte; pick another name",
+            );
+        }
+        let kind = match t.get("kind") {
+            None => {
+                self.diag.err_help(
+                    &tloc,
+                    format!("transport `{name}` has no `kind`"),
+                    format!("add `kind = \"…\"`, one of: {}", kind_list()),
+                );
+                None
+            }
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                let names: Vec<&str> = TransportKind::ALL.iter().map(|k| k.as_str()).collect();
+                self.choice(
+                    v,
+                    &format!("{path}.kind"),
+                    &vl,
+                    ("transport kind", "transport kinds"),
+                    &names,
+                )
+                .map(|i| TransportKind::ALL[i])
+            }
+        };
+        let delivery = match t.get("delivery") {
+            None => DeliveryMode::Acknowledged,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                match self.choice(
+                    v,
+                    &format!("{path}.delivery"),
+                    &vl,
+                    ("delivery mode", "delivery modes"),
+                    &DELIVERIES,
+                ) {
+                    Some(1) => DeliveryMode::Unacknowledged,
+                    _ => DeliveryMode::Acknowledged,
+                }
+            }
+        };
+        let attempts = match t.get("attempts") {
+            None => 3,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.attempts"),
+                    &vl,
+                    1,
+                    i64::from(u32::MAX),
+                    "attempts counts the first transmission too; the thesis used 3",
+                )
+                .map_or(3, |a| u32::try_from(a).unwrap_or(3))
+            }
+        };
+        let default_window = crate::model::DEFAULT_MAX_IN_FLIGHT;
+        let max_in_flight = match t.get("max_in_flight") {
+            None => default_window,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.max_in_flight"),
+                    &vl,
+                    1,
+                    1_000_000,
+                    &format!("sends to one destination that may await their outcome at once; the default is {default_window}"),
+                )
+                .map_or(default_window, |a| u32::try_from(a).unwrap_or(default_window))
+            }
+        };
+        let ordered = match t.get("ordered") {
+            None => false,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.boolean(
+                    v,
+                    &format!("{path}.ordered"),
+                    &vl,
+                    "write `ordered = true` to deliver each sender's messages in the order sent",
+                )
+                .unwrap_or(false)
+            }
+        };
+        let default_linger = crate::model::DEFAULT_BATCH_LINGER_US;
+        let batch_linger_us = match t.get("batch_linger_us") {
+            None => default_linger,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.batch_linger_us"),
+                    &vl,
+                    0,
+                    1_000_000,
+                    "microseconds a small frame may wait to share a write with the next; 0 turns batching off",
+                )
+                .map_or(default_linger, |a| u32::try_from(a).unwrap_or(default_linger))
+            }
+        };
+        let letter = t.get("letter").and_then(|v| {
+            let vl = self.vloc(v, &tloc);
+            let s = self.string(
+                v,
+                &format!("{path}.letter"),
+                &vl,
+                "write one letter in quotes, e.g. `letter = \"R\"`",
+            )?;
+            self.letter(s, &vl).map(|b| (b, vl))
+        });
+        let mut spec = TransportSpec {
+            name: crate::names::nfc(name).into_owned(),
+            name_loc: nloc.clone(),
+            kind,
+            delivery,
+            attempts,
+            max_in_flight,
+            ordered,
+            batch_linger_us,
+            letter,
+            settings: None,
+            over: None,
+            addr_source: AddrSource::Inline,
+        };
+        let Some(kind) = kind else {
+            return Some(spec); // kind already reported; its keys cannot be judged
+        };
+        let errors_before = self.diag.errors.len();
+        let extra: &[&str] = match kind {
+            TransportKind::Inproc => &[],
+            TransportKind::Udp => &IP_KEYS,
+            TransportKind::Tcp => &TCP_KEYS,
+            TransportKind::Ros1 => &ROS1_KEYS,
+            TransportKind::Bluetooth => &BLUETOOTH_KEYS,
+            TransportKind::Emulated => &EMULATED_KEYS,
+            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds => &[],
+        };
+        let raw_kind = matches!(
+            kind,
+            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds
+        );
+        if !raw_kind {
+            let mut allowed: Vec<&str> = COMMON_KEYS.iter().chain(extra).copied().collect();
+            if kind == TransportKind::Emulated {
+                allowed.extend(EMULATED_PARAMS);
+            }
+            self.unknown_keys(t, &allowed, Some(&path), &tloc);
+        }
+        let settings = match kind {
+            TransportKind::Inproc => TransportSettings::Inproc,
+            TransportKind::Udp | TransportKind::Tcp => {
+                let endpoints = match t.get("endpoints") {
+                    None => {
+                        self.diag.err_help(
+                            &tloc,
+                            format!("transport `{name}` (kind {kind}) is missing required setting `endpoints`"),
+                            "add `endpoints = { Alpha = \"127.0.0.1:7400\", … }`: one \"host:port\" per system it carries",
+                        );
+                        BTreeMap::new()
+                    }
+                    Some(v) => self.endpoints(
+                        v,
+                        &format!("{path}.endpoints"),
+                        &tloc,
+                        (&spec.name, kind),
+                        systems,
+                    ),
+                };
+                let max_message_bytes = t.get("max_message_bytes").and_then(|v| {
+                    let vl = self.vloc(v, &tloc);
+                    self.int_in(
+                        v,
+                        &format!("{path}.max_message_bytes"),
+                        &vl,
+                        1,
+                        i64::MAX,
+                        "a size in bytes, e.g. 1048576",
+                    )
+                    .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
+                });
+                let max_connections = t.get("max_connections").and_then(|v| {
+                    let vl = self.vloc(v, &tloc);
+                    let help = "a number of connections, e.g. 256";
+                    let n =
+                        self.int_in(v, &format!("{path}.max_connections"), &vl, 1, 1 << 20, help);
+                    n.map(|n| n as usize)
+                });
+                TransportSettings::Ip(IpSettings {
+                    endpoints,
+                    max_message_bytes,
+                    max_connections,
+                })
+            }
+            TransportKind::Ros1 => {
+                let master_uri = match t.get("master_uri") {
+                    None => assemble::default_master_uri(),
+                    Some(v) => {
+                        let vl = self.vloc(v, &tloc);
+                        let help =
+                            "write the master's XML-RPC URI, e.g. \"http://127.0.0.1:11311\"";
+                        let s = self
+                            .string(v, &format!("{path}.master_uri"), &vl, help)
+                            .unwrap_or_default();
+                        if !(s.starts_with("http://") || s.starts_with("https://")) && v.is_str() {
+                            self.diag.err_help(
+                                &vl,
+                                format!("`{path}.master_uri` must be an http:// URI, found `{s}`"),
+                                help,
+                            );
+                        }
+                        s.to_string()
+                    }
+                };
+                let namespace = t.get("namespace").and_then(|v| {
+                    let vl = self.vloc(v, &tloc);
+                    self.string(
+                        v,
+                        &format!("{path}.namespace"),
+                        &vl,
+                        "write a ROS namespace in quotes, e.g. \"/hetcomm\"",
+                    )
+                    .map(str::to_string)
+                });
+                TransportSettings::Ros1(Ros1Settings {
+                    master_uri,
+                    namespace,
+                })
+            }
+            TransportKind::Bluetooth => {
+                let channel = t.get("channel").map_or(1, |v| {
+                    let vl = self.vloc(v, &tloc);
+                    self.int_in(
+                        v,
+                        &format!("{path}.channel"),
+                        &vl,
+                        1,
+                        30,
+                        "RFCOMM channels are 1 to 30",
+                    )
+                    .map_or(1, |c| u8::try_from(c).unwrap_or(1))
+                });
+                let addresses = match (t.get("addresses"), t.get("addresses_file")) {
+                    (Some(_), Some(f)) => {
+                        let fl = self.vloc(f, &tloc);
+                        self.diag.err_help(
+                            &fl,
+                            format!("transport `{name}` has both `addresses` and `addresses_file`"),
+                            "keep one of them",
+                        );
+                        BTreeMap::new()
+                    }
+                    (Some(a), None) => {
+                        self.addresses(a, &format!("{path}.addresses"), &tloc, systems)
+                    }
+                    (None, Some(f)) => {
+                        let fl = self.vloc(f, &tloc);
+                        match self.string(
+                            f,
+                            &format!("{path}.addresses_file"),
+                            &fl,
+                            "write a path in quotes, relative to the fleet file",
+                        ) {
+                            Some(s) => {
+                                let p = match self.base_dir {
+                                    Some(d) => d.join(s),
+                                    None => PathBuf::from(s),
+                                };
+                                let lp = LegacyPath {
+                                    display: Rc::from(p.display().to_string()),
+                                    path: p,
+                                    loc: fl,
+                                };
+                                spec.addr_source = AddrSource::File(lp.display.clone());
+                                match self.read_legacy(&lp) {
+                                    Some(text) => {
+                                        let lines = legacy::parse_bluetooth(
+                                            &lp.display,
+                                            &text,
+                                            &mut self.diag,
+                                        );
+                                        assemble::bt_addresses(
+                                            lines,
+                                            systems,
+                                            &lp.display,
+                                            &mut self.diag,
+                                        )
+                                    }
+                                    None => BTreeMap::new(),
+                                }
+                            }
+                            None => BTreeMap::new(),
+                        }
+                    }
+                    (None, None) => {
+                        self.diag.err_help(
+                            &tloc,
+                            format!("transport `{name}` (kind bluetooth) is missing required setting `addresses`"),
+                            "add `addresses = { Alpha = \"68:A3:C4:4A:B3:BA\", … }`, or `addresses_file = \"bt.txt\"` in the Table 3 format",
+                        );
+                        BTreeMap::new()
+                    }
+                };
+                TransportSettings::Bluetooth(BluetoothSettings { channel, addresses })
+            }
+            TransportKind::Emulated => self.emulated(t, &path, &tloc, &mut spec),
+            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds => {
+                let raw = t
+                    .iter()
+                    .filter(|(k, _)| !COMMON_KEYS.contains(k))
+                    .map(|(k, v)| (k.to_string(), self.stringify(v, false)))
+                    .collect();
+                TransportSettings::Raw(raw)
+            }
+        };
+        if self.diag.errors.len() == errors_before {
+            spec.settings = Some(settings);
+        }
+        Some(spec)
+    }
+
+    /// `endpoints = { System = "host:port", … }`.
+    pub(super) fn endpoints(
+        &mut self,
+        item: &Item,
+        path: &str,
+        tloc: &Loc,
+        (transport, kind): (&str, TransportKind),
+        systems: &Systems,
+    ) -> BTreeMap<hetcomm_core::SystemId, String> {
+        let mut out = BTreeMap::new();
+        let loc = self.vloc(item, tloc);
+        let Some(t) = self.table(item, path, &loc) else {
+            return out;
+        };
+        for (k, v) in t.iter() {
+            let kl = self.kloc(t, k, &loc);
+            let vl = self.vloc(v, &kl);
+            let sys = systems.resolve(&label(k, &kl), &format!("`{path}`"), &[], &mut self.diag);
+            let help = "write \"host:port\", e.g. \"127.0.0.1:7400\" (port 0 picks a free port)";
+            let Some(s) = self.string(v, &format!("{path}.{}", key_part(k)), &vl, help) else {
+                continue;
+            };
+            let parsed = s.rsplit_once(':').and_then(|(h, p)| {
+                let ok = !h.is_empty() && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit());
+                ok.then(|| p.parse::<u16>().ok().map(|port| (h, port)))
+                    .flatten()
+            });
+            let Some((host, port)) = parsed else {
+                self.diag
+                    .err_help(&vl, format!("malformed endpoint `{s}` for `{k}`"), help);
+                continue;
+            };
+            // One socket per protocol, address and port: a second system there (on this
+            // transport or another of the same kind) could not be opened. Port 0 picks a free
+            // port each time.
+            if port != 0 {
+                let key = (kind, host.to_ascii_lowercase(), port);
+                if let Some(first) = self.endpoints_seen.get(&key) {
+                    let (what, whose) = if first.transport == transport {
+                        (
+                            format!("`{k}` and `{}`", first.system),
+                            format!("on transport `{transport}`"),
+                        )
+                    } else {
+                        (
+                            format!(
+                                "`{k}` (transport `{transport}`) and `{}` (transport `{}`)",
+                                first.system, first.transport
+                            ),
+                            format!("({kind})"),
+                        )
+                    };
+                    self.diag.err_help(
+                        &vl,
+                        format!("{what} have the same endpoint `{s}` {whose}"),
+                        format!(
+                            "give each system its own address or port (`{}` has `{}` at {}); \
+                             port 0 picks a free one",
+                            first.system,
+                            first.endpoint,
+                            assemble::at(&first.loc)
+                        ),
+                    );
+                } else {
+                    self.endpoints_seen.insert(
+                        key,
+                        SeenEndpoint {
+                            transport: transport.to_string(),
+                            system: k.to_string(),
+                            endpoint: s.to_string(),
+                            loc: vl.clone(),
+                        },
+                    );
+                }
+            }
+            if let Some(sys) = sys {
+                out.insert(sys, s.to_string());
+            }
+        }
+        out
+    }
+
+    /// `addresses = { System = "XX:XX:XX:XX:XX:XX", … }`.
+    pub(super) fn addresses(
+        &mut self,
+        item: &Item,
+        path: &str,
+        tloc: &Loc,
+        systems: &Systems,
+    ) -> BTreeMap<hetcomm_core::SystemId, BdAddr> {
+        let loc = self.vloc(item, tloc);
+        let Some(t) = self.table(item, path, &loc) else {
+            return BTreeMap::new();
+        };
+        let mut lines = Vec::new();
+        for (k, v) in t.iter() {
+            let kl = self.kloc(t, k, &loc);
+            let vl = self.vloc(v, &kl);
+            if let Some(s) = self.string(
+                v,
+                &format!("{path}.{}", key_part(k)),
+                &vl,
+                "write the address in quotes, e.g. \"68:A3:C4:4A:B3:BA\"",
+            ) {
+                lines.push(BtLine {
+                    key: label(k, &kl),
+                    addr: s.to_string(),
+                    addr_loc: vl,
+                });
+            }
+        }
+        assemble::bt_addresses(lines, systems, &format!("`{path}`"), &mut self.diag)
+    }
+
+    /// `[table]`: `columns = [...]` and one `Row = [...]` per source system.
+    /// A value as a string for `Raw` settings: strings unquoted, everything else as TOML.
+    pub(super) fn stringify(&self, item: &Item, nested: bool) -> String {
+        match item {
+            Item::Value(Value::String(s)) if !nested => s.value().clone(),
+            Item::Value(Value::InlineTable(_)) | Item::Table(_) => {
+                let Some(t) = item.as_table_like() else {
+                    return String::new();
+                };
+                let inner: Vec<String> = t
+                    .iter()
+                    .map(|(k, v)| format!("{} = {}", key_part(k), self.stringify(v, true)))
+                    .collect();
+                format!("{{ {} }}", inner.join(", "))
+            }
+            Item::Value(v) => match item.span().and_then(|r| self.text.get(r)) {
+                Some(s) => s.trim().to_string(),
+                None => v.to_string().trim().to_string(),
+            },
+            Item::ArrayOfTables(a) => {
+                let inner: Vec<String> = a
+                    .iter()
+                    .map(|t| {
+                        let kv: Vec<String> = t
+                            .iter()
+                            .map(|(k, v)| format!("{} = {}", key_part(k), self.stringify(v, true)))
+                            .collect();
+                        format!("{{ {} }}", kv.join(", "))
+                    })
+                    .collect();
+                format!("[{}]", inner.join(", "))
+            }
+            Item::None => String::new(),
+        }
+    }
+}
