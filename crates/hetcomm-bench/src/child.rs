@@ -3,7 +3,8 @@
 //!
 //! Every role ends when its standard input closes (the parent dropping its handle), so a
 //! parent that fails half-way never leaves a peer behind. Echo roles answer each message with
-//! the same bytes; sink roles count what arrives and print `result COUNT BYTES ELAPSED_NS`.
+//! the same bytes; sink roles count what arrives and print `result COUNT BYTES ELAPSED_NS`
+//! (the hetcomm sink adds `kernel_drops=N`: datagrams its kernel dropped at its sockets).
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, UdpSocket};
@@ -231,7 +232,9 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                     }
                 }
                 report_cpu("hc-sink", c.count);
-                say(&c.line());
+                // Datagrams the kernel dropped at this system's sockets (UDP on Linux).
+                let drops: u64 = comm.stats().links.iter().map(|(_, l)| l.kernel_drops).sum();
+                say(&format!("{} kernel_drops={drops}", c.line()));
                 Ok(())
             }
         }

@@ -198,5 +198,6 @@ pub fn ddsperf_oneway(size: usize, seconds: f64) -> Result<Throughput, String> {
         received: msgs as u64,
         bytes: (msgs * size as f64) as u64,
         seconds: 1.0,
+        ..Throughput::default()
     })
 }

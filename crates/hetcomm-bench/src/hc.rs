@@ -7,11 +7,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm::{Comm, LocalFleet, Module};
+use hetcomm::{Comm, LocalFleet, Module, RouterStats};
 
 use crate::child::{Peer, DATA, STOP};
 use crate::raw::TempDir;
-use crate::stats::{parse_sink_line, Latency, Recorder, SinkCounter, Throughput};
+use crate::stats::{parse_sink_line, Latency, Outcomes, Recorder, SinkCounter, Throughput};
 
 /// A transport kind hetcomm is measured over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -93,7 +93,7 @@ B = ["t", "X"]
 struct Pair {
     _dir: TempDir,
     peer: Peer,
-    _comm: Comm,
+    comm: Comm,
     m: Module,
 }
 
@@ -110,7 +110,7 @@ fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     Ok(Pair {
         _dir: dir,
         peer,
-        _comm: comm,
+        comm,
         m,
     })
 }
@@ -185,7 +185,36 @@ pub fn rtt_spinning(kind: Kind, size: usize, warmup: u64, iters: u64) -> Result<
     result
 }
 
-/// One-way: A sends as fast as `send_raw` returns for `duration`; B counts.
+/// The longest wait for the outcomes of acknowledged sends after a one-way run: well beyond
+/// what the retransmissions of the default 3 attempts take (each timeout is the measured RTO,
+/// backed off per attempt, at most 5 s).
+pub const OUTCOME_WAIT: Duration = Duration::from_secs(30);
+
+/// How the sends made since `before` (the router's counters then) ended, once none is in
+/// flight any more, or at `limit` with the rest counted as pending.
+fn wait_for_outcomes(comm: &Comm, before: &RouterStats, limit: Duration) -> Outcomes {
+    let deadline = Instant::now() + limit;
+    loop {
+        let r = comm.stats().router;
+        let o = Outcomes {
+            delivered: r.delivered.saturating_sub(before.delivered),
+            unconfirmed: r.unconfirmed.saturating_sub(before.unconfirmed),
+            failed: r.failed.saturating_sub(before.failed),
+            // Not `in_flight()`: counters read one by one may be a send apart.
+            pending: r
+                .sends
+                .saturating_sub(r.delivered + r.sent + r.unconfirmed + r.failed),
+        };
+        if o.pending == 0 || Instant::now() >= deadline {
+            return o;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// One-way: A sends as fast as `send_raw` returns for `duration`; B counts. Acknowledged: A
+/// then waits until every send has its outcome (retransmissions included) before it stops B,
+/// so that B counts every message that arrives, and the outcomes explain those that did not.
 pub fn oneway(
     kind: Kind,
     acked: bool,
@@ -196,11 +225,12 @@ pub fn oneway(
         return inproc_oneway(acked, size, duration).map(|(t, _)| t);
     }
     let mut pair = open_pair(kind, acked, "sink")?;
+    let before = pair.comm.stats().router;
     let msg = vec![7u8; size];
     // Make sure B is there: a first message, acknowledged or not, then the timed run.
-    let _ = pair.m.send_raw("B", "M", DATA, &msg, Default::default());
+    let first = pair.m.send_raw("B", "M", DATA, &msg, Default::default());
     std::thread::sleep(Duration::from_millis(50));
-    let mut sent = 1u64;
+    let mut sent = u64::from(first.is_ok());
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {
@@ -209,6 +239,8 @@ pub fn oneway(
             }
         }
     }
+    // Counted before STOP is sent: the outcomes are those of the measured messages.
+    let outcomes = acked.then(|| wait_for_outcomes(&pair.comm, &before, OUTCOME_WAIT));
     for _ in 0..3 {
         let stop_by = Instant::now() + Duration::from_secs(5);
         let _ = send_with_room(&pair.m, STOP, &[0], stop_by);
@@ -218,7 +250,9 @@ pub fn oneway(
     let line = pair.peer.expect("result", Duration::from_secs(40))?;
     let Pair { peer, .. } = pair;
     peer.finish(Duration::from_secs(3));
-    parse_sink_line(&line, sent).ok_or(format!("bad sink line {line:?}"))
+    let mut t = parse_sink_line(&line, sent).ok_or(format!("bad sink line {line:?}"))?;
+    t.outcomes = outcomes;
+    Ok(t)
 }
 
 /// Sends to B's `M`; while the acknowledged window is full (backpressure), gives the CPU to
@@ -304,7 +338,9 @@ pub fn inproc_oneway(
     size: usize,
     duration: Duration,
 ) -> Result<(Throughput, Latency), String> {
-    let (_f, a, b) = local(acked)?;
+    let (f, a, b) = local(acked)?;
+    let sender = f.system("A").map_err(|e| e.to_string())?;
+    let before = sender.stats().router;
     let epoch = Instant::now();
     let receiver = std::thread::spawn(move || {
         let mut c = SinkCounter::default();
@@ -350,9 +386,11 @@ pub fn inproc_oneway(
             write_stamp(&mut msg, UNSTAMPED);
         }
     }
+    let outcomes = acked.then(|| wait_for_outcomes(&sender, &before, OUTCOME_WAIT));
     let _ = a.send_raw("B", "M", STOP, &[0], Default::default());
     let (c, rec) = receiver.join().map_err(|_| "receiver thread panicked")?;
-    let t = parse_sink_line(&c.line(), sent).ok_or("no result")?;
+    let mut t = parse_sink_line(&c.line(), sent).ok_or("no result")?;
+    t.outcomes = outcomes;
     Ok((t, rec.summary()))
 }
 

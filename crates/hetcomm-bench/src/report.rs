@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use crate::config_scale::ValidateResult;
 use crate::scale::ScaleResult;
-use crate::stats::{Latency, Throughput};
+use crate::stats::{Latency, Outcomes, Throughput};
 
 /// One measurement.
 #[derive(Clone, Debug)]
@@ -58,7 +58,8 @@ impl Row {
         r
     }
 
-    /// One-way throughput at the receiver.
+    /// One-way throughput at the receiver, with the sender's outcome counts (acknowledged
+    /// hetcomm paths) and the receiver's kernel drops (hetcomm paths) when known.
     pub fn throughput(path: &str, size: usize, t: &Throughput) -> Row {
         let mut r = Row::new("oneway", path, size);
         r.metrics = vec![
@@ -68,7 +69,33 @@ impl Row {
             ("received", t.received as f64),
             ("lost_percent", t.lost_percent()),
         ];
+        if let Some(o) = &t.outcomes {
+            r.metrics.extend([
+                ("delivered", o.delivered as f64),
+                ("unconfirmed", o.unconfirmed as f64),
+                ("failed", o.failed as f64),
+                ("pending", o.pending as f64),
+            ]);
+        }
+        if let Some(k) = t.kernel_drops {
+            r.metrics.push(("rx_kernel_drops", k as f64));
+        }
         r
+    }
+
+    /// The outcome counts of an acknowledged row, as a table cell (`-` when not counted).
+    fn outcomes_cell(&self) -> String {
+        let n = |k| self.get(k).map(|v| v as u64);
+        match (n("delivered"), n("unconfirmed"), n("failed")) {
+            (Some(delivered), Some(unconfirmed), Some(failed)) => Outcomes {
+                delivered,
+                unconfirmed,
+                failed,
+                pending: n("pending").unwrap_or(0),
+            }
+            .cell(),
+            _ => "-".into(),
+        }
     }
 
     /// In-process hand-off: rate (saturated runs) and latency from the payload's timestamp.
@@ -246,13 +273,26 @@ fn tables(rows: &[Row]) -> Vec<Table> {
             v.push(si(r.get("msgs_per_s")));
             v.push(si(r.get("bytes_per_s")));
             v.push(num(r.get("lost_percent"), 1));
+            v.push(r.outcomes_cell());
+            v.push(num(r.get("rx_kernel_drops"), 0));
             v.push(ratio(r.get("msgs_per_s"), base));
             v
         })
         .collect();
     out.push((
-        "One-way throughput, counted at the receiver".into(),
-        vec!["path", "size", "msg/s", "B/s", "lost %", "msg/s × raw UDP"],
+        "One-way throughput, counted at the receiver (acknowledged: how the sends ended, \
+         delivered/unconfirmed/failed; rx kernel drops: datagrams the receiver's kernel dropped)"
+            .into(),
+        vec![
+            "path",
+            "size",
+            "msg/s",
+            "B/s",
+            "lost %",
+            "delivered/unconfirmed/failed",
+            "rx kernel drops",
+            "msg/s × raw UDP",
+        ],
         ow,
     ));
     let ip: Vec<Vec<String>> = rows
@@ -843,4 +883,54 @@ pub fn markdown(rows: &[Row], ctx: &Context) -> String {
     }
     let _ = writeln!(s, "\nBenchmark wall time: {:.0} s.", ctx.wall_s);
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stats::Outcomes;
+
+    #[test]
+    fn an_acknowledged_row_shows_how_its_sends_ended() {
+        let acked = Throughput {
+            sent: 10,
+            received: 9,
+            bytes: 9 * 64,
+            seconds: 1.0,
+            outcomes: Some(Outcomes {
+                delivered: 8,
+                unconfirmed: 2,
+                failed: 0,
+                pending: 0,
+            }),
+            kernel_drops: Some(3),
+        };
+        let unacked = Throughput {
+            outcomes: None,
+            kernel_drops: None,
+            ..acked.clone()
+        };
+        let rows = [
+            Row::throughput("hetcomm-udp-ack", 64, &acked),
+            Row::throughput("raw-udp", 64, &unacked),
+        ];
+        assert_eq!(rows[0].get("unconfirmed"), Some(2.0));
+        assert_eq!(rows[0].get("rx_kernel_drops"), Some(3.0));
+        let md = markdown(
+            &rows,
+            &Context {
+                quick: true,
+                reliability: None,
+                wall_s: 0.0,
+            },
+        );
+        assert!(
+            md.contains("| hetcomm-udp-ack | 64 B | 9 | 576 | 10.0 | 8/2/0 | 3 | 1.00× |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| raw-udp | 64 B | 9 | 576 | 10.0 | - | - | 1.00× |"),
+            "{md}"
+        );
+    }
 }

@@ -91,6 +91,37 @@ pub struct Throughput {
     pub bytes: u64,
     /// From the first to the last message at the receiver, seconds.
     pub seconds: f64,
+    /// Acknowledged hetcomm paths: how the sender's accepted sends ended.
+    pub outcomes: Option<Outcomes>,
+    /// hetcomm paths: datagrams the receiving system's kernel dropped at its sockets (the
+    /// links' `kernel_drops`; 0 on TCP).
+    pub kernel_drops: Option<u64>,
+}
+
+/// How a sender's acknowledged sends ended, counted by its router over one run: delivered,
+/// unconfirmed (no acknowledgement: may or may not have arrived) or failed (certainly not
+/// delivered); `pending` had no outcome yet when the benchmark stopped waiting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Outcomes {
+    /// Ended delivered (in the receiving module's inbox).
+    pub delivered: u64,
+    /// Ended unconfirmed.
+    pub unconfirmed: u64,
+    /// Ended failed.
+    pub failed: u64,
+    /// No outcome yet.
+    pub pending: u64,
+}
+
+impl Outcomes {
+    /// `delivered/unconfirmed/failed`, and `+N pending` when some had none yet.
+    pub fn cell(&self) -> String {
+        let mut s = format!("{}/{}/{}", self.delivered, self.unconfirmed, self.failed);
+        if self.pending > 0 {
+            s.push_str(&format!(" +{} pending", self.pending));
+        }
+        s
+    }
 }
 
 impl Throughput {
@@ -151,23 +182,30 @@ impl SinkCounter {
         }
     }
 
-    /// The line a sink prints: `result COUNT BYTES ELAPSED_NS`.
+    /// The line a sink prints: `result COUNT BYTES ELAPSED_NS` (hetcomm sinks add
+    /// `kernel_drops=N`).
     pub fn line(&self) -> String {
         format!("result {} {} {}", self.count, self.bytes, self.elapsed_ns())
     }
 }
 
-/// Parses a `COUNT BYTES ELAPSED_NS` triple (optionally after a `result` word).
+/// Parses a `COUNT BYTES ELAPSED_NS` triple (optionally after a `result` word), and a
+/// `kernel_drops=N` after it if there is one.
 pub fn parse_sink_line(line: &str, sent: u64) -> Option<Throughput> {
     let mut it = line.split_whitespace().filter(|w| *w != "result");
     let count = it.next()?.parse::<u64>().ok()?;
     let bytes = it.next()?.parse::<u64>().ok()?;
     let ns = it.next()?.parse::<u128>().ok()?;
+    let kernel_drops = it
+        .find_map(|w| w.strip_prefix("kernel_drops="))
+        .and_then(|n| n.parse().ok());
     Some(Throughput {
         sent,
         received: count,
         bytes,
         seconds: ns as f64 / 1e9,
+        outcomes: None,
+        kernel_drops,
     })
 }
 
@@ -188,5 +226,16 @@ mod tests {
         assert_eq!(t.msgs_per_s(), 10.0);
         assert_eq!(t.lost_percent(), 50.0);
         assert!(parse_sink_line("garbage", 0).is_none());
+        assert_eq!(t.kernel_drops, None);
+        let t = parse_sink_line("result 10 640 1000000000 kernel_drops=7", 20).unwrap();
+        assert_eq!((t.received, t.kernel_drops), (10, Some(7)));
+        let o = Outcomes {
+            delivered: 9,
+            unconfirmed: 1,
+            failed: 0,
+            pending: 0,
+        };
+        assert_eq!(o.cell(), "9/1/0");
+        assert_eq!(Outcomes { pending: 2, ..o }.cell(), "9/1/0 +2 pending");
     }
 }

@@ -1047,6 +1047,7 @@ impl<T: StreamTransport> Link for StreamLink<T> {
             frames_dropped: s.frames_dropped + s.held_frames_dropped,
             connects: s.connects,
             buffered_bytes: self.pending_bytes() as u64,
+            kernel_drops: 0,
         }
     }
 }

@@ -104,6 +104,17 @@
 //! which cuts a 1 MiB message into 17 datagrams instead of 723. The socket buffers are raised
 //! to [`UdpConfig::socket_buffer_bytes`] (the kernel may cap it, e.g. at `net.core.rmem_max`) so
 //! a burst of fragments is not dropped by the receiving socket.
+//!
+//! # Kernel drops
+//!
+//! Datagrams the kernel drops before the link reads them (the socket's receive buffer was
+//! full, a checksum was bad) never reach the link; where the OS reports them they are counted
+//! in [`UdpStats::kernel_drops`] and [`LinkStats::kernel_drops`]. On Linux the count is the
+//! socket's own drop counter, read with `getsockopt(SO_MEMINFO)` when the stats are asked for,
+//! so receiving costs nothing extra. Elsewhere it stays 0. It counts datagrams, not frames (a
+//! dropped datagram may have held a batch of frames or one fragment of a frame), and is not
+//! part of `frames_dropped`. The kernel's counter is 32 bits wide: a wrap between two reads of
+//! the stats is accounted for, as long as fewer than 2³² datagrams are dropped in between.
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::{self, IoSlice};
@@ -246,6 +257,9 @@ pub struct UdpStats {
     pub from_unknown_address: u64,
     /// Bytes held for incomplete messages now.
     pub buffered_bytes: u64,
+    /// Datagrams the kernel dropped at this link's socket before the link could read them
+    /// (see the module docs, "Kernel drops"); 0 where the OS does not report them.
+    pub kernel_drops: u64,
 }
 
 #[derive(Default)]
@@ -667,6 +681,8 @@ pub struct UdpLink {
     next_message_id: AtomicU32,
     shared: Arc<Shared>,
     rx: RxSide,
+    /// The kernel's drop counter as last read (see "Kernel drops").
+    kernel_drops: Mutex<KernelDrops>,
 }
 
 impl UdpLink {
@@ -766,6 +782,7 @@ impl UdpLink {
             next_message_id: AtomicU32::new(clock_seed()),
             shared,
             rx,
+            kernel_drops: Mutex::new(KernelDrops::default()),
         })
     }
 
@@ -796,7 +813,18 @@ impl UdpLink {
             reassembly_evictions: evictions,
             from_unknown_address: get(&c.from_unknown_address),
             buffered_bytes: get(&c.buffered_bytes),
+            kernel_drops: self.kernel_drops(),
         }
+    }
+
+    /// Datagrams the kernel dropped at the socket so far (0 where the OS does not say).
+    fn kernel_drops(&self) -> u64 {
+        // Read under the lock, so that the reads are in order and each adds what is new.
+        let mut drops = lock(&self.kernel_drops);
+        if let Some(now) = socket_drops(&self.socket) {
+            drops.update(now);
+        }
+        drops.total
     }
 
     fn check_size(&self, frame: &[u8]) -> Result<(), LinkError> {
@@ -915,6 +943,60 @@ impl UdpLink {
     }
 }
 
+/// The kernel's count of datagrams dropped at `socket` since it was opened (`SO_MEMINFO`,
+/// Linux 4.12 and later), a 32-bit counter that wraps; `None` where it is not reported.
+#[cfg(target_os = "linux")]
+fn socket_drops(socket: &UdpSocket) -> Option<u32> {
+    /// `SO_MEMINFO` (`asm-generic/socket.h`; sparc numbers it differently). The libc crate
+    /// does not export it for every target.
+    const SO_MEMINFO: libc::c_int = if cfg!(any(target_arch = "sparc", target_arch = "sparc64")) {
+        0x39
+    } else {
+        55
+    };
+    let drops = libc::SK_MEMINFO_DROPS as usize;
+    // The kernel fills as much of its `SK_MEMINFO_VARS` counters (9 today) as fits.
+    let mut info = [0u32; 16];
+    let mut len = std::mem::size_of_val(&info) as libc::socklen_t;
+    // SAFETY: `socket` is open for the whole call; `info` is a live, writable buffer of `len`
+    // bytes, and the kernel writes at most `len` bytes into it and the length into `len`.
+    let r = unsafe {
+        libc::getsockopt(
+            socket.as_raw_fd(),
+            libc::SOL_SOCKET,
+            SO_MEMINFO,
+            info.as_mut_ptr().cast(),
+            &mut len,
+        )
+    };
+    let filled = (len as usize) / std::mem::size_of::<u32>();
+    (r == 0 && filled > drops).then(|| info[drops])
+}
+
+/// Not reported on this OS.
+#[cfg(not(target_os = "linux"))]
+fn socket_drops(_socket: &UdpSocket) -> Option<u32> {
+    None
+}
+
+/// The kernel's 32-bit drop counter, read now and then, turned into a 64-bit total.
+#[derive(Default)]
+struct KernelDrops {
+    /// The counter as last read.
+    last: u32,
+    /// Every drop seen.
+    total: u64,
+}
+
+impl KernelDrops {
+    /// Takes the counter's value now (read after the previous one); adds what is new,
+    /// wrapping at 2³².
+    fn update(&mut self, now: u32) {
+        self.total += u64::from(now.wrapping_sub(self.last));
+        self.last = now;
+    }
+}
+
 fn clock_seed() -> u32 {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -980,6 +1062,7 @@ impl Link for UdpLink {
             frames_dropped: s.frames_dropped,
             connects: 0,
             buffered_bytes: s.buffered_bytes,
+            kernel_drops: s.kernel_drops,
         }
     }
 
@@ -1291,6 +1374,20 @@ mod tests {
         let mut h = wire::Header::data(at(1), at(2), MessageType(7));
         h.seq = seq;
         wire::encode(&h, &vec![seq as u8; payload_len])
+    }
+
+    #[test]
+    fn the_kernel_drop_counter_wraps_into_a_64_bit_total() {
+        let mut d = KernelDrops::default();
+        d.update(0);
+        assert_eq!(d.total, 0);
+        d.update(10);
+        d.update(10);
+        assert_eq!(d.total, 10);
+        d.update(u32::MAX - 1);
+        assert_eq!(d.total, u64::from(u32::MAX) - 1);
+        d.update(3); // wrapped
+        assert_eq!(d.total, u64::from(u32::MAX) + 4);
     }
 
     #[test]

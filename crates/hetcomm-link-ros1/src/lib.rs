@@ -634,6 +634,7 @@ impl Link for Ros1Link {
             frames_dropped: c.dropped.load(Ordering::Relaxed),
             connects: c.connects.load(Ordering::Relaxed),
             buffered_bytes: c.queued_bytes.load(Ordering::Relaxed),
+            kernel_drops: 0,
         }
     }
 }

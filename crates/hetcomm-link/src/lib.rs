@@ -219,6 +219,10 @@ pub struct LinkStats {
     pub connects: u64,
     /// Bytes currently held for reassembly or queued.
     pub buffered_bytes: u64,
+    /// Datagrams the operating system dropped before the link could read them (e.g. its
+    /// socket's receive buffer was full), where the OS reports it (UDP on Linux); 0 elsewhere.
+    /// Counted in datagrams, not frames, and not part of `frames_dropped`.
+    pub kernel_drops: u64,
 }
 
 /// What [`forward_link!`] names, reachable from any crate that uses it.

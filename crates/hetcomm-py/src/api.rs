@@ -947,6 +947,7 @@ impl Comm {
             d.set_item("frames_sent", l.frames_sent)?;
             d.set_item("frames_received", l.frames_received)?;
             d.set_item("frames_dropped", l.frames_dropped)?;
+            d.set_item("kernel_drops", l.kernel_drops)?;
             d.set_item("connects", l.connects)?;
             d.set_item("buffered_bytes", l.buffered_bytes)?;
             links.set_item(name, d)?;
