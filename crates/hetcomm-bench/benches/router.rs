@@ -21,6 +21,7 @@ fn route(acknowledged: bool) -> Route {
         attempts: 3,
         max_frame: 1 << 20,
         max_in_flight: 1024,
+        max_in_flight_bytes: usize::MAX,
     }
 }
 

@@ -174,6 +174,12 @@ pub struct TransportDef {
     /// Sends to one destination that may await their outcome at once; a send beyond it is
     /// refused (backpressure) instead of being kept without bound.
     pub max_in_flight: u32,
+    /// Bytes of frames to one destination that may await their outcome at once: a send that
+    /// would go past it is refused (backpressure) while earlier ones are pending, so an
+    /// acknowledged sender of large messages cannot overrun the receiver's socket buffer
+    /// (frames the kernel drops there end unconfirmed). One message larger than the limit is
+    /// still sent when nothing else is pending.
+    pub max_in_flight_bytes: usize,
     /// Receivers deliver each sender's messages carried by this transport in the order they
     /// were sent (holding early arrivals until the gap fills or a hold timeout passes).
     pub ordered: bool,
@@ -191,6 +197,10 @@ pub const DEFAULT_BATCH_LINGER_US: u32 = 50;
 /// The default [`TransportDef::max_in_flight`]: far more than a round trip's worth of messages
 /// on any link here, small enough that the frames kept for retransmission stay bounded.
 pub const DEFAULT_MAX_IN_FLIGHT: u32 = 1024;
+
+/// The default [`TransportDef::max_in_flight_bytes`]: half the 4 MiB receive buffer the UDP
+/// link asks for, so a window's worth of frames (and their retransmissions) fits in it.
+pub const DEFAULT_MAX_IN_FLIGHT_BYTES: usize = 2 << 20;
 
 /// Kind-specific settings, checked against each kind's schema.
 #[derive(Clone, Debug, PartialEq)]

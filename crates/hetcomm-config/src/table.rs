@@ -505,6 +505,7 @@ fn resolve_cell(
         delivery: DeliveryMode::Acknowledged,
         attempts: 3,
         max_in_flight: crate::model::DEFAULT_MAX_IN_FLIGHT,
+        max_in_flight_bytes: crate::model::DEFAULT_MAX_IN_FLIGHT_BYTES,
         ordered: false,
         batch_linger_us: crate::model::DEFAULT_BATCH_LINGER_US,
         letter: None,

@@ -37,7 +37,8 @@ pub fn open_error(e: OpenError) -> PyErr {
 }
 
 /// A `ConfigError` whose message is every located problem (`file:line:column: message`) and
-/// whose `errors` attribute lists them as dicts.
+/// whose `errors` attribute lists them as dicts (`line` and `column` are None for a problem
+/// with no position, such as a file that cannot be read).
 pub fn config_error(errors: &hetcomm::config::ConfigErrors, msg: String) -> PyErr {
     let err = new_err("ConfigError", msg);
     Python::attach(|py| {
@@ -45,8 +46,10 @@ pub fn config_error(errors: &hetcomm::config::ConfigErrors, msg: String) -> PyEr
         for e in &errors.0 {
             let d = PyDict::new(py);
             let _ = d.set_item("file", &e.file);
-            let _ = d.set_item("line", e.line);
-            let _ = d.set_item("column", e.column);
+            // Line 0: the problem has no position (the file could not be read).
+            let located = e.line > 0;
+            let _ = d.set_item("line", located.then_some(e.line));
+            let _ = d.set_item("column", located.then_some(e.column));
             let _ = d.set_item("message", &e.message);
             let _ = d.set_item("help", e.help.as_deref());
             let _ = list.append(d);

@@ -30,7 +30,7 @@
 //! use hetcomm_core::*;
 //! use hetcomm_router::*;
 //!
-//! let route = Route { link: 0, tag: b'R', acknowledged: true, attempts: 3, max_frame: 1 << 20, max_in_flight: 1024 };
+//! let route = Route { link: 0, tag: b'R', acknowledged: true, attempts: 3, max_frame: 1 << 20, max_in_flight: 1024, max_in_flight_bytes: 1 << 22 };
 //! let mut a = Router::<()>::new(RouterConfig::new(SystemId(0), 1, vec![(SystemId(1), route)]));
 //! let mut b = Router::<()>::new(RouterConfig::new(SystemId(1), 2, vec![(SystemId(0), route)]));
 //! let now = Time::ZERO;
@@ -71,6 +71,7 @@ mod tests {
             attempts: 3,
             max_frame: 1 << 20,
             max_in_flight: 1024,
+            max_in_flight_bytes: usize::MAX,
         };
         let mut a = Router::<()>::new(RouterConfig::new(
             SystemId(0),
@@ -123,6 +124,7 @@ mod tests {
             attempts: 3,
             max_frame: 64,
             max_in_flight: 1024,
+            max_in_flight_bytes: usize::MAX,
         }
     }
 

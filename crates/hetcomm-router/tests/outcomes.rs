@@ -18,6 +18,7 @@ fn route(attempts: u32) -> Route {
         attempts,
         max_frame: 1 << 16,
         max_in_flight: 1 << 16,
+        max_in_flight_bytes: usize::MAX,
     }
 }
 
@@ -255,4 +256,33 @@ fn lossy_links_never_make_an_outcome_lie() {
         lossy_exchange(seed, 0.3, 2, 300);
         lossy_exchange(seed, 0.1, 3, 100);
     }
+}
+
+#[test]
+fn the_byte_window_refuses_before_numbering_and_lets_one_large_message_through() {
+    let frame = hetcomm_core::wire::HEADER_LEN + 1000;
+    let mut r = route(3);
+    r.max_in_flight_bytes = 3 * frame;
+    let mut a = Router::<u32>::new(RouterConfig::new(A, 1, vec![(B, r)]));
+    let now = Time::ZERO;
+    let small = [0u8; 1000];
+    for seq in 1..=3 {
+        assert_eq!(a.send(now, request(&small), 0).map(|id| id.seq), Ok(seq));
+    }
+    assert!(matches!(
+        a.send(now, request(&small), 0),
+        Err(SendError::Backpressure { to: B, .. })
+    ));
+    assert_eq!(a.stats().backpressured, 1);
+    // Nothing answers: the three end unconfirmed and free the window.
+    let out = drive_alone(&mut a, |_| Ok(()));
+    assert_eq!(out.len(), 3);
+    // One message larger than the whole window goes when nothing else is pending, numbered
+    // right after the others (the refusal left no gap), and holds the window while pending.
+    let large = vec![0u8; 10 * 1000];
+    assert_eq!(a.send(now, request(&large), 0).map(|id| id.seq), Ok(4));
+    assert!(matches!(
+        a.send(now, request(&small), 0),
+        Err(SendError::Backpressure { .. })
+    ));
 }

@@ -21,6 +21,7 @@ fn route(path: Path) -> Route {
         attempts: 4,
         max_frame: 1 << 16,
         max_in_flight: 64,
+        max_in_flight_bytes: usize::MAX,
     }
 }
 

@@ -212,6 +212,7 @@ impl Comm {
                         attempts: def.attempts.max(1),
                         max_frame: links[link].caps().max_frame,
                         max_in_flight: def.max_in_flight.max(1),
+                        max_in_flight_bytes: def.max_in_flight_bytes.max(1),
                     },
                 )
             })

@@ -81,10 +81,11 @@ pub enum SendError {
         /// The limit.
         max: usize,
     },
-    /// The transport's `max_in_flight` sends to that system already await their outcome
-    /// (acknowledgements not yet back, or retries after the link refused frames). Nothing was
+    /// The transport's `max_in_flight` sends (or `max_in_flight_bytes` of frames) to that
+    /// system already await their outcome (acknowledgements not yet back, or retries after the
+    /// link refused frames). Nothing was
     /// sent. Wait for an earlier send's outcome ([`crate::Ticket::wait`]) and send again.
-    #[error("{limit} sends to `{to}` already await their outcome (max_in_flight of the transport): nothing was sent; wait for an earlier outcome and send again")]
+    #[error("sends to `{to}` awaiting their outcome fill the transport's window (max_in_flight = {limit} sends, or max_in_flight_bytes): nothing was sent; wait for an earlier outcome and send again")]
     Backpressure {
         /// Destination system.
         to: String,

@@ -51,11 +51,12 @@ pub(crate) const SYSTEM_KEYS: [&str; 2] = ["id", "modules"];
 /// Keys of `[legacy]`.
 pub(crate) const LEGACY_KEYS: [&str; 3] = ["ids", "table", "bluetooth"];
 /// Keys every transport accepts.
-pub(crate) const COMMON_KEYS: [&str; 7] = [
+pub(crate) const COMMON_KEYS: [&str; 8] = [
     "kind",
     "delivery",
     "attempts",
     "max_in_flight",
+    "max_in_flight_bytes",
     "letter",
     "ordered",
     "batch_linger_us",

@@ -104,6 +104,22 @@ impl P<'_> {
                 .map_or(default_window, |a| u32::try_from(a).unwrap_or(default_window))
             }
         };
+        let default_bytes = crate::model::DEFAULT_MAX_IN_FLIGHT_BYTES;
+        let max_in_flight_bytes = match t.get("max_in_flight_bytes") {
+            None => default_bytes,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                self.int_in(
+                    v,
+                    &format!("{path}.max_in_flight_bytes"),
+                    &vl,
+                    1,
+                    i64::MAX,
+                    &format!("bytes of frames to one destination that may await their outcome at once; the default is {default_bytes}"),
+                )
+                .map_or(default_bytes, |a| usize::try_from(a).unwrap_or(usize::MAX))
+            }
+        };
         let ordered = match t.get("ordered") {
             None => false,
             Some(v) => {
@@ -150,6 +166,7 @@ impl P<'_> {
             delivery,
             attempts,
             max_in_flight,
+            max_in_flight_bytes,
             ordered,
             batch_linger_us,
             letter,

@@ -41,7 +41,7 @@ class TooLargeError(HetcommError, ValueError):
 
 
 class BackpressureError(HetcommError):
-    """The transport's ``max_in_flight`` sends to that system already await their outcome:
+    """The transport's ``max_in_flight`` sends (or ``max_in_flight_bytes``) to that system already await their outcome:
     nothing was sent. Wait for an earlier ticket's outcome and send again."""
 
 

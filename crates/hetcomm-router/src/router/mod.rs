@@ -45,6 +45,8 @@ struct Pending<T> {
     /// The frame; `None` while the driver holds it in a [`Transmit`].
     frame: Option<Vec<u8>>,
     attempts: u32,
+    /// The frame's length, counted against the destination's byte window.
+    bytes: usize,
     /// Whether any attempt left this system (the link took the frame): from then on, giving up
     /// is [`Outcome::Unconfirmed`], never [`Outcome::Failed`].
     transmitted: bool,
@@ -174,6 +176,8 @@ struct Towards {
     lane: Option<Arc<DirectLane>>,
     /// Sends awaiting their outcome (bounded by [`Route::max_in_flight`]).
     pending: u32,
+    /// Their frames' bytes (bounded by [`Route::max_in_flight_bytes`]).
+    pending_bytes: usize,
 }
 
 /// The per-system routing and reliability state machine. `T` is an opaque token the driver

@@ -114,6 +114,7 @@ impl<T> Router<T> {
         if let Some(p) = self.pending.remove(&id) {
             if let Some(t) = self.towards.get_mut(&id.to) {
                 t.pending -= 1;
+                t.pending_bytes -= p.bytes;
             }
             // Its retransmission timer would only wake the driver for nothing.
             if let Some(deadline) = p.deadline {

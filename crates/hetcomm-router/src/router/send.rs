@@ -67,6 +67,7 @@ impl<T> Router<T> {
             Pending {
                 token,
                 route,
+                bytes: frame.len(),
                 frame: Some(frame),
                 attempts: 0,
                 transmitted: false,
@@ -178,6 +179,7 @@ impl<T> Router<T> {
             Pending {
                 token: token(),
                 route,
+                bytes: frame.len(),
                 frame: Some(frame),
                 attempts: 1,
                 transmitted: false,
@@ -191,7 +193,9 @@ impl<T> Router<T> {
 
     /// Records an unresolved send (counted against its destination's window).
     pub(super) fn keep_pending(&mut self, id: SendId, p: Pending<T>) {
-        self.towards.entry(id.to).or_default().pending += 1;
+        let towards = self.towards.entry(id.to).or_default();
+        towards.pending += 1;
+        towards.pending_bytes += p.bytes;
         self.pending.insert(id, p);
     }
 
@@ -226,7 +230,9 @@ impl<T> Router<T> {
         }
         let towards = self.towards.entry(to).or_default();
         // Refused before numbering: a refused send leaves no gap in the sequence.
-        if towards.pending >= route.max_in_flight {
+        let over_bytes =
+            towards.pending > 0 && towards.pending_bytes + len > route.max_in_flight_bytes;
+        if towards.pending >= route.max_in_flight || over_bytes {
             self.stats.backpressured += 1;
             return Err(SendError::Backpressure {
                 to,

@@ -14,6 +14,7 @@ fn route(acknowledged: bool) -> Route {
         attempts: 3,
         max_frame: 1 << 20,
         max_in_flight: 1024,
+        max_in_flight_bytes: usize::MAX,
     }
 }
 
@@ -391,6 +392,7 @@ fn frame_buffers_of_ended_sends_are_reused() {
 fn windowed(acknowledged: bool, window: u32, to: &[SystemId]) -> Router<u32> {
     let r = Route {
         max_in_flight: window,
+        max_in_flight_bytes: usize::MAX,
         ..route(acknowledged)
     };
     Router::new(RouterConfig::new(

@@ -27,6 +27,11 @@ pub struct Route {
     /// [`SendError::Backpressure`] before it is numbered, so a sender faster than the peer
     /// (or a peer that is gone) cannot make the router keep frames without bound.
     pub max_in_flight: u32,
+    /// Bytes of frames to this destination that may await their outcome at once. A send
+    /// that would go past it is refused with [`SendError::Backpressure`] while earlier sends
+    /// are pending (one larger than the limit goes when nothing else is), so a sender of
+    /// large acknowledged messages cannot overrun the receiver's socket buffer.
+    pub max_in_flight_bytes: usize,
 }
 
 impl Route {
@@ -238,8 +243,9 @@ pub enum SendError {
         /// Destination system.
         to: SystemId,
     },
-    /// [`Route::max_in_flight`] sends to this destination already await their outcome.
-    #[error("{limit} sends to system {to} already await their outcome (the transport's max_in_flight): wait for an earlier outcome and send again")]
+    /// [`Route::max_in_flight`] sends (or [`Route::max_in_flight_bytes`] of frames) to this
+    /// destination already await their outcome.
+    #[error("sends to system {to} awaiting their outcome fill the transport's window (max_in_flight = {limit} sends, or max_in_flight_bytes): wait for an earlier outcome and send again")]
     Backpressure {
         /// Destination system.
         to: SystemId,
