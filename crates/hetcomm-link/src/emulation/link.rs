@@ -336,7 +336,12 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
     }
 }
 
-impl<L: Link + 'static> Link for EmulatedLink<L> {
+// Written with the pass-through base: what the emulation does not change (the receive side
+// above all, `readable`, and `flush`) is the inner link's. Every frame goes through `send`:
+// held frames are sent at once and parts joined, since the model judges whole frames.
+crate::forward_link! {
+    [impl<L: Link + 'static>] EmulatedLink<L> => shared.inner;
+
     /// The inner link's capabilities, limited by the model: unreliable if the model can lose
     /// frames, unordered if it can reorder them, `mtu`/`max_frame` capped at `mtu_bytes`.
     fn caps(&self) -> LinkCaps {
@@ -414,6 +419,12 @@ impl<L: Link + 'static> Link for EmulatedLink<L> {
         stats.buffered_bytes += queued as u64;
         stats
     }
+
+    /// False whatever the inner link says: the model may corrupt bytes on purpose (and a
+    /// frame's CRC is what then catches it), so the payload must keep its checksum.
+    fn checksums_payload(&self) -> bool {
+        false
+    }
 }
 
 impl<L: Link + 'static> Drop for EmulatedLink<L> {
@@ -473,6 +484,13 @@ mod tests {
     #[test]
     fn transparent_emulation_passes_conformance() {
         conformance::run_all(&mut harness(ModelParams::default()));
+    }
+
+    #[test]
+    fn emulated_links_pass_conformance_wrapped_in_emulation_again() {
+        conformance::run_all(&mut conformance::Layered::emulated(harness(
+            ModelParams::default(),
+        )));
     }
 
     #[test]
