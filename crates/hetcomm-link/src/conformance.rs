@@ -483,8 +483,10 @@ pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
         got.len(),
         sent.len()
     );
+    // Not `==`: a link may read some connections with threads of its own even so (the stream
+    // links do for sockets that cannot be polled).
     assert!(
-        handed_on >= got.len(),
+        handed_on <= got.len(),
         "read_ready reported {handed_on} frames handed on, the sink got {}",
         got.len()
     );
