@@ -5,8 +5,10 @@
 //! trait and declares its [`LinkCaps`], which the router reads (it never asks "which kind are
 //! you?"). Frames a link receives go to the [`FrameSink`] it was opened with.
 //!
-//! This crate holds the trait, the in-process link ([`inproc`]) and the [`conformance`] suite
-//! that every transport runs. Transports with heavy dependencies live in their own crates.
+//! This crate holds the trait, the in-process link ([`inproc`]), the [`layer`]s that go over
+//! any link (the layer stack, taps, and [`emulation`]), and the [`conformance`] suite that
+//! every transport runs, bare and wrapped. Transports with heavy dependencies live in their
+//! own crates.
 //!
 //! ```
 //! use std::sync::Arc;
