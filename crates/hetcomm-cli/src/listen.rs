@@ -278,13 +278,15 @@ fn kernel_drops(_stats: &SystemStats) -> Option<u64> {
 /// in the module's inbox, so the message can be printed — and with `--count` this process
 /// exit — before its acknowledgement went out; the sender would then report a failure for a
 /// message that arrived. This system sends nothing but acknowledgements, so every frame its
-/// links sent is one.
+/// links sent is one; a link still connecting keeps frames queued (`buffered_bytes`), so
+/// those must have left too.
 fn wait_for_acks(comm: &Comm, owed: u64, limit: Duration) {
     let give_up = Instant::now() + limit;
     loop {
         let s = comm.stats();
         let on_wire: u64 = s.links.iter().map(|(_, l)| l.frames_sent).sum();
-        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent)
+        let queued: u64 = s.links.iter().map(|(_, l)| l.buffered_bytes).sum();
+        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent && queued == 0)
             || Instant::now() >= give_up
         {
             return;

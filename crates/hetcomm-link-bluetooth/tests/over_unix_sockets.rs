@@ -10,7 +10,7 @@ use common::{
     settings, wait_until, TempDir, UnixBtHarness, UnixFamily, CHARLIE, DEADLINE, STRANGER, TANGO,
 };
 use hetcomm_core::SystemId;
-use hetcomm_link::conformance::{self, CollectSink};
+use hetcomm_link::conformance::{self, CollectSink, Layered};
 use hetcomm_link::{Link, LinkError, Peer};
 use hetcomm_link_bluetooth::{BluetoothLink, OpenError};
 use hetcomm_link_ip::stream::{StreamConfig, RECORD_HEADER_LEN, RECORD_MAGIC, STREAM_VERSION};
@@ -38,6 +38,26 @@ fn bluetooth_link_passes_conformance_over_unix_sockets() {
 fn bluetooth_link_passes_conformance_with_bluetooth_timeouts() {
     let config = BluetoothLink::default_config();
     conformance::run_all(&mut UnixBtHarness::new(config));
+}
+
+/// The link inside an emulation layer (a model that changes nothing), as an `emulated`
+/// transport over `bluetooth` opens it.
+#[test]
+fn bluetooth_link_wrapped_in_emulation_passes_conformance() {
+    let config = BluetoothLink::default_config();
+    conformance::run_all(&mut Layered::emulated(UnixBtHarness::new(config)));
+}
+
+/// With a driven receive side (read through `Link::readable`, by the suite), bare and
+/// wrapped in emulation.
+#[test]
+fn driven_bluetooth_link_passes_conformance_bare_and_wrapped() {
+    let config = StreamConfig {
+        driven: true,
+        ..BluetoothLink::default_config()
+    };
+    conformance::run_all(&mut UnixBtHarness::new(config.clone()));
+    conformance::run_all(&mut Layered::emulated(UnixBtHarness::new(config)));
 }
 
 #[test]

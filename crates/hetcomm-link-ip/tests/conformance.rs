@@ -1,9 +1,12 @@
-//! The shared conformance suite, run against every transport of this crate.
+//! The shared conformance suite, run against every transport of this crate, bare and wrapped
+//! in emulation (a model that changes nothing: what is checked is that the wrapping keeps
+//! everything the link offers). The driven configurations run in `stream_driven.rs` and
+//! `udp_batch.rs`.
 
 mod common;
 
 use common::{TcpHarness, UdpHarness, UnixHarness};
-use hetcomm_link::conformance;
+use hetcomm_link::conformance::{self, Layered};
 use hetcomm_link_ip::stream::StreamConfig;
 use hetcomm_link_ip::UdpConfig;
 
@@ -25,4 +28,28 @@ fn udp_passes_conformance_with_loopback_sized_datagrams() {
 #[test]
 fn unix_stream_layer_passes_conformance() {
     conformance::run_all(&mut UnixHarness::new(StreamConfig::default()));
+}
+
+#[test]
+fn tcp_wrapped_in_emulation_passes_conformance() {
+    conformance::run_all(&mut Layered::emulated(TcpHarness::new(
+        StreamConfig::default(),
+    )));
+}
+
+#[test]
+fn udp_wrapped_in_emulation_passes_conformance() {
+    conformance::run_all(&mut Layered::emulated(
+        UdpHarness::new(UdpConfig::default()),
+    ));
+    conformance::run_all(&mut Layered::emulated(UdpHarness::new(
+        UdpConfig::loopback(),
+    )));
+}
+
+#[test]
+fn unix_stream_layer_wrapped_in_emulation_passes_conformance() {
+    conformance::run_all(&mut Layered::emulated(UnixHarness::new(
+        StreamConfig::default(),
+    )));
 }

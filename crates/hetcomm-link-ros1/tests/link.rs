@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use common::Master;
 use hetcomm_config::Ros1Settings;
 use hetcomm_core::SystemId;
-use hetcomm_link::conformance::{self, CollectSink, Harness};
+use hetcomm_link::conformance::{self, CollectSink, Harness, Layered};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_link_ros1::{MasterState, OpenError, Ros1Config, Ros1Link};
 
@@ -135,6 +135,21 @@ fn conformance_on_a_real_master() {
         live: Vec::new(),
     };
     conformance::run_all(&mut h);
+}
+
+/// The same, each link inside an emulation layer (a model that changes nothing), as an
+/// `emulated` transport over `ros1` opens it.
+#[test]
+fn conformance_on_a_real_master_wrapped_in_emulation() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let h = RosHarness {
+        master,
+        systems: names(&[(1, "A"), (2, "B")]),
+        live: Vec::new(),
+    };
+    conformance::run_all(&mut Layered::emulated(h));
 }
 
 #[test]

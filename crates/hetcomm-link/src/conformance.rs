@@ -2,14 +2,33 @@
 //! every [`Link`] implementation (as iceoryx2 does for its backends).
 //!
 //! A transport's tests implement [`Harness`] (how to open an endpoint for a system) and call
-//! [`run_all`]. Checks adapt to the link's declared [`LinkCaps`](crate::LinkCaps): an unreliable link is not
+//! [`run_all`], once on the bare link and once wrapped in emulation ([`Layered::emulated`]).
+//! Checks adapt to the link's declared [`LinkCaps`](crate::LinkCaps): an unreliable link is not
 //! required to deliver everything, but must never corrupt, invent or mislabel a frame.
+//!
+//! **Driven links.** A link that offers a receive side ([`Link::readable`]) starts no receive
+//! thread: nothing arrives unless someone reads it. The suite reads such links itself, through
+//! `readable()` only, as the runtime's waiting threads do; so a wrapper that does not pass the
+//! receive side on fails every check that expects a frame.
+//!
+//! What is checked: delivery both ways with the right sender; sizes from 1 byte to 1 MiB + 1;
+//! many frames against the declared caps (no loss if reliable, no reordering if ordered, never
+//! a duplicate or an invented frame); an unknown destination and an oversize frame are errors;
+//! traffic resumes after a peer restart; a driven link's frames arrive when read through its
+//! `Readable` side; frames held for batching go out at `flush` and before a later plain send;
+//! `send_parts` delivers head and body as one frame; frames handed to a sink that takes them
+//! ([`FrameSink::on_frame_owned`]) arrive intact; and a layer stack over the link (a tap on
+//! both sides) sees and passes on every frame, whichever way it was sent or received.
 
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{FrameBuf, SystemId};
 
+use crate::emulation::{EmulationLayer, ModelParams, PositionTable};
+use crate::layer::{LayerContext, LayerStack, Tap, TapLayer};
 use crate::{FrameSink, Link, LinkError, Peer};
 
 /// How long a check waits for frames to arrive before it fails.
@@ -19,7 +38,133 @@ pub const WAIT: Duration = Duration::from_secs(10);
 pub trait Harness {
     /// Opens an endpoint for `system` whose received frames go to `sink`. Opening a system that
     /// was opened before (and whose link was dropped) must work: that is a peer restart.
+    ///
+    /// A link with a receive side ([`Link::readable`]) is returned as it is: the suite reads
+    /// it (a harness must not start a thread of its own that reads it too).
     fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link>;
+}
+
+/// A harness whose links are wrapped in a [`LayerStack`], both sides, as the runtime wraps
+/// links where it opens them.
+pub struct Layered<H> {
+    /// The harness that opens the bare links.
+    pub inner: H,
+    /// The layers put over them.
+    pub stack: LayerStack,
+}
+
+impl<H: Harness> Layered<H> {
+    /// `inner`'s links with `stack` over them.
+    pub fn new(inner: H, stack: LayerStack) -> Self {
+        Layered { inner, stack }
+    }
+
+    /// `inner`'s links wrapped in emulation with a model that loses, delays and changes
+    /// nothing (the default parameters), so every check applies unchanged: what is tested is
+    /// that the wrapping itself loses nothing a link offers.
+    pub fn emulated(inner: H) -> Self {
+        let layer = EmulationLayer::new(
+            ModelParams::default(),
+            1,
+            PositionTable::new(),
+            Instant::now(),
+        );
+        Self::new(inner, LayerStack::new().with(Arc::new(layer)))
+    }
+}
+
+impl<H: Harness> Harness for Layered<H> {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        let ctx = LayerContext::new(system);
+        let link: Arc<dyn Link> =
+            Arc::from(self.inner.open(system, self.stack.wrap_sink(&ctx, sink)));
+        let wrapped = self
+            .stack
+            .wrap_link(&ctx, link)
+            .unwrap_or_else(|e| panic!("layers {:?}: {e}", self.stack.names()));
+        Box::new(wrapped)
+    }
+}
+
+/// A link opened for a check: if it has a receive side, a thread reads it through
+/// [`Link::readable`] (poll, then `read_ready`) until the endpoint is dropped.
+struct Endpoint {
+    link: Arc<dyn Link>,
+    reader: Option<Reader>,
+}
+
+struct Reader {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Drop for Reader {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Endpoint {
+    fn new(link: Box<dyn Link>) -> Endpoint {
+        let link: Arc<dyn Link> = Arc::from(link);
+        let reader = link.readable().is_some().then(|| {
+            let stop = Arc::new(AtomicBool::new(false));
+            let stopping = stop.clone();
+            let link = link.clone();
+            let thread = std::thread::Builder::new()
+                .name("conformance-reader".into())
+                .spawn(move || {
+                    let Some(rx) = link.readable() else { return };
+                    while !stopping.load(Ordering::SeqCst) {
+                        // A short wait so that a stop is noticed promptly; `read_ready` also
+                        // does the link's upkeep when nothing arrived.
+                        poll_readable(rx.fd(), 20);
+                        let _ = rx.read_ready(64);
+                    }
+                })
+                .expect("spawn the conformance reader");
+            Reader {
+                stop,
+                thread: Some(thread),
+            }
+        });
+        Endpoint { link, reader }
+    }
+}
+
+impl Drop for Endpoint {
+    fn drop(&mut self) {
+        // Stop reading before the link goes: dropping it closes its sockets, and a restart
+        // check binds the same address again.
+        self.reader.take();
+    }
+}
+
+impl std::ops::Deref for Endpoint {
+    type Target = dyn Link;
+    fn deref(&self) -> &(dyn Link + 'static) {
+        &*self.link
+    }
+}
+
+/// Opens `system` on `h`, reading it if it is driven.
+fn open(h: &mut dyn Harness, system: SystemId, sink: Arc<dyn FrameSink>) -> Endpoint {
+    Endpoint::new(h.open(system, sink))
+}
+
+/// Waits up to `timeout_ms` for `fd` to poll readable.
+fn poll_readable(fd: std::os::fd::RawFd, timeout_ms: i32) -> bool {
+    let mut p = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    // SAFETY: one valid, exclusively borrowed pollfd for the duration of the call.
+    let n = unsafe { libc::poll(&mut p, 1, timeout_ms) };
+    n > 0 && p.revents & libc::POLLIN != 0
 }
 
 /// A frame as a sink saw it.
@@ -106,6 +251,11 @@ pub fn run_all(h: &mut dyn Harness) {
     unknown_destination_is_an_error(h);
     oversize_frame_is_refused(h);
     traffic_resumes_after_peer_restart(h);
+    driven_receive_is_read_through_readable(h);
+    held_frames_are_flushed(h);
+    send_parts_arrive_as_one_frame(h);
+    owned_frames_arrive_intact(h);
+    layers_see_and_pass_every_frame(h);
 }
 
 fn check_from(r: &Received, sender: SystemId) {
@@ -117,8 +267,8 @@ fn check_from(r: &Received, sender: SystemId) {
 /// A frame each way arrives byte-for-byte, labelled with the right sender.
 pub fn delivers_both_ways(h: &mut dyn Harness) {
     let (sa, sb) = (CollectSink::new(), CollectSink::new());
-    let a = h.open(A, sa.clone());
-    let b = h.open(B, sb.clone());
+    let a = open(h, A, sa.clone());
+    let b = open(h, B, sb.clone());
     a.send(B, &frame(1, 0, 100)).expect("A -> B send");
     assert_eq!(sb.wait_for(1, WAIT), 1, "A -> B frame did not arrive");
     b.send(A, &frame(2, 0, 100)).expect("B -> A send");
@@ -133,8 +283,8 @@ pub fn delivers_both_ways(h: &mut dyn Harness) {
 /// arrive intact on a reliable link.
 pub fn preserves_sizes(h: &mut dyn Harness) {
     let sb = CollectSink::new();
-    let a = h.open(A, CollectSink::new());
-    let _b = h.open(B, sb.clone());
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sb.clone());
     let caps = a.caps();
     let mut sizes = vec![1, 48, 1000, caps.mtu.min(caps.max_frame)];
     sizes.push((1024 * 1024 + 1).min(caps.max_frame));
@@ -160,8 +310,8 @@ pub fn preserves_sizes(h: &mut dyn Harness) {
 pub fn many_frames_respect_caps(h: &mut dyn Harness) {
     const N: u32 = 1000;
     let sb = CollectSink::new();
-    let a = h.open(A, CollectSink::new());
-    let _b = h.open(B, sb.clone());
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sb.clone());
     let caps = a.caps();
     for i in 0..N {
         loop {
@@ -205,7 +355,7 @@ pub fn many_frames_respect_caps(h: &mut dyn Harness) {
 
 /// Sending to a system with no endpoint is an error, not a panic or a hang.
 pub fn unknown_destination_is_an_error(h: &mut dyn Harness) {
-    let a = h.open(A, CollectSink::new());
+    let a = open(h, A, CollectSink::new());
     let started = Instant::now();
     let result = a.send(SystemId(999), &frame(5, 0, 10));
     assert!(
@@ -221,8 +371,8 @@ pub fn unknown_destination_is_an_error(h: &mut dyn Harness) {
 /// A frame over `max_frame` is refused with `TooLarge` (skipped for links whose limit is over
 /// 64 MiB, where building such a frame is itself the problem).
 pub fn oversize_frame_is_refused(h: &mut dyn Harness) {
-    let a = h.open(A, CollectSink::new());
-    let _b = h.open(B, CollectSink::new());
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, CollectSink::new());
     let max = a.caps().max_frame;
     if max > 64 * 1024 * 1024 {
         return;
@@ -237,15 +387,15 @@ pub fn oversize_frame_is_refused(h: &mut dyn Harness) {
 /// After the receiver's endpoint is dropped and opened again, frames flow again (sends in
 /// between may fail, but must not hang or panic).
 pub fn traffic_resumes_after_peer_restart(h: &mut dyn Harness) {
-    let a = h.open(A, CollectSink::new());
+    let a = open(h, A, CollectSink::new());
     let sb1 = CollectSink::new();
-    let b = h.open(B, sb1.clone());
+    let b = open(h, B, sb1.clone());
     a.send(B, &frame(6, 0, 32)).expect("first send");
     assert_eq!(sb1.wait_for(1, WAIT), 1);
     drop(b);
     let _ = a.send(B, &frame(6, 1, 32)); // may fail: the peer is gone
     let sb2 = CollectSink::new();
-    let _b2 = h.open(B, sb2.clone());
+    let _b2 = open(h, B, sb2.clone());
     let deadline = Instant::now() + WAIT;
     let mut i = 2;
     while sb2.frames().is_empty() {
@@ -257,4 +407,294 @@ pub fn traffic_resumes_after_peer_restart(h: &mut dyn Harness) {
         i += 1;
         sb2.wait_for(1, Duration::from_millis(50));
     }
+}
+
+/// The frame index [`frame`] wrote.
+fn index_of(bytes: &[u8]) -> u32 {
+    u32::from_le_bytes([bytes[1], bytes[2], bytes[3], bytes[4]])
+}
+
+/// Waits for `n` frames on a reliable link (failing with `what` if they do not come), or a
+/// moment for whatever arrives on an unreliable one.
+fn wait_reliably(sink: &CollectSink, n: usize, reliable: bool, what: &str) {
+    if reliable {
+        assert_eq!(sink.wait_for(n, WAIT), n, "{what}: frames lost");
+    } else {
+        sink.wait_for(n, Duration::from_millis(500));
+    }
+}
+
+/// Checks what arrived against what was sent, by index: nothing corrupted, duplicated or
+/// invented, and in order on an ordered link.
+fn check_against(got: &[Received], sent: &[Vec<u8>], sender: SystemId, ordered: bool, what: &str) {
+    let mut seen = Vec::with_capacity(got.len());
+    for r in got {
+        let i = index_of(&r.bytes) as usize;
+        assert!(i < sent.len(), "{what}: invented frame {i}");
+        assert_eq!(r.bytes, sent[i], "{what}: frame {i} corrupted");
+        check_from(r, sender);
+        seen.push(i);
+    }
+    let mut unique = seen.clone();
+    unique.sort_unstable();
+    unique.dedup();
+    assert_eq!(unique.len(), seen.len(), "{what}: duplicated frames");
+    if ordered {
+        assert!(
+            seen.windows(2).all(|w| w[0] < w[1]),
+            "{what}: ordered link reordered frames: {seen:?}"
+        );
+    }
+}
+
+/// A link with a receive side ([`Link::readable`]) starts no reader of its own: its frames
+/// arrive when, and because, someone polls its descriptor and calls `read_ready`. This check
+/// reads the receiver itself (no other reader), through `readable()` only; a frame larger than
+/// the link's MTU is among those read. Links without a receive side are skipped here (the
+/// other checks cover them).
+pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
+    let sb = CollectSink::new();
+    let a = open(h, A, CollectSink::new());
+    // Not an `Endpoint`: nobody but this check reads it.
+    let b = h.open(B, sb.clone());
+    let Some(rx) = b.readable() else {
+        return;
+    };
+    assert!(rx.fd() >= 0, "a receive side needs a descriptor to poll");
+    let caps = a.caps();
+    let big = (caps.mtu + 1000).min(caps.max_frame).min(256 * 1024);
+    let sent: Vec<Vec<u8>> = (0..10)
+        .map(|i| frame(8, i, if i == 5 { big } else { 100 }))
+        .collect();
+    for f in &sent {
+        a.send(B, f).expect("send to a driven link");
+    }
+    let want = if caps.reliable { sent.len() } else { 1 };
+    let deadline = Instant::now() + WAIT;
+    let mut handed_on = 0;
+    while sb.frames().len() < want && Instant::now() < deadline {
+        poll_readable(rx.fd(), 20);
+        handed_on += rx.read_ready(64).expect("read_ready");
+    }
+    let got = sb.frames();
+    assert!(
+        got.len() >= want,
+        "a driven link delivered {} of {} frames when read through its Readable side",
+        got.len(),
+        sent.len()
+    );
+    // Not `==`: a link may read some connections with threads of its own even so (the stream
+    // links do for sockets that cannot be polled).
+    assert!(
+        handed_on <= got.len(),
+        "read_ready reported {handed_on} frames handed on, the sink got {}",
+        got.len()
+    );
+    check_against(&got, &sent, A, caps.ordered, "driven receive");
+}
+
+/// Frames sent with [`Link::send_held`] go out at [`Link::flush`], and before a later plain
+/// [`Link::send`] to the same peer (links that do not batch send them at once).
+pub fn held_frames_are_flushed(h: &mut dyn Harness) {
+    let sb = CollectSink::new();
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sb.clone());
+    let caps = a.caps();
+    let sent: Vec<Vec<u8>> = (0..24).map(|i| frame(9, i, 64 + i as usize)).collect();
+    for f in &sent[..20] {
+        a.send_held(B, f).expect("send_held");
+    }
+    a.flush().expect("flush");
+    wait_reliably(&sb, 20, caps.reliable, "held frames after flush");
+    // Held frames, then a plain send: the held ones go first.
+    for f in &sent[20..23] {
+        a.send_held(B, f).expect("send_held");
+    }
+    a.send(B, &sent[23]).expect("send after held frames");
+    wait_reliably(&sb, 24, caps.reliable, "held frames before a plain send");
+    a.flush().expect("flush with nothing held");
+    check_against(&sb.frames(), &sent, A, caps.ordered, "held frames");
+}
+
+/// [`Link::send_parts`] delivers `head` followed by `body` as one frame, whatever the split
+/// (an empty body, a body past the MTU, up to 1 MiB), and refuses parts over `max_frame`.
+pub fn send_parts_arrive_as_one_frame(h: &mut dyn Harness) {
+    let sb = CollectSink::new();
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sb.clone());
+    let caps = a.caps();
+    let head_len = 48;
+    let lens = [
+        head_len,
+        head_len + 1,
+        1000,
+        caps.mtu.min(caps.max_frame),
+        (caps.mtu + 1).min(caps.max_frame),
+        (1024 * 1024).min(caps.max_frame),
+    ];
+    let sent: Vec<Vec<u8>> = lens
+        .iter()
+        .enumerate()
+        .map(|(i, &len)| frame(10, i as u32, len))
+        .collect();
+    for (i, f) in sent.iter().enumerate() {
+        let (head, body) = f.split_at(head_len.min(f.len()));
+        a.send_parts(B, head, body)
+            .unwrap_or_else(|e| panic!("send_parts of {} + {} bytes: {e}", head.len(), body.len()));
+        wait_reliably(&sb, i + 1, caps.reliable, "send_parts");
+    }
+    check_against(&sb.frames(), &sent, A, caps.ordered, "send_parts");
+    if caps.max_frame <= 64 * 1024 * 1024 {
+        let body = vec![0u8; caps.max_frame + 1 - head_len];
+        let result = a.send_parts(B, &sent[0][..head_len], &body);
+        assert!(
+            matches!(result, Err(LinkError::TooLarge { .. })),
+            "oversize send_parts: {result:?}"
+        );
+    }
+}
+
+/// A sink that keeps frames handed over to it ([`FrameSink::takes_frames`]), recording which
+/// came as owned buffers.
+#[derive(Default)]
+struct TakingSink {
+    collect: CollectSink,
+    owned: AtomicU64,
+}
+
+impl FrameSink for TakingSink {
+    fn on_frame(&self, frame: &[u8], from: Peer) {
+        self.collect.on_frame(frame, from);
+    }
+    fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
+        self.owned.fetch_add(1, Ordering::Relaxed);
+        self.collect.on_frame(&frame, from);
+    }
+    fn takes_frames(&self) -> bool {
+        true
+    }
+}
+
+/// With a sink that takes frames ([`FrameSink::on_frame_owned`]), small and large frames
+/// (up to 1 MiB + 1) arrive intact and in order, lent or handed over as the link chooses.
+pub fn owned_frames_arrive_intact(h: &mut dyn Harness) {
+    let sink = Arc::new(TakingSink::default());
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sink.clone());
+    let caps = a.caps();
+    let lens = [10, 70_000, 100, 1024 * 1024 + 1, 3000, 70_000];
+    let sent: Vec<Vec<u8>> = lens
+        .iter()
+        .enumerate()
+        .map(|(i, &len)| frame(11, i as u32, len.min(caps.max_frame)))
+        .collect();
+    for (i, f) in sent.iter().enumerate() {
+        a.send(B, f)
+            .unwrap_or_else(|e| panic!("send of {} bytes: {e}", f.len()));
+        wait_reliably(
+            &sink.collect,
+            i + 1,
+            caps.reliable,
+            "frames to a taking sink",
+        );
+    }
+    check_against(
+        &sink.collect.frames(),
+        &sent,
+        A,
+        caps.ordered,
+        "owned frames",
+    );
+    let owned = sink.owned.load(Ordering::Relaxed) as usize;
+    assert!(owned <= sink.collect.frames().len());
+}
+
+/// Counts what a [`TapLayer`] shows, per direction.
+#[derive(Default)]
+struct CountTap {
+    sent: AtomicU64,
+    sent_bytes: AtomicU64,
+    received: AtomicU64,
+}
+
+impl Tap for CountTap {
+    fn on_send(&self, _to: SystemId, head: &[u8], body: &[u8]) {
+        self.sent.fetch_add(1, Ordering::Relaxed);
+        self.sent_bytes
+            .fetch_add((head.len() + body.len()) as u64, Ordering::Relaxed);
+    }
+    fn on_receive(&self, _frame: &[u8], _from: Peer) {
+        self.received.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// A layer stack over the link (a tap on both sides, as the runtime puts layers where it
+/// opens links) keeps everything the link offers: its receive side, batching, the sink's
+/// taking of frames. Every frame, however sent (`send`, `send_parts`, `send_held` + `flush`)
+/// and however received (lent, handed over or in a batch), passes through the layer and
+/// arrives intact.
+pub fn layers_see_and_pass_every_frame(h: &mut dyn Harness) {
+    let tap = Arc::new(CountTap::default());
+    let stack = LayerStack::new().with(Arc::new(TapLayer::new(tap.clone())));
+    let mut open_layered = |system: SystemId, sink: Arc<dyn FrameSink>| {
+        let ctx = LayerContext::new(system);
+        let wrapped_sink = stack.wrap_sink(&ctx, sink.clone());
+        assert_eq!(
+            wrapped_sink.takes_frames(),
+            sink.takes_frames(),
+            "the layered sink changed takes_frames"
+        );
+        let link: Arc<dyn Link> = Arc::from(h.open(system, wrapped_sink));
+        let (driven, batches) = (link.readable().is_some(), link.batches());
+        let wrapped = stack.wrap_link(&ctx, link).expect("wrap the link");
+        assert_eq!(
+            wrapped.readable().is_some(),
+            driven,
+            "the layered link lost its receive side"
+        );
+        assert_eq!(
+            wrapped.batches(),
+            batches,
+            "the layered link changed batches"
+        );
+        Endpoint::new(Box::new(wrapped))
+    };
+    let sink = Arc::new(TakingSink::default());
+    let a = open_layered(A, CollectSink::new());
+    let _b = open_layered(B, sink.clone());
+    let caps = a.caps();
+    let big = (1024 * 1024 + 1).min(caps.max_frame);
+    let sent: Vec<Vec<u8>> = [100, 2000, 300, 400, big]
+        .iter()
+        .enumerate()
+        .map(|(i, &len)| frame(12, i as u32, len))
+        .collect();
+    a.send(B, &sent[0]).expect("layered send");
+    let (head, body) = sent[1].split_at(48);
+    a.send_parts(B, head, body).expect("layered send_parts");
+    a.send_held(B, &sent[2]).expect("layered send_held");
+    a.send_held(B, &sent[3]).expect("layered send_held");
+    a.flush().expect("layered flush");
+    a.send(B, &sent[4]).expect("layered large send");
+    let n = sent.len();
+    wait_reliably(&sink.collect, n, caps.reliable, "layered link");
+    check_against(
+        &sink.collect.frames(),
+        &sent,
+        A,
+        caps.ordered,
+        "layered link",
+    );
+    assert_eq!(
+        tap.sent.load(Ordering::Relaxed),
+        n as u64,
+        "the layer did not see every send"
+    );
+    let bytes: usize = sent.iter().map(Vec::len).sum();
+    assert_eq!(tap.sent_bytes.load(Ordering::Relaxed), bytes as u64);
+    assert_eq!(
+        tap.received.load(Ordering::Relaxed),
+        sink.collect.frames().len() as u64,
+        "the layer did not see every frame received"
+    );
 }

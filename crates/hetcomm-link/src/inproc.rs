@@ -136,4 +136,11 @@ mod tests {
     fn inproc_passes_conformance() {
         conformance::run_all(&mut InprocHarness(InprocHub::new()));
     }
+
+    #[test]
+    fn inproc_passes_conformance_wrapped_in_emulation() {
+        conformance::run_all(&mut conformance::Layered::emulated(InprocHarness(
+            InprocHub::new(),
+        )));
+    }
 }

@@ -5,8 +5,10 @@
 //! trait and declares its [`LinkCaps`], which the router reads (it never asks "which kind are
 //! you?"). Frames a link receives go to the [`FrameSink`] it was opened with.
 //!
-//! This crate holds the trait, the in-process link ([`inproc`]) and the [`conformance`] suite
-//! that every transport runs. Transports with heavy dependencies live in their own crates.
+//! This crate holds the trait, the in-process link ([`inproc`]), the [`layer`]s that go over
+//! any link (the layer stack, taps, and [`emulation`]), and the [`conformance`] suite that
+//! every transport runs, bare and wrapped. Transports with heavy dependencies live in their
+//! own crates.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -24,6 +26,7 @@
 pub mod conformance;
 pub mod emulation;
 pub mod inproc;
+pub mod layer;
 
 use std::sync::Arc;
 
@@ -229,63 +232,187 @@ pub struct LinkStats {
 #[doc(hidden)]
 pub use hetcomm_core as __core;
 
-/// Implements [`Link`] for a type that wraps another link in field `$field`, forwarding every
-/// method to it: `forward_link!(TcpLink, inner);` or, with generics,
+/// Implements [`Link`] for a type that wraps another link, forwarding to it every method the
+/// wrapper does not write itself. This is the pass-through base of every link wrapper and
+/// [layer](crate::layer): a method added to [`Link`] is added here once, and no wrapper can
+/// forget to pass it on (as [`Link::readable`] once was, leaving a wrapped socket unread).
+///
+/// Everything forwarded: `forward_link!(TcpLink, inner);` or, with generics,
 /// `forward_link!(impl<F: Family> RfcommLink<F>, inner);`.
+///
+/// Some methods written by the wrapper, the rest forwarded to the field at the given path:
+///
+/// ```
+/// use hetcomm_core::SystemId;
+/// use hetcomm_link::{forward_link, Link, LinkError};
+///
+/// /// Counts what its inner link is asked to send.
+/// struct Counting<L> {
+///     inner: L,
+///     sent: std::sync::atomic::AtomicU64,
+/// }
+///
+/// forward_link! {
+///     [impl<L: Link>] Counting<L> => inner;
+///     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+///         self.sent.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+///         self.inner.send(to, frame)
+///     }
+/// }
+/// ```
+///
+/// What a method the wrapper leaves out does:
+///
+/// - `caps`, `stats`, `flush`, `readable`, `checksums_payload`: forwarded.
+/// - `send`: forwarded.
+/// - `send_parts`, `send_held`: forwarded if the wrapper does not write `send`; if it does,
+///   they go through the wrapper's `send` (the parts joined, the frame sent at once), so a
+///   wrapper that changes `send` sees every frame. A wrapper that wants vectored writes or
+///   batching kept writes these too.
+/// - `batches`: forwarded if the wrapper writes `send_held` or leaves `send` alone; false
+///   otherwise (its `send_held` sends at once).
 #[macro_export]
 macro_rules! forward_link {
-    (impl<$($g:ident : $bound:path),+> $ty:ty, $field:ident) => {
-        impl<$($g: $bound),+> $crate::Link for $ty {
-            $crate::forward_link!(@methods $field);
+    (
+        [$($gen:tt)*] $ty:ty => $($field:ident).+ ;
+        $( $(#[$attr:meta])* fn $name:ident $args:tt $(-> $ret:ty)? $body:block )*
+    ) => {
+        $($gen)* $crate::Link for $ty {
+            $( $(#[$attr])* fn $name $args $(-> $ret)? $body )*
+            $crate::forward_link!(@rest [$($name)*] $($field).+);
         }
+    };
+    (impl<$($g:ident : $bound:path),+> $ty:ty, $field:ident) => {
+        $crate::forward_link!([impl<$($g: $bound),+>] $ty => $field;);
     };
     ($ty:ty, $field:ident) => {
-        impl $crate::Link for $ty {
-            $crate::forward_link!(@methods $field);
-        }
+        $crate::forward_link!([impl] $ty => $field;);
     };
-    (@methods $field:ident) => {
-        fn caps(&self) -> $crate::LinkCaps {
-            $crate::Link::caps(&self.$field)
-        }
-        fn send(
-            &self,
-            to: $crate::__core::SystemId,
-            frame: &[u8],
-        ) -> ::std::result::Result<(), $crate::LinkError> {
-            $crate::Link::send(&self.$field, to, frame)
-        }
-        fn send_parts(
-            &self,
-            to: $crate::__core::SystemId,
-            head: &[u8],
-            body: &[u8],
-        ) -> ::std::result::Result<(), $crate::LinkError> {
-            $crate::Link::send_parts(&self.$field, to, head, body)
-        }
-        fn stats(&self) -> $crate::LinkStats {
-            $crate::Link::stats(&self.$field)
-        }
-        fn send_held(
-            &self,
-            to: $crate::__core::SystemId,
-            frame: &[u8],
-        ) -> ::std::result::Result<(), $crate::LinkError> {
-            $crate::Link::send_held(&self.$field, to, frame)
-        }
-        fn flush(&self) -> ::std::result::Result<(), $crate::LinkError> {
-            $crate::Link::flush(&self.$field)
-        }
-        fn batches(&self) -> bool {
-            $crate::Link::batches(&self.$field)
-        }
-        fn readable(&self) -> ::std::option::Option<&dyn $crate::Readable> {
-            $crate::Link::readable(&self.$field)
-        }
-        fn checksums_payload(&self) -> bool {
-            $crate::Link::checksums_payload(&self.$field)
-        }
+    (@rest [$($n:ident)*] $($field:ident).+) => {
+        $crate::__if_named!(caps [$($n)*] {} {
+            fn caps(&self) -> $crate::LinkCaps {
+                $crate::Link::caps(&self.$($field).+)
+            }
+        });
+        $crate::__if_named!(send [$($n)*] {} {
+            fn send(
+                &self,
+                to: $crate::__core::SystemId,
+                frame: &[u8],
+            ) -> ::std::result::Result<(), $crate::LinkError> {
+                $crate::Link::send(&self.$($field).+, to, frame)
+            }
+        });
+        $crate::__if_named!(send_parts [$($n)*] {} {
+            $crate::__if_named!(send [$($n)*] {
+                fn send_parts(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    head: &[u8],
+                    body: &[u8],
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    if body.is_empty() {
+                        return $crate::Link::send(self, to, head);
+                    }
+                    let mut frame = ::std::vec::Vec::with_capacity(head.len() + body.len());
+                    frame.extend_from_slice(head);
+                    frame.extend_from_slice(body);
+                    $crate::Link::send(self, to, &frame)
+                }
+            } {
+                fn send_parts(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    head: &[u8],
+                    body: &[u8],
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    $crate::Link::send_parts(&self.$($field).+, to, head, body)
+                }
+            });
+        });
+        $crate::__if_named!(stats [$($n)*] {} {
+            fn stats(&self) -> $crate::LinkStats {
+                $crate::Link::stats(&self.$($field).+)
+            }
+        });
+        $crate::__if_named!(send_held [$($n)*] {} {
+            $crate::__if_named!(send [$($n)*] {
+                fn send_held(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    frame: &[u8],
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    $crate::Link::send(self, to, frame)
+                }
+            } {
+                fn send_held(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    frame: &[u8],
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    $crate::Link::send_held(&self.$($field).+, to, frame)
+                }
+            });
+        });
+        $crate::__if_named!(flush [$($n)*] {} {
+            fn flush(&self) -> ::std::result::Result<(), $crate::LinkError> {
+                $crate::Link::flush(&self.$($field).+)
+            }
+        });
+        $crate::__if_named!(batches [$($n)*] {} {
+            $crate::__if_named!(send_held [$($n)*] {
+                fn batches(&self) -> bool {
+                    $crate::Link::batches(&self.$($field).+)
+                }
+            } {
+                $crate::__if_named!(send [$($n)*] {
+                    fn batches(&self) -> bool {
+                        false
+                    }
+                } {
+                    fn batches(&self) -> bool {
+                        $crate::Link::batches(&self.$($field).+)
+                    }
+                });
+            });
+        });
+        $crate::__if_named!(readable [$($n)*] {} {
+            fn readable(&self) -> ::std::option::Option<&dyn $crate::Readable> {
+                $crate::Link::readable(&self.$($field).+)
+            }
+        });
+        $crate::__if_named!(checksums_payload [$($n)*] {} {
+            fn checksums_payload(&self) -> bool {
+                $crate::Link::checksums_payload(&self.$($field).+)
+            }
+        });
     };
+}
+
+/// `__if_named!(m [names] {then} {else})`: `then` if method `m` is among `names`, else
+/// `else`. What [`forward_link!`] and [`forward_sink!`] use to leave out the methods a wrapper
+/// writes itself (`macro_rules` can only compare an identifier with a literal one, hence an
+/// arm per method).
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __if_named {
+    (caps [caps $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (send [send $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (send_parts [send_parts $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (stats [stats $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (send_held [send_held $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (flush [flush $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (batches [batches $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (readable [readable $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (checksums_payload [checksums_payload $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (on_frame [on_frame $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (on_frame_owned [on_frame_owned $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (on_frames [on_frames $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (takes_frames [takes_frames $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    ($m:ident [$o:ident $($r:ident)*] $y:tt $n:tt) => {
+        $crate::__if_named!($m [$($r)*] $y $n);
+    };
+    ($m:ident [] $y:tt {$($n:tt)*}) => { $($n)* };
 }
 
 impl<L: Link + ?Sized> Link for Arc<L> {
@@ -315,5 +442,20 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn checksums_payload(&self) -> bool {
         (**self).checksums_payload()
+    }
+}
+
+impl<S: FrameSink + ?Sized> FrameSink for Arc<S> {
+    fn on_frame(&self, frame: &[u8], from: Peer) {
+        (**self).on_frame(frame, from)
+    }
+    fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
+        (**self).on_frame_owned(frame, from)
+    }
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
+        (**self).on_frames(frames, from)
+    }
+    fn takes_frames(&self) -> bool {
+        (**self).takes_frames()
     }
 }

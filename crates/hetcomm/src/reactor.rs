@@ -1,6 +1,8 @@
 //! Caller-driven receiving: the thread that waits for a message reads the socket itself.
 //!
-//! A link that offers a [`Readable`](hetcomm_link::Readable) receive side (UDP) starts no receive thread of its own.
+//! A link that offers a [`Readable`](hetcomm_link::Readable) receive side (UDP, TCP) starts no
+//! receive thread of its own; nor does a link under layers (an `emulated` transport over UDP
+//! or TCP), whose wrappers offer the receive side of the link they wrap.
 //! Instead, one thread at a time *leads*: it blocks in `poll(2)` on every such link's
 //! descriptor and reads what arrives, handing frames to the router, which puts messages into
 //! inboxes. A module waiting in `recv` with an empty inbox becomes the leader when nobody

@@ -8,6 +8,11 @@
 //! virtual time; every other kind becomes an ideal link that delivers at the same virtual
 //! instant (still as a separate event, after the sender's call returns).
 //!
+//! Layers go over simulated links exactly as over real ones: `transports::open_link` opens
+//! the simulated link in place of the real one and puts the transport's layer stack over it
+//! (`hetcomm_link::layer`). The emulation layer leaves a simulated link alone, since the
+//! simulator applies the same model itself, in virtual time (below).
+//!
 //! Autonomy code runs between calls to [`SimFleet::run_until`] (polling with `try_recv` /
 //! `has_message`, reading outcomes with [`crate::Ticket::try_outcome`]) or in callbacks, which
 //! run on the simulator's thread at the moment of delivery. Blocking calls (`recv`,

@@ -1,12 +1,15 @@
-//! The one dispatch point from a transport's kind to the code that opens it.
+//! The one dispatch point from a transport's kind to the code that opens it, and the one
+//! place where layers are put over links ([`open_link`]): the same layers, built the same way,
+//! whether the link is a real one or the simulator's.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
-use hetcomm_link::emulation::{EmulatedLink, LinkModel};
+use hetcomm_link::emulation::EmulationLayer;
 use hetcomm_link::inproc::InprocHub;
+use hetcomm_link::layer::{LayerContext, LayerStack};
 use hetcomm_link::{FrameSink, Link};
 
 use crate::comm::OpenEnv;
@@ -81,7 +84,9 @@ pub(crate) struct OpenedLink {
 }
 
 /// Opens transport number `index` of the fleet for system `local`, delivering what it
-/// receives to `sink`.
+/// receives to `sink`: the transport's link (the simulator's under simulation) with the
+/// transport's layers over both its sides (see [`layers`]). A transport without layers gets
+/// its bare link, with nothing in between.
 pub(crate) fn open_link(
     fleet: &Fleet,
     index: usize,
@@ -90,13 +95,60 @@ pub(crate) fn open_link(
     env: &OpenEnv,
 ) -> Result<OpenedLink, OpenError> {
     let t = &fleet.transports[index];
-    if let Some(net) = &env.sim {
-        return Ok(OpenedLink {
+    let failed = |reason: String| OpenError::Transport {
+        transport: t.name.clone(),
+        system: fleet
+            .system(local)
+            .map(|s| s.name.clone())
+            .unwrap_or_else(|| local.to_string()),
+        reason,
+    };
+    let stack = layers(t, env).map_err(&failed)?;
+    let mut ctx = LayerContext::new(local);
+    if env.sim.is_some() {
+        ctx = ctx.in_virtual_time();
+    }
+    let sink = stack.wrap_sink(&ctx, sink);
+    let mut opened = match &env.sim {
+        Some(net) => OpenedLink {
             link: net.open(index, local, sink),
             local_address: None,
             direct: None,
-        });
+        },
+        None => open_bare(fleet, index, local, sink, env)?,
+    };
+    if !stack.is_empty() {
+        opened.link = stack
+            .wrap_link(&ctx, opened.link)
+            .map_err(|e| failed(e.to_string()))?;
+        // A message must pass the layers: no hand-over that skips the link.
+        opened.direct = None;
     }
+    Ok(opened)
+}
+
+/// The layers over every link of transport `t`, from the router down: emulation for an
+/// `emulated` transport, none for the others.
+fn layers(t: &TransportDef, env: &OpenEnv) -> Result<LayerStack, String> {
+    let mut stack = LayerStack::new();
+    if let (TransportKind::Emulated, TransportSettings::Emulated(settings)) = (&t.kind, &t.settings)
+    {
+        let layer = EmulationLayer::from_settings(settings, env.positions.clone(), env.epoch)
+            .map_err(|e| e.to_string())?;
+        stack.push(Arc::new(layer));
+    }
+    Ok(stack)
+}
+
+/// Opens transport number `index`'s own link, without its layers.
+fn open_bare(
+    fleet: &Fleet,
+    index: usize,
+    local: SystemId,
+    sink: Arc<dyn FrameSink>,
+    env: &OpenEnv,
+) -> Result<OpenedLink, OpenError> {
+    let t = &fleet.transports[index];
     let hubs = &env.hubs;
     let system = fleet
         .system(local)
@@ -157,27 +209,29 @@ pub(crate) fn open_link(
             })
         }
         (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
-            // The link it wraps: another transport of the fleet, or a private in-process hub.
-            let inner: Arc<dyn Link> = match &settings.over {
+            // The link under the emulation layer: another transport of the fleet (with its own
+            // layers), or a private in-process hub.
+            match &settings.over {
                 Some(over) => {
                     let over_index = fleet
                         .transports
                         .iter()
                         .position(|o| &o.name == over)
                         .ok_or_else(|| failed(format!("wrapped transport `{over}` not found")))?;
-                    open_link(fleet, over_index, local, sink, env)?.link
+                    let inner = open_link(fleet, over_index, local, sink, env)?;
+                    let under = inner.local_address.as_deref().unwrap_or("in-process");
+                    Ok(OpenedLink {
+                        link: inner.link,
+                        local_address: Some(format!("emulated over {under}")),
+                        direct: None,
+                    })
                 }
-                None => Arc::new(hubs.hub(&format!("emulated:{}", t.name)).open(local, sink)),
-            };
-            let model = LinkModel::from_settings(settings).map_err(|e| failed(e.to_string()))?;
-            let link =
-                EmulatedLink::with_epoch(inner, local, model, env.positions.clone(), env.epoch)
-                    .map_err(|e| failed(e.to_string()))?;
-            Ok(OpenedLink {
-                link: Arc::new(link),
-                local_address: None,
-                direct: None,
-            })
+                None => Ok(OpenedLink {
+                    link: Arc::new(hubs.hub(&format!("emulated:{}", t.name)).open(local, sink)),
+                    local_address: None,
+                    direct: None,
+                }),
+            }
         }
         #[cfg(feature = "bluetooth")]
         (TransportKind::Bluetooth, TransportSettings::Bluetooth(bt)) => {

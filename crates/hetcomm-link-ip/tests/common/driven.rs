@@ -5,8 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use hetcomm_core::SystemId;
-use hetcomm_link::{Link, LinkCaps, LinkError, LinkStats, Readable};
+use hetcomm_link::Link;
 
 /// Waits up to `timeout_ms` for `fd` to poll readable.
 pub fn poll_readable(fd: RawFd, timeout_ms: i32) -> bool {
@@ -64,55 +63,5 @@ impl Drop for Driver {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
-    }
-}
-
-/// A driven link with a driver thread of its own, so that suites that expect frames to
-/// arrive by themselves (the conformance suite) can run on it.
-pub struct DrivenLink<L: Link + Send + Sync + 'static> {
-    link: Arc<L>,
-    driver: Option<Driver>,
-}
-
-impl<L: Link + Send + Sync + 'static> DrivenLink<L> {
-    pub fn new(link: L) -> Self {
-        let link = Arc::new(link);
-        let driver = Some(Driver::start(link.clone()));
-        DrivenLink { link, driver }
-    }
-}
-
-impl<L: Link + Send + Sync + 'static> Drop for DrivenLink<L> {
-    fn drop(&mut self) {
-        // Stop the driver first: it holds the other reference to the link, whose drop closes
-        // its sockets (the suite rebinds the port to restart a peer).
-        self.driver.take();
-    }
-}
-
-impl<L: Link + Send + Sync + 'static> Link for DrivenLink<L> {
-    fn caps(&self) -> LinkCaps {
-        self.link.caps()
-    }
-    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.link.send(to, frame)
-    }
-    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        self.link.send_parts(to, head, body)
-    }
-    fn stats(&self) -> LinkStats {
-        self.link.stats()
-    }
-    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.link.send_held(to, frame)
-    }
-    fn flush(&self) -> Result<(), LinkError> {
-        self.link.flush()
-    }
-    fn batches(&self) -> bool {
-        self.link.batches()
-    }
-    fn readable(&self) -> Option<&dyn Readable> {
-        self.link.readable()
     }
 }

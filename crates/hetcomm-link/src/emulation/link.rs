@@ -82,7 +82,6 @@ impl DropCounts {
 struct SendState {
     model: LinkModel,
     drops: DropCounts,
-    accepted: u64,
 }
 
 /// A frame waiting in the delay heap, ordered by (due time, sequence).
@@ -126,10 +125,19 @@ struct Shared<L> {
     queue: Mutex<DelayQueue>,
     wake: Condvar,
     forward_failed: AtomicU64,
+    /// Copies the inner link took (now or when they fell due).
+    forwarded: AtomicU64,
     epoch: Instant,
 }
 
-impl<L> Shared<L> {
+impl<L: Link> Shared<L> {
+    /// Hands one copy to the inner link, counting it if the link took it.
+    fn forward(&self, to: SystemId, bytes: &[u8]) -> Result<(), LinkError> {
+        self.inner.send(to, bytes)?;
+        self.forwarded.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+
     fn now(&self) -> Time {
         Time::from_micros(self.epoch.elapsed().as_micros().min(u64::MAX as u128) as u64)
     }
@@ -190,6 +198,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
             queue: Mutex::new(DelayQueue::default()),
             wake: Condvar::new(),
             forward_failed: AtomicU64::new(0),
+            forwarded: AtomicU64::new(0),
             epoch,
         });
         // Only a model that can delay needs the thread.
@@ -208,7 +217,6 @@ impl<L: Link + 'static> EmulatedLink<L> {
             state: Mutex::new(SendState {
                 model,
                 drops: DropCounts::default(),
-                accepted: 0,
             }),
             params,
             local,
@@ -280,7 +288,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
             // copy would overtake frames that are due before it.
             if queue.heap.is_empty() && queue.forwarding == 0 {
                 drop(queue);
-                return self.shared.inner.send(to, &bytes);
+                return self.shared.forward(to, &bytes);
             }
         }
         let mut queue = self.shared.queue.lock().unwrap_or_else(|e| e.into_inner());
@@ -326,7 +334,7 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
                 queue.bytes -= p.bytes.len();
                 queue.forwarding += 1;
                 drop(queue);
-                if shared.inner.send(p.to, &p.bytes).is_err() {
+                if shared.forward(p.to, &p.bytes).is_err() {
                     shared.forward_failed.fetch_add(1, Ordering::Relaxed);
                 }
                 queue = shared.queue.lock().unwrap_or_else(|e| e.into_inner());
@@ -336,7 +344,12 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
     }
 }
 
-impl<L: Link + 'static> Link for EmulatedLink<L> {
+// Written with the pass-through base: what the emulation does not change (the receive side
+// above all, `readable`, and `flush`) is the inner link's. Every frame goes through `send`:
+// held frames are sent at once and parts joined, since the model judges whole frames.
+crate::forward_link! {
+    [impl<L: Link + 'static>] EmulatedLink<L> => shared.inner;
+
     /// The inner link's capabilities, limited by the model: unreliable if the model can lose
     /// frames, unordered if it can reorder them, `mtu`/`max_frame` capped at `mtu_bytes`.
     fn caps(&self) -> LinkCaps {
@@ -371,9 +384,8 @@ impl<L: Link + 'static> Link for EmulatedLink<L> {
             let verdict = state
                 .model
                 .on_frame(now, self.local, to, frame.len(), distance);
-            match verdict.drop_reason() {
-                Some(reason) => state.drops.bump(reason),
-                None => state.accepted += 1,
+            if let Some(reason) = verdict.drop_reason() {
+                state.drops.bump(reason);
             }
             (now, verdict)
         };
@@ -394,25 +406,30 @@ impl<L: Link + 'static> Link for EmulatedLink<L> {
         }
     }
 
-    /// The inner link's counters, with `frames_sent` = frames the model let through,
+    /// The inner link's counters, with `frames_sent` = copies the model let through that the
+    /// inner link took (a delayed copy counts once it left the delay heap, so a frame counted
+    /// as sent is on the inner link, not waiting),
     /// `frames_dropped` increased by every frame the emulation lost, and `buffered_bytes`
     /// increased by the bytes waiting in the delay heap.
     fn stats(&self) -> LinkStats {
         let mut stats = self.shared.inner.stats();
-        let (accepted, lost) = {
-            let state = self.lock_state();
-            (state.accepted, state.drops.total_lost())
-        };
+        let lost = self.lock_state().drops.total_lost();
         let queued = self
             .shared
             .queue
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .bytes;
-        stats.frames_sent = accepted;
+        stats.frames_sent = self.shared.forwarded.load(Ordering::Relaxed);
         stats.frames_dropped += lost + self.shared.forward_failed.load(Ordering::Relaxed);
         stats.buffered_bytes += queued as u64;
         stats
+    }
+
+    /// False whatever the inner link says: the model may corrupt bytes on purpose (and a
+    /// frame's CRC is what then catches it), so the payload must keep its checksum.
+    fn checksums_payload(&self) -> bool {
+        false
     }
 }
 
@@ -473,6 +490,13 @@ mod tests {
     #[test]
     fn transparent_emulation_passes_conformance() {
         conformance::run_all(&mut harness(ModelParams::default()));
+    }
+
+    #[test]
+    fn emulated_links_pass_conformance_wrapped_in_emulation_again() {
+        conformance::run_all(&mut conformance::Layered::emulated(harness(
+            ModelParams::default(),
+        )));
     }
 
     #[test]

@@ -9,7 +9,11 @@
 //!   [`BitFlip`]. The virtual-time simulator calls it directly.
 //! - [`EmulatedLink`] applies a model in real time around an inner link: drops silently,
 //!   forwards copies that are due now on the caller's thread and the others from one delay
-//!   thread per link. It adds nothing to the model's decisions.
+//!   thread per link. It adds nothing to the model's decisions, and offers everything else
+//!   the inner link offers (its driven receive side included).
+//! - [`EmulationLayer`] is emulation as a [layer](crate::layer): it puts an `EmulatedLink`
+//!   over whatever link it is given, in real time, and leaves the link alone under
+//!   simulation, where the simulator applies the model in virtual time.
 //!
 //! # Parameters
 //!
@@ -71,11 +75,13 @@
 //! assert_eq!(v.drop_reason(), Some(DropReason::OutOfRange));
 //! ```
 
+mod layer;
 mod link;
 mod model;
 mod params;
 mod positions;
 
+pub use layer::EmulationLayer;
 pub use link::{DropCounts, EmulatedLink};
 pub use model::{direction_rng, BitFlip, Delivery, DropReason, LinkModel, Verdict};
 pub use params::{profile, EmulationError, ModelParams, Outage, PathLoss, KEYS, PROFILES};
