@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use hetcomm_config::model::EmulatedSettings;
 use hetcomm_core::{SystemId, Time};
 
-use super::model::{Delivery, DropReason, LinkModel, Verdict};
+use super::model::{Arrival, DropReason, LinkModel, Verdict};
 use super::params::{EmulationError, ModelParams};
 use super::positions::PositionTable;
 use crate::{Link, LinkCaps, LinkError, LinkStats};
@@ -272,7 +272,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
         now: Time,
         to: SystemId,
         frame: &[u8],
-        d: &Delivery,
+        d: &Arrival,
     ) -> Result<(), LinkError> {
         let bytes: Cow<'_, [u8]> = match d.corrupt {
             Some(flip) => {

@@ -83,7 +83,7 @@ impl BitFlip {
 
 /// One copy of a frame that arrives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Delivery {
+pub struct Arrival {
     /// When it arrives at the receiver (on the same clock as the `now` given to the model; never
     /// earlier than `now`).
     pub at: Time,
@@ -101,9 +101,9 @@ pub enum Verdict {
     /// The frame arrives, perhaps twice.
     Deliver {
         /// The copy that always arrives.
-        first: Delivery,
+        first: Arrival,
         /// A second copy, when the frame was duplicated.
-        duplicate: Option<Delivery>,
+        duplicate: Option<Arrival>,
     },
 }
 
@@ -117,7 +117,7 @@ impl Verdict {
     }
 
     /// The copies that arrive (none, one or two), first copy first.
-    pub fn deliveries(&self) -> impl Iterator<Item = Delivery> {
+    pub fn deliveries(&self) -> impl Iterator<Item = Arrival> {
         let (a, b) = match *self {
             Verdict::Drop(_) => (None, None),
             Verdict::Deliver { first, duplicate } => (Some(first), duplicate),
@@ -310,7 +310,7 @@ fn arrival(
     now_us: f64,
     departure_us: f64,
     len: usize,
-) -> Delivery {
+) -> Arrival {
     let mut delay_ms = p.latency_ms;
     if p.jitter_ms > 0.0 {
         delay_ms += dir.rng.gen_range(-p.jitter_ms..=p.jitter_ms);
@@ -336,7 +336,7 @@ fn arrival(
                 byte: dir.rng.gen_range(0..len),
                 mask: 1u8 << dir.rng.gen_range(0..8u32),
             });
-    Delivery {
+    Arrival {
         at: Time::from_micros(at_us.round() as u64),
         corrupt,
         reordered,
@@ -374,7 +374,7 @@ mod tests {
             .collect()
     }
 
-    fn first(v: &Verdict) -> Delivery {
+    fn first(v: &Verdict) -> Arrival {
         v.deliveries().next().expect("delivered")
     }
 
@@ -606,7 +606,7 @@ mod tests {
         let n = 100_000;
         let gap = 1000;
         let v = run(&mut m, n, gap, 50);
-        let copies: Vec<(usize, Delivery)> = v
+        let copies: Vec<(usize, Arrival)> = v
             .iter()
             .enumerate()
             .flat_map(|(i, v)| v.deliveries().map(move |d| (i, d)))
@@ -821,7 +821,7 @@ mod tests {
             assert_eq!(
                 v,
                 Verdict::Deliver {
-                    first: Delivery {
+                    first: Arrival {
                         at: Time(i),
                         corrupt: None,
                         reordered: false
