@@ -76,7 +76,7 @@ fn delivered_across_processes(kind: &str) {
     assert_eq!(sent.status.code(), Some(0), "{sent:?}");
     assert_eq!(sent.stdout.len(), 1, "{sent:?}");
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: "),
         "{sent:?}"
     );
     let line = bravo.next_stdout(deadline);
@@ -114,7 +114,7 @@ fn wifi_emulated_over_udp_delivers_across_processes() {
     let sent = send(&fleet, "Alpha", "Bravo", HELLO, deadline);
     assert_eq!(sent.status.code(), Some(0), "{sent:?}");
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: "),
         "{sent:?}"
     );
     let line = bravo.next_stdout(deadline);

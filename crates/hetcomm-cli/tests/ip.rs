@@ -26,7 +26,7 @@ fn delivery_across_processes(kind: &str) {
     let sent = send(&fleet, "Alpha", "Bravo", HELLO, deadline);
     assert_eq!(sent.stdout.len(), 1, "{sent:?}");
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: 1, "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: 1, "),
         "{sent:?}"
     );
     assert_eq!(sent.status.code(), Some(0), "{sent:?}");
@@ -67,11 +67,11 @@ fn broadcast_to_all_reaches_two_listeners() {
     lines.sort();
     assert_eq!(lines.len(), 2, "{sent:?}");
     assert!(
-        lines[0].starts_with("Bravo: delivered (attempts: 1, "),
+        lines[0].starts_with("Bravo: delivered to the inbox (attempts: 1, "),
         "{sent:?}"
     );
     assert!(
-        lines[1].starts_with("Charlie: delivered (attempts: 1, "),
+        lines[1].starts_with("Charlie: delivered to the inbox (attempts: 1, "),
         "{sent:?}"
     );
     for listener in [&mut bravo, &mut charlie] {
@@ -374,7 +374,7 @@ fn udp_bad_frames_are_counted_and_the_system_keeps_serving() {
     // before this one arrives.
     let sent = send(&fleet, "Alpha", "Bravo", HELLO, deadline);
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: 1, "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: 1, "),
         "{sent:?}"
     );
     let line = bravo.next_stdout(deadline);
@@ -448,7 +448,7 @@ fn tcp_garbage_is_dropped_and_the_system_keeps_serving() {
 
     let sent = send(&fleet, "Alpha", "Bravo", HELLO, deadline);
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: 1, "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: 1, "),
         "{sent:?}"
     );
     assert_eq!(sent.status.code(), Some(0));

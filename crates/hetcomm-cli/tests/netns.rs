@@ -158,7 +158,7 @@ fn send_in(net: &Netns, fleet: &std::path::Path, json: &str, deadline: Deadline)
 fn assert_delivered(sent: &Finished) {
     assert_eq!(sent.stdout.len(), 1, "{sent:?}");
     assert!(
-        sent.stdout[0].starts_with("Bravo: delivered (attempts: "),
+        sent.stdout[0].starts_with("Bravo: delivered to the inbox (attempts: "),
         "{sent:?}"
     );
     assert_eq!(sent.status.code(), Some(0), "{sent:?}");

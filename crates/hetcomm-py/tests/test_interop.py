@@ -54,7 +54,7 @@ def test_rust_sends_to_python(tmp_path, kind):
         sent = cli("send", str(fleet), "--as", "Charlie", "--to", "Tango", "--module", "Plan",
                    "--type", "0", "--json", '{"code": 1}', "--priority", "77")
         assert sent.returncode == 0, sent
-        assert sent.stdout.startswith("Tango: delivered (attempts: 1, "), sent.stdout
+        assert sent.stdout.startswith("Tango: delivered to the inbox (attempts: 1, "), sent.stdout
         msg, env = plan.recv(timeout=10)
         assert msg == Command(code=1) and isinstance(msg, Command)
         assert env.source_system == "Charlie" and env.source_module == "Plan"

@@ -25,7 +25,7 @@ def test_send_recv_and_envelope(fleet):
     assert outcome.kind == "delivered" and outcome.delivered and outcome.is_success
     assert outcome.attempts == 1 and outcome.latency is not None and outcome.latency >= 0
     assert outcome.reason is None and not outcome.failed
-    assert str(outcome).startswith("delivered (attempts: 1, ")
+    assert str(outcome).startswith("delivered to the inbox (attempts: 1, ")
     assert ticket.try_outcome() == outcome and ticket.done
 
     assert act.has_message() and act.pending() == 1 and act.next_type() == 0

@@ -396,7 +396,7 @@ impl std::fmt::Display for Outcome {
             Outcome::Delivered { attempts, latency } => {
                 write!(
                     f,
-                    "delivered (attempts: {attempts}, {} µs)",
+                    "delivered to the inbox (attempts: {attempts}, {} µs)",
                     latency.as_micros()
                 )
             }
