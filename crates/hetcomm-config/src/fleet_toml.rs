@@ -51,7 +51,7 @@ pub(crate) const COMMON_KEYS: [&str; 7] = [
 /// Keys of `udp` / `tcp` transports besides the common ones.
 pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
 /// Keys of `ros1` transports besides the common ones.
-pub(crate) const ROS1_KEYS: [&str; 2] = ["master_uri", "namespace"];
+pub(crate) const ROS1_KEYS: [&str; 3] = ["master_uri", "namespace", "connect_timeout_ms"];
 /// Keys of `bluetooth` transports besides the common ones.
 pub(crate) const BLUETOOTH_KEYS: [&str; 3] = ["channel", "addresses", "addresses_file"];
 /// Non-numeric keys of `emulated` transports besides the common ones.
@@ -1031,9 +1031,16 @@ impl P<'_> {
                     )
                     .map(str::to_string)
                 });
+                let connect_timeout_ms = t.get("connect_timeout_ms").and_then(|v| {
+                    let (vl, p) = (self.vloc(v, &tloc), format!("{path}.connect_timeout_ms"));
+                    let help = "milliseconds a send waits for the subscriber, e.g. 500";
+                    self.int_in(v, &p, &vl, 1, 600_000, help)
+                        .map(|ms| ms as u64)
+                });
                 TransportSettings::Ros1(Ros1Settings {
                     master_uri,
                     namespace,
+                    connect_timeout_ms,
                 })
             }
             TransportKind::Bluetooth => {
