@@ -266,6 +266,19 @@ struct Dest {
     gate: Mutex<()>,
 }
 
+/// The subscribers of a destination's topic that its connection depends on: its hetcomm
+/// nodes if it has any (a `rostopic echo` coming or going changes nothing), else all.
+fn relevant(subscribers: Vec<String>) -> Vec<String> {
+    if subscribers.iter().any(|n| n.starts_with(NODE_PREFIX)) {
+        subscribers
+            .into_iter()
+            .filter(|n| n.starts_with(NODE_PREFIX))
+            .collect()
+    } else {
+        subscribers
+    }
+}
+
 /// What the link's tasks share with [`Ros1Link::send`] about connections.
 struct Wiring {
     dests: BTreeMap<SystemId, Dest>,
@@ -284,7 +297,8 @@ impl Wiring {
     /// Records that `to`'s subscriber is connected (`subscribers`: the topic's subscribers).
     fn settle(&self, to: SystemId, subscribers: Vec<String>) {
         if let Some(dest) = self.dests.get(&to) {
-            *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) = Some(subscribers);
+            *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) =
+                Some(relevant(subscribers));
             dest.connected.store(true, Ordering::Release);
         }
     }
@@ -567,6 +581,8 @@ struct Identity {
 
 struct Shared {
     plan: Plan,
+    /// Nodes whose XML-RPC server has no `getBusInfo` (roslibrust nodes).
+    without_bus_info: Mutex<std::collections::HashSet<String>>,
     /// The master's last answer to `getSystemState`, and when it came.
     graph_cache: Mutex<Option<(Instant, Arc<xmlrpc::Graph>)>>,
     counters: Arc<Counters>,
@@ -595,6 +611,7 @@ impl Shared {
             timeout,
         )
         .await
+        .map_err(|e| e.to_string())
         .map(|v| {
             let graph = xmlrpc::Graph::from_value(&v);
             *self.graph_cache.lock().unwrap_or_else(|e| e.into_inner()) =
@@ -610,9 +627,18 @@ impl Shared {
         (at.elapsed() <= self.plan.config.supervise_interval).then(|| graph.clone())
     }
 
-    /// Whether the foreign (non-hetcomm) `node`'s `getBusInfo` lists an inbound connection on
-    /// `topic` from our node.
-    async fn foreign_connected(&self, node: &str, topic: &str, timeout: Duration) -> bool {
+    /// Whether `node`'s `getBusInfo` lists an inbound connection on `topic` from our node;
+    /// None if the node does not implement `getBusInfo` (a roslibrust node, such as a hetcomm
+    /// link: it answers probes instead), which is remembered.
+    async fn bus_info_connected(&self, node: &str, topic: &str, timeout: Duration) -> Option<bool> {
+        if self
+            .without_bus_info
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains(node)
+        {
+            return None;
+        }
         let me = self.identity();
         let http = &self.wiring.http;
         let args = vec![me.node_name.clone().into(), node.to_string().into()];
@@ -620,12 +646,20 @@ impl Shared {
         let Ok(serde_xmlrpc::Value::String(uri)) =
             xmlrpc::call(http, master, "lookupNode", args, timeout).await
         else {
-            return false;
+            return Some(false);
         };
         let args = vec![me.node_name.into()];
         match xmlrpc::call(http, &uri, "getBusInfo", args, timeout).await {
-            Ok(info) => xmlrpc::bus_info_has_inbound(&info, topic, &me.uri),
-            Err(_) => false,
+            Ok(info) => Some(xmlrpc::bus_info_has_inbound(&info, topic, &me.uri)),
+            Err(e) if e.http_status == Some(501) => {
+                let mut without = self
+                    .without_bus_info
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
+                without.insert(node.to_string());
+                None
+            }
+            Err(_) => Some(false),
         }
     }
 }
@@ -654,6 +688,9 @@ async fn wait_connected(
         .get(&to)
         .ok_or_else(|| "not a system of this fleet".to_string())?
         .clone();
+    // hetcomm links of the destination register as `/hetcomm_<name>_<pid>_<n>`.
+    let name = topic.rsplit('/').next().unwrap_or_default();
+    let our_prefix = format!("{NODE_PREFIX}{name}_");
     let nonce = nonce();
     let (wake, mut answered) = oneshot::channel();
     shared
@@ -677,27 +714,27 @@ async fn wait_connected(
             asked = Some(Instant::now());
             asking = Some(tokio::spawn(async move { shared.graph(left).await }));
         }
+        // Probe while hetcomm nodes of the destination subscribe (or nobody knows yet), and
+        // ask every other subscriber's getBusInfo; either way may show the connection.
         let known = subscribers.as_deref().unwrap_or_default();
-        let foreign_only = !known.is_empty() && !known.iter().any(|n| n.starts_with(NODE_PREFIX));
-        if foreign_only {
-            // Foreign subscribers do not answer probes: ask them.
-            let mut any = false;
-            for node in known {
-                let left = deadline.saturating_duration_since(Instant::now());
-                let left = left.max(Duration::from_millis(1));
-                if shared.foreign_connected(node, &topic, left).await {
-                    any = true;
-                    break;
-                }
-            }
-            if any {
-                break Ok(());
-            }
-        } else {
+        let ours = known.iter().any(|n| n.starts_with(&our_prefix));
+        if subscribers.is_none() || ours {
             let probe = Command::Probe(to, nonce);
             if shared.wiring.commands.send(probe).await.is_err() {
                 break Err("the link is closed".to_string());
             }
+        }
+        let mut by_bus_info = false;
+        for node in known.iter().filter(|n| !n.starts_with(&our_prefix)) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let left = left.max(Duration::from_millis(1));
+            if shared.bus_info_connected(node, &topic, left).await == Some(true) {
+                by_bus_info = true;
+                break;
+            }
+        }
+        if by_bus_info {
+            break Ok(());
         }
         let left = deadline.saturating_duration_since(Instant::now());
         if left.is_zero() {
@@ -705,12 +742,12 @@ async fn wait_connected(
                 (None, Some(p)) => format!("the ROS master did not answer: {p}"),
                 (None, None) => "the ROS master did not answer in time".to_string(),
                 (Some(s), _) if s.is_empty() => format!("no node subscribes to {topic}"),
-                (Some(s), _) if foreign_only => format!(
-                    "subscribed by {}; its getBusInfo lists no connection from this node",
+                (Some(s), _) if ours => format!(
+                    "subscribed by {}; no answer to the connection probe",
                     s.join(", ")
                 ),
                 (Some(s), _) => format!(
-                    "subscribed by {}; no answer to the connection probe",
+                    "subscribed by {}; no getBusInfo lists a connection from this node",
                     s.join(", ")
                 ),
             };
@@ -765,7 +802,7 @@ async fn supervise_loop(shared: Arc<Shared>) {
                     if !dest.connected.load(Ordering::Acquire) {
                         continue;
                     }
-                    let now = graph.subscribers(&plan.peer_topics[to]);
+                    let now = relevant(graph.subscribers(&plan.peer_topics[to]));
                     let mut then = dest.subscribers.lock().unwrap_or_else(|e| e.into_inner());
                     match &*then {
                         None => *then = Some(now),
@@ -951,6 +988,7 @@ impl Ros1Link {
         let (stop, stop_rx) = oneshot::channel();
         let shared = Arc::new(Shared {
             graph_cache: Mutex::new(None),
+            without_bus_info: Mutex::new(Default::default()),
             identity: Mutex::new(Identity {
                 node_name: registration.node_name.clone(),
                 uri: registration.client.client_uri().to_string(),

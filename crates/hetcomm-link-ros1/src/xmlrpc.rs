@@ -6,40 +6,69 @@ use std::time::Duration;
 
 use serde_xmlrpc::Value;
 
+/// Why an XML-RPC call failed.
+#[derive(Debug)]
+pub(crate) struct CallError {
+    /// The HTTP status, when the server answered with an error status (roslibrust's node
+    /// server answers `501 Not Implemented` to `getBusInfo`).
+    pub(crate) http_status: Option<u16>,
+    /// What went wrong.
+    pub(crate) message: String,
+}
+
+impl std::fmt::Display for CallError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+fn failed(message: String) -> CallError {
+    CallError {
+        http_status: None,
+        message,
+    }
+}
+
 /// Calls `method` on the XML-RPC server at `uri` and returns the value of a successful ROS
-/// answer (`[1, message, value]`); anything else, or no answer within `timeout`, is an error
-/// message.
+/// answer (`[1, message, value]`); anything else, or no answer within `timeout`, is an error.
 pub(crate) async fn call(
     http: &reqwest::Client,
     uri: &str,
     method: &str,
     args: Vec<Value>,
     timeout: Duration,
-) -> Result<Value, String> {
-    let body = serde_xmlrpc::request_to_string(method, args).map_err(|e| e.to_string())?;
+) -> Result<Value, CallError> {
+    let body = serde_xmlrpc::request_to_string(method, args).map_err(|e| failed(e.to_string()))?;
     let exchange = async {
         let response = http
             .post(uri)
             .body(body)
             .send()
             .await
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| failed(e.to_string()))?;
         let status = response.status();
-        let text = response.text().await.map_err(|e| e.to_string())?;
+        let text = response.text().await.map_err(|e| failed(e.to_string()))?;
         if !status.is_success() {
-            return Err(format!("{method} at {uri}: HTTP {status}"));
+            return Err(CallError {
+                http_status: Some(status.as_u16()),
+                message: format!("{method} at {uri}: HTTP {status}"),
+            });
         }
         let (code, message, value): (i32, String, Value) =
             serde_xmlrpc::response_from_str(&text)
-                .map_err(|e| format!("{method} at {uri}: {e}"))?;
+                .map_err(|e| failed(format!("{method} at {uri}: {e}")))?;
         if code != 1 {
-            return Err(format!("{method} at {uri}: {message}"));
+            return Err(failed(format!("{method} at {uri}: {message}")));
         }
         Ok(value)
     };
     tokio::time::timeout(timeout, exchange)
         .await
-        .unwrap_or_else(|_| Err(format!("{method} at {uri}: no answer within {timeout:?}")))
+        .unwrap_or_else(|_| {
+            Err(failed(format!(
+                "{method} at {uri}: no answer within {timeout:?}"
+            )))
+        })
 }
 
 fn string(v: &Value) -> Option<&str> {
