@@ -264,6 +264,9 @@ struct Dest {
     subscribers: Mutex<Option<Vec<String>>>,
     /// Held by the one send that waits for the connection.
     gate: Mutex<()>,
+    /// Frames queued for it since the last probe it answered: closing the link waits until
+    /// a probe behind them is answered, so that they are not lost in the publisher's queue.
+    unflushed: AtomicU64,
 }
 
 /// The subscribers of a destination's topic that its connection depends on: its hetcomm
@@ -785,6 +788,48 @@ async fn wait_connected(
     outcome.map(|()| subscribers.unwrap_or_default())
 }
 
+/// Probes `to` and waits (at most `timeout`) for the answer, which comes after everything
+/// queued before the probe was read. A destination with no hetcomm subscriber answers no
+/// probe: it gets [`FOREIGN_FLUSH_GRACE`] instead.
+async fn wait_answer(shared: Arc<Shared>, to: SystemId, timeout: Duration) {
+    let Some(topic) = shared.plan.peer_topics.get(&to) else {
+        return;
+    };
+    let name = topic.rsplit('/').next().unwrap_or_default();
+    let ours = format!("{NODE_PREFIX}{name}_");
+    if shared
+        .cached_graph()
+        .is_some_and(|g| !g.subscribers(topic).iter().any(|n| n.starts_with(&ours)))
+    {
+        tokio::time::sleep(FOREIGN_FLUSH_GRACE).await;
+        return;
+    }
+    let nonce = nonce();
+    let (wake, answered) = oneshot::channel();
+    let pending = &shared.wiring.pending;
+    pending
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .insert(nonce, (to, wake));
+    if shared
+        .wiring
+        .commands
+        .send(Command::Probe(to, nonce))
+        .await
+        .is_ok()
+    {
+        let _ = tokio::time::timeout(timeout, answered).await;
+    }
+    pending
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .remove(&nonce);
+}
+
+/// How long a closing link gives its publishers to write frames to a destination that
+/// answers no probes.
+const FOREIGN_FLUSH_GRACE: Duration = Duration::from_millis(50);
+
 /// Checks the master periodically; re-registers when it lost our registration, and forgets
 /// the connection of destinations whose subscribers changed.
 async fn supervise_loop(shared: Arc<Shared>) {
@@ -1061,6 +1106,41 @@ impl Ros1Link {
             .is_some_and(|d| d.connected.load(Ordering::Acquire))
     }
 
+    /// Before closing: waits (at most the connect timeout) until every destination that was
+    /// sent frames answers a probe queued behind them, i.e. has read them. roslibrust's
+    /// publishers write from a queue of their own, and a node dropped before it wrote its
+    /// queue loses it. Destinations that do not answer probes (foreign nodes) get a short
+    /// grace period instead.
+    fn flush(&self) {
+        if ON_LINK_RUNTIME.with(Cell::get) {
+            return;
+        }
+        let pending: Vec<SystemId> = self
+            .shared
+            .wiring
+            .dests
+            .iter()
+            .filter(|(_, d)| d.unflushed.swap(0, Ordering::Relaxed) > 0)
+            .map(|(&to, _)| to)
+            .collect();
+        if pending.is_empty() {
+            return;
+        }
+        let timeout = self.shared.plan.config.connect_timeout;
+        let (tx, rx) = std::sync::mpsc::channel();
+        let shared = self.shared.clone();
+        self.handle.spawn(async move {
+            let mut waits = tokio::task::JoinSet::new();
+            for to in pending {
+                let shared = shared.clone();
+                waits.spawn(wait_answer(shared, to, timeout));
+            }
+            while waits.join_next().await.is_some() {}
+            let _ = tx.send(());
+        });
+        let _ = rx.recv_timeout(timeout + Duration::from_secs(1));
+    }
+
     /// Waits (at most the connect timeout) until `to`'s subscriber is connected; the reason
     /// if it is not.
     fn ensure_connected(&self, to: SystemId) -> Result<(), LinkError> {
@@ -1149,6 +1229,9 @@ impl Link for Ros1Link {
             .try_send(Command::Frame(to, frame.to_vec()))
         {
             Ok(()) => {
+                if let Some(dest) = self.shared.wiring.dests.get(&to) {
+                    dest.unflushed.fetch_add(1, Ordering::Relaxed);
+                }
                 counters.sent.fetch_add(1, Ordering::Relaxed);
                 counters
                     .queued_bytes
@@ -1181,6 +1264,7 @@ impl Link for Ros1Link {
 impl Drop for Ros1Link {
     fn drop(&mut self) {
         self.shared.closed.store(true, Ordering::Relaxed);
+        self.flush();
         drop(
             self.shared
                 .wiring
