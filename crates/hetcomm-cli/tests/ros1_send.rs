@@ -20,8 +20,9 @@ use support::*;
 /// How many fresh `hetcomm send` processes each test runs.
 const SENDS: usize = 50;
 
-/// A fleet of Alpha and Bravo over one `ros1` transport on `master`, in `dir`.
-fn ros_fleet(dir: &TempDir, master: &ros::Master, delivery: &str) -> PathBuf {
+/// A fleet of Alpha and Bravo over one `ros1` transport on `master`, in `dir` (`extra`: more
+/// keys of the transport).
+fn ros_fleet(dir: &TempDir, master: &ros::Master, delivery: &str, extra: &str) -> PathBuf {
     dir.write(
         "fleet.toml",
         &format!(
@@ -39,6 +40,7 @@ kind = "ros1"
 master_uri = "{}"
 namespace = "cli"
 delivery = "{delivery}"
+{extra}
 
 [table]
 columns = ["Alpha", "Bravo"]
@@ -57,7 +59,7 @@ fn fifty_sends(delivery: &str) -> Option<(Vec<String>, String, Vec<String>)> {
     let master = ros::Master::start()?;
     let deadline = Deadline::after(300);
     let dir = TempDir::new(&format!("ros1-send-{delivery}"));
-    let fleet = ros_fleet(&dir, &master, delivery);
+    let fleet = ros_fleet(&dir, &master, delivery, "");
     let count = SENDS.to_string();
     let mut bravo = listen(&fleet, "Bravo", &["--count", &count], deadline);
     let mut outputs = Vec::new();
@@ -142,18 +144,28 @@ fn a_send_to_a_system_that_is_not_running_says_so() {
     };
     let deadline = Deadline::after(60);
     let dir = TempDir::new("ros1-send-nobody");
-    for delivery in ["acknowledged", "unacknowledged"] {
-        let fleet = ros_fleet(&dir, &master, delivery);
+    // The default wait, and one set in the fleet file.
+    for (delivery, extra, ms) in [
+        ("acknowledged", "", 500),
+        ("unacknowledged", "", 500),
+        ("acknowledged", "connect_timeout_ms = 150", 150),
+    ] {
+        let fleet = ros_fleet(&dir, &master, delivery, extra);
+        let started = std::time::Instant::now();
         let sent = send(&fleet, "Alpha", "Bravo", r#"{"code":1}"#, deadline);
+        let took = started.elapsed();
         assert_eq!(
             sent.stdout,
-            [
+            [format!(
                 "Bravo: failed: peer unreachable: peer 2 unreachable: the subscriber of \
-                 /cli/Bravo did not connect within 500 ms (no node subscribes to /cli/Bravo) \
+                 /cli/Bravo did not connect within {ms} ms (no node subscribes to /cli/Bravo) \
                  (attempts: 3)"
-            ],
-            "{delivery}: {sent:?}"
+            )],
+            "{delivery} {extra}: {sent:?}"
         );
         assert_eq!(sent.status.code(), Some(1), "{delivery}: {sent:?}");
+        // Three attempts of `ms` each, plus starting the process.
+        let least = std::time::Duration::from_millis(3 * ms);
+        assert!(took >= least, "{delivery} {extra}: took {took:?}");
     }
 }

@@ -419,3 +419,64 @@ fn rostopic_sees_our_topics_and_frames() {
         "{text}"
     );
 }
+
+/// What `rosnode` can do with a hetcomm link's node (see docs/ros1.md, "Introspection"):
+/// `list`, `ping` and `kill` work (a killed registration is replaced, as after a master
+/// restart); `info` cannot list connections, because roslibrust's node answers `getBusInfo`
+/// with `501 Not Implemented` (roslibrust issue #202).
+#[test]
+fn rosnode_lists_pings_and_kills_a_link() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let a = Ros1Link::open(
+        SystemId(1),
+        &names(&[(1, "A"), (2, "B")]),
+        &settings(&master, "rosnode"),
+        CollectSink::new(),
+        Ros1Config {
+            supervise_interval: Duration::from_millis(200),
+            ..Ros1Config::default()
+        },
+    )
+    .expect("open");
+    let rosnode = |args: &[&str]| {
+        let out = Command::new("rosnode")
+            .args(args)
+            .envs(master.env())
+            .output()
+            .expect("running rosnode");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let node = a.node_name();
+    let (ok, list) = rosnode(&["list"]);
+    assert!(ok && list.lines().any(|l| l == node), "{list}");
+    let (ok, ping) = rosnode(&["ping", "-c", "1", &node]);
+    assert!(
+        ok && ping.contains("xmlrpc reply from http://127.0.0.1:"),
+        "{ping}"
+    );
+
+    // `info` prints what the master knows, then fails asking the node for its connections.
+    let (_, info) = rosnode(&["info", &node]);
+    assert!(
+        info.contains("Publications: \n * /rosnode/B [std_msgs/UInt8MultiArray]"),
+        "{info}"
+    );
+    assert!(info.contains("Subscriptions: \n * /rosnode/A"), "{info}");
+    assert!(info.contains("501 Not Implemented"), "{info}");
+
+    // `kill` shuts the node down; the link registers a new one, as after a master restart.
+    let (ok, kill) = rosnode(&["kill", &node]);
+    assert!(ok && kill.contains("killed"), "{kill}");
+    wait_until("the link to re-register", || {
+        a.stats().connects == 2 && a.node_name() != node
+    });
+    let (_, list) = rosnode(&["list"]);
+    assert!(list.lines().any(|l| l == a.node_name()), "{list}");
+}
