@@ -77,6 +77,10 @@
 //! re-registration or a second link of the same system never makes the master shut the other
 //! down). As every ROS 1 node, the link advertises itself under `ROS_HOSTNAME` (or `ROS_IP`, or
 //! the machine's host name): set `ROS_HOSTNAME=127.0.0.1` for a master on the same machine.
+//! `rosnode list`, `ping` and `kill` work on these nodes (a killed registration is replaced,
+//! as after a master restart); `rosnode info` cannot list their connections, because
+//! roslibrust's node answers `getBusInfo` with `501 Not Implemented` and offers no hook to
+//! answer it here (roslibrust issue #202).
 
 mod xmlrpc;
 
