@@ -113,7 +113,10 @@ fn relay_chain_example_in_three_processes() {
     let alpha_sent = alpha
         .stdout_lines()
         .iter()
-        .filter(|l| l.starts_with("Alpha: sent command ") && l.contains(": delivered to the inbox (attempts: "))
+        .filter(|l| {
+            l.starts_with("Alpha: sent command ")
+                && l.contains(": delivered to the inbox (attempts: ")
+        })
         .count();
     assert_eq!(alpha_sent, 5, "{:?}", alpha.stdout_lines());
 }

@@ -239,6 +239,9 @@ pub struct Ros1Settings {
     pub master_uri: String,
     /// Optional topic namespace prepended to each system's topic.
     pub namespace: Option<String>,
+    /// `connect_timeout_ms`: how long a send waits for the destination's subscriber to connect
+    /// to a new publisher (None: the link's default, 500 ms).
+    pub connect_timeout_ms: Option<u64>,
 }
 
 /// A Bluetooth device address, `XX:XX:XX:XX:XX:XX`.

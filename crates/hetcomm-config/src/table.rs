@@ -475,6 +475,7 @@ fn resolve_cell(
         TransportSettings::Ros1(Ros1Settings {
             master_uri: default_master_uri(),
             namespace: None,
+            connect_timeout_ms: None,
         })
     } else {
         let Some(bt) = legacy_bt else {

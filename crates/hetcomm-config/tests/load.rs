@@ -72,7 +72,8 @@ fn tables_1_2_3_load() {
         r.settings,
         TransportSettings::Ros1(Ros1Settings {
             master_uri: expected_master(),
-            namespace: None
+            namespace: None,
+            connect_timeout_ms: None
         })
     );
     let b = f.transport("B").expect("implicit B");
@@ -182,7 +183,8 @@ fn legacy_section_with_explicit_ros_transport() {
         ros.settings,
         TransportSettings::Ros1(Ros1Settings {
             master_uri: "http://10.0.0.1:11311".into(),
-            namespace: Some("/reliability".into())
+            namespace: Some("/reliability".into()),
+            connect_timeout_ms: None
         })
     );
     assert!(

@@ -27,6 +27,7 @@ fn settings(master: &Master, namespace: &str) -> Ros1Settings {
     Ros1Settings {
         master_uri: master.uri(),
         namespace: Some(namespace.to_string()),
+        connect_timeout_ms: None,
     }
 }
 
@@ -166,6 +167,7 @@ fn unreachable_master_fails_at_once_naming_the_uri() {
         &Ros1Settings {
             master_uri: uri.clone(),
             namespace: None,
+            connect_timeout_ms: None,
         },
         CollectSink::new(),
         Ros1Config::default(),
@@ -285,19 +287,94 @@ fn unknown_and_own_destinations_are_unreachable() {
     let a = Ros1Link::open(
         SystemId(1),
         &names(&[(1, "A"), (2, "B")]),
-        &settings(&master, "unknown"),
+        &Ros1Settings {
+            connect_timeout_ms: Some(300),
+            ..settings(&master, "unknown")
+        },
         CollectSink::new(),
         Ros1Config::default(),
     )
     .expect("open");
     for to in [SystemId(7), SystemId(1)] {
+        let started = Instant::now();
         let r = a.send(to, b"x");
         assert!(matches!(r, Err(LinkError::Unreachable { .. })), "{r:?}");
+        assert!(
+            started.elapsed() < Duration::from_millis(100),
+            "answered at once"
+        );
+    }
+    // B is a system of the fleet but nothing subscribes to its topic: the send waits the
+    // connect timeout (300 ms here), then says so instead of publishing into nothing.
+    let started = Instant::now();
+    let r = a.send(SystemId(2), b"x");
+    let waited = started.elapsed();
+    match r {
+        Err(LinkError::Unreachable { peer, reason }) => {
+            assert_eq!(peer, SystemId(2));
+            assert_eq!(
+                reason,
+                "the subscriber of /unknown/B did not connect within 300 ms \
+                 (no node subscribes to /unknown/B)"
+            );
+        }
+        other => panic!("expected Unreachable, got {other:?}"),
     }
     assert!(
-        a.send(SystemId(2), b"x").is_ok(),
-        "no subscriber yet is not an error"
+        waited >= Duration::from_millis(300) && waited < Duration::from_secs(3),
+        "waited {waited:?}"
     );
+    assert_eq!(a.stats().frames_sent, 0, "nothing was published");
+    assert!(!a.is_connected(SystemId(2)));
+}
+
+/// ROS 1 loses what is published before the subscriber's connection is up. A send waits for
+/// it: a destination that has just opened gets the very first frame sent to it, with no
+/// retry, every time (ten fresh destinations in a row), and a fresh sender's first frame
+/// reaches a running destination.
+#[test]
+fn the_first_frame_to_a_new_peer_arrives() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let systems = names(&[(1, "A"), (2, "B")]);
+    let open = |id: u16, sink: Arc<CollectSink>| {
+        Ros1Link::open(
+            SystemId(id),
+            &systems,
+            &settings(&master, "first"),
+            sink,
+            Ros1Config::default(),
+        )
+        .expect("open")
+    };
+    let sa = CollectSink::new();
+    let a = open(1, sa.clone());
+    for round in 0..10u8 {
+        let sb = CollectSink::new();
+        let b = open(2, sb.clone());
+        a.send(SystemId(2), &[0xA0, round]).expect("A to the new B");
+        assert!(
+            sb.wait_for(1, Duration::from_secs(5)) >= 1,
+            "round {round}: the first frame to a new B was lost"
+        );
+        assert_eq!(sb.frames()[0].bytes, vec![0xA0, round]);
+        assert!(a.is_connected(SystemId(2)));
+        drop(b);
+    }
+    // The other way round: a new sender, a running destination.
+    let sb = CollectSink::new();
+    let _b = open(2, sb.clone());
+    for round in 0..5u8 {
+        let a2 = open(1, CollectSink::new());
+        a2.send(SystemId(2), &[0xB0, round])
+            .expect("a new A to the running B");
+        assert!(
+            sb.wait_for(usize::from(round) + 1, Duration::from_secs(5)) > usize::from(round),
+            "round {round}: the first frame of a new A was lost"
+        );
+        assert_eq!(sb.frames()[usize::from(round)].bytes, vec![0xB0, round]);
+    }
 }
 
 #[test]
@@ -356,4 +433,65 @@ fn rostopic_sees_our_topics_and_frames() {
         text.contains("data: [72, 67, 1, 0, 0, 100, 82, 0, 9, 9]"),
         "{text}"
     );
+}
+
+/// What `rosnode` can do with a hetcomm link's node (see docs/ros1.md, "Introspection"):
+/// `list`, `ping` and `kill` work (a killed registration is replaced, as after a master
+/// restart); `info` cannot list connections, because roslibrust's node answers `getBusInfo`
+/// with `501 Not Implemented` (roslibrust issue #202).
+#[test]
+fn rosnode_lists_pings_and_kills_a_link() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let a = Ros1Link::open(
+        SystemId(1),
+        &names(&[(1, "A"), (2, "B")]),
+        &settings(&master, "rosnode"),
+        CollectSink::new(),
+        Ros1Config {
+            supervise_interval: Duration::from_millis(200),
+            ..Ros1Config::default()
+        },
+    )
+    .expect("open");
+    let rosnode = |args: &[&str]| {
+        let out = Command::new("rosnode")
+            .args(args)
+            .envs(master.env())
+            .output()
+            .expect("running rosnode");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let node = a.node_name();
+    let (ok, list) = rosnode(&["list"]);
+    assert!(ok && list.lines().any(|l| l == node), "{list}");
+    let (ok, ping) = rosnode(&["ping", "-c", "1", &node]);
+    assert!(
+        ok && ping.contains("xmlrpc reply from http://127.0.0.1:"),
+        "{ping}"
+    );
+
+    // `info` prints what the master knows, then fails asking the node for its connections.
+    let (_, info) = rosnode(&["info", &node]);
+    assert!(
+        info.contains("Publications: \n * /rosnode/B [std_msgs/UInt8MultiArray]"),
+        "{info}"
+    );
+    assert!(info.contains("Subscriptions: \n * /rosnode/A"), "{info}");
+    assert!(info.contains("501 Not Implemented"), "{info}");
+
+    // `kill` shuts the node down; the link registers a new one, as after a master restart.
+    let (ok, kill) = rosnode(&["kill", &node]);
+    assert!(ok && kill.contains("killed"), "{kill}");
+    wait_until("the link to re-register", || {
+        a.stats().connects == 2 && a.node_name() != node
+    });
+    let (_, list) = rosnode(&["list"]);
+    assert!(list.lines().any(|l| l == a.node_name()), "{list}");
 }

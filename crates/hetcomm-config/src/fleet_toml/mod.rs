@@ -66,7 +66,7 @@ pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
 /// Keys of `tcp` transports besides the common ones.
 pub(crate) const TCP_KEYS: [&str; 3] = ["endpoints", "max_message_bytes", "max_connections"];
 /// Keys of `ros1` transports besides the common ones.
-pub(crate) const ROS1_KEYS: [&str; 2] = ["master_uri", "namespace"];
+pub(crate) const ROS1_KEYS: [&str; 3] = ["master_uri", "namespace", "connect_timeout_ms"];
 /// Keys of `bluetooth` transports besides the common ones.
 pub(crate) const BLUETOOTH_KEYS: [&str; 3] = ["channel", "addresses", "addresses_file"];
 /// Non-numeric keys of `emulated` transports besides the common ones.

@@ -273,9 +273,16 @@ impl P<'_> {
                     )
                     .map(str::to_string)
                 });
+                let connect_timeout_ms = t.get("connect_timeout_ms").and_then(|v| {
+                    let (vl, p) = (self.vloc(v, &tloc), format!("{path}.connect_timeout_ms"));
+                    let help = "milliseconds a send waits for the subscriber, e.g. 500";
+                    self.int_in(v, &p, &vl, 1, 600_000, help)
+                        .map(|ms| ms as u64)
+                });
                 TransportSettings::Ros1(Ros1Settings {
                     master_uri,
                     namespace,
+                    connect_timeout_ms,
                 })
             }
             TransportKind::Bluetooth => {

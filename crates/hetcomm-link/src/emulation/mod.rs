@@ -83,6 +83,6 @@ mod positions;
 
 pub use layer::EmulationLayer;
 pub use link::{DropCounts, EmulatedLink};
-pub use model::{direction_rng, BitFlip, Arrival, DropReason, LinkModel, Verdict};
+pub use model::{direction_rng, Arrival, BitFlip, DropReason, LinkModel, Verdict};
 pub use params::{profile, EmulationError, ModelParams, Outage, PathLoss, KEYS, PROFILES};
 pub use positions::PositionTable;

@@ -1,0 +1,226 @@
+//! The few ROS XML-RPC calls the link makes itself, because roslibrust does not offer them: the
+//! master's `getSystemState` with its node lists (roslibrust's `SystemState` only answers "is
+//! this node subscribed"), `lookupNode`, and a node's `getBusInfo`.
+
+use std::time::Duration;
+
+use serde_xmlrpc::Value;
+
+/// Why an XML-RPC call failed.
+#[derive(Debug)]
+pub(crate) struct CallError {
+    /// The HTTP status, when the server answered with an error status (roslibrust's node
+    /// server answers `501 Not Implemented` to `getBusInfo`).
+    pub(crate) http_status: Option<u16>,
+    /// What went wrong.
+    pub(crate) message: String,
+}
+
+impl std::fmt::Display for CallError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+fn failed(message: String) -> CallError {
+    CallError {
+        http_status: None,
+        message,
+    }
+}
+
+/// Calls `method` on the XML-RPC server at `uri` and returns the value of a successful ROS
+/// answer (`[1, message, value]`); anything else, or no answer within `timeout`, is an error.
+pub(crate) async fn call(
+    http: &reqwest::Client,
+    uri: &str,
+    method: &str,
+    args: Vec<Value>,
+    timeout: Duration,
+) -> Result<Value, CallError> {
+    let body = serde_xmlrpc::request_to_string(method, args).map_err(|e| failed(e.to_string()))?;
+    let exchange = async {
+        let response = http
+            .post(uri)
+            .body(body)
+            .send()
+            .await
+            .map_err(|e| failed(e.to_string()))?;
+        let status = response.status();
+        let text = response.text().await.map_err(|e| failed(e.to_string()))?;
+        if !status.is_success() {
+            return Err(CallError {
+                http_status: Some(status.as_u16()),
+                message: format!("{method} at {uri}: HTTP {status}"),
+            });
+        }
+        let (code, message, value): (i32, String, Value) =
+            serde_xmlrpc::response_from_str(&text)
+                .map_err(|e| failed(format!("{method} at {uri}: {e}")))?;
+        if code != 1 {
+            return Err(failed(format!("{method} at {uri}: {message}")));
+        }
+        Ok(value)
+    };
+    tokio::time::timeout(timeout, exchange)
+        .await
+        .unwrap_or_else(|_| {
+            Err(failed(format!(
+                "{method} at {uri}: no answer within {timeout:?}"
+            )))
+        })
+}
+
+fn string(v: &Value) -> Option<&str> {
+    match v {
+        Value::String(s) => Some(s),
+        _ => None,
+    }
+}
+
+/// Who publishes and who subscribes, as the master's `getSystemState` lists them.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Graph {
+    subscribers: Vec<(String, Vec<String>)>,
+}
+
+impl Graph {
+    /// Reads a `getSystemState` value (`[publishers, subscribers, services]`, each a list of
+    /// `[topic, [node, …]]`); entries of other shapes are skipped.
+    pub(crate) fn from_value(value: &Value) -> Graph {
+        let Value::Array(parts) = value else {
+            return Graph::default();
+        };
+        let Some(Value::Array(subs)) = parts.get(1) else {
+            return Graph::default();
+        };
+        let subscribers = subs
+            .iter()
+            .filter_map(|entry| {
+                let Value::Array(pair) = entry else {
+                    return None;
+                };
+                let topic = string(pair.first()?)?.to_string();
+                let Value::Array(nodes) = pair.get(1)? else {
+                    return None;
+                };
+                let nodes = nodes.iter().filter_map(string).map(str::to_string);
+                Some((topic, nodes.collect()))
+            })
+            .collect();
+        Graph { subscribers }
+    }
+
+    /// The nodes subscribed to `topic`, sorted.
+    pub(crate) fn subscribers(&self, topic: &str) -> Vec<String> {
+        let mut nodes: Vec<String> = self
+            .subscribers
+            .iter()
+            .filter(|(t, _)| t == topic)
+            .flat_map(|(_, n)| n.iter().cloned())
+            .collect();
+        nodes.sort();
+        nodes.dedup();
+        nodes
+    }
+}
+
+/// Whether a `getBusInfo` answer (a list of `[id, peer, direction, transport, topic,
+/// connected, …]`) lists an inbound connection on `topic` from the publisher whose XML-RPC URI
+/// is `publisher_uri` (rospy and roscpp name the publisher of an inbound connection by its
+/// URI; a trailing `/` is ignored).
+pub(crate) fn bus_info_has_inbound(info: &Value, topic: &str, publisher_uri: &str) -> bool {
+    let Value::Array(connections) = info else {
+        return false;
+    };
+    let want = publisher_uri.trim_end_matches('/');
+    connections.iter().any(|c| {
+        let Value::Array(f) = c else {
+            return false;
+        };
+        let peer = f.get(1).and_then(string).map(|s| s.trim_end_matches('/'));
+        let direction = f.get(2).and_then(string);
+        let on_topic = f.get(4).and_then(string);
+        let connected = match f.get(5) {
+            Some(Value::Bool(b)) => *b,
+            Some(Value::Int(i)) => *i != 0,
+            // Older nodes send no `connected` field: listed means connected.
+            None => true,
+            _ => false,
+        };
+        peer == Some(want) && direction == Some("i") && on_topic == Some(topic) && connected
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn s(x: &str) -> Value {
+        Value::String(x.to_string())
+    }
+
+    #[test]
+    fn graph_lists_the_subscribers_of_a_topic() {
+        let state = Value::Array(vec![
+            Value::Array(vec![Value::Array(vec![
+                s("/a"),
+                Value::Array(vec![s("/pub")]),
+            ])]),
+            Value::Array(vec![
+                Value::Array(vec![s("/a"), Value::Array(vec![s("/z"), s("/y")])]),
+                Value::Array(vec![s("/b"), Value::Array(vec![s("/x")])]),
+                Value::Int(3),
+            ]),
+            Value::Array(vec![]),
+        ]);
+        let g = Graph::from_value(&state);
+        assert_eq!(g.subscribers("/a"), vec!["/y", "/z"]);
+        assert_eq!(g.subscribers("/b"), vec!["/x"]);
+        assert!(g.subscribers("/pub").is_empty());
+        assert!(Graph::from_value(&Value::Int(1))
+            .subscribers("/a")
+            .is_empty());
+    }
+
+    #[test]
+    fn bus_info_matches_inbound_connections_from_the_publisher_only() {
+        // As rospy answers (checked against rospy 1.15/1.16).
+        let info = Value::Array(vec![Value::Array(vec![
+            Value::Int(1),
+            s("http://127.0.0.1:37533/"),
+            s("i"),
+            s("TCPROS"),
+            s("/t"),
+            Value::Bool(true),
+            s("TCPROS connection on port 55534"),
+        ])]);
+        assert!(bus_info_has_inbound(&info, "/t", "http://127.0.0.1:37533"));
+        assert!(bus_info_has_inbound(&info, "/t", "http://127.0.0.1:37533/"));
+        assert!(!bus_info_has_inbound(&info, "/u", "http://127.0.0.1:37533"));
+        assert!(!bus_info_has_inbound(&info, "/t", "http://127.0.0.1:1"));
+        let outbound = Value::Array(vec![Value::Array(vec![
+            Value::Int(1),
+            s("http://127.0.0.1:37533/"),
+            s("o"),
+            s("TCPROS"),
+            s("/t"),
+            Value::Bool(true),
+        ])]);
+        assert!(!bus_info_has_inbound(
+            &outbound,
+            "/t",
+            "http://127.0.0.1:37533"
+        ));
+        let down = Value::Array(vec![Value::Array(vec![
+            Value::Int(1),
+            s("http://127.0.0.1:37533/"),
+            s("i"),
+            s("TCPROS"),
+            s("/t"),
+            Value::Bool(false),
+        ])]);
+        assert!(!bus_info_has_inbound(&down, "/t", "http://127.0.0.1:37533"));
+        assert!(!bus_info_has_inbound(&Value::Nil, "/t", "x"));
+    }
+}
