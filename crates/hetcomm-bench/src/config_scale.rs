@@ -5,8 +5,7 @@
 //! The fleet file is generated and written to a temporary file by this process; a child
 //! process (this binary, `__validate FILE`) validates it and reports its wall time and its own
 //! peak resident set size (`getrusage`, `ru_maxrss`), so the figure is the validation's alone,
-//! not this process's. `cargo bench -p hetcomm-config --bench validate_scale` measures the
-//! same without the rest of the benchmarks.
+//! not this process's. `cargo run --release -p hetcomm-bench -- --only config` runs this alone.
 
 use std::io::Write;
 use std::process::Command;
@@ -27,37 +26,10 @@ pub struct ValidateResult {
     pub peak_rss_bytes: f64,
 }
 
-/// A fleet of `n` systems, each with a UDP endpoint, whose every off-diagonal cell carries
-/// traffic over a transport name, a letter, an emulated transport or an in-process one.
+/// A fleet of `n` systems whose every off-diagonal cell carries traffic (the generator the
+/// config crate's scale tests use too).
 pub fn full_fleet_text(n: usize) -> String {
-    let mut t = String::with_capacity(n * n * 7 + n * 64);
-    t.push_str("name = \"scale\"\n\n[systems]\n");
-    for i in 0..n {
-        t.push_str(&format!("S{i} = {i}\n"));
-    }
-    t.push_str("\n[transports.lan]\nkind = \"udp\"\n\n[transports.lan.endpoints]\n");
-    for i in 0..n {
-        t.push_str(&format!("S{i} = \"10.{}.{}.1:7400\"\n", i / 250, i % 250));
-    }
-    t.push_str("\n[transports.wifi]\nkind = \"emulated\"\nprofile = \"wifi\"\nover = \"lan\"\n");
-    t.push_str("\n[transports.local]\nkind = \"inproc\"\n\n[letters]\nL = \"lan\"\n\n[table]\n");
-    t.push_str("columns = [");
-    for i in 0..n {
-        t.push_str(&format!("{}\"S{i}\"", if i == 0 { "" } else { ", " }));
-    }
-    t.push_str("]\n");
-    const CELLS: [&str; 4] = ["lan", "wifi", "L", "local"];
-    for i in 0..n {
-        t.push_str(&format!("S{i} = ["));
-        for j in 0..n {
-            let cell = if i == j { "X" } else { CELLS[(i + j) % 4] };
-            t.push_str(if j == 0 { "\"" } else { ", \"" });
-            t.push_str(cell);
-            t.push('"');
-        }
-        t.push_str("]\n");
-    }
-    t
+    hetcomm::config::synthetic::scale_fleet_text(n, true)
 }
 
 /// Peak resident set size of this process, bytes (0 if getrusage fails).

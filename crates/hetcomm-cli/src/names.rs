@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use hetcomm::config::suggest::closest;
 use hetcomm::config::Fleet;
 use hetcomm::{Comm, OpenError};
 
@@ -64,43 +65,6 @@ fn help(word: &str, candidates: &[&str], list_name: &str) -> String {
         Some(c) => format!("did you mean `{c}`? ({list})"),
         None => list,
     }
-}
-
-/// Levenshtein distance, in characters. (hetcomm-config has the same few lines for its own
-/// messages, crate-private; a dozen lines are cheaper than a dependency.)
-fn distance(a: &str, b: &str) -> usize {
-    let b: Vec<char> = b.chars().collect();
-    let mut prev: Vec<usize> = (0..=b.len()).collect();
-    let mut cur = vec![0; b.len() + 1];
-    for (i, ca) in a.chars().enumerate() {
-        cur[0] = i + 1;
-        for (j, &cb) in b.iter().enumerate() {
-            let subst = prev[j] + usize::from(ca != cb);
-            cur[j + 1] = subst.min(prev[j + 1] + 1).min(cur[j] + 1);
-        }
-        std::mem::swap(&mut prev, &mut cur);
-    }
-    prev[b.len()]
-}
-
-/// The candidate closest to `word`, if close enough to be a plausible typo (a different case
-/// always is).
-fn closest<'a>(word: &str, candidates: &[&'a str]) -> Option<&'a str> {
-    if let Some(c) = candidates.iter().find(|c| c.eq_ignore_ascii_case(word)) {
-        return Some(c);
-    }
-    let limit = match word.chars().count() {
-        0..=1 => 0,
-        2..=3 => 1,
-        4..=8 => 2,
-        _ => 3,
-    };
-    candidates
-        .iter()
-        .map(|c| (distance(word, c), *c))
-        .filter(|(d, _)| *d <= limit)
-        .min_by_key(|(d, _)| *d)
-        .map(|(_, c)| c)
 }
 
 #[cfg(test)]

@@ -60,7 +60,8 @@ mod fleet_toml;
 mod legacy;
 pub mod model;
 mod names;
-mod suggest;
+pub mod suggest;
+pub mod synthetic;
 mod table;
 
 use std::path::Path;

@@ -1,8 +1,9 @@
-//! "Did you mean …?" suggestions. A dozen lines of edit distance are cheaper than another
-//! dependency in the lock file every crate of the workspace shares.
+//! "Did you mean …?" suggestions, for the fleet file's errors and for the tools that take
+//! names from a user (the CLI's `--to`, `--as`, …). A dozen lines of edit distance are cheaper
+//! than another dependency in the lock file every crate of the workspace shares.
 
 /// Levenshtein distance, in characters.
-pub(crate) fn distance(a: &str, b: &str) -> usize {
+pub fn distance(a: &str, b: &str) -> usize {
     let b: Vec<char> = b.chars().collect();
     let mut prev: Vec<usize> = (0..=b.len()).collect();
     let mut cur = vec![0; b.len() + 1];
@@ -18,7 +19,7 @@ pub(crate) fn distance(a: &str, b: &str) -> usize {
 }
 
 /// The candidate closest to `word`, if it is close enough to be a plausible typo.
-pub(crate) fn closest<'a>(word: &str, candidates: &[&'a str]) -> Option<&'a str> {
+pub fn closest<'a>(word: &str, candidates: &[&'a str]) -> Option<&'a str> {
     // A different case is always a plausible typo, however long the word.
     if let Some(c) = candidates.iter().find(|c| c.eq_ignore_ascii_case(word)) {
         return Some(c);

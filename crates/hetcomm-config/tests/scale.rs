@@ -1,41 +1,11 @@
 //! Big fleets validate, and what they validate to is right. How fast, and in how much memory,
-//! is measured by `cargo bench -p hetcomm-config --bench validate_scale`, not here.
+//! is measured by `hetcomm-bench --only config` (`benchmarks/run.sh`), not here.
 
 use hetcomm_config::*;
 use hetcomm_core::SystemId;
 
-/// `n` systems, each with a UDP endpoint; when `table`, every off-diagonal cell carries
-/// traffic over a transport name, a letter, an emulated transport or an in-process one.
 fn fleet(n: usize, table: bool) -> String {
-    let mut t = String::from("[systems]\n");
-    for i in 0..n {
-        t.push_str(&format!("S{i} = {i}\n"));
-    }
-    t.push_str("\n[transports.lan]\nkind = \"udp\"\n\n[transports.lan.endpoints]\n");
-    for i in 0..n {
-        t.push_str(&format!("S{i} = \"10.{}.{}.1:7400\"\n", i / 250, i % 250));
-    }
-    t.push_str("\n[transports.wifi]\nkind = \"emulated\"\nprofile = \"wifi\"\nover = \"lan\"\n");
-    t.push_str("\n[transports.local]\nkind = \"inproc\"\n\n[letters]\nL = \"lan\"\n");
-    if table {
-        t.push_str("\n[table]\ncolumns = [");
-        for i in 0..n {
-            t.push_str(&format!("{}\"S{i}\"", if i == 0 { "" } else { ", " }));
-        }
-        t.push_str("]\n");
-        const CELLS: [&str; 4] = ["lan", "wifi", "L", "local"];
-        for i in 0..n {
-            t.push_str(&format!("S{i} = ["));
-            for j in 0..n {
-                let cell = if i == j { "X" } else { CELLS[(i + j) % 4] };
-                t.push_str(if j == 0 { "\"" } else { ", \"" });
-                t.push_str(cell);
-                t.push('"');
-            }
-            t.push_str("]\n");
-        }
-    }
-    t
+    hetcomm_config::synthetic::scale_fleet_text(n, table)
 }
 
 fn check_full(n: usize) {

@@ -172,3 +172,24 @@ def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
 
 
 PYTHON = sys.executable
+
+
+def udp_pair(extra: str = "", a: str = "127.0.0.1:0", b: str = "127.0.0.1:0") -> str:
+    """Systems A and B with module M, joined by one UDP transport `lan` (`extra`: more keys)."""
+    return f"""
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[transports.lan]
+kind = "udp"
+{extra}
+[transports.lan.endpoints]
+A = "{a}"
+B = "{b}"
+[table]
+columns = ["A", "B"]
+A = ["X", "lan"]
+B = ["lan", "X"]
+"""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 import hetcomm
-from conftest import CLI, INPROC_FLEET, Command, cli
+from conftest import CLI, INPROC_FLEET, Command, cli, udp_pair
 
 BAD_FLEET = """\
 [systems]
@@ -101,27 +101,6 @@ def test_no_route(fleet):
     assert str(e.value) == (
         "no traffic allowed from `Alpha` to `Lonely`: the communication table says X for this pair"
     )
-
-
-def udp_pair(extra: str = "", a: str = "127.0.0.1:0", b: str = "127.0.0.1:0") -> str:
-    """Systems A and B with module M, joined by one UDP transport `lan` (`extra`: more keys)."""
-    return f"""
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-{extra}
-[transports.lan.endpoints]
-A = "{a}"
-B = "{b}"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
 
 
 def test_too_large():

@@ -8,7 +8,7 @@ import time
 import pytest
 
 import hetcomm
-from conftest import Command
+from conftest import Command, udp_pair
 
 
 def count_while(block) -> int:
@@ -61,23 +61,7 @@ def test_recv_wakes_for_a_message_sent_by_another_python_thread(fleet):
 
 def test_ticket_wait_releases_the_gil():
     # A UDP peer that never answers: the ticket stays pending through its retries.
-    toml = """
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-attempts = 3
-[transports.lan.endpoints]
-A = "127.0.0.1:0"
-B = "127.0.0.1:9"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
+    toml = udp_pair(extra="attempts = 3", b="127.0.0.1:9")
     with hetcomm.Comm.from_toml(toml, "A", "gil-ticket.toml") as a:
         ticket = a.module("M").send("B", "M", Command(1))
         assert count_while(lambda: ticket.wait(timeout=0.5)) > 50_000

@@ -11,7 +11,7 @@ import time
 import pytest
 
 import hetcomm
-from conftest import INPROC_FLEET, Command, Wheels
+from conftest import INPROC_FLEET, Command, Wheels, udp_pair
 
 
 def test_send_recv_and_envelope(fleet):
@@ -94,23 +94,7 @@ def test_failed_outcome_when_the_inbox_is_full():
 
 def test_ticket_wait_timeout_returns_none_for_pending():
     # A UDP peer that is not running never acknowledges: the outcome stays pending for a while.
-    toml = """
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-attempts = 2
-[transports.lan.endpoints]
-A = "127.0.0.1:0"
-B = "127.0.0.1:9"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
+    toml = udp_pair(extra="attempts = 2", b="127.0.0.1:9")
     with hetcomm.Comm.from_toml(toml, "A", "pending.toml") as a:
         t = a.module("M").send("B", "M", Command(1))
         assert t.wait(timeout=0.01) is None or t.done
@@ -120,23 +104,7 @@ B = ["lan", "X"]
 def test_unconfirmed_outcome_when_frames_left_but_nobody_acknowledged():
     # Frames went out to a UDP port where nothing answers: the sender cannot know whether they
     # arrived, so the outcome is "unconfirmed", never "failed".
-    toml = """
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.lan]
-kind = "udp"
-attempts = 2
-[transports.lan.endpoints]
-A = "127.0.0.1:0"
-B = "127.0.0.1:9"
-[table]
-columns = ["A", "B"]
-A = ["X", "lan"]
-B = ["lan", "X"]
-"""
+    toml = udp_pair(extra="attempts = 2", b="127.0.0.1:9")
     with hetcomm.Comm.from_toml(toml, "A", "unconfirmed.toml") as a:
         o = a.module("M").send("B", "M", Command(1)).wait(timeout=60)
         assert o is not None and o.kind == "unconfirmed", o
