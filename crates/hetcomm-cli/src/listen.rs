@@ -207,8 +207,9 @@ struct Drops {
     inbox: u64,
     /// Dropped by the links (frames they could not make sense of, failed batch flushes).
     links: u64,
-    /// Datagrams the kernel dropped because the receive buffer was full; None while the
-    /// links do not count them.
+    /// Datagrams the kernel dropped because a socket's receive buffer was full (UDP links
+    /// count them; `LinkStats::kernel_drops`); None while there were none, so the summary
+    /// names them only when they happened.
     kernel: Option<u64>,
 }
 
@@ -266,11 +267,11 @@ impl Drops {
     }
 }
 
-/// Datagrams the kernel dropped for this system (SO_RXQ_OVFL), once the links count them:
-/// this is the one place that reads it, and the status line and summary show it when it is
-/// `Some`. No link counts them yet.
-fn kernel_drops(_stats: &SystemStats) -> Option<u64> {
-    None
+/// Datagrams the kernel dropped for this system's sockets (`LinkStats::kernel_drops`, read
+/// from the socket's drop counter where the OS keeps one), when there were any.
+fn kernel_drops(stats: &SystemStats) -> Option<u64> {
+    let n: u64 = stats.links.iter().map(|(_, l)| l.kernel_drops).sum();
+    (n > 0).then_some(n)
 }
 
 /// Waits (at most `limit`) until the acknowledgements of the `owed` messages printed are on
@@ -471,6 +472,38 @@ fn signal_name(signal: libc::c_int) -> &'static str {
 
 #[cfg(test)]
 mod tests {
+    use hetcomm::LinkStats;
+
+    fn stats_with_kernel_drops(per_link: &[u64]) -> SystemStats {
+        SystemStats {
+            router: Default::default(),
+            inboxes: Vec::new(),
+            links: per_link
+                .iter()
+                .map(|&k| {
+                    let l = LinkStats {
+                        kernel_drops: k,
+                        ..LinkStats::default()
+                    };
+                    ("lan".to_string(), l)
+                })
+                .collect(),
+            callback_failures: 0,
+            held_frames: 0,
+            unknown_module: 0,
+        }
+    }
+
+    #[test]
+    fn kernel_drops_are_summed_over_links_and_shown_once_they_happen() {
+        assert_eq!(Drops::of(&stats_with_kernel_drops(&[0, 0])).kernel, None);
+        let d = Drops::of(&stats_with_kernel_drops(&[3, 4]));
+        assert_eq!(d.kernel, Some(7));
+        assert!(d.status(2).contains("7 dropped by the kernel"), "{}", d.status(2));
+        let s = summary(2, &stats_with_kernel_drops(&[3, 4]));
+        assert!(s.ends_with("; kernel dropped 7"), "{s}");
+    }
+
     use super::*;
 
     #[test]

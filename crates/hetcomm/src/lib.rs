@@ -66,6 +66,7 @@ pub use hetcomm_core::{
     Time, TypeRegistryError,
 };
 pub use hetcomm_derive::Message;
+pub use hetcomm_link::LinkStats;
 pub use hetcomm_router::{FailReason, Outcome, RouterStats};
 
 /// The fleet file: loading, validation and the validated model.
