@@ -1,0 +1,100 @@
+//! Transport kinds from outside this crate: the settings half of a transport factory.
+//!
+//! The fleet loader knows the keys of the kinds it models itself (`inproc`, `udp`, `tcp`,
+//! `ros1`, `bluetooth`, `emulated`; their settings are in [`crate::model`] because `hetcomm
+//! validate` must check them in every build and the legacy table files name them). Any other
+//! kind is described by a [`KindSpec`], written in the kind's own crate: its name, its keys and
+//! a `parse` function. A program collects the specs of the kinds compiled into it in a
+//! [`Kinds`] table (the `hetcomm` crate does this from its transport registry, one line per
+//! kind) and passes it to [`crate::load_with`] / [`crate::parse_str_with`].
+//!
+//! Why parsing happens here, in the loader's own pass, rather than later over a copy of the
+//! keys: a spec's `parse` reads the transport's table through a [`SettingsReader`], which
+//! reports through the same helpers, with the same wording, as the built-in kinds do, at the
+//! `file:line:column` of the offending value, into the same list of errors. One run of `hetcomm
+//! validate` therefore lists a registered kind's problems together with every other problem
+//! of the file, sorted by position.
+//!
+//! The loader itself checks the keys every transport shares (`kind`, `delivery`, `attempts`,
+//! …) and reports keys that are neither shared nor in [`KindSpec::keys`], with a "did you
+//! mean". `zenoh`, `mqtt` and `dds` are known names without a spec: their keys are kept raw
+//! ([`crate::TransportSettings::Raw`]) until a crate registers a spec for them, which then
+//! takes over.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+pub use crate::fleet_toml::SettingsReader;
+use crate::model::{RegisteredSettings, TransportKind};
+
+/// The settings half of a transport kind: its keys and how to read them. Implemented by the
+/// kind's crate next to the code that opens it (`hetcomm_link::registry::TransportFactory`).
+pub trait KindSpec: Send + Sync {
+    /// The kind, as written in `kind = "…"`.
+    fn kind(&self) -> TransportKind;
+
+    /// The kind's own keys, besides the ones every transport shares. Any other key of the
+    /// transport's table is reported as unknown before [`KindSpec::parse`] is called.
+    fn keys(&self) -> &[&'static str];
+
+    /// Reads and validates the kind's keys. Report every problem through `settings` (it
+    /// locates them) and return None when there was one; the loader then keeps the transport
+    /// as defined but without settings, so the table does not report it again.
+    fn parse(&self, settings: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings>;
+}
+
+/// The kinds a program knows beyond the built-in ones: one [`KindSpec`] per kind.
+#[derive(Clone, Default)]
+pub struct Kinds {
+    specs: BTreeMap<TransportKind, Arc<dyn KindSpec>>,
+}
+
+/// Kinds whose settings the loader models itself; a spec for one of them is never consulted.
+pub(crate) const MODELLED: [TransportKind; 6] = [
+    TransportKind::Inproc,
+    TransportKind::Udp,
+    TransportKind::Tcp,
+    TransportKind::Ros1,
+    TransportKind::Bluetooth,
+    TransportKind::Emulated,
+];
+
+impl Kinds {
+    /// Only the built-in kinds.
+    pub fn new() -> Kinds {
+        Kinds::default()
+    }
+
+    /// Adds a kind's spec, replacing an earlier one of the same kind. A spec for `zenoh`,
+    /// `mqtt` or `dds` replaces their raw keys; a spec for a kind the loader models itself
+    /// (`inproc`, `udp`, `tcp`, `ros1`, `bluetooth`, `emulated`) is ignored.
+    pub fn add(&mut self, spec: Arc<dyn KindSpec>) {
+        self.specs.insert(spec.kind(), spec);
+    }
+
+    /// The spec that reads `kind`'s settings, if a crate registered one.
+    pub fn spec(&self, kind: TransportKind) -> Option<&dyn KindSpec> {
+        if MODELLED.contains(&kind) {
+            return None;
+        }
+        self.specs.get(&kind).map(|s| &**s)
+    }
+
+    /// Every kind name a fleet file may use: the built-in ones in documentation order, then
+    /// the registered ones by name.
+    pub fn names(&self) -> Vec<&'static str> {
+        let mut names: Vec<&'static str> = TransportKind::ALL.iter().map(|k| k.as_str()).collect();
+        for k in self.specs.keys() {
+            if !names.contains(&k.as_str()) {
+                names.push(k.as_str());
+            }
+        }
+        names
+    }
+}
+
+impl std::fmt::Debug for Kinds {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_set().entries(self.specs.keys()).finish()
+    }
+}
