@@ -98,3 +98,97 @@ impl std::fmt::Debug for Kinds {
         f.debug_set().entries(self.specs.keys()).finish()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A spec that accepts one key, `broker`, for whichever kind it is made for.
+    struct Broker(TransportKind);
+
+    impl KindSpec for Broker {
+        fn kind(&self) -> TransportKind {
+            self.0
+        }
+
+        fn keys(&self) -> &[&'static str] {
+            &["broker"]
+        }
+
+        fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+            let broker = s.string("broker", "write the broker's address in quotes");
+            if broker.is_none() && !s.has("broker") {
+                s.missing("broker", "add `broker = \"tcp://localhost:1883\"`");
+            }
+            broker.map(RegisteredSettings::new)
+        }
+    }
+
+    fn fleet(kind: &str, keys: &str) -> String {
+        format!(
+            "[systems]\nA = 0\nB = 1\n[transports.t]\nkind = \"{kind}\"\n{keys}\n\
+             [table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"t\"]\nB = [\"t\", \"X\"]\n"
+        )
+    }
+
+    #[test]
+    fn a_spec_for_a_raw_kind_takes_over_its_keys() {
+        let mut kinds = Kinds::new();
+        kinds.add(Arc::new(Broker(TransportKind::Mqtt)));
+        // Without the spec, mqtt's keys are kept raw, whatever they are.
+        let raw = crate::parse_str(&fleet("mqtt", "brokr = 1"), "m.toml", None).expect("raw");
+        assert!(matches!(
+            &raw.transports[0].settings,
+            crate::TransportSettings::Raw(keys) if keys.get("brokr").map(String::as_str) == Some("1")
+        ));
+        // With it, they are checked.
+        let errors = crate::parse_str_with(&fleet("mqtt", "brokr = 1"), "m.toml", None, &kinds)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            errors,
+            "m.toml:4:1: transport `t` (kind mqtt) is missing required setting `broker`\n  \
+             help: add `broker = \"tcp://localhost:1883\"`\n\
+             m.toml:6:1: unknown key `brokr` in `transports.t`\n  help: did you mean `broker`?"
+        );
+        let ok = crate::parse_str_with(&fleet("mqtt", "broker = \"b\""), "m.toml", None, &kinds)
+            .expect("valid");
+        assert_eq!(
+            ok.transports[0].settings,
+            crate::TransportSettings::Registered(RegisteredSettings::new("b".to_string()))
+        );
+    }
+
+    #[test]
+    fn a_spec_for_a_modelled_kind_is_ignored_and_new_names_are_listed_last() {
+        let mut kinds = Kinds::new();
+        kinds.add(Arc::new(Broker(TransportKind::Udp)));
+        kinds.add(Arc::new(Broker(TransportKind::new("ros2"))));
+        assert!(kinds.spec(TransportKind::Udp).is_none());
+        assert_eq!(TransportKind::new("udp"), TransportKind::Udp);
+        assert_eq!(
+            kinds.names().join(", "),
+            "inproc, udp, tcp, ros1, bluetooth, zenoh, mqtt, dds, emulated, ros2"
+        );
+        // udp keeps its own keys and errors.
+        let errors = crate::parse_str_with(&fleet("udp", "broker = \"b\""), "u.toml", None, &kinds)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            errors.starts_with(
+                "u.toml:4:1: transport `t` (kind udp) is missing required setting `endpoints`"
+            ),
+            "{errors}"
+        );
+        let errors = crate::parse_str_with(&fleet("ros3", ""), "r.toml", None, &kinds)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            errors.starts_with("r.toml:5:8: unknown transport kind `ros3`\n  help: did you mean")
+                && errors.ends_with(
+                    "valid transport kinds: inproc, udp, tcp, ros1, bluetooth, zenoh, mqtt, dds, emulated, ros2"
+                ),
+            "{errors}"
+        );
+    }
+}

@@ -77,7 +77,7 @@ pub mod factory;
 pub mod socket;
 
 /// Registers the `bluetooth` transport factory ([`factory::BluetoothFactory`]).
-pub fn register(registry: &mut hetcomm_link::registry::Registry) {
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(factory::BluetoothFactory);
 }
 

@@ -54,7 +54,7 @@ pub use unix::UnixLink;
 use hetcomm_core::SystemId;
 
 /// Registers the `udp` and `tcp` transport factories ([`factory`]).
-pub fn register(registry: &mut hetcomm_link::registry::Registry) {
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(factory::UdpFactory);
     registry.register(factory::TcpFactory);
 }

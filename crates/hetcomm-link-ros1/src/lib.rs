@@ -69,7 +69,7 @@ use tokio::sync::{mpsc, oneshot};
 pub mod factory;
 
 /// Registers the `ros1` transport factory ([`factory::Ros1Factory`]).
-pub fn register(registry: &mut hetcomm_link::registry::Registry) {
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(factory::Ros1Factory);
 }
 

@@ -3,13 +3,13 @@
 //! A [`TransportFactory`] is everything about one transport kind in one place: its settings
 //! (a [`KindSpec`]: keys, parsing with located errors, validation) and how to open a link of
 //! it from a fleet's transport definition. A program builds one [`Registry`] from the kinds
-//! compiled into it, one line per kind, each crate offering a `register` function:
+//! compiled into it, one line per crate, each crate offering a `register_transports` function:
 //!
 //! ```ignore
 //! let mut registry = Registry::new();
-//! hetcomm_link_ip::register(&mut registry);
+//! hetcomm_link_ip::register_transports(&mut registry);
 //! #[cfg(feature = "mqtt")]
-//! hetcomm_link_mqtt::register(&mut registry);
+//! hetcomm_link_mqtt::register_transports(&mut registry);
 //! ```
 //!
 //! (the `hetcomm` crate does this in `crates/hetcomm/src/transports.rs`). The registry then
@@ -59,7 +59,7 @@ pub struct Opened {
 }
 
 /// One transport kind: its settings and how to open it. Implemented in the kind's own crate
-/// and added to a [`Registry`] by that crate's `register` function.
+/// and added to a [`Registry`] by that crate's `register_transports` function.
 pub trait TransportFactory: Send + Sync {
     /// The kind it opens.
     fn kind(&self) -> TransportKind;

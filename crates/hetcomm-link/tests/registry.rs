@@ -79,8 +79,8 @@ impl TransportFactory for Loopback {
     }
 }
 
-/// The crate's one registration function, as `hetcomm_link_ip::register` is.
-fn register(registry: &mut Registry) {
+/// The crate's one registration function, as `hetcomm_link_ip::register_transports` is.
+fn register_transports(registry: &mut Registry) {
     registry.register(Loopback::default());
 }
 
@@ -105,7 +105,7 @@ Bravo = ["lo", "X"]
 #[test]
 fn a_registered_kind_parses_reports_located_errors_and_opens() {
     let mut registry = Registry::new();
-    register(&mut registry);
+    register_transports(&mut registry);
     assert_eq!(registry.registered().collect::<Vec<_>>(), [loopback()]);
 
     // Parses, with typed settings the factory reads back.

@@ -29,11 +29,11 @@ pub fn registry() -> &'static Registry {
     static REGISTRY: OnceLock<Registry> = OnceLock::new();
     REGISTRY.get_or_init(|| {
         let mut registry = Registry::new();
-        hetcomm_link_ip::register(&mut registry);
+        hetcomm_link_ip::register_transports(&mut registry);
         #[cfg(feature = "bluetooth")]
-        hetcomm_link_bluetooth::register(&mut registry);
+        hetcomm_link_bluetooth::register_transports(&mut registry);
         #[cfg(feature = "ros1")]
-        hetcomm_link_ros1::register(&mut registry);
+        hetcomm_link_ros1::register_transports(&mut registry);
         registry
     })
 }
