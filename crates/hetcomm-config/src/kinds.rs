@@ -21,7 +21,7 @@
 //! ([`crate::TransportSettings::Raw`]) until a crate registers a spec for them, which then
 //! takes over.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 pub use crate::fleet_toml::SettingsReader;
@@ -47,6 +47,8 @@ pub trait KindSpec: Send + Sync {
 #[derive(Clone, Default)]
 pub struct Kinds {
     specs: BTreeMap<TransportKind, Arc<dyn KindSpec>>,
+    /// Kinds known by name only (their crate is not compiled in): keys kept raw.
+    unbuilt: BTreeSet<TransportKind>,
 }
 
 /// Kinds whose settings the loader models itself; a spec for one of them is never consulted.
@@ -72,6 +74,13 @@ impl Kinds {
         self.specs.insert(spec.kind(), spec);
     }
 
+    /// Makes `kind` known by name although its crate is not compiled into this program: a
+    /// fleet file may use it (its keys are kept raw, as `zenoh`'s are), and opening it says
+    /// it is not available in this build instead of the loader calling it unknown.
+    pub fn add_unbuilt(&mut self, kind: TransportKind) {
+        self.unbuilt.insert(kind);
+    }
+
     /// The spec that reads `kind`'s settings, if a crate registered one.
     pub fn spec(&self, kind: TransportKind) -> Option<&dyn KindSpec> {
         if MODELLED.contains(&kind) {
@@ -81,10 +90,10 @@ impl Kinds {
     }
 
     /// Every kind name a fleet file may use: the built-in ones in documentation order, then
-    /// the registered ones by name.
+    /// the registered ones by name, then the ones known by name only.
     pub fn names(&self) -> Vec<&'static str> {
         let mut names: Vec<&'static str> = TransportKind::ALL.iter().map(|k| k.as_str()).collect();
-        for k in self.specs.keys() {
+        for k in self.specs.keys().chain(&self.unbuilt) {
             if !names.contains(&k.as_str()) {
                 names.push(k.as_str());
             }
@@ -95,7 +104,9 @@ impl Kinds {
 
 impl std::fmt::Debug for Kinds {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_set().entries(self.specs.keys()).finish()
+        f.debug_set()
+            .entries(self.specs.keys().chain(&self.unbuilt))
+            .finish()
     }
 }
 

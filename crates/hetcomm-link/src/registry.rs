@@ -82,6 +82,8 @@ pub trait TransportFactory: Send + Sync {
 pub struct Registry {
     factories: BTreeMap<TransportKind, Arc<dyn TransportFactory>>,
     kinds: Kinds,
+    /// Kinds known by name whose crate is not compiled in, with the feature that adds it.
+    unbuilt: BTreeMap<TransportKind, &'static str>,
 }
 
 impl Registry {
@@ -98,6 +100,19 @@ impl Registry {
             self.kinds.add(spec);
         }
         self.factories.insert(factory.kind(), factory);
+    }
+
+    /// Records that `kind` exists but its crate is not compiled in; `feature` compiles it in.
+    /// A fleet file may still name it (its keys are kept raw, [`Kinds::add_unbuilt`]), and
+    /// opening it can say which feature to rebuild with ([`Registry::feature_for`]).
+    pub fn not_built(&mut self, kind: TransportKind, feature: &'static str) {
+        self.kinds.add_unbuilt(kind);
+        self.unbuilt.insert(kind, feature);
+    }
+
+    /// The feature that compiles `kind` in, for a kind recorded with [`Registry::not_built`].
+    pub fn feature_for(&self, kind: TransportKind) -> Option<&'static str> {
+        self.unbuilt.get(&kind).copied()
     }
 
     /// The factory of `kind`, if it is compiled in.

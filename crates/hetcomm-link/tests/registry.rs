@@ -197,3 +197,28 @@ Bravo = ["z", "X"]
     });
     assert!(opened.is_none());
 }
+
+#[test]
+fn a_kind_not_built_stays_known_by_name_and_names_its_feature() {
+    let mut registry = Registry::new();
+    registry.not_built(loopback(), "loopback");
+    assert_eq!(registry.feature_for(loopback()), Some("loopback"));
+    assert_eq!(registry.registered().count(), 0);
+    // The loader knows the name; its keys, unchecked, are kept raw, as zenoh's are.
+    let text = fleet_text("capacity = 0");
+    let fleet = parse_str_with(&text, "lo.toml", None, registry.kinds()).expect("known by name");
+    let t = fleet.transport("lo").expect("lo");
+    assert_eq!(t.kind, loopback());
+    let TransportSettings::Raw(keys) = &t.settings else {
+        panic!("raw keys expected, got {:?}", t.settings);
+    };
+    assert_eq!(keys.get("capacity").map(String::as_str), Some("0"));
+    // Nothing opens it.
+    let opened = registry.open(OpenRequest {
+        fleet: &fleet,
+        transport: t,
+        local: SystemId(0),
+        sink: CollectSink::new(),
+    });
+    assert!(opened.is_none());
+}

@@ -3,7 +3,8 @@
 //! whether the link is a real one or the simulator's.
 //!
 //! Which kinds this program has is [`registry`]: one registration line per link crate, behind
-//! that crate's feature. `inproc` and `emulated` are the runtime's own (direct hand-over, the
+//! that crate's feature (without it, the crate's kinds stay known by name and opening one says
+//! which feature to rebuild with). `inproc` and `emulated` are the runtime's own (direct hand-over, the
 //! layer stack) and are opened here; every other kind is opened by its crate's
 //! `TransportFactory`, and a kind without one says it is not available in this build.
 
@@ -23,17 +24,29 @@ use crate::comm::OpenEnv;
 use crate::error::OpenError;
 use crate::runtime::SystemCore;
 
+/// One link crate's registration line: with its feature on, the crate registers its kinds;
+/// with it off, the kinds stay known by name (a fleet file may name them, keys kept raw) and
+/// opening one says to rebuild with the feature.
+macro_rules! link_crate {
+    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+]) => {
+        #[cfg(feature = $feature)]
+        $krate::register_transports(&mut $registry);
+        #[cfg(not(feature = $feature))]
+        {
+            $($registry.not_built(TransportKind::new($kind), $feature);)+
+        }
+    };
+}
+
 /// The transport kinds compiled into this program: one line per link crate. A new kind adds
-/// its line here (behind its feature in `Cargo.toml`) and nothing else outside its crate.
+/// its line here (and its feature in `Cargo.toml`) and nothing else outside its crate.
 pub fn registry() -> &'static Registry {
     static REGISTRY: OnceLock<Registry> = OnceLock::new();
     REGISTRY.get_or_init(|| {
         let mut registry = Registry::new();
         hetcomm_link_ip::register_transports(&mut registry);
-        #[cfg(feature = "bluetooth")]
-        hetcomm_link_bluetooth::register_transports(&mut registry);
-        #[cfg(feature = "ros1")]
-        hetcomm_link_ros1::register_transports(&mut registry);
+        link_crate!(registry, "bluetooth", hetcomm_link_bluetooth, ["bluetooth"]);
+        link_crate!(registry, "ros1", hetcomm_link_ros1, ["ros1"]);
         registry
     })
 }
@@ -245,15 +258,21 @@ fn open_bare(
     }
 }
 
+/// The error for a kind without a factory in this build: what to rebuild with, or what to use
+/// instead.
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {
     let hint = match kind {
-        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one",
-        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio",
-        _ => "choose `inproc` (one process) or another available kind in the fleet file",
+        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one".to_string(),
+        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio".to_string(),
+        _ => match registry().feature_for(kind) {
+            Some(feature) => format!("rebuild with `--features {feature}`"),
+            None => "choose `inproc` (one process) or another available kind in the fleet file"
+                .to_string(),
+        },
     };
     OpenError::KindUnavailable {
         transport: t.name.clone(),
         kind,
-        hint: hint.to_string(),
+        hint,
     }
 }
