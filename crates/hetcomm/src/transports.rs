@@ -4,8 +4,8 @@
 //!
 //! Which kinds this program has is [`registry`]: one registration line per link crate, behind
 //! that crate's feature (without it, the crate's kinds stay known by name and opening one says
-//! which feature to rebuild with). `inproc` and `emulated` are the runtime's own (direct hand-over, the
-//! layer stack) and are opened here; every other kind is opened by its crate's
+//! which feature to rebuild with). `inproc` and `emulated` are the runtime's own (direct
+//! hand-over, the layer stack) and are opened here; every other kind is opened by its crate's
 //! `TransportFactory`, and a kind without one says it is not available in this build.
 
 use std::collections::HashMap;
