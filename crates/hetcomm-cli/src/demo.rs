@@ -92,7 +92,7 @@ fn progress_notice(realtime: bool, stderr_is_terminal: bool) -> Option<String> {
 /// Runs the demonstration and prints its tables and the files written.
 pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let fleet = match args.fleet {
-        Some(path) => hetcomm::config::load(path)?,
+        Some(path) => hetcomm::load_fleet(path)?,
         None => embedded_fleet(args.single_ve, args.r, args.b)?,
     };
     // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`

@@ -192,7 +192,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             bluetooth,
         } => {
             let result = match (file, ids, table) {
-                (Some(file), _, _) => hetcomm::config::load(&file),
+                (Some(file), _, _) => hetcomm::load_fleet(&file),
                 (None, Some(ids), Some(table)) => {
                     hetcomm::config::load_legacy(&ids, &table, bluetooth.as_deref())
                 }

@@ -21,7 +21,7 @@ pub fn open_system(path: &Path, system: &str) -> anyhow::Result<Comm> {
 
 /// Loads the fleet file; its errors (each with file:line:column) are the whole message.
 pub fn load_fleet(path: &Path) -> anyhow::Result<Fleet> {
-    hetcomm::config::load(path).map_err(|errors| anyhow::anyhow!("{errors}"))
+    hetcomm::load_fleet(path).map_err(|errors| anyhow::anyhow!("{errors}"))
 }
 
 /// Fails unless `name` is a system of `fleet`. `flag` is the option that gave it (`--as`);

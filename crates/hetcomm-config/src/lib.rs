@@ -12,7 +12,9 @@
 //!
 //! What it does not do: it opens nothing (no sockets, no ROS master, no Bluetooth adapter), and
 //! it does not know which transport kinds are compiled into a program — that is decided when
-//! the fleet is opened by the `hetcomm` facade. It does not watch files for changes, and it
+//! the fleet is opened by the `hetcomm` facade. A kind beyond the built-in ones brings its
+//! keys and their parser in a [`KindSpec`] from its own crate; [`load_with`] and
+//! [`parse_str_with`] take a table of them ([`kinds`]). It does not watch files for changes, and it
 //! does not write fleet files (except for printing [`EXAMPLE_FLEET`]).
 //!
 //! The file format, every key, the legacy formats and the list of errors are documented in
@@ -57,6 +59,7 @@
 mod assemble;
 mod error;
 mod fleet_toml;
+pub mod kinds;
 mod legacy;
 pub mod model;
 mod names;
@@ -69,6 +72,7 @@ use std::rc::Rc;
 
 pub use error::{ConfigError, ConfigErrors};
 pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
+pub use kinds::{KindSpec, Kinds, SettingsReader};
 pub use model::*;
 
 use crate::assemble::{LegacyBt, ModSpec, Parts, SysSpec, Systems, DEFAULT_MODULES};
@@ -82,20 +86,35 @@ pub const EXAMPLE_FLEET: &str = include_str!("../fleet.example.toml");
 /// transport's `addresses_file`) are resolved relative to the file's directory, and errors
 /// name the file as `path` was given.
 pub fn load(path: &Path) -> Result<Fleet, ConfigErrors> {
+    load_with(path, &Kinds::new())
+}
+
+/// [`load`], knowing the kinds in `kinds` besides the built-in ones (see [`kinds`]).
+pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
     let origin = path.display().to_string();
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()))
+    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds)
 }
 
 /// Validates fleet-file text. `origin` is the file name used in error locations; relative
 /// paths under `[legacy]` are resolved against `base_dir`, or the current directory if None.
 /// The result's `source` is None.
 pub fn parse_str(text: &str, origin: &str, base_dir: Option<&Path>) -> Result<Fleet, ConfigErrors> {
-    fleet_toml::parse(text, origin, base_dir, None)
+    parse_str_with(text, origin, base_dir, &Kinds::new())
+}
+
+/// [`parse_str`], knowing the kinds in `kinds` besides the built-in ones (see [`kinds`]).
+pub fn parse_str_with(
+    text: &str,
+    origin: &str,
+    base_dir: Option<&Path>,
+    kinds: &Kinds,
+) -> Result<Fleet, ConfigErrors> {
+    fleet_toml::parse(text, origin, base_dir, None, kinds)
 }
 
 /// Loads the thesis's files alone: the id file (Tables 1, 6, 16), the communication table

@@ -92,8 +92,11 @@ pub enum DeliveryMode {
     Unacknowledged,
 }
 
-/// The transport kinds hetcomm knows. Whether one is compiled into a program is decided when
-/// the fleet is opened, not here.
+/// A transport kind: the name a fleet file gives in `kind = "…"`. The named variants are the
+/// kinds the fleet loader knows by itself; a link crate adds its own with
+/// [`TransportKind::new`] (an [`TransportKind::Other`]) and a [`crate::kinds::KindSpec`] (see
+/// `docs/architecture.md`, "A new transport"). Whether a kind is compiled into a program is
+/// decided when the fleet is opened, not here.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum TransportKind {
     /// Between systems of one process.
@@ -106,18 +109,26 @@ pub enum TransportKind {
     Ros1,
     /// Bluetooth Classic RFCOMM.
     Bluetooth,
-    /// Zenoh.
+    /// Zenoh (known to the fleet file; its keys are kept raw until a crate registers it).
     Zenoh,
-    /// MQTT through a broker.
+    /// MQTT through a broker (likewise).
     Mqtt,
-    /// DDS.
+    /// DDS (likewise).
     Dds,
     /// A wrapper that emulates a radio link (loss, latency, range, …) over another transport.
     Emulated,
+    /// A kind registered by a link crate under a name of its own (e.g. `ros2`, `shm`).
+    Other(OtherKind),
 }
 
+/// The name of a kind registered by a link crate; made only by [`TransportKind::new`], so a
+/// built-in name always comes out as its own variant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct OtherKind(&'static str);
+
 impl TransportKind {
-    /// Every kind, in documentation order.
+    /// The kinds the fleet loader knows by itself, in documentation order. Kinds registered
+    /// by link crates come on top of these (`crate::kinds::Kinds`).
     pub const ALL: [TransportKind; 9] = [
         TransportKind::Inproc,
         TransportKind::Udp,
@@ -129,6 +140,12 @@ impl TransportKind {
         TransportKind::Dds,
         TransportKind::Emulated,
     ];
+
+    /// The kind named `name` in fleet files: the built-in one of that name, else a kind of a
+    /// link crate's own (e.g. `TransportKind::new("ros2")`).
+    pub fn new(name: &'static str) -> TransportKind {
+        Self::parse(name).unwrap_or(TransportKind::Other(OtherKind(name)))
+    }
 
     /// The name used in fleet files (`kind = "…"`).
     pub fn as_str(self) -> &'static str {
@@ -142,10 +159,11 @@ impl TransportKind {
             TransportKind::Mqtt => "mqtt",
             TransportKind::Dds => "dds",
             TransportKind::Emulated => "emulated",
+            TransportKind::Other(OtherKind(name)) => name,
         }
     }
 
-    /// Parses a fleet-file kind name.
+    /// Parses the fleet-file name of a built-in kind ([`TransportKind::ALL`]).
     pub fn parse(s: &str) -> Option<TransportKind> {
         Self::ALL.into_iter().find(|k| k.as_str() == s)
     }
@@ -218,6 +236,59 @@ pub enum TransportSettings {
     /// Kinds whose settings are not modelled yet (`zenoh`, `mqtt`, `dds`): the raw keys,
     /// stringified.
     Raw(BTreeMap<String, String>),
+    /// A kind registered by a link crate: the settings its [`crate::kinds::KindSpec`] parsed.
+    Registered(RegisteredSettings),
+}
+
+/// The typed settings of a registered kind, as its [`crate::kinds::KindSpec`] built them. The
+/// link crate that registered the kind reads them back with [`RegisteredSettings::downcast_ref`].
+#[derive(Clone)]
+pub struct RegisteredSettings(std::sync::Arc<dyn KindSettings>);
+
+impl RegisteredSettings {
+    /// Wraps a kind's settings.
+    pub fn new<T: KindSettings>(settings: T) -> RegisteredSettings {
+        RegisteredSettings(std::sync::Arc::new(settings))
+    }
+
+    /// The settings as the type the kind's spec built, or None for another type.
+    pub fn downcast_ref<T: KindSettings>(&self) -> Option<&T> {
+        self.0.as_any().downcast_ref::<T>()
+    }
+}
+
+impl std::fmt::Debug for RegisteredSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl PartialEq for RegisteredSettings {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.eq_dyn(other.0.as_any())
+    }
+}
+
+/// What a registered kind's settings type must be: comparable, printable and shareable
+/// between threads, like the built-in settings. Implemented for every such type.
+pub trait KindSettings: std::any::Any + std::fmt::Debug + Send + Sync {
+    /// The settings as `Any`, to downcast.
+    fn as_any(&self) -> &dyn std::any::Any;
+    /// Equal to `other` (false for another type).
+    fn eq_dyn(&self, other: &dyn std::any::Any) -> bool;
+}
+
+impl<T> KindSettings for T
+where
+    T: std::any::Any + std::fmt::Debug + PartialEq + Send + Sync,
+{
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn eq_dyn(&self, other: &dyn std::any::Any) -> bool {
+        other.downcast_ref::<T>() == Some(self)
+    }
 }
 
 /// Settings of `udp` and `tcp` transports.

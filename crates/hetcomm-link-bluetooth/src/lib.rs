@@ -73,7 +73,13 @@
 //! }
 //! ```
 
+pub mod factory;
 pub mod socket;
+
+/// Registers the `bluetooth` transport factory ([`factory::BluetoothFactory`]).
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
+    registry.register(factory::BluetoothFactory);
+}
 
 use std::collections::BTreeMap;
 use std::io;

@@ -39,6 +39,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod factory;
 pub mod stream;
 pub mod tcp;
 pub mod udp;
@@ -51,6 +52,12 @@ pub use udp::{UdpConfig, UdpLink};
 pub use unix::UnixLink;
 
 use hetcomm_core::SystemId;
+
+/// Registers the `udp` and `tcp` transport factories ([`factory`]).
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
+    registry.register(factory::UdpFactory);
+    registry.register(factory::TcpFactory);
+}
 
 /// Why a link could not be opened.
 #[derive(Debug, thiserror::Error)]

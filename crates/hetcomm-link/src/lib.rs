@@ -8,7 +8,8 @@
 //! This crate holds the trait, the in-process link ([`inproc`]), the [`layer`]s that go over
 //! any link (the layer stack, taps, and [`emulation`]), and the [`conformance`] suite that
 //! every transport runs, bare and wrapped. Transports with heavy dependencies live in their
-//! own crates.
+//! own crates; each kind offers a [`registry::TransportFactory`] (its settings and how to open
+//! it) that its crate adds to a [`registry::Registry`] with one line.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -27,6 +28,7 @@ pub mod conformance;
 pub mod emulation;
 pub mod inproc;
 pub mod layer;
+pub mod registry;
 
 use std::sync::Arc;
 

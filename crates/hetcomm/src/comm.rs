@@ -116,7 +116,7 @@ impl Comm {
     /// Loads a fleet file and opens one system of it.
     pub fn open(path: impl AsRef<Path>, system: &str) -> Result<Comm, OpenError> {
         let path = path.as_ref();
-        let fleet = hetcomm_config::load(path)?;
+        let fleet = crate::transports::load_fleet(path)?;
         let key = std::fs::canonicalize(path)
             .unwrap_or_else(|_| path.to_path_buf())
             .display()
@@ -449,7 +449,7 @@ impl LocalFleet {
 
     /// Loads a fleet file and opens every system of it.
     pub fn open_file(path: impl AsRef<Path>) -> Result<LocalFleet, OpenError> {
-        Self::open(hetcomm_config::load(path.as_ref())?)
+        Self::open(crate::transports::load_fleet(path.as_ref())?)
     }
 
     /// One system by name.

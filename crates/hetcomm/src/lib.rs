@@ -60,6 +60,7 @@ pub use module::{Module, RawSender, SendOptions, Sender};
 pub use received::{Envelope, RawMessage, Received};
 pub use runtime::{Clock, WallClock};
 pub use ticket::{BroadcastTicket, Ticket};
+pub use transports::{load_fleet, parse_fleet, registry};
 
 pub use hetcomm_core::{
     payload, wire, Address, Header, Message, MessageId, MessageType, ModuleId, Priority, SystemId,

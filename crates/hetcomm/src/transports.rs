@@ -1,24 +1,70 @@
 //! The one dispatch point from a transport's kind to the code that opens it, and the one
 //! place where layers are put over links ([`open_link`]): the same layers, built the same way,
 //! whether the link is a real one or the simulator's.
+//!
+//! Which kinds this program has is [`registry`]: one registration line per link crate, behind
+//! that crate's feature (without it, the crate's kinds stay known by name and opening one says
+//! which feature to rebuild with). `inproc` and `emulated` are the runtime's own (direct
+//! hand-over, the layer stack) and are opened here; every other kind is opened by its crate's
+//! `TransportFactory`, and a kind without one says it is not available in this build.
 
 use std::collections::HashMap;
+use std::path::Path;
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 
-use hetcomm_config::{Fleet, TransportDef, TransportKind, TransportSettings};
+use hetcomm_config::{ConfigErrors, Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::emulation::EmulationLayer;
 use hetcomm_link::inproc::InprocHub;
 use hetcomm_link::layer::{LayerContext, LayerStack};
+use hetcomm_link::registry::{OpenRequest, Registry};
 use hetcomm_link::{FrameSink, Link};
 
 use crate::comm::OpenEnv;
-use hetcomm_link_ip::stream::StreamConfig;
-use hetcomm_link_ip::tcp::TcpLink;
-use hetcomm_link_ip::udp::{UdpConfig, UdpLink};
-
 use crate::error::OpenError;
 use crate::runtime::SystemCore;
+
+/// One link crate's registration line: with its feature on, the crate registers its kinds;
+/// with it off, the kinds stay known by name (a fleet file may name them, keys kept raw) and
+/// opening one says to rebuild with the feature.
+macro_rules! link_crate {
+    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+]) => {
+        #[cfg(feature = $feature)]
+        $krate::register_transports(&mut $registry);
+        #[cfg(not(feature = $feature))]
+        {
+            $($registry.not_built(TransportKind::new($kind), $feature);)+
+        }
+    };
+}
+
+/// The transport kinds compiled into this program: one line per link crate. A new kind adds
+/// its line here (and its feature in `Cargo.toml`) and nothing else outside its crate.
+pub fn registry() -> &'static Registry {
+    static REGISTRY: OnceLock<Registry> = OnceLock::new();
+    REGISTRY.get_or_init(|| {
+        let mut registry = Registry::new();
+        hetcomm_link_ip::register_transports(&mut registry);
+        link_crate!(registry, "bluetooth", hetcomm_link_bluetooth, ["bluetooth"]);
+        link_crate!(registry, "ros1", hetcomm_link_ros1, ["ros1"]);
+        registry
+    })
+}
+
+/// Reads and validates the fleet file at `path`, knowing the settings of every kind compiled
+/// into this program ([`registry`]); `hetcomm_config::load` knows the built-in kinds only.
+pub fn load_fleet(path: &Path) -> Result<Fleet, ConfigErrors> {
+    hetcomm_config::load_with(path, registry().kinds())
+}
+
+/// Validates fleet-file text as [`load_fleet`] does (see `hetcomm_config::parse_str`).
+pub fn parse_fleet(
+    text: &str,
+    origin: &str,
+    base_dir: Option<&Path>,
+) -> Result<Fleet, ConfigErrors> {
+    hetcomm_config::parse_str_with(text, origin, base_dir, registry().kinds())
+}
 
 /// The systems on each in-process transport, by (transport name, system).
 type LocalSystems = HashMap<(String, SystemId), Weak<SystemCore>>;
@@ -165,49 +211,6 @@ fn open_bare(
             local_address: None,
             direct: Some(t.name.clone()),
         }),
-        (TransportKind::Udp, TransportSettings::Ip(ip)) => {
-            let mut config = if all_loopback(&ip.endpoints) {
-                // Loopback has a 64 KiB MTU: fewer, larger datagrams.
-                UdpConfig::loopback()
-            } else {
-                UdpConfig::default()
-            };
-            if let Some(max) = ip.max_message_bytes {
-                config.max_message_bytes = Some(max);
-            }
-            // The system's reactor reads the socket: a module waiting for a message reads
-            // it itself (see `reactor.rs`).
-            config.driven = true;
-            let link = UdpLink::bind(local, &ip.endpoints, sink, config)
-                .map_err(|e| failed(e.to_string()))?;
-            let local_address = Some(format!("udp://{}", link.local_addr()));
-            Ok(OpenedLink {
-                link: Arc::new(link),
-                local_address,
-                direct: None,
-            })
-        }
-        (TransportKind::Tcp, TransportSettings::Ip(ip)) => {
-            // Read by the waiting module (or the system's background thread), as UDP is.
-            let mut config = StreamConfig {
-                driven: true,
-                ..StreamConfig::default()
-            };
-            if let Some(max) = ip.max_message_bytes {
-                config.max_message_bytes = Some(max);
-            }
-            if let Some(max) = ip.max_connections {
-                config.max_connections = max;
-            }
-            let link = TcpLink::bind(local, &ip.endpoints, sink, config)
-                .map_err(|e| failed(e.to_string()))?;
-            let local_address = Some(format!("tcp://{}", link.local_addr()));
-            Ok(OpenedLink {
-                link: Arc::new(link),
-                local_address,
-                direct: None,
-            })
-        }
         (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
             // The link under the emulation layer: another transport of the fleet (with its own
             // layers), or a private in-process hub.
@@ -233,62 +236,43 @@ fn open_bare(
                 }),
             }
         }
-        #[cfg(feature = "bluetooth")]
-        (TransportKind::Bluetooth, TransportSettings::Bluetooth(bt)) => {
-            use hetcomm_link_bluetooth::BluetoothLink;
-            let config = BluetoothLink::default_config();
-            let link =
-                BluetoothLink::open(local, bt, sink, config).map_err(|e| failed(e.to_string()))?;
-            let local_address = Some(format!("rfcomm://[{}]:{}", link.device(), link.channel()));
-            Ok(OpenedLink {
-                link: Arc::new(link),
-                local_address,
-                direct: None,
-            })
+        (&kind, _) => {
+            let request = OpenRequest {
+                fleet,
+                transport: t,
+                local,
+                sink,
+            };
+            match registry().open(request) {
+                Some(opened) => {
+                    let opened = opened.map_err(failed)?;
+                    Ok(OpenedLink {
+                        link: opened.link,
+                        local_address: opened.local_address,
+                        direct: None,
+                    })
+                }
+                None => Err(unavailable(t, kind)),
+            }
         }
-        #[cfg(feature = "ros1")]
-        (TransportKind::Ros1, TransportSettings::Ros1(ros)) => {
-            use hetcomm_link_ros1::{Ros1Config, Ros1Link};
-            let names = fleet
-                .systems
-                .iter()
-                .map(|s| (s.id, s.name.clone()))
-                .collect();
-            let link = Ros1Link::open(local, &names, ros, sink, Ros1Config::default())
-                .map_err(|e| failed(e.to_string()))?;
-            let local_address = Some(format!(
-                "ros1://{}{}",
-                ros.master_uri.trim_start_matches("http://"),
-                link.topic()
-            ));
-            Ok(OpenedLink {
-                link: Arc::new(link),
-                local_address,
-                direct: None,
-            })
-        }
-        (kind, _) => Err(unavailable(t, *kind)),
     }
 }
 
-fn all_loopback(endpoints: &std::collections::BTreeMap<SystemId, String>) -> bool {
-    use std::net::ToSocketAddrs;
-    endpoints.values().all(|e| {
-        e.to_socket_addrs()
-            .map(|mut addrs| addrs.all(|a| a.ip().is_loopback()))
-            .unwrap_or(false)
-    })
-}
-
+/// The error for a kind without a factory in this build: what to rebuild with, or what to use
+/// instead.
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {
     let hint = match kind {
-        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one",
-        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio",
-        _ => "choose `inproc` (one process) or another available kind in the fleet file",
+        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one".to_string(),
+        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio".to_string(),
+        _ => match registry().feature_for(kind) {
+            Some(feature) => format!("rebuild with `--features {feature}`"),
+            None => "choose `inproc` (one process) or another available kind in the fleet file"
+                .to_string(),
+        },
     };
     OpenError::KindUnavailable {
         transport: t.name.clone(),
         kind,
-        hint: hint.to_string(),
+        hint,
     }
 }

@@ -4,6 +4,7 @@
 
 mod emulation;
 mod modules;
+mod reader;
 mod scan;
 mod systems;
 mod table;
@@ -12,6 +13,7 @@ mod values;
 
 pub use emulation::emulated_profile;
 use modules::policy;
+pub use reader::SettingsReader;
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -27,6 +29,7 @@ use crate::assemble::{
     Systems, TransportSpec, DEFAULT_MODULES,
 };
 use crate::error::{ConfigErrors, Diag, LineIndex, Loc};
+use crate::kinds::Kinds;
 use crate::legacy;
 use crate::model::*;
 use crate::suggest;
@@ -130,6 +133,8 @@ struct P<'a> {
     idx: LineIndex,
     diag: Diag,
     base_dir: Option<&'a Path>,
+    /// The kinds registered beyond the built-in ones.
+    kinds: &'a Kinds,
     /// Systems of `[systems]` left out for an error in their entry (a bad or missing id).
     unusable_systems: Vec<String>,
     /// Every `udp` / `tcp` endpoint so far, by (kind, host in lower case, port).
@@ -150,8 +155,9 @@ pub(crate) fn parse(
     origin: &str,
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
+    kinds: &Kinds,
 ) -> Result<Fleet, ConfigErrors> {
-    parse_with(text, origin, base_dir, source, true).0
+    parse_with(text, origin, base_dir, source, kinds, true).0
 }
 
 /// [`parse`], reading a plain `[table]` with [`scan`] when `fast` (and it can); also says
@@ -161,6 +167,7 @@ fn parse_with(
     origin: &str,
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
+    kinds: &Kinds,
     fast: bool,
 ) -> (Result<Fleet, ConfigErrors>, bool) {
     let file: Rc<str> = Rc::from(origin);
@@ -176,6 +183,7 @@ fn parse_with(
                     idx: LineIndex::new(&scanned.rest),
                     diag: Diag::default(),
                     base_dir,
+                    kinds,
                     unusable_systems: Vec::new(),
                     endpoints_seen: FxHashMap::default(),
                 };
@@ -190,6 +198,7 @@ fn parse_with(
         idx: LineIndex::new(text),
         diag: Diag::default(),
         base_dir,
+        kinds,
         unusable_systems: Vec::new(),
         endpoints_seen: FxHashMap::default(),
     };
@@ -497,10 +506,6 @@ fn label(text: &str, loc: &Loc) -> Label {
     }
 }
 
-fn kind_list() -> String {
-    TransportKind::ALL
-        .iter()
-        .map(|k| k.as_str())
-        .collect::<Vec<_>>()
-        .join(", ")
+fn kind_list(kinds: &Kinds) -> String {
+    kinds.names().join(", ")
 }

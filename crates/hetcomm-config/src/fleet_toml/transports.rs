@@ -1,5 +1,7 @@
 //! `[transports.<name>]`: the keys every kind shares, and the settings of `udp`, `tcp`,
-//! `ros1`, `bluetooth` and the raw kinds (`emulated` is in `emulation.rs`).
+//! `ros1`, `bluetooth` and the raw kinds (`emulated` is in `emulation.rs`). A kind registered
+//! by a link crate (`crate::kinds::KindSpec`) reads its own keys through a
+//! [`SettingsReader`] handed out here, after its unknown keys were reported.
 
 use super::*;
 
@@ -40,13 +42,13 @@ impl P<'_> {
                 self.diag.err_help(
                     &tloc,
                     format!("transport `{name}` has no `kind`"),
-                    format!("add `kind = \"…\"`, one of: {}", kind_list()),
+                    format!("add `kind = \"…\"`, one of: {}", kind_list(self.kinds)),
                 );
                 None
             }
             Some(v) => {
                 let vl = self.vloc(v, &tloc);
-                let names: Vec<&str> = TransportKind::ALL.iter().map(|k| k.as_str()).collect();
+                let names = self.kinds.names();
                 self.choice(
                     v,
                     &format!("{path}.kind"),
@@ -54,7 +56,7 @@ impl P<'_> {
                     ("transport kind", "transport kinds"),
                     &names,
                 )
-                .map(|i| TransportKind::ALL[i])
+                .map(|i| TransportKind::new(names[i]))
             }
         };
         let delivery = match t.get("delivery") {
@@ -178,6 +180,22 @@ impl P<'_> {
             return Some(spec); // kind already reported; its keys cannot be judged
         };
         let errors_before = self.diag.errors.len();
+        let kinds = self.kinds;
+        if let Some(registered) = kinds.spec(kind) {
+            let allowed: Vec<&str> = COMMON_KEYS
+                .iter()
+                .chain(registered.keys())
+                .copied()
+                .collect();
+            self.unknown_keys(t, &allowed, Some(&path), &tloc);
+            let mut reader =
+                SettingsReader::new(self, t, (path.clone(), tloc.clone()), (name, kind), systems);
+            let settings = registered.parse(&mut reader);
+            if self.diag.errors.len() == errors_before {
+                spec.settings = settings.map(TransportSettings::Registered);
+            }
+            return Some(spec);
+        }
         let extra: &[&str] = match kind {
             TransportKind::Inproc => &[],
             TransportKind::Udp => &IP_KEYS,
@@ -185,12 +203,9 @@ impl P<'_> {
             TransportKind::Ros1 => &ROS1_KEYS,
             TransportKind::Bluetooth => &BLUETOOTH_KEYS,
             TransportKind::Emulated => &EMULATED_KEYS,
-            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds => &[],
+            _ => &[], // zenoh, mqtt, dds: kept raw
         };
-        let raw_kind = matches!(
-            kind,
-            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds
-        );
+        let raw_kind = !crate::kinds::MODELLED.contains(&kind);
         if !raw_kind {
             let mut allowed: Vec<&str> = COMMON_KEYS.iter().chain(extra).copied().collect();
             if kind == TransportKind::Emulated {
@@ -362,7 +377,8 @@ impl P<'_> {
                 TransportSettings::Bluetooth(BluetoothSettings { channel, addresses })
             }
             TransportKind::Emulated => self.emulated(t, &path, &tloc, &mut spec),
-            TransportKind::Zenoh | TransportKind::Mqtt | TransportKind::Dds => {
+            _ => {
+                // zenoh, mqtt, dds without a registered spec.
                 let raw = t
                     .iter()
                     .filter(|(k, _)| !COMMON_KEYS.contains(k))

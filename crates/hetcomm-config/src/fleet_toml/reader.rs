@@ -1,0 +1,123 @@
+//! [`SettingsReader`]: a registered kind's view of its transport table, reporting through the
+//! walker's own helpers (`values.rs`) so its errors are located and worded like the built-in
+//! kinds' errors.
+
+use super::*;
+
+/// One transport's table, as a registered kind's [`crate::kinds::KindSpec::parse`] reads it.
+/// Every read reports a problem at the `file:line:column` of the value (or of the transport's
+/// table for a missing key) into the loader's list of errors, and returns None for it; a
+/// key that is absent returns None without an error.
+pub struct SettingsReader<'r, 'f> {
+    p: &'r mut P<'f>,
+    t: &'r dyn TableLike,
+    path: String,
+    tloc: Loc,
+    name: &'r str,
+    kind: TransportKind,
+    systems: &'r Systems,
+}
+
+impl<'r, 'f> SettingsReader<'r, 'f> {
+    pub(super) fn new(
+        p: &'r mut P<'f>,
+        t: &'r dyn TableLike,
+        (path, tloc): (String, Loc),
+        (name, kind): (&'r str, TransportKind),
+        systems: &'r Systems,
+    ) -> Self {
+        SettingsReader {
+            p,
+            t,
+            path,
+            tloc,
+            name,
+            kind,
+            systems,
+        }
+    }
+
+    /// The transport's name.
+    pub fn transport(&self) -> &str {
+        self.name
+    }
+
+    /// The transport's kind.
+    pub fn kind(&self) -> TransportKind {
+        self.kind
+    }
+
+    /// Whether the table has `key`.
+    pub fn has(&self, key: &str) -> bool {
+        self.t.get(key).is_some()
+    }
+
+    fn item(&self, key: &str) -> Option<(&'r Item, Loc, String)> {
+        let v = self.t.get(key)?;
+        Some((
+            v,
+            self.p.vloc(v, &self.tloc),
+            format!("{}.{key}", self.path),
+        ))
+    }
+
+    /// A string; `help` says what to write instead of something else.
+    pub fn string(&mut self, key: &str, help: &str) -> Option<String> {
+        let (v, vl, path) = self.item(key)?;
+        self.p.string(v, &path, &vl, help).map(str::to_string)
+    }
+
+    /// An integer from `min` to `max`.
+    pub fn int_in(&mut self, key: &str, min: i64, max: i64, help: &str) -> Option<i64> {
+        let (v, vl, path) = self.item(key)?;
+        self.p.int_in(v, &path, &vl, min, max, help)
+    }
+
+    /// `true` or `false`.
+    pub fn boolean(&mut self, key: &str, help: &str) -> Option<bool> {
+        let (v, vl, path) = self.item(key)?;
+        self.p.boolean(v, &path, &vl, help)
+    }
+
+    /// One of `options` (its index), reporting anything else with a "did you mean";
+    /// `what` names one and several of them, e.g. `("mode", "modes")`.
+    pub fn choice(&mut self, key: &str, what: (&str, &str), options: &[&str]) -> Option<usize> {
+        let (v, vl, path) = self.item(key)?;
+        self.p.choice(v, &path, &vl, what, options)
+    }
+
+    /// `key = { System = "host:port", … }`, checked as `udp` and `tcp` endpoints are: known
+    /// systems, well-formed `host:port`, and no two systems of this kind on one address and
+    /// port (port 0 excepted).
+    pub fn endpoints(&mut self, key: &str) -> Option<BTreeMap<hetcomm_core::SystemId, String>> {
+        let v = self.t.get(key)?;
+        let path = format!("{}.{key}", self.path);
+        Some(
+            self.p
+                .endpoints(v, &path, &self.tloc, (self.name, self.kind), self.systems),
+        )
+    }
+
+    /// Reports a required key that is absent, at the transport's table, as the built-in kinds
+    /// do: "transport `x` (kind k) is missing required setting `key`".
+    pub fn missing(&mut self, key: &str, help: &str) {
+        self.p.diag.err_help(
+            &self.tloc,
+            format!(
+                "transport `{}` (kind {}) is missing required setting `{key}`",
+                self.name, self.kind
+            ),
+            help,
+        );
+    }
+
+    /// Reports a problem of the kind's own (a value out of its domain, two keys that do not
+    /// fit together) at `key`'s value, or at the transport's table when `key` is absent.
+    pub fn error(&mut self, key: &str, message: impl Into<String>, help: impl Into<String>) {
+        let loc = match self.item(key) {
+            Some((_, vl, _)) => vl,
+            None => self.tloc.clone(),
+        };
+        self.p.diag.err_help(&loc, message, help);
+    }
+}

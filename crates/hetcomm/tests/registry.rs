@@ -1,0 +1,62 @@
+//! The kinds compiled into this build are the ones its registration lines name
+//! (`registry()` in src/transports.rs), and a fleet is loaded knowing them.
+
+use hetcomm::config::TransportKind;
+
+#[test]
+fn the_registry_holds_the_kinds_built_in() {
+    let kinds: Vec<TransportKind> = hetcomm::registry().registered().collect();
+    assert!(kinds.contains(&TransportKind::Udp), "{kinds:?}");
+    assert!(kinds.contains(&TransportKind::Tcp), "{kinds:?}");
+    assert_eq!(
+        kinds.contains(&TransportKind::Bluetooth),
+        cfg!(feature = "bluetooth"),
+        "{kinds:?}"
+    );
+    assert_eq!(
+        kinds.contains(&TransportKind::Ros1),
+        cfg!(feature = "ros1"),
+        "{kinds:?}"
+    );
+    // The runtime opens these itself; the fleet file's raw kinds have no factory.
+    for kind in [
+        TransportKind::Inproc,
+        TransportKind::Emulated,
+        TransportKind::Zenoh,
+        TransportKind::Mqtt,
+        TransportKind::Dds,
+    ] {
+        assert!(!kinds.contains(&kind), "{kind} has a factory: {kinds:?}");
+    }
+}
+
+#[test]
+fn a_fleet_loads_with_the_built_in_kinds_as_the_loader_alone_reads_it() {
+    let text = r#"[systems]
+Alpha = 0
+Bravo = 1
+
+[transports.lan]
+kind = "udp"
+endpoints = { Alpha = "127.0.0.1:0", Bravo = "127.0.0.1:0" }
+
+[table]
+columns = ["Alpha", "Bravo"]
+Alpha = ["X", "lan"]
+Bravo = ["lan", "X"]
+"#;
+    let with_registry = hetcomm::parse_fleet(text, "f.toml", None).expect("valid");
+    let alone = hetcomm::config::parse_str(text, "f.toml", None).expect("valid");
+    assert_eq!(with_registry, alone);
+
+    let bad = text.replace("udp", "udpp");
+    let with_registry = hetcomm::parse_fleet(&bad, "f.toml", None).unwrap_err();
+    let alone = hetcomm::config::parse_str(&bad, "f.toml", None).unwrap_err();
+    assert_eq!(with_registry.to_string(), alone.to_string());
+    assert!(
+        alone
+            .to_string()
+            .starts_with("f.toml:6:8: unknown transport kind `udpp`"),
+        "{alone}"
+    );
+}
