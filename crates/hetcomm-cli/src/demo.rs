@@ -69,7 +69,7 @@ fn embedded_fleet(single_ve: bool, r: &str, b: &str) -> anyhow::Result<hetcomm::
         transport_toml("radio", 'B', b)?,
         &base[end..]
     );
-    Ok(hetcomm::config::parse_str(
+    Ok(hetcomm::parse_fleet(
         &text,
         "<embedded leader-follower fleet>",
         None,

@@ -499,7 +499,11 @@ mod tests {
         assert_eq!(Drops::of(&stats_with_kernel_drops(&[0, 0])).kernel, None);
         let d = Drops::of(&stats_with_kernel_drops(&[3, 4]));
         assert_eq!(d.kernel, Some(7));
-        assert!(d.status(2).contains("7 dropped by the kernel"), "{}", d.status(2));
+        assert!(
+            d.status(2).contains("7 dropped by the kernel"),
+            "{}",
+            d.status(2)
+        );
         let s = summary(2, &stats_with_kernel_drops(&[3, 4]));
         assert!(s.ends_with("; kernel dropped 7"), "{s}");
     }

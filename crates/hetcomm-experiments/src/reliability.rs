@@ -303,7 +303,7 @@ pub fn write_default_fleet(dir: &Path) -> Result<std::path::PathBuf, ExperimentE
 
 /// Loads a fleet file, turning its located errors into one message.
 pub fn load_fleet(path: &Path) -> Result<Fleet, ExperimentError> {
-    hetcomm::config::load(path).map_err(|e| ExperimentError::Fleet(e.to_string()))
+    hetcomm::load_fleet(path).map_err(|e| ExperimentError::Fleet(e.to_string()))
 }
 
 /// The default fleet: Tables 16–18 with R = emulated `wired`, B = emulated

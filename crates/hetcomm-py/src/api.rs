@@ -856,7 +856,7 @@ impl Comm {
     #[staticmethod]
     #[pyo3(signature = (text, system, origin="<string>"))]
     fn from_toml(py: Python<'_>, text: &str, system: &str, origin: &str) -> PyResult<Comm> {
-        let fleet = hetcomm::config::parse_str(text, origin, None)
+        let fleet = hetcomm::parse_fleet(text, origin, None)
             .map_err(|e| errors::config_error(&e, e.to_string()))?;
         let system = system.to_string();
         py.detach(move || hetcomm::Comm::open_fleet(&fleet, &system))
@@ -1037,7 +1037,7 @@ impl LocalFleet {
     #[staticmethod]
     #[pyo3(signature = (text, origin="<string>"))]
     fn from_toml(py: Python<'_>, text: &str, origin: &str) -> PyResult<LocalFleet> {
-        let fleet = hetcomm::config::parse_str(text, origin, None)
+        let fleet = hetcomm::parse_fleet(text, origin, None)
             .map_err(|e| errors::config_error(&e, e.to_string()))?;
         py.detach(move || hetcomm::LocalFleet::open(fleet))
             .map(|f| LocalFleet {
