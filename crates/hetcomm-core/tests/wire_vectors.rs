@@ -203,6 +203,7 @@ struct ReassemblyVector {
     datagrams_hex: Vec<String>,
     frames_hex: Vec<String>,
     rejected: usize,
+    duplicates: usize,
     pending: usize,
 }
 
@@ -1049,6 +1050,8 @@ fn fragmented_vectors(f: &LinkFrames) -> Vec<FragmentedVector> {
     ]
 }
 
+/// The counts after the frames: `rejected`, `duplicates`, `pending`, in the JSON's order.
+#[allow(clippy::too_many_arguments)]
 fn reassembly(
     name: &str,
     description: &str,
@@ -1056,6 +1059,7 @@ fn reassembly(
     datagrams: &[&[u8]],
     frames: &[&[u8]],
     rejected: usize,
+    duplicates: usize,
     pending: usize,
 ) -> ReassemblyVector {
     ReassemblyVector {
@@ -1065,6 +1069,7 @@ fn reassembly(
         datagrams_hex: hexes(datagrams),
         frames_hex: hexes(frames),
         rejected,
+        duplicates,
         pending,
     }
 }
@@ -1090,6 +1095,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&f.wheels],
             0,
             0,
+            0,
         ),
         reassembly(
             "reversed",
@@ -1097,6 +1103,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             m,
             &[&w[2], &w[1], &w[0]],
             &[&f.wheels],
+            0,
             0,
             0,
         ),
@@ -1107,6 +1114,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &w[0], &w[1], &w[2]],
             &[&f.wheels],
             0,
+            1,
             0,
         ),
         reassembly(
@@ -1116,6 +1124,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             m,
             &[&w[0], &h[0], &w[1], &h[1], &w[2], &h[2]],
             &[&f.wheels, &hundred],
+            0,
             0,
             0,
         ),
@@ -1128,6 +1137,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&trailing],
             0,
             0,
+            0,
         ),
         reassembly(
             "missing_fragment",
@@ -1136,6 +1146,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             m,
             &[&w[0], &w[2]],
             &[],
+            0,
             0,
             1,
         ),
@@ -1149,6 +1160,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &other[1], &w[1], &w[2]],
             &[],
             1,
+            0,
             1,
         ),
         reassembly(
@@ -1160,16 +1172,19 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&f.wheels],
             1,
             0,
+            0,
         ),
         reassembly(
             "late_duplicate_after_completion",
-            "Fragment 1 again after the message completed: it starts a new incomplete message \
-             (the receiver keeps no memory of completed ones), held until the timeout.",
+            "Fragment 1 again after the message completed: the receiver remembers the \
+             message for its reassembly timeout and drops the copy as a duplicate; nothing is \
+             held.",
             m,
             &[&w[0], &w[1], &w[2], &w[1]],
             &[&f.wheels],
             0,
             1,
+            0,
         ),
         reassembly(
             "over_the_receivers_max_frame",
@@ -1179,6 +1194,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &w[1], &w[2]],
             &[],
             3,
+            0,
             0,
         ),
     ]

@@ -53,10 +53,15 @@
 //! Fragments are collected per (source address, sender, message id). A message completes when
 //! every fragment arrived; a message still incomplete [`UdpConfig::reassembly_timeout`] after
 //! its first fragment is dropped and counted (a single lost piece loses the whole message —
-//! the router retries). The bytes held for incomplete messages are bounded by
-//! [`UdpConfig::reassembly_limit_bytes`]: to start a new message over the limit, the oldest
-//! incomplete messages are dropped (and counted) first. [`LinkStats::buffered_bytes`] reports
-//! the bytes held.
+//! the router retries).
+//!
+//! Memory follows the bytes that arrived, never the total a header announces (see
+//! [`Reassembler`]): a message's buffer grows as its pieces arrive, pieces ahead of a gap are
+//! kept apart until it fills. Everything held counts against
+//! [`UdpConfig::reassembly_limit_bytes`]; over it, the oldest incomplete message of the source
+//! address holding the most is dropped (and counted) first, so a flooding source evicts its own
+//! messages before anyone else's, and one source holds at most [`MAX_PARTIALS_PER_SOURCE`]
+//! messages. [`LinkStats::buffered_bytes`] reports the bytes held.
 //!
 //! # Bad input
 //!
@@ -94,7 +99,8 @@
 //! [`Peer::Unknown`], and counted in [`UdpStats::from_unknown_address`]: a fleet system bound
 //! to `0.0.0.0` on a multi-homed robot may send from an address other than the one in the fleet
 //! file, and the router checks the frame header's source anyway. A fragment whose sender field
-//! disagrees with the fleet system at its source address is dropped.
+//! disagrees with the fleet system at its source address is dropped, and so is one from an
+//! unknown address whose sender field names no fleet system ([`FragmentError::UnknownSender`]).
 //!
 //! # Datagram size
 //!
@@ -252,6 +258,10 @@ pub struct UdpStats {
     pub reassembly_timeouts: u64,
     /// Incomplete messages dropped to make room (or refused for being over the limit).
     pub reassembly_evictions: u64,
+    /// Fragments dropped as duplicates: of a message still incomplete, or arriving late, after
+    /// their message was completed and handed up. Not part of `frames_dropped` (the frame
+    /// was delivered, or will be).
+    pub duplicate_fragments: u64,
     /// Frames received from an address that is no fleet endpoint (handed up as
     /// [`Peer::Unknown`]).
     pub from_unknown_address: u64,
@@ -274,6 +284,7 @@ struct Counters {
     bad_datagrams: AtomicU64,
     reassembly_timeouts: AtomicU64,
     reassembly_evictions: AtomicU64,
+    duplicate_fragments: AtomicU64,
     from_unknown_address: AtomicU64,
     buffered_bytes: AtomicU64,
 }
@@ -372,6 +383,12 @@ pub enum FragmentError {
         /// The system at the source address.
         actual: SystemId,
     },
+    /// The sender field names no fleet system (from an address that is no fleet endpoint).
+    #[error("fragment claims sender {claimed}, which is no fleet system")]
+    UnknownSender {
+        /// The sender field.
+        claimed: SystemId,
+    },
 }
 
 /// Parses and checks a fragment datagram (which starts with [`FRAGMENT_MAGIC`]) against
@@ -429,13 +446,86 @@ pub fn parse_fragment(
 
 type MessageKey = (SocketAddr, SystemId, u32);
 
+/// Bytes a partial message is charged for beyond its pieces (its bookkeeping).
+const PARTIAL_OVERHEAD: usize = 128;
+/// Bytes charged per piece that arrived ahead of its turn (its map entry).
+const PIECE_OVERHEAD: usize = 32;
+/// The first contiguous buffer of a message holds at most this many pieces: a fragment's
+/// header never makes the receiver reserve much more than the bytes it has received.
+const FIRST_RESERVE_PIECES: usize = 4;
+/// Most incomplete messages from one source address at once; a further one evicts that
+/// source's oldest.
+pub const MAX_PARTIALS_PER_SOURCE: usize = 64;
+/// Most recently completed messages remembered (for [`UdpConfig::reassembly_timeout`]) so
+/// that their late duplicate fragments are recognised.
+pub const MAX_REMEMBERED_COMPLETIONS: usize = 4096;
+
 struct Partial {
     total: u32,
     count: u16,
     started: Instant,
-    buf: Vec<u8>,
-    have: Vec<bool>,
-    missing: usize,
+    /// Pieces `0..next`, in order: the start of the frame. Grows as pieces arrive.
+    head: Vec<u8>,
+    /// The next piece `head` takes.
+    next: u16,
+    /// Pieces that arrived ahead of their turn, by index.
+    ahead: BTreeMap<u16, Vec<u8>>,
+    /// Bytes in `ahead`.
+    ahead_bytes: usize,
+    /// Bytes this message is charged for in [`Reassembler::held_bytes`].
+    charged: usize,
+}
+
+impl Partial {
+    fn has(&self, index: u16) -> bool {
+        index < self.next || self.ahead.contains_key(&index)
+    }
+
+    /// What the message costs now: its buffers (by capacity) and bookkeeping.
+    fn cost(&self) -> usize {
+        PARTIAL_OVERHEAD
+            + self.head.capacity()
+            + self.ahead_bytes
+            + self.ahead.len() * PIECE_OVERHEAD
+    }
+
+    /// Takes piece `index` (not held yet).
+    fn insert(&mut self, index: u16, piece: &[u8]) {
+        if index != self.next {
+            self.ahead_bytes += piece.len();
+            self.ahead.insert(index, piece.to_vec());
+            return;
+        }
+        self.append(piece);
+        while let Some(p) = self.ahead.remove(&self.next) {
+            self.ahead_bytes -= p.len();
+            self.append(&p);
+        }
+    }
+
+    /// Appends the next piece to `head`, growing it by at most doubling (and at first by a few
+    /// pieces), never past `total`.
+    fn append(&mut self, piece: &[u8]) {
+        let total = self.total as usize;
+        let need = self.head.len() + piece.len();
+        if need > self.head.capacity() {
+            let chunk = total.div_ceil(usize::from(self.count));
+            let target = need
+                .max(self.head.capacity() * 2)
+                .max(FIRST_RESERVE_PIECES * chunk)
+                .min(total);
+            self.head.reserve_exact(target - self.head.len());
+        }
+        self.head.extend_from_slice(piece);
+        self.next += 1;
+    }
+}
+
+/// What one source address holds.
+#[derive(Default)]
+struct SourceUse {
+    bytes: usize,
+    partials: usize,
 }
 
 /// What [`Reassembler::on_fragment`] made of a fragment.
@@ -443,8 +533,11 @@ struct Partial {
 pub enum Reassembly {
     /// The message is complete: here is the frame.
     Complete(Vec<u8>),
-    /// More fragments are needed (or this one was a duplicate).
+    /// More fragments are needed.
     Pending,
+    /// A fragment already taken: of a message still incomplete, or of one completed within
+    /// the reassembly timeout (a late duplicate). Dropped; nothing is held for it.
+    Duplicate,
     /// The fragment could not be used; `dropped` incomplete messages were given up with it.
     Rejected {
         /// Why.
@@ -456,13 +549,27 @@ pub enum Reassembly {
 
 /// Bounded, time-limited reassembly of fragmented messages; sans-IO (time is passed in), so it
 /// is tested without sockets.
+///
+/// Memory follows what arrived, not what a header announces: a message's buffer grows as its
+/// pieces arrive (the first reservation is at most [`FIRST_RESERVE_PIECES`] pieces, later ones
+/// at most double it), and pieces that arrive ahead of their turn are kept apart until the
+/// gap before them fills. Everything held, bookkeeping included, is charged against the limit.
+/// When a new piece takes the total over the limit, the oldest message of the source address
+/// holding the most is dropped, until it fits: a source flooding the receiver loses its own
+/// messages first. One source holds at most [`MAX_PARTIALS_PER_SOURCE`] messages.
 pub struct Reassembler {
     limit_bytes: usize,
     timeout: Duration,
     max_frame: usize,
+    /// Fleet systems a sender field may name (empty: any).
+    fleet: Vec<SystemId>,
     partials: HashMap<MessageKey, Partial>,
+    sources: HashMap<SocketAddr, SourceUse>,
     held: usize,
     evictions: u64,
+    /// Recently completed messages, oldest first, and the same as a set.
+    completed: std::collections::VecDeque<(MessageKey, Instant)>,
+    completed_set: std::collections::HashSet<MessageKey>,
 }
 
 impl Reassembler {
@@ -473,13 +580,25 @@ impl Reassembler {
             limit_bytes,
             timeout,
             max_frame,
+            fleet: Vec::new(),
             partials: HashMap::new(),
+            sources: HashMap::new(),
             held: 0,
             evictions: 0,
+            completed: std::collections::VecDeque::new(),
+            completed_set: std::collections::HashSet::new(),
         }
     }
 
-    /// Bytes held for incomplete messages.
+    /// Accepts fragments only from senders named in `fleet` (when it is not empty); others are
+    /// rejected with [`FragmentError::UnknownSender`] before anything is held.
+    pub fn with_fleet(mut self, fleet: impl IntoIterator<Item = SystemId>) -> Reassembler {
+        self.fleet = fleet.into_iter().collect();
+        self.fleet.sort_unstable();
+        self
+    }
+
+    /// Bytes held for incomplete messages (their buffers by capacity, and bookkeeping).
     pub fn held_bytes(&self) -> usize {
         self.held
     }
@@ -514,6 +633,8 @@ impl Reassembler {
                     actual,
                 });
             }
+        } else if !self.fleet.is_empty() && self.fleet.binary_search(&h.sender).is_err() {
+            return reject(FragmentError::UnknownSender { claimed: h.sender });
         }
         if h.count == 1 {
             return Reassembly::Complete(piece.to_vec());
@@ -530,63 +651,80 @@ impl Reassembler {
                 };
             }
         } else {
-            let need = h.total as usize;
-            if need > self.limit_bytes {
+            if self.completed_set.contains(&key) {
+                return Reassembly::Duplicate;
+            }
+            if h.total as usize > self.limit_bytes {
                 self.evictions += 1;
                 return Reassembly::Pending;
             }
-            while self.held + need > self.limit_bytes {
-                let oldest = self
-                    .partials
-                    .iter()
-                    .min_by_key(|(_, p)| p.started)
-                    .map(|(k, _)| *k);
-                match oldest {
-                    Some(k) => {
-                        self.remove(&k);
-                        self.evictions += 1;
-                    }
-                    None => break,
+            if self.sources.get(&src).map_or(0, |s| s.partials) >= MAX_PARTIALS_PER_SOURCE {
+                if let Some(k) = self.oldest_of(src) {
+                    self.remove(&k);
+                    self.evictions += 1;
                 }
             }
-            self.held += need;
-            self.partials.insert(
-                key,
-                Partial {
-                    total: h.total,
-                    count: h.count,
-                    started: now,
-                    buf: vec![0; need],
-                    have: vec![false; usize::from(h.count)],
-                    missing: usize::from(h.count),
-                },
-            );
+            let p = Partial {
+                total: h.total,
+                count: h.count,
+                started: now,
+                head: Vec::new(),
+                next: 0,
+                ahead: BTreeMap::new(),
+                ahead_bytes: 0,
+                charged: PARTIAL_OVERHEAD,
+            };
+            self.held += p.charged;
+            let s = self.sources.entry(src).or_default();
+            s.bytes += p.charged;
+            s.partials += 1;
+            self.partials.insert(key, p);
         }
         let Some(p) = self.partials.get_mut(&key) else {
             return Reassembly::Pending;
         };
-        let i = usize::from(h.index);
-        if p.have[i] {
-            return Reassembly::Pending; // a duplicate datagram
+        if p.has(h.index) {
+            return Reassembly::Duplicate;
         }
-        p.have[i] = true;
-        p.missing -= 1;
-        p.buf[h.piece_range()].copy_from_slice(piece);
-        if p.missing > 0 {
-            return Reassembly::Pending;
+        p.insert(h.index, piece);
+        if p.next == p.count {
+            let frame = match self.remove(&key) {
+                Some(p) => p.head,
+                None => return Reassembly::Pending,
+            };
+            self.remember(key, now);
+            return Reassembly::Complete(frame);
         }
-        match self.partials.remove(&key) {
-            Some(p) => {
-                self.held -= p.buf.len();
-                Reassembly::Complete(p.buf)
-            }
-            None => Reassembly::Pending,
+        let (before, after) = (p.charged, p.cost());
+        p.charged = after;
+        self.held = self.held - before + after;
+        if let Some(s) = self.sources.get_mut(&src) {
+            s.bytes = s.bytes - before + after;
         }
+        while self.held > self.limit_bytes {
+            let Some(k) = self.eviction_victim() else {
+                break;
+            };
+            self.remove(&k);
+            self.evictions += 1;
+        }
+        Reassembly::Pending
     }
 
-    /// Drops incomplete messages whose time ran out; returns how many.
+    /// Drops incomplete messages whose time ran out (returns how many) and forgets completed
+    /// messages older than the timeout.
     pub fn expire(&mut self, now: Instant) -> usize {
         let timeout = self.timeout;
+        while let Some(&(key, at)) = self.completed.front() {
+            if now.saturating_duration_since(at) < timeout {
+                break;
+            }
+            self.completed.pop_front();
+            self.completed_set.remove(&key);
+        }
+        if self.partials.is_empty() {
+            return 0;
+        }
         let expired: Vec<MessageKey> = self
             .partials
             .iter()
@@ -599,10 +737,48 @@ impl Reassembler {
         expired.len()
     }
 
-    fn remove(&mut self, key: &MessageKey) {
-        if let Some(p) = self.partials.remove(key) {
-            self.held -= p.buf.len();
+    /// Whether [`expire`](Reassembler::expire) has anything to look at.
+    fn needs_upkeep(&self) -> bool {
+        !self.partials.is_empty() || !self.completed.is_empty()
+    }
+
+    fn remember(&mut self, key: MessageKey, now: Instant) {
+        if self.completed.len() >= MAX_REMEMBERED_COMPLETIONS {
+            if let Some((old, _)) = self.completed.pop_front() {
+                self.completed_set.remove(&old);
+            }
         }
+        if self.completed_set.insert(key) {
+            self.completed.push_back((key, now));
+        }
+    }
+
+    /// The oldest incomplete message from `src`.
+    fn oldest_of(&self, src: SocketAddr) -> Option<MessageKey> {
+        self.partials
+            .iter()
+            .filter(|(k, _)| k.0 == src)
+            .min_by_key(|(_, p)| p.started)
+            .map(|(k, _)| *k)
+    }
+
+    /// The message to drop for room: the oldest of the source holding the most bytes.
+    fn eviction_victim(&self) -> Option<MessageKey> {
+        let (&src, _) = self.sources.iter().max_by_key(|(_, s)| s.bytes)?;
+        self.oldest_of(src)
+    }
+
+    fn remove(&mut self, key: &MessageKey) -> Option<Partial> {
+        let p = self.partials.remove(key)?;
+        self.held -= p.charged;
+        if let Some(s) = self.sources.get_mut(&key.0) {
+            s.bytes -= p.charged;
+            s.partials -= 1;
+            if s.partials == 0 {
+                self.sources.remove(&key.0);
+            }
+        }
+        Some(p)
     }
 }
 
@@ -636,7 +812,7 @@ enum RxSide {
     /// The link's own receive thread (joined on drop).
     Thread(Option<JoinHandle<()>>),
     /// Whichever thread calls [`Readable::read_ready`].
-    Driven(DrivenReceiver),
+    Driven(Box<DrivenReceiver>),
 }
 
 /// Whether `frame` may travel in a batch: a self-delimiting wire frame that fits a datagram.
@@ -749,14 +925,15 @@ impl UdpLink {
                     config.reassembly_limit_bytes,
                     config.reassembly_timeout,
                     max_frame,
-                ),
+                )
+                .with_fleet(peer_addrs.keys().copied()),
             },
         };
         let rx = if config.driven {
-            RxSide::Driven(DrivenReceiver {
+            RxSide::Driven(Box::new(DrivenReceiver {
                 fd: socket.as_raw_fd(),
                 receiver: Mutex::new(receiver),
-            })
+            }))
         } else {
             let thread = std::thread::Builder::new()
                 .name(format!("hetcomm-udp-rx-{local}"))
@@ -811,6 +988,7 @@ impl UdpLink {
             bad_datagrams: bad,
             reassembly_timeouts: timeouts,
             reassembly_evictions: evictions,
+            duplicate_fragments: get(&c.duplicate_fragments),
             from_unknown_address: get(&c.from_unknown_address),
             buffered_bytes: get(&c.buffered_bytes),
             kernel_drops: self.kernel_drops(),
@@ -1112,7 +1290,7 @@ impl Link for UdpLink {
 
     fn readable(&self) -> Option<&dyn Readable> {
         match &self.rx {
-            RxSide::Driven(d) => Some(d),
+            RxSide::Driven(d) => Some(&**d),
             RxSide::Thread(_) => None,
         }
     }
@@ -1268,6 +1446,10 @@ impl RxState {
                 1
             }
             Reassembly::Pending => 0,
+            Reassembly::Duplicate => {
+                add(&c.duplicate_fragments, 1);
+                0
+            }
             Reassembly::Rejected { dropped, .. } => {
                 add(&c.bad_datagrams, 1);
                 add(&c.reassembly_evictions, dropped as u64);
@@ -1308,7 +1490,7 @@ impl RxState {
     /// Expires incomplete messages whose time ran out and publishes the bytes held.
     fn upkeep(&mut self) {
         let c = &self.shared.counters;
-        if self.reassembler.pending() > 0 {
+        if self.reassembler.needs_upkeep() {
             let expired = self.reassembler.expire(Instant::now());
             add(&c.reassembly_timeouts, expired as u64);
         }
@@ -1530,7 +1712,9 @@ mod tests {
         for f in &frags[1..] {
             assert_eq!(r.on_fragment(f, SRC, None, t0), Reassembly::Pending);
         }
-        assert_eq!(r.held_bytes(), 500);
+        // Four pieces held ahead of the missing first one, and the bookkeeping.
+        let held = r.held_bytes();
+        assert!((400..=400 + PARTIAL_OVERHEAD + 4 * PIECE_OVERHEAD).contains(&held));
         assert_eq!(r.expire(t0 + Duration::from_secs(1)), 0);
         assert_eq!(r.expire(t0 + Duration::from_secs(2)), 1);
         assert_eq!(r.held_bytes(), 0);
@@ -1539,21 +1723,99 @@ mod tests {
     }
 
     #[test]
-    fn limit_evicts_the_oldest() {
+    fn memory_follows_the_bytes_received_not_the_declared_total() {
+        let mut r = Reassembler::new(32 << 20, Duration::from_secs(2), 16 << 20);
+        let t0 = Instant::now();
+        // One 276-byte datagram announcing 16 776 960 bytes in 65535 pieces of 256.
+        let h = |index| FragmentHeader {
+            sender: SystemId(1),
+            index,
+            count: u16::MAX,
+            message_id: 9,
+            total: 256 * u32::from(u16::MAX),
+        };
+        for index in [0, 65_534] {
+            let mut d = h(index).encode().to_vec();
+            d.extend_from_slice(&[0xAA; 256]);
+            assert_eq!(r.on_fragment(&d, SRC, None, t0), Reassembly::Pending);
+        }
+        assert!(r.held_bytes() < 8 * 1024, "{} bytes held", r.held_bytes());
+    }
+
+    #[test]
+    fn the_largest_holder_is_evicted_first() {
+        let mut r = Reassembler::new(4000, Duration::from_secs(2), 10_000);
+        let t0 = Instant::now();
+        let other: SocketAddr = "127.0.0.1:10".parse().unwrap();
+        let legit = fragments(&[1u8; 1000], 100, 1);
+        // The legitimate message starts first (older), then a flood from another source.
+        assert_eq!(r.on_fragment(&legit[0], SRC, None, t0), Reassembly::Pending);
+        let mut flood_evictions = 0;
+        for id in 0..20 {
+            let f = fragments(&[2u8; 1000], 100, 100 + id);
+            for piece in &f[..9] {
+                r.on_fragment(piece, other, None, t0 + Duration::from_millis(1));
+            }
+            flood_evictions = r.evictions();
+        }
+        assert!(flood_evictions > 0);
+        assert!(r.held_bytes() <= 4000);
+        let mut out = None;
+        for piece in &legit[1..] {
+            if let Reassembly::Complete(v) = r.on_fragment(piece, SRC, None, t0) {
+                out = Some(v);
+            }
+        }
+        assert_eq!(
+            out.as_deref(),
+            Some(&[1u8; 1000][..]),
+            "the flood evicted itself"
+        );
+    }
+
+    #[test]
+    fn limit_refuses_messages_larger_than_itself_and_bounds_messages_per_source() {
         let mut r = reassembler();
         let t0 = Instant::now();
-        let a = fragments(&[1u8; 600], 100, 1);
-        let b = fragments(&[2u8; 600], 100, 2);
-        r.on_fragment(&a[0], SRC, None, t0);
-        r.on_fragment(&b[0], SRC, None, t0 + Duration::from_millis(1));
-        assert_eq!(r.pending(), 1);
-        assert_eq!(r.evictions(), 1);
-        assert_eq!(r.held_bytes(), 600);
-        // Over the whole limit: refused outright.
         let big = fragments(&[3u8; 1500], 100, 3);
         assert_eq!(r.on_fragment(&big[0], SRC, None, t0), Reassembly::Pending);
-        assert_eq!(r.evictions(), 2);
-        assert_eq!(r.pending(), 1);
+        assert_eq!(r.evictions(), 1);
+        assert_eq!(r.pending(), 0);
+        let mut r = Reassembler::new(1 << 20, Duration::from_secs(2), 10_000);
+        for id in 0..MAX_PARTIALS_PER_SOURCE as u32 + 5 {
+            r.on_fragment(&fragments(&[4u8; 300], 100, id)[0], SRC, None, t0);
+        }
+        assert_eq!(r.pending(), MAX_PARTIALS_PER_SOURCE);
+        assert_eq!(r.evictions(), 5);
+    }
+
+    #[test]
+    fn unknown_senders_are_refused_and_duplicates_recognised() {
+        let mut r = reassembler().with_fleet([SystemId(1), SystemId(2)]);
+        let t0 = Instant::now();
+        let mut stranger = fragments(&[1u8; 300], 100, 1)[0].clone();
+        stranger[4..6].copy_from_slice(&7u16.to_le_bytes());
+        assert!(matches!(
+            r.on_fragment(&stranger, SRC, None, t0),
+            Reassembly::Rejected {
+                error: FragmentError::UnknownSender { .. },
+                ..
+            }
+        ));
+        let f = fragments(&[1u8; 300], 100, 2);
+        assert_eq!(r.on_fragment(&f[0], SRC, None, t0), Reassembly::Pending);
+        assert_eq!(r.on_fragment(&f[0], SRC, None, t0), Reassembly::Duplicate);
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Pending);
+        assert!(matches!(
+            r.on_fragment(&f[2], SRC, None, t0),
+            Reassembly::Complete(_)
+        ));
+        // A late duplicate of the completed message holds nothing and never times out.
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Duplicate);
+        assert_eq!((r.pending(), r.held_bytes()), (0, 0));
+        assert_eq!(r.expire(t0 + Duration::from_secs(3)), 0);
+        // Once the timeout has passed the message is forgotten.
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Pending);
     }
 
     #[test]

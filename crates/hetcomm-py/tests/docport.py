@@ -152,8 +152,11 @@ class Reassembler:
 
     def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
         self.max_frame = max_frame
-        # (source address, sender, message id) -> [total, count, buffer, indices seen]
+        # (source address, sender, message id) -> [total, count, pieces by index]
         self.partial: Dict[tuple, list] = {}
+        # Keys of messages completed (within the timeout, which this port does not model).
+        self.completed: set = set()
+        self.duplicates = 0
 
     @property
     def pending(self) -> int:
@@ -172,16 +175,19 @@ class Reassembler:
             del self.partial[key]
             raise ValueError("Inconsistent")
         if p is None:
-            p = self.partial[key] = [total, count, bytearray(total), set()]
-        if index in p[3]:
+            if key in self.completed:
+                self.duplicates += 1      # a late duplicate: nothing is held for it
+                return None
+            p = self.partial[key] = [total, count, {}]
+        if index in p[2]:
+            self.duplicates += 1
             return None
-        p[3].add(index)
-        chunk = ceil_div(total, count)
-        p[2][index * chunk:index * chunk + len(piece)] = piece
-        if len(p[3]) < count:
+        p[2][index] = piece              # held by what arrived, not by `total`
+        if len(p[2]) < count:
             return None
         del self.partial[key]
-        return bytes(p[2])
+        self.completed.add(key)
+        return b"".join(p[2][i] for i in range(count))
 
 
 # --- streams ("The hello", "Records") ----------------------------------------------------------

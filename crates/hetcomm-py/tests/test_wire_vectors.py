@@ -133,6 +133,7 @@ def test_udp_reassembly_vector(v):
             frames.append(f)
     assert frames == unhex_all(v["frames_hex"])
     assert rejected == v["rejected"]
+    assert r.duplicates == v["duplicates"]
     assert r.pending == v["pending"]
 
 
