@@ -181,7 +181,7 @@ use std::fmt;
 use std::io::{self, IoSlice, IoSliceMut, Read, Write};
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -189,6 +189,7 @@ use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
+pub(crate) use crate::common::{add, bump, lock};
 use poller::{refuse, reject, ConnSet, Permit, Poller, Waker};
 
 /// Size of the hello a connector sends in [`IdentityMode::Hello`].
@@ -429,7 +430,7 @@ pub struct StreamStats {
 }
 
 #[derive(Default)]
-struct Counters {
+struct StreamCounters {
     frames_sent: AtomicU64,
     frames_received: AtomicU64,
     frames_dropped: AtomicU64,
@@ -440,16 +441,6 @@ struct Counters {
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
     held_frames_dropped: AtomicU64,
-}
-
-fn bump(c: &AtomicU64) {
-    c.fetch_add(1, Ordering::Relaxed);
-}
-
-fn add(c: &AtomicU64, n: usize) {
-    if n > 0 {
-        c.fetch_add(n as u64, Ordering::Relaxed);
-    }
 }
 
 /// Sets `flag` unless it is already set, so that the common case only reads the cache line.
@@ -539,7 +530,7 @@ struct Shared<T: StreamTransport> {
     /// Every fleet system other than this one (used to vet hellos).
     fleet: BTreeMap<SystemId, ()>,
     closing: AtomicBool,
-    counters: Counters,
+    counters: StreamCounters,
     /// Accepted connections open now (each holds a [`Permit`]).
     open: Arc<AtomicUsize>,
     /// Connections read by a thread of their own, by reader number; a reader removes its
@@ -556,12 +547,6 @@ struct Reader<S> {
     /// A second handle, to unblock the reader at shutdown.
     socket: S,
     handle: JoinHandle<()>,
-}
-
-fn lock<X>(m: &Mutex<X>) -> MutexGuard<'_, X> {
-    // A panic in a sink must not wedge the whole link: the data under these locks stays
-    // consistent between statements, so a poisoned lock is still usable.
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// A [`Link`] over any [`StreamTransport`]: see the module docs for its behaviour.
@@ -617,7 +602,7 @@ impl<T: StreamTransport> StreamLink<T> {
             config,
             fleet: peers.keys().map(|id| (*id, ())).collect(),
             closing: AtomicBool::new(false),
-            counters: Counters::default(),
+            counters: StreamCounters::default(),
             open: Arc::new(AtomicUsize::new(0)),
             readers: Mutex::new(HashMap::new()),
             next_reader: AtomicU64::new(1),

@@ -128,7 +128,7 @@ use std::mem::MaybeUninit;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
 use std::os::fd::{AsRawFd, RawFd};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
+use std::sync::{Arc, Mutex, TryLockError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -136,6 +136,7 @@ use hetcomm_core::wire::{self, HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
+use crate::common::{add, lock};
 use crate::OpenError;
 
 /// Magic of a fragment header: `"HF"`.
@@ -273,7 +274,7 @@ pub struct UdpStats {
 }
 
 #[derive(Default)]
-struct Counters {
+struct UdpCounters {
     frames_sent: AtomicU64,
     datagrams_sent: AtomicU64,
     batches_sent: AtomicU64,
@@ -287,10 +288,6 @@ struct Counters {
     duplicate_fragments: AtomicU64,
     from_unknown_address: AtomicU64,
     buffered_bytes: AtomicU64,
-}
-
-fn add(c: &AtomicU64, n: u64) {
-    c.fetch_add(n, Ordering::Relaxed);
 }
 
 /// A parsed fragment header.
@@ -784,12 +781,7 @@ impl Reassembler {
 
 struct Shared {
     closing: AtomicBool,
-    counters: Counters,
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    // A panic elsewhere (e.g. in a sink) leaves the state consistent: keep serving.
-    m.lock().unwrap_or_else(PoisonError::into_inner)
+    counters: UdpCounters,
 }
 
 /// Frames held for one peer, to go out as one datagram.
@@ -802,7 +794,7 @@ struct Batch {
 }
 
 /// A peer's address and its batch of held frames.
-struct PeerSlot {
+struct UdpPeer {
     addr: SocketAddr,
     batch: Mutex<Batch>,
 }
@@ -851,7 +843,7 @@ pub struct UdpLink {
     local: SystemId,
     socket: Arc<UdpSocket>,
     local_addr: SocketAddr,
-    peers: BTreeMap<SystemId, PeerSlot>,
+    peers: BTreeMap<SystemId, UdpPeer>,
     config: UdpConfig,
     max_frame: usize,
     next_message_id: AtomicU32,
@@ -911,7 +903,7 @@ impl UdpLink {
         let socket = Arc::new(socket);
         let shared = Arc::new(Shared {
             closing: AtomicBool::new(false),
-            counters: Counters::default(),
+            counters: UdpCounters::default(),
         });
         let max_frame = config.max_frame();
         let receiver = Receiver {
@@ -944,7 +936,7 @@ impl UdpLink {
             .into_iter()
             .map(|(id, addr)| {
                 let batch = Mutex::new(Batch::default());
-                (id, PeerSlot { addr, batch })
+                (id, UdpPeer { addr, batch })
             })
             .collect();
         Ok(UdpLink {
@@ -1015,7 +1007,7 @@ impl UdpLink {
         Ok(())
     }
 
-    fn peer(&self, to: SystemId) -> Result<&PeerSlot, LinkError> {
+    fn peer(&self, to: SystemId) -> Result<&UdpPeer, LinkError> {
         self.peers.get(&to).ok_or_else(|| {
             let reason = if to == self.local {
                 "it is this system itself".to_string()
