@@ -341,7 +341,8 @@ pub struct StreamConfig {
     /// How long one send may block writing its frame before it fails with
     /// [`LinkError::Congested`] (default 2 s).
     pub write_timeout: Duration,
-    /// How long an accepted connection may take to send its hello (default 5 s).
+    /// How long an accepted connection may take to send its whole hello, counted from the
+    /// accept however the bytes are spread over reads (default 5 s).
     pub hello_timeout: Duration,
     /// Delay before the first reconnect attempt after a failed connect (default 10 ms).
     pub backoff_initial: Duration,
@@ -1287,18 +1288,25 @@ fn spawn_thread<T: StreamTransport>(
     }
 }
 
-/// Reads `buf.len()` bytes unless the stream ends first; returns how many were read.
-fn read_full<R: Read>(r: &mut R, buf: &mut [u8]) -> io::Result<usize> {
+/// Reads exactly `buf.len()` bytes by `deadline` in total, however the peer spreads them over
+/// its writes: the socket's read timeout is set to what is left before each read. An error if
+/// the stream ends first (`UnexpectedEof`) or the deadline passes (`TimedOut`).
+fn read_by<S: StreamSocket>(socket: &mut S, buf: &mut [u8], deadline: Instant) -> io::Result<()> {
     let mut got = 0;
     while got < buf.len() {
-        match r.read(&mut buf[got..]) {
-            Ok(0) => break,
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(io::ErrorKind::TimedOut.into());
+        }
+        socket.set_read_timeout(Some(left))?;
+        match socket.read(&mut buf[got..]) {
+            Ok(0) => return Err(io::ErrorKind::UnexpectedEof.into()),
             Ok(n) => got += n,
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         }
     }
-    Ok(got)
+    Ok(())
 }
 
 /// Establishes who is on the other end of an accepted connection, per the identity mode.
@@ -1312,15 +1320,14 @@ fn identify<T: StreamTransport>(
         IdentityMode::Anonymous => Some(Peer::Unknown),
         IdentityMode::Address => shared.transport.peer_identity(addr).and_then(in_fleet),
         IdentityMode::Hello => {
-            socket
-                .set_read_timeout(Some(shared.config.hello_timeout))
-                .ok()?;
             // Exactly the hello: the records behind it belong to the record reader.
             let mut hello = [0u8; HELLO_LEN];
-            let got = read_full(socket, &mut hello).ok()?;
-            if got < HELLO_LEN {
-                return None;
-            }
+            read_by(
+                socket,
+                &mut hello,
+                Instant::now() + shared.config.hello_timeout,
+            )
+            .ok()?;
             socket.set_read_timeout(None).ok()?;
             decode_hello(&hello).and_then(in_fleet)
         }
