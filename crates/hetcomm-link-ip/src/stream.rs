@@ -428,6 +428,10 @@ pub struct StreamStats {
     /// Held frames whose batch failed to write (the connection was dropped). [`Link::stats`]
     /// adds them to [`LinkStats::frames_dropped`].
     pub held_frames_dropped: u64,
+    /// Connections closed because a record announced a frame larger than this link's
+    /// `max_frame` (the sender's `max_message_bytes` is larger than ours). Each is also one of
+    /// `frames_dropped`; the first is also logged to standard error.
+    pub oversize_records: u64,
 }
 
 #[derive(Default)]
@@ -442,6 +446,9 @@ struct StreamCounters {
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
     held_frames_dropped: AtomicU64,
+    oversize_records: AtomicU64,
+    /// The first oversize record has been logged.
+    oversize_logged: AtomicBool,
 }
 
 /// Sets `flag` unless it is already set, so that the common case only reads the cache line.
@@ -675,6 +682,7 @@ impl<T: StreamTransport> StreamLink<T> {
             write_failures: get(&c.write_failures),
             frames_lost_connecting: get(&c.frames_lost_connecting),
             held_frames_dropped: get(&c.held_frames_dropped),
+            oversize_records: get(&c.oversize_records),
         }
     }
 
@@ -1341,8 +1349,11 @@ enum StreamEnd {
     Clean,
     /// End of stream or a read error inside a record: that frame is lost.
     Cut,
-    /// A record header that is malformed or announces more than `max_frame`.
+    /// A record header that is malformed.
     Bad,
+    /// A well-formed record header announcing more than `max_frame` bytes (this many): the
+    /// sender's `max_message_bytes` is larger than the receiver's.
+    Oversize(usize),
     /// Not an end: a non-blocking socket has nothing more for now. The reader keeps what it
     /// has read and resumes with the next call.
     Pending,
@@ -1517,7 +1528,11 @@ impl RecordReader {
         let mut head = [0u8; RECORD_HEADER_LEN];
         head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
         // Checked before anything is allocated or read for it.
-        let len = decode_record_header(&head, self.max_frame).ok_or(StreamEnd::Bad)?;
+        let len = match decode_record_header(&head, usize::MAX) {
+            None => return Err(StreamEnd::Bad),
+            Some(len) if len > self.max_frame => return Err(StreamEnd::Oversize(len)),
+            Some(len) => len,
+        };
         let body = self.start + RECORD_HEADER_LEN;
         if body + len <= self.end || len <= DIRECT_READ_MIN {
             if body + len > self.end {
@@ -1737,6 +1752,25 @@ impl<S: StreamSocket> Connection<S> {
             StreamEnd::Clean | StreamEnd::Pending => false,
             StreamEnd::Cut => !shared.closing.load(Ordering::SeqCst),
             StreamEnd::Bad => true,
+            StreamEnd::Oversize(len) => {
+                bump(&shared.counters.oversize_records);
+                if !shared
+                    .counters
+                    .oversize_logged
+                    .swap(true, Ordering::Relaxed)
+                {
+                    eprintln!(
+                        "hetcomm {} link: closed a connection from {:?} whose record announces \
+                         {len} bytes, more than this link's largest frame of {} bytes: the \
+                         sender's max_message_bytes is larger than ours (further such records \
+                         are only counted in oversize_records)",
+                        T::NAME,
+                        self.from,
+                        shared.config.max_frame()
+                    );
+                }
+                true
+            }
         };
         if count {
             bump(&shared.counters.frames_dropped);
@@ -2073,7 +2107,10 @@ mod tests {
         }
         // A frame over max_frame ends the stream before its bytes are read.
         let (got, end) = read_all(&mut &stream[..], 100_000);
-        assert_eq!(end, StreamEnd::Bad);
+        assert!(
+            matches!(end, StreamEnd::Oversize(n) if n > 100_000),
+            "{end:?}"
+        );
         assert_eq!(got.len(), 10);
         // Garbage after a good record.
         let mut s = stream_of(&frames[..3]);

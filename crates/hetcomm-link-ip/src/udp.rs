@@ -263,6 +263,10 @@ pub struct UdpStats {
     /// their message was completed and handed up. Not part of `frames_dropped` (the frame
     /// was delivered, or will be).
     pub duplicate_fragments: u64,
+    /// Well-formed fragments of frames larger than this link's `max_frame` (the sender's
+    /// `max_message_bytes` is larger than ours), dropped. Each is also one of `bad_datagrams`;
+    /// the first is also logged to standard error.
+    pub oversize_fragments: u64,
     /// Frames received from an address that is no fleet endpoint (handed up as
     /// [`Peer::Unknown`]).
     pub from_unknown_address: u64,
@@ -286,6 +290,9 @@ struct UdpCounters {
     reassembly_timeouts: AtomicU64,
     reassembly_evictions: AtomicU64,
     duplicate_fragments: AtomicU64,
+    oversize_fragments: AtomicU64,
+    /// The first oversize fragment has been logged.
+    oversize_logged: AtomicBool,
     from_unknown_address: AtomicU64,
     buffered_bytes: AtomicU64,
 }
@@ -981,6 +988,7 @@ impl UdpLink {
             reassembly_timeouts: timeouts,
             reassembly_evictions: evictions,
             duplicate_fragments: get(&c.duplicate_fragments),
+            oversize_fragments: get(&c.oversize_fragments),
             from_unknown_address: get(&c.from_unknown_address),
             buffered_bytes: get(&c.buffered_bytes),
             kernel_drops: self.kernel_drops(),
@@ -1442,11 +1450,31 @@ impl RxState {
                 add(&c.duplicate_fragments, 1);
                 0
             }
-            Reassembly::Rejected { dropped, .. } => {
+            Reassembly::Rejected { dropped, error } => {
                 add(&c.bad_datagrams, 1);
                 add(&c.reassembly_evictions, dropped as u64);
+                if let FragmentError::BadGeometry { total, max, .. } = error {
+                    if total as usize > max {
+                        self.on_oversize(total, max, src);
+                    }
+                }
                 0
             }
+        }
+    }
+
+    /// A well-formed fragment of a message larger than this link's `max_frame`: the sender's
+    /// `max_message_bytes` is larger than ours. Counted; the first one is logged.
+    fn on_oversize(&self, total: u32, max: usize, src: SocketAddr) {
+        let c = &self.shared.counters;
+        add(&c.oversize_fragments, 1);
+        if !c.oversize_logged.swap(true, Ordering::Relaxed) {
+            eprintln!(
+                "hetcomm udp link: dropped a fragment from {src} of a {total}-byte frame, more \
+                 than this link's largest frame of {max} bytes: the sender's max_message_bytes \
+                 is larger than ours (further such fragments are only counted in \
+                 oversize_fragments)"
+            );
         }
     }
 

@@ -391,3 +391,30 @@ fn late_duplicate_fragments_are_counted_as_duplicates_not_drops() {
     assert_eq!((s.reassembly_timeouts, s.frames_dropped), (0, 0), "{s:?}");
     assert_eq!(s.frames_received, 3);
 }
+
+#[test]
+fn fragments_over_the_receivers_max_message_bytes_are_counted_as_oversize() {
+    let config = UdpConfig {
+        max_message_bytes: Some(2000),
+        ..UdpConfig::default()
+    };
+    let (b, raw, sink) = b_and_raw_a(config);
+    let frame = pattern(5000, 9);
+    let frags = fragments(&frame, 4, 5);
+    for f in &frags {
+        raw.send(f).unwrap();
+    }
+    wait_until("oversize fragments counted", DEADLINE, || {
+        b.udp_stats().oversize_fragments == 4
+    });
+    let s = b.udp_stats();
+    assert_eq!((s.bad_datagrams, s.frames_dropped), (4, 4), "{s:?}");
+    assert_eq!(s.buffered_bytes, 0);
+    assert!(sink.frames().is_empty());
+    // A malformed fragment is bad but not oversize.
+    raw.send(&frags[0][..10]).unwrap();
+    wait_until("bad fragment counted", DEADLINE, || {
+        b.udp_stats().bad_datagrams == 5
+    });
+    assert_eq!(b.udp_stats().oversize_fragments, 4);
+}
