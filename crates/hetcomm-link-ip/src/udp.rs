@@ -5,22 +5,23 @@
 //!
 //! # Datagram format
 //!
-//! Every datagram is one of three kinds, told apart by its first bytes:
+//! Every datagram is one of three kinds, told apart by its first two bytes alone (the link never
+//! reads a frame's own header: frames may be any bytes, sealed ones included):
 //!
 //! - **A whole frame**: a frame no longer than the datagram payload size
 //!   ([`UdpConfig::datagram_payload`], the link's `mtu`) travels as one datagram holding
-//!   exactly the frame, with nothing added.
-//! - **A batch**: frames held back by [`Link::send_held`] travel together as one datagram
-//!   holding whole wire frames back to back, with nothing between or around them, at most `mtu`
-//!   bytes in all. Only self-delimiting wire frames are batched: frames that start with the wire
-//!   magic `"HC"` and whose header's declared length ([`wire::peek_frame_len`]) is exactly
-//!   their own length. A receiver recognises a batch by its first frame: the datagram starts
-//!   with `"HC"` and the first header parses with a declared length *shorter* than the
-//!   datagram. It then walks the datagram frame by frame with [`wire::peek_frame_len`] and
-//!   hands each complete frame up; a piece that does not parse or runs past the end drops the
-//!   rest of the datagram and is counted in [`UdpStats::bad_datagrams`] (the frames before it
-//!   are still delivered). A batch of one frame is indistinguishable from a whole frame, and is
-//!   one.
+//!   exactly the frame, with nothing added. Anything that starts neither with `"HF"` nor with
+//!   `"HB"` is handed up whole.
+//! - **A batch** (starts with `"HB"`): frames held back by [`Link::send_held`] travel together
+//!   as one datagram: a 4-byte batch header (magic `"HB"`, version 1, a reserved 0 byte), then
+//!   one record per frame — its length as a u32 (little-endian) and the frame — at most `mtu`
+//!   bytes in all. It is the stream links' record header split in two: magic and version once
+//!   per datagram, the length once per frame. Any frame whose record fits is batched. A
+//!   receiver hands every complete record's frame up in order, with one
+//!   [`FrameSink::on_frames`] call labelled with the datagram's source; a record running past
+//!   the end drops the rest of the datagram, and a batch header it does not read drops all of
+//!   it, counted in [`UdpStats::bad_datagrams`]. A batch of one frame is sent as the frame
+//!   alone.
 //! - **A fragment** of a frame larger than `mtu`: a datagram that starts with this 20-byte
 //!   fragment header (integers little-endian):
 //!
@@ -42,11 +43,9 @@
 //! alone, so a fragment whose length is not the expected one is rejected, and fragments can
 //! never overlap or leave gaps. A reassembled frame is handed up whole, never split as a batch.
 //!
-//! Any other datagram — one whose header does not parse, or declares exactly the datagram's
-//! length or more — is handed up whole: the link does not judge frames (the router's decoder
-//! does). A frame that fits one datagram but would be mistaken for something else — it starts
-//! with `"HF"`, or it starts with a wire header declaring fewer bytes than the frame holds — is
-//! sent as a one-fragment message, so any byte string round-trips unambiguously.
+//! A frame that fits one datagram but would be mistaken for something else — it starts with
+//! `"HF"` or `"HB"` — is sent as a one-fragment message, so any byte string round-trips
+//! unambiguously.
 //!
 //! # Reassembly
 //!
@@ -73,8 +72,8 @@
 //!
 //! # Batching
 //!
-//! [`Link::send_held`] appends a self-delimiting wire frame to its peer's batch (one buffer
-//! per peer, of `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
+//! [`Link::send_held`] appends a frame's record to its peer's batch (one buffer per peer, of
+//! `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
 //! out as one datagram when the next frame would not fit (or no further frame could), at the
 //! next plain [`Link::send`] to that peer (which joins the batch when it can, so both leave in
 //! one datagram), before a frame that cannot be batched, at [`Link::flush`], and when the link
@@ -132,7 +131,7 @@ use std::sync::{Arc, Mutex, TryLockError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::wire::{self, HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
@@ -145,6 +144,14 @@ pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
 pub const FRAGMENT_VERSION: u8 = 1;
 /// Size of the fragment header.
 pub const FRAGMENT_HEADER_LEN: usize = 20;
+/// Magic of a batch datagram: `"HB"`.
+pub const BATCH_MAGIC: [u8; 2] = *b"HB";
+/// Version of the batch header.
+pub const BATCH_VERSION: u8 = 1;
+/// Size of the batch header: magic, version, a reserved byte.
+pub const BATCH_HEADER_LEN: usize = 4;
+/// Size of the length (u32, little-endian) in front of each frame of a batch.
+pub const BATCH_LENGTH_LEN: usize = 4;
 /// The largest UDP payload over IPv4.
 pub const MAX_DATAGRAM_PAYLOAD: usize = 65_507;
 /// The default datagram payload: an Ethernet MTU of 1500 minus IPv4 and UDP headers.
@@ -248,12 +255,13 @@ pub struct UdpStats {
     pub held_frames_dropped: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
-    /// Datagrams received as batches: their first frame is shorter than the datagram.
+    /// Batch datagrams (`"HB"`) received with at least one frame.
     pub batches_received: u64,
     /// Everything dropped: bad datagrams, incomplete messages given up, and held frames whose
     /// batch could not be sent.
     pub frames_dropped: u64,
-    /// Malformed fragment datagrams, and batches with a malformed tail, dropped (in part).
+    /// Malformed fragment datagrams, batch datagrams with a header not read, no record or an
+    /// incomplete last record, dropped (in part).
     pub bad_datagrams: u64,
     /// Incomplete messages dropped because their time ran out.
     pub reassembly_timeouts: u64,
@@ -791,10 +799,23 @@ struct Shared {
     counters: UdpCounters,
 }
 
+/// Appends `frame` as a record to batch `b` (starting the batch with its header if it is
+/// empty); the caller has checked that it fits.
+fn push_record(b: &mut Batch, frame: &[u8]) {
+    if b.buf.is_empty() {
+        b.buf.extend_from_slice(&batch_header());
+    }
+    // A frame that fits a datagram is far below 4 GiB.
+    b.buf.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    b.buf.extend_from_slice(frame);
+    b.frames += 1;
+}
+
 /// Frames held for one peer, to go out as one datagram.
 #[derive(Default)]
 struct Batch {
-    /// Whole wire frames back to back, at most `mtu` bytes.
+    /// The batch header, then one record (length, frame) per held frame, at most `mtu` bytes;
+    /// empty while nothing is held.
     buf: Vec<u8>,
     /// How many frames `buf` holds.
     frames: u64,
@@ -814,32 +835,57 @@ enum RxSide {
     Driven(Box<DrivenReceiver>),
 }
 
-/// Whether `frame` may travel in a batch: a self-delimiting wire frame that fits a datagram.
+/// Whether `frame` may travel in a batch: its record fits one datagram with the batch header.
+/// Any bytes may: the link never looks inside a frame.
 fn batchable(frame: &[u8], mtu: usize) -> bool {
-    frame.len() <= mtu && wire::peek_frame_len(frame).is_ok_and(|n| n == frame.len())
+    BATCH_HEADER_LEN + BATCH_LENGTH_LEN + frame.len() <= mtu
 }
 
-/// Whether a receiver takes a datagram holding exactly `d` for a batch: it starts with a wire
-/// header declaring fewer bytes than `d` holds.
-fn looks_like_batch(d: &[u8]) -> bool {
-    wire::peek_frame_len(d).is_ok_and(|n| n < d.len())
+/// Whether a frame that fits one datagram must nevertheless be sent as a one-fragment message,
+/// because a receiver would take the bare datagram for a fragment or a batch.
+fn misread_alone(frame: &[u8]) -> bool {
+    frame.starts_with(&FRAGMENT_MAGIC) || frame.starts_with(&BATCH_MAGIC)
 }
 
-/// The frames of a batch datagram, front to back. Stops at the first piece that is not a
-/// complete wire frame and leaves it (with everything after it) in `rest`.
-struct BatchFrames<'a> {
+/// The batch header every batch datagram starts with.
+fn batch_header() -> [u8; BATCH_HEADER_LEN] {
+    [BATCH_MAGIC[0], BATCH_MAGIC[1], BATCH_VERSION, 0]
+}
+
+/// Checks the batch header of datagram `d` (which starts with [`BATCH_MAGIC`]); returns the
+/// records behind it, or `None` if the header is not one this version reads.
+pub fn batch_records(d: &[u8]) -> Option<BatchFrames<'_>> {
+    (d.len() >= BATCH_HEADER_LEN && d[..BATCH_HEADER_LEN] == batch_header()).then(|| BatchFrames {
+        rest: &d[BATCH_HEADER_LEN..],
+    })
+}
+
+/// The frames of a batch datagram's records, front to back. Stops at the first record that
+/// does not fit in what is left (or a length cut short) and leaves it, with everything after
+/// it, in [`BatchFrames::rest`].
+#[derive(Clone, Debug)]
+pub struct BatchFrames<'a> {
     rest: &'a [u8],
+}
+
+impl<'a> BatchFrames<'a> {
+    /// What the walk has not taken: empty after a well-formed batch, else its malformed tail.
+    pub fn rest(&self) -> &'a [u8] {
+        self.rest
+    }
 }
 
 impl<'a> Iterator for BatchFrames<'a> {
     type Item = &'a [u8];
 
     fn next(&mut self) -> Option<&'a [u8]> {
-        // A declared length is at least HEADER_LEN, so every step makes progress.
-        let n = wire::peek_frame_len(self.rest)
-            .ok()
-            .filter(|&n| n <= self.rest.len())?;
-        let (frame, rest) = self.rest.split_at(n);
+        // Every record takes at least its 4-byte length, so every step makes progress.
+        let (len, body) = self.rest.split_first_chunk::<BATCH_LENGTH_LEN>()?;
+        let n = u32::from_le_bytes(*len) as usize;
+        if n > body.len() {
+            return None;
+        }
+        let (frame, rest) = body.split_at(n);
         self.rest = rest;
         Some(frame)
     }
@@ -1030,7 +1076,7 @@ impl UdpLink {
     fn send_now(&self, to: SystemId, addr: SocketAddr, frame: &[u8]) -> Result<(), LinkError> {
         let counters = &self.shared.counters;
         let mtu = self.config.datagram_payload;
-        if frame.len() <= mtu && !frame.starts_with(&FRAGMENT_MAGIC) && !looks_like_batch(frame) {
+        if frame.len() <= mtu && !misread_alone(frame) {
             self.socket
                 .send_to(frame, addr)
                 .map_err(|e| self.send_error(to, addr, e))?;
@@ -1081,7 +1127,12 @@ impl UdpLink {
         if b.frames == 0 {
             return Ok(());
         }
-        let result = self.socket.send_to(&b.buf, addr);
+        // One frame goes out bare, as `send` would send it (readable by receivers that predate
+        // batch records, and 8 bytes shorter), unless it would be misread alone.
+        let first = BATCH_HEADER_LEN + BATCH_LENGTH_LEN;
+        let alone = b.frames == 1 && !misread_alone(&b.buf[first..]);
+        let datagram = if alone { &b.buf[first..] } else { &b.buf[..] };
+        let result = self.socket.send_to(datagram, addr);
         let frames = b.frames;
         b.buf.clear();
         b.frames = 0;
@@ -1090,7 +1141,7 @@ impl UdpLink {
             Ok(_) => {
                 add(&c.frames_sent, frames);
                 add(&c.datagrams_sent, 1);
-                add(&c.batches_sent, 1);
+                add(&c.batches_sent, u64::from(!alone));
                 Ok(())
             }
             Err(e) => {
@@ -1219,10 +1270,9 @@ impl Link for UdpLink {
         {
             let mut b = lock(&peer.batch);
             if b.frames > 0 {
-                if batchable(frame, mtu) && b.buf.len() + frame.len() <= mtu {
+                if b.buf.len() + BATCH_LENGTH_LEN + frame.len() <= mtu {
                     // Joins the held frames: one datagram for all of them.
-                    b.buf.extend_from_slice(frame);
-                    b.frames += 1;
+                    push_record(&mut b, frame);
                     return self.send_batch(to, peer.addr, &mut b, 1);
                 }
                 // Held frames go first. Their failure is counted; the result is this frame's.
@@ -1255,16 +1305,15 @@ impl Link for UdpLink {
             drop(b);
             return self.send_now(to, peer.addr, frame);
         }
-        if b.buf.len() + frame.len() > mtu {
+        if b.buf.len() + BATCH_LENGTH_LEN + frame.len() > mtu {
             let _ = self.send_batch(to, peer.addr, &mut b, 0);
         }
         if b.buf.capacity() < mtu {
             // Once per peer: afterwards holding a frame never allocates.
             b.buf.reserve_exact(mtu);
         }
-        b.buf.extend_from_slice(frame);
-        b.frames += 1;
-        if mtu - b.buf.len() < HEADER_LEN {
+        push_record(&mut b, frame);
+        if mtu - b.buf.len() < BATCH_LENGTH_LEN + HEADER_LEN {
             // No further frame can fit: holding these longer would only add latency.
             return self.send_batch(to, peer.addr, &mut b, 1);
         }
@@ -1427,10 +1476,10 @@ impl RxState {
             Some(id) => Peer::System(id),
             None => Peer::Unknown,
         };
+        if d.starts_with(&BATCH_MAGIC) {
+            return self.deliver_batch(d, from);
+        }
         if !d.starts_with(&FRAGMENT_MAGIC) {
-            if looks_like_batch(d) {
-                return self.deliver_batch(d, from);
-            }
             self.deliver(d, from);
             return 1;
         }
@@ -1491,19 +1540,28 @@ impl RxState {
     /// Hands up the complete frames of batch datagram `d`; returns how many.
     fn deliver_batch(&self, d: &[u8], from: Peer) -> usize {
         let c = &self.shared.counters;
-        // Walked once to count, so that the counters are updated (once per datagram) before
-        // the sink wakes anyone; the walk only reads headers.
-        let mut walk = BatchFrames { rest: d };
-        let n = walk.by_ref().count();
-        if !walk.rest.is_empty() {
+        let Some(records) = batch_records(d) else {
+            // A batch header this version does not read: nothing in it can be trusted.
             add(&c.bad_datagrams, 1);
+            return 0;
+        };
+        // Walked once to count, so that the counters are updated (once per datagram) before
+        // the sink wakes anyone; the walk only reads the records' lengths.
+        let mut walk = records.clone();
+        let n = walk.by_ref().count();
+        if !walk.rest.is_empty() || n == 0 {
+            add(&c.bad_datagrams, 1);
+        }
+        if n == 0 {
+            return 0;
         }
         add(&c.batches_received, 1);
         if from == Peer::Unknown {
             add(&c.from_unknown_address, n as u64);
         }
         add(&c.frames_received, n as u64);
-        self.sink.on_frames(&mut BatchFrames { rest: d }, from);
+        // Every frame of the batch carries the peer the datagram came from.
+        self.sink.on_frames(&mut records.clone(), from);
         n
     }
 
@@ -1546,6 +1604,7 @@ impl Readable for DrivenReceiver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use hetcomm_core::wire;
 
     const SRC: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 9);
 
@@ -1592,49 +1651,71 @@ mod tests {
         assert_eq!(d.total, u64::from(u32::MAX) + 4);
     }
 
-    #[test]
-    fn batch_walk_stops_at_the_first_incomplete_piece() {
-        let frames: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 10 * i as usize)).collect();
-        let batch = frames.concat();
-        assert!(looks_like_batch(&batch));
-        let mut walk = BatchFrames { rest: &batch };
-        assert_eq!(walk.by_ref().collect::<Vec<_>>(), frames);
-        assert!(walk.rest.is_empty());
-
-        let mut tail = batch.clone();
-        tail.extend_from_slice(&frames[1][..HEADER_LEN + 1]); // header says more than is left
-        let mut walk = BatchFrames { rest: &tail };
-        assert_eq!(walk.by_ref().count(), 3);
-        assert_eq!(walk.rest.len(), HEADER_LEN + 1);
-
-        let mut garbage = frames[0].clone();
-        garbage.extend_from_slice(b"HX not a frame header at all, but long enough to be one...");
-        let mut walk = BatchFrames { rest: &garbage };
-        assert_eq!(walk.by_ref().count(), 1);
-        assert!(walk.rest.starts_with(b"HX"));
+    fn batch_of(frames: &[&[u8]]) -> Vec<u8> {
+        let mut b = Batch::default();
+        for f in frames {
+            push_record(&mut b, f);
+        }
+        assert_eq!(b.frames, frames.len() as u64);
+        b.buf
     }
 
     #[test]
-    fn only_self_delimiting_wire_frames_are_batched_or_split() {
+    fn batch_walk_stops_at_the_first_incomplete_record() {
+        let frames: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 10 * i as usize)).collect();
+        let refs: Vec<&[u8]> = frames.iter().map(|f| &f[..]).collect();
+        let batch = batch_of(&refs);
+        assert!(batch.starts_with(b"HB\x01\x00"));
+        let mut walk = batch_records(&batch).unwrap();
+        assert_eq!(walk.by_ref().collect::<Vec<_>>(), frames);
+        assert!(walk.rest().is_empty());
+
+        // A record announcing more than is left, and a length cut short.
+        let mut tail = batch.clone();
+        tail.extend_from_slice(&100u32.to_le_bytes());
+        tail.extend_from_slice(&[1; 99]);
+        let mut walk = batch_records(&tail).unwrap();
+        assert_eq!(walk.by_ref().count(), 3);
+        assert_eq!(walk.rest().len(), 103);
+        let mut short = batch.clone();
+        short.extend_from_slice(&[0, 0]);
+        let mut walk = batch_records(&short).unwrap();
+        assert_eq!(walk.by_ref().count(), 3);
+        assert_eq!(walk.rest(), &[0, 0]);
+
+        // Any bytes travel, empty ones included: the link never reads a frame.
+        let odd = batch_of(&[b"", b"HF", b"not a frame"]);
+        let got: Vec<&[u8]> = batch_records(&odd).unwrap().collect();
+        assert_eq!(got, [&b""[..], b"HF", b"not a frame"]);
+
+        let mut bad = batch.clone();
+        bad[2] = 2;
+        assert!(batch_records(&bad).is_none(), "another version");
+        bad[2] = 1;
+        bad[3] = 1;
+        assert!(batch_records(&bad).is_none(), "reserved byte set");
+        assert!(batch_records(b"HB\x01").is_none(), "truncated header");
+    }
+
+    #[test]
+    fn any_frame_that_fits_is_batched_and_only_magics_are_misread() {
         let f = wire_frame(1, 64);
         assert!(batchable(&f, 1472));
-        assert!(!batchable(&f, f.len() - 1), "larger than the mtu");
-        assert!(batchable(&f, f.len()));
-        assert!(!looks_like_batch(&f), "one frame is a whole frame");
+        assert!(batchable(&f, f.len() + 8));
+        assert!(!batchable(&f, f.len() + 7), "record and header must fit");
+        assert!(
+            batchable(&[0u8; 100], 1472),
+            "not a wire frame: batched all the same"
+        );
+        assert!(batchable(b"HC short", 1472));
+        assert!(!misread_alone(&f));
         let mut longer = f.clone();
         longer.push(0);
-        assert!(!batchable(&longer, 1472));
-        assert!(looks_like_batch(&longer));
-        assert!(!batchable(&f[..f.len() - 1], 1472));
         assert!(
-            !looks_like_batch(&f[..f.len() - 1]),
-            "truncated: handed up whole"
+            !misread_alone(&longer),
+            "trailing bytes are the frame's own business"
         );
-        assert!(!batchable(b"HC short", 1472));
-        assert!(!batchable(&[0u8; 100], 1472));
-        let mut hf = f.clone();
-        hf[1] = b'F';
-        assert!(!batchable(&hf, 1472) && !looks_like_batch(&hf));
+        assert!(misread_alone(b"HF...") && misread_alone(b"HB..."));
     }
 
     fn reassembler() -> Reassembler {
