@@ -63,6 +63,7 @@ impl BufferPool {
     pub fn wrap(self: &Arc<Self>, buf: Vec<u8>) -> FrameBuf {
         FrameBuf {
             buf,
+            start: 0,
             pool: Some(self.clone()),
         }
     }
@@ -105,21 +106,42 @@ impl fmt::Debug for BufferPool {
 
 /// An owned byte buffer that returns to its [`BufferPool`] (if it has one) when dropped.
 /// Reads as a `[u8]`. A plain vector converts into one without a pool.
+///
+/// A layer between a link and the router that wraps frames in bytes of its own (a security
+/// layer's prefix) strips them with [`FrameBuf::strip_prefix`] without moving the frame: what
+/// the buffer reads as, and every offset into it (the router's payload offset included), then
+/// starts at the frame the layer hands on.
 pub struct FrameBuf {
     buf: Vec<u8>,
+    /// Bytes at the front of `buf` that are not part of the frame (stripped prefixes).
+    start: usize,
     pool: Option<Arc<BufferPool>>,
 }
 
 impl FrameBuf {
-    /// The bytes.
+    /// The bytes (after any stripped prefix).
     pub fn as_slice(&self) -> &[u8] {
-        &self.buf
+        &self.buf[self.start..]
     }
 
-    /// The bytes as a vector, which then no longer returns to the pool.
+    /// The bytes as a vector, which then no longer returns to the pool (free without a
+    /// stripped prefix; with one, the bytes move to the front).
     pub fn into_vec(mut self) -> Vec<u8> {
         self.pool = None;
-        std::mem::take(&mut self.buf)
+        let mut buf = std::mem::take(&mut self.buf);
+        buf.drain(..self.start);
+        buf
+    }
+
+    /// Drops the first `n` bytes (all of them if fewer) from what the buffer reads as, without
+    /// moving the rest: a layer's prefix in front of the frame it hands on.
+    pub fn strip_prefix(&mut self, n: usize) {
+        self.start += n.min(self.buf.len() - self.start);
+    }
+
+    /// How many bytes in front of the frame were stripped ([`FrameBuf::strip_prefix`]).
+    pub fn stripped(&self) -> usize {
+        self.start
     }
 
     /// Appends `bytes`.
@@ -143,28 +165,33 @@ impl Drop for FrameBuf {
 
 impl From<Vec<u8>> for FrameBuf {
     fn from(buf: Vec<u8>) -> Self {
-        FrameBuf { buf, pool: None }
+        FrameBuf {
+            buf,
+            start: 0,
+            pool: None,
+        }
     }
 }
 
 /// A copy that belongs to no pool.
 impl Clone for FrameBuf {
     fn clone(&self) -> Self {
-        FrameBuf::from(self.buf.clone())
+        FrameBuf::from(self.as_slice().to_vec())
     }
 }
 
 impl Deref for FrameBuf {
     type Target = [u8];
     fn deref(&self) -> &[u8] {
-        &self.buf
+        self.as_slice()
     }
 }
 
 impl fmt::Debug for FrameBuf {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("FrameBuf")
-            .field("len", &self.buf.len())
+            .field("len", &self.len())
+            .field("stripped", &self.start)
             .field("pooled", &self.is_pooled())
             .finish()
     }
@@ -229,5 +256,26 @@ mod tests {
         assert_eq!(pool.kept_bytes(), 0);
         let plain = FrameBuf::from(vec![9; 10]);
         assert!(!plain.is_pooled());
+    }
+
+    #[test]
+    fn a_stripped_prefix_is_skipped_without_moving_the_frame() {
+        let pool = BufferPool::new(1 << 20);
+        let mut f = pool.wrap(b"PREFIXframe bytes".to_vec());
+        let at = f.as_ptr();
+        f.strip_prefix(6);
+        assert_eq!((&f[..], f.stripped()), (&b"frame bytes"[..], 6));
+        assert_eq!(f.as_ptr(), at.wrapping_add(6), "not moved");
+        assert_eq!(f.clone().as_slice(), b"frame bytes");
+        f.strip_prefix(100);
+        assert!(f.is_empty());
+        drop(f);
+        assert!(
+            pool.kept_bytes() > 0,
+            "the whole buffer goes back to its pool"
+        );
+        let mut g = FrameBuf::from(b"..xy".to_vec());
+        g.strip_prefix(2);
+        assert_eq!(g.into_vec(), b"xy");
     }
 }

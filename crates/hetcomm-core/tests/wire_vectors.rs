@@ -175,7 +175,8 @@ struct DatagramVector {
     name: String,
     description: String,
     datagram_hex: String,
-    /// "whole" (handed up as it is) or "batch" (split into frames).
+    /// "whole" (handed up as it is), "batch" (split into frames) or "dropped" (a batch header
+    /// the receiver does not read: nothing is handed up).
     handling: &'static str,
     frames_hex: Vec<String>,
     /// The malformed tail of a batch, dropped (and the datagram counted as bad); "" if none.
@@ -203,6 +204,7 @@ struct ReassemblyVector {
     datagrams_hex: Vec<String>,
     frames_hex: Vec<String>,
     rejected: usize,
+    duplicates: usize,
     pending: usize,
 }
 
@@ -831,6 +833,16 @@ fn hexes(frames: &[&[u8]]) -> Vec<String> {
     frames.iter().map(|f| hex(f)).collect()
 }
 
+/// A batch datagram holding `frames` as records, as the sender writes it.
+fn udp_batch(frames: &[&[u8]]) -> Vec<u8> {
+    let mut d = b"HB\x01\x00".to_vec();
+    for f in frames {
+        d.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        d.extend_from_slice(f);
+    }
+    d
+}
+
 fn datagram(
     name: &str,
     description: &str,
@@ -838,8 +850,10 @@ fn datagram(
     frames: &[&[u8]],
     dropped_tail: &[u8],
 ) -> DatagramVector {
-    let handling = if frames.len() == 1 && frames[0] == datagram {
+    let handling = if !datagram.starts_with(b"HB") {
         "whole"
+    } else if frames.is_empty() && dropped_tail.is_empty() {
+        "dropped"
     } else {
         "batch"
     };
@@ -857,11 +871,12 @@ fn udp_datagram_vectors(f: &LinkFrames) -> Vec<DatagramVector> {
     let (wheels, ack) = (&f.wheels[..], &f.ack[..]);
     let mut bad_crc = f.wheels.clone();
     bad_crc[44] ^= 0x01;
-    let mut bad_version = f.wheels.clone();
-    bad_version[2] = 2;
     let second = frame_with_payload(2, &payload::encode(&7u8).expect("encodes"));
-    let garbage = b"HX not a frame header at all, but long enough to be one";
     let cat = |parts: &[&[u8]]| parts.concat();
+    let b = |frames: &[&[u8]]| udp_batch(frames);
+    let mut other_version = b(&[wheels]);
+    other_version[2] = 2;
+    let sealed: &[u8] = b"\x8f\x02 sealed bytes, no wire frame";
     vec![
         datagram(
             "whole_data_frame",
@@ -879,10 +894,11 @@ fn udp_datagram_vectors(f: &LinkFrames) -> Vec<DatagramVector> {
         ),
         datagram(
             "batch_data_and_ack",
-            "A batch: data_struct_wheels followed by ack_delivered, back to back. This is how \
-             an acknowledgement rides along with data going the same way (the runtime holds \
-             both for the peer and they leave in one datagram); each is an ordinary frame.",
-            &cat(&[wheels, ack]),
+            "A batch: the header \"HB\" 01 00, then data_struct_wheels and ack_delivered as \
+             records (a u32 length, then the frame). This is how an acknowledgement rides \
+             along with data going the same way (the runtime holds both for the peer and they \
+             leave in one datagram); each is an ordinary frame.",
+            &b(&[wheels, ack]),
             &[wheels, ack],
             &[],
         ),
@@ -890,66 +906,84 @@ fn udp_datagram_vectors(f: &LinkFrames) -> Vec<DatagramVector> {
             "batch_of_three",
             "A batch of ack_delivered, data_broadcast_ack_requested and a data frame whose \
              payload is 7.",
-            &cat(&[ack, &f.broadcast, &second]),
+            &b(&[ack, &f.broadcast, &second]),
             &[ack, &f.broadcast, &second],
             &[],
         ),
         datagram(
             "batch_with_a_corrupt_frame",
-            "A batch whose middle frame has a wrong CRC: the link walks frames by their \
-             headers' lengths only and hands all three up; the router's decoder then drops \
-             the middle one (BadChecksum).",
-            &cat(&[wheels, &bad_crc, ack]),
+            "A batch whose middle frame has a wrong CRC: the link splits records by their \
+             lengths only and hands all three up; the router's decoder then drops the middle \
+             one (BadChecksum).",
+            &b(&[wheels, &bad_crc, ack]),
             &[wheels, &bad_crc, ack],
             &[],
         ),
         datagram(
+            "batch_of_bytes_that_are_no_frames",
+            "A batch of a record of 30 opaque bytes (what a layer sealing frames would hand \
+             the link), an empty record and data_struct_wheels: records carry any bytes, and \
+             the link never looks inside them.",
+            &b(&[sealed, &[], wheels]),
+            &[sealed, &[], wheels],
+            &[],
+        ),
+        datagram(
             "batch_trailing_byte",
-            "data_struct_wheels followed by one stray byte. The datagram starts with a frame \
-             shorter than itself, so it is taken for a batch: the frame is handed up, the byte \
-             that cannot be a frame is dropped and the datagram counted as bad.",
-            &cat(&[wheels, &[0xc0]]),
+            "A batch of data_struct_wheels followed by one stray byte, too few for a record \
+             length: the frame is handed up, the byte is dropped and the datagram counted as \
+             bad.",
+            &cat(&[&b(&[wheels]), &[0xc0]]),
             &[wheels],
             &[0xc0],
         ),
         datagram(
             "batch_truncated_last_frame",
-            "data_struct_wheels followed by the first 60 bytes of another 78-byte frame: the \
-             last header declares more bytes than are left, so that piece is dropped.",
-            &cat(&[wheels, &wheels[..60]]),
+            "A batch of data_struct_wheels and a record announcing 78 bytes of which only 60 \
+             follow: that record is dropped.",
+            &b(&[wheels, wheels])[..4 + 82 + 4 + 60],
             &[wheels],
-            &wheels[..60],
+            &cat(&[&78u32.to_le_bytes(), &wheels[..60]]),
         ),
         datagram(
-            "batch_short_tail",
-            "ack_delivered followed by 10 bytes, too few for a header: dropped.",
-            &cat(&[ack, &wheels[..10]]),
+            "batch_huge_length",
+            "A batch of ack_delivered and a record whose length is 0xffffffff: dropped (no \
+             receiver allocates for it; the datagram holds all there is).",
+            &cat(&[&b(&[ack]), &[0xff; 4], b"rest"]),
             &[ack],
-            &wheels[..10],
+            &cat(&[&[0xff; 4], b"rest"]),
         ),
         datagram(
-            "batch_garbage_tail",
-            "data_struct_wheels followed by bytes that are not a frame header: dropped.",
-            &cat(&[wheels, garbage]),
-            &[wheels],
-            garbage,
-        ),
-        datagram(
-            "whole_truncated_frame",
-            "data_struct_wheels without its last byte: the header declares more than the \
-             datagram holds, so it is no batch and is handed up whole; the router's decoder \
-             rejects it (LengthMismatch).",
-            &wheels[..wheels.len() - 1],
-            &[&wheels[..wheels.len() - 1]],
+            "batch_bad_version",
+            "A batch header with version 2: this version reads none of it; the datagram is \
+             dropped and counted as bad.",
+            &other_version,
+            &[],
             &[],
         ),
         datagram(
-            "whole_bad_first_header",
-            "data_struct_wheels with version 2, then ack_delivered: the first header does not \
-             parse, so the datagram is no batch and is handed up whole (and rejected by the \
-             decoder, BadVersion). A batch is recognised by its first frame alone.",
-            &cat(&[&bad_version, ack]),
-            &[&cat(&[&bad_version, ack])],
+            "whole_frames_back_to_back",
+            "data_struct_wheels and ack_delivered back to back without a batch header (how \
+             batches looked before \"HB\"): not a batch, handed up whole as one frame, which \
+             the router's decoder rejects (LengthMismatch).",
+            &cat(&[wheels, ack]),
+            &[&cat(&[wheels, ack])],
+            &[],
+        ),
+        datagram(
+            "whole_frame_with_trailing_byte",
+            "data_struct_wheels plus one stray byte: handed up whole (the link reads no frame \
+             header); the decoder rejects it (LengthMismatch).",
+            &cat(&[wheels, &[0xc0]]),
+            &[&cat(&[wheels, &[0xc0]])],
+            &[],
+        ),
+        datagram(
+            "whole_truncated_frame",
+            "data_struct_wheels without its last byte: handed up whole; the router's decoder \
+             rejects it (LengthMismatch).",
+            &wheels[..wheels.len() - 1],
+            &[&wheels[..wheels.len() - 1]],
             &[],
         ),
         datagram(
@@ -1002,8 +1036,6 @@ fn big_frame() -> Vec<u8> {
 }
 
 fn fragmented_vectors(f: &LinkFrames) -> Vec<FragmentedVector> {
-    let mut trailing = f.wheels.clone();
-    trailing.push(0xc0);
     vec![
         fragmented(
             "wheels_in_three",
@@ -1030,11 +1062,11 @@ fn fragmented_vectors(f: &LinkFrames) -> Vec<FragmentedVector> {
             0xffff_fffe,
         ),
         fragmented(
-            "one_fragment_ambiguous_frame",
-            "data_struct_wheels plus a stray byte (79 bytes). It fits a datagram, but as a \
-             datagram of its own it would be read as a batch, so the sender sends it as a \
-             message of one fragment, which the receiver hands up whole.",
-            &trailing,
+            "one_fragment_hb_bytes",
+            "Bytes starting with \"HB\" (no frame; links carry any bytes). They fit a \
+             datagram, but a datagram of their own would be read as a batch, so the sender \
+             sends them as a message of one fragment, which the receiver hands up whole.",
+            b"HB is not a batch",
             1472,
             42,
         ),
@@ -1049,6 +1081,8 @@ fn fragmented_vectors(f: &LinkFrames) -> Vec<FragmentedVector> {
     ]
 }
 
+/// The counts after the frames: `rejected`, `duplicates`, `pending`, in the JSON's order.
+#[allow(clippy::too_many_arguments)]
 fn reassembly(
     name: &str,
     description: &str,
@@ -1056,6 +1090,7 @@ fn reassembly(
     datagrams: &[&[u8]],
     frames: &[&[u8]],
     rejected: usize,
+    duplicates: usize,
     pending: usize,
 ) -> ReassemblyVector {
     ReassemblyVector {
@@ -1065,6 +1100,7 @@ fn reassembly(
         datagrams_hex: hexes(datagrams),
         frames_hex: hexes(frames),
         rejected,
+        duplicates,
         pending,
     }
 }
@@ -1090,6 +1126,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&f.wheels],
             0,
             0,
+            0,
         ),
         reassembly(
             "reversed",
@@ -1097,6 +1134,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             m,
             &[&w[2], &w[1], &w[0]],
             &[&f.wheels],
+            0,
             0,
             0,
         ),
@@ -1107,6 +1145,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &w[0], &w[1], &w[2]],
             &[&f.wheels],
             0,
+            1,
             0,
         ),
         reassembly(
@@ -1118,14 +1157,16 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&f.wheels, &hundred],
             0,
             0,
+            0,
         ),
         reassembly(
             "one_fragment_message",
-            "A message of one fragment (one_fragment_ambiguous_frame) is complete at once and \
-             handed up whole: a reassembled frame is never split as a batch.",
+            "A message of one fragment (data_struct_wheels plus a stray byte) is complete at \
+             once and handed up whole: a reassembled frame is never split as a batch.",
             m,
             &[&one[0]],
             &[&trailing],
+            0,
             0,
             0,
         ),
@@ -1136,6 +1177,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             m,
             &[&w[0], &w[2]],
             &[],
+            0,
             0,
             1,
         ),
@@ -1149,6 +1191,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &other[1], &w[1], &w[2]],
             &[],
             1,
+            0,
             1,
         ),
         reassembly(
@@ -1160,16 +1203,19 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&f.wheels],
             1,
             0,
+            0,
         ),
         reassembly(
             "late_duplicate_after_completion",
-            "Fragment 1 again after the message completed: it starts a new incomplete message \
-             (the receiver keeps no memory of completed ones), held until the timeout.",
+            "Fragment 1 again after the message completed: the receiver remembers the \
+             message for its reassembly timeout and drops the copy as a duplicate; nothing is \
+             held.",
             m,
             &[&w[0], &w[1], &w[2], &w[1]],
             &[&f.wheels],
             0,
             1,
+            0,
         ),
         reassembly(
             "over_the_receivers_max_frame",
@@ -1179,6 +1225,7 @@ fn reassembly_vectors(f: &LinkFrames) -> Vec<ReassemblyVector> {
             &[&w[0], &w[1], &w[2]],
             &[],
             3,
+            0,
             0,
         ),
     ]
@@ -1703,35 +1750,40 @@ fn section<'a>(file: &'a Value, key: &str) -> &'a Vec<Value> {
 #[test]
 fn udp_datagrams_split_as_documented() {
     let file = load();
-    let (mut batches, mut tails) = (0, 0);
+    let (mut batches, mut tails, mut dropped) = (0, 0, 0);
     for v in section(&file, "udp_datagrams") {
         let name = str_of(v, "name");
         let d = unhex(str_of(v, "datagram_hex"));
         assert!(!d.starts_with(b"HF"), "{name}: fragments are elsewhere");
-        // A batch: the first header parses and declares fewer bytes than the datagram holds.
-        let is_batch = wire::peek_frame_len(&d).is_ok_and(|n| n < d.len());
-        let (frames, rest) = if is_batch {
-            let mut rest = &d[..];
+        // A batch starts with "HB"; its header is "HB", version 1, a zero byte; then records.
+        let (handling, frames, rest) = if !d.starts_with(b"HB") {
+            ("whole", vec![d.clone()], Vec::new())
+        } else if d.len() < 4 || d[2] != 1 || d[3] != 0 {
+            ("dropped", Vec::new(), Vec::new())
+        } else {
+            let mut rest = &d[4..];
             let mut frames = Vec::new();
-            while let Ok(n) = wire::peek_frame_len(rest) {
-                if n > rest.len() {
+            while rest.len() >= 4 {
+                let n = u32::from_le_bytes(rest[..4].try_into().unwrap()) as usize;
+                if n > rest.len() - 4 {
                     break;
                 }
-                frames.push(rest[..n].to_vec());
-                rest = &rest[n..];
+                frames.push(rest[4..4 + n].to_vec());
+                rest = &rest[4 + n..];
             }
-            (frames, rest.to_vec())
-        } else {
-            (vec![d.clone()], Vec::new())
+            ("batch", frames, rest.to_vec())
         };
-        let handling = if is_batch { "batch" } else { "whole" };
         assert_eq!(handling, str_of(v, "handling"), "{name}");
         assert_eq!(frames, hex_list(v, "frames_hex"), "{name}: frames");
         assert_eq!(hex(&rest), str_of(v, "dropped_tail_hex"), "{name}: tail");
-        batches += usize::from(is_batch);
+        batches += usize::from(handling == "batch");
+        dropped += usize::from(handling == "dropped");
         tails += usize::from(!rest.is_empty());
     }
-    assert!(batches >= 3 && tails >= 3, "too few batch vectors");
+    assert!(
+        batches >= 3 && tails >= 3 && dropped >= 1,
+        "too few batch vectors"
+    );
 }
 
 #[test]

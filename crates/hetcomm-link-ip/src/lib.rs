@@ -39,6 +39,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod common;
 pub mod factory;
 pub mod stream;
 pub mod tcp;

@@ -181,7 +181,7 @@ use std::fmt;
 use std::io::{self, IoSlice, IoSliceMut, Read, Write};
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -189,6 +189,7 @@ use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
+pub(crate) use crate::common::{add, bump, lock};
 use poller::{refuse, reject, ConnSet, Permit, Poller, Waker};
 
 /// Size of the hello a connector sends in [`IdentityMode::Hello`].
@@ -340,7 +341,8 @@ pub struct StreamConfig {
     /// How long one send may block writing its frame before it fails with
     /// [`LinkError::Congested`] (default 2 s).
     pub write_timeout: Duration,
-    /// How long an accepted connection may take to send its hello (default 5 s).
+    /// How long an accepted connection may take to send its whole hello, counted from the
+    /// accept however the bytes are spread over reads (default 5 s).
     pub hello_timeout: Duration,
     /// Delay before the first reconnect attempt after a failed connect (default 10 ms).
     pub backoff_initial: Duration,
@@ -426,10 +428,14 @@ pub struct StreamStats {
     /// Held frames whose batch failed to write (the connection was dropped). [`Link::stats`]
     /// adds them to [`LinkStats::frames_dropped`].
     pub held_frames_dropped: u64,
+    /// Connections closed because a record announced a frame larger than this link's
+    /// `max_frame` (the sender's `max_message_bytes` is larger than ours). Each is also one of
+    /// `frames_dropped`; the first is also logged to standard error.
+    pub oversize_records: u64,
 }
 
 #[derive(Default)]
-struct Counters {
+struct StreamCounters {
     frames_sent: AtomicU64,
     frames_received: AtomicU64,
     frames_dropped: AtomicU64,
@@ -440,16 +446,9 @@ struct Counters {
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
     held_frames_dropped: AtomicU64,
-}
-
-fn bump(c: &AtomicU64) {
-    c.fetch_add(1, Ordering::Relaxed);
-}
-
-fn add(c: &AtomicU64, n: usize) {
-    if n > 0 {
-        c.fetch_add(n as u64, Ordering::Relaxed);
-    }
+    oversize_records: AtomicU64,
+    /// The first oversize record has been logged.
+    oversize_logged: AtomicBool,
 }
 
 /// Sets `flag` unless it is already set, so that the common case only reads the cache line.
@@ -539,7 +538,7 @@ struct Shared<T: StreamTransport> {
     /// Every fleet system other than this one (used to vet hellos).
     fleet: BTreeMap<SystemId, ()>,
     closing: AtomicBool,
-    counters: Counters,
+    counters: StreamCounters,
     /// Accepted connections open now (each holds a [`Permit`]).
     open: Arc<AtomicUsize>,
     /// Connections read by a thread of their own, by reader number; a reader removes its
@@ -556,12 +555,6 @@ struct Reader<S> {
     /// A second handle, to unblock the reader at shutdown.
     socket: S,
     handle: JoinHandle<()>,
-}
-
-fn lock<X>(m: &Mutex<X>) -> MutexGuard<'_, X> {
-    // A panic in a sink must not wedge the whole link: the data under these locks stays
-    // consistent between statements, so a poisoned lock is still usable.
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// A [`Link`] over any [`StreamTransport`]: see the module docs for its behaviour.
@@ -617,7 +610,7 @@ impl<T: StreamTransport> StreamLink<T> {
             config,
             fleet: peers.keys().map(|id| (*id, ())).collect(),
             closing: AtomicBool::new(false),
-            counters: Counters::default(),
+            counters: StreamCounters::default(),
             open: Arc::new(AtomicUsize::new(0)),
             readers: Mutex::new(HashMap::new()),
             next_reader: AtomicU64::new(1),
@@ -689,6 +682,7 @@ impl<T: StreamTransport> StreamLink<T> {
             write_failures: get(&c.write_failures),
             frames_lost_connecting: get(&c.frames_lost_connecting),
             held_frames_dropped: get(&c.held_frames_dropped),
+            oversize_records: get(&c.oversize_records),
         }
     }
 
@@ -1302,18 +1296,25 @@ fn spawn_thread<T: StreamTransport>(
     }
 }
 
-/// Reads `buf.len()` bytes unless the stream ends first; returns how many were read.
-fn read_full<R: Read>(r: &mut R, buf: &mut [u8]) -> io::Result<usize> {
+/// Reads exactly `buf.len()` bytes by `deadline` in total, however the peer spreads them over
+/// its writes: the socket's read timeout is set to what is left before each read. An error if
+/// the stream ends first (`UnexpectedEof`) or the deadline passes (`TimedOut`).
+fn read_by<S: StreamSocket>(socket: &mut S, buf: &mut [u8], deadline: Instant) -> io::Result<()> {
     let mut got = 0;
     while got < buf.len() {
-        match r.read(&mut buf[got..]) {
-            Ok(0) => break,
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(io::ErrorKind::TimedOut.into());
+        }
+        socket.set_read_timeout(Some(left))?;
+        match socket.read(&mut buf[got..]) {
+            Ok(0) => return Err(io::ErrorKind::UnexpectedEof.into()),
             Ok(n) => got += n,
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         }
     }
-    Ok(got)
+    Ok(())
 }
 
 /// Establishes who is on the other end of an accepted connection, per the identity mode.
@@ -1327,15 +1328,14 @@ fn identify<T: StreamTransport>(
         IdentityMode::Anonymous => Some(Peer::Unknown),
         IdentityMode::Address => shared.transport.peer_identity(addr).and_then(in_fleet),
         IdentityMode::Hello => {
-            socket
-                .set_read_timeout(Some(shared.config.hello_timeout))
-                .ok()?;
             // Exactly the hello: the records behind it belong to the record reader.
             let mut hello = [0u8; HELLO_LEN];
-            let got = read_full(socket, &mut hello).ok()?;
-            if got < HELLO_LEN {
-                return None;
-            }
+            read_by(
+                socket,
+                &mut hello,
+                Instant::now() + shared.config.hello_timeout,
+            )
+            .ok()?;
             socket.set_read_timeout(None).ok()?;
             decode_hello(&hello).and_then(in_fleet)
         }
@@ -1349,8 +1349,11 @@ enum StreamEnd {
     Clean,
     /// End of stream or a read error inside a record: that frame is lost.
     Cut,
-    /// A record header that is malformed or announces more than `max_frame`.
+    /// A record header that is malformed.
     Bad,
+    /// A well-formed record header announcing more than `max_frame` bytes (this many): the
+    /// sender's `max_message_bytes` is larger than the receiver's.
+    Oversize(usize),
     /// Not an end: a non-blocking socket has nothing more for now. The reader keeps what it
     /// has read and resumes with the next call.
     Pending,
@@ -1525,7 +1528,11 @@ impl RecordReader {
         let mut head = [0u8; RECORD_HEADER_LEN];
         head.copy_from_slice(&self.buf[self.start..self.start + RECORD_HEADER_LEN]);
         // Checked before anything is allocated or read for it.
-        let len = decode_record_header(&head, self.max_frame).ok_or(StreamEnd::Bad)?;
+        let len = match decode_record_header(&head, usize::MAX) {
+            None => return Err(StreamEnd::Bad),
+            Some(len) if len > self.max_frame => return Err(StreamEnd::Oversize(len)),
+            Some(len) => len,
+        };
         let body = self.start + RECORD_HEADER_LEN;
         if body + len <= self.end || len <= DIRECT_READ_MIN {
             if body + len > self.end {
@@ -1745,6 +1752,25 @@ impl<S: StreamSocket> Connection<S> {
             StreamEnd::Clean | StreamEnd::Pending => false,
             StreamEnd::Cut => !shared.closing.load(Ordering::SeqCst),
             StreamEnd::Bad => true,
+            StreamEnd::Oversize(len) => {
+                bump(&shared.counters.oversize_records);
+                if !shared
+                    .counters
+                    .oversize_logged
+                    .swap(true, Ordering::Relaxed)
+                {
+                    eprintln!(
+                        "hetcomm {} link: closed a connection from {:?} whose record announces \
+                         {len} bytes, more than this link's largest frame of {} bytes: the \
+                         sender's max_message_bytes is larger than ours (further such records \
+                         are only counted in oversize_records)",
+                        T::NAME,
+                        self.from,
+                        shared.config.max_frame()
+                    );
+                }
+                true
+            }
         };
         if count {
             bump(&shared.counters.frames_dropped);
@@ -2081,7 +2107,10 @@ mod tests {
         }
         // A frame over max_frame ends the stream before its bytes are read.
         let (got, end) = read_all(&mut &stream[..], 100_000);
-        assert_eq!(end, StreamEnd::Bad);
+        assert!(
+            matches!(end, StreamEnd::Oversize(n) if n > 100_000),
+            "{end:?}"
+        );
         assert_eq!(got.len(), 10);
         // Garbage after a good record.
         let mut s = stream_of(&frames[..3]);

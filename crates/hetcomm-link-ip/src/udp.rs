@@ -5,22 +5,23 @@
 //!
 //! # Datagram format
 //!
-//! Every datagram is one of three kinds, told apart by its first bytes:
+//! Every datagram is one of three kinds, told apart by its first two bytes alone (the link never
+//! reads a frame's own header: frames may be any bytes, sealed ones included):
 //!
 //! - **A whole frame**: a frame no longer than the datagram payload size
 //!   ([`UdpConfig::datagram_payload`], the link's `mtu`) travels as one datagram holding
-//!   exactly the frame, with nothing added.
-//! - **A batch**: frames held back by [`Link::send_held`] travel together as one datagram
-//!   holding whole wire frames back to back, with nothing between or around them, at most `mtu`
-//!   bytes in all. Only self-delimiting wire frames are batched: frames that start with the wire
-//!   magic `"HC"` and whose header's declared length ([`wire::peek_frame_len`]) is exactly
-//!   their own length. A receiver recognises a batch by its first frame: the datagram starts
-//!   with `"HC"` and the first header parses with a declared length *shorter* than the
-//!   datagram. It then walks the datagram frame by frame with [`wire::peek_frame_len`] and
-//!   hands each complete frame up; a piece that does not parse or runs past the end drops the
-//!   rest of the datagram and is counted in [`UdpStats::bad_datagrams`] (the frames before it
-//!   are still delivered). A batch of one frame is indistinguishable from a whole frame, and is
-//!   one.
+//!   exactly the frame, with nothing added. Anything that starts neither with `"HF"` nor with
+//!   `"HB"` is handed up whole.
+//! - **A batch** (starts with `"HB"`): frames held back by [`Link::send_held`] travel together
+//!   as one datagram: a 4-byte batch header (magic `"HB"`, version 1, a reserved 0 byte), then
+//!   one record per frame — its length as a u32 (little-endian) and the frame — at most `mtu`
+//!   bytes in all. It is the stream links' record header split in two: magic and version once
+//!   per datagram, the length once per frame. Any frame whose record fits is batched. A
+//!   receiver hands every complete record's frame up in order, with one
+//!   [`FrameSink::on_frames`] call labelled with the datagram's source; a record running past
+//!   the end drops the rest of the datagram, and a batch header it does not read drops all of
+//!   it, counted in [`UdpStats::bad_datagrams`]. A batch of one frame is sent as the frame
+//!   alone.
 //! - **A fragment** of a frame larger than `mtu`: a datagram that starts with this 20-byte
 //!   fragment header (integers little-endian):
 //!
@@ -42,21 +43,24 @@
 //! alone, so a fragment whose length is not the expected one is rejected, and fragments can
 //! never overlap or leave gaps. A reassembled frame is handed up whole, never split as a batch.
 //!
-//! Any other datagram — one whose header does not parse, or declares exactly the datagram's
-//! length or more — is handed up whole: the link does not judge frames (the router's decoder
-//! does). A frame that fits one datagram but would be mistaken for something else — it starts
-//! with `"HF"`, or it starts with a wire header declaring fewer bytes than the frame holds — is
-//! sent as a one-fragment message, so any byte string round-trips unambiguously.
+//! A frame that fits one datagram but would be mistaken for something else — it starts with
+//! `"HF"` or `"HB"` — is sent as a one-fragment message, so any byte string round-trips
+//! unambiguously.
 //!
 //! # Reassembly
 //!
 //! Fragments are collected per (source address, sender, message id). A message completes when
 //! every fragment arrived; a message still incomplete [`UdpConfig::reassembly_timeout`] after
 //! its first fragment is dropped and counted (a single lost piece loses the whole message —
-//! the router retries). The bytes held for incomplete messages are bounded by
-//! [`UdpConfig::reassembly_limit_bytes`]: to start a new message over the limit, the oldest
-//! incomplete messages are dropped (and counted) first. [`LinkStats::buffered_bytes`] reports
-//! the bytes held.
+//! the router retries).
+//!
+//! Memory follows the bytes that arrived, never the total a header announces (see
+//! [`Reassembler`]): a message's buffer grows as its pieces arrive, pieces ahead of a gap are
+//! kept apart until it fills. Everything held counts against
+//! [`UdpConfig::reassembly_limit_bytes`]; over it, the oldest incomplete message of the source
+//! address holding the most is dropped (and counted) first, so a flooding source evicts its own
+//! messages before anyone else's, and one source holds at most [`MAX_PARTIALS_PER_SOURCE`]
+//! messages. [`LinkStats::buffered_bytes`] reports the bytes held.
 //!
 //! # Bad input
 //!
@@ -68,8 +72,8 @@
 //!
 //! # Batching
 //!
-//! [`Link::send_held`] appends a self-delimiting wire frame to its peer's batch (one buffer
-//! per peer, of `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
+//! [`Link::send_held`] appends a frame's record to its peer's batch (one buffer per peer, of
+//! `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
 //! out as one datagram when the next frame would not fit (or no further frame could), at the
 //! next plain [`Link::send`] to that peer (which joins the batch when it can, so both leave in
 //! one datagram), before a frame that cannot be batched, at [`Link::flush`], and when the link
@@ -94,7 +98,8 @@
 //! [`Peer::Unknown`], and counted in [`UdpStats::from_unknown_address`]: a fleet system bound
 //! to `0.0.0.0` on a multi-homed robot may send from an address other than the one in the fleet
 //! file, and the router checks the frame header's source anyway. A fragment whose sender field
-//! disagrees with the fleet system at its source address is dropped.
+//! disagrees with the fleet system at its source address is dropped, and so is one from an
+//! unknown address whose sender field names no fleet system ([`FragmentError::UnknownSender`]).
 //!
 //! # Datagram size
 //!
@@ -122,14 +127,15 @@ use std::mem::MaybeUninit;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
 use std::os::fd::{AsRawFd, RawFd};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
+use std::sync::{Arc, Mutex, TryLockError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::wire::{self, HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
+use crate::common::{add, lock};
 use crate::OpenError;
 
 /// Magic of a fragment header: `"HF"`.
@@ -138,6 +144,14 @@ pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
 pub const FRAGMENT_VERSION: u8 = 1;
 /// Size of the fragment header.
 pub const FRAGMENT_HEADER_LEN: usize = 20;
+/// Magic of a batch datagram: `"HB"`.
+pub const BATCH_MAGIC: [u8; 2] = *b"HB";
+/// Version of the batch header.
+pub const BATCH_VERSION: u8 = 1;
+/// Size of the batch header: magic, version, a reserved byte.
+pub const BATCH_HEADER_LEN: usize = 4;
+/// Size of the length (u32, little-endian) in front of each frame of a batch.
+pub const BATCH_LENGTH_LEN: usize = 4;
 /// The largest UDP payload over IPv4.
 pub const MAX_DATAGRAM_PAYLOAD: usize = 65_507;
 /// The default datagram payload: an Ethernet MTU of 1500 minus IPv4 and UDP headers.
@@ -241,17 +255,26 @@ pub struct UdpStats {
     pub held_frames_dropped: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
-    /// Datagrams received as batches: their first frame is shorter than the datagram.
+    /// Batch datagrams (`"HB"`) received with at least one frame.
     pub batches_received: u64,
     /// Everything dropped: bad datagrams, incomplete messages given up, and held frames whose
     /// batch could not be sent.
     pub frames_dropped: u64,
-    /// Malformed fragment datagrams, and batches with a malformed tail, dropped (in part).
+    /// Malformed fragment datagrams, batch datagrams with a header not read, no record or an
+    /// incomplete last record, dropped (in part).
     pub bad_datagrams: u64,
     /// Incomplete messages dropped because their time ran out.
     pub reassembly_timeouts: u64,
     /// Incomplete messages dropped to make room (or refused for being over the limit).
     pub reassembly_evictions: u64,
+    /// Fragments dropped as duplicates: of a message still incomplete, or arriving late, after
+    /// their message was completed and handed up. Not part of `frames_dropped` (the frame
+    /// was delivered, or will be).
+    pub duplicate_fragments: u64,
+    /// Well-formed fragments of frames larger than this link's `max_frame` (the sender's
+    /// `max_message_bytes` is larger than ours), dropped. Each is also one of `bad_datagrams`;
+    /// the first is also logged to standard error.
+    pub oversize_fragments: u64,
     /// Frames received from an address that is no fleet endpoint (handed up as
     /// [`Peer::Unknown`]).
     pub from_unknown_address: u64,
@@ -263,7 +286,7 @@ pub struct UdpStats {
 }
 
 #[derive(Default)]
-struct Counters {
+struct UdpCounters {
     frames_sent: AtomicU64,
     datagrams_sent: AtomicU64,
     batches_sent: AtomicU64,
@@ -274,12 +297,12 @@ struct Counters {
     bad_datagrams: AtomicU64,
     reassembly_timeouts: AtomicU64,
     reassembly_evictions: AtomicU64,
+    duplicate_fragments: AtomicU64,
+    oversize_fragments: AtomicU64,
+    /// The first oversize fragment has been logged.
+    oversize_logged: AtomicBool,
     from_unknown_address: AtomicU64,
     buffered_bytes: AtomicU64,
-}
-
-fn add(c: &AtomicU64, n: u64) {
-    c.fetch_add(n, Ordering::Relaxed);
 }
 
 /// A parsed fragment header.
@@ -372,6 +395,12 @@ pub enum FragmentError {
         /// The system at the source address.
         actual: SystemId,
     },
+    /// The sender field names no fleet system (from an address that is no fleet endpoint).
+    #[error("fragment claims sender {claimed}, which is no fleet system")]
+    UnknownSender {
+        /// The sender field.
+        claimed: SystemId,
+    },
 }
 
 /// Parses and checks a fragment datagram (which starts with [`FRAGMENT_MAGIC`]) against
@@ -429,13 +458,86 @@ pub fn parse_fragment(
 
 type MessageKey = (SocketAddr, SystemId, u32);
 
+/// Bytes a partial message is charged for beyond its pieces (its bookkeeping).
+const PARTIAL_OVERHEAD: usize = 128;
+/// Bytes charged per piece that arrived ahead of its turn (its map entry).
+const PIECE_OVERHEAD: usize = 32;
+/// The first contiguous buffer of a message holds at most this many pieces: a fragment's
+/// header never makes the receiver reserve much more than the bytes it has received.
+const FIRST_RESERVE_PIECES: usize = 4;
+/// Most incomplete messages from one source address at once; a further one evicts that
+/// source's oldest.
+pub const MAX_PARTIALS_PER_SOURCE: usize = 64;
+/// Most recently completed messages remembered (for [`UdpConfig::reassembly_timeout`]) so
+/// that their late duplicate fragments are recognised.
+pub const MAX_REMEMBERED_COMPLETIONS: usize = 4096;
+
 struct Partial {
     total: u32,
     count: u16,
     started: Instant,
-    buf: Vec<u8>,
-    have: Vec<bool>,
-    missing: usize,
+    /// Pieces `0..next`, in order: the start of the frame. Grows as pieces arrive.
+    head: Vec<u8>,
+    /// The next piece `head` takes.
+    next: u16,
+    /// Pieces that arrived ahead of their turn, by index.
+    ahead: BTreeMap<u16, Vec<u8>>,
+    /// Bytes in `ahead`.
+    ahead_bytes: usize,
+    /// Bytes this message is charged for in [`Reassembler::held_bytes`].
+    charged: usize,
+}
+
+impl Partial {
+    fn has(&self, index: u16) -> bool {
+        index < self.next || self.ahead.contains_key(&index)
+    }
+
+    /// What the message costs now: its buffers (by capacity) and bookkeeping.
+    fn cost(&self) -> usize {
+        PARTIAL_OVERHEAD
+            + self.head.capacity()
+            + self.ahead_bytes
+            + self.ahead.len() * PIECE_OVERHEAD
+    }
+
+    /// Takes piece `index` (not held yet).
+    fn insert(&mut self, index: u16, piece: &[u8]) {
+        if index != self.next {
+            self.ahead_bytes += piece.len();
+            self.ahead.insert(index, piece.to_vec());
+            return;
+        }
+        self.append(piece);
+        while let Some(p) = self.ahead.remove(&self.next) {
+            self.ahead_bytes -= p.len();
+            self.append(&p);
+        }
+    }
+
+    /// Appends the next piece to `head`, growing it by at most doubling (and at first by a few
+    /// pieces), never past `total`.
+    fn append(&mut self, piece: &[u8]) {
+        let total = self.total as usize;
+        let need = self.head.len() + piece.len();
+        if need > self.head.capacity() {
+            let chunk = total.div_ceil(usize::from(self.count));
+            let target = need
+                .max(self.head.capacity() * 2)
+                .max(FIRST_RESERVE_PIECES * chunk)
+                .min(total);
+            self.head.reserve_exact(target - self.head.len());
+        }
+        self.head.extend_from_slice(piece);
+        self.next += 1;
+    }
+}
+
+/// What one source address holds.
+#[derive(Default)]
+struct SourceUse {
+    bytes: usize,
+    partials: usize,
 }
 
 /// What [`Reassembler::on_fragment`] made of a fragment.
@@ -443,8 +545,11 @@ struct Partial {
 pub enum Reassembly {
     /// The message is complete: here is the frame.
     Complete(Vec<u8>),
-    /// More fragments are needed (or this one was a duplicate).
+    /// More fragments are needed.
     Pending,
+    /// A fragment already taken: of a message still incomplete, or of one completed within
+    /// the reassembly timeout (a late duplicate). Dropped; nothing is held for it.
+    Duplicate,
     /// The fragment could not be used; `dropped` incomplete messages were given up with it.
     Rejected {
         /// Why.
@@ -456,13 +561,27 @@ pub enum Reassembly {
 
 /// Bounded, time-limited reassembly of fragmented messages; sans-IO (time is passed in), so it
 /// is tested without sockets.
+///
+/// Memory follows what arrived, not what a header announces: a message's buffer grows as its
+/// pieces arrive (the first reservation is at most [`FIRST_RESERVE_PIECES`] pieces, later ones
+/// at most double it), and pieces that arrive ahead of their turn are kept apart until the
+/// gap before them fills. Everything held, bookkeeping included, is charged against the limit.
+/// When a new piece takes the total over the limit, the oldest message of the source address
+/// holding the most is dropped, until it fits: a source flooding the receiver loses its own
+/// messages first. One source holds at most [`MAX_PARTIALS_PER_SOURCE`] messages.
 pub struct Reassembler {
     limit_bytes: usize,
     timeout: Duration,
     max_frame: usize,
+    /// Fleet systems a sender field may name (empty: any).
+    fleet: Vec<SystemId>,
     partials: HashMap<MessageKey, Partial>,
+    sources: HashMap<SocketAddr, SourceUse>,
     held: usize,
     evictions: u64,
+    /// Recently completed messages, oldest first, and the same as a set.
+    completed: std::collections::VecDeque<(MessageKey, Instant)>,
+    completed_set: std::collections::HashSet<MessageKey>,
 }
 
 impl Reassembler {
@@ -473,13 +592,25 @@ impl Reassembler {
             limit_bytes,
             timeout,
             max_frame,
+            fleet: Vec::new(),
             partials: HashMap::new(),
+            sources: HashMap::new(),
             held: 0,
             evictions: 0,
+            completed: std::collections::VecDeque::new(),
+            completed_set: std::collections::HashSet::new(),
         }
     }
 
-    /// Bytes held for incomplete messages.
+    /// Accepts fragments only from senders named in `fleet` (when it is not empty); others are
+    /// rejected with [`FragmentError::UnknownSender`] before anything is held.
+    pub fn with_fleet(mut self, fleet: impl IntoIterator<Item = SystemId>) -> Reassembler {
+        self.fleet = fleet.into_iter().collect();
+        self.fleet.sort_unstable();
+        self
+    }
+
+    /// Bytes held for incomplete messages (their buffers by capacity, and bookkeeping).
     pub fn held_bytes(&self) -> usize {
         self.held
     }
@@ -514,6 +645,8 @@ impl Reassembler {
                     actual,
                 });
             }
+        } else if !self.fleet.is_empty() && self.fleet.binary_search(&h.sender).is_err() {
+            return reject(FragmentError::UnknownSender { claimed: h.sender });
         }
         if h.count == 1 {
             return Reassembly::Complete(piece.to_vec());
@@ -530,63 +663,80 @@ impl Reassembler {
                 };
             }
         } else {
-            let need = h.total as usize;
-            if need > self.limit_bytes {
+            if self.completed_set.contains(&key) {
+                return Reassembly::Duplicate;
+            }
+            if h.total as usize > self.limit_bytes {
                 self.evictions += 1;
                 return Reassembly::Pending;
             }
-            while self.held + need > self.limit_bytes {
-                let oldest = self
-                    .partials
-                    .iter()
-                    .min_by_key(|(_, p)| p.started)
-                    .map(|(k, _)| *k);
-                match oldest {
-                    Some(k) => {
-                        self.remove(&k);
-                        self.evictions += 1;
-                    }
-                    None => break,
+            if self.sources.get(&src).map_or(0, |s| s.partials) >= MAX_PARTIALS_PER_SOURCE {
+                if let Some(k) = self.oldest_of(src) {
+                    self.remove(&k);
+                    self.evictions += 1;
                 }
             }
-            self.held += need;
-            self.partials.insert(
-                key,
-                Partial {
-                    total: h.total,
-                    count: h.count,
-                    started: now,
-                    buf: vec![0; need],
-                    have: vec![false; usize::from(h.count)],
-                    missing: usize::from(h.count),
-                },
-            );
+            let p = Partial {
+                total: h.total,
+                count: h.count,
+                started: now,
+                head: Vec::new(),
+                next: 0,
+                ahead: BTreeMap::new(),
+                ahead_bytes: 0,
+                charged: PARTIAL_OVERHEAD,
+            };
+            self.held += p.charged;
+            let s = self.sources.entry(src).or_default();
+            s.bytes += p.charged;
+            s.partials += 1;
+            self.partials.insert(key, p);
         }
         let Some(p) = self.partials.get_mut(&key) else {
             return Reassembly::Pending;
         };
-        let i = usize::from(h.index);
-        if p.have[i] {
-            return Reassembly::Pending; // a duplicate datagram
+        if p.has(h.index) {
+            return Reassembly::Duplicate;
         }
-        p.have[i] = true;
-        p.missing -= 1;
-        p.buf[h.piece_range()].copy_from_slice(piece);
-        if p.missing > 0 {
-            return Reassembly::Pending;
+        p.insert(h.index, piece);
+        if p.next == p.count {
+            let frame = match self.remove(&key) {
+                Some(p) => p.head,
+                None => return Reassembly::Pending,
+            };
+            self.remember(key, now);
+            return Reassembly::Complete(frame);
         }
-        match self.partials.remove(&key) {
-            Some(p) => {
-                self.held -= p.buf.len();
-                Reassembly::Complete(p.buf)
-            }
-            None => Reassembly::Pending,
+        let (before, after) = (p.charged, p.cost());
+        p.charged = after;
+        self.held = self.held - before + after;
+        if let Some(s) = self.sources.get_mut(&src) {
+            s.bytes = s.bytes - before + after;
         }
+        while self.held > self.limit_bytes {
+            let Some(k) = self.eviction_victim() else {
+                break;
+            };
+            self.remove(&k);
+            self.evictions += 1;
+        }
+        Reassembly::Pending
     }
 
-    /// Drops incomplete messages whose time ran out; returns how many.
+    /// Drops incomplete messages whose time ran out (returns how many) and forgets completed
+    /// messages older than the timeout.
     pub fn expire(&mut self, now: Instant) -> usize {
         let timeout = self.timeout;
+        while let Some(&(key, at)) = self.completed.front() {
+            if now.saturating_duration_since(at) < timeout {
+                break;
+            }
+            self.completed.pop_front();
+            self.completed_set.remove(&key);
+        }
+        if self.partials.is_empty() {
+            return 0;
+        }
         let expired: Vec<MessageKey> = self
             .partials
             .iter()
@@ -599,34 +749,80 @@ impl Reassembler {
         expired.len()
     }
 
-    fn remove(&mut self, key: &MessageKey) {
-        if let Some(p) = self.partials.remove(key) {
-            self.held -= p.buf.len();
+    /// Whether [`expire`](Reassembler::expire) has anything to look at.
+    fn needs_upkeep(&self) -> bool {
+        !self.partials.is_empty() || !self.completed.is_empty()
+    }
+
+    fn remember(&mut self, key: MessageKey, now: Instant) {
+        if self.completed.len() >= MAX_REMEMBERED_COMPLETIONS {
+            if let Some((old, _)) = self.completed.pop_front() {
+                self.completed_set.remove(&old);
+            }
         }
+        if self.completed_set.insert(key) {
+            self.completed.push_back((key, now));
+        }
+    }
+
+    /// The oldest incomplete message from `src`.
+    fn oldest_of(&self, src: SocketAddr) -> Option<MessageKey> {
+        self.partials
+            .iter()
+            .filter(|(k, _)| k.0 == src)
+            .min_by_key(|(_, p)| p.started)
+            .map(|(k, _)| *k)
+    }
+
+    /// The message to drop for room: the oldest of the source holding the most bytes.
+    fn eviction_victim(&self) -> Option<MessageKey> {
+        let (&src, _) = self.sources.iter().max_by_key(|(_, s)| s.bytes)?;
+        self.oldest_of(src)
+    }
+
+    fn remove(&mut self, key: &MessageKey) -> Option<Partial> {
+        let p = self.partials.remove(key)?;
+        self.held -= p.charged;
+        if let Some(s) = self.sources.get_mut(&key.0) {
+            s.bytes -= p.charged;
+            s.partials -= 1;
+            if s.partials == 0 {
+                self.sources.remove(&key.0);
+            }
+        }
+        Some(p)
     }
 }
 
 struct Shared {
     closing: AtomicBool,
-    counters: Counters,
+    counters: UdpCounters,
 }
 
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    // A panic elsewhere (e.g. in a sink) leaves the state consistent: keep serving.
-    m.lock().unwrap_or_else(PoisonError::into_inner)
+/// Appends `frame` as a record to batch `b` (starting the batch with its header if it is
+/// empty); the caller has checked that it fits.
+fn push_record(b: &mut Batch, frame: &[u8]) {
+    if b.buf.is_empty() {
+        b.buf.extend_from_slice(&batch_header());
+    }
+    // A frame that fits a datagram is far below 4 GiB.
+    b.buf.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    b.buf.extend_from_slice(frame);
+    b.frames += 1;
 }
 
 /// Frames held for one peer, to go out as one datagram.
 #[derive(Default)]
 struct Batch {
-    /// Whole wire frames back to back, at most `mtu` bytes.
+    /// The batch header, then one record (length, frame) per held frame, at most `mtu` bytes;
+    /// empty while nothing is held.
     buf: Vec<u8>,
     /// How many frames `buf` holds.
     frames: u64,
 }
 
 /// A peer's address and its batch of held frames.
-struct PeerSlot {
+struct UdpPeer {
     addr: SocketAddr,
     batch: Mutex<Batch>,
 }
@@ -636,35 +832,60 @@ enum RxSide {
     /// The link's own receive thread (joined on drop).
     Thread(Option<JoinHandle<()>>),
     /// Whichever thread calls [`Readable::read_ready`].
-    Driven(DrivenReceiver),
+    Driven(Box<DrivenReceiver>),
 }
 
-/// Whether `frame` may travel in a batch: a self-delimiting wire frame that fits a datagram.
+/// Whether `frame` may travel in a batch: its record fits one datagram with the batch header.
+/// Any bytes may: the link never looks inside a frame.
 fn batchable(frame: &[u8], mtu: usize) -> bool {
-    frame.len() <= mtu && wire::peek_frame_len(frame).is_ok_and(|n| n == frame.len())
+    BATCH_HEADER_LEN + BATCH_LENGTH_LEN + frame.len() <= mtu
 }
 
-/// Whether a receiver takes a datagram holding exactly `d` for a batch: it starts with a wire
-/// header declaring fewer bytes than `d` holds.
-fn looks_like_batch(d: &[u8]) -> bool {
-    wire::peek_frame_len(d).is_ok_and(|n| n < d.len())
+/// Whether a frame that fits one datagram must nevertheless be sent as a one-fragment message,
+/// because a receiver would take the bare datagram for a fragment or a batch.
+fn misread_alone(frame: &[u8]) -> bool {
+    frame.starts_with(&FRAGMENT_MAGIC) || frame.starts_with(&BATCH_MAGIC)
 }
 
-/// The frames of a batch datagram, front to back. Stops at the first piece that is not a
-/// complete wire frame and leaves it (with everything after it) in `rest`.
-struct BatchFrames<'a> {
+/// The batch header every batch datagram starts with.
+fn batch_header() -> [u8; BATCH_HEADER_LEN] {
+    [BATCH_MAGIC[0], BATCH_MAGIC[1], BATCH_VERSION, 0]
+}
+
+/// Checks the batch header of datagram `d` (which starts with [`BATCH_MAGIC`]); returns the
+/// records behind it, or `None` if the header is not one this version reads.
+pub fn batch_records(d: &[u8]) -> Option<BatchFrames<'_>> {
+    (d.len() >= BATCH_HEADER_LEN && d[..BATCH_HEADER_LEN] == batch_header()).then(|| BatchFrames {
+        rest: &d[BATCH_HEADER_LEN..],
+    })
+}
+
+/// The frames of a batch datagram's records, front to back. Stops at the first record that
+/// does not fit in what is left (or a length cut short) and leaves it, with everything after
+/// it, in [`BatchFrames::rest`].
+#[derive(Clone, Debug)]
+pub struct BatchFrames<'a> {
     rest: &'a [u8],
+}
+
+impl<'a> BatchFrames<'a> {
+    /// What the walk has not taken: empty after a well-formed batch, else its malformed tail.
+    pub fn rest(&self) -> &'a [u8] {
+        self.rest
+    }
 }
 
 impl<'a> Iterator for BatchFrames<'a> {
     type Item = &'a [u8];
 
     fn next(&mut self) -> Option<&'a [u8]> {
-        // A declared length is at least HEADER_LEN, so every step makes progress.
-        let n = wire::peek_frame_len(self.rest)
-            .ok()
-            .filter(|&n| n <= self.rest.len())?;
-        let (frame, rest) = self.rest.split_at(n);
+        // Every record takes at least its 4-byte length, so every step makes progress.
+        let (len, body) = self.rest.split_first_chunk::<BATCH_LENGTH_LEN>()?;
+        let n = u32::from_le_bytes(*len) as usize;
+        if n > body.len() {
+            return None;
+        }
+        let (frame, rest) = body.split_at(n);
         self.rest = rest;
         Some(frame)
     }
@@ -675,7 +896,7 @@ pub struct UdpLink {
     local: SystemId,
     socket: Arc<UdpSocket>,
     local_addr: SocketAddr,
-    peers: BTreeMap<SystemId, PeerSlot>,
+    peers: BTreeMap<SystemId, UdpPeer>,
     config: UdpConfig,
     max_frame: usize,
     next_message_id: AtomicU32,
@@ -735,7 +956,7 @@ impl UdpLink {
         let socket = Arc::new(socket);
         let shared = Arc::new(Shared {
             closing: AtomicBool::new(false),
-            counters: Counters::default(),
+            counters: UdpCounters::default(),
         });
         let max_frame = config.max_frame();
         let receiver = Receiver {
@@ -749,14 +970,15 @@ impl UdpLink {
                     config.reassembly_limit_bytes,
                     config.reassembly_timeout,
                     max_frame,
-                ),
+                )
+                .with_fleet(peer_addrs.keys().copied()),
             },
         };
         let rx = if config.driven {
-            RxSide::Driven(DrivenReceiver {
+            RxSide::Driven(Box::new(DrivenReceiver {
                 fd: socket.as_raw_fd(),
                 receiver: Mutex::new(receiver),
-            })
+            }))
         } else {
             let thread = std::thread::Builder::new()
                 .name(format!("hetcomm-udp-rx-{local}"))
@@ -767,7 +989,7 @@ impl UdpLink {
             .into_iter()
             .map(|(id, addr)| {
                 let batch = Mutex::new(Batch::default());
-                (id, PeerSlot { addr, batch })
+                (id, UdpPeer { addr, batch })
             })
             .collect();
         Ok(UdpLink {
@@ -811,6 +1033,8 @@ impl UdpLink {
             bad_datagrams: bad,
             reassembly_timeouts: timeouts,
             reassembly_evictions: evictions,
+            duplicate_fragments: get(&c.duplicate_fragments),
+            oversize_fragments: get(&c.oversize_fragments),
             from_unknown_address: get(&c.from_unknown_address),
             buffered_bytes: get(&c.buffered_bytes),
             kernel_drops: self.kernel_drops(),
@@ -837,7 +1061,7 @@ impl UdpLink {
         Ok(())
     }
 
-    fn peer(&self, to: SystemId) -> Result<&PeerSlot, LinkError> {
+    fn peer(&self, to: SystemId) -> Result<&UdpPeer, LinkError> {
         self.peers.get(&to).ok_or_else(|| {
             let reason = if to == self.local {
                 "it is this system itself".to_string()
@@ -852,7 +1076,7 @@ impl UdpLink {
     fn send_now(&self, to: SystemId, addr: SocketAddr, frame: &[u8]) -> Result<(), LinkError> {
         let counters = &self.shared.counters;
         let mtu = self.config.datagram_payload;
-        if frame.len() <= mtu && !frame.starts_with(&FRAGMENT_MAGIC) && !looks_like_batch(frame) {
+        if frame.len() <= mtu && !misread_alone(frame) {
             self.socket
                 .send_to(frame, addr)
                 .map_err(|e| self.send_error(to, addr, e))?;
@@ -903,7 +1127,12 @@ impl UdpLink {
         if b.frames == 0 {
             return Ok(());
         }
-        let result = self.socket.send_to(&b.buf, addr);
+        // One frame goes out bare, as `send` would send it (readable by receivers that predate
+        // batch records, and 8 bytes shorter), unless it would be misread alone.
+        let first = BATCH_HEADER_LEN + BATCH_LENGTH_LEN;
+        let alone = b.frames == 1 && !misread_alone(&b.buf[first..]);
+        let datagram = if alone { &b.buf[first..] } else { &b.buf[..] };
+        let result = self.socket.send_to(datagram, addr);
         let frames = b.frames;
         b.buf.clear();
         b.frames = 0;
@@ -912,7 +1141,7 @@ impl UdpLink {
             Ok(_) => {
                 add(&c.frames_sent, frames);
                 add(&c.datagrams_sent, 1);
-                add(&c.batches_sent, 1);
+                add(&c.batches_sent, u64::from(!alone));
                 Ok(())
             }
             Err(e) => {
@@ -1041,10 +1270,9 @@ impl Link for UdpLink {
         {
             let mut b = lock(&peer.batch);
             if b.frames > 0 {
-                if batchable(frame, mtu) && b.buf.len() + frame.len() <= mtu {
+                if b.buf.len() + BATCH_LENGTH_LEN + frame.len() <= mtu {
                     // Joins the held frames: one datagram for all of them.
-                    b.buf.extend_from_slice(frame);
-                    b.frames += 1;
+                    push_record(&mut b, frame);
                     return self.send_batch(to, peer.addr, &mut b, 1);
                 }
                 // Held frames go first. Their failure is counted; the result is this frame's.
@@ -1077,16 +1305,15 @@ impl Link for UdpLink {
             drop(b);
             return self.send_now(to, peer.addr, frame);
         }
-        if b.buf.len() + frame.len() > mtu {
+        if b.buf.len() + BATCH_LENGTH_LEN + frame.len() > mtu {
             let _ = self.send_batch(to, peer.addr, &mut b, 0);
         }
         if b.buf.capacity() < mtu {
             // Once per peer: afterwards holding a frame never allocates.
             b.buf.reserve_exact(mtu);
         }
-        b.buf.extend_from_slice(frame);
-        b.frames += 1;
-        if mtu - b.buf.len() < HEADER_LEN {
+        push_record(&mut b, frame);
+        if mtu - b.buf.len() < BATCH_LENGTH_LEN + HEADER_LEN {
             // No further frame can fit: holding these longer would only add latency.
             return self.send_batch(to, peer.addr, &mut b, 1);
         }
@@ -1112,7 +1339,7 @@ impl Link for UdpLink {
 
     fn readable(&self) -> Option<&dyn Readable> {
         match &self.rx {
-            RxSide::Driven(d) => Some(d),
+            RxSide::Driven(d) => Some(&**d),
             RxSide::Thread(_) => None,
         }
     }
@@ -1249,10 +1476,10 @@ impl RxState {
             Some(id) => Peer::System(id),
             None => Peer::Unknown,
         };
+        if d.starts_with(&BATCH_MAGIC) {
+            return self.deliver_batch(d, from);
+        }
         if !d.starts_with(&FRAGMENT_MAGIC) {
-            if looks_like_batch(d) {
-                return self.deliver_batch(d, from);
-            }
             self.deliver(d, from);
             return 1;
         }
@@ -1268,11 +1495,35 @@ impl RxState {
                 1
             }
             Reassembly::Pending => 0,
-            Reassembly::Rejected { dropped, .. } => {
-                add(&c.bad_datagrams, 1);
-                add(&c.reassembly_evictions, dropped as u64);
+            Reassembly::Duplicate => {
+                add(&c.duplicate_fragments, 1);
                 0
             }
+            Reassembly::Rejected { dropped, error } => {
+                add(&c.bad_datagrams, 1);
+                add(&c.reassembly_evictions, dropped as u64);
+                if let FragmentError::BadGeometry { total, max, .. } = error {
+                    if total as usize > max {
+                        self.on_oversize(total, max, src);
+                    }
+                }
+                0
+            }
+        }
+    }
+
+    /// A well-formed fragment of a message larger than this link's `max_frame`: the sender's
+    /// `max_message_bytes` is larger than ours. Counted; the first one is logged.
+    fn on_oversize(&self, total: u32, max: usize, src: SocketAddr) {
+        let c = &self.shared.counters;
+        add(&c.oversize_fragments, 1);
+        if !c.oversize_logged.swap(true, Ordering::Relaxed) {
+            eprintln!(
+                "hetcomm udp link: dropped a fragment from {src} of a {total}-byte frame, more \
+                 than this link's largest frame of {max} bytes: the sender's max_message_bytes \
+                 is larger than ours (further such fragments are only counted in \
+                 oversize_fragments)"
+            );
         }
     }
 
@@ -1289,26 +1540,35 @@ impl RxState {
     /// Hands up the complete frames of batch datagram `d`; returns how many.
     fn deliver_batch(&self, d: &[u8], from: Peer) -> usize {
         let c = &self.shared.counters;
-        // Walked once to count, so that the counters are updated (once per datagram) before
-        // the sink wakes anyone; the walk only reads headers.
-        let mut walk = BatchFrames { rest: d };
-        let n = walk.by_ref().count();
-        if !walk.rest.is_empty() {
+        let Some(records) = batch_records(d) else {
+            // A batch header this version does not read: nothing in it can be trusted.
             add(&c.bad_datagrams, 1);
+            return 0;
+        };
+        // Walked once to count, so that the counters are updated (once per datagram) before
+        // the sink wakes anyone; the walk only reads the records' lengths.
+        let mut walk = records.clone();
+        let n = walk.by_ref().count();
+        if !walk.rest.is_empty() || n == 0 {
+            add(&c.bad_datagrams, 1);
+        }
+        if n == 0 {
+            return 0;
         }
         add(&c.batches_received, 1);
         if from == Peer::Unknown {
             add(&c.from_unknown_address, n as u64);
         }
         add(&c.frames_received, n as u64);
-        self.sink.on_frames(&mut BatchFrames { rest: d }, from);
+        // Every frame of the batch carries the peer the datagram came from.
+        self.sink.on_frames(&mut records.clone(), from);
         n
     }
 
     /// Expires incomplete messages whose time ran out and publishes the bytes held.
     fn upkeep(&mut self) {
         let c = &self.shared.counters;
-        if self.reassembler.pending() > 0 {
+        if self.reassembler.needs_upkeep() {
             let expired = self.reassembler.expire(Instant::now());
             add(&c.reassembly_timeouts, expired as u64);
         }
@@ -1344,6 +1604,7 @@ impl Readable for DrivenReceiver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use hetcomm_core::wire;
 
     const SRC: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 9);
 
@@ -1390,49 +1651,71 @@ mod tests {
         assert_eq!(d.total, u64::from(u32::MAX) + 4);
     }
 
-    #[test]
-    fn batch_walk_stops_at_the_first_incomplete_piece() {
-        let frames: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 10 * i as usize)).collect();
-        let batch = frames.concat();
-        assert!(looks_like_batch(&batch));
-        let mut walk = BatchFrames { rest: &batch };
-        assert_eq!(walk.by_ref().collect::<Vec<_>>(), frames);
-        assert!(walk.rest.is_empty());
-
-        let mut tail = batch.clone();
-        tail.extend_from_slice(&frames[1][..HEADER_LEN + 1]); // header says more than is left
-        let mut walk = BatchFrames { rest: &tail };
-        assert_eq!(walk.by_ref().count(), 3);
-        assert_eq!(walk.rest.len(), HEADER_LEN + 1);
-
-        let mut garbage = frames[0].clone();
-        garbage.extend_from_slice(b"HX not a frame header at all, but long enough to be one...");
-        let mut walk = BatchFrames { rest: &garbage };
-        assert_eq!(walk.by_ref().count(), 1);
-        assert!(walk.rest.starts_with(b"HX"));
+    fn batch_of(frames: &[&[u8]]) -> Vec<u8> {
+        let mut b = Batch::default();
+        for f in frames {
+            push_record(&mut b, f);
+        }
+        assert_eq!(b.frames, frames.len() as u64);
+        b.buf
     }
 
     #[test]
-    fn only_self_delimiting_wire_frames_are_batched_or_split() {
+    fn batch_walk_stops_at_the_first_incomplete_record() {
+        let frames: Vec<Vec<u8>> = (0..3).map(|i| wire_frame(i, 10 * i as usize)).collect();
+        let refs: Vec<&[u8]> = frames.iter().map(|f| &f[..]).collect();
+        let batch = batch_of(&refs);
+        assert!(batch.starts_with(b"HB\x01\x00"));
+        let mut walk = batch_records(&batch).unwrap();
+        assert_eq!(walk.by_ref().collect::<Vec<_>>(), frames);
+        assert!(walk.rest().is_empty());
+
+        // A record announcing more than is left, and a length cut short.
+        let mut tail = batch.clone();
+        tail.extend_from_slice(&100u32.to_le_bytes());
+        tail.extend_from_slice(&[1; 99]);
+        let mut walk = batch_records(&tail).unwrap();
+        assert_eq!(walk.by_ref().count(), 3);
+        assert_eq!(walk.rest().len(), 103);
+        let mut short = batch.clone();
+        short.extend_from_slice(&[0, 0]);
+        let mut walk = batch_records(&short).unwrap();
+        assert_eq!(walk.by_ref().count(), 3);
+        assert_eq!(walk.rest(), &[0, 0]);
+
+        // Any bytes travel, empty ones included: the link never reads a frame.
+        let odd = batch_of(&[b"", b"HF", b"not a frame"]);
+        let got: Vec<&[u8]> = batch_records(&odd).unwrap().collect();
+        assert_eq!(got, [&b""[..], b"HF", b"not a frame"]);
+
+        let mut bad = batch.clone();
+        bad[2] = 2;
+        assert!(batch_records(&bad).is_none(), "another version");
+        bad[2] = 1;
+        bad[3] = 1;
+        assert!(batch_records(&bad).is_none(), "reserved byte set");
+        assert!(batch_records(b"HB\x01").is_none(), "truncated header");
+    }
+
+    #[test]
+    fn any_frame_that_fits_is_batched_and_only_magics_are_misread() {
         let f = wire_frame(1, 64);
         assert!(batchable(&f, 1472));
-        assert!(!batchable(&f, f.len() - 1), "larger than the mtu");
-        assert!(batchable(&f, f.len()));
-        assert!(!looks_like_batch(&f), "one frame is a whole frame");
+        assert!(batchable(&f, f.len() + 8));
+        assert!(!batchable(&f, f.len() + 7), "record and header must fit");
+        assert!(
+            batchable(&[0u8; 100], 1472),
+            "not a wire frame: batched all the same"
+        );
+        assert!(batchable(b"HC short", 1472));
+        assert!(!misread_alone(&f));
         let mut longer = f.clone();
         longer.push(0);
-        assert!(!batchable(&longer, 1472));
-        assert!(looks_like_batch(&longer));
-        assert!(!batchable(&f[..f.len() - 1], 1472));
         assert!(
-            !looks_like_batch(&f[..f.len() - 1]),
-            "truncated: handed up whole"
+            !misread_alone(&longer),
+            "trailing bytes are the frame's own business"
         );
-        assert!(!batchable(b"HC short", 1472));
-        assert!(!batchable(&[0u8; 100], 1472));
-        let mut hf = f.clone();
-        hf[1] = b'F';
-        assert!(!batchable(&hf, 1472) && !looks_like_batch(&hf));
+        assert!(misread_alone(b"HF...") && misread_alone(b"HB..."));
     }
 
     fn reassembler() -> Reassembler {
@@ -1530,7 +1813,9 @@ mod tests {
         for f in &frags[1..] {
             assert_eq!(r.on_fragment(f, SRC, None, t0), Reassembly::Pending);
         }
-        assert_eq!(r.held_bytes(), 500);
+        // Four pieces held ahead of the missing first one, and the bookkeeping.
+        let held = r.held_bytes();
+        assert!((400..=400 + PARTIAL_OVERHEAD + 4 * PIECE_OVERHEAD).contains(&held));
         assert_eq!(r.expire(t0 + Duration::from_secs(1)), 0);
         assert_eq!(r.expire(t0 + Duration::from_secs(2)), 1);
         assert_eq!(r.held_bytes(), 0);
@@ -1539,21 +1824,99 @@ mod tests {
     }
 
     #[test]
-    fn limit_evicts_the_oldest() {
+    fn memory_follows_the_bytes_received_not_the_declared_total() {
+        let mut r = Reassembler::new(32 << 20, Duration::from_secs(2), 16 << 20);
+        let t0 = Instant::now();
+        // One 276-byte datagram announcing 16 776 960 bytes in 65535 pieces of 256.
+        let h = |index| FragmentHeader {
+            sender: SystemId(1),
+            index,
+            count: u16::MAX,
+            message_id: 9,
+            total: 256 * u32::from(u16::MAX),
+        };
+        for index in [0, 65_534] {
+            let mut d = h(index).encode().to_vec();
+            d.extend_from_slice(&[0xAA; 256]);
+            assert_eq!(r.on_fragment(&d, SRC, None, t0), Reassembly::Pending);
+        }
+        assert!(r.held_bytes() < 8 * 1024, "{} bytes held", r.held_bytes());
+    }
+
+    #[test]
+    fn the_largest_holder_is_evicted_first() {
+        let mut r = Reassembler::new(4000, Duration::from_secs(2), 10_000);
+        let t0 = Instant::now();
+        let other: SocketAddr = "127.0.0.1:10".parse().unwrap();
+        let legit = fragments(&[1u8; 1000], 100, 1);
+        // The legitimate message starts first (older), then a flood from another source.
+        assert_eq!(r.on_fragment(&legit[0], SRC, None, t0), Reassembly::Pending);
+        let mut flood_evictions = 0;
+        for id in 0..20 {
+            let f = fragments(&[2u8; 1000], 100, 100 + id);
+            for piece in &f[..9] {
+                r.on_fragment(piece, other, None, t0 + Duration::from_millis(1));
+            }
+            flood_evictions = r.evictions();
+        }
+        assert!(flood_evictions > 0);
+        assert!(r.held_bytes() <= 4000);
+        let mut out = None;
+        for piece in &legit[1..] {
+            if let Reassembly::Complete(v) = r.on_fragment(piece, SRC, None, t0) {
+                out = Some(v);
+            }
+        }
+        assert_eq!(
+            out.as_deref(),
+            Some(&[1u8; 1000][..]),
+            "the flood evicted itself"
+        );
+    }
+
+    #[test]
+    fn limit_refuses_messages_larger_than_itself_and_bounds_messages_per_source() {
         let mut r = reassembler();
         let t0 = Instant::now();
-        let a = fragments(&[1u8; 600], 100, 1);
-        let b = fragments(&[2u8; 600], 100, 2);
-        r.on_fragment(&a[0], SRC, None, t0);
-        r.on_fragment(&b[0], SRC, None, t0 + Duration::from_millis(1));
-        assert_eq!(r.pending(), 1);
-        assert_eq!(r.evictions(), 1);
-        assert_eq!(r.held_bytes(), 600);
-        // Over the whole limit: refused outright.
         let big = fragments(&[3u8; 1500], 100, 3);
         assert_eq!(r.on_fragment(&big[0], SRC, None, t0), Reassembly::Pending);
-        assert_eq!(r.evictions(), 2);
-        assert_eq!(r.pending(), 1);
+        assert_eq!(r.evictions(), 1);
+        assert_eq!(r.pending(), 0);
+        let mut r = Reassembler::new(1 << 20, Duration::from_secs(2), 10_000);
+        for id in 0..MAX_PARTIALS_PER_SOURCE as u32 + 5 {
+            r.on_fragment(&fragments(&[4u8; 300], 100, id)[0], SRC, None, t0);
+        }
+        assert_eq!(r.pending(), MAX_PARTIALS_PER_SOURCE);
+        assert_eq!(r.evictions(), 5);
+    }
+
+    #[test]
+    fn unknown_senders_are_refused_and_duplicates_recognised() {
+        let mut r = reassembler().with_fleet([SystemId(1), SystemId(2)]);
+        let t0 = Instant::now();
+        let mut stranger = fragments(&[1u8; 300], 100, 1)[0].clone();
+        stranger[4..6].copy_from_slice(&7u16.to_le_bytes());
+        assert!(matches!(
+            r.on_fragment(&stranger, SRC, None, t0),
+            Reassembly::Rejected {
+                error: FragmentError::UnknownSender { .. },
+                ..
+            }
+        ));
+        let f = fragments(&[1u8; 300], 100, 2);
+        assert_eq!(r.on_fragment(&f[0], SRC, None, t0), Reassembly::Pending);
+        assert_eq!(r.on_fragment(&f[0], SRC, None, t0), Reassembly::Duplicate);
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Pending);
+        assert!(matches!(
+            r.on_fragment(&f[2], SRC, None, t0),
+            Reassembly::Complete(_)
+        ));
+        // A late duplicate of the completed message holds nothing and never times out.
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Duplicate);
+        assert_eq!((r.pending(), r.held_bytes()), (0, 0));
+        assert_eq!(r.expire(t0 + Duration::from_secs(3)), 0);
+        // Once the timeout has passed the message is forgotten.
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Pending);
     }
 
     #[test]

@@ -306,3 +306,50 @@ fn a_hello_may_come_in_pieces_but_not_late() {
     });
     assert_eq!(b.stats().frames_dropped, 2);
 }
+
+#[test]
+fn a_record_over_the_receivers_max_message_bytes_is_counted_as_oversize() {
+    let (endpoints, mut listeners) = common::tcp_listeners(&[A, B]);
+    let big = StreamConfig {
+        max_message_bytes: Some(100_000),
+        ..StreamConfig::default()
+    };
+    let small = StreamConfig {
+        max_message_bytes: Some(1000),
+        ..StreamConfig::default()
+    };
+    let a = TcpLink::with_listener(
+        A,
+        listeners.remove(&A).unwrap(),
+        &endpoints,
+        CollectSink::new(),
+        big,
+    )
+    .unwrap();
+    let sink = CollectSink::new();
+    let b = TcpLink::with_listener(
+        B,
+        listeners.remove(&B).unwrap(),
+        &endpoints,
+        sink.clone(),
+        small,
+    )
+    .unwrap();
+    a.send(B, &[7; 1048]).unwrap(); // exactly B's largest frame: delivered
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    a.send(B, &[7; 2000]).unwrap(); // over it: B closes the connection, counted
+    wait_until("the oversize record counted", DEADLINE, || {
+        b.stream_stats().oversize_records == 1
+    });
+    let s = b.stream_stats();
+    assert_eq!(s.frames_dropped, 1, "{s:?}");
+    assert_eq!(b.stats().frames_dropped, 1);
+    // A reconnects once it notices; later frames arrive again.
+    let deadline = Instant::now() + DEADLINE;
+    while sink.frames().len() < 2 {
+        assert!(Instant::now() < deadline, "no frame after the oversize one");
+        let _ = a.send(B, b"after");
+        sink.wait_for(2, Duration::from_millis(100));
+    }
+    assert_eq!(sink.frames()[1].bytes, b"after");
+}

@@ -114,8 +114,9 @@ fn a_missing_fragment_drops_the_message_and_frees_its_memory() {
             raw.send(f).unwrap();
         }
     }
+    // Three pieces of 1250 bytes arrived (and the bookkeeping is charged too).
     wait_until("partial message held", DEADLINE, || {
-        b.stats().buffered_bytes == 5000
+        b.stats().buffered_bytes >= 3 * 1250
     });
     wait_until("partial message dropped", DEADLINE, || {
         b.udp_stats().reassembly_timeouts == 1
@@ -268,4 +269,152 @@ fn bind_reports_the_real_port_and_bad_config_is_named() {
     .err()
     .unwrap();
     assert!(err.to_string().contains("datagram_payload"), "{err}");
+}
+
+/// One 276-byte datagram announcing a 16 776 960-byte message in 65535 pieces of 256 bytes.
+fn hostile(sender: SystemId, index: u16, message_id: u32) -> Vec<u8> {
+    let h = FragmentHeader {
+        sender,
+        index,
+        count: u16::MAX,
+        message_id,
+        total: 256 * u32::from(u16::MAX),
+    };
+    let mut d = h.encode().to_vec();
+    d.extend_from_slice(&[0xEE; 256]);
+    d
+}
+
+#[test]
+fn hostile_fragment_headers_hold_almost_nothing_and_legitimate_messages_still_arrive() {
+    let (endpoints, mut sockets) = udp_sockets(&[A, B]);
+    let sink_b = CollectSink::new();
+    let config = UdpConfig::loopback();
+    let a = UdpLink::with_socket(
+        A,
+        sockets.remove(&A).unwrap(),
+        &endpoints,
+        CollectSink::new(),
+        config.clone(),
+    )
+    .unwrap();
+    let b = UdpLink::with_socket(
+        B,
+        sockets.remove(&B).unwrap(),
+        &endpoints,
+        sink_b.clone(),
+        config,
+    )
+    .unwrap();
+    // From an address that is no fleet endpoint, claiming a fleet sender (accepted, but held
+    // by what arrived) and claiming a stranger (refused before anything is held).
+    let attacker = UdpSocket::bind("127.0.0.1:0").unwrap();
+    attacker.connect(b.local_addr()).unwrap();
+    let frame = pattern(1024 * 1024, 0x33);
+    let deadline = Instant::now() + DEADLINE;
+    let mut round = 0u32;
+    while sink_b.frames().is_empty() {
+        assert!(Instant::now() < deadline, "1 MiB frame never reassembled");
+        for (i, index) in [0u16, 65_534, 17].into_iter().enumerate() {
+            attacker
+                .send(&hostile(A, index, round * 8 + i as u32))
+                .unwrap();
+        }
+        attacker.send(&hostile(SystemId(99), 0, round)).unwrap();
+        a.send(B, &frame).unwrap();
+        for index in [1u16, 2] {
+            attacker.send(&hostile(A, index, round * 8)).unwrap();
+        }
+        sink_b.wait_for(1, Duration::from_millis(300));
+        round += 1;
+    }
+    assert!(
+        sink_b.frames()[0].bytes == frame,
+        "reassembled frame differs"
+    );
+    assert_eq!(sink_b.frames()[0].from, Peer::System(A));
+    // Every hostile datagram sent so far has been read once the stranger's last is counted.
+    wait_until("hostile datagrams read", DEADLINE, || {
+        b.udp_stats().bad_datagrams >= u64::from(round)
+    });
+    let s = b.udp_stats();
+    // Each hostile message holds its few pieces and bookkeeping, not its 16 MiB. (A copy of the
+    // legitimate frame that lost a fragment in an earlier round may be held too: at most its
+    // buffer of twice a mebibyte.)
+    let per_round = 3 * (256 * 4 + 1024);
+    let lost_copies = u64::from(round - 1) * (2 << 20);
+    assert!(
+        s.buffered_bytes <= u64::from(round) * per_round + lost_copies,
+        "{} bytes held after {round} rounds: {s:?}",
+        s.buffered_bytes
+    );
+    assert_eq!(s.reassembly_evictions, 0, "{s:?}");
+    assert!(
+        s.frames_dropped >= u64::from(round),
+        "refusals counted: {s:?}"
+    );
+    // The hostile messages never complete: they time out and are counted.
+    wait_until("hostile messages given up", DEADLINE, || {
+        b.stats().buffered_bytes == 0
+    });
+    assert!(b.udp_stats().reassembly_timeouts >= 3 * u64::from(round));
+}
+
+#[test]
+fn late_duplicate_fragments_are_counted_as_duplicates_not_drops() {
+    let config = UdpConfig {
+        reassembly_timeout: Duration::from_millis(300),
+        ..UdpConfig::default()
+    };
+    let (b, raw, sink) = b_and_raw_a(config);
+    let frame = pattern(3000, 5);
+    let frags = fragments(&frame, 3, 77);
+    for f in &frags {
+        raw.send(f).unwrap();
+    }
+    assert_eq!(sink.wait_for(1, DEADLINE), 1);
+    // Duplicates after completion: one of each piece, then a marker frame behind them.
+    for f in &frags {
+        raw.send(f).unwrap();
+    }
+    raw.send(b"marker").unwrap();
+    assert_eq!(sink.wait_for(2, DEADLINE), 2);
+    wait_until("duplicates counted", DEADLINE, || {
+        b.udp_stats().duplicate_fragments == 3
+    });
+    assert_eq!(b.stats().buffered_bytes, 0);
+    // Past the reassembly timeout nothing is given up: the message was delivered.
+    std::thread::sleep(Duration::from_millis(700));
+    raw.send(b"marker").unwrap();
+    assert_eq!(sink.wait_for(3, DEADLINE), 3);
+    let s = b.udp_stats();
+    assert_eq!((s.reassembly_timeouts, s.frames_dropped), (0, 0), "{s:?}");
+    assert_eq!(s.frames_received, 3);
+}
+
+#[test]
+fn fragments_over_the_receivers_max_message_bytes_are_counted_as_oversize() {
+    let config = UdpConfig {
+        max_message_bytes: Some(2000),
+        ..UdpConfig::default()
+    };
+    let (b, raw, sink) = b_and_raw_a(config);
+    let frame = pattern(5000, 9);
+    let frags = fragments(&frame, 4, 5);
+    for f in &frags {
+        raw.send(f).unwrap();
+    }
+    wait_until("oversize fragments counted", DEADLINE, || {
+        b.udp_stats().oversize_fragments == 4
+    });
+    let s = b.udp_stats();
+    assert_eq!((s.bad_datagrams, s.frames_dropped), (4, 4), "{s:?}");
+    assert_eq!(s.buffered_bytes, 0);
+    assert!(sink.frames().is_empty());
+    // A malformed fragment is bad but not oversize.
+    raw.send(&frags[0][..10]).unwrap();
+    wait_until("bad fragment counted", DEADLINE, || {
+        b.udp_stats().bad_datagrams == 5
+    });
+    assert_eq!(b.udp_stats().oversize_fragments, 4);
 }

@@ -92,30 +92,39 @@ def ceil_div(a: int, b: int) -> int:
     return -(-a // b)
 
 
+BATCH_HEADER = b"HB\x01\x00"       # "HB", version 1, reserved 0
+BATCH_LENGTH = struct.Struct("<I")  # in front of each frame of a batch
+
+
 def split_datagram(d: bytes) -> Tuple[str, List[bytes], bytes]:
-    """A datagram that does not start with "HF": ("whole" | "batch", frames, dropped tail)."""
+    """A datagram that does not start with "HF": ("whole" | "batch" | "dropped", frames,
+    dropped tail)."""
     assert not d.startswith(b"HF"), "a fragment"
-    n = peek_frame_len(d)
-    if n is None or n >= len(d):
+    if not d.startswith(b"HB"):
         return "whole", [d], b""
+    if d[:4] != BATCH_HEADER:
+        return "dropped", [], b""
     frames = []
-    while True:
-        n = peek_frame_len(d)
-        if n is None or n > len(d):
+    d = d[4:]
+    while len(d) >= 4:
+        (n,) = BATCH_LENGTH.unpack_from(d)
+        if n > len(d) - 4:
             break
-        frames.append(d[:n])
-        d = d[n:]
-        if not d:
-            break
+        frames.append(d[4:4 + n])
+        d = d[4 + n:]
     return "batch", frames, d
+
+
+def encode_batch(frames: List[bytes]) -> bytes:
+    """A batch datagram holding `frames` (any bytes), as a sender writes it."""
+    return BATCH_HEADER + b"".join(BATCH_LENGTH.pack(len(f)) + f for f in frames)
 
 
 def datagrams_for(frame: bytes, sender: int, message_id: int,
                   datagram_payload: int = DEFAULT_DATAGRAM_PAYLOAD) -> List[bytes]:
     """What a sender puts on the wire for one frame: the frame itself when it fits and cannot be
-    misread, fragments otherwise."""
-    n = peek_frame_len(frame)
-    misread = frame.startswith(b"HF") or (n is not None and n < len(frame))
+    misread (it starts with neither "HF" nor "HB"), fragments otherwise."""
+    misread = frame.startswith(b"HF") or frame.startswith(b"HB")
     if len(frame) <= datagram_payload and not misread:
         return [frame]
     return fragments(frame, sender, message_id, datagram_payload)
@@ -152,8 +161,11 @@ class Reassembler:
 
     def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
         self.max_frame = max_frame
-        # (source address, sender, message id) -> [total, count, buffer, indices seen]
+        # (source address, sender, message id) -> [total, count, pieces by index]
         self.partial: Dict[tuple, list] = {}
+        # Keys of messages completed (within the timeout, which this port does not model).
+        self.completed: set = set()
+        self.duplicates = 0
 
     @property
     def pending(self) -> int:
@@ -172,16 +184,19 @@ class Reassembler:
             del self.partial[key]
             raise ValueError("Inconsistent")
         if p is None:
-            p = self.partial[key] = [total, count, bytearray(total), set()]
-        if index in p[3]:
+            if key in self.completed:
+                self.duplicates += 1      # a late duplicate: nothing is held for it
+                return None
+            p = self.partial[key] = [total, count, {}]
+        if index in p[2]:
+            self.duplicates += 1
             return None
-        p[3].add(index)
-        chunk = ceil_div(total, count)
-        p[2][index * chunk:index * chunk + len(piece)] = piece
-        if len(p[3]) < count:
+        p[2][index] = piece              # held by what arrived, not by `total`
+        if len(p[2]) < count:
             return None
         del self.partial[key]
-        return bytes(p[2])
+        self.completed.add(key)
+        return b"".join(p[2][i] for i in range(count))
 
 
 # --- streams ("The hello", "Records") ----------------------------------------------------------

@@ -1,6 +1,7 @@
 """A port written from docs/wire-format.md alone (`docport`, standard library only) talking to
 the Rust `hetcomm` CLI over real sockets on loopback: a 1 MiB message cut into UDP fragments
-reaches `hetcomm listen` and comes back acknowledged; TCP hello and records both ways, with the
+reaches `hetcomm listen` and comes back acknowledged; a UDP batch of two frames is delivered and
+both acknowledged; TCP hello and records both ways, with the
 acknowledgement on the other system's own connection; and the Rust sender's fragments and
 records read by the port. If the document left out a byte, these fail."""
 
@@ -95,6 +96,49 @@ def test_a_1_mib_message_in_udp_fragments_reaches_rust(tmp_path, children, datag
     assert env.wait(timeout=30) == 0
     summary = env.wait_stderr(lambda l: l.startswith("received "))
     assert "1 received" in summary and " 0 malformed" in summary, summary
+
+
+def test_a_batch_from_python_reaches_rust_and_its_acks_come_back(tmp_path, children):
+    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"])
+    eps = endpoints(fleet)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(eps["Tango"])
+    env = listen(children, fleet, "Env", 2)
+
+    wheels = data_header(1, docport.FLAG_ACK_REQUESTED, 1)
+    command = data_header(2, docport.FLAG_ACK_REQUESTED, 0, dst_module=PLAN)
+    frames = [docport.encode_frame(wheels, docport.msgpack_wheels(1.5, -1.5)),
+              docport.encode_frame(command, b"\x81" + docport.msgpack_str("code") + b"\x03")]
+    # Both frames in one batch datagram; resent whole until both ACKs are in (the receiver
+    # drops duplicates).
+    acks = {}
+    for _ in range(5):
+        sock.sendto(docport.encode_batch(frames), eps["Env"])
+        sock.settimeout(5.0)
+        try:
+            while len(acks) < 2:
+                d, src = sock.recvfrom(65536)
+                assert src == eps["Env"]
+                # The ACKs may come alone or batched by the Rust sender: both are documented.
+                handling, got, tail = docport.split_datagram(d)
+                assert handling in ("whole", "batch") and tail == b""
+                for f in got:
+                    acks[docport.decode_frame(f)[0]["seq"]] = f
+        except socket.timeout:
+            continue
+        break
+    assert len(acks) == 2, f"acknowledgements {sorted(acks)}; stderr: {env.stderr_lines}"
+    check_ack(acks[1], wheels)
+    check_ack(acks[2], command)
+
+    lines = sorted((json.loads(env.next_stdout(timeout=30)) for _ in range(2)),
+                   key=lambda l: l["id"]["seq"])
+    assert lines[0]["payload"] == {"left": 1.5, "right": -1.5} and lines[0]["to_module"] == "World"
+    assert lines[1]["payload"] == {"code": 3} and lines[1]["to_module"] == "Plan"
+    assert env.wait(timeout=30) == 0
+    summary = env.wait_stderr(lambda l: l.startswith("received "))
+    assert " 0 malformed" in summary, summary
+    sock.close()
 
 
 def test_python_talks_tcp_to_rust(tmp_path, children):

@@ -22,10 +22,16 @@ impl<T> Router<T> {
 
     /// Like [`Router::handle_frame`], for a frame the link handed over in a buffer of its own:
     /// a data frame's payload is delivered in that same buffer, without a copy.
+    ///
+    /// The frame is what `frame` reads as: bytes a layer stripped in front of it
+    /// ([`FrameBuf::strip_prefix`], e.g. a security layer's prefix) are not part of it, and
+    /// the payload's place is taken from the decoded frame itself, not from a fixed offset
+    /// into the buffer.
     pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: impl Into<FrameBuf>) {
         let frame = frame.into();
-        let header = match wire::decode(&frame) {
-            Ok(f) => f.header,
+        let (header, payload_at) = match wire::decode(&frame) {
+            // The payload is the frame's tail (the decoder checked the length exactly).
+            Ok(f) => (f.header, frame.len() - f.payload.len()),
             Err(_) => {
                 self.stats.malformed += 1;
                 return;
@@ -35,7 +41,7 @@ impl<T> Router<T> {
             now,
             link,
             header,
-            PayloadSource::Owned(PayloadBuf::from_frame(frame, HEADER_LEN)),
+            PayloadSource::Owned(PayloadBuf::from_frame(frame, payload_at)),
         );
     }
 

@@ -132,6 +132,27 @@ fn owned_frames_become_the_payload_without_a_copy() {
     }
 }
 
+#[test]
+fn an_owned_frame_behind_a_stripped_prefix_is_still_delivered_in_place() {
+    let now = Time::from_micros(1_000);
+    let (mut a, mut b) = pair(false);
+    let frame = sent_frame(&mut a, now, &payload(5000));
+    // A layer's 24-byte prefix in front of the frame, stripped before the router sees it.
+    let mut sealed = vec![0xa5; 24];
+    sealed.extend_from_slice(&frame);
+    let mut handed = FrameBuf::from(sealed);
+    let base = handed.as_ptr();
+    handed.strip_prefix(24);
+    b.handle_frame_owned(now, 0, handed);
+    let d = b.poll_delivery().unwrap();
+    assert_eq!(d.payload, payload(5000));
+    assert_eq!(
+        d.payload.as_ptr(),
+        base.wrapping_add(24 + HEADER_LEN),
+        "not copied"
+    );
+}
+
 fn unqueued<'a>(a: &mut Router<u32>, now: Time, bytes: &'a [u8]) -> Unqueued<'a> {
     let req = SendRequest::new(ModuleId(0), to_b(), MessageType(1), bytes);
     match a.send_unqueued(now, req, || panic!("no token for an unacknowledged send")) {
