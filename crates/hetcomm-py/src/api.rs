@@ -934,6 +934,8 @@ impl Comm {
             ("held", r.held),
             ("gaps_skipped", r.gaps_skipped),
             ("backpressured", r.backpressured),
+            ("path_changes", r.path_changes),
+            ("peer_mismatch", r.peer_mismatch),
         ] {
             router.set_item(k, v)?;
         }

@@ -279,3 +279,38 @@ fn hold_and_retransmission_deadlines_share_one_timer_table() {
     b.handle_frame(hold, 0, &first.frame);
     assert_eq!(b.poll_delivery().map(|d| d.header.seq), Some(1));
 }
+
+#[test]
+fn the_link_s_view_of_the_sender_decides_which_path_is_heard_and_mismatches_are_counted() {
+    let (mut a, mut b) = pair();
+    let t0 = Time::from_micros(1_000);
+    a.handle_link_event(t0, LinkEvent::PeerDown { link: 0, peer: B });
+    let to_a = Address {
+        system: A,
+        module: ModuleId(0),
+    };
+    b.send(
+        t0,
+        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"hi"),
+        0,
+    )
+    .unwrap();
+    let tx = b.poll_transmit(t0).unwrap();
+    // The wired link says the frame came from a system that is not B: B's wired path is not
+    // proven by it, and the mismatch is counted (the frame is still handled).
+    a.handle_frame_from(t0, 0, Some(SystemId(7)), &tx.frame);
+    assert_eq!(a.route_link(B), Some(1));
+    assert_eq!(a.stats().peer_mismatch, 1);
+    assert_eq!(a.stats().received, 1);
+    // From B as the link saw it: the wired path is back.
+    b.send(
+        t0,
+        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"again"),
+        0,
+    )
+    .unwrap();
+    let tx = b.poll_transmit(t0).unwrap();
+    a.handle_frame_from(t0, 0, Some(B), &tx.frame);
+    assert_eq!(a.route_link(B), Some(0));
+    assert_eq!(a.stats().peer_mismatch, 1);
+}

@@ -1005,6 +1005,14 @@ impl SystemSink {
     }
 }
 
+/// The system a link saw a frame come from, as the router takes it.
+fn peer_system(from: Peer) -> Option<SystemId> {
+    match from {
+        Peer::System(id) => Some(id),
+        Peer::Unknown => None,
+    }
+}
+
 impl FrameSink for SystemSink {
     fn on_frame(&self, frame: &[u8], from: Peer) {
         self.on_frames(&mut std::iter::once(frame), from);
@@ -1012,17 +1020,19 @@ impl FrameSink for SystemSink {
 
     /// The frames of one batch datagram: one clock reading, one router lock and one pump for
     /// all of them instead of one each (they arrived at the same moment).
-    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
+        let peer = peer_system(from);
         self.handle(|router, now| {
             for frame in frames {
-                router.handle_frame(now, self.link, frame);
+                router.handle_frame_from(now, self.link, peer, frame);
             }
         });
     }
 
     /// A large frame in a buffer of its own: the router delivers its payload in that buffer.
-    fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
-        self.handle(|router, now| router.handle_frame_owned(now, self.link, frame));
+    fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
+        let peer = peer_system(from);
+        self.handle(|router, now| router.handle_frame_owned_from(now, self.link, peer, frame));
     }
 
     fn takes_frames(&self) -> bool {

@@ -5,6 +5,21 @@ use super::*;
 impl<T> Router<T> {
     /// Handles a frame a link received. Bad frames are counted and dropped.
     pub fn handle_frame(&mut self, now: Time, link: usize, bytes: &[u8]) {
+        self.handle_frame_from(now, link, None, bytes);
+    }
+
+    /// Like [`Router::handle_frame`], with the system the link saw the frame come from
+    /// (`peer`: its connection or source address belongs to that system; None when the link
+    /// cannot tell). The link's view decides which path is heard from; a frame claiming
+    /// another origin is counted ([`RouterStats::peer_mismatch`]) and still handled, since
+    /// telling a forged origin from a moved one is authentication's work.
+    pub fn handle_frame_from(
+        &mut self,
+        now: Time,
+        link: usize,
+        peer: Option<SystemId>,
+        bytes: &[u8],
+    ) {
         let frame = match wire::decode(bytes) {
             Ok(f) => f,
             Err(_) => {
@@ -15,6 +30,7 @@ impl<T> Router<T> {
         self.handle_decoded(
             now,
             link,
+            peer,
             frame.header,
             PayloadSource::Borrowed(frame.payload),
         );
@@ -28,6 +44,18 @@ impl<T> Router<T> {
     /// the payload's place is taken from the decoded frame itself, not from a fixed offset
     /// into the buffer.
     pub fn handle_frame_owned(&mut self, now: Time, link: usize, frame: impl Into<FrameBuf>) {
+        self.handle_frame_owned_from(now, link, None, frame);
+    }
+
+    /// Like [`Router::handle_frame_owned`], with the system the link saw the frame come from
+    /// (see [`Router::handle_frame_from`]).
+    pub fn handle_frame_owned_from(
+        &mut self,
+        now: Time,
+        link: usize,
+        peer: Option<SystemId>,
+        frame: impl Into<FrameBuf>,
+    ) {
         let frame = frame.into();
         let (header, payload_at) = match wire::decode(&frame) {
             // The payload is the frame's tail (the decoder checked the length exactly).
@@ -40,6 +68,7 @@ impl<T> Router<T> {
         self.handle_decoded(
             now,
             link,
+            peer,
             header,
             PayloadSource::Owned(PayloadBuf::from_frame(frame, payload_at)),
         );
@@ -49,6 +78,7 @@ impl<T> Router<T> {
         &mut self,
         now: Time,
         link: usize,
+        peer: Option<SystemId>,
         h: Header,
         body: PayloadSource<'_>,
     ) {
@@ -65,7 +95,10 @@ impl<T> Router<T> {
             self.stats.misrouted += 1;
             return;
         }
-        self.path_heard(now, h.source.system, link);
+        if peer.is_some_and(|p| p != h.source.system) {
+            self.stats.peer_mismatch += 1;
+        }
+        self.path_heard(now, peer.unwrap_or(h.source.system), link);
         match h.kind {
             FrameKind::Ack => self.handle_ack(now, &h, body.as_slice()),
             FrameKind::Data => self.handle_data(now, link, &h, body),

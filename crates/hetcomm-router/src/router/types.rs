@@ -569,6 +569,9 @@ pub struct RouterStats {
     pub backpressured: u64,
     /// Times a destination's sends moved to another path ([`PathChange`]).
     pub path_changes: u64,
+    /// Frames whose header claimed another origin than the system their link saw them come
+    /// from ([`Router::handle_frame_from`]): counted, still handled.
+    pub peer_mismatch: u64,
 }
 
 impl RouterStats {
