@@ -8,11 +8,12 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
-use hetcomm_router::{Admitted, DirectLane, SendRequest};
+use hetcomm_router::{Admitted, DirectLane, SendId, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
+use crate::observe::{RouteKind, SendRecord};
 use crate::received::{RawMessage, Received};
 use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore, Traffic};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
@@ -216,13 +217,18 @@ impl Module {
         // nothing else queued; the frame goes out without a trip through `pump`, and its
         // outcome is known when the link answers.
         drop(router);
+        if core.observers.active() {
+            core.observers
+                .send_frame(&tx.frame, tx.body, now, RouteKind::Unqueued, tx.link, 1);
+        }
+        let id = tx.id();
         let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now, Traffic::Data);
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {
                 drop(router);
                 Ok(Ticket {
-                    slot: TicketSlot::Ready(outcome),
+                    slot: core.end_send(id, outcome, None, now),
                     destination,
                 })
             }
@@ -248,15 +254,30 @@ impl Module {
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
         let req = what.request(self.core.id, payload.as_slice());
+        let core = &self.sys.core;
         let header = to
             .lane
             .send(now, &req)
-            .map_err(|e| send_error(&self.sys.core.directory, e))?;
+            .map_err(|e| send_error(&core.directory, e))?;
+        if core.observers.active() {
+            core.observers.send(&SendRecord {
+                header,
+                payload: payload.as_slice(),
+                time: now,
+                route: RouteKind::Direct,
+                link: None,
+                attempt: 1,
+            });
+        }
         let status = to
             .peer
             .deliver_direct(to.module, header, payload.into_buf(), now);
+        let id = SendId {
+            to: header.destination.system,
+            seq: header.seq,
+        };
         Ok(Ticket {
-            slot: TicketSlot::Ready(to.lane.result(&header, status)),
+            slot: core.end_send(id, to.lane.result(&header, status), None, now),
             destination: to.name,
         })
     }
