@@ -285,8 +285,8 @@ fn frame_header(f: &[u8]) -> Option<Header> {
 }
 
 /// Keeps an [`Observer`] registered with a system; dropping it (or [`ObserverHandle::remove`])
-/// unregisters it. Once that returned, no report starts for it (one already under way on
-/// another thread may still finish).
+/// unregisters it. No report that starts after that returned calls the observer; one already
+/// under way on another thread may still call it.
 #[must_use = "dropping the handle unregisters the observer"]
 pub struct ObserverHandle {
     pub(crate) core: Weak<SystemCore>,
