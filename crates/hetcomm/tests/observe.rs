@@ -454,3 +454,48 @@ fn a_simulated_fleet_is_observed_in_virtual_time() {
         assert_eq!(before, after);
     }
 }
+
+/// A receipt carries the inbox's answer, and the sender's outcome agrees with it: a full
+/// `drop-newest` inbox refuses, the receipt says so, the send fails `InboxFull`.
+#[test]
+fn receipts_carry_the_inbox_answer() {
+    let text = r#"
+[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[inbox]
+capacity = 2
+overflow = "drop-newest"
+[transports.p]
+kind = "inproc"
+[table]
+columns = ["A", "B"]
+A = ["X", "p"]
+B = ["p", "X"]
+"#;
+    let f = LocalFleet::open(hetcomm::config::parse_str(text, "observe-full.toml", None).unwrap())
+        .unwrap();
+    let (ra, rb) = (Arc::new(Recorder::default()), Arc::new(Recorder::default()));
+    let _ha = f.system("A").unwrap().observe(ra.clone());
+    let _hb = f.system("B").unwrap().observe(rb.clone());
+    send_n(&f, 5);
+    let receipts = rb.receipts.lock().unwrap().clone();
+    let statuses: Vec<AckStatus> = receipts.iter().map(|r| r.status).collect();
+    use AckStatus::{Delivered, InboxFull};
+    assert_eq!(
+        statuses,
+        [Delivered, Delivered, InboxFull, InboxFull, InboxFull]
+    );
+    let outcomes = ra.outcomes.lock().unwrap().clone();
+    assert_eq!(outcomes.len(), 5);
+    for ((id, outcome, _), receipt) in outcomes.iter().zip(&receipts) {
+        assert_eq!(*id, receipt.id);
+        assert_eq!(
+            outcome.is_success(),
+            receipt.status == Delivered,
+            "{id:?}: {outcome}"
+        );
+    }
+}
