@@ -80,10 +80,7 @@ fn delivered_across_processes(kind: &str) {
         "{sent:?}"
     );
     let line = bravo.next_stdout(deadline);
-    assert!(
-        line.contains("Alpha.Plan -> Act  type=7 prio=100 "),
-        "{line}"
-    );
+    assert!(line.contains("Alpha.Plan -> Act  type=7 prio=100 "), "{line}");
     assert!(line.ends_with(HELLO), "{line}");
     assert_eq!(bravo.wait_exit(deadline).code(), Some(0));
     let counters = counters_line(&bravo);
