@@ -13,7 +13,7 @@ use hetcomm_router::{Admitted, DirectLane, SendId, SendRequest};
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
-use crate::observe::{RouteKind, SendRecord};
+use crate::observe::RouteKind;
 use crate::received::{RawMessage, Received};
 use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore, Traffic};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
@@ -253,22 +253,43 @@ impl Module {
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
+        if self.sys.core.observers.active() {
+            // Decided once per send: a send is observed whole (send and outcome) or not at
+            // all, and the unobserved path below stays what it was before observers existed.
+            return self.hand_over_observed(to, what, payload, now);
+        }
         let req = what.request(self.core.id, payload.as_slice());
+        let header = to
+            .lane
+            .send(now, &req)
+            .map_err(|e| send_error(&self.sys.core.directory, e))?;
+        let status = to
+            .peer
+            .deliver_direct(to.module, header, payload.into_buf(), now);
+        Ok(Ticket {
+            slot: TicketSlot::Ready(to.lane.result(&header, status)),
+            destination: to.name,
+        })
+    }
+
+    /// [`Module::hand_over`] while this system is observed: the send and its outcome are
+    /// reported (the outcome through [`SystemCore::end_send`], as every outcome is).
+    #[cold]
+    #[inline(never)]
+    fn hand_over_observed(
+        &self,
+        to: DirectTarget<'_>,
+        what: Outgoing,
+        payload: PayloadSource<'_>,
+        now: hetcomm_core::Time,
+    ) -> Result<Ticket, SendError> {
         let core = &self.sys.core;
+        let req = what.request(self.core.id, payload.as_slice());
         let header = to
             .lane
             .send(now, &req)
             .map_err(|e| send_error(&core.directory, e))?;
-        if core.observers.active() {
-            core.observers.send(&SendRecord {
-                header,
-                payload: payload.as_slice(),
-                time: now,
-                route: RouteKind::Direct,
-                link: None,
-                attempt: 1,
-            });
-        }
+        core.observers.send_direct(&header, payload.as_slice(), now);
         let status = to
             .peer
             .deliver_direct(to.module, header, payload.into_buf(), now);

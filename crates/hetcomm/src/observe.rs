@@ -194,7 +194,7 @@ impl Observers {
 
     /// Reports one attempt of a send (first or later by `record.attempt`).
     #[cold]
-    pub(crate) fn send(&self, record: &SendRecord<'_>) {
+    fn send(&self, record: &SendRecord<'_>) {
         for (_, o) in self.snapshot().iter() {
             if record.attempt <= 1 {
                 o.on_send(record);
@@ -204,9 +204,24 @@ impl Observers {
         }
     }
 
+    /// Reports a direct hand-over (no frame, no link, one attempt).
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn send_direct(&self, header: &Header, payload: &[u8], time: Time) {
+        self.send(&SendRecord {
+            header: *header,
+            payload,
+            time,
+            route: RouteKind::Direct,
+            link: None,
+            attempt: 1,
+        });
+    }
+
     /// Reports one attempt of a send from its encoded frame (`frame`, followed by `body`
     /// when the payload was left in the caller's memory).
     #[cold]
+    #[inline(never)]
     pub(crate) fn send_frame(
         &self,
         frame: &[u8],

@@ -611,6 +611,9 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
+        if self.observers.active() {
+            return self.deliver_observed(module, header, payload, now, Source::SameProcess);
+        }
         self.deliver_to(module, header, payload, now, Source::SameProcess)
     }
 
@@ -875,17 +878,16 @@ impl SystemCore {
     /// (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let module = self.modules.get(&d.header.destination.module);
-        self.deliver_to(
-            module.map(|m| &**m),
-            d.header,
-            d.payload,
-            now,
-            Source::Link(d.link),
-        )
+        let source = Source::Link(d.link);
+        if self.observers.active() {
+            return self.deliver_observed(module.map(|m| &**m), d.header, d.payload, now, source);
+        }
+        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, source)
     }
 
     /// Where every send's outcome goes, whichever way the send went: the observers see it,
     /// then the ticket gets it (`slot`, or a ticket made ready with it, returned).
+    #[inline(always)]
     pub(crate) fn end_send(
         &self,
         id: SendId,
@@ -893,42 +895,41 @@ impl SystemCore {
         slot: Option<Arc<OutcomeSlot>>,
         now: Time,
     ) -> TicketSlot {
-        if self.observers.active() {
-            self.observers.outcome(&OutcomeRecord {
-                id,
-                outcome: &outcome,
-                time: now,
-            });
-        }
         match slot {
             Some(slot) => {
+                if self.observers.active() {
+                    self.observe_outcome(id, &outcome, now);
+                }
                 slot.complete(outcome);
                 TicketSlot::Pending(slot)
             }
-            None => TicketSlot::Ready(outcome),
+            None => {
+                // Made first, so the outcome is not moved again after the observers saw it.
+                let ready = TicketSlot::Ready(outcome);
+                if self.observers.active() {
+                    if let TicketSlot::Ready(outcome) = &ready {
+                        self.observe_outcome(id, outcome, now);
+                    }
+                }
+                ready
+            }
         }
     }
 
-    /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
-    /// there is no such module), and shows it to the observers. Only a sender of this process
-    /// waits for room under the `block` policy; a link is never stopped.
-    #[inline]
-    fn deliver_to(
-        &self,
-        module: Option<&ModuleCore>,
-        header: Header,
-        payload: PayloadBuf,
-        now: Time,
-        source: Source,
-    ) -> AckStatus {
-        if self.observers.active() {
-            return self.deliver_observed(module, header, payload, now, source);
-        }
-        self.put(module, header, payload, now, source)
+    /// [`SystemCore::end_send`]'s report, out of the way of the unobserved path.
+    #[cold]
+    #[inline(never)]
+    fn observe_outcome(&self, id: SendId, outcome: &Outcome, now: Time) {
+        self.observers.outcome(&OutcomeRecord {
+            id,
+            outcome,
+            time: now,
+        });
     }
 
-    /// [`SystemCore::deliver_to`] while observed: the payload is copied for the observers
-    /// (the inbox takes the message).
+    /// [`SystemCore::deliver_to`] and a report of the receipt to the observers (every
+    /// receipt, from a link or handed over directly, is reported here). The payload is
+    /// copied for the observers: the inbox takes the message.
     #[cold]
     #[inline(never)]
     fn deliver_observed(
@@ -940,7 +941,7 @@ impl SystemCore {
         source: Source,
     ) -> AckStatus {
         let copy = payload.clone();
-        let status = self.put(module, header, payload, now, source);
+        let status = self.deliver_to(module, header, payload, now, source);
         self.observers.receipt(&ReceiptRecord {
             header,
             payload: &copy,
@@ -954,9 +955,10 @@ impl SystemCore {
         status
     }
 
-    /// [`SystemCore::deliver_to`] without the observers.
-    #[inline]
-    fn put(
+    /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
+    /// there is no such module). Only a sender of this process waits for room under the
+    /// `block` policy; a link is never stopped. (Callers report it: [`Self::deliver_observed`].)
+    fn deliver_to(
         &self,
         module: Option<&ModuleCore>,
         header: Header,
