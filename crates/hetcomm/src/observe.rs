@@ -17,6 +17,9 @@
 //!
 //! A send and its outcome share a [`SendId`] (destination system, sequence number); the
 //! receiver's [`ReceiptRecord::header`] carries the same source system and sequence number.
+//! An observer registered while sends are under way may see outcomes, retransmissions and
+//! receipts of sends whose `on_send` came before it was registered.
+//!
 //! Sends refused before they were numbered (an `Err` from `send`, or a broadcast's
 //! [`Backpressure`](crate::FailReason::Backpressure) ticket) are not sends: no record.
 
