@@ -14,6 +14,7 @@ use hetcomm_router::{Route, Router, RouterConfig, RouterStats};
 use crate::error::OpenError;
 use crate::inbox::InboxStats;
 use crate::module::Module;
+use crate::observe::{Observer, ObserverHandle};
 use crate::runtime::{intern, Clock, Directory, SystemCore, WallClock};
 use crate::sim::SimNet;
 use crate::transports::{open_link, Hubs};
@@ -303,6 +304,67 @@ impl Comm {
             .write()
             .unwrap_or_else(|e| e.into_inner())
             .register::<M>()
+    }
+
+    /// Registers `observer` to see every send, receipt and outcome of this system, whichever
+    /// way each message goes (router, unacknowledged fast path, in-process hand-over), in
+    /// real time and under simulation ([`crate::observe`]). Several observers may be
+    /// registered; each stays until its handle is dropped or
+    /// [`removed`](ObserverHandle::remove). While none is registered, observing costs one
+    /// relaxed atomic load per send, receipt and outcome.
+    ///
+    /// ```
+    /// use std::sync::atomic::{AtomicU64, Ordering};
+    /// use std::sync::Arc;
+    /// use hetcomm::observe::{Observer, OutcomeRecord, SendRecord};
+    /// # use hetcomm::*;
+    /// # let fleet = hetcomm::config::parse_str(r#"
+    /// #     [systems]
+    /// #     Alpha = 0
+    /// #     Charlie = 1
+    /// #     [modules]
+    /// #     Plan = 0
+    /// #     [transports.wired]
+    /// #     kind = "inproc"
+    /// #     [table]
+    /// #     columns = ["Alpha", "Charlie"]
+    /// #     Alpha = ["X", "wired"]
+    /// #     Charlie = ["wired", "X"]
+    /// # "#, "doc.toml", None).unwrap();
+    /// # let local = LocalFleet::open(fleet).unwrap();
+    ///
+    /// /// Counts sends and delivered outcomes.
+    /// #[derive(Default)]
+    /// struct Counter {
+    ///     sends: AtomicU64,
+    ///     delivered: AtomicU64,
+    /// }
+    ///
+    /// impl Observer for Counter {
+    ///     fn on_send(&self, _: &SendRecord<'_>) {
+    ///         self.sends.fetch_add(1, Ordering::Relaxed);
+    ///     }
+    ///     fn on_outcome(&self, r: &OutcomeRecord<'_>) {
+    ///         if r.outcome.is_success() {
+    ///             self.delivered.fetch_add(1, Ordering::Relaxed);
+    ///         }
+    ///     }
+    /// }
+    ///
+    /// let alpha = local.system("Alpha").unwrap();
+    /// let counter = Arc::new(Counter::default());
+    /// let handle = alpha.observe(counter.clone());
+    /// let plan = alpha.module("Plan").unwrap();
+    /// plan.send_raw("Charlie", "Plan", MessageType(9), &[1], Default::default()).unwrap().wait();
+    /// assert_eq!(counter.sends.load(Ordering::Relaxed), 1);
+    /// assert_eq!(counter.delivered.load(Ordering::Relaxed), 1);
+    ///
+    /// drop(handle); // unregistered: later sends are not seen
+    /// plan.send_raw("Charlie", "Plan", MessageType(9), &[2], Default::default()).unwrap().wait();
+    /// assert_eq!(counter.sends.load(Ordering::Relaxed), 1);
+    /// ```
+    pub fn observe(&self, observer: Arc<dyn Observer>) -> ObserverHandle {
+        ObserverHandle::register(&self.handle.core, observer)
     }
 
     /// Counters for this system.

@@ -46,6 +46,7 @@ mod comm;
 mod error;
 mod inbox;
 mod module;
+pub mod observe;
 mod reactor;
 mod received;
 mod runtime;
@@ -57,6 +58,7 @@ pub use comm::{Comm, LocalFleet, SystemStats};
 pub use error::{OpenError, RecvError, SendError};
 pub use inbox::InboxStats;
 pub use module::{Module, RawSender, SendOptions, Sender};
+pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
 pub use runtime::{Clock, WallClock};
 pub use ticket::{BroadcastTicket, Ticket};
@@ -68,7 +70,7 @@ pub use hetcomm_core::{
 };
 pub use hetcomm_derive::Message;
 pub use hetcomm_link::LinkStats;
-pub use hetcomm_router::{FailReason, Outcome, RouterStats};
+pub use hetcomm_router::{FailReason, Outcome, RouterStats, SendId};
 
 /// The fleet file: loading, validation and the validated model.
 pub mod config {

@@ -8,11 +8,12 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
-use hetcomm_router::{Admitted, DirectLane, SendRequest};
+use hetcomm_router::{Admitted, DirectLane, SendId, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
+use crate::observe::RouteKind;
 use crate::received::{RawMessage, Received};
 use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore, Traffic};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
@@ -216,13 +217,18 @@ impl Module {
         // nothing else queued; the frame goes out without a trip through `pump`, and its
         // outcome is known when the link answers.
         drop(router);
+        if core.observers.active() {
+            core.observers
+                .send_frame(&tx.frame, tx.body, now, RouteKind::Unqueued, tx.link, 1);
+        }
+        let id = tx.id();
         let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now, Traffic::Data);
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {
                 drop(router);
                 Ok(Ticket {
-                    slot: TicketSlot::Ready(outcome),
+                    slot: core.end_send(id, outcome, None, now),
                     destination,
                 })
             }
@@ -247,6 +253,11 @@ impl Module {
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
+        if self.sys.core.observers.active() {
+            // Decided once per send: a send is observed whole (send and outcome) or not at
+            // all, and the unobserved path below stays what it was before observers existed.
+            return self.hand_over_observed(to, what, payload, now);
+        }
         let req = what.request(self.core.id, payload.as_slice());
         let header = to
             .lane
@@ -257,6 +268,37 @@ impl Module {
             .deliver_direct(to.module, header, payload.into_buf(), now);
         Ok(Ticket {
             slot: TicketSlot::Ready(to.lane.result(&header, status)),
+            destination: to.name,
+        })
+    }
+
+    /// [`Module::hand_over`] while this system is observed: the send and its outcome are
+    /// reported (the outcome through [`SystemCore::end_send`], as every outcome is).
+    #[cold]
+    #[inline(never)]
+    fn hand_over_observed(
+        &self,
+        to: DirectTarget<'_>,
+        what: Outgoing,
+        payload: PayloadSource<'_>,
+        now: hetcomm_core::Time,
+    ) -> Result<Ticket, SendError> {
+        let core = &self.sys.core;
+        let req = what.request(self.core.id, payload.as_slice());
+        let header = to
+            .lane
+            .send(now, &req)
+            .map_err(|e| send_error(&core.directory, e))?;
+        core.observers.send_direct(&header, payload.as_slice(), now);
+        let status = to
+            .peer
+            .deliver_direct(to.module, header, payload.into_buf(), now);
+        let id = SendId {
+            to: header.destination.system,
+            seq: header.seq,
+        };
+        Ok(Ticket {
+            slot: core.end_send(id, to.lane.result(&header, status), None, now),
             destination: to.name,
         })
     }

@@ -16,13 +16,16 @@ use hetcomm_core::{
     FrameBuf, Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry,
 };
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
-use hetcomm_router::{Delivery, DeliveryToken, Event, Router, Transmit, TransmitError};
+use hetcomm_router::{
+    Delivery, DeliveryToken, Event, Outcome, Router, SendId, Transmit, TransmitError,
+};
 use smallvec::SmallVec;
 
 use crate::inbox::{Entry, Inbox, PushError};
+use crate::observe::{Observers, OutcomeRecord, ReceiptRecord, RouteKind, Via};
 use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
-use crate::ticket::OutcomeSlot;
+use crate::ticket::{OutcomeSlot, TicketSlot};
 use crate::transports::Hubs;
 use crossbeam_utils::CachePadded;
 
@@ -400,6 +403,8 @@ pub(crate) struct SystemCore {
     /// Messages for a module id this system's fleet file does not have (the sender's fleet
     /// file differs), dropped (and refused, when an acknowledgement was asked for).
     pub unknown_module: AtomicU64,
+    /// Who sees every send, receipt and outcome ([`crate::observe`]).
+    pub(crate) observers: Observers,
 }
 
 /// The in-process links of a system, through which a message skips framing, checksums and
@@ -454,6 +459,7 @@ impl SystemCore {
             unknown_module: AtomicU64::new(0),
             reactor: OnceLock::new(),
             reactor_thread: Mutex::new(None),
+            observers: Observers::default(),
         })
     }
 
@@ -605,6 +611,9 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
+        if self.observers.active() {
+            return self.deliver_observed(module, header, payload, now, Source::SameProcess);
+        }
         self.deliver_to(module, header, payload, now, Source::SameProcess)
     }
 
@@ -789,6 +798,8 @@ impl SystemCore {
         let mut delivery_results: SmallVec<[(DeliveryToken, AckStatus); 2]> = SmallVec::new();
         let mut transmit_results: SmallVec<[(Transmit, Result<(), TransmitError>); 4]> =
             SmallVec::new();
+        // Per transmit, while observed: which attempt of its send it is (0 for an ack).
+        let mut attempts: SmallVec<[u32; 4]> = SmallVec::new();
         let mut now = first_now;
         let mut first = true;
         loop {
@@ -797,7 +808,11 @@ impl SystemCore {
                 now = self.clock.now();
             }
             first = false;
+            let observed = self.observers.active();
             while let Some(t) = router.poll_transmit(now) {
+                if observed {
+                    attempts.push(t.send.and_then(|id| router.attempts(id)).unwrap_or(0));
+                }
                 transmits.push(t);
             }
             while let Some(d) = router.poll_delivery() {
@@ -812,8 +827,8 @@ impl SystemCore {
             if transmits.is_empty() && deliveries.is_empty() && events.is_empty() {
                 return;
             }
-            for Event::Outcome { token, outcome, .. } in events.drain(..) {
-                token.complete(outcome);
+            for Event::Outcome { id, token, outcome } in events.drain(..) {
+                self.end_send(id, outcome, Some(token), now);
             }
             for d in deliveries.drain(..) {
                 let token = d.token;
@@ -822,18 +837,29 @@ impl SystemCore {
                     delivery_results.push((token, status));
                 }
             }
-            for tx in transmits.drain(..) {
+            for (i, tx) in transmits.drain(..).enumerate() {
                 // Only sends need their result: an acknowledgement lost here is counted by
                 // the link, and its sender retransmits and is acknowledged again.
                 let traffic = match tx.send {
                     Some(_) => Traffic::Data,
                     None => Traffic::Ack,
                 };
+                if let Some(&attempt) = attempts.get(i).filter(|&&a| a > 0) {
+                    self.observers.send_frame(
+                        &tx.frame,
+                        &[],
+                        now,
+                        RouteKind::Routed,
+                        tx.link,
+                        attempt,
+                    );
+                }
                 let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic);
                 if tx.send.is_some() {
                     transmit_results.push((tx, result));
                 }
             }
+            attempts.clear();
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
                 return;
@@ -852,12 +878,86 @@ impl SystemCore {
     /// (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let module = self.modules.get(&d.header.destination.module);
-        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, Source::Link)
+        let source = Source::Link(d.link);
+        if self.observers.active() {
+            return self.deliver_observed(module.map(|m| &**m), d.header, d.payload, now, source);
+        }
+        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, source)
+    }
+
+    /// Where every send's outcome goes, whichever way the send went: the observers see it,
+    /// then the ticket gets it (`slot`, or a ticket made ready with it, returned).
+    #[inline(always)]
+    pub(crate) fn end_send(
+        &self,
+        id: SendId,
+        outcome: Outcome,
+        slot: Option<Arc<OutcomeSlot>>,
+        now: Time,
+    ) -> TicketSlot {
+        match slot {
+            Some(slot) => {
+                if self.observers.active() {
+                    self.observe_outcome(id, &outcome, now);
+                }
+                slot.complete(outcome);
+                TicketSlot::Pending(slot)
+            }
+            None => {
+                // Made first, so the outcome is not moved again after the observers saw it.
+                let ready = TicketSlot::Ready(outcome);
+                if self.observers.active() {
+                    if let TicketSlot::Ready(outcome) = &ready {
+                        self.observe_outcome(id, outcome, now);
+                    }
+                }
+                ready
+            }
+        }
+    }
+
+    /// [`SystemCore::end_send`]'s report, out of the way of the unobserved path.
+    #[cold]
+    #[inline(never)]
+    fn observe_outcome(&self, id: SendId, outcome: &Outcome, now: Time) {
+        self.observers.outcome(&OutcomeRecord {
+            id,
+            outcome,
+            time: now,
+        });
+    }
+
+    /// [`SystemCore::deliver_to`] and a report of the receipt to the observers (every
+    /// receipt, from a link or handed over directly, is reported here). The payload is
+    /// copied for the observers: the inbox takes the message.
+    #[cold]
+    #[inline(never)]
+    fn deliver_observed(
+        &self,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
+        let copy = payload.clone();
+        let status = self.deliver_to(module, header, payload, now, source);
+        self.observers.receipt(&ReceiptRecord {
+            header,
+            payload: &copy,
+            time: now,
+            via: match source {
+                Source::Link(link) => Via::Link(link),
+                Source::SameProcess => Via::Direct,
+            },
+            status,
+        });
+        status
     }
 
     /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
     /// there is no such module). Only a sender of this process waits for room under the
-    /// `block` policy; a link is never stopped.
+    /// `block` policy; a link is never stopped. (Callers report it: [`Self::deliver_observed`].)
     fn deliver_to(
         &self,
         module: Option<&ModuleCore>,
@@ -887,7 +987,7 @@ impl SystemCore {
         };
         let pushed = match source {
             Source::SameProcess => inbox.push(entry),
-            Source::Link => inbox.push_from_link(entry),
+            Source::Link(_) => inbox.push_from_link(entry),
         };
         match pushed {
             Ok(()) => {
@@ -925,10 +1025,15 @@ impl SystemCore {
         join_unless_current(&self.reactor_thread);
         let mut router = self.router();
         router.shutdown();
-        while let Some(Event::Outcome { token, outcome, .. }) = router.poll_event() {
-            token.complete(outcome);
+        let mut ended = Vec::new();
+        while let Some(Event::Outcome { id, token, outcome }) = router.poll_event() {
+            ended.push((id, token, outcome));
         }
         drop(router);
+        let now = self.clock.now();
+        for (id, token, outcome) in ended {
+            self.end_send(id, outcome, Some(token), now);
+        }
         for m in self.modules.values() {
             m.close();
         }
@@ -941,8 +1046,8 @@ impl SystemCore {
 enum Source {
     /// Handed over by a sender of this process, on its own thread: it may wait for room.
     SameProcess,
-    /// From a link, through the router: refused at once when there is no room.
-    Link,
+    /// From a link (this index), through the router: refused at once when there is no room.
+    Link(usize),
 }
 
 /// A leading module set to spin ([`crate::Module::set_wait_spin`]) looks at its links

@@ -13,6 +13,10 @@
 //! (`hetcomm_link::layer`). The emulation layer leaves a simulated link alone, since the
 //! simulator applies the same model itself, in virtual time (below).
 //!
+//! Observers ([`crate::Comm::observe`] on a [`SimFleet::system`]) see every send, receipt
+//! and outcome here exactly as in real time, stamped with the virtual clock, on the
+//! simulator's thread.
+//!
 //! Autonomy code runs between calls to [`SimFleet::run_until`] (polling with `try_recv` /
 //! `has_message`, reading outcomes with [`crate::Ticket::try_outcome`]) or in callbacks, which
 //! run on the simulator's thread at the moment of delivery. Blocking calls (`recv`,

@@ -335,6 +335,12 @@ impl<T> Router<T> {
         stats
     }
 
+    /// Transmissions handed out so far for the unresolved send `id` (the one just polled
+    /// from [`Router::poll_transmit`] included); None once it ended.
+    pub fn attempts(&self, id: SendId) -> Option<u32> {
+        self.pending.get(&id).map(|p| p.attempts)
+    }
+
     /// The smoothed round-trip time to `to` on its active path, once measured.
     pub fn srtt(&self, to: SystemId) -> Option<Duration> {
         let r = self.routes.get(&to)?;
