@@ -163,7 +163,11 @@ fn ends_on_different_channels_do_not_meet() {
         A,
         &settings(3, &pairs),
         CollectSink::new(),
-        StreamConfig::default(),
+        // A backoff no loaded machine outlasts before the second send below.
+        StreamConfig {
+            backoff_initial: std::time::Duration::from_secs(30),
+            ..StreamConfig::default()
+        },
     )
     .unwrap();
     // The send queues behind a connector; its connect fails, and the next send reports why.

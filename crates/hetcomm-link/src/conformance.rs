@@ -466,16 +466,24 @@ pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
     let sent: Vec<Vec<u8>> = (0..10)
         .map(|i| frame(8, i, if i == 5 { big } else { 100 }))
         .collect();
-    for f in &sent {
-        a.send(B, f).expect("send to a driven link");
-    }
     let want = if caps.reliable { sent.len() } else { 1 };
     let deadline = Instant::now() + WAIT;
-    let mut handed_on = 0;
-    while sb.frames().len() < want && Instant::now() < deadline {
-        poll_readable(rx.fd(), 20);
-        handed_on += rx.read_ready(64).expect("read_ready");
-    }
+    // Read while sending: a large frame may not fit the socket buffers until the receiver
+    // reads, and a driven link's receiver is whoever calls `read_ready`.
+    let handed_on = std::thread::scope(|scope| {
+        let reader = scope.spawn(|| {
+            let mut handed_on = 0;
+            while sb.frames().len() < want && Instant::now() < deadline {
+                poll_readable(rx.fd(), 20);
+                handed_on += rx.read_ready(64).expect("read_ready");
+            }
+            handed_on
+        });
+        for f in &sent {
+            a.send(B, f).expect("send to a driven link");
+        }
+        reader.join().expect("the reader")
+    });
     let got = sb.frames();
     assert!(
         got.len() >= want,
