@@ -337,8 +337,9 @@ fn a_record_over_the_receivers_max_message_bytes_is_counted_as_oversize() {
     .unwrap();
     a.send(B, &[7; 1048]).unwrap(); // exactly B's largest frame: delivered
     assert_eq!(sink.wait_for(1, DEADLINE), 1);
-    a.send(B, &[7; 2000]).unwrap(); // over it: B closes the connection, counted
-                                    // Two counters, updated one after the other: wait for both.
+    // Over it: B closes the connection and counts it, in two counters updated one after
+    // the other, so wait for both.
+    a.send(B, &[7; 2000]).unwrap();
     wait_until("the oversize record counted", DEADLINE, || {
         let s = b.stream_stats();
         (s.oversize_records, s.frames_dropped) == (1, 1)
