@@ -39,6 +39,18 @@ use libfuzzer_sys::fuzz_target;
 const PER_MESSAGE: usize = 512;
 const SLACK: usize = 64 * 1024;
 
+/// `HETCOMM_FUZZ_MAX_AMPLIFICATION=N`: also fail when one datagram makes the reassembler
+/// allocate more than N times its own size (plus 64 KiB). Off by default: the reassembler
+/// allocates a whole message's buffer at its first fragment, by design (see fuzz/README.md).
+fn max_amplification() -> Option<usize> {
+    static F: std::sync::OnceLock<Option<usize>> = std::sync::OnceLock::new();
+    *F.get_or_init(|| {
+        std::env::var("HETCOMM_FUZZ_MAX_AMPLIFICATION")
+            .ok()
+            .and_then(|v| v.parse().ok())
+    })
+}
+
 /// (source, sender, message id, count, total): what makes fragments belong together.
 type Key = (SocketAddr, SystemId, u32, u16, u32);
 
@@ -114,8 +126,17 @@ struct Harness {
 impl Harness {
     fn feed(&mut self, d: &[u8], src: SocketAddr, src_system: Option<SystemId>) {
         let expected = parse_fragment(d, self.cfg.max_frame).map(|(h, p)| (h, p.to_vec()));
-        let before = common::live();
+        let before = common::reset_peak();
         let out = self.r.on_fragment(d, src, src_system, self.now);
+        let peak = common::peak() - before;
+        if let Some(factor) = max_amplification() {
+            assert!(
+                peak <= factor * d.len() + SLACK,
+                "a {}-byte datagram made the reassembler allocate {peak} bytes ({}x)",
+                d.len(),
+                peak / d.len().max(1)
+            );
+        }
         let mut delta = common::live() as isize - before as isize;
         if let Reassembly::Complete(v) = &out {
             delta -= v.capacity() as isize;
