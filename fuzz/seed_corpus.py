@@ -3,8 +3,8 @@
 
     cd fuzz && python3 seed_corpus.py
 
-Creates corpus/udp_reassembly/ and corpus/stream_records/ (both gitignored), in the input
-layouts documented at the top of fuzz_targets/udp_reassembly.rs and stream_records.rs.
+Creates corpus/udp_reassembly/, corpus/udp_datagrams/ and corpus/stream_records/ (all
+gitignored), in the input layouts the targets document (fuzz_targets/*.rs).
 """
 import json
 import os
@@ -16,13 +16,17 @@ DEFAULT_MAX_FRAME = 16 * 1024 * 1024 + 48
 
 
 def write(target, name, data):
-    d = os.path.join(HERE, "corpus", target)
-    os.makedirs(d, exist_ok=True)
-    with open(os.path.join(d, "vec_" + name), "wb") as f:
-        f.write(data)
+    # udp_datagrams reads the same configuration and raw-datagram operations as
+    # udp_reassembly, so its seeds are the same files.
+    for t in [target, "udp_datagrams"] if target == "udp_reassembly" else [target]:
+        d = os.path.join(HERE, "corpus", t)
+        os.makedirs(d, exist_ok=True)
+        with open(os.path.join(d, "vec_" + name), "wb") as f:
+            f.write(data)
 
 
 # --- udp_reassembly -------------------------------------------------------------------------
+# (udp_datagrams reads the same layout.)
 # Config byte 0: UdpConfig::default() (32 MiB limit, max_frame 16 MiB + 48).
 # Config byte 1 + u16 datagram-payload parameter + u16 max_message_bytes + u16 limit + u8
 # timeout: a small configuration; payload parameter 0 gives 21-byte datagrams, so max_frame is
@@ -111,4 +115,4 @@ two = big + lit(record_header(40000)) + run(0x11, 78) + lit(bytes(64)) + lit(one
 write("stream_records", "big_two_then_small", stream_input(two, flags=0x80, reads=(100, 20000)))
 write("stream_records", "big_two_handout", stream_input(two, flags=0x81))
 write("stream_records", "big_truncated", stream_input(lit(HELLO_1 + record_header(30000)) + run(1, 20), flags=0x81))
-print("seeded", *(f"{t}: {len(os.listdir(os.path.join(HERE, 'corpus', t)))}" for t in ("udp_reassembly", "stream_records")))
+print("seeded", *(f"{t}: {len(os.listdir(os.path.join(HERE, 'corpus', t)))}" for t in ("udp_reassembly", "udp_datagrams", "stream_records")))
