@@ -3,8 +3,8 @@
 
     cd fuzz && python3 seed_corpus.py
 
-Creates corpus/udp_reassembly/, corpus/udp_datagrams/ and corpus/stream_records/ (all
-gitignored), in the input layouts the targets document (fuzz_targets/*.rs).
+Creates corpus/udp_reassembly/, corpus/udp_datagrams/, corpus/stream_records/ and
+corpus/stream_driven/ (all gitignored), in the input layouts the targets document (fuzz_targets/*.rs).
 """
 import json
 import os
@@ -17,8 +17,9 @@ DEFAULT_MAX_FRAME = 16 * 1024 * 1024 + 48
 
 def write(target, name, data):
     # udp_datagrams reads the same configuration and raw-datagram operations as
-    # udp_reassembly, so its seeds are the same files.
-    for t in [target, "udp_datagrams"] if target == "udp_reassembly" else [target]:
+    # udp_reassembly, and stream_driven the same input as stream_records: same seeds.
+    twin = {"udp_reassembly": "udp_datagrams", "stream_records": "stream_driven"}[target]
+    for t in (target, twin):
         d = os.path.join(HERE, "corpus", t)
         os.makedirs(d, exist_ok=True)
         with open(os.path.join(d, "vec_" + name), "wb") as f:
@@ -115,4 +116,4 @@ two = big + lit(record_header(40000)) + run(0x11, 78) + lit(bytes(64)) + lit(one
 write("stream_records", "big_two_then_small", stream_input(two, flags=0x80, reads=(100, 20000)))
 write("stream_records", "big_two_handout", stream_input(two, flags=0x81))
 write("stream_records", "big_truncated", stream_input(lit(HELLO_1 + record_header(30000)) + run(1, 20), flags=0x81))
-print("seeded", *(f"{t}: {len(os.listdir(os.path.join(HERE, 'corpus', t)))}" for t in ("udp_reassembly", "udp_datagrams", "stream_records")))
+print("seeded", *(f"{t}: {len(os.listdir(os.path.join(HERE, 'corpus', t)))}" for t in ("udp_reassembly", "udp_datagrams", "stream_records", "stream_driven")))
