@@ -53,7 +53,7 @@ fn config(c: &mut Cursor) -> UdpConfig {
     let kind = c.u8();
     // Long enough that nothing expires during one input: the model does not follow the clock.
     let reassembly_timeout = Duration::from_secs(120);
-    if kind % 4 == 0 {
+    if kind.is_multiple_of(4) {
         return UdpConfig {
             reassembly_timeout,
             driven: true,

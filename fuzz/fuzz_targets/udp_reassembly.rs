@@ -65,13 +65,13 @@ struct Cfg {
 
 fn config(c: &mut Cursor) -> Cfg {
     let kind = c.u8();
-    if kind % 4 == 0 {
+    if kind.is_multiple_of(4) {
         let d = UdpConfig::default();
         return Cfg {
             limit: d.reassembly_limit_bytes,
             max_frame: d.max_frame(),
             timeout: d.reassembly_timeout,
-            max_big_ops: 24,
+            max_big_ops: 3,
         };
     }
     // Small configurations, built the way a link builds its reassembler from a `UdpConfig`.
