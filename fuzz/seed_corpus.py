@@ -32,11 +32,12 @@ def write(target, name, data):
 # Config byte 1 + u16 datagram-payload parameter + u16 max_message_bytes + u16 limit + u8
 # timeout: a small configuration; payload parameter 0 gives 21-byte datagrams, so max_frame is
 # min(48 + max_message_bytes, limit).
-def udp_config(max_frame):
+# Then a byte: bit 0 builds udp_reassembly's reassembler `with_fleet` (udp_datagrams ignores it).
+def udp_config(max_frame, fleet=0):
     if max_frame == DEFAULT_MAX_FRAME:
-        return b"\x00"
+        return b"\x00" + bytes([fleet])
     assert max_frame <= 0xFFFF
-    return b"\x01" + struct.pack("<HHHB", 0, max(max_frame - 48, 0), max_frame, 200)
+    return b"\x01" + struct.pack("<HHHB", 0, max(max_frame - 48, 0), max_frame, 200) + bytes([fleet])
 
 
 def raw(datagram, system_mode=1, src=0):
@@ -63,7 +64,8 @@ for v in VECTORS["udp_fragment_errors"]:
     write("udp_reassembly", "err_" + v["name"], udp_config(v["max_frame"]) + raw(h(v["datagram_hex"])))
 # The suspected amplification: one 276-byte datagram, count 65535, total 16 776 960.
 amp = struct.pack("<2sBBHHHHII", b"HF", 1, 0, 1, 0, 65535, 0, 1, 65535 * 256) + bytes(256)
-write("udp_reassembly", "amplification_first_fragment", b"\x00" + raw(amp))
+write("udp_reassembly", "amplification_first_fragment", udp_config(DEFAULT_MAX_FRAME) + raw(amp))
+write("udp_reassembly", "amplification_unknown_source", udp_config(DEFAULT_MAX_FRAME, 1) + raw(amp, system_mode=0))
 
 
 # --- stream_records -------------------------------------------------------------------------

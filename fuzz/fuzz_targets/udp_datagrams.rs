@@ -7,14 +7,16 @@
 //! Each datagram is followed by a sentinel datagram (a whole frame no datagram kind can be
 //! mistaken for) from the same socket; the target reads until the sentinel is handed up, so it
 //! knows the datagram has been handled. What the sink got and the link's counters must then
-//! agree with a model of the "Datagram format" section of the udp module docs: whole frames
-//! handed up as they are; batches walked with the public `wire::peek_frame_len` and a
-//! malformed tail counted; fragments fed to a public `Reassembler` configured as the link's
-//! (same limit, timeout and `max_frame`), whose completions, rejections, evictions and held
-//! bytes the link's must match. Also: labels (`Peer::System` for the fleet socket,
+//! agree with a model of the "Datagram format" section of the udp module docs, written here:
+//! whole frames handed up as they are; `"HB"` batches checked (magic, version 1, reserved 0)
+//! and their records (u32 length, frame) walked, a malformed tail or unread header counted;
+//! fragments fed to a public `Reassembler` configured as the link's (same limit, timeout,
+//! `max_frame` and fleet), whose completions, duplicates, rejections (oversize ones too),
+//! evictions and held bytes the link's must match. Also: labels (`Peer::System` for the fleet socket,
 //! `Peer::Unknown` and `from_unknown_address` for the other), and no panic.
 //!
-//! Input: a configuration byte (and parameters), then operations; see `run`.
+//! Input: a configuration byte (and parameters), a byte ignored (`udp_reassembly`'s fleet
+//! byte, so that the two share seeds), then operations; see `run`.
 #![no_main]
 
 #[path = "common/mod.rs"]
@@ -26,12 +28,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::Cursor;
-use hetcomm_core::wire::{self, HEADER_LEN};
-use hetcomm_core::{Address, MessageType, ModuleId, SystemId};
+use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, Peer};
 use hetcomm_link_ip::udp::{
-    FragmentHeader, Reassembler, Reassembly, UdpConfig, UdpStats, FRAGMENT_HEADER_LEN,
-    FRAGMENT_MAGIC, MAX_DATAGRAM_PAYLOAD,
+    FragmentError, FragmentHeader, Reassembler, Reassembly, UdpConfig, UdpStats,
+    FRAGMENT_HEADER_LEN, FRAGMENT_MAGIC, MAX_DATAGRAM_PAYLOAD,
 };
 use hetcomm_link_ip::UdpLink;
 use libfuzzer_sys::fuzz_target;
@@ -77,16 +78,6 @@ fn config(c: &mut Cursor) -> UdpConfig {
     config
 }
 
-fn wire_frame(seq: u8, payload_len: usize) -> Vec<u8> {
-    let at = |s| Address {
-        system: SystemId(s),
-        module: ModuleId(1),
-    };
-    let mut h = wire::Header::data(at(1), at(2), MessageType(7));
-    h.seq = u64::from(seq);
-    wire::encode(&h, &vec![seq; payload_len])
-}
-
 /// What the link must do with one datagram, from the module docs.
 #[derive(Default, Debug, Clone, PartialEq, Eq)]
 struct Expect {
@@ -94,6 +85,8 @@ struct Expect {
     batches: u64,
     bad: u64,
     evictions: u64,
+    duplicates: u64,
+    oversize: u64,
 }
 
 struct Model {
@@ -104,25 +97,29 @@ struct Model {
 impl Model {
     fn datagram(&mut self, d: &[u8], src: SocketAddr, system: Option<SystemId>) -> Expect {
         let mut e = Expect::default();
-        if !d.starts_with(&FRAGMENT_MAGIC) {
-            match wire::peek_frame_len(d) {
-                Ok(n) if n < d.len() => {
-                    // A batch: frames back to back, walked until a piece does not parse or
-                    // runs past the end.
-                    e.batches = 1;
-                    let mut rest = d;
-                    while let Ok(n) = wire::peek_frame_len(rest) {
-                        assert!(n >= HEADER_LEN, "peek_frame_len gave {n}");
-                        if n > rest.len() {
-                            break;
-                        }
-                        e.frames.push(rest[..n].to_vec());
-                        rest = &rest[n..];
-                    }
-                    e.bad = u64::from(!rest.is_empty());
-                }
-                _ => e.frames.push(d.to_vec()),
+        if d.starts_with(b"HB") {
+            // A batch: header "HB", version 1, reserved 0, then records (u32 length, frame)
+            // until one runs past the end. An unread header drops the datagram; so does a
+            // batch without a single complete record.
+            if d.len() < 4 || d[2] != 1 || d[3] != 0 {
+                e.bad = 1;
+                return e;
             }
+            let mut rest = &d[4..];
+            while rest.len() >= 4 {
+                let n = u32::from_le_bytes(rest[..4].try_into().unwrap()) as usize;
+                if n > rest.len() - 4 {
+                    break;
+                }
+                e.frames.push(rest[4..4 + n].to_vec());
+                rest = &rest[4 + n..];
+            }
+            e.batches = u64::from(!e.frames.is_empty());
+            e.bad = u64::from(!rest.is_empty() || e.frames.is_empty());
+            return e;
+        }
+        if !d.starts_with(&FRAGMENT_MAGIC) {
+            e.frames.push(d.to_vec());
             return e;
         }
         // Strictly increasing, like the link's clock, so that "the oldest" is the same message.
@@ -131,9 +128,13 @@ impl Model {
         match self.reassembler.on_fragment(d, src, system, self.now) {
             Reassembly::Complete(f) => e.frames.push(f),
             Reassembly::Pending => {}
-            Reassembly::Rejected { dropped, .. } => {
+            Reassembly::Duplicate => e.duplicates = 1,
+            Reassembly::Rejected { dropped, error } => {
                 e.bad = 1;
                 e.evictions += dropped as u64;
+                if let FragmentError::BadGeometry { total, max, .. } = error {
+                    e.oversize = u64::from(total as usize > max);
+                }
             }
         }
         e.evictions += self.reassembler.evictions() - before;
@@ -167,7 +168,8 @@ impl Rig {
                 config.reassembly_limit_bytes,
                 config.reassembly_timeout,
                 config.max_frame(),
-            ),
+            )
+            .with_fleet([FLEET_SYSTEM]),
             now: Instant::now(),
         };
         let link = UdpLink::with_socket(LOCAL, local, &endpoints, sink.clone(), config)
@@ -250,6 +252,16 @@ impl Rig {
             unknown,
             "from_unknown_address"
         );
+        assert_eq!(
+            s.duplicate_fragments - p.duplicate_fragments,
+            expect.duplicates,
+            "duplicate_fragments"
+        );
+        assert_eq!(
+            s.oversize_fragments - p.oversize_fragments,
+            expect.oversize,
+            "oversize_fragments"
+        );
         assert_eq!(s.reassembly_timeouts, 0);
         assert_eq!(
             s.buffered_bytes,
@@ -262,7 +274,10 @@ impl Rig {
 
 fn run(data: &[u8]) {
     let mut c = Cursor::new(data);
-    let mut rig = Rig::new(config(&mut c));
+    let config = config(&mut c);
+    // The fleet byte of udp_reassembly's layout: the link always knows its fleet.
+    c.u8();
+    let mut rig = Rig::new(config);
     while !c.is_empty() {
         let op = c.u8();
         let from_fleet = op & 0x80 == 0;
@@ -272,12 +287,18 @@ fn run(data: &[u8]) {
                 let len = usize::from(c.u16()) % 4096;
                 c.bytes(len).to_vec()
             }
-            // Wire frames back to back, then some other bytes.
+            // A batch: its header (as sent, or with a byte changed), records of the lengths
+            // the input gives, then some other bytes.
             2 => {
-                let n = c.u8() % 8;
-                let mut d = Vec::new();
-                for i in 0..n {
-                    d.extend(wire_frame(i, usize::from(c.u8())));
+                let mut d = b"HB\x01\x00".to_vec();
+                let (at, to) = (c.u8(), c.u8());
+                if at < 4 {
+                    d[usize::from(at)] = to;
+                }
+                for i in 0..c.u8() % 8 {
+                    let n = usize::from(c.u8());
+                    d.extend_from_slice(&(n as u32).to_le_bytes());
+                    d.resize(d.len() + n, i);
                 }
                 let tail = usize::from(c.u8() % 64);
                 d.extend_from_slice(c.bytes(tail));

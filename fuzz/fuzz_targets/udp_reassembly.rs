@@ -4,16 +4,21 @@
 //! Checked after every step:
 //! - no panic;
 //! - `on_fragment` rejects exactly what `parse_fragment` rejects, with the same error, and
-//!   otherwise only for a wrong sender or a disagreeing message;
+//!   otherwise only for a wrong sender, a sender outside the fleet (`with_fleet`, used by
+//!   half of the inputs) or a disagreeing message; a `Duplicate` is a fragment whose message
+//!   and index were fed before;
 //! - a one-fragment message comes back as its piece; any other reassembled frame has the
 //!   declared length and is made of pieces that were actually fed (same source, sender,
 //!   message id, count and total, each piece at its index);
 //! - `held_bytes()` never exceeds the configured limit, and the heap the reassembler really
-//!   holds stays within twice the limit plus a per-message allowance;
+//!   holds stays within twice the bytes held plus a per-message allowance and the remembered
+//!   completions; one datagram never makes it allocate more than 8 times its size plus 64 KiB
+//!   (memory follows the bytes received, not what a header announces);
 //! - expiry at the timeout gives up everything, and dropping the reassembler frees exactly
 //!   the heap its calls took.
 //!
-//! Input: one configuration byte (and its parameters), then operations; see `run`.
+//! Input: one configuration byte (and its parameters), a byte whose bit 0 selects
+//! `with_fleet`, then operations; see `run`.
 #![no_main]
 
 #[path = "common/mod.rs"]
@@ -30,7 +35,7 @@ use common::Cursor;
 use hetcomm_core::SystemId;
 use hetcomm_link_ip::udp::{
     parse_fragment, FragmentError, FragmentHeader, Reassembler, Reassembly, UdpConfig,
-    FRAGMENT_HEADER_LEN, MAX_DATAGRAM_PAYLOAD,
+    FRAGMENT_HEADER_LEN, MAX_DATAGRAM_PAYLOAD, MAX_REMEMBERED_COMPLETIONS,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -39,17 +44,22 @@ use libfuzzer_sys::fuzz_target;
 const PER_MESSAGE: usize = 512;
 const SLACK: usize = 64 * 1024;
 
-/// `HETCOMM_FUZZ_MAX_AMPLIFICATION=N`: also fail when one datagram makes the reassembler
-/// allocate more than N times its own size (plus 64 KiB). Off by default: the reassembler
-/// allocates a whole message's buffer at its first fragment, by design (see fuzz/README.md).
+/// Most heap one datagram may make the reassembler allocate, as a multiple of its size (plus
+/// `SLACK`): the first reservation of a message is at most 4 pieces, a piece ahead of its turn
+/// is copied once. `HETCOMM_FUZZ_MAX_AMPLIFICATION=N` overrides it (0: no check).
 fn max_amplification() -> Option<usize> {
     static F: std::sync::OnceLock<Option<usize>> = std::sync::OnceLock::new();
-    *F.get_or_init(|| {
-        std::env::var("HETCOMM_FUZZ_MAX_AMPLIFICATION")
-            .ok()
-            .and_then(|v| v.parse().ok())
+    *F.get_or_init(|| match std::env::var("HETCOMM_FUZZ_MAX_AMPLIFICATION") {
+        Ok(v) => v.parse().ok().filter(|&n| n > 0),
+        Err(_) => Some(8),
     })
 }
+
+/// The fleet the reassembler is told about in `with_fleet` inputs.
+const FLEET: [SystemId; 2] = [SystemId(1), SystemId(2)];
+/// Heap per remembered completed message (key, time, set entry), up to
+/// `MAX_REMEMBERED_COMPLETIONS`.
+const PER_COMPLETION: usize = 192;
 
 /// (source, sender, message id, count, total): what makes fragments belong together.
 type Key = (SocketAddr, SystemId, u32, u16, u32);
@@ -121,6 +131,12 @@ struct Harness {
     pending_high: usize,
     frames: [Vec<u8>; 4],
     big_ops: usize,
+    /// (source, sender, id) of every message a fragment was taken for.
+    fed_ids: HashSet<(SocketAddr, SystemId, u32)>,
+    /// Whether the reassembler was built `with_fleet(FLEET)`.
+    fleet: bool,
+    /// Messages completed from more than one fragment (remembered by the reassembler).
+    completions: usize,
 }
 
 impl Harness {
@@ -177,6 +193,16 @@ impl Harness {
             );
             return;
         }
+        if src_system.is_none() && self.fleet && !FLEET.contains(&h.sender) {
+            assert_eq!(
+                out,
+                Reassembly::Rejected {
+                    error: FragmentError::UnknownSender { claimed: h.sender },
+                    dropped: 0
+                }
+            );
+            return;
+        }
         let total = h.total as usize;
         let range = piece_range(total, usize::from(h.count), usize::from(h.index))
             .expect("parse_fragment accepted an invalid geometry");
@@ -188,9 +214,23 @@ impl Harness {
         let key = (src, h.sender, h.message_id, h.count, h.total);
         match out {
             Reassembly::Pending => {
+                self.fed_ids.insert((src, h.sender, h.message_id));
                 self.fed.entry((key, h.index)).or_default().insert(piece);
             }
+            Reassembly::Duplicate => {
+                // Of a pending message: that index was taken. Of a message completed within
+                // the timeout: the reassembler remembers only (source, sender, id).
+                assert!(
+                    self.fed_ids.contains(&(src, h.sender, h.message_id)),
+                    "fragment {} of message {} called a duplicate, but no fragment of that \
+                     message was taken before",
+                    h.index,
+                    h.message_id
+                );
+            }
             Reassembly::Complete(frame) => {
+                self.completions += 1;
+                self.fed_ids.insert((src, h.sender, h.message_id));
                 self.fed.entry((key, h.index)).or_default().insert(piece);
                 assert_eq!(frame.len(), total, "reassembled frame length");
                 for i in 0..h.count {
@@ -225,7 +265,10 @@ impl Harness {
             self.cfg.limit
         );
         self.pending_high = self.pending_high.max(self.r.pending());
-        let bound = 2 * held + PER_MESSAGE * self.pending_high + SLACK;
+        let bound = 2 * held
+            + PER_MESSAGE * self.pending_high
+            + PER_COMPLETION * self.completions.min(MAX_REMEMBERED_COMPLETIONS)
+            + SLACK;
         assert!(
             self.held_heap <= bound as isize,
             "the reassembler holds {} heap bytes for {held} bytes held in {} messages",
@@ -246,8 +289,10 @@ impl Harness {
 fn run(data: &[u8]) {
     let mut c = Cursor::new(data);
     let cfg = config(&mut c);
+    let fleet = c.u8() & 1 == 1;
     let before = common::live();
     let r = Reassembler::new(cfg.limit, cfg.timeout, cfg.max_frame);
+    let r = if fleet { r.with_fleet(FLEET) } else { r };
     let mut h = Harness {
         held_heap: common::live() as isize - before as isize,
         cfg,
@@ -257,6 +302,9 @@ fn run(data: &[u8]) {
         pending_high: 0,
         frames: Default::default(),
         big_ops: 0,
+        fleet,
+        completions: 0,
+        fed_ids: HashSet::new(),
     };
     while !c.is_empty() {
         let op = c.u8();

@@ -1,9 +1,11 @@
 //! Inputs found by (or probed with) the fuzz targets in `fuzz/` (see `fuzz/README.md`), fed to
-//! the public API as plain tests.
+//! the public API as plain tests; `--nocapture` prints what was measured.
 //!
-//! The tests marked `#[ignore]` state the behaviour wanted for a known, not yet fixed issue
-//! and fail today; run them with `cargo test -p hetcomm-link-ip --test fuzz_regressions --
-//! --ignored --nocapture`, which also prints what was measured.
+//! The reassembler inputs below showed, on the reassembler before "memory follows the bytes
+//! received" (issue 20), that one 276-byte datagram made it allocate 16 842 995 bytes, that
+//! two of them evicted a legitimate pending message, and that 2-byte messages held 123 times
+//! the limit in bookkeeping, with an eviction scan of 21 ms per new message. They guard that
+//! fix.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
@@ -93,12 +95,11 @@ fn default_reassembler() -> Reassembler {
 }
 
 /// The 276-byte first fragment of a message claiming 65535 fragments of 256 bytes
-/// (16 776 960 bytes): `parse_fragment` accepts it, and the reassembler allocates (and
-/// zeroes) the whole message buffer plus a 65535-entry index at once, and counts all of it
-/// against `reassembly_limit_bytes`: two such datagrams (552 bytes) fill the default 32 MiB
-/// limit, and every further one evicts a pending message. Found probing the `udp_reassembly`
-/// target with `HETCOMM_FUZZ_MAX_AMPLIFICATION=16` (corpus seed
-/// `vec_amplification_first_fragment`).
+/// (16 776 960 bytes), which `parse_fragment` accepts. The reassembler used to allocate (and
+/// zero) the whole message buffer and a 65535-entry index at once, and charge all of it
+/// against `reassembly_limit_bytes`: two such datagrams (552 bytes) filled the default 32 MiB
+/// limit. Found probing the `udp_reassembly` target with `HETCOMM_FUZZ_MAX_AMPLIFICATION=16`
+/// (its corpus seed `vec_amplification_first_fragment`).
 fn amplifying_first_fragment(message_id: u32) -> Vec<u8> {
     fragment(
         FragmentHeader {
@@ -113,8 +114,7 @@ fn amplifying_first_fragment(message_id: u32) -> Vec<u8> {
 }
 
 #[test]
-fn amplifying_first_fragment_is_accepted_and_accounted_within_the_limit() {
-    // What holds today: no panic, pending, within the limit, freed at the timeout.
+fn amplifying_first_fragment_is_pending_and_charged_for_what_arrived() {
     let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
     let mut r = default_reassembler();
     let d = amplifying_first_fragment(1);
@@ -122,12 +122,15 @@ fn amplifying_first_fragment_is_accepted_and_accounted_within_the_limit() {
     let t0 = Instant::now();
     let (out, peak, _) = measure(|| r.on_fragment(&d, SRC, Some(SystemId(1)), t0));
     assert_eq!(out, Reassembly::Pending);
-    assert_eq!(r.held_bytes(), 65535 * 256);
-    assert!(r.held_bytes() <= UdpConfig::default().reassembly_limit_bytes);
     println!(
-        "first fragment: {} bytes in, {peak} heap bytes allocated ({}x), {} bytes held",
+        "first fragment: {} bytes in, {peak} heap bytes allocated, {} bytes held",
         d.len(),
-        peak / d.len(),
+        r.held_bytes()
+    );
+    // A few pieces' worth of buffer and the bookkeeping, not the 16 MiB announced.
+    assert!(
+        r.held_bytes() <= 8 * 256 + 1024,
+        "{} bytes held",
         r.held_bytes()
     );
     assert_eq!(r.expire(t0 + UdpConfig::default().reassembly_timeout), 1);
@@ -135,7 +138,6 @@ fn amplifying_first_fragment_is_accepted_and_accounted_within_the_limit() {
 }
 
 #[test]
-#[ignore = "known issue: one 276-byte datagram makes the reassembler allocate 16.8 MB"]
 fn a_first_fragment_allocates_little_more_than_itself() {
     let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
     let mut r = default_reassembler();
@@ -150,12 +152,11 @@ fn a_first_fragment_allocates_little_more_than_itself() {
 }
 
 #[test]
-#[ignore = "known issue: two 276-byte datagrams evict a legitimate pending message"]
 fn a_few_tiny_datagrams_do_not_evict_a_pending_message() {
     let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
     let mut r = default_reassembler();
     let t0 = Instant::now();
-    // A legitimate 1 MiB message, half received.
+    // A legitimate 1 MiB message from another source, half received.
     let total = 1 << 20;
     let count = 1024u16;
     let good = |index| {
@@ -189,64 +190,59 @@ fn a_few_tiny_datagrams_do_not_evict_a_pending_message() {
     assert_eq!(r.evictions(), 0, "552 bytes of datagrams evicted a message");
 }
 
-/// Incomplete messages of 2 bytes each (a 21-byte first fragment, count 2, total 2) count 2
-/// bytes each against `reassembly_limit_bytes`, but each also takes a hash-map entry, a
-/// 2-byte buffer and a 2-entry index: the heap held is far more than the limit says.
+/// Incomplete messages of 2 bytes each (a 21-byte first fragment, count 2, total 2) used to be
+/// charged 2 bytes each against `reassembly_limit_bytes` while each also took a hash-map
+/// entry, a buffer and an index: 524 288 of them held 129 MB for a 1 MiB limit, and every new
+/// message then scanned them all to evict the oldest (21 ms each in a release build).
 #[test]
-#[ignore = "known issue: per-message bookkeeping is not counted against the limit"]
 fn tiny_messages_stay_within_a_small_multiple_of_the_limit() {
     let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
-    let limit = 1 << 20;
+    let limit = 64 << 10;
     let mut r = Reassembler::new(limit, Duration::from_secs(2), 1 << 20);
     let t0 = Instant::now();
-    let n = limit / 2;
-    let frags: Vec<Vec<u8>> = (0..n as u32)
-        .map(|id| {
-            fragment(
-                FragmentHeader {
-                    sender: SystemId(1),
-                    index: 0,
-                    count: 2,
-                    message_id: id,
-                    total: 2,
-                },
-                1,
-            )
-        })
+    let tiny = |id: u32| {
+        fragment(
+            FragmentHeader {
+                sender: SystemId(1),
+                index: 0,
+                count: 2,
+                message_id: id,
+                total: 2,
+            },
+            1,
+        )
+    };
+    // From many source addresses (UDP sources are easily forged), so that no per-source cap
+    // applies.
+    let source = |i: u32| SocketAddr::new(IpAddr::V4(Ipv4Addr::from(0x0a00_0000 + i)), 9);
+    let frags: Vec<(Vec<u8>, SocketAddr)> = (0..(limit / 2) as u32)
+        .map(|i| (tiny(i), source(i)))
         .collect();
     let (_, _, kept) = measure(|| {
-        for f in &frags {
-            r.on_fragment(f, SRC, None, t0);
+        for (f, src) in &frags {
+            r.on_fragment(f, *src, None, t0);
         }
     });
-    // One more new message now has to evict: time the scan for the oldest.
-    let extra = fragment(
-        FragmentHeader {
-            sender: SystemId(1),
-            index: 0,
-            count: 2,
-            message_id: u32::MAX,
-            total: 2,
-        },
-        1,
-    );
+    // Further new messages, each of which has to evict one.
     let started = Instant::now();
     let evicting = 100;
     for i in 0..evicting {
-        let mut d = extra.clone();
-        d[12..16].copy_from_slice(&(u32::MAX - i).to_le_bytes());
-        r.on_fragment(&d, SRC, None, t0 + Duration::from_millis(1));
+        let later = t0 + Duration::from_millis(1);
+        r.on_fragment(&tiny(u32::MAX - i), source(i), None, later);
     }
     let per_eviction = started.elapsed() / evicting;
     println!(
-        "{} pending messages, {} bytes held (limit {limit}), {kept} heap bytes ({}x the limit); \
-         a new message then takes {per_eviction:?} to evict the oldest",
+        "{} pending messages, {} bytes held (limit {limit}), {kept} heap bytes; a new message \
+         then takes {per_eviction:?}",
         r.pending(),
         r.held_bytes(),
-        kept / limit as isize
     );
     assert!(
         kept <= 4 * limit as isize,
         "{kept} heap bytes for a {limit}-byte limit"
+    );
+    assert!(
+        per_eviction < Duration::from_millis(1),
+        "{per_eviction:?} per new message"
     );
 }
