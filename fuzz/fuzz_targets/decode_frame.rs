@@ -14,7 +14,7 @@ const CRC: usize = 44;
 fuzz_target!(|data: &[u8]| {
     let peeked = wire::peek_frame_len(data);
     if let Ok(total) = peeked {
-        assert!(total >= HEADER_LEN && total <= HEADER_LEN + MAX_PAYLOAD);
+        assert!((HEADER_LEN..=HEADER_LEN + MAX_PAYLOAD).contains(&total));
     }
     match wire::decode(data) {
         Ok(frame) => {
