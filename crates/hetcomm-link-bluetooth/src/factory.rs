@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use hetcomm_config::{BluetoothSettings, TransportKind, TransportSettings};
-use hetcomm_link::registry::{OpenRequest, Opened, TransportFactory};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
 use crate::BluetoothLink;
 
@@ -17,14 +17,13 @@ impl TransportFactory for BluetoothFactory {
         TransportKind::Bluetooth
     }
 
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String> {
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let bt: &BluetoothSettings = match &request.transport.settings {
             TransportSettings::Bluetooth(bt) => bt,
-            other => return Err(format!("expected bluetooth settings, found {other:?}")),
+            other => return Err(format!("expected bluetooth settings, found {other:?}").into()),
         };
         let config = BluetoothLink::default_config();
-        let link = BluetoothLink::open(request.local, bt, request.sink, config)
-            .map_err(|e| e.to_string())?;
+        let link = BluetoothLink::open(request.local, bt, request.sink, config)?;
         let local_address = Some(format!("rfcomm://[{}]:{}", link.device(), link.channel()));
         Ok(Opened {
             link: Arc::new(link),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use hetcomm_core::SystemId;
 use hetcomm_link::registry::config::{IpSettings, TransportKind, TransportSettings};
-use hetcomm_link::registry::{OpenRequest, Opened, TransportFactory};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
 use crate::stream::StreamConfig;
 use crate::{TcpLink, UdpConfig, UdpLink};
@@ -29,7 +29,7 @@ impl TransportFactory for UdpFactory {
         TransportKind::Udp
     }
 
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String> {
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let ip = ip_settings(&request)?;
         let mut config = if all_loopback(&ip.endpoints) {
             // Loopback has a 64 KiB MTU: fewer, larger datagrams.
@@ -43,8 +43,7 @@ impl TransportFactory for UdpFactory {
         // The system's reactor reads the socket: a module waiting for a message reads it
         // itself (see `crates/hetcomm/src/reactor.rs`).
         config.driven = true;
-        let link = UdpLink::bind(request.local, &ip.endpoints, request.sink, config)
-            .map_err(|e| e.to_string())?;
+        let link = UdpLink::bind(request.local, &ip.endpoints, request.sink, config)?;
         let local_address = Some(format!("udp://{}", link.local_addr()));
         Ok(Opened {
             link: std::sync::Arc::new(link),
@@ -58,7 +57,7 @@ impl TransportFactory for TcpFactory {
         TransportKind::Tcp
     }
 
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String> {
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let ip = ip_settings(&request)?;
         // Read by the waiting module (or the system's background thread), as UDP is.
         let mut config = StreamConfig {
@@ -71,8 +70,7 @@ impl TransportFactory for TcpFactory {
         if let Some(max) = ip.max_connections {
             config.max_connections = max;
         }
-        let link = TcpLink::bind(request.local, &ip.endpoints, request.sink, config)
-            .map_err(|e| e.to_string())?;
+        let link = TcpLink::bind(request.local, &ip.endpoints, request.sink, config)?;
         let local_address = Some(format!("tcp://{}", link.local_addr()));
         Ok(Opened {
             link: std::sync::Arc::new(link),

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use hetcomm_config::{Ros1Settings, TransportKind, TransportSettings};
-use hetcomm_link::registry::{OpenRequest, Opened, TransportFactory};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
 use crate::{Ros1Config, Ros1Link};
 
@@ -17,10 +17,10 @@ impl TransportFactory for Ros1Factory {
         TransportKind::Ros1
     }
 
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String> {
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let ros: &Ros1Settings = match &request.transport.settings {
             TransportSettings::Ros1(ros) => ros,
-            other => return Err(format!("expected ros1 settings, found {other:?}")),
+            other => return Err(format!("expected ros1 settings, found {other:?}").into()),
         };
         let names = request
             .fleet
@@ -34,8 +34,7 @@ impl TransportFactory for Ros1Factory {
             ros,
             request.sink,
             Ros1Config::default(),
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
         let local_address = Some(format!(
             "ros1://{}{}",
             ros.master_uri.trim_start_matches("http://"),

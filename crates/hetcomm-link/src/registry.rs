@@ -72,10 +72,14 @@ pub trait TransportFactory: Send + Sync {
         None
     }
 
-    /// Opens `request.local`'s link of `request.transport`. The error is a sentence; the
-    /// caller adds which transport and system it was.
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String>;
+    /// Opens `request.local`'s link of `request.transport`. The error says what went wrong
+    /// (the caller adds which transport and system it was) and keeps its cause as its
+    /// `source()`: a link's own error converts with `?`, a sentence with `.into()`.
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure>;
 }
+
+/// Why a factory could not open a link: any error, its cause chain kept.
+pub type OpenFailure = Box<dyn std::error::Error + Send + Sync + 'static>;
 
 /// The transport kinds compiled into a program, by kind.
 #[derive(Clone, Default)]
@@ -133,7 +137,7 @@ impl Registry {
 
     /// Opens `request.transport`'s link through its kind's factory; None when the kind is not
     /// registered (not compiled in).
-    pub fn open(&self, request: OpenRequest<'_>) -> Option<Result<Opened, String>> {
+    pub fn open(&self, request: OpenRequest<'_>) -> Option<Result<Opened, OpenFailure>> {
         let factory = self.factory(request.transport.kind)?;
         Some(factory.open(request))
     }

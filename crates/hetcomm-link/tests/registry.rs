@@ -9,7 +9,7 @@ use hetcomm_config::{TransportKind, TransportSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::CollectSink;
 use hetcomm_link::inproc::InprocHub;
-use hetcomm_link::registry::{OpenRequest, Opened, Registry, TransportFactory};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, Registry, TransportFactory};
 
 /// The toy kind's settings.
 #[derive(Debug, PartialEq)]
@@ -66,7 +66,7 @@ impl TransportFactory for Loopback {
         Some(self)
     }
 
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, String> {
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let TransportSettings::Registered(settings) = &request.transport.settings else {
             return Err("not loopback settings".into());
         };

@@ -235,11 +235,7 @@ impl Comm {
             .map(|&t| fleet.transports[t].batch_linger_us)
             .collect();
         core.start(links, linger, env.sim.is_none())
-            .map_err(|e| OpenError::Transport {
-                transport: "(timer)".into(),
-                system: system.to_string(),
-                reason: e.to_string(),
-            })?;
+            .map_err(|e| OpenError::transport("(timer)", system, e))?;
         Ok(Comm {
             handle: Arc::new(SystemHandle {
                 core,

@@ -48,7 +48,27 @@ pub enum OpenError {
         system: String,
         /// What went wrong.
         reason: String,
+        /// The error underneath (a link's, the operating system's), when there is one.
+        #[source]
+        source: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
     },
+}
+
+impl OpenError {
+    /// Opening `transport` for `system` failed with `error`, kept as the source.
+    pub(crate) fn transport(
+        transport: &str,
+        system: &str,
+        error: impl Into<Box<dyn std::error::Error + Send + Sync + 'static>>,
+    ) -> OpenError {
+        let error = error.into();
+        OpenError::Transport {
+            transport: transport.to_string(),
+            system: system.to_string(),
+            reason: error.to_string(),
+            source: Some(error),
+        }
+    }
 }
 
 /// A send was refused before any transmission.

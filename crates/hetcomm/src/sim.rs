@@ -322,12 +322,8 @@ impl SimFleet {
                 (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
                     let mut settings = settings.clone();
                     settings.seed ^= options.seed.wrapping_mul(0x2545_F491_4F6C_DD1D);
-                    let model =
-                        LinkModel::from_settings(&settings).map_err(|e| OpenError::Transport {
-                            transport: t.name.clone(),
-                            system: "(simulation)".into(),
-                            reason: e.to_string(),
-                        })?;
+                    let model = LinkModel::from_settings(&settings)
+                        .map_err(|e| OpenError::transport(&t.name, "(simulation)", e))?;
                     Some(Mutex::new(model))
                 }
                 _ => None,

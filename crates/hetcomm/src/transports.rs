@@ -17,7 +17,7 @@ use hetcomm_core::SystemId;
 use hetcomm_link::emulation::EmulationLayer;
 use hetcomm_link::inproc::InprocHub;
 use hetcomm_link::layer::{LayerContext, LayerStack};
-use hetcomm_link::registry::{OpenRequest, Registry};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Registry};
 use hetcomm_link::{FrameSink, Link};
 
 use crate::comm::OpenEnv;
@@ -141,14 +141,11 @@ pub(crate) fn open_link(
     env: &OpenEnv,
 ) -> Result<OpenedLink, OpenError> {
     let t = &fleet.transports[index];
-    let failed = |reason: String| OpenError::Transport {
-        transport: t.name.clone(),
-        system: fleet
-            .system(local)
-            .map(|s| s.name.clone())
-            .unwrap_or_else(|| local.to_string()),
-        reason,
-    };
+    let system = fleet
+        .system(local)
+        .map(|s| s.name.clone())
+        .unwrap_or_else(|| local.to_string());
+    let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
     let stack = layers(t, env).map_err(&failed)?;
     let mut ctx = LayerContext::new(local);
     if env.sim.is_some() {
@@ -166,7 +163,7 @@ pub(crate) fn open_link(
     if !stack.is_empty() {
         opened.link = stack
             .wrap_link(&ctx, opened.link)
-            .map_err(|e| failed(e.to_string()))?;
+            .map_err(|e| failed(e.into()))?;
         // A message must pass the layers: no hand-over that skips the link.
         opened.direct = None;
     }
@@ -175,12 +172,11 @@ pub(crate) fn open_link(
 
 /// The layers over every link of transport `t`, from the router down: emulation for an
 /// `emulated` transport, none for the others.
-fn layers(t: &TransportDef, env: &OpenEnv) -> Result<LayerStack, String> {
+fn layers(t: &TransportDef, env: &OpenEnv) -> Result<LayerStack, OpenFailure> {
     let mut stack = LayerStack::new();
     if let (TransportKind::Emulated, TransportSettings::Emulated(settings)) = (&t.kind, &t.settings)
     {
-        let layer = EmulationLayer::from_settings(settings, env.positions.clone(), env.epoch)
-            .map_err(|e| e.to_string())?;
+        let layer = EmulationLayer::from_settings(settings, env.positions.clone(), env.epoch)?;
         stack.push(Arc::new(layer));
     }
     Ok(stack)
@@ -200,11 +196,7 @@ fn open_bare(
         .system(local)
         .map(|s| s.name.clone())
         .unwrap_or_else(|| local.to_string());
-    let failed = |reason: String| OpenError::Transport {
-        transport: t.name.clone(),
-        system: system.clone(),
-        reason,
-    };
+    let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
     match (&t.kind, &t.settings) {
         (TransportKind::Inproc, _) => Ok(OpenedLink {
             link: Arc::new(hubs.hub(&t.name).open(local, sink)),
@@ -220,7 +212,9 @@ fn open_bare(
                         .transports
                         .iter()
                         .position(|o| &o.name == over)
-                        .ok_or_else(|| failed(format!("wrapped transport `{over}` not found")))?;
+                        .ok_or_else(|| {
+                            failed(format!("wrapped transport `{over}` not found").into())
+                        })?;
                     let inner = open_link(fleet, over_index, local, sink, env)?;
                     let under = inner.local_address.as_deref().unwrap_or("in-process");
                     Ok(OpenedLink {
