@@ -3,6 +3,8 @@
 //! loop, unacknowledged fast path, in-process hand-over, simulator), with ids that match
 //! across the three, and nothing once its handle is dropped.
 
+mod common;
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -143,33 +145,9 @@ fn check_pair(
     }
 }
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
-
 /// A and B: UDP (`delivery`) between them.
 fn udp_fleet(delivery: &str) -> LocalFleet {
-    let (pa, pb) = (free_udp_port(), free_udp_port());
-    let text = format!(
-        r#"
-[systems]
-A = 0
-B = 1
-[modules]
-M = 0
-[transports.u]
-kind = "udp"
-delivery = "{delivery}"
-endpoints = {{ A = "127.0.0.1:{pa}", B = "127.0.0.1:{pb}" }}
-[table]
-columns = ["A", "B"]
-A = ["X", "u"]
-B = ["u", "X"]
-"#
-    );
+    let text = common::udp_pair_text("", "M = 0", &format!("delivery = \"{delivery}\""));
     LocalFleet::open(hetcomm::config::parse_str(&text, "observe.toml", None).unwrap()).unwrap()
 }
 

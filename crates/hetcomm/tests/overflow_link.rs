@@ -6,35 +6,16 @@ use std::time::{Duration, Instant};
 
 use hetcomm::{FailReason, LocalFleet, MessageType, Outcome};
 
-const TY: MessageType = MessageType(1);
+mod common;
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
+const TY: MessageType = MessageType(1);
 
 #[test]
 fn a_full_block_inbox_refuses_link_messages_at_once_and_outcomes_match_receipts() {
-    let (pa, pb) = (free_udp_port(), free_udp_port());
-    let text = format!(
-        r#"
-[inbox]
-block_timeout_ms = 5000
-[systems]
-A = 0
-B = 1
-[modules]
-M = {{ id = 0, inbox_capacity = 8, overflow = "block" }}
-[transports.u]
-kind = "udp"
-endpoints = {{ A = "127.0.0.1:{pa}", B = "127.0.0.1:{pb}" }}
-[table]
-columns = ["A", "B"]
-A = ["X", "u"]
-B = ["u", "X"]
-"#
+    let text = common::udp_pair_text(
+        "[inbox]\nblock_timeout_ms = 5000",
+        r#"M = { id = 0, inbox_capacity = 8, overflow = "block" }"#,
+        "",
     );
     let fleet =
         LocalFleet::open(hetcomm::config::parse_str(&text, "block.toml", None).unwrap()).unwrap();

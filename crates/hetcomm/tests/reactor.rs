@@ -8,14 +8,11 @@ use std::time::{Duration, Instant};
 
 use hetcomm::{LocalFleet, MessageType, Outcome};
 
+mod common;
+
 const TY: MessageType = MessageType(1);
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
+use common::free_udp_port;
 
 /// A, B and C: A ↔ B over UDP (`delivery`), C ↔ A over in-process, B ↔ C not at all.
 fn fleet(delivery: &str) -> LocalFleet {
