@@ -49,6 +49,17 @@ fn deliver(b: &mut Router<u32>, now: Time, tx: &Transmit) -> Transmit {
     b.poll_transmit(now).expect("an acknowledgement")
 }
 
+/// A frame `b` sends to A (unacknowledged or not, as its route says), as it leaves.
+fn frame_to_a(b: &mut Router<u32>, now: Time, payload: &[u8]) -> Transmit {
+    let to_a = Address {
+        system: A,
+        module: ModuleId(0),
+    };
+    let req = SendRequest::new(ModuleId(0), to_a, MessageType(1), payload);
+    b.send(now, req, 0).unwrap();
+    b.poll_transmit(now).unwrap()
+}
+
 fn outcome(a: &mut Router<u32>) -> Option<Outcome> {
     a.poll_event().map(|Event::Outcome { outcome, .. }| outcome)
 }
@@ -162,17 +173,7 @@ fn the_first_path_is_taken_again_when_it_comes_back() {
     // A frame heard from B on the wired link also says the path works.
     a.handle_link_event(t0, LinkEvent::PeerDown { link: 0, peer: B });
     let (_, mut b) = pair();
-    let to_a = Address {
-        system: A,
-        module: ModuleId(0),
-    };
-    b.send(
-        t0,
-        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"hi"),
-        0,
-    )
-    .unwrap();
-    let tx = b.poll_transmit(t0).unwrap();
+    let tx = frame_to_a(&mut b, t0, b"hi");
     a.handle_frame(t0, 0, &tx.frame);
     assert_eq!(a.route_link(B), Some(0));
 }
@@ -252,17 +253,7 @@ fn hold_and_retransmission_deadlines_share_one_timer_table() {
     b.handle_frame(t0, 0, &second.frame);
     assert!(b.poll_delivery().is_none(), "held for the gap");
     // B's own retransmission deadline (a send of its own) is later than the hold.
-    let to_a = Address {
-        system: A,
-        module: ModuleId(0),
-    };
-    b.send(
-        t0,
-        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"x"),
-        0,
-    )
-    .unwrap();
-    let tx = b.poll_transmit(t0).unwrap();
+    let tx = frame_to_a(&mut b, t0, b"x");
     b.transmit_result(t0, tx, Ok(()));
     let hold = t0 + Duration::from_millis(50);
     assert_eq!(b.poll_timeout(), Some(hold), "the earlier of the two");
@@ -285,17 +276,7 @@ fn the_link_s_view_of_the_sender_decides_which_path_is_heard_and_mismatches_are_
     let (mut a, mut b) = pair();
     let t0 = Time::from_micros(1_000);
     a.handle_link_event(t0, LinkEvent::PeerDown { link: 0, peer: B });
-    let to_a = Address {
-        system: A,
-        module: ModuleId(0),
-    };
-    b.send(
-        t0,
-        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"hi"),
-        0,
-    )
-    .unwrap();
-    let tx = b.poll_transmit(t0).unwrap();
+    let tx = frame_to_a(&mut b, t0, b"hi");
     // The wired link says the frame came from a system that is not B: B's wired path is not
     // proven by it, and the mismatch is counted (the frame is still handled).
     a.handle_frame_from(t0, 0, Some(SystemId(7)), &tx.frame);
@@ -303,13 +284,7 @@ fn the_link_s_view_of_the_sender_decides_which_path_is_heard_and_mismatches_are_
     assert_eq!(a.stats().peer_mismatch, 1);
     assert_eq!(a.stats().received, 1);
     // From B as the link saw it: the wired path is back.
-    b.send(
-        t0,
-        SendRequest::new(ModuleId(0), to_a, MessageType(1), b"again"),
-        0,
-    )
-    .unwrap();
-    let tx = b.poll_transmit(t0).unwrap();
+    let tx = frame_to_a(&mut b, t0, b"again");
     a.handle_frame_from(t0, 0, Some(B), &tx.frame);
     assert_eq!(a.route_link(B), Some(0));
     assert_eq!(a.stats().peer_mismatch, 1);

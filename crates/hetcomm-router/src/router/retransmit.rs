@@ -67,9 +67,10 @@ impl<T> Router<T> {
             return; // already ended (an ack overtook the result)
         };
         let rto = self.rto_for(id.to, tx.link, attempts);
-        // A failover just happened (this refusal took the path down): retry on the new path
-        // at once rather than after the link's back-off.
-        let moved = self.route(id.to).is_some_and(|r| r.link != tx.link);
+        // A refusal may just have taken the path down and moved the route: then the retry goes
+        // on the new path at once rather than after the link's back-off. (Looked up only on a
+        // refusal: a frame the link took needs nothing of the route.)
+        let moved = result.is_err() && self.route_link(id.to).is_some_and(|l| l != tx.link);
         let Some(p) = self.pending.get_mut(&id) else {
             return;
         };

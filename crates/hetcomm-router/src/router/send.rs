@@ -276,7 +276,7 @@ impl<T> Router<T> {
 
     /// The link a send to `to` would take.
     pub fn route_link(&self, to: SystemId) -> Option<usize> {
-        self.route(to).map(|r| r.link)
+        self.routes.get(&to).map(|r| r.paths[r.active].path.link)
     }
 
     /// The lane for sends that the driver hands straight to `to` in the same process (an
