@@ -139,6 +139,18 @@ impl FrameBuf {
         self.start += n.min(self.buf.len() - self.start);
     }
 
+    /// The bytes (after any stripped prefix), to change in place: a layer that decrypts a
+    /// frame where it lies.
+    pub fn as_mut_slice(&mut self) -> &mut [u8] {
+        &mut self.buf[self.start..]
+    }
+
+    /// Keeps only the first `len` bytes of what the buffer reads as (all of them if it has
+    /// fewer): a layer's suffix behind the frame it hands on (an authentication tag).
+    pub fn truncate(&mut self, len: usize) {
+        self.buf.truncate(self.start + len);
+    }
+
     /// How many bytes in front of the frame were stripped ([`FrameBuf::strip_prefix`]).
     pub fn stripped(&self) -> usize {
         self.start

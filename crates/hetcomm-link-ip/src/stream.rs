@@ -1042,6 +1042,7 @@ impl<T: StreamTransport> Link for StreamLink<T> {
             connects: s.connects,
             buffered_bytes: self.pending_bytes() as u64,
             kernel_drops: 0,
+            security: Default::default(),
         }
     }
 }

@@ -1291,6 +1291,7 @@ impl Link for UdpLink {
             connects: 0,
             buffered_bytes: s.buffered_bytes,
             kernel_drops: s.kernel_drops,
+            security: Default::default(),
         }
     }
 

@@ -1269,6 +1269,7 @@ impl Link for Ros1Link {
             connects: c.connects.load(Ordering::Relaxed),
             buffered_bytes: c.queued_bytes.load(Ordering::Relaxed),
             kernel_drops: 0,
+            security: Default::default(),
         }
     }
 }

@@ -228,6 +228,47 @@ pub struct LinkStats {
     /// socket's receive buffer was full), where the OS reports it (UDP on Linux); 0 elsewhere.
     /// Counted in datagrams, not frames, and not part of `frames_dropped`.
     pub kernel_drops: u64,
+    /// What the security layer over this link did (all zero on an unsecured link).
+    pub security: SecurityStats,
+}
+
+/// Counters of the security layer over a link (`hetcomm-security`): handshakes, and every
+/// frame it refused, by reason. A refused frame never reaches the router, so these are the
+/// only place it is counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SecurityStats {
+    /// Whether a security layer is over this link at all.
+    pub enabled: bool,
+    /// Sessions established with peers (handshakes completed, as initiator or responder).
+    pub handshakes: u64,
+    /// Frames that failed authentication: wrong key, tampered header or payload, a forged
+    /// handshake, or a truncated secured frame.
+    pub rejected_auth: u64,
+    /// Authentic frames seen before (replays) or too old for the replay window, and
+    /// handshake initiations no newer than the last one accepted from that system.
+    pub rejected_replay: u64,
+    /// Authentic frames the communication table does not allow on this transport (an `X`
+    /// pair or a pair on another transport), or whose inner header claims another origin or
+    /// destination than the authenticated ones.
+    pub rejected_table: u64,
+    /// Frames or handshakes from a system that is not in the fleet or has no public key.
+    pub rejected_unknown_sender: u64,
+    /// Frames for a session this system does not have (the peer restarted, or an old
+    /// capture replayed after this system restarted): dropped, and a new handshake started.
+    pub rejected_no_session: u64,
+    /// Frames that waited for a handshake that did not complete in time, and were dropped.
+    pub handshake_timeouts: u64,
+}
+
+impl SecurityStats {
+    /// Every frame the layer refused, whatever the reason.
+    pub fn rejected(&self) -> u64 {
+        self.rejected_auth
+            + self.rejected_replay
+            + self.rejected_table
+            + self.rejected_unknown_sender
+            + self.rejected_no_session
+    }
 }
 
 /// What [`forward_link!`] names, reachable from any crate that uses it.

@@ -1,0 +1,190 @@
+//! The secured frame on the wire (specified byte by byte in `docs/wire-format.md`, "Secured
+//! frames"). Every frame a secured link carries is one of three messages, each starting with
+//! the same 8 clear bytes:
+//!
+//! ```text
+//! 0  2  magic "HS"
+//! 2  1  version (1)
+//! 3  1  type: 1 handshake initiation, 2 handshake response, 3 data
+//! 4  2  sender system id (u16, little-endian)
+//! 6  2  receiver system id (u16, little-endian)
+//! ```
+//!
+//! Data (type 3): `8 u32` the receiver's session index, `12 u64` the counter (the AEAD
+//! nonce), `20 …` the inner frame encrypted with AES-256-GCM, then the 16-byte tag. The 20
+//! clear bytes are the associated data, so none of them can be changed either.
+//!
+//! Initiation (type 1): `8 u32` the initiator's session index, `12 …` Noise KK message 1.
+//! Response (type 2): `8 u32` the responder's session index, `12 u32` the initiator's
+//! session index, `16 …` Noise KK message 2.
+
+use hetcomm_core::SystemId;
+use ring::aead::{Aad, LessSafeKey, Nonce, Tag, UnboundKey, AES_256_GCM};
+
+/// The first two bytes of every secured frame.
+pub const MAGIC: [u8; 2] = *b"HS";
+/// The secured frame format's version.
+pub const VERSION: u8 = 1;
+/// Clear bytes in front of a data frame's ciphertext.
+pub const DATA_HEADER_LEN: usize = 20;
+/// Bytes of the authentication tag behind the ciphertext.
+pub const TAG_LEN: usize = 16;
+/// What securing adds to a frame.
+pub const OVERHEAD: usize = DATA_HEADER_LEN + TAG_LEN;
+/// The Noise protocol of the handshake.
+pub const NOISE_PARAMS: &str = "Noise_KK_25519_AESGCM_SHA256";
+/// Clear bytes in front of the Noise message in an initiation.
+pub const INIT_HEADER_LEN: usize = 12;
+/// Clear bytes in front of the Noise message in a response.
+pub const RESPONSE_HEADER_LEN: usize = 16;
+
+/// Which of the three secured messages a frame is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// Noise KK message 1.
+    Init = 1,
+    /// Noise KK message 2.
+    Response = 2,
+    /// An encrypted inner frame.
+    Data = 3,
+}
+
+/// The clear part every secured frame starts with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Prefix {
+    /// Which message.
+    pub kind: Kind,
+    /// Who sent it (claimed; proven only by the message's authentication).
+    pub sender: SystemId,
+    /// Who it is for.
+    pub receiver: SystemId,
+}
+
+/// Reads the clear prefix, or None if `frame` is not a secured frame of this version.
+pub fn prefix(frame: &[u8]) -> Option<Prefix> {
+    if frame.len() < 8 || frame[0..2] != MAGIC || frame[2] != VERSION {
+        return None;
+    }
+    let kind = match frame[3] {
+        1 => Kind::Init,
+        2 => Kind::Response,
+        3 => Kind::Data,
+        _ => return None,
+    };
+    Some(Prefix {
+        kind,
+        sender: SystemId(u16::from_le_bytes([frame[4], frame[5]])),
+        receiver: SystemId(u16::from_le_bytes([frame[6], frame[7]])),
+    })
+}
+
+/// Writes the 8-byte prefix.
+pub fn write_prefix(out: &mut Vec<u8>, kind: Kind, sender: SystemId, receiver: SystemId) {
+    out.extend_from_slice(&MAGIC);
+    out.push(VERSION);
+    out.push(kind as u8);
+    out.extend_from_slice(&sender.0.to_le_bytes());
+    out.extend_from_slice(&receiver.0.to_le_bytes());
+}
+
+/// Reads a little-endian u32 at `at` (the caller checked the length).
+pub fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+
+/// One direction's AES-256-GCM key.
+pub struct DirectionKey(LessSafeKey);
+
+impl DirectionKey {
+    /// The key from 32 bytes (a half of the Noise handshake's split).
+    pub fn new(bytes: &[u8; 32]) -> DirectionKey {
+        DirectionKey(LessSafeKey::new(
+            UnboundKey::new(&AES_256_GCM, bytes).expect("AES-256 takes 32-byte keys"),
+        ))
+    }
+
+    fn nonce(counter: u64) -> Nonce {
+        let mut n = [0; 12];
+        n[4..].copy_from_slice(&counter.to_le_bytes());
+        Nonce::assume_unique_for_key(n)
+    }
+
+    /// Appends the data frame carrying `head` + `body` to `out` (which it clears first).
+    pub fn seal(
+        &self,
+        out: &mut Vec<u8>,
+        (sender, receiver): (SystemId, SystemId),
+        session: u32,
+        counter: u64,
+        head: &[u8],
+        body: &[u8],
+    ) {
+        out.clear();
+        out.reserve(OVERHEAD + head.len() + body.len());
+        write_prefix(out, Kind::Data, sender, receiver);
+        out.extend_from_slice(&session.to_le_bytes());
+        out.extend_from_slice(&counter.to_le_bytes());
+        out.extend_from_slice(head);
+        out.extend_from_slice(body);
+        let (clear, plain) = out.split_at_mut(DATA_HEADER_LEN);
+        let tag = self
+            .0
+            .seal_in_place_separate_tag(Self::nonce(counter), Aad::from(&*clear), plain)
+            .expect("AES-GCM seals any frame under 64 GiB");
+        out.extend_from_slice(tag.as_ref());
+    }
+
+    /// Decrypts a data frame in place: on success the inner frame is
+    /// `frame[DATA_HEADER_LEN..len - TAG_LEN]`. False if it does not authenticate.
+    pub fn open(&self, frame: &mut [u8]) -> bool {
+        if frame.len() < OVERHEAD {
+            return false;
+        }
+        let counter = u64::from_le_bytes(frame[12..20].try_into().expect("8 bytes"));
+        let (clear, rest) = frame.split_at_mut(DATA_HEADER_LEN);
+        let (cipher, tag) = rest.split_at_mut(rest.len() - TAG_LEN);
+        let Ok(tag) = <[u8; TAG_LEN]>::try_from(&*tag) else {
+            return false;
+        };
+        self.0
+            .open_in_place_separate_tag(
+                Self::nonce(counter),
+                Aad::from(&*clear),
+                Tag::from(tag),
+                cipher,
+                0..,
+            )
+            .is_ok()
+    }
+}
+
+/// The counter of a data frame (the caller checked the length).
+pub fn data_counter(frame: &[u8]) -> u64 {
+    u64::from_le_bytes(frame[12..20].try_into().expect("8 bytes"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sealed_frames_open_and_any_changed_byte_is_refused() {
+        let key = DirectionKey::new(&[7; 32]);
+        let mut out = Vec::new();
+        key.seal(&mut out, (SystemId(1), SystemId(2)), 9, 3, b"head", b"body");
+        assert_eq!(out.len(), OVERHEAD + 8);
+        let p = prefix(&out).unwrap();
+        assert_eq!((p.kind, p.sender, p.receiver), (Kind::Data, SystemId(1), SystemId(2)));
+        assert_eq!(data_counter(&out), 3);
+        let mut good = out.clone();
+        assert!(key.open(&mut good));
+        assert_eq!(&good[DATA_HEADER_LEN..good.len() - TAG_LEN], b"headbody");
+        for i in 0..out.len() {
+            let mut bad = out.clone();
+            bad[i] ^= 1;
+            assert!(!key.open(&mut bad), "byte {i} changed and still opened");
+        }
+        assert!(!DirectionKey::new(&[8; 32]).open(&mut out.clone()));
+        assert!(!key.open(&mut out[..OVERHEAD - 1].to_vec()));
+    }
+}
