@@ -588,6 +588,8 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             id: SystemId(s.id),
             name: s.name.clone(),
             modules: mods,
+            public_key: None,
+            private_key_file: None,
         });
     }
 
@@ -617,6 +619,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             max_in_flight_bytes: t.max_in_flight_bytes,
             ordered: t.ordered,
             batch_linger_us: t.batch_linger_us,
+            security: Default::default(),
             settings,
         });
     }
@@ -630,6 +633,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         modules,
         transports: defs,
         table: pairs.into_iter().collect(),
+        keys_dir: None,
     })
 }
 

@@ -22,6 +22,9 @@ pub struct Fleet {
     pub transports: Vec<TransportDef>,
     /// (source, destination) → index into `transports`; a missing pair is `X` (no traffic).
     pub table: BTreeMap<(SystemId, SystemId), usize>,
+    /// `[security] keys = "DIR"`: the directory `hetcomm keygen` wrote, resolved against the
+    /// fleet file's directory (systems' keys were read from it).
+    pub keys_dir: Option<PathBuf>,
 }
 
 /// One system (robot or virtual environment).
@@ -34,6 +37,14 @@ pub struct SystemDef {
     /// The modules this system hosts, sorted by id; None means every module of the fleet
     /// (the fleet file's `modules = [...]` long form is the only way to narrow it).
     pub modules: Option<Vec<ModuleId>>,
+    /// The system's public key (X25519, 32 bytes): from `public_key` (base64), from
+    /// `public_key_file`, or from `<keys dir>/<name>.pub`. None: the system has no key, and
+    /// secured transports cannot authenticate it.
+    pub public_key: Option<[u8; 32]>,
+    /// Where the process that runs this system finds its private key: `private_key_file`, or
+    /// `<keys dir>/<name>.key` when that file exists. Read (and its permissions checked) when
+    /// the system is opened, not at load time: other machines' private keys are not here.
+    pub private_key_file: Option<PathBuf>,
 }
 
 /// One module kind; the same id on every system.
@@ -204,8 +215,23 @@ pub struct TransportDef {
     /// How long a frame may wait to share a write or datagram with the frames after it, in
     /// microseconds; 0 sends every frame at once. Only links that batch use it.
     pub batch_linger_us: u32,
+    /// Whether frames on this transport are authenticated and encrypted (the default for
+    /// every transport that leaves the process) or, by `security = "none"`, not.
+    pub security: SecurityMode,
     /// Kind-specific settings.
     pub settings: TransportSettings,
+}
+
+/// How a transport protects its frames (`security = ...` in its fleet-file section).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SecurityMode {
+    /// Authenticated and encrypted with the systems' keys (`security = "keys"`, the
+    /// default). A transport that leaves the process refuses to open without keys.
+    #[default]
+    Keys,
+    /// No authentication, no encryption (`security = "none"`): anyone who can reach the
+    /// transport can pose as any system. Only by explicit choice.
+    None,
 }
 
 /// The default [`TransportDef::batch_linger_us`]: long enough to gather a burst, short
