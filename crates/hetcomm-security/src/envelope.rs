@@ -174,7 +174,10 @@ mod tests {
         key.seal(&mut out, (SystemId(1), SystemId(2)), 9, 3, b"head", b"body");
         assert_eq!(out.len(), OVERHEAD + 8);
         let p = prefix(&out).unwrap();
-        assert_eq!((p.kind, p.sender, p.receiver), (Kind::Data, SystemId(1), SystemId(2)));
+        assert_eq!(
+            (p.kind, p.sender, p.receiver),
+            (Kind::Data, SystemId(1), SystemId(2))
+        );
         assert_eq!(data_counter(&out), 3);
         let mut good = out.clone();
         assert!(key.open(&mut good));

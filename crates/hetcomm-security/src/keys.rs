@@ -219,8 +219,17 @@ fn decode_key(text: &str, what: &str) -> Result<[u8; KEY_LEN], KeyError> {
         .collect();
     let line = match lines.as_slice() {
         [one] => *one,
-        [] => return Err(malformed("no key found (expected one line of base64, as `hetcomm keygen` writes)".into())),
-        _ => return Err(malformed(format!("{} lines of text where one key was expected", lines.len()))),
+        [] => {
+            return Err(malformed(
+                "no key found (expected one line of base64, as `hetcomm keygen` writes)".into(),
+            ))
+        }
+        _ => {
+            return Err(malformed(format!(
+                "{} lines of text where one key was expected",
+                lines.len()
+            )))
+        }
     };
     let bytes = STANDARD.decode(line).map_err(|e| {
         malformed(format!(
@@ -277,17 +286,26 @@ mod tests {
         assert_eq!(mode, 0o600);
         std::fs::set_permissions(&private, std::fs::Permissions::from_mode(0o644)).unwrap();
         let err = PrivateKey::load(&private).unwrap_err().to_string();
-        assert!(err.contains("readable by other users") && err.contains("chmod 600"), "{err}");
+        assert!(
+            err.contains("readable by other users") && err.contains("chmod 600"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn malformed_keys_say_what_is_wrong() {
-        let e = PublicKey::parse("abc", "keys/A.pub").unwrap_err().to_string();
+        let e = PublicKey::parse("abc", "keys/A.pub")
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("keys/A.pub: not a key"), "{e}");
-        let e = PublicKey::parse(&STANDARD.encode([1u8; 16]), "k").unwrap_err().to_string();
+        let e = PublicKey::parse(&STANDARD.encode([1u8; 16]), "k")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("this one has 16"), "{e}");
-        let e = PublicKey::parse("# only a comment\n", "k").unwrap_err().to_string();
+        let e = PublicKey::parse("# only a comment\n", "k")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("no key found"), "{e}");
     }
 

@@ -226,7 +226,12 @@ impl Secured {
     }
 
     /// Starts a handshake with `peer` (under its lock): the initiation to send.
-    fn start_handshake(&self, peer: SystemId, slot: &PeerSlot, st: &mut PeerState) -> Option<Vec<u8>> {
+    fn start_handshake(
+        &self,
+        peer: SystemId,
+        slot: &PeerSlot,
+        st: &mut PeerState,
+    ) -> Option<Vec<u8>> {
         let index = loop {
             let i = rand::random::<u32>();
             if i != 0 && st.session(i).is_none() {
@@ -329,7 +334,10 @@ impl Secured {
             if st.queue.is_empty() {
                 continue;
             }
-            if st.waiting_since.is_some_and(|t| t.elapsed() >= HANDSHAKE_GIVE_UP) {
+            if st
+                .waiting_since
+                .is_some_and(|t| t.elapsed() >= HANDSHAKE_GIVE_UP)
+            {
                 let n = st.queue.len() as u64;
                 st.queue.clear();
                 st.queued_bytes = 0;
@@ -338,7 +346,11 @@ impl Secured {
                 self.counters.timeouts.fetch_add(n, Ordering::Relaxed);
                 continue;
             }
-            if st.pending.as_ref().map_or(true, |(_, at)| at.elapsed() >= HANDSHAKE_RETRY) {
+            if st
+                .pending
+                .as_ref()
+                .map_or(true, |(_, at)| at.elapsed() >= HANDSHAKE_RETRY)
+            {
                 if let Some(init) = self.start_handshake(peer, slot, &mut st) {
                     drop(st);
                     let _ = below.send(peer, &init);
@@ -401,7 +413,9 @@ impl Secured {
                         // The peer has a session we do not (it or we restarted): start a new
                         // one, at most once a second, since anyone can forge this.
                         let due = st.pending.is_none()
-                            && st.last_trigger.map_or(true, |t| t.elapsed() >= TRIGGER_INTERVAL);
+                            && st
+                                .last_trigger
+                                .map_or(true, |t| t.elapsed() >= TRIGGER_INTERVAL);
                         if due {
                             st.last_trigger = Some(Instant::now());
                             let init = self.start_handshake(sender, slot, &mut st);
@@ -733,10 +747,14 @@ impl LinkLayer for SecurityLayer {
         _ctx: &LayerContext,
         link: Arc<dyn Link>,
     ) -> Result<Arc<dyn Link>, LayerError> {
-        let secured = self.secured.get().cloned().ok_or_else(|| LayerError::Wrap {
-            layer: "security".into(),
-            source: "the security layer wraps a link's sink before the link".into(),
-        })?;
+        let secured = self
+            .secured
+            .get()
+            .cloned()
+            .ok_or_else(|| LayerError::Wrap {
+                layer: "security".into(),
+                source: "the security layer wraps a link's sink before the link".into(),
+            })?;
         let _ = secured.below.set(Arc::downgrade(&link));
         if matches!(secured.handshakes, Handshakes::OverTheLink) {
             let weak = Arc::downgrade(&secured);

@@ -127,7 +127,9 @@ fn builder(entropy: Entropy) -> snow::Builder<'static> {
     let params = NOISE_PARAMS.parse().expect("a valid Noise protocol name");
     match entropy {
         Entropy::Os => snow::Builder::new(params),
-        Entropy::Seeded(seed) => snow::Builder::with_resolver(params, Box::new(SeededResolver(seed))),
+        Entropy::Seeded(seed) => {
+            snow::Builder::with_resolver(params, Box::new(SeededResolver(seed)))
+        }
     }
 }
 
@@ -281,7 +283,10 @@ mod tests {
         assert_eq!(answer.timestamp, 5);
         let sa = pending.complete(&answer.response).unwrap();
         let sb = answer.session;
-        assert_eq!((sa.my_index, sa.peer_index, sb.my_index, sb.peer_index), (11, 22, 22, 11));
+        assert_eq!(
+            (sa.my_index, sa.peer_index, sb.my_index, sb.peer_index),
+            (11, 22, 22, 11)
+        );
         let mut f = Vec::new();
         sa.seal(&mut f, ia, ib, b"hello", b"");
         assert!(sb.open(&mut f));

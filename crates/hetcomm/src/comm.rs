@@ -16,6 +16,7 @@ use crate::inbox::InboxStats;
 use crate::module::Module;
 use crate::observe::{Observer, ObserverHandle};
 use crate::runtime::{intern, Clock, Directory, SystemCore, WallClock};
+use crate::security::{KeySource, OpenOptions};
 use crate::sim::SimNet;
 use crate::transports::{open_link, Hubs};
 
@@ -34,6 +35,8 @@ pub(crate) struct OpenEnv {
     pub epoch: std::time::Instant,
     /// Retransmission timing override.
     pub timing: Option<hetcomm_router::Timing>,
+    /// Where secured transports get their keys.
+    pub keys: KeySource,
 }
 
 impl OpenEnv {
@@ -46,6 +49,7 @@ impl OpenEnv {
             positions: Default::default(),
             epoch: std::time::Instant::now(),
             timing: None,
+            keys: KeySource::Fleet { private_key: None },
         }
     }
 }
@@ -116,17 +120,26 @@ pub struct SystemStats {
 impl Comm {
     /// Loads a fleet file and opens one system of it.
     pub fn open(path: impl AsRef<Path>, system: &str) -> Result<Comm, OpenError> {
+        Self::open_with(path, system, OpenOptions::new())
+    }
+
+    /// [`Comm::open`] with options (this system's private key, for a secured fleet).
+    pub fn open_with(
+        path: impl AsRef<Path>,
+        system: &str,
+        options: OpenOptions,
+    ) -> Result<Comm, OpenError> {
         let path = path.as_ref();
         let fleet = crate::transports::load_fleet(path)?;
         let key = std::fs::canonicalize(path)
             .unwrap_or_else(|_| path.to_path_buf())
             .display()
             .to_string();
-        Self::open_fleet_with(
-            Arc::new(fleet),
-            system,
-            &OpenEnv::real(Hubs::for_fleet_key(&key)),
-        )
+        let mut env = OpenEnv::real(Hubs::for_fleet_key(&key));
+        env.keys = KeySource::Fleet {
+            private_key: options.private_key,
+        };
+        Self::open_fleet_with(Arc::new(fleet), system, &env)
     }
 
     /// Opens one system of an already loaded fleet. In-process transports of systems opened
@@ -459,9 +472,12 @@ pub struct LocalFleet {
 }
 
 impl LocalFleet {
-    /// Opens every system of `fleet`.
+    /// Opens every system of `fleet`. Secured transports use the fleet file's keys, or, when
+    /// it names none, keys generated for this run (every system is in this process).
     pub fn open(fleet: Fleet) -> Result<LocalFleet, OpenError> {
-        Self::open_in(Arc::new(fleet), OpenEnv::real(Hubs::default()))
+        let mut env = OpenEnv::real(Hubs::default());
+        env.keys = KeySource::for_local_fleet(&fleet);
+        Self::open_in(Arc::new(fleet), env)
     }
 
     /// Opens only the named systems of `fleet` in this process; the others run elsewhere

@@ -50,6 +50,7 @@ pub mod observe;
 mod reactor;
 mod received;
 mod runtime;
+pub mod security;
 pub mod sim;
 mod ticket;
 mod transports;
@@ -61,6 +62,7 @@ pub use module::{Module, RawSender, SendOptions, Sender};
 pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
 pub use runtime::{Clock, WallClock};
+pub use security::OpenOptions;
 pub use ticket::{BroadcastTicket, Ticket};
 pub use transports::{load_fleet, parse_fleet, registry};
 
@@ -69,7 +71,7 @@ pub use hetcomm_core::{
     Time, TypeRegistryError,
 };
 pub use hetcomm_derive::Message;
-pub use hetcomm_link::LinkStats;
+pub use hetcomm_link::{LinkStats, SecurityStats};
 pub use hetcomm_router::{FailReason, Outcome, RouterStats, SendId};
 
 /// The fleet file: loading, validation and the validated model.

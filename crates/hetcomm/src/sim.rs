@@ -350,6 +350,7 @@ impl SimFleet {
             positions,
             epoch: std::time::Instant::now(),
             timing: options.timing,
+            keys: crate::security::KeySource::for_simulation(&fleet, options.seed),
         };
         let fleet = LocalFleet::open_in(Arc::new(fleet), env)?;
         let cores = fleet

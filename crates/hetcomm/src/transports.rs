@@ -146,7 +146,7 @@ pub(crate) fn open_link(
         .map(|s| s.name.clone())
         .unwrap_or_else(|| local.to_string());
     let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
-    let stack = layers(t, env).map_err(&failed)?;
+    let stack = layers(fleet, index, local, env).map_err(&failed)?;
     let mut ctx = LayerContext::new(local);
     if env.sim.is_some() {
         ctx = ctx.in_virtual_time();
@@ -170,14 +170,25 @@ pub(crate) fn open_link(
     Ok(opened)
 }
 
-/// The layers over every link of transport `t`, from the router down: emulation for an
-/// `emulated` transport, none for the others.
-fn layers(t: &TransportDef, env: &OpenEnv) -> Result<LayerStack, OpenFailure> {
+/// The layers over system `local`'s link of transport `index`, from the router down:
+/// emulation for an `emulated` transport, then security for a transport that leaves the
+/// process (nearest the link, so that what the emulation delays or drops is a sealed frame's
+/// worth of traffic, and nothing reaches the link unsealed).
+fn layers(
+    fleet: &Fleet,
+    index: usize,
+    local: SystemId,
+    env: &OpenEnv,
+) -> Result<LayerStack, OpenFailure> {
+    let t = &fleet.transports[index];
     let mut stack = LayerStack::new();
     if let (TransportKind::Emulated, TransportSettings::Emulated(settings)) = (&t.kind, &t.settings)
     {
         let layer = EmulationLayer::from_settings(settings, env.positions.clone(), env.epoch)?;
         stack.push(Arc::new(layer));
+    }
+    if crate::security::secured(fleet, index, env.sim.is_some()) {
+        stack.push(crate::security::layer(fleet, index, local, &env.keys)?);
     }
     Ok(stack)
 }

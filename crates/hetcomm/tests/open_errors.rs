@@ -23,7 +23,9 @@ A = ["X", "lan"]
 B = ["lan", "X"]
 "#
     );
-    let fleet = hetcomm::config::parse_str(&text, "in-use.toml", None).unwrap();
+    let mut fleet = hetcomm::config::parse_str(&text, "in-use.toml", None).unwrap();
+    // Unsecured: the point is the socket's error, not the missing keys.
+    fleet.transports[0].security = hetcomm::config::SecurityMode::None;
     let Err(err) = hetcomm::Comm::open_fleet(&fleet, "A") else {
         panic!("the port is taken: opening must fail");
     };

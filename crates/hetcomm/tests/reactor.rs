@@ -185,7 +185,10 @@ fn an_unacknowledged_udp_stream_ends_sent_at_once_and_counts_exactly() {
     let sb = f.system("B").unwrap().stats();
     assert_eq!(sb.router.received, N);
     let (_, udp) = sb.links.iter().find(|(n, _)| n == "u").unwrap();
-    assert_eq!(udp.frames_received, N);
+    // The link also carried the security handshake (this fleet's keys are made for the run).
+    assert!(udp.frames_received > N, "{udp:?}");
+    assert_eq!(udp.security.rejected(), 0, "{udp:?}");
+    assert!(udp.security.handshakes >= 1, "{udp:?}");
 }
 
 /// Waiting modules that spin (`set_wait_spin`) keep reading their UDP socket while they
@@ -244,7 +247,9 @@ A = ["X", "u"]
 B = ["u", "X"]
 "#
     );
-    let fleet = hetcomm::config::parse_str(&text, "window.toml", None).unwrap();
+    let mut fleet = hetcomm::config::parse_str(&text, "window.toml", None).unwrap();
+    // The silent peer is a bare socket: it cannot answer a security handshake.
+    fleet.transports[0].security = hetcomm::config::SecurityMode::None;
     let a = hetcomm::Comm::open_fleet(&fleet, "A").unwrap();
     let m = a.module("M").unwrap();
     let mut tickets = Vec::new();
@@ -280,18 +285,26 @@ fn request_and_answer_hold_nothing_while_a_stream_batches() {
         // Back to back, well within the linger (50 µs) of each other: each request and each
         // answer follows a wait, so it goes at once; nothing is held, and the batching timer
         // is never armed.
+        // One exchange first: the security handshake (keys made for this run) is done before
+        // anything is counted.
+        let b = ping_pong(&a, b, 1, delivery);
+        let (a0, b0) = (sys_a.stats(), sys_b.stats());
         let b = ping_pong(&a, b, 300, delivery);
         let (sa, sb) = (sys_a.stats(), sys_b.stats());
+        let held =
+            |s: &hetcomm::SystemStats, s0: &hetcomm::SystemStats| s.held_frames - s0.held_frames;
+        let retx = |s: &hetcomm::SystemStats, s0: &hetcomm::SystemStats| {
+            s.router.retransmissions - s0.router.retransmissions
+        };
         // A retransmission is traffic too: the send right after it may be held (at most one
         // per retransmission). Unacknowledged sends are never retransmitted.
         assert!(
-            sa.held_frames <= sa.router.retransmissions
-                && sb.held_frames <= sb.router.retransmissions,
+            held(&sa, &a0) <= retx(&sa, &a0) && held(&sb, &b0) <= retx(&sb, &b0),
             "{delivery}: held A {} (retransmitted {}), B {} (retransmitted {})",
-            sa.held_frames,
-            sa.router.retransmissions,
-            sb.held_frames,
-            sb.router.retransmissions
+            held(&sa, &a0),
+            retx(&sa, &a0),
+            held(&sb, &b0),
+            retx(&sb, &b0)
         );
         // A stream sent without waiting still batches.
         const STREAM: u32 = 200;
