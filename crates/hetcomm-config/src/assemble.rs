@@ -634,6 +634,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         transports: defs,
         table: pairs.into_iter().collect(),
         keys_dir: None,
+        secure_in_process: false,
     })
 }
 

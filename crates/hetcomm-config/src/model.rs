@@ -25,6 +25,10 @@ pub struct Fleet {
     /// `[security] keys = "DIR"`: the directory `hetcomm keygen` wrote, resolved against the
     /// fleet file's directory (systems' keys were read from it).
     pub keys_dir: Option<PathBuf>,
+    /// `[security] in_process = true`: secure the links that stay inside a process too
+    /// (in-process and emulated transports), as a test of the secured path; network
+    /// transports are secured whatever this says, unless they say `security = "none"`.
+    pub secure_in_process: bool,
 }
 
 /// One system (robot or virtual environment).

@@ -467,3 +467,49 @@ fn a_small_budget_under_loss_reports_unconfirmed_not_failed() {
         "{ctx}: the tables show the column:\n{text}"
     );
 }
+
+/// The experiment secured (`[security] in_process = true`: every simulated link sealed, keys
+/// from the seed, sessions made in memory) gives exactly the tables (19 and 20: attempts,
+/// successes, receivals, unconfirmed, failed, per system and transport) of the unsecured run
+/// with the same seed: security adds no frame to the simulated network and draws nothing from
+/// its random streams. Delays are not identical, and should not be: a sealed frame is 36
+/// bytes longer, and links with a bandwidth (the Bluetooth profile) take longer to send it.
+/// (That the links really are sealed in a simulation is checked in `hetcomm`'s
+/// `tests/sim.rs`.)
+#[test]
+fn a_secured_run_gives_the_same_tables_as_an_unsecured_one() {
+    let seed = seed(11);
+    let config = ReliabilityConfig {
+        seed,
+        trials: 3,
+        ..ReliabilityConfig::default()
+    };
+    let fleet = default_fleet().expect("the default fleet loads");
+    let mut secured = fleet.clone();
+    secured.secure_in_process = true;
+    let plain = reliability::run(&fleet, &config).expect("runs");
+    let sealed = reliability::run(&secured, &config).expect("runs secured");
+    assert_eq!(
+        report::tables_csv(&plain),
+        report::tables_csv(&sealed),
+        "seed {seed} (rerun with HETCOMM_SEED={seed}): secured and unsecured tables differ"
+    );
+    for (p, s) in plain.modes.iter().zip(&sealed.modes) {
+        assert_eq!(
+            (
+                p.received,
+                p.transmissions,
+                &p.network_drops,
+                &p.failure_reasons
+            ),
+            (
+                s.received,
+                s.transmissions,
+                &s.network_drops,
+                &s.failure_reasons
+            ),
+            "seed {seed}: mode {}",
+            p.mode.name()
+        );
+    }
+}

@@ -67,6 +67,14 @@ impl KeySource {
 /// opens the emulated transport itself, so there it takes the secured-ness of what it wraps.
 pub(crate) fn secured(fleet: &Fleet, index: usize, simulated: bool) -> bool {
     let t = &fleet.transports[index];
+    if t.security == SecurityMode::None {
+        return false;
+    }
+    if fleet.secure_in_process {
+        // Every link, in-process ones included; an emulated transport over another is
+        // secured by that one's layer in real time (see below).
+        return !matches!(&t.settings, TransportSettings::Emulated(s) if s.over.is_some() && !simulated);
+    }
     match (&t.kind, &t.settings) {
         (TransportKind::Inproc, _) => false,
         (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {

@@ -65,8 +65,23 @@ struct Run {
 
 /// Every system sends `n` pings to random others; returns what happened.
 fn run(seed: u64, loss: f64, attempts: u32, delivery: &str, n: u32) -> Run {
+    run_secured(seed, loss, attempts, delivery, n, false).0
+}
+
+/// [`run`], with every simulated link sealed or not; also returns the links' security
+/// counters, summed over systems.
+fn run_secured(
+    seed: u64,
+    loss: f64,
+    attempts: u32,
+    delivery: &str,
+    n: u32,
+    secure: bool,
+) -> (Run, hetcomm::SecurityStats) {
+    let mut fleet = lossy_fleet(loss, attempts, delivery);
+    fleet.secure_in_process = secure;
     let sim = SimFleet::open(
-        lossy_fleet(loss, attempts, delivery),
+        fleet,
         SimOptions {
             seed,
             losses: LossVisibility::Silent,
@@ -122,12 +137,21 @@ fn run(seed: u64, loss: f64, attempts: u32, delivery: &str, n: u32) -> Run {
         .iter()
         .map(|c| c.stats().router.duplicates)
         .sum();
-    Run {
+    let mut security = hetcomm::SecurityStats::default();
+    for c in sim.systems() {
+        for (_, l) in c.stats().links {
+            security.enabled |= l.security.enabled;
+            security.handshakes += l.security.handshakes;
+            security.rejected_auth += l.security.rejected();
+        }
+    }
+    let run = Run {
         received: trace.len(),
         trace,
         outcomes,
         duplicates,
-    }
+    };
+    (run, security)
 }
 
 fn hash(run: &Run) -> u64 {
@@ -151,6 +175,22 @@ fn same_seed_same_trace_different_seed_different_trace() {
         "seeds {s} and {} gave the same trace",
         s + 1
     );
+}
+
+/// A secured simulation (every link sealed, keys and sessions from the seed) gives the same
+/// trace as the unsecured one: security adds no frame to the simulated network and draws
+/// nothing from its random streams.
+#[test]
+fn a_secured_simulation_repeats_the_unsecured_trace() {
+    let s = seed(7);
+    let (plain, off) = run_secured(s, 20.0, 8, "acknowledged", 30, false);
+    let (sealed, on) = run_secured(s, 20.0, 8, "acknowledged", 30, true);
+    assert!(!off.enabled && on.enabled, "seed {s}: {off:?} / {on:?}");
+    // Three systems, each with a session to each of the two others.
+    assert_eq!(on.handshakes, 6, "seed {s}: {on:?}");
+    assert_eq!(on.rejected_auth, 0, "seed {s}: nothing refused: {on:?}");
+    assert_eq!(plain.trace, sealed.trace, "seed {s}");
+    assert_eq!(hash(&plain), hash(&sealed), "seed {s}");
 }
 
 #[test]
