@@ -211,6 +211,8 @@ struct Drops {
     /// count them; `LinkStats::kernel_drops`); None while there were none, so the summary
     /// names them only when they happened.
     kernel: Option<u64>,
+    /// Refused by the links' security layers, summed over links (`LinkStats::security`).
+    security: hetcomm::SecurityStats,
 }
 
 impl Drops {
@@ -224,11 +226,22 @@ impl Drops {
             inbox: s.inboxes.iter().map(|(_, i)| i.dropped()).sum(),
             links: s.links.iter().map(|(_, l)| l.frames_dropped).sum(),
             kernel: kernel_drops(s),
+            security: s.links.iter().fold(Default::default(), |mut sum, (_, l)| {
+                let x = &l.security;
+                sum.rejected_auth += x.rejected_auth;
+                sum.rejected_replay += x.rejected_replay;
+                sum.rejected_table += x.rejected_table;
+                sum.rejected_unknown_sender += x.rejected_unknown_sender;
+                sum.rejected_no_session += x.rejected_no_session;
+                sum.handshake_timeouts += x.handshake_timeouts;
+                sum
+            }),
         }
     }
 
     /// Each counter with its label, in the order they are printed.
-    fn labelled(&self) -> [(&'static str, u64); 8] {
+    fn labelled(&self) -> [(&'static str, u64); 14] {
+        let sec = &self.security;
         [
             ("malformed", self.malformed),
             ("unknown origin", self.unknown_origin),
@@ -238,6 +251,12 @@ impl Drops {
             ("inbox full", self.inbox),
             ("dropped by links", self.links),
             ("dropped by the kernel", self.kernel.unwrap_or(0)),
+            ("failed authentication", sec.rejected_auth),
+            ("replayed", sec.rejected_replay),
+            ("refused by the table", sec.rejected_table),
+            ("from unknown systems", sec.rejected_unknown_sender),
+            ("for no session", sec.rejected_no_session),
+            ("handshake timed out", sec.handshake_timeouts),
         ]
     }
 

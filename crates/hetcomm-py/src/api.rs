@@ -839,14 +839,35 @@ impl Comm {
     }
 }
 
+/// Open options from the Python arguments: a private key file, read now so that a bad file
+/// is reported as such (ValueError naming the file and what is wrong).
+fn open_options(private_key_file: Option<PathBuf>) -> PyResult<hetcomm::OpenOptions> {
+    let options = hetcomm::OpenOptions::new();
+    match private_key_file {
+        None => Ok(options),
+        Some(path) => options
+            .private_key_file(&path)
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string())),
+    }
+}
+
 #[pymethods]
 impl Comm {
     /// Loads a fleet file and opens one system of it. Raises ConfigError (with
     /// file:line:column), UnknownSystemError, TransportUnavailableError, TransportError.
+    /// On a secured fleet, `private_key_file` is this system's `.key` file (`hetcomm keygen`
+    /// writes them), instead of the fleet file's `private_key_file` or HETCOMM_PRIVATE_KEY.
     #[staticmethod]
-    fn open(py: Python<'_>, path: PathBuf, system: &str) -> PyResult<Comm> {
+    #[pyo3(signature = (path, system, private_key_file=None))]
+    fn open(
+        py: Python<'_>,
+        path: PathBuf,
+        system: &str,
+        private_key_file: Option<PathBuf>,
+    ) -> PyResult<Comm> {
+        let options = open_options(private_key_file)?;
         let system = system.to_string();
-        py.detach(move || hetcomm::Comm::open(&path, &system))
+        py.detach(move || hetcomm::Comm::open_with(&path, &system, options))
             .map(Comm::wrap)
             .map_err(open_error)
     }
@@ -854,12 +875,19 @@ impl Comm {
     /// Opens one system of a fleet given as TOML text (`origin` names it in errors). In-process
     /// transports of systems opened this way meet if they share `origin`.
     #[staticmethod]
-    #[pyo3(signature = (text, system, origin="<string>"))]
-    fn from_toml(py: Python<'_>, text: &str, system: &str, origin: &str) -> PyResult<Comm> {
+    #[pyo3(signature = (text, system, origin="<string>", private_key_file=None))]
+    fn from_toml(
+        py: Python<'_>,
+        text: &str,
+        system: &str,
+        origin: &str,
+        private_key_file: Option<PathBuf>,
+    ) -> PyResult<Comm> {
         let fleet = hetcomm::parse_fleet(text, origin, None)
             .map_err(|e| errors::config_error(&e, e.to_string()))?;
+        let options = open_options(private_key_file)?;
         let system = system.to_string();
-        py.detach(move || hetcomm::Comm::open_fleet(&fleet, &system))
+        py.detach(move || hetcomm::Comm::open_fleet_options(&fleet, &system, options))
             .map(Comm::wrap)
             .map_err(open_error)
     }
@@ -952,6 +980,17 @@ impl Comm {
             d.set_item("kernel_drops", l.kernel_drops)?;
             d.set_item("connects", l.connects)?;
             d.set_item("buffered_bytes", l.buffered_bytes)?;
+            let sec = PyDict::new(py);
+            let x = &l.security;
+            sec.set_item("enabled", x.enabled)?;
+            sec.set_item("handshakes", x.handshakes)?;
+            sec.set_item("rejected_auth", x.rejected_auth)?;
+            sec.set_item("rejected_replay", x.rejected_replay)?;
+            sec.set_item("rejected_table", x.rejected_table)?;
+            sec.set_item("rejected_unknown_sender", x.rejected_unknown_sender)?;
+            sec.set_item("rejected_no_session", x.rejected_no_session)?;
+            sec.set_item("handshake_timeouts", x.handshake_timeouts)?;
+            d.set_item("security", sec)?;
             links.set_item(name, d)?;
         }
         let out = PyDict::new(py);

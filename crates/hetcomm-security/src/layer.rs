@@ -199,6 +199,18 @@ impl Secured {
         }
     }
 
+    fn queued_bytes(&self) -> usize {
+        self.peers
+            .values()
+            .map(|p| {
+                p.state
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .queued_bytes
+            })
+            .sum()
+    }
+
     fn below(&self) -> Option<Arc<dyn Link>> {
         self.below.get().and_then(Weak::upgrade)
     }
@@ -679,6 +691,8 @@ forward_link! {
     fn stats(&self) -> hetcomm_link::LinkStats {
         let mut stats = self.below.stats();
         stats.security = self.secured.stats();
+        // Frames waiting for a handshake are queued in this link too.
+        stats.buffered_bytes += self.secured.queued_bytes() as u64;
         stats
     }
     // Authenticated encryption protects every byte: the router need not checksum payloads.

@@ -145,16 +145,25 @@ impl Comm {
     /// Opens one system of an already loaded fleet. In-process transports of systems opened
     /// this way meet only if they share `fleet.source` (the same file).
     pub fn open_fleet(fleet: &Fleet, system: &str) -> Result<Comm, OpenError> {
+        Self::open_fleet_options(fleet, system, OpenOptions::new())
+    }
+
+    /// [`Comm::open_fleet`] with options (this system's private key, for a secured fleet).
+    pub fn open_fleet_options(
+        fleet: &Fleet,
+        system: &str,
+        options: OpenOptions,
+    ) -> Result<Comm, OpenError> {
         let key = fleet
             .source
             .as_ref()
             .map(|p| p.display().to_string())
             .unwrap_or_else(|| format!("{:?}", fleet.name));
-        Self::open_fleet_with(
-            Arc::new(fleet.clone()),
-            system,
-            &OpenEnv::real(Hubs::for_fleet_key(&key)),
-        )
+        let mut env = OpenEnv::real(Hubs::for_fleet_key(&key));
+        env.keys = KeySource::Fleet {
+            private_key: options.private_key,
+        };
+        Self::open_fleet_with(Arc::new(fleet.clone()), system, &env)
     }
 
     pub(crate) fn open_fleet_with(
