@@ -51,6 +51,18 @@ pub(crate) struct SysSpec {
     pub name_loc: Loc,
     /// The `modules = [...]` list, names with their locations.
     pub modules: Option<Vec<(String, Loc)>>,
+    /// Its public key and private key file, as far as known.
+    pub keys: SysKeys,
+}
+
+/// A system's keys as the fleet file gives them (inline, by file, or from `[security] keys`).
+#[derive(Default)]
+pub(crate) struct SysKeys {
+    /// The system gives its own public key (`public_key` or `public_key_file`), which the
+    /// keys directory does not override (even when it was reported as wrong).
+    pub public_given: bool,
+    pub public_key: Option<[u8; 32]>,
+    pub private_key_file: Option<PathBuf>,
 }
 
 /// A module before duplicate checks.
@@ -83,6 +95,7 @@ pub(crate) struct TransportSpec {
     pub ordered: bool,
     pub batch_linger_us: u32,
     pub letter: Option<(u8, Loc)>,
+    pub security: SecurityMode,
     /// None when the transport had errors; it still counts as defined so the table does not
     /// report it a second time as unknown.
     pub settings: Option<TransportSettings>,
@@ -115,6 +128,8 @@ pub(crate) struct Parts {
     pub letters: Vec<LetterSpec>,
     pub table: Option<RawTable>,
     pub legacy_bt: Option<LegacyBt>,
+    /// `[security] keys`, resolved.
+    pub keys_dir: Option<PathBuf>,
     /// Where to report "B needs addresses" when no cell location is better.
     pub fallback: Loc,
 }
@@ -490,6 +505,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         letters,
         table,
         legacy_bt,
+        keys_dir,
         fallback,
     } = p;
 
@@ -588,8 +604,8 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             id: SystemId(s.id),
             name: s.name.clone(),
             modules: mods,
-            public_key: None,
-            private_key_file: None,
+            public_key: s.keys.public_key,
+            private_key_file: s.keys.private_key_file.clone(),
         });
     }
 
@@ -619,7 +635,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             max_in_flight_bytes: t.max_in_flight_bytes,
             ordered: t.ordered,
             batch_linger_us: t.batch_linger_us,
-            security: Default::default(),
+            security: t.security,
             settings,
         });
     }
@@ -633,7 +649,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         modules,
         transports: defs,
         table: pairs.into_iter().collect(),
-        keys_dir: None,
+        keys_dir,
         secure_in_process: false,
     })
 }

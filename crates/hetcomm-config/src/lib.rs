@@ -59,6 +59,7 @@
 mod assemble;
 mod error;
 mod fleet_toml;
+mod keys;
 pub mod kinds;
 mod legacy;
 pub mod model;
@@ -72,6 +73,7 @@ use std::rc::Rc;
 
 pub use error::{ConfigError, ConfigErrors};
 pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
+pub use keys::{apply_keys_dir, insecure, KEY_LEN};
 pub use kinds::{KindSpec, Kinds, SettingsReader};
 pub use model::*;
 
@@ -97,7 +99,21 @@ pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds)
+    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, true)
+}
+
+/// [`load_with`] without reading any key file: `[security] keys` may name a directory that
+/// does not exist yet and `public_key_file`s are not read (inline `public_key`s are still
+/// checked), so systems have only their inline public keys and `private_key_file`s as given.
+/// For `hetcomm keygen`, which is run to create those files.
+pub fn load_skipping_keys(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
+    let origin = path.display().to_string();
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) => return Err(unreadable(&origin, &e)),
+    };
+    let base = path.parent().unwrap_or(Path::new(""));
+    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, false)
 }
 
 /// Validates fleet-file text. `origin` is the file name used in error locations; relative
@@ -114,7 +130,7 @@ pub fn parse_str_with(
     base_dir: Option<&Path>,
     kinds: &Kinds,
 ) -> Result<Fleet, ConfigErrors> {
-    fleet_toml::parse(text, origin, base_dir, None, kinds)
+    fleet_toml::parse(text, origin, base_dir, None, kinds, true)
 }
 
 /// Loads the thesis's files alone: the id file (Tables 1, 6, 16), the communication table
@@ -153,6 +169,7 @@ pub fn load_legacy(
                     name: l.name,
                     name_loc: l.name_loc,
                     modules: None,
+                    keys: Default::default(),
                 })
                 .collect()
         })
@@ -191,6 +208,7 @@ pub fn load_legacy(
             letters: Vec::new(),
             table: raw_table,
             legacy_bt,
+            keys_dir: None,
             fallback: Loc::start(&table_name),
         },
         diag,

@@ -510,6 +510,7 @@ fn resolve_cell(
         ordered: false,
         batch_linger_us: crate::model::DEFAULT_BATCH_LINGER_US,
         letter: None,
+        security: SecurityMode::Keys,
         settings: Some(settings),
         over: None,
         addr_source: match legacy_bt {

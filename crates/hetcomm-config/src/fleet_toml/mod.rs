@@ -6,6 +6,7 @@ mod emulation;
 mod modules;
 mod reader;
 mod scan;
+mod security;
 mod systems;
 mod table;
 mod transports;
@@ -35,8 +36,9 @@ use crate::model::*;
 use crate::suggest;
 
 /// Keys allowed at the top level.
-pub(crate) const TOP_KEYS: [&str; 8] = [
+pub(crate) const TOP_KEYS: [&str; 9] = [
     "name",
+    "security",
     "systems",
     "modules",
     "inbox",
@@ -50,11 +52,21 @@ pub(crate) const INBOX_KEYS: [&str; 3] = ["capacity", "overflow", "block_timeout
 /// Keys of a module's long form.
 pub(crate) const MODULE_KEYS: [&str; 4] = ["id", "inbox_capacity", "overflow", "block_timeout_ms"];
 /// Keys of a system's long form.
-pub(crate) const SYSTEM_KEYS: [&str; 2] = ["id", "modules"];
+pub(crate) const SYSTEM_KEYS: [&str; 5] = [
+    "id",
+    "modules",
+    "public_key",
+    "public_key_file",
+    "private_key_file",
+];
+/// Keys of `[security]`.
+pub(crate) const SECURITY_KEYS: [&str; 1] = ["keys"];
+/// Values of a transport's `security`, in `SecurityMode` order.
+pub(crate) const SECURITY_MODES: [&str; 2] = ["keys", "none"];
 /// Keys of `[legacy]`.
 pub(crate) const LEGACY_KEYS: [&str; 3] = ["ids", "table", "bluetooth"];
 /// Keys every transport accepts.
-pub(crate) const COMMON_KEYS: [&str; 8] = [
+pub(crate) const COMMON_KEYS: [&str; 9] = [
     "kind",
     "delivery",
     "attempts",
@@ -63,6 +75,7 @@ pub(crate) const COMMON_KEYS: [&str; 8] = [
     "letter",
     "ordered",
     "batch_linger_us",
+    "security",
 ];
 /// Keys of `udp` / `tcp` transports besides the common ones.
 pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
@@ -135,6 +148,8 @@ struct P<'a> {
     base_dir: Option<&'a Path>,
     /// The kinds registered beyond the built-in ones.
     kinds: &'a Kinds,
+    /// Whether key files are read (false for `hetcomm keygen`, which is run to create them).
+    read_keys: bool,
     /// Systems of `[systems]` left out for an error in their entry (a bad or missing id).
     unusable_systems: Vec<String>,
     /// Every `udp` / `tcp` endpoint so far, by (kind, host in lower case, port).
@@ -156,8 +171,9 @@ pub(crate) fn parse(
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
     kinds: &Kinds,
+    read_keys: bool,
 ) -> Result<Fleet, ConfigErrors> {
-    parse_with(text, origin, base_dir, source, kinds, true).0
+    parse_with(text, origin, base_dir, source, kinds, read_keys, true).0
 }
 
 /// [`parse`], reading a plain `[table]` with [`scan`] when `fast` (and it can); also says
@@ -168,6 +184,7 @@ fn parse_with(
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
     kinds: &Kinds,
+    read_keys: bool,
     fast: bool,
 ) -> (Result<Fleet, ConfigErrors>, bool) {
     let file: Rc<str> = Rc::from(origin);
@@ -184,6 +201,7 @@ fn parse_with(
                     diag: Diag::default(),
                     base_dir,
                     kinds,
+                    read_keys,
                     unusable_systems: Vec::new(),
                     endpoints_seen: FxHashMap::default(),
                 };
@@ -199,6 +217,7 @@ fn parse_with(
         diag: Diag::default(),
         base_dir,
         kinds,
+        read_keys,
         unusable_systems: Vec::new(),
         endpoints_seen: FxHashMap::default(),
     };
@@ -333,6 +352,7 @@ impl P<'_> {
                                 name: l.name,
                                 name_loc: l.name_loc,
                                 modules: None,
+                                keys: Default::default(),
                             })
                             .collect()
                     })
@@ -350,6 +370,7 @@ impl P<'_> {
         };
         let mut systems = Systems::new(specs, &mut self.diag);
         systems.mark_reported(std::mem::take(&mut self.unusable_systems));
+        let keys_dir = get("security").and_then(|item| self.security(item, &top, &mut systems));
 
         // Inbox defaults, then modules.
         let mut defaults = InboxDefaults {
@@ -474,7 +495,16 @@ impl P<'_> {
             letters,
             table,
             legacy_bt,
+            keys_dir,
             fallback: top,
+        }
+    }
+
+    /// A path written in the fleet file, resolved against its directory.
+    fn resolve(&self, written: &str) -> PathBuf {
+        match self.base_dir {
+            Some(d) => d.join(written),
+            None => PathBuf::from(written),
         }
     }
 

@@ -1,6 +1,7 @@
-//! `[systems]`: each system's id and, in the long form, its module list.
+//! `[systems]`: each system's id and, in the long form, its module list and keys.
 
 use super::*;
+use crate::assemble::SysKeys;
 
 impl P<'_> {
     pub(super) fn systems(&mut self, item: &Item, top: &Loc) -> Vec<SysSpec> {
@@ -13,7 +14,7 @@ impl P<'_> {
             let nloc = self.kloc(t, name, &loc);
             let vl = self.vloc(v, &nloc);
             let path = format!("systems.{}", key_part(name));
-            let (id, modules) = if v.is_integer() || !v.is_table_like() {
+            let (id, modules, keys) = if v.is_integer() || !v.is_table_like() {
                 if !v.is_integer() {
                     self.wrong_type(
                         &vl,
@@ -29,6 +30,7 @@ impl P<'_> {
                     self.id16(v, &path, &vl, "system")
                         .map(|id| (id, vl.clone())),
                     None,
+                    SysKeys::default(),
                 )
             } else {
                 let Some(st) = v.as_table_like() else {
@@ -55,7 +57,8 @@ impl P<'_> {
                     let ml = self.vloc(m, &vl);
                     self.name_list(m, &format!("{path}.modules"), &ml)
                 });
-                (id, modules)
+                let keys = self.system_keys(st, &path, &vl, name);
+                (id, modules, keys)
             };
             match id {
                 Some((id, id_loc)) => out.push(SysSpec {
@@ -64,6 +67,7 @@ impl P<'_> {
                     name: name.to_string(),
                     name_loc: nloc,
                     modules,
+                    keys,
                 }),
                 // Already reported (its id): references to it should not be reported again.
                 None => self.unusable_systems.push(name.to_string()),

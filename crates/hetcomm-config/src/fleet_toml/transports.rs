@@ -151,6 +151,22 @@ impl P<'_> {
                 .map_or(default_linger, |a| u32::try_from(a).unwrap_or(default_linger))
             }
         };
+        let security = match t.get("security") {
+            None => SecurityMode::Keys,
+            Some(v) => {
+                let vl = self.vloc(v, &tloc);
+                match self.choice(
+                    v,
+                    &format!("{path}.security"),
+                    &vl,
+                    ("security mode", "security modes"),
+                    &SECURITY_MODES,
+                ) {
+                    Some(1) => SecurityMode::None,
+                    _ => SecurityMode::Keys,
+                }
+            }
+        };
         let letter = t.get("letter").and_then(|v| {
             let vl = self.vloc(v, &tloc);
             let s = self.string(
@@ -172,6 +188,7 @@ impl P<'_> {
             ordered,
             batch_linger_us,
             letter,
+            security,
             settings: None,
             over: None,
             addr_source: AddrSource::Inline,
