@@ -132,14 +132,14 @@ fn udp_duplicates_are_suppressed_and_reacknowledged() {
     let dir = TempDir::new("dup");
     let fleet = dir.write(
         "fleet.toml",
-        &fleet_text(
+        &unsecured(&fleet_text(
             "udp",
             &[
                 ("Alpha", 0, alpha_ep),
                 ("Bravo", 1, bravo_ep.clone()),
                 ("Charlie", 2, charlie),
             ],
-        ),
+        )),
     );
     let mut bravo = listen(&fleet, "Bravo", &["--count", "2", "--json"], deadline);
 
@@ -296,7 +296,10 @@ fn udp_receiver_that_never_acknowledges() {
     let dir = TempDir::new("noack");
     let fleet = dir.write(
         "fleet.toml",
-        &fleet_text("udp", &[("Alpha", 0, alpha_ep), ("Bravo", 1, bravo_ep)]),
+        &unsecured(&fleet_text(
+            "udp",
+            &[("Alpha", 0, alpha_ep), ("Bravo", 1, bravo_ep)],
+        )),
     );
     let sent = send(&fleet, "Alpha", "Bravo", HELLO, deadline);
     // The frames did arrive (the sink holds them below) but nothing acknowledged them: the
@@ -337,7 +340,7 @@ fn udp_receiver_that_never_acknowledges() {
 #[test]
 fn udp_bad_frames_are_counted_and_the_system_keeps_serving() {
     let deadline = Deadline::after(30);
-    let (_dir, fleet, ports) = loopback_fleet("udp", &[("Alpha", 0), ("Bravo", 1)]);
+    let (_dir, fleet, ports) = loopback_fleet_unsecured("udp", &[("Alpha", 0), ("Bravo", 1)]);
     let bravo_ep = format!("127.0.0.1:{}", ports[1]);
     let mut bravo = listen(&fleet, "Bravo", &["--count", "1"], deadline);
 
@@ -423,7 +426,7 @@ fn wait_closed(s: &mut TcpStream, deadline: Deadline) {
 #[test]
 fn tcp_garbage_is_dropped_and_the_system_keeps_serving() {
     let deadline = Deadline::after(30);
-    let (_dir, fleet, ports) = loopback_fleet("tcp", &[("Alpha", 0), ("Bravo", 1)]);
+    let (_dir, fleet, ports) = loopback_fleet_unsecured("tcp", &[("Alpha", 0), ("Bravo", 1)]);
     let bravo_ep = format!("127.0.0.1:{}", ports[1]);
     let mut bravo = listen(&fleet, "Bravo", &["--count", "1"], deadline);
 

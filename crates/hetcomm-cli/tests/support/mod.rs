@@ -91,9 +91,29 @@ impl TempDir {
         &self.0
     }
 
-    /// Writes `name` in the directory and returns its path.
+    /// Writes `name` in the directory and returns its path. A fleet file (`.toml`) with a
+    /// transport that leaves the process and no word on security is secured the way a user
+    /// would: a key pair per system in `keys/` (what `hetcomm keygen` writes) and
+    /// `[security] keys = "keys"` appended. Tests about unsecured links say
+    /// `security = "none"` in the transport's section.
     pub fn write(&self, name: &str, text: &str) -> PathBuf {
         let p = self.0.join(name);
+        let mut text = text.to_string();
+        let leaves_process = ["\"udp\"", "\"tcp\"", "\"ros1\""]
+            .iter()
+            .any(|k| text.contains(&format!("kind = {k}")));
+        if name.ends_with(".toml") && leaves_process && !text.contains("security") {
+            if let Ok(fleet) = hetcomm::parse_fleet(&text, name, None) {
+                let keys = self.0.join("keys");
+                std::fs::create_dir_all(&keys).expect("create keys dir");
+                for system in &fleet.systems {
+                    hetcomm::security::Keypair::generate()
+                        .and_then(|k| k.write(&keys, &system.name))
+                        .expect("write keys");
+                }
+                text.push_str("\n[security]\nkeys = \"keys\"\n");
+            }
+        }
         std::fs::write(&p, text).expect("write temp file");
         p
     }
@@ -133,8 +153,38 @@ pub fn fleet_text(kind: &str, systems: &[(&str, u16, String)]) -> String {
     s
 }
 
+/// `text` with its `udp`/`tcp` transports unsecured (`security = "none"`): for tests that
+/// speak to a system with hand-made frames from a raw socket, as an unsecured peer would.
+pub fn unsecured(text: &str) -> String {
+    let mut out = String::new();
+    for line in text.lines() {
+        out.push_str(line);
+        out.push('\n');
+        if line == "kind = \"udp\"" || line == "kind = \"tcp\"" {
+            out.push_str("security = \"none\"\n");
+        }
+    }
+    out
+}
+
+/// [`loopback_fleet`] with its transport unsecured ([`unsecured`]).
+pub fn loopback_fleet_unsecured(
+    kind: &str,
+    systems: &[(&str, u16)],
+) -> (TempDir, PathBuf, Vec<u16>) {
+    let (dir, _, ports) = loopback_fleet(kind, systems);
+    let full: Vec<(&str, u16, String)> = systems
+        .iter()
+        .zip(&ports)
+        .map(|(&(n, id), p)| (n, id, format!("127.0.0.1:{p}")))
+        .collect();
+    let path = dir.write("fleet.toml", &unsecured(&fleet_text(kind, &full)));
+    (dir, path, ports)
+}
+
 /// A fleet on 127.0.0.1 with a free port per system: (temp dir holding `fleet.toml`, its
-/// path, the ports by system in the order given).
+/// path, the ports by system in the order given). Secured with keys in the directory (see
+/// [`TempDir::write`]).
 pub fn loopback_fleet(kind: &str, systems: &[(&str, u16)]) -> (TempDir, PathBuf, Vec<u16>) {
     let ports: Vec<u16> = systems.iter().map(|_| free_port(kind)).collect();
     let full: Vec<(&str, u16, String)> = systems
