@@ -227,20 +227,25 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             bluetooth,
             keys,
         } => {
-            let mut result = match (file, ids, table) {
-                (Some(file), _, _) => hetcomm::load_fleet(&file),
-                (None, Some(ids), Some(table)) => {
-                    hetcomm::config::load_legacy(&ids, &table, bluetooth.as_deref())
+            let kinds = hetcomm::registry().kinds();
+            let result = match (file, ids, table, &keys) {
+                (Some(file), _, _, None) => hetcomm::load_fleet(&file),
+                (Some(file), _, _, Some(dir)) => {
+                    hetcomm::config::load_with_keys_dir(&file, kinds, dir)
                 }
+                (None, Some(ids), Some(table), _) => hetcomm::config::load_legacy(
+                    &ids,
+                    &table,
+                    bluetooth.as_deref(),
+                )
+                .and_then(|mut fleet| match &keys {
+                    Some(dir) => hetcomm::config::apply_keys_dir(&mut fleet, dir).map(|()| fleet),
+                    None => Ok(fleet),
+                }),
                 _ => anyhow::bail!(
                     "give a fleet file, or --ids and --table (and optionally --bluetooth)"
                 ),
             };
-            if let (Ok(fleet), Some(dir)) = (&mut result, &keys) {
-                if let Err(errors) = hetcomm::config::apply_keys_dir(fleet, dir) {
-                    result = Err(errors);
-                }
-            }
             match result {
                 Ok(fleet) => {
                     println!("ok: {}", fleet.summary());

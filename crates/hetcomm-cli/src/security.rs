@@ -30,20 +30,23 @@ pub struct SecurityArgs {
 
 impl SecurityArgs {
     /// Loads the fleet file at `path` (its errors, each with file:line:column, are the whole
-    /// message) and applies the flags. With `--insecure` no key file is read, so a fleet whose
-    /// keys directory does not exist yet still runs.
+    /// message) and applies the flags. With `--keys DIR` the fleet file's own `[security] keys`
+    /// directory is not read (it need not exist on this machine); with `--insecure` no key
+    /// file is read, so a fleet whose keys do not exist yet still runs.
     pub fn load(&self, path: &Path) -> anyhow::Result<Fleet> {
-        let loaded = if self.insecure {
-            hetcomm::config::load_skipping_keys(path, hetcomm::registry().kinds())
-        } else {
-            hetcomm::load_fleet(path)
+        let kinds = hetcomm::registry().kinds();
+        let loaded = match (&self.keys, self.insecure) {
+            (_, true) => hetcomm::config::load_skipping_keys(path, kinds),
+            (Some(dir), false) => hetcomm::config::load_with_keys_dir(path, kinds, dir),
+            (None, false) => hetcomm::load_fleet(path),
         };
         let mut fleet = loaded.map_err(|errors| anyhow::anyhow!("{errors}"))?;
         self.apply(&mut fleet)?;
         Ok(fleet)
     }
 
-    /// Applies the flags to `fleet`, printing the `--insecure` warning.
+    /// Applies the flags to a fleet loaded otherwise (the demo's embedded one, legacy files),
+    /// printing the `--insecure` warning.
     pub fn apply(&self, fleet: &mut Fleet) -> anyhow::Result<()> {
         if let Some(dir) = &self.keys {
             hetcomm::config::apply_keys_dir(fleet, dir)

@@ -289,6 +289,29 @@ fn insecure_warns_on_stderr() {
     ]);
     assert_eq!(code, 1);
     assert!(err.contains("the keys directory"), "{err}");
+    // --keys DIR replaces the file's directory, which need not exist on this machine.
+    let elsewhere = TempDir::new("keygen-elsewhere");
+    let (_, keys, _) = keygen_fleet(&elsewhere);
+    assert!(!dir.path().join("keys").exists());
+    let (code, _, err) = hetcomm(&[
+        "send",
+        fleet.to_str().unwrap(),
+        "--as",
+        "Alpha",
+        "--to",
+        "Nobody",
+        "--module",
+        "Plan",
+        "--type",
+        "1",
+        "--json",
+        "1",
+        "--keys",
+        keys.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 1);
+    assert!(err.contains("has no such system"), "{err}");
+    assert!(!err.contains("warning"), "{err}");
     // --keys and --insecure exclude each other.
     let (code, _, err) = hetcomm(&[
         "listen",

@@ -428,3 +428,60 @@ fn security_lines_say_what_is_secured_and_which_keys_are_missing() {
         ]
     );
 }
+
+#[test]
+fn load_with_keys_dir_replaces_the_files_directory() {
+    let dir = std::env::temp_dir().join(format!("hetcomm-keysdir-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("fleet.toml");
+    // The file's own directory does not exist on this machine; `public_key_file` is still read.
+    std::fs::write(
+        &file,
+        fleet_with(&format!(
+            "[security]\nkeys = \"keys\"\n\n[systems.Alpha]\nid = 0\npublic_key_file = \"{}\"\n[systems.Bravo]\nid = 1\n",
+            std::fs::canonicalize("tests/keys/good/Bravo.pub").unwrap().display()
+        )),
+    )
+    .unwrap();
+    assert!(load(&file).is_err());
+    let good = std::fs::canonicalize("tests/keys/good").unwrap();
+    let f = load_with_keys_dir(&file, &Kinds::new(), &good).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(f.keys_dir.as_deref(), Some(good.as_path()));
+    // DIR's Alpha.pub replaces the file's; Bravo's comes from DIR.
+    assert_eq!(f.system_by_name("Alpha").unwrap().public_key, Some(ALPHA));
+    assert_eq!(f.system_by_name("Bravo").unwrap().public_key, Some(BRAVO));
+    let e = load_with_keys_dir(&file, &Kinds::new(), Path::new("tests/keys/none")).unwrap_err();
+    assert!(
+        e.to_string().starts_with(&format!(
+            "tests/keys/none: the keys directory `tests/keys/none` does not exist\n  help: run `hetcomm keygen --fleet {} --out tests/keys/none`",
+            file.display()
+        )),
+        "{e}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn legacy_sections_take_their_keys_from_the_security_section() {
+    let dir = std::env::temp_dir().join(format!("hetcomm-legacykeys-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("ids.txt"), "0 Alpha\n1 Bravo\n").unwrap();
+    std::fs::write(dir.join("table.txt"), "  0 1\n0 X R\n1 R X\n").unwrap();
+    let good = std::fs::canonicalize("tests/keys/good").unwrap();
+    std::fs::write(
+        dir.join("fleet.toml"),
+        format!(
+            "[legacy]\nids = \"ids.txt\"\ntable = \"table.txt\"\n\n[security]\nkeys = \"{}\"\n",
+            good.display()
+        ),
+    )
+    .unwrap();
+    let f = load(&dir.join("fleet.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(f.system(SystemId(0)).unwrap().public_key, Some(ALPHA));
+    assert_eq!(f.system(SystemId(1)).unwrap().public_key, Some(BRAVO));
+    assert_eq!(
+        f.security_lines(),
+        ["transport `R` (ros1): secured; all 2 systems it carries have a public key"]
+    );
+}
