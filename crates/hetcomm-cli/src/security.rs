@@ -14,10 +14,11 @@ pub const INSECURE_WARNING: &str = "warning: --insecure: security is OFF on ever
 /// `--keys DIR` and `--insecure`.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct SecurityArgs {
-    /// Read the systems' keys from DIR, as `[security] keys = "DIR"` in a fleet file would
+    /// Read the systems' keys from DIR instead of the fleet file's `[security] keys` directory
     /// (public keys from DIR/<System>.pub, this system's private key from DIR/<System>.key):
-    /// for fleets that do not name their keys, such as the thesis's legacy files. Write DIR
-    /// with `hetcomm keygen`. Keys found there replace the fleet file's.
+    /// for a fleet without `[security]` (e.g. one importing the thesis's legacy files) or whose
+    /// keys are elsewhere on this machine. Write DIR with `hetcomm keygen`. Keys found there
+    /// replace the fleet file's.
     #[arg(long, value_name = "DIR")]
     pub keys: Option<PathBuf>,
     /// Turn security off on every transport, as `security = "none"` would: frames are neither
