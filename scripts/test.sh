@@ -43,7 +43,11 @@ cargo run -q -p hetcomm-bench -- --quick >/dev/null
 step "examples"
 cargo run -q -p hetcomm-examples --example two_systems >/dev/null
 cargo run -q -p hetcomm-examples --example readme >/dev/null
-cargo run -q -p hetcomm-cli -- validate crates/hetcomm-config/fleet.example.toml
+example_dir=$(mktemp -d)
+cargo run -q -p hetcomm-cli -- generate-config >"$example_dir/fleet.toml"
+cargo run -q -p hetcomm-cli -- keygen --fleet "$example_dir/fleet.toml" --out "$example_dir/keys" >/dev/null
+cargo run -q -p hetcomm-cli -- validate "$example_dir/fleet.toml"
+rm -rf "$example_dir"
 
 echo
 echo "all checks passed"

@@ -6,6 +6,8 @@ use anyhow::Context;
 use hetcomm_examples::leader_follower::{self, DemoOptions, Layout, CONTROL_PERIOD};
 use hetcomm_sim::report::notes::{self, RunFacts};
 
+use crate::security::SecurityArgs;
+
 /// Flags of `hetcomm demo`.
 pub struct DemoArgs<'a> {
     /// Seed of the emulated links.
@@ -24,6 +26,8 @@ pub struct DemoArgs<'a> {
     pub realtime: bool,
     /// Followers whose autonomy code runs in another process.
     pub external: Vec<String>,
+    /// `--keys` / `--insecure`.
+    pub security: &'a SecurityArgs,
 }
 
 /// A transport definition for a letter, from a short name.
@@ -92,8 +96,12 @@ fn progress_notice(realtime: bool, stderr_is_terminal: bool) -> Option<String> {
 /// Runs the demonstration and prints its tables and the files written.
 pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let fleet = match args.fleet {
-        Some(path) => hetcomm::load_fleet(path)?,
-        None => embedded_fleet(args.single_ve, args.r, args.b)?,
+        Some(path) => args.security.load(path)?,
+        None => {
+            let mut fleet = embedded_fleet(args.single_ve, args.r, args.b)?;
+            args.security.apply(&mut fleet)?;
+            fleet
+        }
     };
     // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`
     // would never reach the ROS master: a real transport forces real time.

@@ -10,6 +10,8 @@ use hetcomm_experiments::reliability::{self, LossModel, Mode, ReliabilityConfig}
 use hetcomm_experiments::report::{self, Format};
 use hetcomm_experiments::sweep::{self, SweepConfig};
 
+use crate::security::SecurityArgs;
+
 /// The experiments.
 #[derive(Subcommand)]
 pub enum Experiment {
@@ -91,6 +93,8 @@ pub struct ReliabilityArgs {
     /// what the real links do; they are not reported to the sender.
     #[arg(long, conflicts_with = "sweep")]
     realtime: bool,
+    #[command(flatten)]
+    security: SecurityArgs,
 }
 
 /// Runs an experiment subcommand.
@@ -139,7 +143,7 @@ fn load(args: &ReliabilityArgs, out: &Path) -> anyhow::Result<hetcomm::config::F
         Some(path) => path.clone(),
         None => reliability::write_default_fleet(&out.join("fleet"))?,
     };
-    Ok(reliability::load_fleet(&path)?)
+    args.security.load(&path)
 }
 
 fn reliability_cmd(args: ReliabilityArgs) -> anyhow::Result<ExitCode> {

@@ -15,10 +15,13 @@ use std::time::{Duration, Instant};
 use hetcomm::{Comm, RawMessage, SystemStats, Time};
 
 use crate::names;
+use crate::security::SecurityArgs;
 
 /// Options of `hetcomm listen`.
 pub struct ListenArgs<'a> {
     pub fleet: &'a Path,
+    /// `--keys` / `--insecure`.
+    pub security: &'a SecurityArgs,
     pub system: &'a str,
     pub module: Option<&'a str>,
     pub count: Option<usize>,
@@ -66,12 +69,12 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
             }
         })?;
     }
-    let fleet = names::load_fleet(args.fleet)?;
+    let fleet = names::load_fleet(args.fleet, args.security)?;
     names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
     if let Some(m) = args.module {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
-    let comm = names::open_system(args.fleet, args.system)?;
+    let comm = names::open_system(args.fleet, &fleet, args.system)?;
     let start = Time::now_wall();
     let started = Instant::now();
     let modules: Vec<String> = match args.module {

@@ -8,9 +8,13 @@ use clap::{Parser, Subcommand};
 
 mod demo;
 mod experiment;
+mod keygen;
 mod listen;
 mod names;
 mod poke;
+mod security;
+
+use security::SecurityArgs;
 
 /// hetcomm: a heterogeneous communication layer and test harness for teams of robots.
 #[derive(Parser)]
@@ -24,8 +28,9 @@ struct Cli {
 enum Command {
     /// Check a fleet file (or the thesis's legacy files) without opening anything.
     ///
-    /// Prints a one-line summary and exits 0, or prints every error with file:line:column and
-    /// exits 2.
+    /// Prints a one-line summary and a line per transport on its security (secured or not,
+    /// and which systems it carries lack a public key), and exits 0; or prints every error
+    /// with file:line:column and exits 2.
     Validate {
         /// The fleet file (TOML).
         file: Option<PathBuf>,
@@ -38,9 +43,33 @@ enum Command {
         /// Legacy Bluetooth address file (Tables 3, 8, 18).
         #[arg(long, requires = "ids")]
         bluetooth: Option<PathBuf>,
+        /// Read the systems' keys from DIR, as the commands that open systems do with
+        /// `--keys DIR` (written by `hetcomm keygen`).
+        #[arg(long, value_name = "DIR")]
+        keys: Option<PathBuf>,
     },
-    /// Print a commented example fleet file.
+    /// Print a commented example fleet file (secured: run `hetcomm keygen` for it next).
     GenerateConfig,
+    /// Write a key pair per system of a fleet: DIR/<System>.key (the private key, mode 0600:
+    /// it goes to the machine that runs the system, and nowhere else) and DIR/<System>.pub
+    /// (the public key, for every machine). Prints what to put in the fleet file.
+    Keygen {
+        /// The fleet file whose systems get keys (its own key files are not read).
+        #[arg(long, required_unless_present = "ids", conflicts_with = "ids")]
+        fleet: Option<PathBuf>,
+        /// Legacy id file (Tables 1, 6, 16) instead of a fleet file.
+        #[arg(long, requires = "table")]
+        ids: Option<PathBuf>,
+        /// Legacy communication table (Tables 2, 7, 17), with --ids.
+        #[arg(long, requires = "ids")]
+        table: Option<PathBuf>,
+        /// The directory to write the keys into (created, mode 0700, if missing).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Replace key files that already exist (by default, keygen refuses).
+        #[arg(long)]
+        force: bool,
+    },
     /// Run the thesis's leader–follower demonstration (§5.1): Alpha leads, Charlie and Tango
     /// follow, virtual environments integrate their poses. Prints the command tables
     /// (Tables 9–12) and pose tables (13–15), and writes CSV and PNG plots.
@@ -76,6 +105,8 @@ enum Command {
         /// examples/python); needs --realtime and a fleet carrying its traffic over UDP/TCP.
         #[arg(long, value_name = "SYSTEM")]
         external: Vec<String>,
+        #[command(flatten)]
+        security: SecurityArgs,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     ///
@@ -112,6 +143,8 @@ enum Command {
         /// listener started (`+1.234 s`).
         #[arg(long)]
         raw_times: bool,
+        #[command(flatten)]
+        security: SecurityArgs,
     },
     /// Send one message from a system of a live fleet and print its outcome (like
     /// `rostopic pub`). Exits 0 when delivered (in the destination module's inbox) or sent
@@ -144,6 +177,8 @@ enum Command {
         /// Longest wait for the outcome, seconds.
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
+        #[command(flatten)]
+        security: SecurityArgs,
     },
     /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
     Experiment {
@@ -190,12 +225,23 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             ids,
             table,
             bluetooth,
+            keys,
         } => {
-            let result = match (file, ids, table) {
-                (Some(file), _, _) => hetcomm::load_fleet(&file),
-                (None, Some(ids), Some(table)) => {
-                    hetcomm::config::load_legacy(&ids, &table, bluetooth.as_deref())
+            let kinds = hetcomm::registry().kinds();
+            let result = match (file, ids, table, &keys) {
+                (Some(file), _, _, None) => hetcomm::load_fleet(&file),
+                (Some(file), _, _, Some(dir)) => {
+                    hetcomm::config::load_with_keys_dir(&file, kinds, dir)
                 }
+                (None, Some(ids), Some(table), _) => hetcomm::config::load_legacy(
+                    &ids,
+                    &table,
+                    bluetooth.as_deref(),
+                )
+                .and_then(|mut fleet| match &keys {
+                    Some(dir) => hetcomm::config::apply_keys_dir(&mut fleet, dir).map(|()| fleet),
+                    None => Ok(fleet),
+                }),
                 _ => anyhow::bail!(
                     "give a fleet file, or --ids and --table (and optionally --bluetooth)"
                 ),
@@ -203,6 +249,9 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             match result {
                 Ok(fleet) => {
                     println!("ok: {}", fleet.summary());
+                    for line in fleet.security_lines() {
+                        println!("  {line}");
+                    }
                     Ok(ExitCode::SUCCESS)
                 }
                 Err(errors) => {
@@ -215,6 +264,35 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             print!("{}", hetcomm::config::EXAMPLE_FLEET);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Keygen {
+            fleet,
+            ids,
+            table,
+            out,
+            force,
+        } => {
+            let loaded = match (&fleet, ids, table) {
+                (Some(file), _, _) => {
+                    hetcomm::config::load_skipping_keys(file, hetcomm::registry().kinds())
+                }
+                (None, Some(ids), Some(table)) => hetcomm::config::load_legacy(&ids, &table, None),
+                _ => anyhow::bail!("give --fleet FILE, or --ids and --table"),
+            };
+            let loaded = match loaded {
+                Ok(f) => f,
+                Err(errors) => {
+                    eprintln!("{errors}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
+            keygen::keygen(keygen::KeygenArgs {
+                fleet_file: fleet.as_deref(),
+                fleet: &loaded,
+                out: &out,
+                force,
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Listen {
             fleet,
             system,
@@ -224,9 +302,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             json,
             verbose,
             raw_times,
+            security,
         } => {
             listen::listen(listen::ListenArgs {
                 fleet: &fleet,
+                security: &security,
                 system: &system,
                 module: module.as_deref(),
                 count,
@@ -247,9 +327,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             json,
             priority,
             timeout,
+            security,
         } => {
             let verdict = poke::send(poke::SendArgs {
                 fleet: &fleet,
+                security: &security,
                 system: &system,
                 from_module: from_module.as_deref(),
                 to: &to,
@@ -271,9 +353,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             single_ve,
             realtime,
             external,
+            security,
         } => {
             demo::run(demo::DemoArgs {
                 external,
+                security: &security,
                 seed,
                 out: &out,
                 fleet: fleet.as_deref(),

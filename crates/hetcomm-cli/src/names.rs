@@ -8,9 +8,11 @@ use hetcomm::config::suggest::closest;
 use hetcomm::config::Fleet;
 use hetcomm::{Comm, OpenError};
 
-/// Opens `system` of the fleet file; an endpoint already taken gets a hint.
-pub fn open_system(path: &Path, system: &str) -> anyhow::Result<Comm> {
-    Comm::open(path, system).map_err(|e| match &e {
+use crate::security::SecurityArgs;
+
+/// Opens `system` of `fleet` (loaded from `path`); an endpoint already taken gets a hint.
+pub fn open_system(path: &Path, fleet: &Fleet, system: &str) -> anyhow::Result<Comm> {
+    Comm::open_fleet(fleet, system).map_err(|e| match &e {
         OpenError::Transport { reason, .. } if reason.contains("in use") => anyhow::anyhow!(
             "{e}; is another program running as `{system}` (e.g. `hetcomm listen {} --as {system}`)?",
             path.display()
@@ -19,9 +21,10 @@ pub fn open_system(path: &Path, system: &str) -> anyhow::Result<Comm> {
     })
 }
 
-/// Loads the fleet file; its errors (each with file:line:column) are the whole message.
-pub fn load_fleet(path: &Path) -> anyhow::Result<Fleet> {
-    hetcomm::load_fleet(path).map_err(|errors| anyhow::anyhow!("{errors}"))
+/// Loads the fleet file (its errors, each with file:line:column, are the whole message) and
+/// applies `--keys` / `--insecure`.
+pub fn load_fleet(path: &Path, security: &SecurityArgs) -> anyhow::Result<Fleet> {
+    security.load(path)
 }
 
 /// Fails unless `name` is a system of `fleet`. `flag` is the option that gave it (`--as`);

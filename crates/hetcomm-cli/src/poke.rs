@@ -9,10 +9,13 @@ use hetcomm::config::{Fleet, TransportKind};
 use hetcomm::{FailReason, MessageType, Outcome, SendOptions};
 
 use crate::names;
+use crate::security::SecurityArgs;
 
 /// Options of `hetcomm send`.
 pub struct SendArgs<'a> {
     pub fleet: &'a Path,
+    /// `--keys` / `--insecure`.
+    pub security: &'a SecurityArgs,
     pub system: &'a str,
     pub from_module: Option<&'a str>,
     pub to: &'a str,
@@ -53,14 +56,14 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     let value: serde_json::Value =
         serde_json::from_str(args.json).context("--json is not valid JSON")?;
     let payload = hetcomm::payload::from_json(&value)?;
-    let fleet = names::load_fleet(args.fleet)?;
+    let fleet = names::load_fleet(args.fleet, args.security)?;
     names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
     names::check_system(&fleet, args.fleet, "--to", args.to, &["All"])?;
     names::check_module(&fleet, args.fleet, "--module", args.module)?;
     if let Some(m) = args.from_module {
         names::check_module(&fleet, args.fleet, "--from-module", m)?;
     }
-    let comm = names::open_system(args.fleet, args.system)?;
+    let comm = names::open_system(args.fleet, &fleet, args.system)?;
     let from = match args.from_module {
         Some(m) => m.to_string(),
         None => comm

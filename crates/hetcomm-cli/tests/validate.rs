@@ -29,16 +29,72 @@ fn config_dir(rel: &str) -> String {
     p.to_string_lossy().into_owned()
 }
 
+/// A fresh directory under the system's temporary directory.
+fn temp_dir(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hetcomm-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
 #[test]
-fn a_valid_fleet_prints_a_summary_and_exits_0() {
-    let example = config_dir("../fleet.example.toml");
-    let (code, stdout, stderr) = hetcomm(&["validate", &example]);
+fn a_valid_fleet_prints_a_summary_and_a_line_per_transport() {
+    let file = config_dir("cases/valid/all-kinds.toml");
+    let (code, stdout, stderr) = hetcomm(&["validate", &file]);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.starts_with("ok: "), "{stdout}");
     assert!(
         stdout.contains("systems") && stdout.contains("modules") && stdout.contains("pairs"),
         "{stdout}"
     );
+    // One line per transport, indented, after the summary.
+    let lines: Vec<&str> = stdout.lines().skip(1).collect();
+    assert!(!lines.is_empty(), "{stdout}");
+    assert!(
+        lines.iter().all(|l| l.starts_with("  transport `")),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn validate_with_keys_reports_secured_transports() {
+    let dir = temp_dir("validate-keys");
+    let fleet = dir.join("fleet.toml");
+    std::fs::write(
+        &fleet,
+        "[systems]\nAlpha = 0\nBravo = 1\n\n\
+         [transports.lan]\nkind = \"udp\"\nendpoints = { Alpha = \"127.0.0.1:0\", Bravo = \"127.0.0.1:0\" }\n\n\
+         [transports.open]\nkind = \"tcp\"\nsecurity = \"none\"\nendpoints = { Alpha = \"127.0.0.1:0\", Bravo = \"127.0.0.1:0\" }\n\n\
+         [table]\ncolumns = [\"Alpha\", \"Bravo\"]\nAlpha = [\"X\", \"lan\"]\nBravo = [\"open\", \"X\"]\n",
+    )
+    .unwrap();
+    let fleet = fleet.to_str().unwrap();
+    let (code, stdout, stderr) = hetcomm(&["validate", fleet]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        stdout.lines().skip(1).collect::<Vec<_>>(),
+        [
+            "  transport `lan` (udp): secured; 2 of the 2 systems it carries have no public key: Alpha, Bravo",
+            "  transport `open` (tcp): NOT SECURED (security = \"none\"): anyone who can reach it can pose as any system",
+        ]
+    );
+    let keys = dir.join("keys");
+    let keys = keys.to_str().unwrap();
+    let (code, _, stderr) = hetcomm(&["keygen", "--fleet", fleet, "--out", keys]);
+    assert_eq!(code, 0, "{stderr}");
+    let (code, stdout, stderr) = hetcomm(&["validate", fleet, "--keys", keys]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        stdout.lines().nth(1),
+        Some("  transport `lan` (udp): secured; all 2 systems it carries have a public key")
+    );
+    let (code, _, stderr) = hetcomm(&["validate", fleet, "--keys", "no-such-keys"]);
+    assert_eq!(code, 2);
+    assert!(
+        stderr.starts_with("no-such-keys: the keys directory `no-such-keys` does not exist"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -76,16 +132,41 @@ fn an_invalid_fleet_exits_2_with_located_errors() {
 }
 
 #[test]
-fn generate_config_prints_a_fleet_that_validates() {
+fn generate_config_prints_a_secured_fleet_that_validates_once_keygen_ran() {
     let (code, stdout, _) = hetcomm(&["generate-config"]);
     assert_eq!(code, 0);
-    let dir = std::env::temp_dir().join(format!("hetcomm-genconf-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    assert!(stdout.contains("[security]\nkeys = \"keys\"\n"), "{stdout}");
+    assert!(stdout.contains("# security = \"none\""), "{stdout}");
+    let dir = temp_dir("genconf");
     let file = dir.join("fleet.toml");
     std::fs::write(&file, &stdout).unwrap();
-    let (code, out, err) = hetcomm(&["validate", file.to_str().unwrap()]);
+    let file = file.to_str().unwrap();
+    let keys = dir.join("keys");
+    let keys = keys.to_str().unwrap();
+    // A new user's first `validate` says what to run.
+    let (code, out, err) = hetcomm(&["validate", file]);
+    assert_eq!(code, 2, "{out}");
+    assert!(
+        err.contains(&format!(
+            "the keys directory `{keys}` does not exist\n  help: run `hetcomm keygen --fleet {file} --out {keys}`"
+        )),
+        "{err}"
+    );
+    let (code, out, err) = hetcomm(&["keygen", "--fleet", file, "--out", keys]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.starts_with("ok: "));
+    assert!(
+        out.contains("already reads its keys from this directory"),
+        "{out}"
+    );
+    let (code, out, err) = hetcomm(&["validate", file]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("ok: "), "{out}");
+    assert!(
+        out.contains(
+            "  transport `lan` (udp): secured; all 2 systems it carries have a public key\n"
+        ),
+        "{out}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -79,6 +79,7 @@ pub use model::*;
 
 use crate::assemble::{LegacyBt, ModSpec, Parts, SysSpec, Systems, DEFAULT_MODULES};
 use crate::error::{Diag, Loc};
+use crate::fleet_toml::KeyReading;
 
 /// The commented example fleet file; `hetcomm generate-config` prints it, and it is a good
 /// starting point for a new fleet.
@@ -99,7 +100,14 @@ pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, true)
+    fleet_toml::parse(
+        &text,
+        &origin,
+        Some(base),
+        Some(path.to_path_buf()),
+        kinds,
+        KeyReading::All,
+    )
 }
 
 /// [`load_with`] without reading any key file: `[security] keys` may name a directory that
@@ -113,7 +121,37 @@ pub fn load_skipping_keys(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErr
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, false)
+    fleet_toml::parse(
+        &text,
+        &origin,
+        Some(base),
+        Some(path.to_path_buf()),
+        kinds,
+        KeyReading::Nothing,
+    )
+}
+
+/// [`load_with`], with the systems' keys read from `dir` instead of the file's
+/// `[security] keys` directory (which need not exist on this machine): the command line's
+/// `--keys DIR`. Systems' own `public_key` / `public_key_file` are still read; then
+/// [`apply_keys_dir`] reads `dir`, whose keys replace them.
+pub fn load_with_keys_dir(path: &Path, kinds: &Kinds, dir: &Path) -> Result<Fleet, ConfigErrors> {
+    let origin = path.display().to_string();
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) => return Err(unreadable(&origin, &e)),
+    };
+    let base = path.parent().unwrap_or(Path::new(""));
+    let mut fleet = fleet_toml::parse(
+        &text,
+        &origin,
+        Some(base),
+        Some(path.to_path_buf()),
+        kinds,
+        KeyReading::NotDir,
+    )?;
+    apply_keys_dir(&mut fleet, dir)?;
+    Ok(fleet)
 }
 
 /// Validates fleet-file text. `origin` is the file name used in error locations; relative
@@ -130,7 +168,7 @@ pub fn parse_str_with(
     base_dir: Option<&Path>,
     kinds: &Kinds,
 ) -> Result<Fleet, ConfigErrors> {
-    fleet_toml::parse(text, origin, base_dir, None, kinds, true)
+    fleet_toml::parse(text, origin, base_dir, None, kinds, KeyReading::All)
 }
 
 /// Loads the thesis's files alone: the id file (Tables 1, 6, 16), the communication table

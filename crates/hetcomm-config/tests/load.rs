@@ -316,10 +316,42 @@ fn every_key_reaches_the_model() {
 
 #[test]
 fn example_fleet_parses() {
-    let f = match parse_str(EXAMPLE_FLEET, "fleet.example.toml", None) {
+    // The example reads its keys from `keys/` beside it: without them it says how to make them.
+    let e = parse_str(
+        EXAMPLE_FLEET,
+        "fleet.toml",
+        Some(Path::new("tests/no-such-dir")),
+    )
+    .unwrap_err()
+    .to_string();
+    assert_eq!(
+        e,
+        "fleet.toml:23:8: the keys directory `tests/no-such-dir/keys` does not exist\n  \
+         help: run `hetcomm keygen --fleet fleet.toml --out tests/no-such-dir/keys` to write \
+         every system's keys there, or correct the path"
+    );
+    // With a key directory (fake public keys: this crate does no cryptography).
+    let dir = std::env::temp_dir().join(format!("hetcomm-example-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("keys")).unwrap();
+    for (i, name) in ["Alpha", "Charlie", "Tango", "VirtualEnv"]
+        .iter()
+        .enumerate()
+    {
+        let key = format!("{}{}=", i, "A".repeat(42));
+        std::fs::write(dir.join("keys").join(format!("{name}.pub")), key).unwrap();
+    }
+    let parsed = parse_str(EXAMPLE_FLEET, "fleet.example.toml", Some(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
+    let f = match parsed {
         Ok(f) => f,
         Err(e) => panic!("{e}"),
     };
+    assert_eq!(f.keys_dir, Some(dir.join("keys")));
+    assert!(f.systems.iter().all(|s| s.public_key.is_some()));
+    assert!(f
+        .transports
+        .iter()
+        .all(|t| t.security == SecurityMode::Keys));
     assert_eq!(f.name.as_deref(), Some("leader-follower"));
     assert_eq!(f.systems.len(), 4);
     assert_eq!(f.module_by_name("Act").map(|m| m.inbox.capacity), Some(64));

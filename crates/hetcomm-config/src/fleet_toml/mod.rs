@@ -124,6 +124,17 @@ pub(crate) const OVERFLOWS: [&str; 3] = ["drop-oldest", "drop-newest", "block"];
 /// Delivery mode names.
 pub(crate) const DELIVERIES: [&str; 2] = ["acknowledged", "unacknowledged"];
 
+/// Which key files a load reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum KeyReading {
+    /// Every one: `[security] keys` and `public_key_file`s.
+    All,
+    /// `public_key_file`s, not the `[security] keys` directory (another directory replaces it).
+    NotDir,
+    /// None (`hetcomm keygen`, run to create them).
+    Nothing,
+}
+
 /// A `[legacy]` path: as written, as resolved, and where it was written.
 struct LegacyPath {
     path: PathBuf,
@@ -148,8 +159,8 @@ struct P<'a> {
     base_dir: Option<&'a Path>,
     /// The kinds registered beyond the built-in ones.
     kinds: &'a Kinds,
-    /// Whether key files are read (false for `hetcomm keygen`, which is run to create them).
-    read_keys: bool,
+    /// Which key files are read.
+    read_keys: KeyReading,
     /// Systems of `[systems]` left out for an error in their entry (a bad or missing id).
     unusable_systems: Vec<String>,
     /// Every `udp` / `tcp` endpoint so far, by (kind, host in lower case, port).
@@ -171,7 +182,7 @@ pub(crate) fn parse(
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
     kinds: &Kinds,
-    read_keys: bool,
+    read_keys: KeyReading,
 ) -> Result<Fleet, ConfigErrors> {
     parse_with(text, origin, base_dir, source, kinds, read_keys, true).0
 }
@@ -184,7 +195,7 @@ fn parse_with(
     base_dir: Option<&Path>,
     source: Option<PathBuf>,
     kinds: &Kinds,
-    read_keys: bool,
+    read_keys: KeyReading,
     fast: bool,
 ) -> (Result<Fleet, ConfigErrors>, bool) {
     let file: Rc<str> = Rc::from(origin);

@@ -333,7 +333,7 @@ impl<'a> Cursor<'a> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::parse_with;
+    use super::super::{parse_with, KeyReading};
 
     const HEAD: &str = "name = \"t\"\n[systems]\nAlpha = 0\nBravo = 1\n\"Caf\u{e9}\" = 2\n\n\
                         [transports.wired]\nkind = \"inproc\"\n[transports.lan]\nkind = \"udp\"\n\
@@ -343,8 +343,24 @@ mod tests {
     /// Both ways of reading must give the same fleet, or the same errors at the same places.
     fn same(table: &str, tail: &str, fast_expected: bool) {
         let text = format!("{HEAD}{table}{tail}");
-        let (fast, used) = parse_with(&text, "s.toml", None, None, &Default::default(), true, true);
-        let (slow, _) = parse_with(&text, "s.toml", None, None, &Default::default(), true, false);
+        let (fast, used) = parse_with(
+            &text,
+            "s.toml",
+            None,
+            None,
+            &Default::default(),
+            KeyReading::All,
+            true,
+        );
+        let (slow, _) = parse_with(
+            &text,
+            "s.toml",
+            None,
+            None,
+            &Default::default(),
+            KeyReading::All,
+            false,
+        );
         assert_eq!(fast, slow, "{text}");
         assert_eq!(used, fast_expected, "fast path taken?\n{text}");
     }

@@ -28,7 +28,7 @@ impl P<'_> {
              e.g. `keys = \"keys\"`",
         )?;
         let dir = self.resolve(s);
-        if !self.read_keys {
+        if self.read_keys != KeyReading::All {
             return Some(dir);
         }
         let keygen = format!("hetcomm keygen --fleet {}", self.file);
@@ -91,7 +91,7 @@ impl P<'_> {
                 let fl = self.vloc(v, vl);
                 let p = format!("{path}.public_key_file");
                 if let Some(s) = self.string(v, &p, &fl, file_help) {
-                    if self.read_keys {
+                    if self.read_keys != KeyReading::Nothing {
                         let file = self.resolve(s);
                         keys.public_key =
                             keys::read_public(&file, name, Some(&fl), false, &mut self.diag);
