@@ -130,6 +130,8 @@ pub(crate) struct Parts {
     pub legacy_bt: Option<LegacyBt>,
     /// `[security] keys`, resolved.
     pub keys_dir: Option<PathBuf>,
+    /// `[security] in_process`.
+    pub secure_in_process: bool,
     /// Where to report "B needs addresses" when no cell location is better.
     pub fallback: Loc,
 }
@@ -506,6 +508,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         table,
         legacy_bt,
         keys_dir,
+        secure_in_process,
         fallback,
     } = p;
 
@@ -650,7 +653,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         transports: defs,
         table: pairs.into_iter().collect(),
         keys_dir,
-        secure_in_process: false,
+        secure_in_process,
     })
 }
 

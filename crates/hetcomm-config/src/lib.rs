@@ -247,6 +247,7 @@ pub fn load_legacy(
             table: raw_table,
             legacy_bt,
             keys_dir: None,
+            secure_in_process: false,
             fallback: Loc::start(&table_name),
         },
         diag,

@@ -485,3 +485,25 @@ fn legacy_sections_take_their_keys_from_the_security_section() {
         ["transport `R` (ros1): secured; all 2 systems it carries have a public key"]
     );
 }
+
+#[test]
+fn in_process_security_is_read_and_checked() {
+    let text = |v: &str| {
+        format!(
+            "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n[transports.t]\nkind = \"inproc\"\n[table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"t\"]\nB = [\"t\", \"X\"]\n[security]\nin_process = {v}\n"
+        )
+    };
+    let fleet = hetcomm_config::parse_str(&text("true"), "f.toml", None).unwrap();
+    assert!(fleet.secure_in_process);
+    let fleet = hetcomm_config::parse_str(&text("false"), "f.toml", None).unwrap();
+    assert!(!fleet.secure_in_process);
+    let err = hetcomm_config::parse_str(&text("\"yes\""), "f.toml", None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.starts_with("f.toml:13:14:")
+            && err.contains("security.in_process")
+            && err.contains("true or false"),
+        "{err}"
+    );
+}

@@ -60,7 +60,7 @@ pub(crate) const SYSTEM_KEYS: [&str; 5] = [
     "private_key_file",
 ];
 /// Keys of `[security]`.
-pub(crate) const SECURITY_KEYS: [&str; 1] = ["keys"];
+pub(crate) const SECURITY_KEYS: [&str; 2] = ["keys", "in_process"];
 /// Values of a transport's `security`, in `SecurityMode` order.
 pub(crate) const SECURITY_MODES: [&str; 2] = ["keys", "none"];
 /// Keys of `[legacy]`.
@@ -382,6 +382,9 @@ impl P<'_> {
         let mut systems = Systems::new(specs, &mut self.diag);
         systems.mark_reported(std::mem::take(&mut self.unusable_systems));
         let keys_dir = get("security").and_then(|item| self.security(item, &top, &mut systems));
+        let secure_in_process = get("security")
+            .and_then(|item| self.security_in_process(item, &top))
+            .unwrap_or(false);
 
         // Inbox defaults, then modules.
         let mut defaults = InboxDefaults {
@@ -507,6 +510,7 @@ impl P<'_> {
             table,
             legacy_bt,
             keys_dir,
+            secure_in_process,
             fallback: top,
         }
     }

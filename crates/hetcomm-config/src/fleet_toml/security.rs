@@ -48,6 +48,20 @@ impl P<'_> {
         Some(dir)
     }
 
+    /// `[security] in_process = true`: secure in-process links too (unknown keys are reported
+    /// by [`P::security`]).
+    pub(super) fn security_in_process(&mut self, item: &Item, top: &Loc) -> Option<bool> {
+        let loc = self.vloc(item, top);
+        let v = item.as_table_like()?.get("in_process")?;
+        let vl = self.vloc(v, &loc);
+        self.boolean(
+            v,
+            "security.in_process",
+            &vl,
+            "write `in_process = true` to secure in-process and emulated links as well, or leave it out",
+        )
+    }
+
     /// A system's own keys in its long form `[systems.Name]`.
     pub(super) fn system_keys(
         &mut self,
