@@ -27,6 +27,11 @@ pub struct SecurityArgs {
     /// robots on a shared network.
     #[arg(long, conflicts_with = "keys")]
     pub insecure: bool,
+    /// Secure the links that stay in the process too (in-process and emulated ones), as
+    /// `[security] in_process = true` would: every frame sealed, keys made for the run (or,
+    /// in a simulation, from the seed). A simulation gives the same tables as without.
+    #[arg(long, conflicts_with = "insecure")]
+    pub secure: bool,
 }
 
 impl SecurityArgs {
@@ -52,6 +57,9 @@ impl SecurityArgs {
         if let Some(dir) = &self.keys {
             hetcomm::config::apply_keys_dir(fleet, dir)
                 .map_err(|errors| anyhow::anyhow!("--keys {}:\n{errors}", dir.display()))?;
+        }
+        if self.secure {
+            fleet.secure_in_process = true;
         }
         if self.insecure {
             hetcomm::config::insecure(fleet);

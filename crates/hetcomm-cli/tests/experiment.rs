@@ -160,3 +160,38 @@ fn bad_flags_are_clear_errors() {
     let e = run(&["--fleet", "/nonexistent/fleet.toml"]);
     assert!(e.contains("fleet file") && e.contains("nonexistent"), "{e}");
 }
+
+/// `--secure` seals every simulated link (keys and sessions from the seed): Tables 19 and 20
+/// (the CSV of counts) are the same as without. Delays may differ by the time links with a
+/// bandwidth take for the 36 bytes a sealed frame adds.
+#[test]
+fn reliability_secured_gives_the_same_tables() {
+    let tables = |secure: bool| {
+        let out = out_dir(if secure {
+            "experiment-reliability-secure"
+        } else {
+            "experiment-reliability-plain"
+        });
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_hetcomm"));
+        cmd.args(["experiment", "reliability", "--trials", "2", "--out"])
+            .arg(&out);
+        if secure {
+            cmd.arg("--secure");
+        }
+        let output = cmd.output().expect("hetcomm runs");
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let csv = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.to_string_lossy().ends_with("tables.csv"))
+            .unwrap_or_else(|| panic!("no tables CSV in {}", out.display()));
+        std::fs::read_to_string(csv).unwrap()
+    };
+    let plain = tables(false);
+    assert!(plain.lines().count() > 3, "{plain}");
+    assert_eq!(plain, tables(true));
+}
