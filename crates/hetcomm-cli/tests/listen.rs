@@ -23,6 +23,14 @@ fn alpha_bravo() -> (TempDir, std::path::PathBuf, String) {
     (dir, fleet, format!("127.0.0.1:{}", ports[1]))
 }
 
+/// [`alpha_bravo`] unsecured, for tests whose raw socket plays Alpha with hand-made frames
+/// (on a secured fleet they are refused before the router sees them, see
+/// `crates/hetcomm/tests/security_attacks.rs`).
+fn alpha_bravo_unsecured() -> (TempDir, std::path::PathBuf, String) {
+    let (dir, fleet, ports) = loopback_fleet_unsecured("udp", &[("Alpha", 0), ("Bravo", 1)]);
+    (dir, fleet, format!("127.0.0.1:{}", ports[1]))
+}
+
 /// Seconds since the listener started, from a line's leading `+1.234 s` column.
 fn seconds(line: &str) -> f64 {
     let (time, _) = line
@@ -78,7 +86,7 @@ fn sigterm_ends_listen_with_its_summary() {
 #[test]
 fn drops_show_on_a_status_line_while_listening() {
     let deadline = Deadline::after(40);
-    let (_dir, fleet, bravo_ep) = alpha_bravo();
+    let (_dir, fleet, bravo_ep) = alpha_bravo_unsecured();
     let mut bravo = listen(&fleet, "Bravo", &[], deadline);
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
 
@@ -134,7 +142,7 @@ fn drops_show_on_a_status_line_while_listening() {
 #[test]
 fn verbose_prints_each_drop_as_it_is_counted() {
     let deadline = Deadline::after(30);
-    let (_dir, fleet, bravo_ep) = alpha_bravo();
+    let (_dir, fleet, bravo_ep) = alpha_bravo_unsecured();
     let mut bravo = listen(&fleet, "Bravo", &["--verbose"], deadline);
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
 
@@ -158,7 +166,7 @@ fn verbose_prints_each_drop_as_it_is_counted() {
 #[test]
 fn json_tells_an_undecodable_payload_from_nil() {
     let deadline = Deadline::after(30);
-    let (_dir, fleet, bravo_ep) = alpha_bravo();
+    let (_dir, fleet, bravo_ep) = alpha_bravo_unsecured();
     let mut bravo = listen(&fleet, "Bravo", &["--count", "4", "--json"], deadline);
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
     // A string of 5 bytes cut after 1; 0xc1, the one byte MessagePack never uses; 0xc0, nil;

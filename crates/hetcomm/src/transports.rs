@@ -146,6 +146,14 @@ pub(crate) fn open_link(
         .map(|s| s.name.clone())
         .unwrap_or_else(|| local.to_string());
     let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
+    // A kind this program cannot open says so first (how to build it in matters more than
+    // the keys it would need).
+    if env.sim.is_none()
+        && !matches!(t.kind, TransportKind::Inproc | TransportKind::Emulated)
+        && registry().factory(t.kind).is_none()
+    {
+        return Err(unavailable(t, t.kind));
+    }
     let stack = layers(fleet, index, local, env).map_err(&failed)?;
     let mut ctx = LayerContext::new(local);
     if env.sim.is_some() {
