@@ -22,31 +22,43 @@ pub enum Kind {
     Tcp,
     /// `inproc` (one process, two threads).
     Inproc,
+    /// `udp`, secured (keys per system, every frame sealed: `docs/security.md`). The plain
+    /// `Udp` and `Tcp` rows say `security = "none"`, so the two stand side by side.
+    UdpSecured,
+    /// `tcp`, secured.
+    TcpSecured,
 }
 
 impl Kind {
     /// The fleet file's kind name.
     pub fn name(self) -> &'static str {
         match self {
-            Kind::Udp => "udp",
-            Kind::Tcp => "tcp",
+            Kind::Udp | Kind::UdpSecured => "udp",
+            Kind::Tcp | Kind::TcpSecured => "tcp",
             Kind::Inproc => "inproc",
         }
     }
+
+    /// Whether frames are sealed.
+    pub fn secured(self) -> bool {
+        matches!(self, Kind::UdpSecured | Kind::TcpSecured)
+    }
 }
 
-/// The row name of a kind and delivery mode.
+/// The row name of a kind and delivery mode (`hetcomm-udp-unack`,
+/// `hetcomm-udp-secured-ack`, …).
 pub fn path_name(kind: Kind, acked: bool) -> String {
     format!(
-        "hetcomm-{}-{}",
+        "hetcomm-{}{}-{}",
         kind.name(),
+        if kind.secured() { "-secured" } else { "" },
         if acked { "ack" } else { "unack" }
     )
 }
 
 fn free_port(kind: Kind) -> Result<u16, String> {
     let port = match kind {
-        Kind::Udp => std::net::UdpSocket::bind("127.0.0.1:0")
+        Kind::Udp | Kind::UdpSecured => std::net::UdpSocket::bind("127.0.0.1:0")
             .and_then(|s| s.local_addr())
             .map(|a| a.port()),
         _ => std::net::TcpListener::bind("127.0.0.1:0")
@@ -56,11 +68,22 @@ fn free_port(kind: Kind) -> Result<u16, String> {
     port.map_err(|e| format!("finding a free port: {e}"))
 }
 
-/// The fleet file text: systems A and B, module M, one transport `t`.
+/// The fleet file text: systems A and B, module M, one transport `t`. A secured kind reads
+/// its keys from `keys/` beside the file (see [`write_keys`]); the plain network kinds say
+/// `security = "none"`.
 pub fn fleet_text(kind: Kind, acked: bool, ports: Option<(u16, u16)>) -> String {
     let endpoints = match ports {
         Some((a, b)) => format!("endpoints = {{ A = \"127.0.0.1:{a}\", B = \"127.0.0.1:{b}\" }}\n"),
         None => String::new(),
+    };
+    let security = match kind {
+        Kind::Udp | Kind::Tcp => "security = \"none\"\n",
+        _ => "",
+    };
+    let keys = if kind.secured() {
+        "[security]\nkeys = \"keys\"\n"
+    } else {
+        ""
     };
     format!(
         r#"[systems]
@@ -75,11 +98,11 @@ block_timeout_ms = 1000
 [transports.t]
 kind = "{}"
 delivery = "{}"
-{endpoints}[table]
+{security}{endpoints}[table]
 columns = ["A", "B"]
 A = ["X", "t"]
 B = ["t", "X"]
-"#,
+{keys}"#,
         kind.name(),
         if acked {
             "acknowledged"
@@ -97,9 +120,24 @@ struct Pair {
     m: Module,
 }
 
+/// Writes a key pair for A and B in `dir/keys` (what `hetcomm keygen` writes).
+pub fn write_keys(dir: &std::path::Path) -> Result<(), String> {
+    let keys = dir.join("keys");
+    std::fs::create_dir_all(&keys).map_err(|e| format!("{}: {e}", keys.display()))?;
+    for name in ["A", "B"] {
+        hetcomm::security::Keypair::generate()
+            .and_then(|k| k.write(&keys, name))
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
 fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     let dir = TempDir::new()?;
     let ports = (free_port(kind)?, free_port(kind)?);
+    if kind.secured() {
+        write_keys(&dir.0)?;
+    }
     let path = dir.0.join("fleet.toml");
     std::fs::write(&path, fleet_text(kind, acked, Some(ports)))
         .map_err(|e| format!("{}: {e}", path.display()))?;

@@ -27,6 +27,7 @@ mod hc;
 mod raw;
 mod report;
 mod scale;
+mod secured;
 mod stats;
 
 use std::path::PathBuf;
@@ -288,6 +289,9 @@ fn run(o: &Options) -> Vec<Row> {
         (hc::Kind::Tcp, true),
         (hc::Kind::Inproc, false),
         (hc::Kind::Inproc, true),
+        (hc::Kind::UdpSecured, false),
+        (hc::Kind::UdpSecured, true),
+        (hc::Kind::TcpSecured, false),
     ];
     let raws = [raw::RawKind::Udp, raw::RawKind::Tcp, raw::RawKind::Unix];
 

@@ -182,7 +182,7 @@ pub struct Context {
     pub wall_s: f64,
 }
 
-fn find<'a>(rows: &'a [Row], section: &str, path: &str, size: usize) -> Option<&'a Row> {
+pub fn find<'a>(rows: &'a [Row], section: &str, path: &str, size: usize) -> Option<&'a Row> {
     rows.iter()
         .find(|r| r.section == section && r.path == path && r.size == size && r.error.is_none())
 }
@@ -832,6 +832,7 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
             },
         ),
     });
+    t.extend(crate::secured::targets(rows));
     t
 }
 

@@ -38,7 +38,7 @@ Bravo = [\"lan\", \"X\"]
 /// stdout).
 fn keygen_fleet(dir: &TempDir) -> (PathBuf, PathBuf, String) {
     std::fs::create_dir_all(dir.path().join("conf")).unwrap();
-    let fleet = dir.write("conf/fleet.toml", &format!("{SYSTEMS}{REST}"));
+    let fleet = dir.write_plain("conf/fleet.toml", &format!("{SYSTEMS}{REST}"));
     let keys = dir.path().join("keys");
     let (code, out, err) = hetcomm(&[
         "keygen",
@@ -106,7 +106,7 @@ fn the_security_snippet_is_relative_to_the_fleet_file_and_loads() {
     let (fleet, keys, out) = keygen_fleet(&dir);
     let section = snippet(&out, "[security]");
     assert_eq!(section, "[security]\nkeys = \"../keys\"\n");
-    let secured = dir.write("conf/fleet.toml", &format!("{section}\n{SYSTEMS}{REST}"));
+    let secured = dir.write_plain("conf/fleet.toml", &format!("{section}\n{SYSTEMS}{REST}"));
     assert_eq!(secured, fleet);
     let f = hetcomm::load_fleet(&fleet).unwrap_or_else(|e| panic!("{e}"));
     for s in &f.systems {
@@ -144,7 +144,7 @@ fn the_inline_snippet_loads_to_the_same_keys() {
     let systems = snippet(&out, "[systems]");
     assert!(systems.contains("Bravo = { id = 1, modules = [\"Plan\"], public_key = \""));
     assert!(systems.contains("private_key_file = \"../keys/Alpha.key\" }"));
-    dir.write("conf/fleet.toml", &format!("{systems}{REST}"));
+    dir.write_plain("conf/fleet.toml", &format!("{systems}{REST}"));
     let f = hetcomm::load_fleet(&fleet).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(f.keys_dir, None);
     for s in &f.systems {
@@ -191,7 +191,7 @@ fn refuses_to_overwrite_without_force() {
 #[test]
 fn a_fleet_with_errors_is_reported_not_keyed() {
     let dir = TempDir::new("keygen-bad");
-    let fleet = dir.write("fleet.toml", "[systems]\nAlpha = \"one\"\n");
+    let fleet = dir.write_plain("fleet.toml", "[systems]\nAlpha = \"one\"\n");
     let keys = dir.path().join("keys");
     let (code, _, err) = hetcomm(&[
         "keygen",
@@ -211,8 +211,8 @@ fn a_fleet_with_errors_is_reported_not_keyed() {
 #[test]
 fn legacy_files_get_keys_and_run_with_keys_dir() {
     let dir = TempDir::new("keygen-legacy");
-    let ids = dir.write("ids.txt", "0 Alpha\n1 Bravo\n");
-    let table = dir.write("table.txt", "  0 1\n0 X R\n1 R X\n");
+    let ids = dir.write_plain("ids.txt", "0 Alpha\n1 Bravo\n");
+    let table = dir.write_plain("table.txt", "  0 1\n0 X R\n1 R X\n");
     let keys = dir.path().join("keys");
     let (ids, table, keys) = (
         ids.to_str().unwrap(),
@@ -238,7 +238,7 @@ fn insecure_warns_on_stderr() {
     // `send` with --insecure: the warning comes before anything is opened (the destination
     // does not exist, so the command then fails on the name).
     let dir = TempDir::new("keygen-insecure");
-    let fleet = dir.write(
+    let fleet = dir.write_plain(
         "fleet.toml",
         &format!("[security]\nkeys = \"keys\"\n{SYSTEMS}{REST}"),
     );

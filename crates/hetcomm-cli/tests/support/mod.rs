@@ -117,6 +117,17 @@ impl TempDir {
         std::fs::write(&p, text).expect("write temp file");
         p
     }
+
+    /// Writes `name` in the directory exactly as given (no keys added), creating its folder.
+    #[allow(dead_code)]
+    pub fn write_plain(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.0.join(name);
+        if let Some(parent) = p.parent() {
+            std::fs::create_dir_all(parent).expect("create folder");
+        }
+        std::fs::write(&p, text).expect("write temp file");
+        p
+    }
 }
 
 impl Drop for TempDir {

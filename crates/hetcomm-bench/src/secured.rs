@@ -1,0 +1,108 @@
+//! The security issue's targets: what sealing every frame costs, secured rows against the
+//! unsecured ones of the same run (`docs/security.md`).
+
+use crate::report::{find, Row, Target};
+
+const WHY: &str = "a secured frame costs an AES-256-GCM seal on the sender and an open on the receiver (ring, with the CPU's AES instructions), a copy into a scratch buffer on each side (the link API lends frames), and 36 bytes on the wire; the session's handshake happens once, before the first frame, and is outside the measurement (the benchmark waits for the first echo). Large frames pay for the cipher's pass over every byte on both sides, which the unsecured path does not make at all (over TCP it does not even checksum payloads).";
+
+fn ratio_target(
+    name: &'static str,
+    secured: Option<f64>,
+    plain: Option<f64>,
+    at_least: f64,
+    unit: &str,
+) -> Target {
+    match (secured, plain) {
+        (Some(s), Some(p)) if p > 0.0 => {
+            let x = s / p;
+            Target {
+                name,
+                status: if x >= at_least { "met" } else { "missed" },
+                figure: format!(
+                    "secured {s:.3e} {unit} vs unsecured {p:.3e} {unit} = {:.0}%{}",
+                    x * 100.0,
+                    if x < at_least {
+                        format!("; misses by {:.0} points", (at_least - x) * 100.0)
+                    } else {
+                        String::new()
+                    }
+                ),
+                why: WHY,
+            }
+        }
+        _ => Target {
+            name,
+            status: "not measured",
+            figure: "-".into(),
+            why: WHY,
+        },
+    }
+}
+
+/// Secured 64 B round trip adds ≤ 3 µs at p50; one-way 64 B ≥ 70% and 64 KiB ≥ 85% of the
+/// unsecured rate (UDP, unacknowledged; TCP shown beside).
+pub fn targets(rows: &[Row]) -> Vec<Target> {
+    let g = |section: &str, path: &str, size: usize, k: &str| {
+        find(rows, section, path, size).and_then(|r| r.get(k))
+    };
+    let mut t = Vec::new();
+    let name = "secured udp adds ≤ 3 µs (64 B round trip p50, unacknowledged)";
+    t.push(
+        match (
+            g("rtt", "hetcomm-udp-secured-unack", 64, "p50_us"),
+            g("rtt", "hetcomm-udp-unack", 64, "p50_us"),
+        ) {
+            (Some(s), Some(u)) => {
+                let d = s - u;
+                Target {
+                    name,
+                    status: if d <= 3.0 { "met" } else { "missed" },
+                    figure: format!(
+                        "secured {s:.1} µs − unsecured {u:.1} µs = {d:+.1} µs{} (acknowledged: {})",
+                        if d > 3.0 {
+                            format!("; misses by {:.1} µs", d - 3.0)
+                        } else {
+                            String::new()
+                        },
+                        match (
+                            g("rtt", "hetcomm-udp-secured-ack", 64, "p50_us"),
+                            g("rtt", "hetcomm-udp-ack", 64, "p50_us")
+                        ) {
+                            (Some(a), Some(b)) => format!("{:+.1} µs", a - b),
+                            _ => "-".into(),
+                        }
+                    ),
+                    why: WHY,
+                }
+            }
+            _ => Target {
+                name,
+                status: "not measured",
+                figure: "-".into(),
+                why: WHY,
+            },
+        },
+    );
+    t.push(ratio_target(
+        "secured udp one-way 64 B: ≥ 70% of unsecured msg/s",
+        g("oneway", "hetcomm-udp-secured-unack", 64, "msgs_per_s"),
+        g("oneway", "hetcomm-udp-unack", 64, "msgs_per_s"),
+        0.70,
+        "msg/s",
+    ));
+    t.push(ratio_target(
+        "secured udp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
+        g("oneway", "hetcomm-udp-secured-unack", 64 * 1024, "bytes_per_s"),
+        g("oneway", "hetcomm-udp-unack", 64 * 1024, "bytes_per_s"),
+        0.85,
+        "B/s",
+    ));
+    t.push(ratio_target(
+        "secured tcp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
+        g("oneway", "hetcomm-tcp-secured-unack", 64 * 1024, "bytes_per_s"),
+        g("oneway", "hetcomm-tcp-unack", 64 * 1024, "bytes_per_s"),
+        0.85,
+        "B/s",
+    ));
+    t
+}
