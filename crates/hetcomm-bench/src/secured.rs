@@ -92,14 +92,24 @@ pub fn targets(rows: &[Row]) -> Vec<Target> {
     ));
     t.push(ratio_target(
         "secured udp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
-        g("oneway", "hetcomm-udp-secured-unack", 64 * 1024, "bytes_per_s"),
+        g(
+            "oneway",
+            "hetcomm-udp-secured-unack",
+            64 * 1024,
+            "bytes_per_s",
+        ),
         g("oneway", "hetcomm-udp-unack", 64 * 1024, "bytes_per_s"),
         0.85,
         "B/s",
     ));
     t.push(ratio_target(
         "secured tcp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
-        g("oneway", "hetcomm-tcp-secured-unack", 64 * 1024, "bytes_per_s"),
+        g(
+            "oneway",
+            "hetcomm-tcp-secured-unack",
+            64 * 1024,
+            "bytes_per_s",
+        ),
         g("oneway", "hetcomm-tcp-unack", 64 * 1024, "bytes_per_s"),
         0.85,
         "B/s",

@@ -150,6 +150,9 @@ struct PeerState {
     pending: Option<(Initiation, Instant)>,
     /// Frames waiting for the handshake, and since when the oldest waits.
     queue: VecDeque<Vec<u8>>,
+    /// The queue is being sent after a handshake: later frames join it, so nothing
+    /// overtakes a frame that waited.
+    flushing: bool,
     queued_bytes: usize,
     waiting_since: Option<Instant>,
     /// The newest initiation timestamp accepted from this peer.
@@ -285,8 +288,17 @@ impl Secured {
                     }
                 }
             }
-            match st.current.clone() {
+            match st.current.clone().filter(|_| !st.flushing) {
                 Some(s) => s,
+                None if st.flushing => {
+                    // Behind the frames that waited for the handshake, which are leaving now.
+                    let mut frame = Vec::with_capacity(head.len() + body.len());
+                    frame.extend_from_slice(head);
+                    frame.extend_from_slice(body);
+                    st.queued_bytes += frame.len();
+                    st.queue.push_back(frame);
+                    return Ok(());
+                }
                 None => {
                     // Wait for the handshake; start (or restart) it if needed.
                     if st.queue.len() >= QUEUE_FRAMES
@@ -330,13 +342,28 @@ impl Secured {
         })
     }
 
-    /// Sends what waited for `peer`'s handshake, now that `session` exists.
-    fn flush_queue(&self, peer: SystemId, session: &Session, queue: VecDeque<Vec<u8>>) {
-        let Some(below) = self.below() else { return };
+    /// Sends what waited for `peer`'s handshake, now that `session` exists, and what joins
+    /// the queue meanwhile (see [`PeerState::flushing`]), in order. Called with `flushing`
+    /// set; clears it when the queue is empty.
+    fn flush_queue(&self, peer: SystemId, slot: &PeerSlot, session: &Session) {
+        let below = self.below();
         let mut buf = Vec::new();
-        for frame in queue {
-            session.seal(&mut buf, self.policy.local, peer, &frame, &[]);
-            let _ = below.send(peer, &buf);
+        loop {
+            let batch = {
+                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                if st.queue.is_empty() {
+                    st.flushing = false;
+                    return;
+                }
+                st.queued_bytes = 0;
+                std::mem::take(&mut st.queue)
+            };
+            for frame in batch {
+                session.seal(&mut buf, self.policy.local, peer, &frame, &[]);
+                if let Some(below) = &below {
+                    let _ = below.send(peer, &buf);
+                }
+            }
         }
     }
 
@@ -346,7 +373,7 @@ impl Secured {
         let Some(below) = self.below() else { return };
         for (&peer, slot) in &self.peers {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-            if st.queue.is_empty() {
+            if st.queue.is_empty() || st.flushing {
                 continue;
             }
             if st
@@ -526,15 +553,14 @@ impl Secured {
         st.pending = None;
         let session = Arc::new(answer.session);
         st.install(session.clone());
-        let queue = std::mem::take(&mut st.queue);
-        st.queued_bytes = 0;
         st.waiting_since = None;
+        st.flushing = true;
         drop(st);
         bump(&self.counters.handshakes);
         if let Some(below) = self.below() {
             let _ = below.send(sender, &answer.response);
         }
-        self.flush_queue(sender, &session, queue);
+        self.flush_queue(sender, slot, &session);
     }
 
     fn receive_response(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
@@ -560,12 +586,11 @@ impl Secured {
             }
         };
         st.install(session.clone());
-        let queue = std::mem::take(&mut st.queue);
-        st.queued_bytes = 0;
         st.waiting_since = None;
+        st.flushing = true;
         drop(st);
         bump(&self.counters.handshakes);
-        self.flush_queue(sender, &session, queue);
+        self.flush_queue(sender, slot, &session);
     }
 }
 
