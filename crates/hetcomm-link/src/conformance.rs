@@ -73,6 +73,29 @@ impl<H: Harness> Layered<H> {
     }
 }
 
+/// A harness whose links each get their own [`LayerStack`], made per system when it opens:
+/// for layers that keep state per link (the security layer holds a system's keys and
+/// sessions).
+pub struct LayeredPerSystem<H, F> {
+    /// The harness that opens the bare links.
+    pub inner: H,
+    /// Makes the layers for a system's link.
+    pub make: F,
+}
+
+impl<H: Harness, F: FnMut(SystemId) -> LayerStack> Harness for LayeredPerSystem<H, F> {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        let stack = (self.make)(system);
+        Layered::new(&mut self.inner, stack).open(system, sink)
+    }
+}
+
+impl<H: Harness + ?Sized> Harness for &mut H {
+    fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+        (**self).open(system, sink)
+    }
+}
+
 impl<H: Harness> Harness for Layered<H> {
     fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
         let ctx = LayerContext::new(system);

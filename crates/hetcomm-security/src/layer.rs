@@ -278,6 +278,13 @@ impl Secured {
             ),
         })?;
         let below = self.below().ok_or(LinkError::Closed)?;
+        let max = below.caps().max_frame.saturating_sub(OVERHEAD);
+        if head.len() + body.len() > max {
+            return Err(LinkError::TooLarge {
+                len: head.len() + body.len(),
+                max,
+            });
+        }
         let session = {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
             if st.current.is_none() {
@@ -491,8 +498,9 @@ impl Secured {
 
     /// Whether the inner frame's header agrees with its authenticated sender and the table.
     fn allowed(&self, sender: SystemId, inner: &[u8]) -> bool {
-        // Too short to have a header: the router counts it as malformed.
-        if inner.len() < 16 {
+        // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the
+        // router counts it as malformed.
+        if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
             return true;
         }
         let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
