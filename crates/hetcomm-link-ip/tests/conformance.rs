@@ -5,13 +5,9 @@
 
 mod common;
 
-use std::collections::{HashMap, HashSet};
-use std::sync::Arc;
-
 use common::{TcpHarness, UdpHarness, UnixHarness};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::{self, Layered};
-use hetcomm_link::layer::LayerStack;
 use hetcomm_link_ip::stream::StreamConfig;
 use hetcomm_link_ip::UdpConfig;
 
@@ -59,33 +55,9 @@ fn unix_stream_layer_wrapped_in_emulation_passes_conformance() {
     )));
 }
 
-/// The security layer over a link, per system (each with its own keys and sessions), for
-/// systems 0–9 that all know each other's public keys and may all talk.
-fn secured<H: conformance::Harness>(
-    inner: H,
-) -> conformance::LayeredPerSystem<H, impl FnMut(SystemId) -> LayerStack> {
-    use hetcomm_security::{Handshakes, Keypair, Policy, SecurityLayer};
-    let keys: HashMap<SystemId, Keypair> = (0..10)
-        .map(|i| (SystemId(i), Keypair::generate().expect("a key")))
-        .collect();
-    conformance::LayeredPerSystem {
-        inner,
-        make: move |id: SystemId| {
-            let all: HashSet<SystemId> = keys.keys().copied().collect();
-            let policy = Policy {
-                local: id,
-                keypair: keys[&id].clone(),
-                peers: keys.iter().map(|(&s, k)| (s, k.public)).collect(),
-                data_from: all.clone(),
-                acks_from: all,
-            };
-            LayerStack::new().with(Arc::new(SecurityLayer::new(
-                "conformance",
-                policy,
-                Handshakes::OverTheLink,
-            )))
-        },
-    }
+/// Systems 0–9 under security layers that all know each other.
+fn secured<H: conformance::Harness>(inner: H) -> impl conformance::Harness {
+    hetcomm_security::conformance::secured(inner, (0..10).map(SystemId))
 }
 
 #[test]

@@ -153,6 +153,24 @@ fn conformance_on_a_real_master_wrapped_in_emulation() {
     conformance::run_all(&mut Layered::emulated(h));
 }
 
+/// The same, each link under the security layer (keys per system, Noise handshake over
+/// the topics, every frame sealed), as a secured `ros1` transport opens it.
+#[test]
+fn conformance_on_a_real_master_secured() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let h = RosHarness {
+        master,
+        systems: names(&[(1, "A"), (2, "B")]),
+        live: Vec::new(),
+    };
+    conformance::run_all(&mut hetcomm_security::conformance::secured(
+        h,
+        [SystemId(1), SystemId(2)],
+    ));
+}
+
 #[test]
 fn unreachable_master_fails_at_once_naming_the_uri() {
     if !common::ros_available() {

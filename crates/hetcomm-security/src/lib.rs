@@ -21,6 +21,7 @@
 //! Every refused frame is counted by reason in [`hetcomm_link::SecurityStats`] (the link's
 //! stats). `docs/security.md` has the threat model; `docs/wire-format.md` the bytes.
 
+pub mod conformance;
 pub mod envelope;
 pub mod keys;
 mod layer;
