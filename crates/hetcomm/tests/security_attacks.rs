@@ -97,6 +97,17 @@ impl World {
         };
         // Sessions up (and every ROS subscriber connected) before anything is counted.
         w.exchange(1);
+        if w.sniffer.is_some() {
+            // ROS connects subscribers asynchronously: until the sniffer has seen one of A's
+            // frames, it may miss some.
+            for _ in 0..50 {
+                if !w.captured_of(3).is_empty() {
+                    break;
+                }
+                w.exchange(1);
+            }
+            assert!(!w.captured_of(3).is_empty(), "the sniffer hears A's frames");
+        }
         w
     }
 

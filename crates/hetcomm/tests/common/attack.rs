@@ -398,8 +398,8 @@ enum StationKind {
 }
 
 impl Station {
-    /// An endpoint anywhere (an ephemeral port; ROS: a node of a system "Eve" that is not in
-    /// the fleet), claiming to be `claim`.
+    /// An endpoint anywhere (an ephemeral port; ROS: another node subscribed to `claim`'s
+    /// topic), claiming to be `claim`.
     pub fn anywhere(setup: &Setup, claim: u16) -> Station {
         Self::open(setup, claim, None)
     }
@@ -540,13 +540,11 @@ fn ros1_station(
         .iter()
         .map(|(n, i)| (SystemId(*i), n.to_string()))
         .collect();
-    let local = match at {
-        Some(_) => SystemId(claim),
-        None => {
-            names.insert(SystemId(STRANGER), "Eve".into());
-            SystemId(STRANGER)
-        }
-    };
+    // The attacker's node is a node of the system it claims to be (beside that system's own,
+    // if it runs): ROS links answer connection probes only on the topics of fleet systems.
+    let _ = at;
+    let local = SystemId(claim);
+    names.entry(local).or_insert_with(|| "Eve".into());
     let settings = hetcomm::config::Ros1Settings {
         master_uri: uri.clone(),
         namespace: Some(setup.namespace.clone()),
