@@ -33,6 +33,9 @@ pub const ACT: u16 = 1;
 pub const STRANGER: u16 = 9;
 /// The transport's name in every fleet.
 pub const TRANSPORT: &str = "t";
+/// Transmissions per message: more than the default 3, so that a handshake delayed by a
+/// loaded machine (after a restart) does not outlast a message's retransmissions.
+pub const ATTEMPTS: u32 = 5;
 
 /// The default table: A ↔ B, B → C; C → B and anything to or from A and C is `X`.
 pub const TABLE: [&str; 3] = [
@@ -196,6 +199,7 @@ Plan = {PLAN}
 Act = {ACT}
 [transports.{TRANSPORT}]
 kind = "{}"
+attempts = {ATTEMPTS}
 {settings}
 [table]
 columns = ["A", "B", "C"]
