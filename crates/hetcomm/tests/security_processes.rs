@@ -29,7 +29,10 @@ fn child_a_sends() {
         let public = PublicKey::load(&dir.join(format!("{}.pub", s.name))).expect("public key");
         s.public_key = Some(public.0);
     }
-    assert!(!dir.join("B.key").exists(), "the child holds only A's private key");
+    assert!(
+        !dir.join("B.key").exists(),
+        "the child holds only A's private key"
+    );
     // The private key comes from HETCOMM_PRIVATE_KEY (set by the parent).
     let a = Comm::open_fleet(&fleet, "A").expect("opening A in the child");
     let plan = a.module("Plan").unwrap();
@@ -68,7 +71,12 @@ fn across_processes(kind: Kind) {
     let b = setup.open("B", &[]);
     let act = b.module("Act").unwrap();
     let child = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "child_a_sends", "--nocapture", "--test-threads=1"])
+        .args([
+            "--exact",
+            "child_a_sends",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env("HC_SECURE_CHILD", &dir)
         .env("HETCOMM_PRIVATE_KEY", dir.join("A.key"))
         .output()

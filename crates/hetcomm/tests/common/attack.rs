@@ -13,8 +13,6 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-#[cfg(feature = "ros1")]
-use std::sync::mpsc::Sender;
 use std::sync::mpsc::{channel, Receiver};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -397,20 +395,20 @@ pub struct Station {
 enum StationKind {
     Udp(UdpSocket),
     Tcp(Mutex<BTreeMap<String, TcpStream>>),
-    #[cfg(feature = "ros1")]
-    Ros1(hetcomm_link_ros1::Ros1Link),
+    /// A rospy node, and the namespace of the fleet's topics.
+    Ros1(Mutex<RosNode>, String),
 }
 
 impl Station {
-    /// An endpoint anywhere (an ephemeral port; ROS: another node subscribed to `claim`'s
-    /// topic), claiming to be `claim`.
+    /// An endpoint anywhere (an ephemeral port; ROS: a rospy node of its own), claiming to be
+    /// `claim` (in the TCP hello; UDP and ROS carry no claim but the frames').
     pub fn anywhere(setup: &Setup, claim: u16) -> Station {
         Self::open(setup, claim, None)
     }
 
     /// An endpoint in the place of system `name`: its UDP or TCP endpoint (which must be
-    /// free: the system is not running), or a subscriber of its ROS topic (beside it, if it
-    /// runs: ROS gives every subscriber a copy).
+    /// free: the system is not running), or a rospy subscriber of its ROS topic (beside it,
+    /// if it runs: ROS gives every subscriber a copy).
     pub fn at(setup: &Setup, name: &str) -> Station {
         Self::open(setup, id(name), Some(name))
     }
@@ -448,10 +446,13 @@ impl Station {
                 }
                 StationKind::Tcp(Mutex::new(BTreeMap::new()))
             }
-            #[cfg(feature = "ros1")]
-            Kind::Ros1(_) => StationKind::Ros1(ros1_station(setup, claim, at, tx)),
-            #[cfg(not(feature = "ros1"))]
-            Kind::Ros1(_) => unreachable!("ros1 attacks need --features ros1"),
+            Kind::Ros1(uri) => {
+                let mut node = RosNode::start(uri, tx);
+                if let Some(n) = at {
+                    node.command(&format!("sub /{}/{n}", setup.namespace));
+                }
+                StationKind::Ros1(Mutex::new(node), setup.namespace.clone())
+            }
         };
         Station {
             claim,
@@ -484,11 +485,12 @@ impl Station {
                 }
                 s.write_all(&bytes).expect("writing records");
             }
-            #[cfg(feature = "ros1")]
-            StationKind::Ros1(link) => {
-                use hetcomm::link::Link;
-                for f in frames {
-                    link.send(SystemId(id(to)), f).expect("publishing");
+            StationKind::Ros1(node, namespace) => {
+                let mut node = node.lock().unwrap();
+                // At most 200 frames a command, so a line stays short.
+                for chunk in frames.chunks(200) {
+                    let list: Vec<String> = chunk.iter().map(|f| hex(f)).collect();
+                    node.command(&format!("pub /{namespace}/{to} {}", list.join(" ")));
                 }
             }
         }
@@ -523,45 +525,77 @@ impl Drop for Station {
     }
 }
 
-#[cfg(feature = "ros1")]
-fn ros1_station(
-    setup: &Setup,
-    claim: u16,
-    at: Option<&str>,
-    tx: Sender<Vec<u8>>,
-) -> hetcomm_link_ros1::Ros1Link {
-    use hetcomm::link::{FrameSink, Peer};
-    struct Sink(Mutex<Sender<Vec<u8>>>);
-    impl FrameSink for Sink {
-        fn on_frame(&self, frame: &[u8], _from: Peer) {
-            let _ = self.0.lock().unwrap().send(frame.to_vec());
-        }
+/// The ROS attacker: `ros1_attacker.py`, an ordinary rospy node (see that file).
+struct RosNode {
+    child: std::process::Child,
+    stdin: std::process::ChildStdin,
+    replies: Receiver<String>,
+}
+
+impl RosNode {
+    fn start(uri: &str, frames: std::sync::mpsc::Sender<Vec<u8>>) -> RosNode {
+        use std::io::BufRead;
+        use std::process::{Command, Stdio};
+        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/common/ros1_attacker.py");
+        let home = std::env::temp_dir().join(format!("hc-attack-ros-{}", std::process::id()));
+        let mut child = Command::new("/usr/bin/python3")
+            .arg(script)
+            .env("ROS_MASTER_URI", uri)
+            .env("ROS_HOSTNAME", "127.0.0.1")
+            .env("ROS_LOG_DIR", &home)
+            .env("ROS_HOME", &home)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("starting the rospy attacker (/usr/bin/python3 with rospy)");
+        let stdin = child.stdin.take().unwrap();
+        let stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+        let (tx, replies) = channel();
+        std::thread::spawn(move || {
+            for line in stdout.lines().map_while(Result::ok) {
+                match line.strip_prefix("F ") {
+                    Some(hex) => drop(frames.send(unhex(hex))),
+                    None => drop(tx.send(line)),
+                }
+            }
+        });
+        let mut node = RosNode {
+            child,
+            stdin,
+            replies,
+        };
+        node.expect("READY", "starting");
+        node
     }
-    let Kind::Ros1(uri) = &setup.kind else {
-        unreachable!()
-    };
-    let mut names: BTreeMap<SystemId, String> = SYSTEMS
-        .iter()
-        .map(|(n, i)| (SystemId(*i), n.to_string()))
-        .collect();
-    // The attacker's node is a node of the system it claims to be (beside that system's own,
-    // if it runs): ROS links answer connection probes only on the topics of fleet systems.
-    let _ = at;
-    let local = SystemId(claim);
-    names.entry(local).or_insert_with(|| "Eve".into());
-    let settings = hetcomm::config::Ros1Settings {
-        master_uri: uri.clone(),
-        namespace: Some(setup.namespace.clone()),
-        connect_timeout_ms: Some(5000),
-    };
-    hetcomm_link_ros1::Ros1Link::open(
-        local,
-        &names,
-        &settings,
-        Arc::new(Sink(Mutex::new(tx))),
-        Default::default(),
-    )
-    .expect("the attacker's ROS node")
+
+    /// Sends one command and waits for its `OK`.
+    fn command(&mut self, line: &str) {
+        writeln!(self.stdin, "{line}").expect("writing to the rospy attacker");
+        let what = line.split(' ').take(2).collect::<Vec<_>>().join(" ");
+        self.expect("OK", &what);
+    }
+
+    fn expect(&mut self, want: &str, what: &str) {
+        let got = self.replies.recv_timeout(Duration::from_secs(60));
+        assert_eq!(got.as_deref(), Ok(want), "rospy attacker: {what}");
+    }
+}
+
+impl Drop for RosNode {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn unhex(hex: &str) -> Vec<u8> {
+    (0..hex.len() / 2)
+        .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).expect("hex"))
+        .collect()
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 fn spawn_acceptor(
