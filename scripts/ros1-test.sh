@@ -4,7 +4,8 @@
 # Installs the ROS 1 tools when `rosmaster` is missing (Debian packages: ros-core,
 # python3-rospy, python3-rostopic, ros-std-msgs; python3-msgpack for the rospy example), then
 # runs the transport crate's tests (conformance, master restart, first frame to a new peer,
-# rospy interop, rostopic), the facade's tests and the CLI's `ros1_send` acceptance test (50
+# rospy interop, rostopic), the facade's tests (the security attack suite over ros1
+# included) and the CLI's `ros1_send` acceptance test (50
 # fresh `hetcomm send` processes, each delivered on the first attempt) with `--features ros1`.
 # Called by scripts/test.sh.
 set -euo pipefail
@@ -27,4 +28,5 @@ cargo test -p hetcomm-link-ros1
 
 echo "== facade and CLI with --features ros1"
 cargo test -p hetcomm --features ros1 --lib
+cargo test -p hetcomm --features ros1 --test security_attacks ros1::
 cargo test -p hetcomm-cli --features ros1 --test ros1_send

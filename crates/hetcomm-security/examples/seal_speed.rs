@@ -14,7 +14,14 @@ fn main() {
         let iters = (256 << 20) / size.max(1024);
         let t = Instant::now();
         for i in 0..iters {
-            key.seal(&mut out, (SystemId(1), SystemId(2)), 1, i as u64, &[], &body);
+            key.seal(
+                &mut out,
+                (SystemId(1), SystemId(2)),
+                1,
+                i as u64,
+                &[],
+                &body,
+            );
         }
         let seal = t.elapsed();
         let t = Instant::now();

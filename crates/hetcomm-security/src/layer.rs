@@ -147,7 +147,17 @@ struct PeerState {
     current: Option<Arc<Session>>,
     /// The session before the current one: frames sealed in it may still be in flight.
     previous: Option<Arc<Session>>,
+    /// Sessions this side answered (as responder) that the peer has not used yet, the
+    /// newest last (at most two: the peer may complete with the response to an initiation
+    /// it has since retried). One becomes current with the first frame that opens in it. So
+    /// an initiation replayed to a restarted system (which cannot tell it from a fresh one)
+    /// makes a session nobody uses, and never displaces a working one or a handshake in
+    /// progress.
+    unconfirmed: Vec<Arc<Session>>,
     pending: Option<(Initiation, Instant)>,
+    /// The initiation `pending` replaced when it was retried: its response may still come
+    /// (a round trip longer than the retry interval) and completes the handshake as well.
+    earlier: Option<Initiation>,
     /// Frames waiting for the handshake, and since when the oldest waits.
     queue: VecDeque<Vec<u8>>,
     /// The queue is being sent after a handshake: later frames join it, so nothing
@@ -165,6 +175,7 @@ impl PeerState {
         [&self.current, &self.previous]
             .into_iter()
             .flatten()
+            .chain(&self.unconfirmed)
             .find(|s| s.my_index == index)
             .cloned()
     }
@@ -264,7 +275,10 @@ impl Secured {
             Entropy::Os,
         )
         .ok()?;
-        st.pending = Some((pending, Instant::now()));
+        st.earlier = st
+            .pending
+            .replace((pending, Instant::now()))
+            .map(|(p, _)| p);
         Some(init)
     }
 
@@ -333,7 +347,7 @@ impl Secured {
                     };
                     drop(st);
                     if let Some(init) = init {
-                        let _ = below.send(to, &init);
+                        send_handshake(&*below, to, &init);
                     }
                     return Ok(());
                 }
@@ -380,7 +394,27 @@ impl Secured {
         let Some(below) = self.below() else { return };
         for (&peer, slot) in &self.peers {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-            if st.queue.is_empty() || st.flushing {
+            if st.flushing {
+                continue;
+            }
+            if st.queue.is_empty() {
+                // A handshake started because the peer sent frames of a session we do not
+                // have (nothing of ours waits): retried like any other while it is due, and
+                // abandoned after TRIGGER_INTERVAL so that the peer's next frame starts
+                // another. (Left pending, a lost response would block every later one.)
+                let Some((_, at)) = &st.pending else { continue };
+                if st
+                    .last_trigger
+                    .is_none_or(|t| t.elapsed() >= TRIGGER_INTERVAL)
+                {
+                    st.pending = None;
+                    st.earlier = None;
+                } else if at.elapsed() >= HANDSHAKE_RETRY {
+                    if let Some(init) = self.start_handshake(peer, slot, &mut st) {
+                        drop(st);
+                        send_handshake(&*below, peer, &init);
+                    }
+                }
                 continue;
             }
             if st
@@ -392,6 +426,7 @@ impl Secured {
                 st.queued_bytes = 0;
                 st.waiting_since = None;
                 st.pending = None;
+                st.earlier = None;
                 self.counters.timeouts.fetch_add(n, Ordering::Relaxed);
                 continue;
             }
@@ -402,7 +437,7 @@ impl Secured {
             {
                 if let Some(init) = self.start_handshake(peer, slot, &mut st) {
                     drop(st);
-                    let _ = below.send(peer, &init);
+                    send_handshake(&*below, peer, &init);
                 }
             }
         }
@@ -439,10 +474,14 @@ impl Secured {
         }
         let index = envelope::u32_at(bytes, 8);
         let counter = envelope::data_counter(bytes);
+        let mut unconfirmed = false;
         let session = {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
             match st.session(index) {
-                Some(s) => s,
+                Some(s) => {
+                    unconfirmed = st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, &s));
+                    s
+                }
                 None => {
                     if let Handshakes::InMemory(sim) = &self.handshakes {
                         // The peer made the session first: take our half.
@@ -470,7 +509,7 @@ impl Secured {
                             let init = self.start_handshake(sender, slot, &mut st);
                             drop(st);
                             if let (Some(init), Some(below)) = (init, self.below()) {
-                                let _ = below.send(sender, &init);
+                                send_handshake(&*below, sender, &init);
                             }
                         }
                         return;
@@ -493,7 +532,28 @@ impl Secured {
             bump(&self.counters.table);
             return;
         }
+        if unconfirmed {
+            self.confirmed(sender, slot, &session);
+        }
         inner.deliver(&*self.sink, Peer::System(sender));
+    }
+
+    /// An authentic frame from `sender` opened in `session`: if that is the session we
+    /// answered last, the peer holds it too, so it becomes current (and what waited for a
+    /// session leaves in it).
+    fn confirmed(&self, sender: SystemId, slot: &PeerSlot, session: &Arc<Session>) {
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        if !st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, session)) {
+            return;
+        }
+        st.unconfirmed.clear();
+        st.pending = None;
+        st.earlier = None;
+        st.install(session.clone());
+        st.waiting_since = None;
+        st.flushing = true;
+        drop(st);
+        self.flush_queue(sender, slot, session);
     }
 
     /// Whether the inner frame's header agrees with its authenticated sender and the table.
@@ -558,47 +618,70 @@ impl Secured {
             return;
         }
         st.last_init = Some(answer.timestamp);
-        st.pending = None;
-        let session = Arc::new(answer.session);
-        st.install(session.clone());
-        st.waiting_since = None;
-        st.flushing = true;
+        // The session waits for the peer's first frame in it (`confirmed`); a handshake of
+        // our own in progress goes on (this initiation may be a replay).
+        if st.unconfirmed.len() == 2 {
+            st.unconfirmed.remove(0);
+        }
+        st.unconfirmed.push(Arc::new(answer.session));
         drop(st);
         bump(&self.counters.handshakes);
         if let Some(below) = self.below() {
-            let _ = below.send(sender, &answer.response);
+            send_handshake(&*below, sender, &answer.response);
         }
-        self.flush_queue(sender, slot, &session);
     }
 
     fn receive_response(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
         let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-        let answers = st
+        let (initiation, at) = if st
             .pending
             .as_ref()
-            .is_some_and(|(p, _)| p.answered_by(bytes));
-        if !answers {
+            .is_some_and(|(p, _)| p.answered_by(bytes))
+        {
+            st.pending.take().map(|(p, at)| (p, Some(at)))
+        } else if st.earlier.as_ref().is_some_and(|p| p.answered_by(bytes)) {
+            st.earlier.take().map(|p| (p, None))
+        } else {
+            None
+        }
+        .unzip();
+        let Some(initiation) = initiation else {
             // Not an answer to a handshake in progress: an old one replayed, or forged.
             bump(&self.counters.replay);
             return;
-        }
-        let (pending, at) = st.pending.take().expect("checked above");
-        let session = match pending.complete(bytes) {
+        };
+        let session = match initiation.complete(bytes) {
             Ok(s) => Arc::new(s),
             Err(_) => {
                 // Forged: keep waiting for the real response (a fresh initiation follows).
-                st.pending = None;
-                st.last_trigger = Some(at);
+                if let Some(at) = at.flatten() {
+                    st.last_trigger = Some(at);
+                }
                 bump(&self.counters.auth);
                 return;
             }
         };
+        st.pending = None;
+        st.earlier = None;
         st.install(session.clone());
+        if st.queue.is_empty() {
+            // Nothing to send: an empty frame tells the responder the session is in use
+            // (receivers hand empty frames to nobody).
+            st.queue.push_back(Vec::new());
+        }
         st.waiting_since = None;
         st.flushing = true;
         drop(st);
         bump(&self.counters.handshakes);
         self.flush_queue(sender, slot, &session);
+    }
+}
+
+/// Sends a handshake message; once more if the link refused it (a stream link reconnects on
+/// the next send after a write to a connection the peer closed, as a restarted peer's was).
+fn send_handshake(below: &dyn Link, to: SystemId, message: &[u8]) {
+    if below.send(to, message).is_err() {
+        let _ = below.send(to, message);
     }
 }
 

@@ -17,6 +17,11 @@
 //! and outcome here exactly as in real time, stamped with the virtual clock, on the
 //! simulator's thread.
 //!
+//! Attacks on a simulated link: [`SimFleet::record_frames`] keeps a copy of every frame the
+//! systems send (sealed, on a secured transport), and [`SimFleet::inject_frame`] puts any
+//! bytes on a link as an outsider would, so forged, replayed and tampered frames can be
+//! tried against a simulated fleet, deterministically (`crates/hetcomm/tests/security_sim.rs`).
+//!
 //! Autonomy code runs between calls to [`SimFleet::run_until`] (polling with `try_recv` /
 //! `has_message`, reading outcomes with [`crate::Ticket::try_outcome`]) or in callbacks, which
 //! run on the simulator's thread at the moment of delivery. Blocking calls (`recv`,
@@ -140,6 +145,43 @@ pub(crate) struct SimNet {
     models: Vec<Option<Mutex<LinkModel>>>,
     positions: PositionTable,
     stats: Mutex<SimNetStats>,
+    /// Transport names, by index (for injection and recording).
+    transports: Vec<String>,
+    /// The frames sent while recording is on ([`SimFleet::record_frames`]).
+    recorded: Mutex<Option<Vec<SimFrame>>>,
+}
+
+/// A frame a system put on a simulated link, as [`SimFleet::record_frames`] keeps it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SimFrame {
+    /// The transport's name.
+    pub transport: String,
+    /// The system that sent it.
+    pub from: SystemId,
+    /// The system it was sent to.
+    pub to: SystemId,
+    /// When it was sent (virtual time).
+    pub at: Time,
+    /// Its bytes as the link got them: after the sender's layers, so sealed on a secured
+    /// transport.
+    pub bytes: Vec<u8>,
+}
+
+/// Why [`SimFleet::inject_frame`] could not put a frame on a link.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum InjectError {
+    /// The fleet has no transport of that name.
+    #[error("no transport named `{0}` in the simulated fleet")]
+    UnknownTransport(String),
+    /// The fleet has no system of that name, or it has no link on the transport.
+    #[error("system `{system}` has no link on transport `{transport}` in the simulation")]
+    NotOnTransport {
+        /// The system named.
+        system: String,
+        /// The transport named.
+        transport: String,
+    },
 }
 
 impl SimNet {
@@ -244,6 +286,20 @@ impl Link for SimLink {
             .unwrap_or_else(|e| e.into_inner())
             .frames_sent += 1;
         let now = net.clock.now();
+        if let Some(recorded) = net
+            .recorded
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_mut()
+        {
+            recorded.push(SimFrame {
+                transport: net.transports[self.transport].clone(),
+                from: self.local,
+                to,
+                at: now,
+                bytes: frame.to_vec(),
+            });
+        }
         let Some(model) = &net.models[self.transport] else {
             net.push(
                 now,
@@ -341,6 +397,8 @@ impl SimFleet {
             models,
             positions: positions.clone(),
             stats: Mutex::new(SimNetStats::default()),
+            transports: fleet.transports.iter().map(|t| t.name.clone()).collect(),
+            recorded: Mutex::new(None),
         });
         let env = OpenEnv {
             hubs: Hubs::default(),
@@ -390,6 +448,69 @@ impl SimFleet {
             .unwrap_or_else(|e| e.into_inner())
             .clone();
         s
+    }
+
+    /// Starts (`true`) or stops keeping a copy of every frame the systems put on simulated
+    /// links, as the link gets it (sealed, on a secured transport), before the link model
+    /// loses, delays or corrupts it. Off by default. For tests that replay or tamper with
+    /// real traffic ([`SimFleet::inject_frame`]); recording changes nothing in the run.
+    pub fn record_frames(&self, on: bool) {
+        let mut recorded = self.net.recorded.lock().unwrap_or_else(|e| e.into_inner());
+        match (on, recorded.is_some()) {
+            (true, false) => *recorded = Some(Vec::new()),
+            (false, _) => *recorded = None,
+            (true, true) => {}
+        }
+    }
+
+    /// The frames recorded since the last call (recording stays on).
+    pub fn take_recorded(&self) -> Vec<SimFrame> {
+        self.net
+            .recorded
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
+    /// Puts `bytes` on the simulated link of `transport` as if an outsider on that link sent
+    /// them to system `to` (a forged, replayed or tampered frame): they arrive at the current
+    /// virtual time, when the simulation next runs ([`SimFleet::run_until`]), after the
+    /// frames already due then; the link model does not touch them (no loss, delay or
+    /// corruption). They go through `to`'s layers (the security layer on a secured
+    /// transport) and its router exactly as a frame from the link would, and are counted in
+    /// [`SimNetStats::frames_delivered`] but not in `frames_sent`.
+    pub fn inject_frame(&self, transport: &str, to: &str, bytes: &[u8]) -> Result<(), InjectError> {
+        let index = self
+            .net
+            .transports
+            .iter()
+            .position(|t| t == transport)
+            .ok_or_else(|| InjectError::UnknownTransport(transport.to_string()))?;
+        let not_on = || InjectError::NotOnTransport {
+            system: to.to_string(),
+            transport: transport.to_string(),
+        };
+        let id = self.system(to).map_err(|_| not_on())?.id();
+        if !self
+            .net
+            .sinks
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains_key(&(index, id))
+        {
+            return Err(not_on());
+        }
+        self.net.push(
+            self.now(),
+            FrameEvent {
+                to: id,
+                transport: index,
+                frame: bytes.to_vec(),
+            },
+        );
+        Ok(())
     }
 
     /// Runs every frame arrival and timer due up to `until`, in time order (ties in the order

@@ -32,3 +32,5 @@ B = ["u", "X"]
 "#
     )
 }
+
+pub mod attack;
