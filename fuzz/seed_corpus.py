@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""Writes seed corpora for the link-layer fuzz targets from docs/wire-vectors.json.
+"""Writes seed corpora for the link-layer and security fuzz targets from docs/wire-vectors.json.
 
     cd fuzz && python3 seed_corpus.py
 
-Creates corpus/udp_reassembly/, corpus/udp_datagrams/, corpus/stream_records/ and
-corpus/stream_driven/ (all gitignored), in the input layouts the targets document (fuzz_targets/*.rs).
+Creates corpus/udp_reassembly/, corpus/udp_datagrams/, corpus/stream_records/,
+corpus/stream_driven/ and corpus/secured_frames/ (all gitignored), in the input layouts the targets document (fuzz_targets/*.rs).
 """
 import json
 import os
@@ -119,3 +119,57 @@ write("stream_records", "big_two_then_small", stream_input(two, flags=0x80, read
 write("stream_records", "big_two_handout", stream_input(two, flags=0x81))
 write("stream_records", "big_truncated", stream_input(lit(HELLO_1 + record_header(30000)) + run(1, 20), flags=0x81))
 print("seeded", *(f"{t}: {len(os.listdir(os.path.join(HERE, 'corpus', t)))}" for t in ("udp_reassembly", "udp_datagrams", "stream_records", "stream_driven")))
+
+
+# --- secured_frames -------------------------------------------------------------------------
+# A configuration byte (bit 0: in-memory sessions; bits 1-2: data from systems 1 / 3; bits
+# 3-4: ACKs from 1 / 3; bit 5: system 3 has no key), then operations (fuzz_targets/
+# secured_frames.rs, `run`): a byte whose low 3 bits choose the operation and high 4 bits how
+# the frame is fed, then the operation's arguments.
+def sec_write(name, data):
+    d = os.path.join(HERE, "corpus", "secured_frames")
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "vec_" + name), "wb") as f:
+        f.write(data)
+
+
+NO_MUTATION = b"\x00\x00\x00"  # mutation 0, position 0
+
+
+def inner(payload=b"", sel=0):
+    return bytes([sel]) + struct.pack("<H", 7) + bytes([len(payload)]) + payload
+
+
+def sec_handshake(p, index, timestamp, seed):  # op 0: the played system p (0: 1, 1: 3) initiates
+    return b"\x00" + bytes([p]) + struct.pack("<IHB", index, timestamp, seed) + NO_MUTATION
+
+
+def sec_answer(p, index, seed):  # op 1: the layer's initiation to p answered
+    return b"\x01" + bytes([p]) + struct.pack("<IB", index, seed) + NO_MUTATION
+
+
+def sec_seal(p, session=0, payload=b"", sel=0, how=0, mutation=NO_MUTATION):  # op 2
+    return bytes([2 | how << 4, p, session]) + inner(payload, sel) + mutation
+
+
+def sec_send(p, payload=b"", how=0):  # op 4: the layer sends to p
+    return bytes([4 | how << 4, 0, p]) + inner(payload)
+
+
+def sec_again(i, mutation=NO_MUTATION):  # op 5: an earlier frame again
+    return b"\x05" + struct.pack("<H", i) + mutation
+
+
+ALL = 0x1E  # over the link, data and ACKs from 1 and 3
+sec_write("in_memory", bytes([ALL | 1]) + sec_seal(0, payload=b"hello") + sec_again(0)
+          + sec_send(0, b"back") + sec_seal(1, payload=b"x" * 20, how=1)
+          + sec_seal(0, payload=b"flip", mutation=b"\x01\x19\x00"))
+sec_write("over_the_link", bytes([ALL]) + sec_handshake(0, 0x11223344, 5, 1) + sec_seal(0, payload=b"data")
+          + sec_send(0, b"ack") + sec_send(1, b"queued") + sec_answer(1, 0x55667788, 2)
+          + sec_seal(1, payload=b"three", how=2) + sec_again(0) + sec_again(1)
+          + sec_handshake(0, 0x11223345, 4, 3))
+sec_write("table", bytes([0x02]) + sec_handshake(0, 9, 1, 1) + sec_seal(0, sel=1) + sec_seal(0, sel=4)
+          + sec_handshake(1, 10, 1, 1))
+for v in VECTORS["secured_frames"]["received"]:
+    f = h(v["secured_hex"])[:127]
+    sec_write("raw_" + v["name"], bytes([ALL]) + b"\x07" + bytes([len(f)]) + f)

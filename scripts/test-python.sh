@@ -4,7 +4,8 @@
 #
 #   bash scripts/test-python.sh [pytest args...]
 #
-# 1. a virtual environment in target/py-venv with maturin and pytest (reused across runs);
+# 1. a virtual environment in target/py-venv with maturin, pytest and cryptography (reused
+#    across runs);
 # 2. the `hetcomm` wheel (abi3, debug build) built by maturin and installed into it;
 # 3. the `hetcomm` CLI (debug), which the cross-process tests run as the Rust peer;
 # 4. pytest on crates/hetcomm-py/tests.
@@ -24,6 +25,13 @@ if ! "$PY" -c 'import maturin, pytest' >/dev/null 2>&1 && ! { [ -x "$VENV/bin/ma
   step "installing maturin and pytest"
   "$PY" -m pip install --quiet --disable-pip-version-check --upgrade pip
   "$PY" -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "pytest>=7"
+fi
+
+if ! "$PY" -c 'import cryptography' >/dev/null 2>&1; then
+  # X25519 and AES-GCM for test_secured_vectors.py, which checks the secured-frame vectors
+  # with a port of docs/wire-format.md (the standard library has neither).
+  step "installing cryptography"
+  "$PY" -m pip install --quiet --disable-pip-version-check "cryptography>=42"
 fi
 
 step "building the hetcomm wheel (maturin, debug)"
