@@ -94,20 +94,7 @@ pub fn load(path: &Path) -> Result<Fleet, ConfigErrors> {
 
 /// [`load`], knowing the kinds in `kinds` besides the built-in ones (see [`kinds`]).
 pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
-    let origin = path.display().to_string();
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) => return Err(unreadable(&origin, &e)),
-    };
-    let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(
-        &text,
-        &origin,
-        Some(base),
-        Some(path.to_path_buf()),
-        kinds,
-        KeyReading::All,
-    )
+    load_reading(path, kinds, KeyReading::All)
 }
 
 /// [`load_with`] without reading any key file: `[security] keys` may name a directory that
@@ -115,6 +102,21 @@ pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
 /// checked), so systems have only their inline public keys and `private_key_file`s as given.
 /// For `hetcomm keygen`, which is run to create those files.
 pub fn load_skipping_keys(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
+    load_reading(path, kinds, KeyReading::Nothing)
+}
+
+/// [`load_with`], with the systems' keys read from `dir` instead of the file's
+/// `[security] keys` directory (which need not exist on this machine): the command line's
+/// `--keys DIR`. Systems' own `public_key` / `public_key_file` are still read; then
+/// [`apply_keys_dir`] reads `dir`, whose keys replace them.
+pub fn load_with_keys_dir(path: &Path, kinds: &Kinds, dir: &Path) -> Result<Fleet, ConfigErrors> {
+    let mut fleet = load_reading(path, kinds, KeyReading::NotDir)?;
+    apply_keys_dir(&mut fleet, dir)?;
+    Ok(fleet)
+}
+
+/// Reads and parses the fleet file at `path`, reading key files as `keys` says.
+fn load_reading(path: &Path, kinds: &Kinds, keys: KeyReading) -> Result<Fleet, ConfigErrors> {
     let origin = path.display().to_string();
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
@@ -127,31 +129,8 @@ pub fn load_skipping_keys(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErr
         Some(base),
         Some(path.to_path_buf()),
         kinds,
-        KeyReading::Nothing,
+        keys,
     )
-}
-
-/// [`load_with`], with the systems' keys read from `dir` instead of the file's
-/// `[security] keys` directory (which need not exist on this machine): the command line's
-/// `--keys DIR`. Systems' own `public_key` / `public_key_file` are still read; then
-/// [`apply_keys_dir`] reads `dir`, whose keys replace them.
-pub fn load_with_keys_dir(path: &Path, kinds: &Kinds, dir: &Path) -> Result<Fleet, ConfigErrors> {
-    let origin = path.display().to_string();
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) => return Err(unreadable(&origin, &e)),
-    };
-    let base = path.parent().unwrap_or(Path::new(""));
-    let mut fleet = fleet_toml::parse(
-        &text,
-        &origin,
-        Some(base),
-        Some(path.to_path_buf()),
-        kinds,
-        KeyReading::NotDir,
-    )?;
-    apply_keys_dir(&mut fleet, dir)?;
-    Ok(fleet)
 }
 
 /// Validates fleet-file text. `origin` is the file name used in error locations; relative

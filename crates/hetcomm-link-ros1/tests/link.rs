@@ -125,50 +125,41 @@ impl Harness for RosHarness {
     }
 }
 
-#[test]
-fn conformance_on_a_real_master() {
-    let Some(master) = Master::start() else {
-        return;
-    };
-    let mut h = RosHarness {
-        master,
+/// A harness for systems A (1) and B (2) on a fresh master, or None without ROS.
+fn two_systems() -> Option<RosHarness> {
+    Some(RosHarness {
+        master: Master::start()?,
         systems: names(&[(1, "A"), (2, "B")]),
         live: Vec::new(),
-    };
-    conformance::run_all(&mut h);
+    })
+}
+
+#[test]
+fn conformance_on_a_real_master() {
+    if let Some(mut h) = two_systems() {
+        conformance::run_all(&mut h);
+    }
 }
 
 /// The same, each link inside an emulation layer (a model that changes nothing), as an
 /// `emulated` transport over `ros1` opens it.
 #[test]
 fn conformance_on_a_real_master_wrapped_in_emulation() {
-    let Some(master) = Master::start() else {
-        return;
-    };
-    let h = RosHarness {
-        master,
-        systems: names(&[(1, "A"), (2, "B")]),
-        live: Vec::new(),
-    };
-    conformance::run_all(&mut Layered::emulated(h));
+    if let Some(h) = two_systems() {
+        conformance::run_all(&mut Layered::emulated(h));
+    }
 }
 
 /// The same, each link under the security layer (keys per system, Noise handshake over
 /// the topics, every frame sealed), as a secured `ros1` transport opens it.
 #[test]
 fn conformance_on_a_real_master_secured() {
-    let Some(master) = Master::start() else {
-        return;
-    };
-    let h = RosHarness {
-        master,
-        systems: names(&[(1, "A"), (2, "B")]),
-        live: Vec::new(),
-    };
-    conformance::run_all(&mut hetcomm_security::conformance::secured(
-        h,
-        [SystemId(1), SystemId(2)],
-    ));
+    if let Some(h) = two_systems() {
+        conformance::run_all(&mut hetcomm_security::conformance::secured(
+            h,
+            [SystemId(1), SystemId(2)],
+        ));
+    }
 }
 
 #[test]

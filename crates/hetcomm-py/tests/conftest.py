@@ -75,12 +75,21 @@ def free_port(kind: str) -> int:
         s.close()
 
 
-def ip_fleet(tmp_path: Path, kind: str, systems: List[str], name: str = "fleet.toml") -> Path:
-    """A fleet file where every pair of `systems` talks over one `kind` transport on loopback."""
+def ip_fleet(
+    tmp_path: Path, kind: str, systems: List[str], name: str = "fleet.toml", secured: bool = True
+) -> Path:
+    """A fleet file where every pair of `systems` talks over one `kind` transport on loopback.
+
+    Secured as a user would secure it: `hetcomm keygen` writes a key pair per system next to
+    the file, and its `[security] keys` section points there. `secured=False` says
+    `security = "none"` instead (for tests that speak raw frames)."""
     lines = [f'name = "py-{kind}"', "[systems]"]
     lines += [f"{s} = {i}" for i, s in enumerate(systems)]
     lines += ["[modules]", "Plan = 0", "Act = 1", "World = 2"]
-    lines += ["[transports.lan]", f'kind = "{kind}"', "[transports.lan.endpoints]"]
+    lines += ["[transports.lan]", f'kind = "{kind}"']
+    if not secured:
+        lines.append('security = "none"')
+    lines += ["[transports.lan.endpoints]"]
     lines += [f'{s} = "127.0.0.1:{free_port(kind)}"' for s in systems]
     lines += ["[table]", "columns = [" + ", ".join(f'"{s}"' for s in systems) + "]"]
     for s in systems:
@@ -88,6 +97,12 @@ def ip_fleet(tmp_path: Path, kind: str, systems: List[str], name: str = "fleet.t
         lines.append(f"{s} = [" + ", ".join(row) + "]")
     path = tmp_path / name
     path.write_text("\n".join(lines) + "\n")
+    if secured:
+        keys = f"keys-{Path(name).stem}"
+        made = cli("keygen", "--fleet", str(path), "--out", str(tmp_path / keys))
+        assert made.returncode == 0, made
+        with path.open("a") as f:
+            f.write(f'[security]\nkeys = "{keys}"\n')
     return path
 
 

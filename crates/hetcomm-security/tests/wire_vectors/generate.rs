@@ -226,10 +226,12 @@ pub fn handshake() -> Made {
     }
 }
 
-/// The handshake as `snow` runs it with the stated ephemeral keys: (initiation's Noise
-/// message, response's Noise message, handshake hash, key initiator→responder, key
-/// responder→initiator).
-pub fn snow_handshake() -> (Vec<u8>, Vec<u8>, Vec<u8>, [u8; 32], [u8; 32]) {
+/// What [`snow_handshake`] gives: (initiation's Noise message, response's Noise message,
+/// handshake hash, key initiator→responder, key responder→initiator).
+pub type SnowHandshake = (Vec<u8>, Vec<u8>, Vec<u8>, [u8; 32], [u8; 32]);
+
+/// The handshake as `snow` runs it with the stated ephemeral keys.
+pub fn snow_handshake() -> SnowHandshake {
     let (a, b) = (keypair(INITIATOR), keypair(RESPONDER));
     let (si, sr) = pair_seeds();
     let (ei, er) = (ephemeral(si), ephemeral(sr));
