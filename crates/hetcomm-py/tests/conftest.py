@@ -190,7 +190,10 @@ PYTHON = sys.executable
 
 
 def udp_pair(extra: str = "", a: str = "127.0.0.1:0", b: str = "127.0.0.1:0") -> str:
-    """Systems A and B with module M, joined by one UDP transport `lan` (`extra`: more keys)."""
+    """Systems A and B with module M, joined by one UDP transport `lan` (`extra`: more keys).
+
+    Unsecured (`security = "none"`): these fleets open one side alone, facing a silent or
+    hand-made peer, to look at outcomes and errors (test_security.py covers secured ones)."""
     return f"""
 [systems]
 A = 0
@@ -199,6 +202,7 @@ B = 1
 M = 0
 [transports.lan]
 kind = "udp"
+security = "none"
 {extra}
 [transports.lan.endpoints]
 A = "{a}"

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import re
 
-from conftest import CLI, PYTHON, ROOT, free_port
+from conftest import CLI, PYTHON, ROOT, cli, free_port
 
 TANGO = ROOT / "examples" / "python" / "tango.py"
 FLEET = ROOT / "examples" / "python" / "leader-follower-python.toml"
@@ -31,6 +31,9 @@ def test_python_tango_follows_the_rust_leader(tmp_path, children):
         text = text.replace(f"127.0.0.1:{old}", f"127.0.0.1:{free_port('udp')}")
     fleet = tmp_path / "fleet.toml"
     fleet.write_text(text)
+    # Its keys, as its README says to make them.
+    made = cli("keygen", "--fleet", str(fleet), "--out", str(tmp_path / "keys"))
+    assert made.returncode == 0, made
 
     tango = children([PYTHON, str(TANGO), str(fleet), "--duration", "30", "--exit-on-stop"])
     tango.wait_stdout(lambda l: l.startswith("Tango: ready on lan udp://127.0.0.1:"))

@@ -19,7 +19,8 @@ import pytest
 import docport
 from conftest import CLI, ip_fleet
 
-# ip_fleet numbers systems in list order; its modules are Plan = 0, Act = 1, World = 2.
+# ip_fleet numbers systems in list order; its modules are Plan = 0, Act = 1, World = 2. The
+# fleets are unsecured: the port speaks the frames of wire-format.md, not sealed ones.
 TANGO, ENV = 0, 1
 PLAN, ACT, WORLD = 0, 1, 2
 
@@ -56,7 +57,7 @@ def check_ack(frame, of):
 
 @pytest.mark.parametrize("datagram_payload", [docport.DEFAULT_DATAGRAM_PAYLOAD, 65000])
 def test_a_1_mib_message_in_udp_fragments_reaches_rust(tmp_path, children, datagram_payload):
-    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"])
+    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"], secured=False)
     eps = endpoints(fleet)
     # Tango is this test: its socket at its fleet endpoint sends the fragments and gets the ACK.
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -99,7 +100,7 @@ def test_a_1_mib_message_in_udp_fragments_reaches_rust(tmp_path, children, datag
 
 
 def test_a_batch_from_python_reaches_rust_and_its_acks_come_back(tmp_path, children):
-    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"])
+    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"], secured=False)
     eps = endpoints(fleet)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(eps["Tango"])
@@ -142,7 +143,7 @@ def test_a_batch_from_python_reaches_rust_and_its_acks_come_back(tmp_path, child
 
 
 def test_python_talks_tcp_to_rust(tmp_path, children):
-    fleet = ip_fleet(tmp_path, "tcp", ["Tango", "Env"])
+    fleet = ip_fleet(tmp_path, "tcp", ["Tango", "Env"], secured=False)
     eps = endpoints(fleet)
     # Connections are one-way: the ACKs come over Env's own connection to Tango's endpoint.
     acks_in = socket.create_server(eps["Tango"])
@@ -179,7 +180,7 @@ def test_python_talks_tcp_to_rust(tmp_path, children):
 
 
 def test_rust_fragments_and_acknowledged_by_python_over_udp(tmp_path, children):
-    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"])
+    fleet = ip_fleet(tmp_path, "udp", ["Tango", "Env"], secured=False)
     eps = endpoints(fleet)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(eps["Tango"])
@@ -209,7 +210,7 @@ def test_rust_fragments_and_acknowledged_by_python_over_udp(tmp_path, children):
 
 
 def test_rust_records_and_acknowledged_by_python_over_tcp(tmp_path, children):
-    fleet = ip_fleet(tmp_path, "tcp", ["Tango", "Env"])
+    fleet = ip_fleet(tmp_path, "tcp", ["Tango", "Env"], secured=False)
     eps = endpoints(fleet)
     server = socket.create_server(eps["Tango"])
     server.settimeout(20)

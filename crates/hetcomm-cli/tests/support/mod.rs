@@ -102,7 +102,14 @@ impl TempDir {
         let leaves_process = ["\"udp\"", "\"tcp\"", "\"ros1\""]
             .iter()
             .any(|k| text.contains(&format!("kind = {k}")));
-        if name.ends_with(".toml") && leaves_process && !text.contains("security") {
+        // A fleet that already names `keys = "keys"` (a shipped example) gets its keys made,
+        // as its user would with `hetcomm keygen`.
+        let names_keys_dir = text.contains("[security]\nkeys = \"keys\"");
+        if names_keys_dir {
+            let unkeyed = text.replace("[security]\nkeys = \"keys\"", "");
+            text = unkeyed;
+        }
+        if name.ends_with(".toml") && leaves_process && !text.contains("security = ") {
             if let Ok(fleet) = hetcomm::parse_fleet(&text, name, None) {
                 let keys = self.0.join("keys");
                 std::fs::create_dir_all(&keys).expect("create keys dir");
