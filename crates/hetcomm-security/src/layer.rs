@@ -53,9 +53,12 @@ pub enum Handshakes {
 pub struct SimSessions {
     seed: u64,
     keys: HashMap<SystemId, Keypair>,
-    /// Per (transport, initiator, responder): the two halves, taken by each side once.
-    pairs: Mutex<HashMap<(String, SystemId, SystemId), [Option<Arc<Session>>; 2]>>,
+    /// Per (transport, lower id, higher id): the two halves of the pair's session.
+    pairs: Mutex<HashMap<PairKey, [Option<Arc<Session>>; 2]>>,
 }
+
+/// A pair of systems on a transport: (transport name, lower id, higher id).
+type PairKey = (String, SystemId, SystemId);
 
 impl SimSessions {
     /// Sessions for systems with these keys, from `seed`.
@@ -305,7 +308,7 @@ impl Secured {
                     let stale = st
                         .pending
                         .as_ref()
-                        .map_or(true, |(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
+                        .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
                     let init = if stale {
                         self.start_handshake(to, slot, &mut st)
                     } else {
@@ -381,7 +384,7 @@ impl Secured {
             if st
                 .pending
                 .as_ref()
-                .map_or(true, |(_, at)| at.elapsed() >= HANDSHAKE_RETRY)
+                .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY)
             {
                 if let Some(init) = self.start_handshake(peer, slot, &mut st) {
                     drop(st);
@@ -451,7 +454,7 @@ impl Secured {
                         let due = st.pending.is_none()
                             && st
                                 .last_trigger
-                                .map_or(true, |t| t.elapsed() >= TRIGGER_INTERVAL);
+                                .is_none_or(|t| t.elapsed() >= TRIGGER_INTERVAL);
                         if due {
                             st.last_trigger = Some(Instant::now());
                             let init = self.start_handshake(sender, slot, &mut st);

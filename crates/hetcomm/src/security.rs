@@ -170,12 +170,11 @@ pub(crate) fn layer(
             let mut store = store.lock().unwrap_or_else(|e| e.into_inner());
             // Every system of the fleet gets its key now: they all run in this process.
             for s in &fleet.systems {
-                if !store.contains_key(&s.id) {
-                    let pair = Keypair::generate().map_err(|e| SecurityError {
+                if let std::collections::hash_map::Entry::Vacant(slot) = store.entry(s.id) {
+                    slot.insert(Keypair::generate().map_err(|e| SecurityError {
                         problem: format!("cannot generate a key: {e}"),
                         fix: "check the operating system's random source".into(),
-                    })?;
-                    store.insert(s.id, pair);
+                    })?);
                 }
             }
             let keypair = store[&local].clone();
