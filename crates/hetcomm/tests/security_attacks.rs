@@ -350,16 +350,16 @@ fn forged_ack(kind: &Kind) {
         .unwrap()
         .send_raw("B", "Act", MessageType(1), &[1], SendOptions::default())
         .unwrap();
-    let first = eve.recv_secured(1, WAIT).expect("A's handshake initiation");
+    let mut init = eve.recv_secured(1, WAIT).expect("A's handshake initiation");
     // The newest initiation (A sends another every 250 ms while unanswered).
-    let mut init = Some(first);
     while let Some(f) = eve.recv(Duration::from_millis(1)) {
         if secured_kind(&f) == Some(1) {
-            init = Some(f);
+            init = f;
         }
     }
     let h = headers.0.lock().unwrap()[0];
-    let mut response = init.map_or(vec![0; 4], |f| f[8..12].to_vec());
+    // A response naming A's initiation (its index, read off the wire), with made-up Noise.
+    let mut response = init[8..12].to_vec();
     response.extend_from_slice(&[0x42; 48]);
     eve.send(
         "A",
