@@ -6,7 +6,7 @@
 //! ros1`, against a real `rosmaster`) `ros1`. The attacker is an unrelated raw socket (or ROS
 //! node) speaking the wire format of `docs/wire-format.md` (`tests/common/attack.rs`); to
 //! replay and tamper it records real secured frames with a relay between A and B (udp, tcp)
-//! or a second subscriber of B's topic (ros1).
+//! or a second subscriber of B's topic, a rospy node (ros1).
 //!
 //! Systems: A and B talk both ways on transport `t`; B sends to C; C → B is `X`.
 
@@ -413,7 +413,8 @@ fn replay_after_receiver_restart(kind: &Kind) {
     // Frames of a session the new B never had: none opens.
     expect_rejected(&w.b, before, (0, 0, 0, 0, data.len() as u64), "data");
     // A replayed initiation makes the new B answer into a session nobody else holds: its
-    // response is refused at A, and nothing can be sent in it.
+    // response is refused at A, and the session never becomes B's current one (that takes
+    // a frame from A in it), so B's own handshake with A goes on.
     eve.send("B", &inits);
     w.nothing_delivered();
     assert_eq!(w.b.stats().router.received, 0);
