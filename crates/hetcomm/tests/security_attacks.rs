@@ -344,6 +344,9 @@ fn forged_ack(kind: &Kind) {
     let headers = Arc::new(Headers::default());
     let _watch = a.observe(headers.clone());
     let eve = Station::at(&setup, "B");
+    // Connected to A before A's first frame (ROS: publisher and subscription up), so the
+    // forged response is in time for the initiation it names.
+    eve.send("A", &[]);
     let before = rejected(&security(&a));
     let ticket = a
         .module("Plan")
