@@ -6,7 +6,7 @@
 //! ros1`, against a real `rosmaster`) `ros1`. The attacker is an unrelated raw socket (or ROS
 //! node) speaking the wire format of `docs/wire-format.md` (`tests/common/attack.rs`); to
 //! replay and tamper it records real secured frames with a relay between A and B (udp, tcp)
-//! or a second subscriber of B's topic (ros1).
+//! or a second subscriber of B's topic, a rospy node (ros1).
 //!
 //! Systems: A and B talk both ways on transport `t`; B sends to C; C → B is `X`.
 
@@ -344,22 +344,25 @@ fn forged_ack(kind: &Kind) {
     let headers = Arc::new(Headers::default());
     let _watch = a.observe(headers.clone());
     let eve = Station::at(&setup, "B");
+    // Connected to A before A's first frame (ROS: publisher and subscription up), so the
+    // forged response is in time for the initiation it names.
+    eve.send("A", &[]);
     let before = rejected(&security(&a));
     let ticket = a
         .module("Plan")
         .unwrap()
         .send_raw("B", "Act", MessageType(1), &[1], SendOptions::default())
         .unwrap();
-    let first = eve.recv_secured(1, WAIT).expect("A's handshake initiation");
+    let mut init = eve.recv_secured(1, WAIT).expect("A's handshake initiation");
     // The newest initiation (A sends another every 250 ms while unanswered).
-    let mut init = Some(first);
     while let Some(f) = eve.recv(Duration::from_millis(1)) {
         if secured_kind(&f) == Some(1) {
-            init = Some(f);
+            init = f;
         }
     }
     let h = headers.0.lock().unwrap()[0];
-    let mut response = init.map_or(vec![0; 4], |f| f[8..12].to_vec());
+    // A response naming A's initiation (its index, read off the wire), with made-up Noise.
+    let mut response = init[8..12].to_vec();
     response.extend_from_slice(&[0x42; 48]);
     eve.send(
         "A",
@@ -413,7 +416,8 @@ fn replay_after_receiver_restart(kind: &Kind) {
     // Frames of a session the new B never had: none opens.
     expect_rejected(&w.b, before, (0, 0, 0, 0, data.len() as u64), "data");
     // A replayed initiation makes the new B answer into a session nobody else holds: its
-    // response is refused at A, and nothing can be sent in it.
+    // response is refused at A, and the session never becomes B's current one (that takes
+    // a frame from A in it), so B's own handshake with A goes on.
     eve.send("B", &inits);
     w.nothing_delivered();
     assert_eq!(w.b.stats().router.received, 0);

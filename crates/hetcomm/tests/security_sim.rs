@@ -5,7 +5,9 @@
 //! in every failure message, and `HETCOMM_SEED=<n>` reruns one.
 //!
 //! The emulated transport `radio` runs over a `udp` transport, so it is secured (keys and
-//! sessions derived from the seed; no handshake frames on the simulated network).
+//! sessions derived from the seed; no handshake frames on the simulated network). Restarts
+//! and keys are the real-time suite's (`security_attacks.rs`): a simulated system does not
+//! restart on its own, and simulated keys come from the seed, not from files.
 
 mod common;
 

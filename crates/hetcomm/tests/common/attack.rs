@@ -463,7 +463,8 @@ impl Station {
         }
     }
 
-    /// Sends `frames` to system `to`, in order.
+    /// Sends `frames` to system `to`, in order; with none, only connects to it (TCP: the
+    /// hello; ROS: a publisher on its topic that it has subscribed to).
     pub fn send(&self, to: &str, frames: &[Vec<u8>]) {
         match &self.inner {
             StationKind::Udp(sock) => {
@@ -487,8 +488,10 @@ impl Station {
             }
             StationKind::Ros1(node, namespace) => {
                 let mut node = node.lock().unwrap();
-                // At most 200 frames a command, so a line stays short.
-                for chunk in frames.chunks(200) {
+                // At most 200 frames a command, so a line stays short; none: only connect.
+                let none: [Vec<u8>; 0] = [];
+                let chunks = frames.chunks(200);
+                for chunk in chunks.chain((frames.is_empty()).then_some(&none[..])) {
                     let list: Vec<String> = chunk.iter().map(|f| hex(f)).collect();
                     node.command(&format!("pub /{namespace}/{to} {}", list.join(" ")));
                 }

@@ -1,0 +1,258 @@
+//! The security layer's handshakes over a link whose frames the test holds, drops, replays
+//! and delivers by hand: restarts of either side, an initiation replayed after the responder
+//! restarted, responses that come late or not at all.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use hetcomm_core::wire::{self, Header};
+use hetcomm_core::{Address, MessageType, ModuleId, SystemId};
+use hetcomm_link::layer::{LayerContext, LinkLayer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, Peer};
+use hetcomm_security::{Handshakes, Keypair, Policy, SecurityLayer};
+
+const A: SystemId = SystemId(0);
+const B: SystemId = SystemId(1);
+
+/// Frames in flight: queued by `send`, delivered when the test says.
+#[derive(Default)]
+struct Net {
+    queue: Mutex<VecDeque<(SystemId, Vec<u8>)>>,
+    sinks: Mutex<HashMap<SystemId, Arc<dyn FrameSink>>>,
+}
+
+impl Net {
+    /// Delivers everything in flight, and what that sends, until nothing is left.
+    fn run(&self) {
+        while let Some((to, frame)) = self.pop() {
+            self.deliver(to, &frame);
+        }
+    }
+
+    /// Delivers what is in flight until a frame of `kind` is at the front (or nothing is
+    /// left).
+    fn run_until_kind(&self, kind: u8) {
+        loop {
+            let next = {
+                let mut q = self.queue.lock().unwrap();
+                match q.front() {
+                    Some((_, f)) if f[3] != kind => q.pop_front(),
+                    _ => None,
+                }
+            };
+            match next {
+                Some((to, f)) => self.deliver(to, &f),
+                None => return,
+            }
+        }
+    }
+
+    fn pop(&self) -> Option<(SystemId, Vec<u8>)> {
+        self.queue.lock().unwrap().pop_front()
+    }
+
+    fn deliver(&self, to: SystemId, frame: &[u8]) {
+        let sink = self.sinks.lock().unwrap().get(&to).cloned();
+        if let Some(sink) = sink {
+            sink.on_frame(frame, Peer::Unknown);
+        }
+    }
+
+    /// Takes the next frame in flight of secured message type `kind` (1 init, 2 response,
+    /// 3 data), waiting for it at most a second.
+    fn take(&self, kind: u8) -> Option<(SystemId, Vec<u8>)> {
+        let deadline = Instant::now() + Duration::from_secs(1);
+        loop {
+            {
+                let mut q = self.queue.lock().unwrap();
+                if let Some(i) = q.iter().position(|(_, f)| f[3] == kind) {
+                    return q.remove(i);
+                }
+            }
+            if Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+struct Pipe {
+    net: Arc<Net>,
+}
+
+impl Link for Pipe {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: 1 << 20,
+            mtu: 1 << 20,
+            reliable: false,
+            ordered: true,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.net
+            .queue
+            .lock()
+            .unwrap()
+            .push_back((to, frame.to_vec()));
+        Ok(())
+    }
+}
+
+/// What a node's layer hands its router.
+#[derive(Default)]
+struct Router(Mutex<Vec<Vec<u8>>>);
+
+impl FrameSink for Router {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.0.lock().unwrap().push(frame.to_vec());
+    }
+}
+
+/// One system's secured link on the net (opening it again is a restart: same keys, nothing
+/// else kept).
+struct Node {
+    link: Arc<dyn Link>,
+    router: Arc<Router>,
+    local: SystemId,
+    peer: SystemId,
+}
+
+impl Node {
+    fn open(net: &Arc<Net>, keys: &HashMap<SystemId, Keypair>, local: SystemId) -> Node {
+        let peer = if local == A { B } else { A };
+        let policy = Policy {
+            local,
+            keypair: keys[&local].clone(),
+            peers: HashMap::from([(peer, keys[&peer].public)]),
+            data_from: HashSet::from([peer]),
+            acks_from: HashSet::from([peer]),
+        };
+        let layer = SecurityLayer::new("t", policy, Handshakes::OverTheLink);
+        let ctx = LayerContext::new(local);
+        let router = Arc::new(Router::default());
+        let sink = layer.wrap_sink(&ctx, router.clone());
+        net.sinks.lock().unwrap().insert(local, sink);
+        let link = layer
+            .wrap_link(&ctx, Arc::new(Pipe { net: net.clone() }))
+            .unwrap();
+        Node {
+            link,
+            router,
+            local,
+            peer,
+        }
+    }
+
+    /// Sends a data frame numbered `seq` to the peer.
+    fn send(&self, seq: u64) {
+        let at = |system| Address {
+            system,
+            module: ModuleId(0),
+        };
+        let mut h = Header::data(at(self.local), at(self.peer), MessageType(1));
+        h.seq = seq;
+        self.link.send(self.peer, &wire::encode(&h, b"x")).unwrap();
+    }
+
+    /// The sequence numbers the router got.
+    fn got(&self) -> Vec<u64> {
+        self.router
+            .0
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|f| wire::decode(f).unwrap().header.seq)
+            .collect()
+    }
+}
+
+fn keys() -> HashMap<SystemId, Keypair> {
+    [A, B]
+        .into_iter()
+        .map(|s| (s, Keypair::generate().unwrap()))
+        .collect()
+}
+
+/// B restarts and starts a handshake with A (A sent it a frame of the old session); an
+/// attacker replays A's initiation of the old session to the new B before A's response
+/// arrives. The new B answers it (it cannot tell it from a fresh one), but that session waits
+/// for A to use it, which A cannot: B's own handshake still completes and both ways work.
+#[test]
+fn an_initiation_replayed_after_the_responder_restarted_displaces_nothing() {
+    let (net, keys) = (Arc::new(Net::default()), keys());
+    let a = Node::open(&net, &keys, A);
+    let b = Node::open(&net, &keys, B);
+    a.send(1);
+    let (_, old_init) = net.take(1).expect("A's initiation");
+    net.deliver(B, &old_init);
+    net.run();
+    assert_eq!(b.got(), [1]);
+
+    let b = Node::open(&net, &keys, B); // restarted
+    a.send(2); // in the old session: the new B starts a handshake
+    net.run_until_kind(1);
+    let (_, b_init) = net.take(1).expect("the new B's initiation");
+    net.deliver(A, &b_init);
+    let (_, response) = net.take(2).expect("A's response");
+    net.deliver(B, &old_init); // the replay, before A's response
+    net.run(); // B's response to the replay reaches A, which has no handshake under way
+    net.deliver(B, &response);
+    net.run();
+    b.send(1);
+    a.send(3);
+    net.run();
+    assert_eq!(a.got(), [1], "B's frame reached A");
+    assert_eq!(b.got(), [3], "A's frame reached the new B");
+}
+
+/// A's initiation waits longer than the retry interval for its response (a slow link): A
+/// sends another, and the response to the first still completes the handshake.
+#[test]
+fn a_response_to_an_initiation_since_retried_completes_the_handshake() {
+    let (net, keys) = (Arc::new(Net::default()), keys());
+    let a = Node::open(&net, &keys, A);
+    let b = Node::open(&net, &keys, B);
+    a.send(1);
+    let (_, first) = net.take(1).expect("A's initiation");
+    let (_, retry) = net
+        .take(1)
+        .expect("A's initiation again, after the retry interval");
+    assert_ne!(first, retry);
+    net.deliver(B, &first);
+    let (_, response) = net.take(2).expect("B's response to the first");
+    net.deliver(A, &response);
+    net.run();
+    assert_eq!(b.got(), [1]);
+    b.send(1);
+    net.run();
+    assert_eq!(a.got(), [1]);
+}
+
+/// A restarts; B's next frame (of the old session) makes A start a handshake, whose
+/// response is lost. A tries again (it used to wait for ever, refusing every frame of B's),
+/// and B's later frames reach it.
+#[test]
+fn a_handshake_started_by_an_unknown_session_is_retried_when_its_response_is_lost() {
+    let (net, keys) = (Arc::new(Net::default()), keys());
+    let a = Node::open(&net, &keys, A);
+    let b = Node::open(&net, &keys, B);
+    a.send(1);
+    net.run();
+    let a = Node::open(&net, &keys, A); // restarted
+    b.send(1);
+    net.run_until_kind(1);
+    let (_, init) = net.take(1).expect("the new A's initiation");
+    net.deliver(B, &init);
+    net.take(2).expect("B's response, lost");
+    let (_, again) = net.take(1).expect("the new A's initiation again");
+    net.deliver(B, &again);
+    net.run();
+    b.send(2);
+    net.run();
+    assert_eq!(a.got(), [2], "B's frames reach the new A");
+}
