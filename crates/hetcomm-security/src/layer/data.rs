@@ -1,0 +1,344 @@
+//! The frame side of the security layer: sealing what the router sends (or queueing it
+//! while a handshake runs), and opening and checking what the link receives.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::{FrameSink, LinkError, Peer};
+
+use super::*;
+use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, TAG_LEN};
+use crate::session::Session;
+
+impl Secured {
+    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists.
+    pub(super) fn send(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+        held: bool,
+    ) -> Result<(), LinkError> {
+        let slot = self.peers.get(&to).ok_or_else(|| LinkError::Unreachable {
+            peer: to,
+            reason: format!(
+                "system {to} has no public key on transport `{}`: frames to it could not be authenticated",
+                self.transport
+            ),
+        })?;
+        let below = self.below().ok_or(LinkError::Closed)?;
+        let max = below.caps().max_frame.saturating_sub(OVERHEAD);
+        if head.len() + body.len() > max {
+            return Err(LinkError::TooLarge {
+                len: head.len() + body.len(),
+                max,
+            });
+        }
+        let session = {
+            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+            if st.current.is_none() {
+                if let Handshakes::InMemory(sim) = &self.handshakes {
+                    if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
+                        st.install(s);
+                        bump(&self.counters.handshakes);
+                    }
+                }
+            }
+            match st.current.clone().filter(|_| !st.flushing) {
+                Some(s) => s,
+                None if st.flushing => {
+                    // Behind the frames that waited for the handshake, which are leaving now.
+                    let mut frame = Vec::with_capacity(head.len() + body.len());
+                    frame.extend_from_slice(head);
+                    frame.extend_from_slice(body);
+                    st.queued_bytes += frame.len();
+                    st.queue.push_back(frame);
+                    return Ok(());
+                }
+                None => {
+                    // Wait for the handshake; start (or restart) it if needed.
+                    if st.queue.len() >= QUEUE_FRAMES
+                        || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
+                    {
+                        return Err(LinkError::Congested {
+                            peer: to,
+                            reason: "frames waiting for the security handshake".into(),
+                        });
+                    }
+                    let mut frame = Vec::with_capacity(head.len() + body.len());
+                    frame.extend_from_slice(head);
+                    frame.extend_from_slice(body);
+                    st.queued_bytes += frame.len();
+                    st.queue.push_back(frame);
+                    st.waiting_since.get_or_insert_with(Instant::now);
+                    let stale = st
+                        .pending
+                        .as_ref()
+                        .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
+                    let init = if stale {
+                        self.start_handshake(to, slot, &mut st)
+                    } else {
+                        None
+                    };
+                    drop(st);
+                    if let Some(init) = init {
+                        send_handshake(&*below, to, &init);
+                    }
+                    return Ok(());
+                }
+            }
+        };
+        with_scratch(&TX, |buf| {
+            session.seal(buf, self.policy.local, to, head, body);
+            if held {
+                below.send_held(to, buf)
+            } else {
+                below.send(to, buf)
+            }
+        })
+    }
+
+    /// Sends what waited for `peer`'s handshake, now that `session` exists, and what joins
+    /// the queue meanwhile (see [`PeerState::flushing`]), in order. Called with `flushing`
+    /// set; clears it when the queue is empty.
+    pub(super) fn flush_queue(&self, peer: SystemId, slot: &PeerSlot, session: &Session) {
+        let below = self.below();
+        let mut buf = Vec::new();
+        loop {
+            let batch = {
+                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                if st.queue.is_empty() {
+                    st.flushing = false;
+                    return;
+                }
+                st.queued_bytes = 0;
+                std::mem::take(&mut st.queue)
+            };
+            for frame in batch {
+                session.seal(&mut buf, self.policy.local, peer, &frame, &[]);
+                if let Some(below) = &below {
+                    let _ = below.send(peer, &buf);
+                }
+            }
+        }
+    }
+
+    /// A frame from the link: checked, opened, and handed to the router if it passes.
+    pub(super) fn receive(&self, frame: Incoming<'_>) {
+        let bytes = frame.bytes();
+        let Some(prefix) = envelope::prefix(bytes) else {
+            // Not a secured frame: an unsecured sender, or garbage. Nothing is trusted.
+            bump(&self.counters.auth);
+            return;
+        };
+        if prefix.receiver != self.policy.local {
+            bump(&self.counters.table);
+            return;
+        }
+        let Some(slot) = self.peers.get(&prefix.sender) else {
+            bump(&self.counters.unknown);
+            return;
+        };
+        match prefix.kind {
+            Kind::Data => self.receive_data(prefix.sender, slot, frame),
+            Kind::Init => self.receive_init(prefix.sender, slot, bytes),
+            Kind::Response => self.receive_response(prefix.sender, slot, bytes),
+        }
+    }
+
+    pub(super) fn receive_data(&self, sender: SystemId, slot: &PeerSlot, frame: Incoming<'_>) {
+        let bytes = frame.bytes();
+        if bytes.len() < OVERHEAD {
+            bump(&self.counters.auth);
+            return;
+        }
+        let index = envelope::u32_at(bytes, 8);
+        let counter = envelope::data_counter(bytes);
+        let mut unconfirmed = false;
+        let session = {
+            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+            match st.session(index) {
+                Some(s) => {
+                    unconfirmed = st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, &s));
+                    s
+                }
+                None => {
+                    if let Handshakes::InMemory(sim) = &self.handshakes {
+                        // The peer made the session first: take our half.
+                        match sim.half(&self.transport, self.policy.local, sender) {
+                            Some(s) if s.my_index == index => {
+                                st.install(s.clone());
+                                bump(&self.counters.handshakes);
+                                s
+                            }
+                            _ => {
+                                bump(&self.counters.no_session);
+                                return;
+                            }
+                        }
+                    } else {
+                        bump(&self.counters.no_session);
+                        // The peer has a session we do not (it or we restarted): start a new
+                        // one, at most once a second, since anyone can forge this.
+                        let due = st.pending.is_none()
+                            && st
+                                .last_trigger
+                                .is_none_or(|t| t.elapsed() >= TRIGGER_INTERVAL);
+                        if due {
+                            st.last_trigger = Some(Instant::now());
+                            let init = self.start_handshake(sender, slot, &mut st);
+                            drop(st);
+                            if let (Some(init), Some(below)) = (init, self.below()) {
+                                send_handshake(&*below, sender, &init);
+                            }
+                        }
+                        return;
+                    }
+                }
+            }
+        };
+        let inner = match frame.open(&session) {
+            Some(inner) => inner,
+            None => {
+                bump(&self.counters.auth);
+                return;
+            }
+        };
+        if !session.accept_counter(counter) {
+            bump(&self.counters.replay);
+            return;
+        }
+        if !self.allowed(sender, inner.bytes()) {
+            bump(&self.counters.table);
+            return;
+        }
+        if unconfirmed {
+            self.confirmed(sender, slot, &session);
+        }
+        inner.deliver(&*self.sink, Peer::System(sender));
+    }
+
+    /// Whether the inner frame's header agrees with its authenticated sender and the table.
+    pub(super) fn allowed(&self, sender: SystemId, inner: &[u8]) -> bool {
+        // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the
+        // router counts it as malformed.
+        if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
+            return true;
+        }
+        let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
+        let destination = SystemId(u16::from_le_bytes([inner[12], inner[13]]));
+        if source != sender || destination != self.policy.local {
+            return false;
+        }
+        match inner[3] {
+            0 => self.policy.data_from.contains(&sender),
+            1 => self.policy.acks_from.contains(&sender),
+            // Unknown kinds: the router refuses them.
+            _ => true,
+        }
+    }
+
+    pub(super) fn may_talk(&self, peer: SystemId) -> bool {
+        self.policy.data_from.contains(&peer) || self.policy.acks_from.contains(&peer)
+    }
+}
+
+/// A received frame, borrowed or owned: opened in a scratch copy or where it lies.
+pub(super) enum Incoming<'a> {
+    Borrowed(&'a [u8]),
+    Owned(FrameBuf),
+}
+
+/// An opened inner frame, ready for the router.
+pub(super) enum Opened {
+    Scratch(Vec<u8>),
+    Owned(FrameBuf),
+}
+
+impl Incoming<'_> {
+    pub(super) fn bytes(&self) -> &[u8] {
+        match self {
+            Incoming::Borrowed(b) => b,
+            Incoming::Owned(f) => f,
+        }
+    }
+
+    pub(super) fn open(self, session: &Session) -> Option<Opened> {
+        match self {
+            Incoming::Borrowed(b) => {
+                let mut buf = take_scratch(&RX);
+                buf.clear();
+                buf.extend_from_slice(b);
+                if !session.open(&mut buf) {
+                    give_scratch(&RX, buf);
+                    return None;
+                }
+                Some(Opened::Scratch(buf))
+            }
+            Incoming::Owned(mut f) => {
+                if !session.open(f.as_mut_slice()) {
+                    return None;
+                }
+                let len = f.len();
+                f.truncate(len - TAG_LEN);
+                f.strip_prefix(DATA_HEADER_LEN);
+                Some(Opened::Owned(f))
+            }
+        }
+    }
+}
+
+impl Opened {
+    pub(super) fn bytes(&self) -> &[u8] {
+        match self {
+            Opened::Scratch(b) => &b[DATA_HEADER_LEN..b.len() - TAG_LEN],
+            Opened::Owned(f) => f,
+        }
+    }
+
+    pub(super) fn deliver(self, sink: &dyn FrameSink, from: Peer) {
+        match self {
+            Opened::Scratch(buf) => {
+                let inner = &buf[DATA_HEADER_LEN..buf.len() - TAG_LEN];
+                if !inner.is_empty() {
+                    sink.on_frame(inner, from);
+                }
+                give_scratch(&RX, buf);
+            }
+            Opened::Owned(f) => {
+                if !f.is_empty() {
+                    sink.on_frame_owned(f, from);
+                }
+            }
+        }
+    }
+}
+
+thread_local! {
+    /// Per-thread buffers for sealing (TX) and opening (RX), so the common path allocates
+    /// nothing. Taken out while in use: a nested call (a receive that sends an
+    /// acknowledgement on the same thread) gets a fresh one.
+    static TX: std::cell::Cell<Vec<u8>> = const { std::cell::Cell::new(Vec::new()) };
+    static RX: std::cell::Cell<Vec<u8>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+type Scratch = std::thread::LocalKey<std::cell::Cell<Vec<u8>>>;
+
+pub(super) fn take_scratch(key: &'static Scratch) -> Vec<u8> {
+    key.with(|c| c.take())
+}
+
+pub(super) fn give_scratch(key: &'static Scratch, buf: Vec<u8>) {
+    // Large buffers are not kept: one 16 MiB frame should not pin 16 MiB per thread.
+    if buf.capacity() <= 256 << 10 {
+        key.with(|c| c.set(buf));
+    }
+}
+
+pub(super) fn with_scratch<R>(key: &'static Scratch, f: impl FnOnce(&mut Vec<u8>) -> R) -> R {
+    let mut buf = take_scratch(key);
+    let r = f(&mut buf);
+    give_scratch(key, buf);
+    r
+}

@@ -1,0 +1,347 @@
+//! The security layer: goes over any link ([`LinkLayer`]), seals every frame the router sends
+//! and opens every frame the link receives, before the router sees a byte of it.
+//!
+//! Send side: a frame to a peer goes out sealed in the current session with that peer; with
+//! no session yet it waits (bounded) while the handshake runs, and leaves when it completes.
+//! Receive side, in this order: the clear prefix (is it for us, from a system with a key?),
+//! the session, authentication, the replay window, then the inner frame's header against the
+//! authenticated sender and the communication table. Only then does the router see it.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::time::{Duration, Instant};
+
+use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
+use hetcomm_link::{forward_link, forward_sink, FrameSink, Link, LinkError, Peer, SecurityStats};
+
+use crate::envelope::OVERHEAD;
+use crate::keys::{Keypair, PublicKey};
+use crate::session::{Initiation, Session};
+
+mod data;
+mod handshake;
+mod sim;
+
+use data::Incoming;
+use handshake::send_handshake;
+pub use sim::SimSessions;
+
+/// Who may say what to this system over one transport: its keys, its peers' public keys, and
+/// the communication table's answer for each peer.
+#[derive(Clone, Debug)]
+pub struct Policy {
+    /// The system this link belongs to.
+    pub local: SystemId,
+    /// Its key pair.
+    pub keypair: Keypair,
+    /// The public key of every system it may exchange frames with over this transport.
+    pub peers: HashMap<SystemId, PublicKey>,
+    /// Systems whose messages (data frames) to `local` the table puts on this transport.
+    pub data_from: HashSet<SystemId>,
+    /// Systems `local` sends messages to on this transport: their acknowledgements come back
+    /// on it.
+    pub acks_from: HashSet<SystemId>,
+}
+
+/// Handshakes run over the link (real time), or in memory between systems of one simulation.
+#[derive(Clone)]
+pub enum Handshakes {
+    /// Over the link, with the operating system's randomness.
+    OverTheLink,
+    /// In memory: every system's keys are in this process (a simulation).
+    InMemory(Arc<SimSessions>),
+}
+
+/// The security layer of one system's link on one transport. Build one per link opened.
+pub struct SecurityLayer {
+    transport: String,
+    policy: Policy,
+    handshakes: Handshakes,
+    secured: OnceLock<Arc<Secured>>,
+}
+
+impl SecurityLayer {
+    /// A layer for the link of `policy.local` on the transport named `transport`.
+    pub fn new(transport: &str, policy: Policy, handshakes: Handshakes) -> SecurityLayer {
+        SecurityLayer {
+            transport: transport.to_string(),
+            policy,
+            handshakes,
+            secured: OnceLock::new(),
+        }
+    }
+}
+
+/// How long frames wait for a handshake before they are dropped (and counted).
+const HANDSHAKE_GIVE_UP: Duration = Duration::from_secs(5);
+/// How long an initiation waits for its response before it is sent again.
+const HANDSHAKE_RETRY: Duration = Duration::from_millis(250);
+/// At most one handshake started per peer per this long because of frames for an unknown
+/// session (which anyone can forge).
+const TRIGGER_INTERVAL: Duration = Duration::from_secs(1);
+/// Frames (and bytes) that may wait for one peer's handshake.
+const QUEUE_FRAMES: usize = 1024;
+const QUEUE_BYTES: usize = 16 << 20;
+
+#[derive(Default)]
+struct Counters {
+    handshakes: AtomicU64,
+    auth: AtomicU64,
+    replay: AtomicU64,
+    table: AtomicU64,
+    unknown: AtomicU64,
+    no_session: AtomicU64,
+    timeouts: AtomicU64,
+}
+
+fn bump(c: &AtomicU64) {
+    c.fetch_add(1, Ordering::Relaxed);
+}
+
+struct PeerSlot {
+    public: PublicKey,
+    state: Mutex<PeerState>,
+}
+
+#[derive(Default)]
+struct PeerState {
+    current: Option<Arc<Session>>,
+    /// The session before the current one: frames sealed in it may still be in flight.
+    previous: Option<Arc<Session>>,
+    /// Sessions this side answered (as responder) that the peer has not used yet, the
+    /// newest last (at most two: the peer may complete with the response to an initiation
+    /// it has since retried). One becomes current with the first frame that opens in it. So
+    /// an initiation replayed to a restarted system (which cannot tell it from a fresh one)
+    /// makes a session nobody uses, and never displaces a working one or a handshake in
+    /// progress.
+    unconfirmed: Vec<Arc<Session>>,
+    pending: Option<(Initiation, Instant)>,
+    /// The initiation `pending` replaced when it was retried: its response may still come
+    /// (a round trip longer than the retry interval) and completes the handshake as well.
+    earlier: Option<Initiation>,
+    /// Frames waiting for the handshake, and since when the oldest waits.
+    queue: VecDeque<Vec<u8>>,
+    /// The queue is being sent after a handshake: later frames join it, so nothing
+    /// overtakes a frame that waited.
+    flushing: bool,
+    queued_bytes: usize,
+    waiting_since: Option<Instant>,
+    /// The newest initiation timestamp accepted from this peer.
+    last_init: Option<u64>,
+    last_trigger: Option<Instant>,
+}
+
+impl PeerState {
+    fn session(&self, index: u32) -> Option<Arc<Session>> {
+        [&self.current, &self.previous]
+            .into_iter()
+            .flatten()
+            .chain(&self.unconfirmed)
+            .find(|s| s.my_index == index)
+            .cloned()
+    }
+
+    fn install(&mut self, session: Arc<Session>) {
+        self.previous = self.current.replace(session);
+    }
+}
+
+/// The state shared by a secured link's two sides.
+struct Secured {
+    transport: String,
+    policy: Policy,
+    handshakes: Handshakes,
+    peers: HashMap<SystemId, PeerSlot>,
+    /// The router's sink (above us).
+    sink: Arc<dyn FrameSink>,
+    /// The link below us, for handshake frames sent from the receive side. Weak: the link
+    /// holds our sink, which holds us.
+    below: OnceLock<Weak<dyn Link>>,
+    counters: Counters,
+    last_timestamp: AtomicU64,
+}
+
+impl Secured {
+    fn stats(&self) -> SecurityStats {
+        let c = &self.counters;
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        SecurityStats {
+            enabled: true,
+            handshakes: get(&c.handshakes),
+            rejected_auth: get(&c.auth),
+            rejected_replay: get(&c.replay),
+            rejected_table: get(&c.table),
+            rejected_unknown_sender: get(&c.unknown),
+            rejected_no_session: get(&c.no_session),
+            handshake_timeouts: get(&c.timeouts),
+        }
+    }
+
+    fn queued_bytes(&self) -> usize {
+        self.peers
+            .values()
+            .map(|p| {
+                p.state
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .queued_bytes
+            })
+            .sum()
+    }
+
+    fn below(&self) -> Option<Arc<dyn Link>> {
+        self.below.get().and_then(Weak::upgrade)
+    }
+
+    /// A timestamp greater than every earlier one from this link (wall-clock nanoseconds, so
+    /// that it also grows across restarts).
+    fn timestamp(&self) -> u64 {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default()
+            .as_nanos() as u64;
+        let mut last = self.last_timestamp.load(Ordering::Relaxed);
+        loop {
+            let next = now.max(last + 1);
+            match self.last_timestamp.compare_exchange_weak(
+                last,
+                next,
+                Ordering::Relaxed,
+                Ordering::Relaxed,
+            ) {
+                Ok(_) => return next,
+                Err(seen) => last = seen,
+            }
+        }
+    }
+}
+
+/// The router's side of a secured link: seals what it sends.
+struct SecureLink {
+    below: Arc<dyn Link>,
+    secured: Arc<Secured>,
+}
+
+forward_link! {
+    [impl] SecureLink => below;
+    fn caps(&self) -> hetcomm_link::LinkCaps {
+        let mut caps = self.below.caps();
+        caps.max_frame = caps.max_frame.saturating_sub(OVERHEAD);
+        caps.mtu = caps.mtu.saturating_sub(OVERHEAD);
+        caps
+    }
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.secured.send(to, frame, &[], false)
+    }
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        self.secured.send(to, head, body, false)
+    }
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.secured.send(to, frame, &[], true)
+    }
+    fn stats(&self) -> hetcomm_link::LinkStats {
+        let mut stats = self.below.stats();
+        stats.security = self.secured.stats();
+        // Frames waiting for a handshake are queued in this link too.
+        stats.buffered_bytes += self.secured.queued_bytes() as u64;
+        stats
+    }
+    // Authenticated encryption protects every byte: the router need not checksum payloads.
+    fn checksums_payload(&self) -> bool {
+        true
+    }
+}
+
+/// The link's side of a secured link: opens what arrives.
+struct SecureSink {
+    secured: Arc<Secured>,
+}
+
+forward_sink! {
+    [impl] SecureSink => secured.sink;
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.secured.receive(Incoming::Borrowed(frame));
+    }
+    fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
+        self.secured.receive(Incoming::Owned(frame));
+    }
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
+        for frame in frames {
+            self.secured.receive(Incoming::Borrowed(frame));
+        }
+    }
+}
+
+impl LinkLayer for SecurityLayer {
+    fn name(&self) -> &str {
+        "security"
+    }
+
+    fn wrap_sink(&self, _ctx: &LayerContext, sink: Arc<dyn FrameSink>) -> Arc<dyn FrameSink> {
+        let peers = self
+            .policy
+            .peers
+            .iter()
+            .filter(|(id, _)| **id != self.policy.local)
+            .map(|(&id, &public)| {
+                (
+                    id,
+                    PeerSlot {
+                        public,
+                        state: Mutex::new(PeerState::default()),
+                    },
+                )
+            })
+            .collect();
+        let secured = Arc::new(Secured {
+            transport: self.transport.clone(),
+            policy: self.policy.clone(),
+            handshakes: self.handshakes.clone(),
+            peers,
+            sink,
+            below: OnceLock::new(),
+            counters: Counters::default(),
+            last_timestamp: AtomicU64::new(0),
+        });
+        let _ = self.secured.set(secured.clone());
+        Arc::new(SecureSink { secured })
+    }
+
+    fn wrap_link(
+        &self,
+        _ctx: &LayerContext,
+        link: Arc<dyn Link>,
+    ) -> Result<Arc<dyn Link>, LayerError> {
+        let secured = self
+            .secured
+            .get()
+            .cloned()
+            .ok_or_else(|| LayerError::Wrap {
+                layer: "security".into(),
+                source: "the security layer wraps a link's sink before the link".into(),
+            })?;
+        let _ = secured.below.set(Arc::downgrade(&link));
+        if matches!(secured.handshakes, Handshakes::OverTheLink) {
+            let weak = Arc::downgrade(&secured);
+            std::thread::Builder::new()
+                .name("hc-security".into())
+                .spawn(move || loop {
+                    std::thread::sleep(Duration::from_millis(100));
+                    match weak.upgrade() {
+                        Some(s) if s.below().is_some() => s.upkeep(),
+                        _ => return,
+                    }
+                })
+                .map_err(|e| LayerError::Wrap {
+                    layer: "security".into(),
+                    source: Box::new(e),
+                })?;
+        }
+        Ok(Arc::new(SecureLink {
+            below: link,
+            secured,
+        }))
+    }
+}
