@@ -136,8 +136,10 @@ def sec_write(name, data):
 NO_MUTATION = b"\x00\x00\x00"  # mutation 0, position 0
 
 
-def inner(payload=b"", sel=0):
-    return bytes([sel]) + struct.pack("<H", 7) + bytes([len(payload)]) + payload
+def inner(payload=b"", sel=0, source=1, destination=2):
+    """An inner frame; sel bit 0: with `source`, bit 1: with `destination`, bit 2: an ACK."""
+    ids = (bytes([source]) if sel & 1 else b"") + (bytes([destination]) if sel & 2 else b"")
+    return bytes([sel]) + ids + struct.pack("<H", 7) + bytes([len(payload)]) + payload
 
 
 def sec_handshake(p, index, timestamp, seed):  # op 0: the played system p (0: 1, 1: 3) initiates
