@@ -175,3 +175,10 @@ sec_write("table", bytes([0x02]) + sec_handshake(0, 9, 1, 1) + sec_seal(0, sel=1
 for v in VECTORS["secured_frames"]["received"]:
     f = h(v["secured_hex"])[:127]
     sec_write("raw_" + v["name"], bytes([ALL]) + b"\x07" + bytes([len(f)]) + f)
+# Three handshakes from system 1: frames of the session before the current one still open, those
+# of the one before that no longer do; then system 3's and the layer's handshakes cross.
+sec_write("rekey", bytes([ALL]) + sec_handshake(0, 1, 1, 1) + sec_seal(0, 0, b"one")
+          + sec_handshake(0, 2, 2, 2) + sec_seal(0, 0, b"old") + sec_seal(0, 1, b"new")
+          + sec_handshake(0, 3, 3, 3) + sec_seal(0, 0, b"gone") + sec_seal(0, 1, b"previous")
+          + sec_seal(0, 2, b"current") + sec_send(0, b"out") + sec_send(1, b"wait")
+          + sec_handshake(1, 4, 1, 4) + sec_answer(1, 5, 5) + sec_seal(1, 0, b"three"))
