@@ -136,8 +136,10 @@ def sec_write(name, data):
 NO_MUTATION = b"\x00\x00\x00"  # mutation 0, position 0
 
 
-def inner(payload=b"", sel=0):
-    return bytes([sel]) + struct.pack("<H", 7) + bytes([len(payload)]) + payload
+def inner(payload=b"", sel=0, source=1, destination=2):
+    """An inner frame; sel bit 0: with `source`, bit 1: with `destination`, bit 2: an ACK."""
+    ids = (bytes([source]) if sel & 1 else b"") + (bytes([destination]) if sel & 2 else b"")
+    return bytes([sel]) + ids + struct.pack("<H", 7) + bytes([len(payload)]) + payload
 
 
 def sec_handshake(p, index, timestamp, seed):  # op 0: the played system p (0: 1, 1: 3) initiates
@@ -173,3 +175,10 @@ sec_write("table", bytes([0x02]) + sec_handshake(0, 9, 1, 1) + sec_seal(0, sel=1
 for v in VECTORS["secured_frames"]["received"]:
     f = h(v["secured_hex"])[:127]
     sec_write("raw_" + v["name"], bytes([ALL]) + b"\x07" + bytes([len(f)]) + f)
+# Three handshakes from system 1: frames of the session before the current one still open, those
+# of the one before that no longer do; then system 3's and the layer's handshakes cross.
+sec_write("rekey", bytes([ALL]) + sec_handshake(0, 1, 1, 1) + sec_seal(0, 0, b"one")
+          + sec_handshake(0, 2, 2, 2) + sec_seal(0, 0, b"old") + sec_seal(0, 1, b"new")
+          + sec_handshake(0, 3, 3, 3) + sec_seal(0, 0, b"gone") + sec_seal(0, 1, b"previous")
+          + sec_seal(0, 2, b"current") + sec_send(0, b"out") + sec_send(1, b"wait")
+          + sec_handshake(1, 4, 1, 4) + sec_answer(1, 5, 5) + sec_seal(1, 0, b"three"))

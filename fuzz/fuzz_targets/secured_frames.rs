@@ -29,7 +29,8 @@
 //!   frames it was asked to send, in order, with counters 0, 1, 2, … per session.
 //!
 //! The layer's upkeep thread resends initiations after 250 ms; an input stops after 200 ms so
-//! that the model never races it.
+//! that the model never races it. `HETCOMM_FUZZ_VERBOSE=1` prints each frame's expected
+//! outcome.
 #![no_main]
 
 #[path = "common/mod.rs"]
@@ -117,12 +118,21 @@ struct Held {
 
 impl Held {
     fn new(index: u32, peer_index: u32, mine: Option<usize>) -> Held {
-        Held { index, peer_index, mine, seen: HashSet::new(), top: None, next_out: 0 }
+        Held {
+            index,
+            peer_index,
+            mine,
+            seen: HashSet::new(),
+            top: None,
+            next_out: 0,
+        }
     }
 
     /// The replay window (RFC 6479, as the document says): accepts and records, or refuses.
     fn accept(&mut self, counter: u64) -> bool {
-        let too_old = self.top.is_some_and(|t| counter < t && t - counter >= WINDOW);
+        let too_old = self
+            .top
+            .is_some_and(|t| counter < t && t - counter >= WINDOW);
         if counter == u64::MAX || too_old || !self.seen.insert(counter) {
             return false;
         }
@@ -218,7 +228,12 @@ impl Run {
         let config = c.u8();
         let in_memory = config & 1 != 0;
         let set = |bits: u8| -> HashSet<SystemId> {
-            PLAYED.iter().enumerate().filter(|(i, _)| bits >> i & 1 != 0).map(|(_, &s)| s).collect()
+            PLAYED
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| bits >> i & 1 != 0)
+                .map(|(_, &s)| s)
+                .collect()
         };
         let data_from = set(config >> 1);
         let acks_from = set(config >> 3);
@@ -260,24 +275,47 @@ impl Run {
             inits: HashMap::new(),
             responses: HashMap::new(),
             history: Vec::new(),
-            stats: SecurityStats { enabled: true, ..SecurityStats::default() },
+            stats: SecurityStats {
+                enabled: true,
+                ..SecurityStats::default()
+            },
             handed: 0,
         };
         if in_memory {
-            // The sessions a simulation makes (SimSessions: lower id initiates with index 1,
-            // the pair's seed from the simulation's).
+            // The sessions a simulation makes (SimSessions: the lower id initiates, with index
+            // 1; the responder's index is 2). The target's halves are made when first needed.
             for p in PLAYED.into_iter().filter(|p| run.known.contains(p)) {
-                let (lo, hi) = if p < LOCAL { (p, LOCAL) } else { (LOCAL, p) };
-                let seed = SIM_SEED ^ ((lo.0 as u64) << 16) ^ ((hi.0 as u64) << 32);
-                let (a, b) =
-                    session::in_memory((lo, &keys[&lo]), (hi, &keys[&hi]), seed).expect("sessions");
-                let (theirs, ours) = if p == lo { (b, a) } else { (a, b) };
-                run.mine.push((p, ours));
-                let held = Held::new(theirs.my_index, theirs.peer_index, Some(run.mine.len() - 1));
-                run.peers.get_mut(&p).unwrap().current = Some(held);
+                let (index, peer_index) = if p < LOCAL { (2, 1) } else { (1, 2) };
+                run.peers.get_mut(&p).unwrap().current = Some(Held::new(index, peer_index, None));
             }
         }
         run
+    }
+
+    /// In-memory sessions: the target's half of the session with `p`, made on first use.
+    fn sim_half(&mut self, p: SystemId) -> Option<usize> {
+        if !self.in_memory || !self.known.contains(&p) {
+            return None;
+        }
+        if let Some(sid) = self.peers[&p].current.as_ref().and_then(|h| h.mine) {
+            return Some(sid);
+        }
+        let keys = keys();
+        let (lo, hi) = if p < LOCAL { (p, LOCAL) } else { (LOCAL, p) };
+        let seed = SIM_SEED ^ ((lo.0 as u64) << 16) ^ ((hi.0 as u64) << 32);
+        let (a, b) =
+            session::in_memory((lo, &keys[&lo]), (hi, &keys[&hi]), seed).expect("sessions");
+        let ours = if p == lo { a } else { b };
+        self.mine.push((p, ours));
+        let sid = self.mine.len() - 1;
+        self.peers
+            .get_mut(&p)
+            .unwrap()
+            .current
+            .as_mut()
+            .unwrap()
+            .mine = Some(sid);
+        Some(sid)
     }
 
     fn may_talk(&self, p: SystemId) -> bool {
@@ -360,7 +398,8 @@ impl Run {
             Some(s) => {
                 let inner = &s.inner;
                 let allowed = inner.len() < 16 || {
-                    let (source, destination) = (SystemId(u16_at(inner, 8)), SystemId(u16_at(inner, 12)));
+                    let (source, destination) =
+                        (SystemId(u16_at(inner, 8)), SystemId(u16_at(inner, 12)));
                     source == sender
                         && destination == LOCAL
                         && match inner[3] {
@@ -388,6 +427,9 @@ impl Run {
     /// Feeds `b` to the layer and checks what it does.
     fn feed(&mut self, b: Vec<u8>, how: u8) {
         let expect = self.predict(&b);
+        if verbose() {
+            eprintln!("feed {} bytes: expect {expect:?}", b.len());
+        }
         self.history.push(b.clone());
         let from = Peer::Unknown;
         match how % 3 {
@@ -407,13 +449,25 @@ impl Run {
         assert_eq!(got, want, "stats after {expect:?} for {}", hex(&b));
         self.stats = got;
         let frames = self.up.frames();
-        let new: Vec<_> = frames[self.handed..].iter().map(|f| (f.bytes.clone(), f.from)).collect();
+        let new: Vec<_> = frames[self.handed..]
+            .iter()
+            .map(|f| (f.bytes.clone(), f.from))
+            .collect();
         self.handed = frames.len();
         match handed {
             Some((inner, sender)) => {
-                assert_eq!(new, [(inner, Peer::System(sender))], "handed up for {}", hex(&b))
+                assert_eq!(
+                    new,
+                    [(inner, Peer::System(sender))],
+                    "handed up for {}",
+                    hex(&b)
+                )
             }
-            None => assert!(new.is_empty(), "{expect:?} but handed up {new:?} for {}", hex(&b)),
+            None => assert!(
+                new.is_empty(),
+                "{expect:?} but handed up {new:?} for {}",
+                hex(&b)
+            ),
         }
         match expect {
             Expect::InitAccepted(p, timestamp, clear_index, noise) => {
@@ -422,14 +476,26 @@ impl Run {
                 assert_eq!(to, p);
                 assert!(response.len() >= 16 && response[..4] == *b"HS\x01\x02");
                 assert_eq!((u16_at(&response, 4), u16_at(&response, 6)), (LOCAL.0, p.0));
-                assert_eq!(u32_at(&response, 12), clear_index, "the response answers the index sent");
-                let mine = self.inits.get_mut(&(p, noise)).unwrap().initiation.take().map(|init| {
-                    let mut r = response.clone();
-                    r[12..16].copy_from_slice(&init.index.to_le_bytes());
-                    let s = init.complete(&r).expect("the layer's response completes the handshake");
-                    self.mine.push((p, s));
-                    self.mine.len() - 1
-                });
+                assert_eq!(
+                    u32_at(&response, 12),
+                    clear_index,
+                    "the response answers the index sent"
+                );
+                let mine = self
+                    .inits
+                    .get_mut(&(p, noise))
+                    .unwrap()
+                    .initiation
+                    .take()
+                    .map(|init| {
+                        let mut r = response.clone();
+                        r[12..16].copy_from_slice(&init.index.to_le_bytes());
+                        let s = init
+                            .complete(&r)
+                            .expect("the layer's response completes the handshake");
+                        self.mine.push((p, s));
+                        self.mine.len() - 1
+                    });
                 let pm = self.peers.get_mut(&p).unwrap();
                 pm.last_init = Some(timestamp);
                 pm.pending = None;
@@ -458,7 +524,11 @@ impl Run {
     /// Checks what the layer sent (other than a response just accounted for).
     fn check_sent(&mut self, sent: Vec<(SystemId, Vec<u8>)>) {
         for (to, f) in sent {
-            assert!(PLAYED.contains(&to) && self.known.contains(&to), "sent to {to}");
+            self.sim_half(to);
+            assert!(
+                PLAYED.contains(&to) && self.known.contains(&to),
+                "sent to {to}"
+            );
             assert!(f.len() >= 8 && f[..3] == *b"HS\x01", "sent {}", hex(&f));
             assert_eq!((u16_at(&f, 4), u16_at(&f, 6)), (LOCAL.0, to.0));
             let pm = self.peers.get_mut(&to).unwrap();
@@ -472,7 +542,10 @@ impl Run {
                     assert_eq!(u32_at(&f, 8), held.peer_index);
                     assert_eq!(u64_at(&f, 12), held.next_out, "counters 0, 1, 2, …");
                     held.next_out += 1;
-                    let inner = pm.out.pop_front().expect("a frame the layer was asked to send");
+                    let inner = pm
+                        .out
+                        .pop_front()
+                        .expect("a frame the layer was asked to send");
                     if let Some(sid) = held.mine {
                         let mut g = f.clone();
                         assert!(self.mine[sid].1.open(&mut g), "the layer's frame opens");
@@ -493,7 +566,10 @@ impl Run {
     /// Asks the layer to send `inner` to `p`.
     fn send(&mut self, p: SystemId, inner: Vec<u8>, how: u8) {
         if !self.known.contains(&p) {
-            assert!(self.link.send(p, &inner).is_err(), "sent to a system without a key");
+            assert!(
+                self.link.send(p, &inner).is_err(),
+                "sent to a system without a key"
+            );
             return;
         }
         let pm = self.peers.get_mut(&p).unwrap();
@@ -517,6 +593,12 @@ impl Run {
     }
 }
 
+/// `HETCOMM_FUZZ_VERBOSE=1`: print each frame's expected outcome (to see what a corpus reaches).
+fn verbose() -> bool {
+    static V: OnceLock<bool> = OnceLock::new();
+    *V.get_or_init(|| std::env::var_os("HETCOMM_FUZZ_VERBOSE").is_some())
+}
+
 fn hex(b: &[u8]) -> String {
     b.iter().take(64).map(|x| format!("{x:02x}")).collect()
 }
@@ -528,11 +610,25 @@ fn inner_frame(c: &mut Cursor, sender: SystemId) -> Vec<u8> {
         let n = (c.u8() % 64) as usize;
         return c.bytes(n).to_vec();
     }
-    let source = if sel & 1 != 0 { SystemId(c.u8() as u16 % 4) } else { sender };
-    let destination = if sel & 2 != 0 { SystemId(c.u8() as u16 % 4) } else { LOCAL };
+    let source = if sel & 1 != 0 {
+        SystemId(c.u8() as u16 % 4)
+    } else {
+        sender
+    };
+    let destination = if sel & 2 != 0 {
+        SystemId(c.u8() as u16 % 4)
+    } else {
+        LOCAL
+    };
     let mut h = Header::data(
-        hetcomm_core::Address { system: source, module: hetcomm_core::ModuleId(1) },
-        hetcomm_core::Address { system: destination, module: hetcomm_core::ModuleId(2) },
+        hetcomm_core::Address {
+            system: source,
+            module: hetcomm_core::ModuleId(1),
+        },
+        hetcomm_core::Address {
+            system: destination,
+            module: hetcomm_core::ModuleId(2),
+        },
         hetcomm_core::MessageType(5),
     );
     if sel & 4 != 0 {
@@ -599,7 +695,10 @@ fn run(data: &[u8]) {
                     Entropy::Seeded(seed),
                 )
                 .expect("initiates");
-                let rec = InitRecord { timestamp, initiation: Some(pending) };
+                let rec = InitRecord {
+                    timestamp,
+                    initiation: Some(pending),
+                };
                 run.inits.insert((p, init[12..].to_vec()), rec);
                 let f = mutate(&mut c, init);
                 run.feed(f, how);
@@ -608,7 +707,9 @@ fn run(data: &[u8]) {
             1 => {
                 let p = played(&mut c);
                 let (index, seed) = (c.u32(), c.u8() as u64);
-                let Some((theirs, init)) = run.peers[&p].pending.clone() else { continue };
+                let Some((theirs, init)) = run.peers[&p].pending.clone() else {
+                    continue;
+                };
                 let answer = session::respond(
                     (p, &keys[&p]),
                     (LOCAL, &keys[&LOCAL].public),
@@ -619,16 +720,21 @@ fn run(data: &[u8]) {
                 .expect("the layer's initiation is authentic");
                 run.mine.push((p, answer.session));
                 let sid = run.mine.len() - 1;
-                run.responses.insert((p, answer.response[16..].to_vec()), (theirs, sid));
+                run.responses
+                    .insert((p, answer.response[16..].to_vec()), (theirs, sid));
                 let f = mutate(&mut c, answer.response);
                 run.feed(f, how);
             }
             // A data frame sealed in one of the target's sessions.
             2 | 3 => {
                 let p = played(&mut c);
-                let ours: Vec<usize> =
-                    (0..run.mine.len()).filter(|&i| run.mine[i].0 == p).collect();
-                let Some(&sid) = ours.get(c.u8() as usize % ours.len().max(1)) else { continue };
+                run.sim_half(p);
+                let ours: Vec<usize> = (0..run.mine.len())
+                    .filter(|&i| run.mine[i].0 == p)
+                    .collect();
+                let Some(&sid) = ours.get(c.u8() as usize % ours.len().max(1)) else {
+                    continue;
+                };
                 let inner = inner_frame(&mut c, p);
                 let mut f = Vec::new();
                 run.mine[sid].1.seal(&mut f, p, LOCAL, &inner, &[]);
@@ -638,7 +744,11 @@ fn run(data: &[u8]) {
             }
             // The layer sends.
             4 => {
-                let p = if c.u8() & 0x80 != 0 { SystemId(9) } else { played(&mut c) };
+                let p = if c.u8() & 0x80 != 0 {
+                    SystemId(9)
+                } else {
+                    played(&mut c)
+                };
                 let inner = inner_frame(&mut c, LOCAL);
                 run.send(p, inner, how);
             }
