@@ -59,6 +59,48 @@
 #endif
 #endif
 
+#ifdef HETCOMM_HAS_MSGPACK
+namespace hetcomm {
+namespace detail {
+/// Where hetcomm::encode writes: a byte vector.
+struct PayloadStream {
+    std::vector<std::uint8_t>* out;
+    void write(const char* p, std::size_t n) {
+        out->insert(out->end(), reinterpret_cast<const std::uint8_t*>(p), reinterpret_cast<const std::uint8_t*>(p) + n);
+    }
+};
+}  // namespace detail
+}  // namespace hetcomm
+
+namespace msgpack {
+MSGPACK_API_VERSION_NAMESPACE(v1) {
+// hetcomm payloads write every double as float 64 and every float as float 32 (rmp-serde and
+// Python do); msgpack-c's default packer writes integral values as integers. Specialised for
+// hetcomm's own stream only, so other uses of msgpack-c in the program are unchanged.
+template <>
+inline packer<hetcomm::detail::PayloadStream>& packer<hetcomm::detail::PayloadStream>::pack_double(double d) {
+    union { double f; uint64_t i; } mem;
+    mem.f = d;
+    char buf[9];
+    buf[0] = static_cast<char>(0xcbu);
+    _msgpack_store64(&buf[1], mem.i);
+    append_buffer(buf, 9);
+    return *this;
+}
+template <>
+inline packer<hetcomm::detail::PayloadStream>& packer<hetcomm::detail::PayloadStream>::pack_float(float d) {
+    union { float f; uint32_t i; } mem;
+    mem.f = d;
+    char buf[5];
+    buf[0] = static_cast<char>(0xcau);
+    _msgpack_store32(&buf[1], mem.i);
+    append_buffer(buf, 5);
+    return *this;
+}
+}  // MSGPACK_API_VERSION_NAMESPACE(v1)
+}  // namespace msgpack
+#endif
+
 namespace hetcomm {
 
 #if defined(__cpp_lib_span)
@@ -251,13 +293,16 @@ struct message_id<T, std::void_t<decltype(T::hetcomm_id)>> {
 };
 
 #ifdef HETCOMM_HAS_MSGPACK
-/// Encodes a value as a hetcomm payload (one MessagePack value).
+/// Encodes a value as a hetcomm payload (one MessagePack value). Floating-point fields are
+/// always written as floats (float 64 for double, float 32 for float), as Rust and Python
+/// write them; msgpack-c's own packer would write 10.0 as the integer 10.
 template <class T>
 std::vector<std::uint8_t> encode(const T& value) {
-    msgpack::sbuffer buf;
-    msgpack::pack(buf, value);
-    return std::vector<std::uint8_t>(reinterpret_cast<const std::uint8_t*>(buf.data()),
-                                     reinterpret_cast<const std::uint8_t*>(buf.data()) + buf.size());
+    std::vector<std::uint8_t> out;
+    detail::PayloadStream stream{&out};
+    msgpack::packer<detail::PayloadStream> packer(stream);
+    packer.pack(value);
+    return out;
 }
 
 /// Decodes exactly one MessagePack value into `T` (trailing bytes are an error, as in Rust).

@@ -86,7 +86,8 @@ def interop(args: argparse.Namespace) -> int:
     text = Path(args.template).read_text()
     text = (text.replace("@KIND@", args.kind)
             .replace("@PORT_CPP@", str(free_port(args.kind)))
-            .replace("@PORT_PEER@", str(free_port(args.kind))))
+            .replace("@PORT_PEER@", str(free_port(args.kind)))
+            .replace("@SETTINGS@", ""))
     with tempfile.TemporaryDirectory() as tmp:
         fleet = Path(tmp) / "fleet.toml"
         fleet.write_text(text)

@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
     try {
         auto comm = hetcomm::Comm::open(argv[1], "Cpp");
         auto m = comm.module("M");
-        Sample s{"from C++ ✓", 2.5, -300, {1, 200, 70000}, true};
+        Sample s{"from C++ ✓", 3.0, -300, {1, 200, 70000}, true};
         auto outcome = m.send("Peer", "M", s).wait();
         std::cout << "cpp: send " << outcome.to_string() << std::endl;
         CHECK(outcome.delivered());
@@ -49,7 +49,7 @@ int main(int argc, char** argv) {
                   << " values=" << b.values.size() << " ok=" << b.ok << " from " << r->envelope.source_system_name
                   << std::endl;
         CHECK(b.name == s.name + " back");
-        CHECK(b.x == 5.0);
+        CHECK(b.x == 6.0);
         CHECK(b.count == -301);
         CHECK((b.values == std::vector<std::uint32_t>{1, 200, 70000, 3}));
         CHECK(b.ok == false);
