@@ -6,6 +6,7 @@
  *
  * Payloads are MessagePack, written by hand here: {"code": 1} is the Rust struct
  * `Command { code: u8 }` (#[message(id = 0)]) and the Python dataclass of the same field. */
+#define _DEFAULT_SOURCE /* usleep */
 #include <hetcomm.h>
 #include <stdatomic.h>
 #include <stdio.h>
