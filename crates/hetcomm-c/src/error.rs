@@ -222,3 +222,80 @@ pub(crate) fn out_arg<T>(p: *mut T, what: &str) -> Result<*mut T, Error> {
         Ok(p)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn last_error() -> String {
+        // SAFETY: hetcomm_last_error never returns NULL and the string lives until the next
+        // failing call on this thread.
+        unsafe { CStr::from_ptr(hetcomm_last_error()) }
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    #[test]
+    fn a_panic_becomes_a_status_and_a_message_not_an_unwind() {
+        let status = guard(|| panic!("boom at the boundary"));
+        assert_eq!(status, hetcomm_status::Panic);
+        assert!(
+            last_error().contains("boom at the boundary"),
+            "{}",
+            last_error()
+        );
+        assert_eq!(guard_value(7, || -> i32 { panic!("again") }), 7);
+        assert!(last_error().contains("again"));
+    }
+
+    #[test]
+    fn errors_leave_their_message_and_success_leaves_it_alone() {
+        let status = guard(|| Err(Error::new(hetcomm_status::Timeout, "late\0ness")));
+        assert_eq!(status, hetcomm_status::Timeout);
+        assert_eq!(last_error(), "late\\0ness");
+        assert_eq!(guard(|| Ok(())), hetcomm_status::Ok);
+        assert_eq!(last_error(), "late\\0ness");
+    }
+
+    #[test]
+    fn every_status_has_its_header_name() {
+        use hetcomm_status::*;
+        let all = [
+            (Ok, "OK"),
+            (InvalidArgument, "INVALID_ARGUMENT"),
+            (Config, "CONFIG"),
+            (UnknownSystem, "UNKNOWN_SYSTEM"),
+            (UnknownModule, "UNKNOWN_MODULE"),
+            (TransportUnavailable, "TRANSPORT_UNAVAILABLE"),
+            (Transport, "TRANSPORT"),
+            (NoRoute, "NO_ROUTE"),
+            (TooLarge, "TOO_LARGE"),
+            (Backpressure, "BACKPRESSURE"),
+            (Closed, "CLOSED"),
+            (Timeout, "TIMEOUT"),
+            (Empty, "EMPTY"),
+            (BufferTooSmall, "BUFFER_TOO_SMALL"),
+            (Pending, "PENDING"),
+            (Codec, "CODEC"),
+            (Panic, "PANIC"),
+        ];
+        for (status, name) in all {
+            // SAFETY: static strings.
+            let got = unsafe { CStr::from_ptr(hetcomm_status_name(status as i32)) };
+            assert_eq!(got.to_str().unwrap(), format!("HETCOMM_STATUS_{name}"));
+        }
+        // SAFETY: a static string.
+        let unknown = unsafe { CStr::from_ptr(hetcomm_status_name(-1)) };
+        assert_eq!(unknown.to_str().unwrap(), "unknown");
+    }
+
+    #[test]
+    fn null_arguments_are_errors_not_dereferences() {
+        // SAFETY: NULL is allowed by the contract of each.
+        unsafe {
+            assert!(str_arg(std::ptr::null(), "system").is_err());
+            assert!(handle::<u8>(std::ptr::null(), "comm").is_err());
+        }
+        assert!(out_arg::<u8>(std::ptr::null_mut(), "out").is_err());
+    }
+}

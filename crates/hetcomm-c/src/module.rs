@@ -277,7 +277,12 @@ pub unsafe extern "C" fn hetcomm_module_broadcast(
             SendOptions::priority(priority),
         )?;
         if !broadcast.is_null() {
-            let tickets = b.tickets().iter().cloned().map(hetcomm_ticket::new).collect();
+            let tickets = b
+                .tickets()
+                .iter()
+                .cloned()
+                .map(hetcomm_ticket::new)
+                .collect();
             // SAFETY: non-NULL, writable by contract.
             unsafe { *broadcast = Box::into_raw(Box::new(hetcomm_broadcast { tickets })) };
         }

@@ -113,12 +113,14 @@ impl From<&Outcome> for hetcomm_outcome {
                 0,
                 hetcomm_fail_reason::None,
             ),
-            Outcome::Unconfirmed { reason: r, attempts } => {
-                (hetcomm_outcome_kind::Unconfirmed, *attempts, 0, reason(r))
-            }
-            Outcome::Failed { reason: r, attempts } => {
-                (hetcomm_outcome_kind::Failed, *attempts, 0, reason(r))
-            }
+            Outcome::Unconfirmed {
+                reason: r,
+                attempts,
+            } => (hetcomm_outcome_kind::Unconfirmed, *attempts, 0, reason(r)),
+            Outcome::Failed {
+                reason: r,
+                attempts,
+            } => (hetcomm_outcome_kind::Failed, *attempts, 0, reason(r)),
         };
         hetcomm_outcome {
             kind,
@@ -176,7 +178,10 @@ pub unsafe extern "C" fn hetcomm_ticket_wait_timeout(
             }
             None => Err(Error::new(
                 hetcomm_status::Timeout,
-                format!("the send to `{}` has not ended after {timeout_ms} ms", t.ticket.destination()),
+                format!(
+                    "the send to `{}` has not ended after {timeout_ms} ms",
+                    t.ticket.destination()
+                ),
             )),
         }
     })
@@ -213,7 +218,9 @@ pub unsafe extern "C" fn hetcomm_ticket_poll(
 /// # Safety
 /// `ticket` is NULL or a live ticket.
 #[no_mangle]
-pub unsafe extern "C" fn hetcomm_ticket_destination(ticket: *const hetcomm_ticket) -> *const c_char {
+pub unsafe extern "C" fn hetcomm_ticket_destination(
+    ticket: *const hetcomm_ticket,
+) -> *const c_char {
     // SAFETY: the caller's contract.
     unsafe { ticket.as_ref() }.map_or(std::ptr::null(), |t| t.destination.as_ptr())
 }
