@@ -55,6 +55,8 @@ typedef enum hetcomm_status {
   HETCOMM_STATUS_CODEC = 15,
   // A bug inside the library: a Rust panic was caught at the C boundary.
   HETCOMM_STATUS_PANIC = 16,
+  // The next message is of another type than the one asked for: it stays first in line.
+  HETCOMM_STATUS_WRONG_TYPE = 17,
 } hetcomm_status;
 
 // How a send ended. Each kind says only what the sender knows.
@@ -407,6 +409,17 @@ enum hetcomm_status hetcomm_module_recv(const struct hetcomm_module *module,
 enum hetcomm_status hetcomm_module_recv_alloc(const struct hetcomm_module *module,
                                               int64_t timeout_ms,
                                               struct hetcomm_message **message);
+
+// [`hetcomm_module_recv_alloc`] for a message of type `message_type` only: when the next
+// message is of another type it stays first in line and this returns
+// `HETCOMM_STATUS_WRONG_TYPE` (typed receives, as Rust's `Module::recv::<M>`).
+//
+// # Safety
+// As [`hetcomm_module_recv_alloc`].
+enum hetcomm_status hetcomm_module_recv_alloc_type(const struct hetcomm_module *module,
+                                                   uint32_t message_type,
+                                                   int64_t timeout_ms,
+                                                   struct hetcomm_message **message);
 
 // The payload of a library-owned message: its bytes (valid until the message is freed) and,
 // in `*len`, their number. NULL (and `*len` 0) for a NULL message.

@@ -405,24 +405,23 @@ public:
     }
 #ifdef HETCOMM_HAS_MSGPACK
     /// Takes the next message if one waits and it is a `T` (GetMessage). A message of another
-    /// type stays in the inbox and this throws (as Rust's RecvError::WrongType).
+    /// type stays first in line and this throws HETCOMM_STATUS_WRONG_TYPE (as Rust's
+    /// RecvError::WrongType); a payload that does not decode as `T` throws
+    /// HETCOMM_STATUS_CODEC (the message is consumed: it can never decode).
     template <class T>
     std::optional<Received<T>> try_recv() const { return recv<T>(std::chrono::milliseconds(0)); }
     /// Waits up to `timeout` (nullopt: forever) for the next message, which must be a `T`.
     template <class T>
     std::optional<Received<T>> recv(std::optional<std::chrono::milliseconds> timeout) const {
-        if (auto t = next_type(); t && *t != message_id<T>::value) {
-            throw Error(HETCOMM_STATUS_CODEC, "next message is of type " + std::to_string(*t) + ", not " +
-                                                  std::to_string(message_id<T>::value) + "; it stays in the inbox");
-        }
-        auto raw = recv_raw(timeout);
-        if (!raw) return std::nullopt;
-        if (raw->envelope.message_type != message_id<T>::value) {
-            throw Error(HETCOMM_STATUS_CODEC, "received a message of type " +
-                                                  std::to_string(raw->envelope.message_type) + " while waiting for " +
-                                                  std::to_string(message_id<T>::value));
-        }
-        return Received<T>{decode<T>(raw->payload), raw->envelope};
+        hetcomm_message* m = nullptr;
+        hetcomm_status s = hetcomm_module_recv_alloc_type(
+            h(), message_id<T>::value, timeout ? static_cast<std::int64_t>(timeout->count()) : -1, &m);
+        if (s == HETCOMM_STATUS_EMPTY || s == HETCOMM_STATUS_TIMEOUT) return std::nullopt;
+        detail::check(s);
+        std::unique_ptr<hetcomm_message, detail::MessageDeleter> owned(m);
+        std::size_t len = 0;
+        const std::uint8_t* data = hetcomm_message_data(m, &len);
+        return Received<T>{decode<T>(Bytes(data, len)), Envelope::from(*hetcomm_message_envelope(m))};
     }
 #endif
     /// Calls `f(envelope, payload)` on the module's callback thread for every message of type

@@ -48,6 +48,8 @@ pub enum hetcomm_status {
     Codec = 15,
     /// A bug inside the library: a Rust panic was caught at the C boundary.
     Panic = 16,
+    /// The next message is of another type than the one asked for: it stays first in line.
+    WrongType = 17,
 }
 
 /// An error on its way to C: its code and message.
@@ -186,6 +188,7 @@ pub extern "C" fn hetcomm_status_name(status: i32) -> *const c_char {
         14 => c"HETCOMM_STATUS_PENDING",
         15 => c"HETCOMM_STATUS_CODEC",
         16 => c"HETCOMM_STATUS_PANIC",
+        17 => c"HETCOMM_STATUS_WRONG_TYPE",
         _ => c"unknown",
     };
     name.as_ptr()
@@ -278,6 +281,7 @@ mod tests {
             (Pending, "PENDING"),
             (Codec, "CODEC"),
             (Panic, "PANIC"),
+            (WrongType, "WRONG_TYPE"),
         ];
         for (status, name) in all {
             // SAFETY: static strings.

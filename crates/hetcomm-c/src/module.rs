@@ -429,6 +429,42 @@ pub unsafe extern "C" fn hetcomm_module_recv_alloc(
     })
 }
 
+/// [`hetcomm_module_recv_alloc`] for a message of type `message_type` only: when the next
+/// message is of another type it stays first in line and this returns
+/// `HETCOMM_STATUS_WRONG_TYPE` (typed receives, as Rust's `Module::recv::<M>`).
+///
+/// # Safety
+/// As [`hetcomm_module_recv_alloc`].
+#[no_mangle]
+pub unsafe extern "C" fn hetcomm_module_recv_alloc_type(
+    module: *const hetcomm_module,
+    message_type: u32,
+    timeout_ms: i64,
+    message: *mut *mut hetcomm_message,
+) -> hetcomm_status {
+    guard(|| {
+        // SAFETY: the caller's contract.
+        let m = unsafe { handle(module, "module")? };
+        let out = out_arg(message, "message")?;
+        let raw = m.take(timeout_ms)?;
+        let found = raw.envelope.message_type().0;
+        if found != message_type {
+            m.held().push_front(raw);
+            return Err(Error::new(
+                hetcomm_status::WrongType,
+                format!("the next message is of type {found}, not {message_type}: it stays in the inbox"),
+            ));
+        }
+        let msg = hetcomm_message {
+            envelope: (&raw.envelope).into(),
+            raw,
+        };
+        // SAFETY: checked non-NULL, writable by contract.
+        unsafe { *out = Box::into_raw(Box::new(msg)) };
+        Ok(())
+    })
+}
+
 /// The payload of a library-owned message: its bytes (valid until the message is freed) and,
 /// in `*len`, their number. NULL (and `*len` 0) for a NULL message.
 ///

@@ -238,6 +238,13 @@ static void test_send_and_receive(void) {
     CHECK(hetcomm_message_envelope(msg)->priority == 10);
     hetcomm_message_free(msg);
     EXPECT_ERR(hetcomm_module_recv_alloc(f.act, 0, &msg), HETCOMM_STATUS_EMPTY, "no message");
+    /* A typed receive leaves a message of another type first in line. */
+    OK(hetcomm_module_send(f.plan, "Charlie", "Act", 4, low, 1, 100, NULL));
+    EXPECT_ERR(hetcomm_module_recv_alloc_type(f.act, 5, 1000, &msg), HETCOMM_STATUS_WRONG_TYPE, "type 4, not 5");
+    OK(hetcomm_module_next_type(f.act, &type));
+    CHECK(type == 4 && hetcomm_module_pending(f.act) == 1);
+    OK(hetcomm_module_recv_alloc_type(f.act, 4, 0, &msg));
+    hetcomm_message_free(msg);
     EXPECT_ERR(hetcomm_module_recv_alloc(f.act, 0, NULL), HETCOMM_STATUS_INVALID_ARGUMENT, "`message` is NULL");
 
     /* Unacknowledged transport: sent, without confirmation. */
@@ -268,11 +275,11 @@ static void test_send_and_receive(void) {
 
     hetcomm_stats st;
     OK(hetcomm_comm_stats(f.alpha, &st));
-    CHECK(st.sends == 6 && st.delivered == 4 && st.sent == 2 && st.failed == 0);
+    CHECK(st.sends == 7 && st.delivered == 5 && st.sent == 2 && st.failed == 0);
     EXPECT_ERR(hetcomm_comm_stats(f.alpha, NULL), HETCOMM_STATUS_INVALID_ARGUMENT, "`out` is NULL");
     hetcomm_inbox_stats is;
     OK(hetcomm_module_inbox_stats(f.act, &is));
-    CHECK(is.accepted == 4 && is.taken == 4 && is.len == 0 && is.dropped == 0);
+    CHECK(is.accepted == 5 && is.taken == 5 && is.len == 0 && is.dropped == 0);
     close_fleet(&f);
 }
 

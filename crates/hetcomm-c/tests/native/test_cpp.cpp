@@ -113,7 +113,8 @@ int main() {
 
         // A message of another type stays in the inbox.
         plan.send("Charlie", "Act", Command{2}).wait();
-        CHECK(error_code([&] { act.try_recv<Wheels>(); }) == HETCOMM_STATUS_CODEC);
+        CHECK(error_code([&] { act.try_recv<Wheels>(); }) == HETCOMM_STATUS_WRONG_TYPE);
+        CHECK(error_code([&] { act.recv<Wheels>(50ms); }) == HETCOMM_STATUS_WRONG_TYPE);
         CHECK(act.has_message() && act.next_type() == std::optional<std::uint32_t>(0));
         // Too small a buffer: the size needed; the message still stays.
         std::uint8_t tiny[2];
