@@ -444,8 +444,9 @@ void hetcomm_message_free(struct hetcomm_message *message);
 // arrives from now on, instead of queueing it for polling; replaces a callback already set
 // for that type.
 //
-// **Thread:** callbacks run on the module's callback thread, a thread of the library (never
-// the thread that registered them and never a thread in a `hetcomm_*` call of yours); the
+// **Thread:** callbacks run on the module's callback thread, a thread of the library named
+// `hetcomm-cb-<module>` (cut to 15 bytes by Linux), never the thread that registered them
+// and never a thread in a `hetcomm_*` call of yours; the
 // callbacks of one module run one at a time, in arrival order (priority first). `user` must
 // stay valid, and `callback` callable, until the system is closed (its `hetcomm_comm` and
 // every module handle freed).

@@ -86,13 +86,13 @@ pub struct hetcomm_envelope {
 /// the Rust library (one `&'static str` per distinct name), so this map stays as small as the
 /// fleet files' names.
 fn static_cstr(name: &'static str) -> *const c_char {
-    static NAMES: OnceLock<Mutex<HashMap<usize, &'static CStr>>> = OnceLock::new();
+    static NAMES: OnceLock<Mutex<HashMap<(usize, usize), &'static CStr>>> = OnceLock::new();
     let mut names = NAMES
         .get_or_init(Default::default)
         .lock()
         .unwrap_or_else(|e| e.into_inner());
     names
-        .entry(name.as_ptr() as usize ^ (name.len() << 48))
+        .entry((name.as_ptr() as usize, name.len()))
         .or_insert_with(|| {
             let c = CString::new(name).unwrap_or_default();
             Box::leak(c.into_boxed_c_str())
@@ -534,8 +534,9 @@ fn c_callback(
 /// arrives from now on, instead of queueing it for polling; replaces a callback already set
 /// for that type.
 ///
-/// **Thread:** callbacks run on the module's callback thread, a thread of the library (never
-/// the thread that registered them and never a thread in a `hetcomm_*` call of yours); the
+/// **Thread:** callbacks run on the module's callback thread, a thread of the library named
+/// `hetcomm-cb-<module>` (cut to 15 bytes by Linux), never the thread that registered them
+/// and never a thread in a `hetcomm_*` call of yours; the
 /// callbacks of one module run one at a time, in arrival order (priority first). `user` must
 /// stay valid, and `callback` callable, until the system is closed (its `hetcomm_comm` and
 /// every module handle freed).

@@ -296,6 +296,9 @@ static void on_type_5(void *user, const hetcomm_envelope *env, const uint8_t *da
     pthread_t me = pthread_self();
     if (s->count == 0) s->first_thread = me;
     if (!pthread_equal(me, s->first_thread) || pthread_equal(me, s->main_thread)) s->same_thread = 0;
+    char name[16] = "";
+    pthread_getname_np(me, name, sizeof name);
+    if (strcmp(name, "hetcomm-cb-Act") != 0) s->same_thread = 0; /* the documented thread */
     if (len != 1 || env->message_type != 5 || data[0] != s->last + 1 || s->magic != 0x5eed) s->order_ok = 0;
     s->last = len == 1 ? data[0] : -1;
     s->count++;
