@@ -32,6 +32,24 @@ $BUILD_CMD || { log "build failed"; exit 1; }
 log "$ZBUILD_CMD"
 $ZBUILD_CMD || log "zenoh peer build failed: the Zenoh baseline is skipped"
 
+# The C++ API's round trip (two C++ processes): libhetcomm_c in release, installed with its
+# CMake package into a scratch prefix, and examples/cpp built against it.
+CPP_DIR=target/cpp-bench
+CPP_CMD="cmake -S crates/hetcomm-c -B $CPP_DIR/package; cmake -S examples/cpp -B $CPP_DIR/examples -DCMAKE_BUILD_TYPE=Release (see benchmarks/run.sh)"
+log "C++ pingpong: $CPP_CMD"
+CPP_ARGS=()
+if bash scripts/apt-install.sh cmake g++ libmsgpack-cxx-dev \
+    && cmake -S crates/hetcomm-c -B "$CPP_DIR/package" -DHETCOMM_CARGO_PROFILE=release >/dev/null \
+    && cmake --build "$CPP_DIR/package" >/dev/null \
+    && cmake --install "$CPP_DIR/package" --prefix "$CPP_DIR/prefix" >/dev/null \
+    && cmake -S examples/cpp -B "$CPP_DIR/examples" -DCMAKE_BUILD_TYPE=Release \
+        -DCMAKE_PREFIX_PATH="$CPP_DIR/prefix" >/dev/null \
+    && cmake --build "$CPP_DIR/examples" --target pingpong >/dev/null; then
+    CPP_ARGS=(--cpp-bin "$CPP_DIR/examples/pingpong")
+else
+    log "C++ build failed: the cpp-udp-ack row is skipped"
+fi
+
 # The 20-trial reliability experiment (virtual time); it prints its own wall time.
 REL_CMD="target/release/hetcomm experiment reliability --trials 20 --out $TMP/reliability"
 log "$REL_CMD"
@@ -42,10 +60,10 @@ else
     REL="unavailable: \`hetcomm experiment reliability\` failed or does not exist yet ($(tail -1 "$TMP/reliability.txt" | tr -d '|'))"
 fi
 
-BENCH_CMD="target/release/hetcomm-bench --json benchmarks/results.json --markdown $TMP/body.md --reliability-wall"
+BENCH_CMD="target/release/hetcomm-bench --json benchmarks/results.json --markdown $TMP/body.md ${CPP_ARGS[*]} --reliability-wall"
 log "$BENCH_CMD '$REL'"
 target/release/hetcomm-bench --json "$OUT/results.json" --markdown "$TMP/body.md" \
-    --reliability-wall "$REL" | tee "$OUT/results.txt"
+    --reliability-wall "$REL" "${CPP_ARGS[@]}" | tee "$OUT/results.txt"
 BENCH_RC=${PIPESTATUS[0]}
 
 CRIT_CMD="cargo bench -p hetcomm-bench --bench codec --bench router -- --warm-up-time 1 --measurement-time 3"
@@ -76,6 +94,7 @@ fi
     echo '```sh'
     echo "$BUILD_CMD"
     echo "$ZBUILD_CMD"
+    echo "$CPP_CMD"
     echo "target/release/hetcomm experiment reliability --trials 20 --out <tmp>"
     echo "$BENCH_CMD <wall time of the previous command>"
     [ -z "${SKIP_CRITERION:-}" ] && echo "$CRIT_CMD"

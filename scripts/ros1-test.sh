@@ -12,12 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 if ! command -v rosmaster >/dev/null 2>&1 || ! /usr/bin/python3 -c 'import rospy, msgpack' >/dev/null 2>&1; then
-    echo "== installing ROS 1 (ros-core, rospy, rostopic, std_msgs)"
-    SUDO=""
-    if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-    $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
-        ros-core python3-rospy python3-rostopic ros-std-msgs python3-msgpack >/dev/null
+    bash scripts/apt-install.sh ros-core python3-rospy python3-rostopic ros-std-msgs python3-msgpack
 fi
 
 # Nodes of this machine reach each other (and the test masters) over loopback.

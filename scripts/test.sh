@@ -37,6 +37,9 @@ bash scripts/ros1-test.sh
 step "python bindings"
 bash scripts/test-python.sh
 
+step "C and C++ API (CMake package, ctest, sanitizers, valgrind)"
+bash scripts/cpp-test.sh
+
 step "benchmarks (smoke: every measurement briefly, no timing assertions)"
 cargo run -q -p hetcomm-bench -- --quick >/dev/null
 

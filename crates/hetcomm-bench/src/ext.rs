@@ -1,5 +1,6 @@
-//! External baselines run as separate programs: Zenoh (the peer binary built from
-//! `benchmarks/zenoh-peer`) and Cyclone DDS (`ddsperf` from Debian's `cyclonedds-tools`).
+//! External programs measured beside hetcomm: Zenoh (the peer binary built from
+//! `benchmarks/zenoh-peer`), Cyclone DDS (`ddsperf` from Debian's `cyclonedds-tools`), and
+//! hetcomm's C++ API (`examples/cpp/pingpong.cpp`, two C++ processes).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -200,4 +201,47 @@ pub fn ddsperf_oneway(size: usize, seconds: f64) -> Result<Throughput, String> {
         seconds: 1.0,
         ..Throughput::default()
     })
+}
+
+/// Round trips between two C++ processes (`examples/cpp/pingpong.cpp` built against
+/// libhetcomm_c): the same fleet (systems A and B over acknowledged `udp`), payload and
+/// counts as the Rust `hetcomm-udp-ack` row; the pinging process reports each round trip.
+pub fn cpp_rtt(bin: &Path, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let dir = TempDir::new()?;
+    let udp_port = || {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .map_err(|e| e.to_string())
+    };
+    let path = dir.0.join("fleet.toml");
+    let text = crate::hc::fleet_text(crate::hc::Kind::Udp, true, Some((udp_port()?, udp_port()?)));
+    std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+    let fleet = path.display().to_string();
+    let echo = Peer::spawn(Some(bin), &["echo".into(), fleet.clone()])?;
+    echo.expect("ready", Duration::from_secs(20))?;
+    let ping = Peer::spawn(
+        Some(bin),
+        &[
+            "ping".into(),
+            fleet,
+            "--size".into(),
+            size.to_string(),
+            "--warmup".into(),
+            warmup.to_string(),
+            "--iters".into(),
+            iters.to_string(),
+        ],
+    )?;
+    ping.expect("rtt_ns", Duration::from_secs(120))?;
+    let mut rec = Recorder::new();
+    for _ in 0..iters {
+        let l = ping.line(Duration::from_secs(30))?;
+        if let Ok(ns) = l.trim().parse::<u64>() {
+            rec.record_ns(ns);
+        }
+    }
+    ping.finish(Duration::from_secs(5));
+    echo.finish(Duration::from_secs(5));
+    Ok(rec.summary())
 }

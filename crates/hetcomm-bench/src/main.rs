@@ -5,7 +5,12 @@
 //! hetcomm-bench [--quick] [--json FILE] [--markdown FILE] [--zenoh-bin PATH]
 //!               [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|"unavailable: why"]
 //!               [--only SECTION[,SECTION…]] [--sizes BYTES[,BYTES…]] [--paths PATH[,PATH…]]
+//!               [--cpp-bin PATH]
 //! ```
+//!
+//! `--cpp-bin` names `examples/cpp/pingpong` (built with CMake against libhetcomm_c): the
+//! `rtt` section then measures the 64 B round trip between two C++ processes (row
+//! `cpp-udp-ack`) in the same rounds as the Rust rows.
 //!
 //! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config` (validating a
 //! fleet file of 3 000 and 10 000 systems, in a child process). `--quick` runs every
@@ -50,6 +55,8 @@ pub struct Options {
     sizes: Option<Vec<usize>>,
     /// `--paths`: row names of the rtt and oneway sections to run (all when `None`).
     paths: Option<Vec<String>>,
+    /// `--cpp-bin`: the C++ pingpong program (`examples/cpp/pingpong.cpp`).
+    cpp_bin: Option<PathBuf>,
 }
 
 impl Options {
@@ -70,7 +77,8 @@ fn comma_list(v: &str) -> Vec<String> {
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim,config] [--sizes BYTES,…] [--paths ROW,…]";
+[--only rtt,oneway,inproc,pinning,scale,sim,config] [--sizes BYTES,…] [--paths ROW,…] \
+[--cpp-bin PATH]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
     let mut o = Options::default();
@@ -95,6 +103,7 @@ fn parse(args: &[String]) -> Result<Options, String> {
                 o.sizes = Some(sizes);
             }
             "--paths" => o.paths = Some(comma_list(&val("--paths")?)),
+            "--cpp-bin" => o.cpp_bin = Some(val("--cpp-bin")?.into()),
             "-h" | "--help" => return Err(USAGE.into()),
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
@@ -306,13 +315,21 @@ fn run(o: &Options) -> Vec<Row> {
             } else {
                 RTT_ROUNDS
             };
-            let paths = bench_paths(
+            let mut paths = bench_paths(
                 o,
                 &raws,
                 &hc_paths,
                 |k| Box::new(move || raw::rtt(k, size, warmup, iters)),
                 |k, acked| Box::new(move || hc::rtt(k, acked, size, warmup, iters)),
             );
+            // Two C++ processes, in the same rounds as the Rust rows it is compared with.
+            if let Some(bin) = o.cpp_bin.clone().filter(|_| size == 64) {
+                if o.path_wanted(report::CPP_PATH) {
+                    let run: Run<stats::Latency> =
+                        Box::new(move || ext::cpp_rtt(&bin, size, warmup, iters));
+                    paths.push((report::CPP_PATH.to_string(), run));
+                }
+            }
             for (name, r) in
                 interleaved(o.quick, &format!("rtt {size} B"), paths, rounds, |l| l.p50)
             {
