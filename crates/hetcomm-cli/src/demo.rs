@@ -24,6 +24,8 @@ pub struct DemoArgs<'a> {
     pub realtime: bool,
     /// Followers whose autonomy code runs in another process.
     pub external: Vec<String>,
+    /// Recording, replay or monitor statistics taking part in the run.
+    pub hooks: Option<leader_follower::Hooks>,
 }
 
 /// A transport definition for a letter, from a short name.
@@ -133,6 +135,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         realtime,
         external: args.external.clone(),
         progress: terminal,
+        hooks: args.hooks,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
