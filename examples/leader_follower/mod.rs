@@ -586,13 +586,29 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if options.progress {
         eprintln!();
     }
-    let mut commands = leader.map(|l| l.sent).unwrap_or_default();
-    if let Some(h) = &options.hooks {
-        commands.extend(h.lock().finish()?);
+    // Each rover's records in its place, a replaced rover's from the hooks.
+    let mut hooked = match &options.hooks {
+        Some(h) => h.lock().finish()?,
+        None => Vec::new(),
+    };
+    let mut take = |name: &str| {
+        let (mine, rest) = std::mem::take(&mut hooked)
+            .into_iter()
+            .partition(|c: &CommandRecord| c.rover == name);
+        hooked = rest;
+        mine
+    };
+    let mut commands = match leader {
+        Some(l) => l.sent,
+        None => take(&leader_name),
+    };
+    for (name, follower) in followers {
+        commands.extend(match follower {
+            Some(f) => f.received,
+            None => take(name),
+        });
     }
-    for follower in followers.into_iter().filter_map(|(_, f)| f) {
-        commands.extend(follower.received);
-    }
+    commands.extend(hooked);
     let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
     samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
     Ok(DemoReport {

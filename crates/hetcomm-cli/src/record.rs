@@ -152,8 +152,10 @@ impl RunHooks for DemoHooks {
         let next = self.next.entry(system.to_string()).or_default();
         while let Some(item) = items.get(*next).filter(|i| i.offset_us <= due) {
             player.send(item);
-            // What the leader's own code logs for Table 9.
-            if item.destination.module == "Plan" && item.message_type == 0 {
+            // What the leader's own code logs for Table 9 (followers log what they receive,
+            // not what they forward).
+            let leader = hetcomm_sim::Scenario::thesis().leader() == Some(system);
+            if leader && item.destination.module == "Plan" && item.message_type == 0 {
                 if let Ok(c) = hetcomm::payload::decode::<Command>(&item.payload) {
                     self.sent
                         .push(CommandRecord::new(system, t_s, c.code.into(), CommandKind::Sent));
