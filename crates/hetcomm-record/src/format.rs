@@ -17,6 +17,7 @@
 
 use base64::Engine as _;
 use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 use serde_json::{json, Value};
 
 /// Name of the MCAP metadata record that describes a recording.
@@ -33,9 +34,8 @@ pub struct Addr {
     pub module: String,
 }
 
-/// One recorded event.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "event", rename_all = "snake_case")]
+/// One recorded event. Serialized as one flat JSON object whose `event` field says which.
+#[derive(Clone, Debug)]
 pub enum Event {
     /// One attempt of a send leaving a recorded system.
     Send(SendEvent),
@@ -57,7 +57,7 @@ impl Event {
 }
 
 /// The envelope and payload of a message, as sent and as received.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Envelope {
     /// Sending system and module.
     pub source: Addr,
@@ -82,9 +82,10 @@ pub struct Envelope {
     pub timestamp_us: u64,
     /// Payload length in bytes.
     pub size: usize,
-    /// The payload decoded (JSON recordings; absent when it is not MessagePack).
+    /// The payload decoded, as JSON text (map keys in the order they were sent; absent when
+    /// it is not MessagePack).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub payload: Option<Value>,
+    pub payload: Option<Box<RawValue>>,
     /// The payload's bytes, base64, when `payload` does not give them back exactly (and always
     /// in MessagePack recordings' JSON view).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -92,6 +93,11 @@ pub struct Envelope {
 }
 
 impl Envelope {
+    /// The decoded payload as a JSON value (None when it is not MessagePack).
+    pub fn payload_value(&self) -> Option<Value> {
+        serde_json::from_str(self.payload.as_ref()?.get()).ok()
+    }
+
     /// The payload's bytes as they were sent.
     pub fn payload_bytes(&self) -> Result<Vec<u8>, String> {
         if let Some(b) = &self.payload_b64 {
@@ -100,8 +106,9 @@ impl Envelope {
                 .map_err(|e| format!("payload_b64: {e}"));
         }
         match &self.payload {
-            Some(v) => {
-                let v = json_to_msgpack(v);
+            Some(raw) => {
+                let v: rmpv::Value =
+                    serde_json::from_str(raw.get()).map_err(|e| format!("payload: {e}"))?;
                 let mut out = Vec::new();
                 rmpv::encode::write_value(&mut out, &v).map_err(|e| e.to_string())?;
                 Ok(out)
@@ -112,34 +119,30 @@ impl Envelope {
 }
 
 /// One attempt of a send.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug)]
 pub struct SendEvent {
     /// When the attempt left, microseconds on the sender's clock.
     pub time_us: u64,
     /// Envelope and payload.
-    #[serde(flatten)]
     pub message: Envelope,
     /// 1 for the send, 2 and more for retransmissions.
     pub attempt: u32,
     /// `routed`, `unqueued` or `direct`.
     pub route: String,
     /// The link index it was handed to.
-    #[serde(default)]
     pub link: Option<usize>,
 }
 
 /// A message handed to an inbox.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug)]
 pub struct ReceiptEvent {
     /// When, microseconds on the receiver's clock.
     pub time_us: u64,
     /// Envelope and payload.
-    #[serde(flatten)]
     pub message: Envelope,
     /// `delivered`, `inbox_full` or `unknown_module`.
     pub status: String,
     /// The link index it came on (absent: handed over directly in process).
-    #[serde(default)]
     pub link: Option<usize>,
 }
 
@@ -166,6 +169,187 @@ pub struct OutcomeEvent {
     pub reason: Option<String>,
 }
 
+/// The one JSON object every event is written as (serde's flattening and internal tags
+/// buffer values, which a [`RawValue`] payload does not survive).
+#[derive(Serialize, Deserialize)]
+struct Flat {
+    event: String,
+    time_us: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    source: Option<Addr>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    destination: Option<Addr>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    message_type: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    priority: Option<u8>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    transport: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    transport_name: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    ack_requested: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    broadcast: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    timestamp_us: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    size: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    payload_b64: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    attempt: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    route: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    status: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    link: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    source_system: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    destination_system: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    seq: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    outcome: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    attempts: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    latency_us: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    payload: Option<Box<RawValue>>,
+}
+
+impl Serialize for Event {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut f = Flat {
+            event: String::new(),
+            time_us: self.time_us(),
+            source: None,
+            destination: None,
+            message_type: None,
+            priority: None,
+            transport: None,
+            transport_name: None,
+            ack_requested: None,
+            broadcast: None,
+            timestamp_us: None,
+            size: None,
+            payload_b64: None,
+            attempt: None,
+            route: None,
+            status: None,
+            link: None,
+            source_system: None,
+            destination_system: None,
+            seq: None,
+            outcome: None,
+            attempts: None,
+            latency_us: None,
+            reason: None,
+            payload: None,
+        };
+        let mut env = |m: &Envelope| {
+            f.source = Some(m.source.clone());
+            f.destination = Some(m.destination.clone());
+            f.message_type = Some(m.message_type);
+            f.priority = Some(m.priority);
+            f.transport = Some(m.transport.clone());
+            f.transport_name = m.transport_name.clone();
+            f.ack_requested = Some(m.ack_requested);
+            f.broadcast = Some(m.broadcast);
+            f.timestamp_us = Some(m.timestamp_us);
+            f.size = Some(m.size);
+            f.payload_b64 = m.payload_b64.clone();
+            f.seq = Some(m.seq);
+            f.payload = m.payload.clone();
+        };
+        match self {
+            Event::Send(e) => {
+                env(&e.message);
+                f.event = "send".into();
+                f.attempt = Some(e.attempt);
+                f.route = Some(e.route.clone());
+                f.link = e.link;
+            }
+            Event::Receipt(e) => {
+                env(&e.message);
+                f.event = "receipt".into();
+                f.status = Some(e.status.clone());
+                f.link = e.link;
+            }
+            Event::Outcome(e) => {
+                f.event = "outcome".into();
+                f.source_system = Some(e.source_system.clone());
+                f.destination_system = Some(e.destination_system.clone());
+                f.seq = Some(e.seq);
+                f.outcome = Some(e.outcome.clone());
+                f.attempts = Some(e.attempts);
+                f.latency_us = e.latency_us;
+                f.reason = e.reason.clone();
+            }
+        }
+        f.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Event {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        let f = Flat::deserialize(d)?;
+        let missing = |field: &str| D::Error::custom(format!("{} without {field}", f.event));
+        let envelope = |payload: Option<Box<RawValue>>| -> Result<Envelope, D::Error> {
+            Ok(Envelope {
+                source: f.source.clone().ok_or_else(|| missing("source"))?,
+                destination: f.destination.clone().ok_or_else(|| missing("destination"))?,
+                seq: f.seq.ok_or_else(|| missing("seq"))?,
+                message_type: f.message_type.ok_or_else(|| missing("message_type"))?,
+                priority: f.priority.unwrap_or_default(),
+                transport: f.transport.clone().unwrap_or_default(),
+                transport_name: f.transport_name.clone(),
+                ack_requested: f.ack_requested.unwrap_or_default(),
+                broadcast: f.broadcast.unwrap_or_default(),
+                timestamp_us: f.timestamp_us.unwrap_or_default(),
+                size: f.size.unwrap_or_default(),
+                payload,
+                payload_b64: f.payload_b64.clone(),
+            })
+        };
+        Ok(match f.event.as_str() {
+            "send" => Event::Send(SendEvent {
+                time_us: f.time_us,
+                message: envelope(f.payload.clone())?,
+                attempt: f.attempt.ok_or_else(|| missing("attempt"))?,
+                route: f.route.clone().unwrap_or_default(),
+                link: f.link,
+            }),
+            "receipt" => Event::Receipt(ReceiptEvent {
+                time_us: f.time_us,
+                message: envelope(f.payload.clone())?,
+                status: f.status.clone().ok_or_else(|| missing("status"))?,
+                link: f.link,
+            }),
+            "outcome" => Event::Outcome(OutcomeEvent {
+                time_us: f.time_us,
+                source_system: f.source_system.clone().ok_or_else(|| missing("source_system"))?,
+                destination_system: f
+                    .destination_system
+                    .clone()
+                    .ok_or_else(|| missing("destination_system"))?,
+                seq: f.seq.ok_or_else(|| missing("seq"))?,
+                outcome: f.outcome.clone().ok_or_else(|| missing("outcome"))?,
+                attempts: f.attempts.unwrap_or_default(),
+                latency_us: f.latency_us,
+                reason: f.reason.clone(),
+            }),
+            other => return Err(D::Error::custom(format!("unknown event {other:?}"))),
+        })
+    }
+}
+
 /// The outcome as (name, attempts, latency µs, reason).
 pub fn outcome_parts(o: &hetcomm::Outcome) -> (&'static str, u32, Option<u64>, Option<String>) {
     match o {
@@ -187,7 +371,7 @@ pub fn outcome_parts(o: &hetcomm::Outcome) -> (&'static str, u32, Option<u64>, O
 
 /// Decodes a payload for a JSON recording: (value, bytes when the value does not give them
 /// back exactly).
-pub fn payload_json(bytes: &[u8]) -> (Option<Value>, Option<String>) {
+pub fn payload_json(bytes: &[u8]) -> (Option<Box<RawValue>>, Option<String>) {
     let b64 = || Some(base64::engine::general_purpose::STANDARD.encode(bytes));
     let mut cursor = std::io::Cursor::new(bytes);
     let Ok(value) = rmpv::decode::read_value(&mut cursor) else {
@@ -196,11 +380,23 @@ pub fn payload_json(bytes: &[u8]) -> (Option<Value>, Option<String>) {
     if cursor.position() as usize != bytes.len() {
         return (None, b64());
     }
-    let json = msgpack_to_json(&value);
-    let mut again = Vec::with_capacity(bytes.len());
-    let exact = rmpv::encode::write_value(&mut again, &json_to_msgpack(&json)).is_ok()
-        && again == bytes;
-    (Some(json), if exact { None } else { b64() })
+    // serde_json writes maps in the order given (rmpv's Serialize keeps the wire order), and
+    // reads them back into rmpv in the order written.
+    let Some(raw) = serde_json::to_string(&value)
+        .ok()
+        .and_then(|t| RawValue::from_string(t).ok())
+    else {
+        return (None, b64());
+    };
+    let exact = serde_json::from_str::<rmpv::Value>(raw.get())
+        .ok()
+        .and_then(|v| {
+            let mut again = Vec::with_capacity(bytes.len());
+            rmpv::encode::write_value(&mut again, &v).ok()?;
+            Some(again == bytes)
+        })
+        .unwrap_or(false);
+    (Some(raw), if exact { None } else { b64() })
 }
 
 /// A MessagePack value as JSON (binary as an array of bytes, extension types as
@@ -371,7 +567,10 @@ mod tests {
         })
         .unwrap();
         let (v, b64) = payload_json(&bytes);
-        assert_eq!(v, Some(json!({"left": 1.0, "right": -10.0, "code": 3})));
+        assert_eq!(
+            v.as_ref().map(|r| r.get()),
+            Some(r#"{"left":1.0,"right":-10.0,"code":3}"#)
+        );
         assert_eq!(b64, None);
         let env = Envelope {
             source: Addr {

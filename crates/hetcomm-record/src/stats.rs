@@ -20,7 +20,8 @@ use hetcomm::observe::{OutcomeRecord, ReceiptRecord, SendRecord};
 use hetcomm::{Comm, Observer, ObserverHandle, Outcome, Time};
 use serde::{Deserialize, Serialize};
 
-/// The environment variable naming the monitor's address (`host:port`) for the commands that
+/// The environment variable naming the monitor's address (`host:port`, several separated by
+/// commas) for the commands that
 /// publish statistics (`hetcomm demo`, `listen`, `replay`, `record`).
 pub const MONITOR_ENV: &str = "HETCOMM_MONITOR";
 /// The monitor's default UDP address.
@@ -230,13 +231,13 @@ pub struct Publisher {
 }
 
 impl Publisher {
-    /// Starts publishing `systems`' statistics to `monitor` every `period`.
+    /// Starts publishing `systems`' statistics to each of `monitors` every `period`.
     pub fn start(
         systems: &[Comm],
-        monitor: SocketAddr,
+        monitors: Vec<SocketAddr>,
         period: Duration,
     ) -> std::io::Result<Publisher> {
-        let bind: SocketAddr = if monitor.is_ipv4() {
+        let bind: SocketAddr = if !monitors.iter().any(|m| m.is_ipv6()) {
             "0.0.0.0:0".parse().expect("literal address")
         } else {
             "[::]:0".parse().expect("literal address")
@@ -268,7 +269,9 @@ impl Publisher {
                         if let Ok(bytes) = serde_json::to_vec(&stats.report(comm)) {
                             // A monitor that is not running is not an error: reports are
                             // best-effort (a lost one only delays a refresh).
-                            let _ = socket.send_to(&bytes, monitor);
+                            for monitor in &monitors {
+                                let _ = socket.send_to(&bytes, monitor);
+                            }
                         }
                     }
                 }
@@ -280,13 +283,18 @@ impl Publisher {
         })
     }
 
-    /// Starts publishing when [`MONITOR_ENV`] names an address; Ok(None) when it is unset.
+    /// Starts publishing when [`MONITOR_ENV`] names an address (or several, comma-separated);
+    /// Ok(None) when it is unset.
     pub fn from_env(systems: &[Comm]) -> Result<Option<Publisher>, String> {
         let Ok(addr) = std::env::var(MONITOR_ENV) else {
             return Ok(None);
         };
-        let monitor = resolve(&addr).map_err(|e| format!("{MONITOR_ENV}={addr}: {e}"))?;
-        Publisher::start(systems, monitor, Duration::from_secs(1))
+        let monitors = addr
+            .split(',')
+            .map(|a| resolve(a.trim()))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| format!("{MONITOR_ENV}={addr}: {e}"))?;
+        Publisher::start(systems, monitors, Duration::from_secs(1))
             .map(Some)
             .map_err(|e| format!("{MONITOR_ENV}={addr}: {e}"))
     }

@@ -379,8 +379,8 @@ impl Recorder {
 
 fn event_payload(event: &Event) -> Option<Value> {
     match event {
-        Event::Send(s) => s.message.payload.clone(),
-        Event::Receipt(r) => r.message.payload.clone(),
+        Event::Send(s) => s.message.payload_value(),
+        Event::Receipt(r) => r.message.payload_value(),
         Event::Outcome(_) => None,
     }
 }
