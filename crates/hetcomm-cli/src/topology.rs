@@ -12,7 +12,7 @@ use anyhow::Context;
 use hetcomm::config::Fleet;
 
 const SIZE: f64 = 900.0;
-const NODE_R: f64 = 34.0;
+const NODE_R: f64 = 50.0;
 const PALETTE: [(u8, u8, u8); 8] = [
     (31, 119, 180),
     (214, 39, 40),
@@ -99,7 +99,8 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                         head_at_end: true,
                         head_at_start: true,
                         label: name(x),
-                        label_at: along(l, 0.5),
+                        // Off the middle, where diagonals of a circle cross.
+                        label_at: along(l, 0.3),
                     });
                 }
                 (None, None) => {
@@ -113,7 +114,7 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                             head_at_end: false,
                             head_at_start: false,
                             label: "X".into(),
-                            label_at: along(l, 0.5),
+                            label_at: along(l, 0.4),
                         });
                     }
                 }
@@ -221,7 +222,7 @@ fn svg(p: &Picture) -> String {
     for n in &p.nodes {
         let _ = writeln!(
             s,
-            r#"<circle class="system" cx="{:.1}" cy="{:.1}" r="{NODE_R}" fill="rgb(245,245,245)" stroke="black" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-size="14" text-anchor="middle">{}</text>"#,
+            r#"<circle class="system" cx="{:.1}" cy="{:.1}" r="{NODE_R}" fill="rgb(245,245,245)" stroke="black" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-size="13" text-anchor="middle">{}</text>"#,
             n.x,
             n.y,
             n.x,
@@ -338,7 +339,7 @@ fn draw_png(
             BLACK.stroke_width(2),
         ))
         .map_err(|e| err(&e))?;
-        root.draw(&Text::new(n.name.clone(), at((n.x, n.y)), centred(14, &BLACK)))
+        root.draw(&Text::new(n.name.clone(), at((n.x, n.y)), centred(13, &BLACK)))
             .map_err(|e| err(&e))?;
     }
     root.present().map_err(|e| err(&e))?;
