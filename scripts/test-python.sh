@@ -26,6 +26,12 @@ if ! "$PY" -c 'import maturin, pytest' >/dev/null 2>&1 && ! { [ -x "$VENV/bin/ma
   "$PY" -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "pytest>=7"
 fi
 
+# The `mcap` package reads the CLI's recordings back (tests/test_mcap_recording.py).
+if ! "$PY" -c 'import mcap' >/dev/null 2>&1; then
+  step "installing mcap"
+  "$PY" -m pip install --quiet --disable-pip-version-check "mcap>=1.1,<2"
+fi
+
 step "building the hetcomm wheel (maturin, debug)"
 WHEELS=$ROOT/target/py-wheels
 rm -rf "$WHEELS"
