@@ -360,3 +360,53 @@ fn the_monitor_shows_live_rates_of_a_multi_process_udp_fleet_in_a_terminal_and_a
     assert_eq!(best["transport"], "net");
     assert!(best["latency_p50_us"].as_u64().is_some(), "{best}");
 }
+
+#[test]
+fn record_captures_what_a_live_udp_fleet_sends_to_a_system_and_replay_sends_it_again() {
+    let deadline = Deadline::after(60);
+    let dir = TempDir::new("rec-live");
+    let fleet = udp_fleet(&dir);
+    let steady = dir.path().join("steady.mcap");
+    steady_recording(&fleet, &steady, 2);
+    let out = dir.path().join("live.mcap");
+
+    // B is opened by `hetcomm record` (one process), A by `hetcomm replay` (another).
+    let mut rec = Command::new(HETCOMM);
+    rec.args(["record", fleet.to_str().unwrap(), "--as", "B", "-o"])
+        .arg(&out)
+        .args(["--duration", "8"]);
+    let mut rec = ChildGuard::spawn("record B", rec);
+    rec.wait_stderr("recording B into", deadline);
+    let mut a = Command::new(HETCOMM);
+    a.args(["replay", steady.to_str().unwrap(), "--into", fleet.to_str().unwrap()]);
+    let replay = run("replay as A", a, deadline);
+    assert_eq!(replay.status.code(), Some(0), "{replay:?}");
+    let text = replay.stdout.join("\n");
+    assert!(text.contains("replayed 100 sends"), "{text}");
+    assert!(text.contains("outcomes: 100 delivered"), "{text}");
+    assert_eq!(rec.wait_exit(deadline).code(), Some(0));
+    assert!(
+        rec.stderr_lines()
+            .iter()
+            .any(|l| l.contains("0 send attempts, 100 receipts, 0 outcomes")),
+        "{:?}",
+        rec.stderr_lines()
+    );
+
+    // Every message arrived once, in order, with its payload, over the UDP transport.
+    let (events, report) = hetcomm_record::read(&out).unwrap();
+    assert!(report.problem.is_none(), "{}", report.describe());
+    let payloads: Vec<u64> = events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Receipt(r) => {
+                assert_eq!(r.message.source.system, "A");
+                assert_eq!(r.message.transport_name.as_deref(), Some("net"));
+                assert_eq!(r.status, "delivered");
+                hetcomm::payload::decode(&r.message.payload_bytes().unwrap()).ok()
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(payloads, (0..100).collect::<Vec<u64>>());
+}

@@ -6,12 +6,13 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
 
 use hetcomm::config::Fleet;
 use hetcomm::observe::{OutcomeRecord, ReceiptRecord, RouteKind, SendRecord, Via};
 use hetcomm::wire::AckStatus;
-use hetcomm::{Comm, Header, Observer, ObserverHandle, Time};
+use hetcomm::{Comm, Header, Observer, ObserverHandle, Outcome, SendId, Time};
 use serde_json::Value;
 
 use crate::format::{self, Addr, Envelope, Event, OutcomeEvent, ReceiptEvent, SendEvent};
@@ -133,6 +134,12 @@ pub struct Recorder {
     names: Names,
     encoding: Encoding,
     inner: Mutex<Inner>,
+    /// Observed events on their way to the writer thread.
+    queue: Mutex<Queue>,
+    /// Signalled when a batch is ready (or the queue closes), and when room is made.
+    ready: Condvar,
+    room: Condvar,
+    thread: Mutex<Option<JoinHandle<()>>>,
     sends: AtomicU64,
     receipts: AtomicU64,
     outcomes: AtomicU64,
@@ -195,8 +202,12 @@ impl Recorder {
                 metadata,
             })
             .map_err(|e| err(e.to_string()))?;
-        Ok(Arc::new(Recorder {
-            path,
+        let recorder = Arc::new(Recorder {
+            queue: Mutex::new(Queue::default()),
+            ready: Condvar::new(),
+            room: Condvar::new(),
+            thread: Mutex::new(None),
+            path: path.clone(),
             names: Names::new(fleet),
             encoding: options.encoding,
             inner: Mutex::new(Inner {
@@ -210,14 +221,68 @@ impl Recorder {
             receipts: AtomicU64::new(0),
             outcomes: AtomicU64::new(0),
             lost: AtomicU64::new(0),
-        }))
+        });
+        let r = recorder.clone();
+        let thread = std::thread::Builder::new()
+            .name("hetcomm-record".into())
+            .spawn(move || r.drain())
+            .map_err(|e| err(e.to_string()))?;
+        *recorder.thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(thread);
+        Ok(recorder)
+    }
+
+    /// Hands an observed event to the writer thread. Cheap: a lock and a push; the writer is
+    /// woken once per [`BATCH`] events (or by its own timer), and the observed thread waits
+    /// only while [`QUEUE`] events are queued (nothing is dropped).
+    fn enqueue(&self, item: Item) {
+        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        while q.items.len() >= QUEUE && !q.closed {
+            q = self.room.wait(q).unwrap_or_else(|e| e.into_inner());
+        }
+        if q.closed {
+            drop(q);
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        q.items.push(item);
+        if q.items.len() == BATCH {
+            self.ready.notify_one();
+        }
+    }
+
+    /// The writer thread: takes batches and writes them until the queue is closed and empty.
+    fn drain(&self) {
+        let mut batch = Vec::new();
+        loop {
+            {
+                let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+                while q.items.len() < BATCH && !q.closed {
+                    let (g, _) = self
+                        .ready
+                        .wait_timeout(q, std::time::Duration::from_millis(20))
+                        .unwrap_or_else(|e| e.into_inner());
+                    q = g;
+                    if !q.items.is_empty() {
+                        break;
+                    }
+                }
+                if q.items.is_empty() && q.closed {
+                    return;
+                }
+                std::mem::swap(&mut batch, &mut q.items);
+                self.room.notify_all();
+            }
+            for item in batch.drain(..) {
+                self.process(item);
+            }
+        }
     }
 
     /// Records `comm`'s sends, receipts and outcomes until the handle is dropped.
     pub fn attach(self: &Arc<Self>, comm: &Comm) -> ObserverHandle {
         comm.observe(Arc::new(SystemRecorder {
             recorder: self.clone(),
-            system: comm.name().to_string(),
+            system: comm.name().into(),
         }))
     }
 
@@ -239,6 +304,16 @@ impl Recorder {
     /// Writes the summary and index and closes the file. Events after this are counted as
     /// lost. An error says what failed first (a full disk, …) and how many events were lost.
     pub fn finish(&self) -> Result<RecordSummary, RecordError> {
+        // Close the queue, let the writer thread write what is in it, and end.
+        self.queue.lock().unwrap_or_else(|e| e.into_inner()).closed = true;
+        self.ready.notify_all();
+        self.room.notify_all();
+        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(t) = thread {
+            if t.join().is_err() {
+                self.fail("the writer thread panicked".into());
+            }
+        }
         let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(mut w) = inner.writer.take() {
             if let Err(e) = w.finish() {
@@ -411,30 +486,141 @@ fn route_name(r: RouteKind) -> &'static str {
     }
 }
 
-/// The recorder as seen by one system (outcomes name no source: it is this system).
+/// Events queued for the writer thread at most; an observer waits while the queue is full.
+const QUEUE: usize = 1 << 16;
+/// Events that wake the writer thread at once (it also wakes every 20 ms).
+const BATCH: usize = 512;
+
+#[derive(Default)]
+struct Queue {
+    items: Vec<Item>,
+    closed: bool,
+}
+
+/// An observed event, copied out of the observer's callback.
+enum Item {
+    Send {
+        header: Header,
+        payload: Vec<u8>,
+        time: Time,
+        route: RouteKind,
+        link: Option<usize>,
+        attempt: u32,
+    },
+    Receipt {
+        header: Header,
+        payload: Vec<u8>,
+        time: Time,
+        via: Via,
+        status: AckStatus,
+    },
+    Outcome {
+        system: Arc<str>,
+        id: SendId,
+        outcome: Outcome,
+        time: Time,
+    },
+}
+
+impl Recorder {
+    /// Encodes and writes one event (on the writer thread).
+    fn process(&self, item: Item) {
+        match item {
+            Item::Send {
+                header,
+                payload,
+                time,
+                route,
+                link,
+                attempt,
+            } => {
+                let message = self.envelope(&header, &payload);
+                let topic = format!(
+                    "/send/{}/{}/{}/{}",
+                    message.source.system,
+                    message.source.module,
+                    message.destination.system,
+                    message.destination.module
+                );
+                let event = Event::Send(SendEvent {
+                    time_us: time.as_micros(),
+                    message,
+                    attempt,
+                    route: route_name(route).to_string(),
+                    link,
+                });
+                self.write(topic, "send", &event, &payload);
+            }
+            Item::Receipt {
+                header,
+                payload,
+                time,
+                via,
+                status,
+            } => {
+                let message = self.envelope(&header, &payload);
+                let topic = format!(
+                    "/receipt/{}/{}",
+                    message.destination.system, message.destination.module
+                );
+                let status = match status {
+                    AckStatus::Delivered => "delivered",
+                    AckStatus::InboxFull => "inbox_full",
+                    AckStatus::UnknownModule => "unknown_module",
+                };
+                let event = Event::Receipt(ReceiptEvent {
+                    time_us: time.as_micros(),
+                    message,
+                    status: status.to_string(),
+                    link: match via {
+                        Via::Link(i) => Some(i),
+                        _ => None,
+                    },
+                });
+                self.write(topic, "receipt", &event, &payload);
+            }
+            Item::Outcome {
+                system,
+                id,
+                outcome,
+                time,
+            } => {
+                let (outcome, attempts, latency_us, reason) = format::outcome_parts(&outcome);
+                let destination = self.names.system(id.to.0);
+                let topic = format!("/outcome/{system}/{destination}");
+                let event = Event::Outcome(OutcomeEvent {
+                    time_us: time.as_micros(),
+                    source_system: system.to_string(),
+                    destination_system: destination,
+                    seq: id.seq,
+                    outcome: outcome.to_string(),
+                    attempts,
+                    latency_us,
+                    reason,
+                });
+                self.write(topic, "outcome", &event, &[]);
+            }
+        }
+    }
+}
+
+/// The recorder as seen by one system: copies each event and queues it for the writer
+/// thread, so the observed thread only pays for a copy.
 struct SystemRecorder {
     recorder: Arc<Recorder>,
-    system: String,
+    system: Arc<str>,
 }
 
 impl SystemRecorder {
     fn send(&self, r: &SendRecord<'_>) {
-        let message = self.recorder.envelope(&r.header, r.payload);
-        let topic = format!(
-            "/send/{}/{}/{}/{}",
-            message.source.system,
-            message.source.module,
-            message.destination.system,
-            message.destination.module
-        );
-        let event = Event::Send(SendEvent {
-            time_us: r.time.as_micros(),
-            message,
-            attempt: r.attempt,
-            route: route_name(r.route).to_string(),
+        self.recorder.enqueue(Item::Send {
+            header: r.header,
+            payload: r.payload.to_vec(),
+            time: r.time,
+            route: r.route,
             link: r.link,
+            attempt: r.attempt,
         });
-        self.recorder.write(topic, "send", &event, r.payload);
     }
 }
 
@@ -446,41 +632,20 @@ impl Observer for SystemRecorder {
         self.send(record);
     }
     fn on_receipt(&self, r: &ReceiptRecord<'_>) {
-        let message = self.recorder.envelope(&r.header, r.payload);
-        let topic = format!(
-            "/receipt/{}/{}",
-            message.destination.system, message.destination.module
-        );
-        let status = match r.status {
-            AckStatus::Delivered => "delivered",
-            AckStatus::InboxFull => "inbox_full",
-            AckStatus::UnknownModule => "unknown_module",
-        };
-        let event = Event::Receipt(ReceiptEvent {
-            time_us: r.time.as_micros(),
-            message,
-            status: status.to_string(),
-            link: match r.via {
-                Via::Link(i) => Some(i),
-                _ => None,
-            },
+        self.recorder.enqueue(Item::Receipt {
+            header: r.header,
+            payload: r.payload.to_vec(),
+            time: r.time,
+            via: r.via,
+            status: r.status,
         });
-        self.recorder.write(topic, "receipt", &event, r.payload);
     }
     fn on_outcome(&self, r: &OutcomeRecord<'_>) {
-        let (outcome, attempts, latency_us, reason) = format::outcome_parts(r.outcome);
-        let destination = self.recorder.names.system(r.id.to.0);
-        let topic = format!("/outcome/{}/{}", self.system, destination);
-        let event = Event::Outcome(OutcomeEvent {
-            time_us: r.time.as_micros(),
-            source_system: self.system.clone(),
-            destination_system: destination,
-            seq: r.id.seq,
-            outcome: outcome.to_string(),
-            attempts,
-            latency_us,
-            reason,
+        self.recorder.enqueue(Item::Outcome {
+            system: self.system.clone(),
+            id: r.id,
+            outcome: r.outcome.clone(),
+            time: r.time,
         });
-        self.recorder.write(topic, "outcome", &event, &[]);
     }
 }
