@@ -470,9 +470,18 @@ fn run(o: &Options) -> Vec<Row> {
         match std::fs::create_dir_all(&dir) {
             Ok(()) => {
                 log(o.quick, "record: demo with and without recording");
-                rows.push(record_bench::demo_overhead(&dir, if o.quick { 1 } else { 7 }));
-                log(o.quick, "record: dense recording replayed into the simulator");
-                rows.push(record_bench::replay_speed(&dir, if o.quick { 1 } else { 60 }));
+                rows.push(record_bench::demo_overhead(
+                    &dir,
+                    if o.quick { 1 } else { 7 },
+                ));
+                log(
+                    o.quick,
+                    "record: dense recording replayed into the simulator",
+                );
+                rows.push(record_bench::replay_speed(
+                    &dir,
+                    if o.quick { 1 } else { 60 },
+                ));
             }
             Err(e) => rows.push(Row::failed("record", "temporary folder", 0, &e.to_string())),
         }

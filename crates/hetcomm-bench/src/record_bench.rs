@@ -136,8 +136,8 @@ B = ["net", "X"]
 /// A dense recording: A sends B a ~1 KiB message every millisecond of virtual time for
 /// `seconds`, sends, receipts and outcomes recorded.
 fn dense_recording(path: &Path, seconds: u64) -> Result<(), String> {
-    let fleet = hetcomm::config::parse_str(DENSE_FLEET, "dense.toml", None)
-        .map_err(|e| e.to_string())?;
+    let fleet =
+        hetcomm::config::parse_str(DENSE_FLEET, "dense.toml", None).map_err(|e| e.to_string())?;
     let sim = SimFleet::open(fleet, SimOptions::default()).map_err(|e| e.to_string())?;
     let a = sim.system("A").map_err(|e| e.to_string())?;
     let b = sim.system("B").map_err(|e| e.to_string())?;
@@ -158,8 +158,14 @@ fn dense_recording(path: &Path, seconds: u64) -> Result<(), String> {
     let start = sim.now();
     for k in 0..seconds * 1000 {
         sim.run_until(start + Duration::from_millis(k));
-        plan.send_raw("B", "Act", hetcomm::MessageType(9), &bytes, Default::default())
-            .map_err(|e| e.to_string())?;
+        plan.send_raw(
+            "B",
+            "Act",
+            hetcomm::MessageType(9),
+            &bytes,
+            Default::default(),
+        )
+        .map_err(|e| e.to_string())?;
         while act.try_recv_raw().is_some() {}
     }
     sim.run_idle(sim.now() + Duration::from_secs(5));
@@ -178,7 +184,10 @@ pub fn replay_speed(dir: &Path, seconds: u64) -> Row {
         let fleet = hetcomm::config::parse_str(DENSE_FLEET, "dense.toml", None)
             .map_err(|e| e.to_string())?;
         let sim = SimFleet::open(fleet, SimOptions::default()).map_err(|e| e.to_string())?;
-        let act = sim.system("B").and_then(|b| b.module("Act")).map_err(|e| e.to_string())?;
+        let act = sim
+            .system("B")
+            .and_then(|b| b.module("Act"))
+            .map_err(|e| e.to_string())?;
         act.on_any(|_| {});
         let report = hetcomm_record::replay::replay_sim(&path, &sim, &ReplayFilter::default(), 1.0)
             .map_err(|e| e.to_string())?;

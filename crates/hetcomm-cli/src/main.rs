@@ -161,7 +161,12 @@ enum Command {
         /// The fleet file.
         fleet: PathBuf,
         /// The systems to record as (comma-separated).
-        #[arg(long = "as", value_name = "SYSTEM[,…]", value_delimiter = ',', required = true)]
+        #[arg(
+            long = "as",
+            value_name = "SYSTEM[,…]",
+            value_delimiter = ',',
+            required = true
+        )]
         systems: Vec<String>,
         /// The MCAP file to write.
         #[arg(short, long)]

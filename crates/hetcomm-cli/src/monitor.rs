@@ -141,8 +141,19 @@ fn draw(
     f.render_widget(Paragraph::new(status), head);
     let bold = Style::default().add_modifier(Modifier::BOLD);
     let header = Row::new([
-        "source", "dest", "transport", "msg/s", "sends", "deliv", "sent", "unconf", "failed",
-        "retx", "recv", "p50", "p99",
+        "source",
+        "dest",
+        "transport",
+        "msg/s",
+        "sends",
+        "deliv",
+        "sent",
+        "unconf",
+        "failed",
+        "retx",
+        "recv",
+        "p50",
+        "p99",
     ])
     .style(bold);
     let rows = pairs.iter().map(|p| {
@@ -184,8 +195,15 @@ fn draw(
             .block(Block::bordered().title(" pairs (per ordered pair and transport) ")),
         top,
     );
-    let header = Row::new(["system", "module", "depth", "capacity", "dropped", "report age"])
-        .style(bold);
+    let header = Row::new([
+        "system",
+        "module",
+        "depth",
+        "capacity",
+        "dropped",
+        "report age",
+    ])
+    .style(bold);
     let rows = systems.iter().flat_map(|s| {
         s.inboxes.iter().map(move |i| {
             Row::new([

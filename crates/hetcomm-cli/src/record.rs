@@ -108,11 +108,7 @@ impl RunHooks for DemoHooks {
         self.tools.replace.clone()
     }
 
-    fn opened(
-        &mut self,
-        systems: &[Comm],
-        start: Time,
-    ) -> Result<(), Box<dyn std::error::Error>> {
+    fn opened(&mut self, systems: &[Comm], start: Time) -> Result<(), Box<dyn std::error::Error>> {
         self.start = start;
         if let Some(path) = &self.tools.record {
             let fleet = systems.first().ok_or("no system is open")?.fleet();
@@ -157,8 +153,12 @@ impl RunHooks for DemoHooks {
             let leader = hetcomm_sim::Scenario::thesis().leader() == Some(system);
             if leader && item.destination.module == "Plan" && item.message_type == 0 {
                 if let Ok(c) = hetcomm::payload::decode::<Command>(&item.payload) {
-                    self.sent
-                        .push(CommandRecord::new(system, t_s, c.code.into(), CommandKind::Sent));
+                    self.sent.push(CommandRecord::new(
+                        system,
+                        t_s,
+                        c.code.into(),
+                        CommandKind::Sent,
+                    ));
                 }
             }
             *next += 1;

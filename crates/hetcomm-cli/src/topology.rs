@@ -207,9 +207,21 @@ fn svg(p: &Picture) -> String {
             e.from.1,
             e.to.0,
             e.to.1,
-            if e.dotted { r#" stroke-dasharray="4 4""# } else { "" },
-            if e.head_at_end { format!(r#" marker-end="url(#h{i})""#) } else { String::new() },
-            if e.head_at_start { format!(r#" marker-start="url(#h{i})""#) } else { String::new() },
+            if e.dotted {
+                r#" stroke-dasharray="4 4""#
+            } else {
+                ""
+            },
+            if e.head_at_end {
+                format!(r#" marker-end="url(#h{i})""#)
+            } else {
+                String::new()
+            },
+            if e.head_at_start {
+                format!(r#" marker-start="url(#h{i})""#)
+            } else {
+                String::new()
+            },
         );
         let _ = writeln!(
             s,
@@ -254,8 +266,8 @@ fn draw_png(
 ) -> anyhow::Result<()> {
     use plotters::prelude::*;
     use plotters::style::text_anchor::{HPos, Pos, VPos};
-    let root = BitMapBackend::with_buffer(&mut img.pixels, (img.width, img.height))
-        .into_drawing_area();
+    let root =
+        BitMapBackend::with_buffer(&mut img.pixels, (img.width, img.height)).into_drawing_area();
     let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing {}: {e}", out.display());
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let at = |(x, y): (f64, f64)| (x.round() as i32, y.round() as i32);
@@ -301,8 +313,11 @@ fn draw_png(
                     .map_err(|x| err(&x))?;
             }
         } else {
-            root.draw(&PathElement::new(vec![at(e.from), at(e.to)], c.stroke_width(2)))
-                .map_err(|x| err(&x))?;
+            root.draw(&PathElement::new(
+                vec![at(e.from), at(e.to)],
+                c.stroke_width(2),
+            ))
+            .map_err(|x| err(&x))?;
         }
         let mut heads = Vec::new();
         if e.head_at_end {
@@ -321,7 +336,8 @@ fn draw_png(
                 at((back.0 - uy * 5.0, back.1 + ux * 5.0)),
                 at((back.0 + uy * 5.0, back.1 - ux * 5.0)),
             ];
-            root.draw(&Polygon::new(tri, c.filled())).map_err(|x| err(&x))?;
+            root.draw(&Polygon::new(tri, c.filled()))
+                .map_err(|x| err(&x))?;
         }
         root.draw(&Text::new(e.label.clone(), at(e.label_at), centred(13, &c)))
             .map_err(|x| err(&x))?;
@@ -339,8 +355,12 @@ fn draw_png(
             BLACK.stroke_width(2),
         ))
         .map_err(|e| err(&e))?;
-        root.draw(&Text::new(n.name.clone(), at((n.x, n.y)), centred(13, &BLACK)))
-            .map_err(|e| err(&e))?;
+        root.draw(&Text::new(
+            n.name.clone(),
+            at((n.x, n.y)),
+            centred(13, &BLACK),
+        ))
+        .map_err(|e| err(&e))?;
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
@@ -350,9 +370,14 @@ fn draw_png(
 pub fn run(fleet_path: &Path, out: &Path, show_x: bool) -> anyhow::Result<()> {
     let fleet = hetcomm::load_fleet(fleet_path)?;
     let p = picture(&fleet, show_x);
-    match out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase) {
-        Some(e) if e == "svg" => std::fs::write(out, svg(&p))
-            .with_context(|| format!("writing {}", out.display()))?,
+    match out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+    {
+        Some(e) if e == "svg" => {
+            std::fs::write(out, svg(&p)).with_context(|| format!("writing {}", out.display()))?
+        }
         Some(e) if e == "png" => png(&p, out)?,
         _ => anyhow::bail!("-o {}: the picture must end in .svg or .png", out.display()),
     }

@@ -61,7 +61,12 @@ fn replaying_the_demo_with_recorded_systems_replaced_reproduces_its_tables() {
             &name,
             &["--replay", file.to_str().unwrap(), "--replace", replace],
         );
-        assert_eq!(replayed, tables, "replacing {replace} from {}", file.display());
+        assert_eq!(
+            replayed,
+            tables,
+            "replacing {replace} from {}",
+            file.display()
+        );
         for csv in ["commands.csv", "poses.csv"] {
             assert_eq!(read(&out.join(csv)), read(&out2.join(csv)), "{csv}");
         }
@@ -97,7 +102,10 @@ fn replaying_into_the_simulator_sends_every_recorded_send() {
         text.contains(&format!("replayed {sends} sends")),
         "{sends} sends: {text}"
     );
-    assert!(text.contains(&format!("outcomes: {sends} delivered")), "{text}");
+    assert!(
+        text.contains(&format!("outcomes: {sends} delivered")),
+        "{text}"
+    );
 }
 
 #[test]
@@ -300,7 +308,15 @@ fn the_monitor_shows_live_rates_of_a_multi_process_udp_fleet_in_a_terminal_and_a
         fleet.display()
     );
     let started = tmux(&[
-        "new-session", "-d", "-s", "mon", "-x", "160", "-y", "40", &monitor_cmd,
+        "new-session",
+        "-d",
+        "-s",
+        "mon",
+        "-x",
+        "160",
+        "-y",
+        "40",
+        &monitor_cmd,
     ]);
     assert!(started.status.success(), "{started:?}");
     struct KillServer(String);
@@ -314,18 +330,36 @@ fn the_monitor_shows_live_rates_of_a_multi_process_udp_fleet_in_a_terminal_and_a
     let _server = KillServer(socket.clone());
 
     let mut json_cmd = Command::new(HETCOMM);
-    json_cmd.args(["monitor", fleet.to_str().unwrap(), "--json", "--duration", "9"]);
+    json_cmd.args([
+        "monitor",
+        fleet.to_str().unwrap(),
+        "--json",
+        "--duration",
+        "9",
+    ]);
     json_cmd.args(["--listen", &format!("127.0.0.1:{json_port}")]);
     let mut json_monitor = ChildGuard::spawn("monitor --json", json_cmd);
 
     // B listens in one process, A replays the steady recording in another; both publish.
     let mut b = Command::new(HETCOMM);
-    b.args(["listen", fleet.to_str().unwrap(), "--as", "B", "--timeout", "30"]);
+    b.args([
+        "listen",
+        fleet.to_str().unwrap(),
+        "--as",
+        "B",
+        "--timeout",
+        "30",
+    ]);
     b.env("HETCOMM_MONITOR", &monitors);
     let mut b = ChildGuard::spawn("listen B", b);
     b.wait_stderr("listening as B", deadline);
     let mut a = Command::new(HETCOMM);
-    a.args(["replay", rec.to_str().unwrap(), "--into", fleet.to_str().unwrap()]);
+    a.args([
+        "replay",
+        rec.to_str().unwrap(),
+        "--into",
+        fleet.to_str().unwrap(),
+    ]);
     a.env("HETCOMM_MONITOR", &monitors);
     let _a = ChildGuard::spawn("replay as A", a);
 
@@ -339,8 +373,13 @@ fn the_monitor_shows_live_rates_of_a_multi_process_udp_fleet_in_a_terminal_and_a
         rate = rate_on_screen(&screen);
     }
     let rate = rate.unwrap_or_else(|| panic!("no A → B row on screen:\n{screen}"));
-    assert!(rate > 10.0 && rate < 100.0, "50 msg/s sent, {rate} shown:\n{screen}");
-    for heading in ["msg/s", "deliv", "unconf", "failed", "retx", "p50", "p99", "inboxes"] {
+    assert!(
+        rate > 10.0 && rate < 100.0,
+        "50 msg/s sent, {rate} shown:\n{screen}"
+    );
+    for heading in [
+        "msg/s", "deliv", "unconf", "failed", "retx", "p50", "p99", "inboxes",
+    ] {
         assert!(screen.contains(heading), "{heading} missing:\n{screen}");
     }
 
@@ -378,7 +417,12 @@ fn record_captures_what_a_live_udp_fleet_sends_to_a_system_and_replay_sends_it_a
     let mut rec = ChildGuard::spawn("record B", rec);
     rec.wait_stderr("recording B into", deadline);
     let mut a = Command::new(HETCOMM);
-    a.args(["replay", steady.to_str().unwrap(), "--into", fleet.to_str().unwrap()]);
+    a.args([
+        "replay",
+        steady.to_str().unwrap(),
+        "--into",
+        fleet.to_str().unwrap(),
+    ]);
     let replay = run("replay as A", a, deadline);
     assert_eq!(replay.status.code(), Some(0), "{replay:?}");
     let text = replay.stdout.join("\n");

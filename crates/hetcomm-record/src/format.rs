@@ -304,7 +304,10 @@ impl<'de> Deserialize<'de> for Event {
         let envelope = |payload: Option<Box<RawValue>>| -> Result<Envelope, D::Error> {
             Ok(Envelope {
                 source: f.source.clone().ok_or_else(|| missing("source"))?,
-                destination: f.destination.clone().ok_or_else(|| missing("destination"))?,
+                destination: f
+                    .destination
+                    .clone()
+                    .ok_or_else(|| missing("destination"))?,
                 seq: f.seq.ok_or_else(|| missing("seq"))?,
                 message_type: f.message_type.ok_or_else(|| missing("message_type"))?,
                 priority: f.priority.unwrap_or_default(),
@@ -334,7 +337,10 @@ impl<'de> Deserialize<'de> for Event {
             }),
             "outcome" => Event::Outcome(OutcomeEvent {
                 time_us: f.time_us,
-                source_system: f.source_system.clone().ok_or_else(|| missing("source_system"))?,
+                source_system: f
+                    .source_system
+                    .clone()
+                    .ok_or_else(|| missing("source_system"))?,
                 destination_system: f
                     .destination_system
                     .clone()
@@ -599,11 +605,11 @@ mod tests {
     #[test]
     fn other_payloads_keep_their_bytes() {
         for bytes in [
-            vec![0xc4, 2, 1, 2],           // binary
-            vec![0xca, 0x3f, 0x80, 0, 0],  // f32 1.0
-            vec![0xc1],                    // never used: not MessagePack
-            vec![0x01, 0x02],              // trailing bytes
-            vec![0x81, 0x01, 0x02],        // integer key
+            vec![0xc4, 2, 1, 2],          // binary
+            vec![0xca, 0x3f, 0x80, 0, 0], // f32 1.0
+            vec![0xc1],                   // never used: not MessagePack
+            vec![0x01, 0x02],             // trailing bytes
+            vec![0x81, 0x01, 0x02],       // integer key
         ] {
             let (_, b64) = payload_json(&bytes);
             let b64 = b64.unwrap_or_else(|| panic!("{bytes:?} kept no bytes"));

@@ -50,11 +50,14 @@ impl ReadReport {
             s += &format!(
                 ", {} messages skipped ({})",
                 self.skipped,
-                self.skipped_reason.as_deref().unwrap_or("not hetcomm events")
+                self.skipped_reason
+                    .as_deref()
+                    .unwrap_or("not hetcomm events")
             );
         }
         if let Some(p) = &self.problem {
-            s += &format!("; the file is damaged or cut short: {p} (everything before it was read)");
+            s +=
+                &format!("; the file is damaged or cut short: {p} (everything before it was read)");
         }
         s
     }
@@ -62,10 +65,7 @@ impl ReadReport {
 
 /// Reads `path` and hands each event to `f`, in file order. A damaged or truncated file ends
 /// the reading with [`ReadReport::problem`] set, after every event before the damage.
-pub fn read_with(
-    path: impl AsRef<Path>,
-    f: impl FnMut(Event),
-) -> Result<ReadReport, ReadError> {
+pub fn read_with(path: impl AsRef<Path>, f: impl FnMut(Event)) -> Result<ReadReport, ReadError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| ReadError {
         path: path.to_path_buf(),
@@ -138,10 +138,9 @@ fn read_bytes_timed(bytes: &[u8], mut f: impl FnMut(u64, Event)) -> Result<ReadR
             }
             Err(reason) => {
                 report.skipped += 1;
-                report.skipped_reason.get_or_insert(format!(
-                    "{}: {reason}",
-                    message.channel.topic
-                ));
+                report
+                    .skipped_reason
+                    .get_or_insert(format!("{}: {reason}", message.channel.topic));
             }
         }
     }
@@ -205,6 +204,8 @@ pub fn decode(encoding: &str, data: &[u8]) -> Result<Event, String> {
             }
             Ok(event)
         }
-        other => Err(format!("message encoding {other:?} is not a hetcomm recording's")),
+        other => Err(format!(
+            "message encoding {other:?} is not a hetcomm recording's"
+        )),
     }
 }

@@ -24,8 +24,8 @@ pub struct ReplayFilter {
 impl ReplayFilter {
     /// Whether a send from `source` passes.
     pub fn accepts(&self, source: &Addr) -> bool {
-        (self.systems.is_empty() || self.systems.iter().any(|s| *s == source.system))
-            && (self.modules.is_empty() || self.modules.iter().any(|m| *m == source.module))
+        (self.systems.is_empty() || self.systems.contains(&source.system))
+            && (self.modules.is_empty() || self.modules.contains(&source.module))
     }
 }
 
@@ -79,12 +79,10 @@ pub fn load(
 ) -> Result<(Vec<ReplayItem>, ReadReport, Vec<String>), ReadError> {
     let mut items = Vec::new();
     let mut errors = Vec::new();
-    let report = read_timed(&path, |o, e| {
-        match ReplayItem::from_event(e, o, filter) {
-            Some(Ok(i)) => items.push(i),
-            Some(Err(m)) => errors.push(m),
-            None => {}
-        }
+    let report = read_timed(&path, |o, e| match ReplayItem::from_event(e, o, filter) {
+        Some(Ok(i)) => items.push(i),
+        Some(Err(m)) => errors.push(m),
+        None => {}
     })?;
     Ok((items, report, errors))
 }
@@ -172,9 +170,10 @@ impl Player {
             }
             Err(e) => {
                 self.stats.refused += 1;
-                self.stats
-                    .first_refusal
-                    .get_or_insert(format!("{} → {}: {e}", item.source.system, item.destination.system));
+                self.stats.first_refusal.get_or_insert(format!(
+                    "{} → {}: {e}",
+                    item.source.system, item.destination.system
+                ));
             }
         }
     }
@@ -237,20 +236,18 @@ pub fn replay_sim(
     let start = sim.now();
     let mut player = Player::new(sim.systems());
     let mut last = 0u64;
-    let read = read_timed(path, |o, e| {
-        match ReplayItem::from_event(e, o, filter) {
-            Some(Ok(item)) => {
-                let at = start + scaled(item.offset_us, speed);
-                if at > sim.now() {
-                    sim.run_until(at);
-                    player.collect();
-                }
-                last = last.max(item.offset_us);
-                player.send(&item);
+    let read = read_timed(path, |o, e| match ReplayItem::from_event(e, o, filter) {
+        Some(Ok(item)) => {
+            let at = start + scaled(item.offset_us, speed);
+            if at > sim.now() {
+                sim.run_until(at);
+                player.collect();
             }
-            Some(Err(_)) => player.stats.unreadable += 1,
-            None => {}
+            last = last.max(item.offset_us);
+            player.send(&item);
         }
+        Some(Err(_)) => player.stats.unreadable += 1,
+        None => {}
     })?;
     sim.run_idle(sim.now() + Duration::from_secs(60));
     Ok(ReplayReport {
@@ -273,17 +270,15 @@ pub fn replay_realtime(
     let wall = Instant::now();
     let mut player = Player::new(systems);
     let mut last = 0u64;
-    let read = read_timed(path, |o, e| {
-        match ReplayItem::from_event(e, o, filter) {
-            Some(Ok(item)) => {
-                let due = wall + scaled(item.offset_us, speed);
-                std::thread::sleep(due.saturating_duration_since(Instant::now()));
-                last = last.max(item.offset_us);
-                player.send(&item);
-            }
-            Some(Err(_)) => player.stats.unreadable += 1,
-            None => {}
+    let read = read_timed(path, |o, e| match ReplayItem::from_event(e, o, filter) {
+        Some(Ok(item)) => {
+            let due = wall + scaled(item.offset_us, speed);
+            std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            last = last.max(item.offset_us);
+            player.send(&item);
         }
+        Some(Err(_)) => player.stats.unreadable += 1,
+        None => {}
     })?;
     let deadline = Instant::now() + settle;
     loop {

@@ -83,8 +83,16 @@ struct Names {
 impl Names {
     fn new(fleet: &Fleet) -> Names {
         Names {
-            systems: fleet.systems.iter().map(|s| (s.id.0, s.name.clone())).collect(),
-            modules: fleet.modules.iter().map(|m| (m.id.0, m.name.clone())).collect(),
+            systems: fleet
+                .systems
+                .iter()
+                .map(|s| (s.id.0, s.name.clone()))
+                .collect(),
+            modules: fleet
+                .modules
+                .iter()
+                .map(|m| (m.id.0, m.name.clone()))
+                .collect(),
             transports: fleet
                 .transports
                 .iter()
@@ -186,11 +194,11 @@ impl Recorder {
             .create(BufWriter::with_capacity(1 << 16, file))
             .map_err(|e| err(e.to_string()))?;
         let mut metadata = BTreeMap::new();
+        metadata.insert("fleet".to_string(), fleet.name.clone().unwrap_or_default());
         metadata.insert(
-            "fleet".to_string(),
-            fleet.name.clone().unwrap_or_default(),
+            "origin_us".to_string(),
+            options.origin.as_micros().to_string(),
         );
-        metadata.insert("origin_us".to_string(), options.origin.as_micros().to_string());
         metadata.insert(
             "encoding".to_string(),
             options.encoding.mcap_name().to_string(),

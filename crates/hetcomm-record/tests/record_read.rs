@@ -137,11 +137,17 @@ fn every_send_receipt_and_outcome_of_a_udp_fleet_is_recorded_with_its_payload() 
             assert_eq!(s.message.payload_value().unwrap()["label"], format!("r{n}"));
             assert!(s.message.payload_b64.is_none() || encoding == Encoding::MsgPack);
             // Its receipt and outcome: same source and sequence number.
-            let r = receipts.iter().find(|r| r.message.seq == s.message.seq).unwrap();
+            let r = receipts
+                .iter()
+                .find(|r| r.message.seq == s.message.seq)
+                .unwrap();
             assert_eq!(r.status, "delivered");
             assert_eq!(r.message.payload_value(), s.message.payload_value());
             let o = outcomes.iter().find(|o| o.seq == s.message.seq).unwrap();
-            assert_eq!((o.outcome.as_str(), o.source_system.as_str()), ("delivered", "A"));
+            assert_eq!(
+                (o.outcome.as_str(), o.source_system.as_str()),
+                ("delivered", "A")
+            );
             assert!(o.latency_us.is_some());
         }
     }
@@ -271,5 +277,4 @@ fn a_replay_into_a_simulation_sends_what_was_recorded_at_the_recorded_times() {
         .map(|n| (start.as_micros() + 100_000 * n as u64, reading(n)))
         .collect();
     assert_eq!(received, want);
-
 }
