@@ -228,8 +228,11 @@ fn row(path: &str) -> Row {
     }
 }
 
+/// A report table: title, column headings, rows.
+type Table = (String, Vec<&'static str>, Vec<Vec<String>>);
+
 /// The section's table for the report.
-pub fn tables(rows: &[Row]) -> Vec<(String, Vec<&'static str>, Vec<Vec<String>>)> {
+pub fn tables(rows: &[Row]) -> Vec<Table> {
     let f = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
     let body: Vec<Vec<String>> = rows
         .iter()

@@ -39,7 +39,7 @@ impl DemoTools {
         if self.record.is_none() && self.replay.is_none() && !monitor {
             return Ok(None);
         }
-        if self.replay.is_some() != !self.replace.is_empty() {
+        if self.replay.is_some() == self.replace.is_empty() {
             anyhow::bail!("--replay FILE and --replace SYSTEM[,…] go together");
         }
         let mut items: HashMap<String, Vec<ReplayItem>> = HashMap::new();
