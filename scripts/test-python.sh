@@ -33,6 +33,11 @@ if ! "$PY" -c 'import cryptography' >/dev/null 2>&1; then
   step "installing cryptography"
   "$PY" -m pip install --quiet --disable-pip-version-check "cryptography>=42"
 fi
+# The `mcap` package reads the CLI's recordings back (tests/test_mcap_recording.py).
+if ! "$PY" -c 'import mcap' >/dev/null 2>&1; then
+  step "installing mcap"
+  "$PY" -m pip install --quiet --disable-pip-version-check "mcap>=1.1,<2"
+fi
 
 step "building the hetcomm wheel (maturin, debug)"
 WHEELS=$ROOT/target/py-wheels

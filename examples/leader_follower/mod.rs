@@ -319,6 +319,45 @@ pub enum Layout {
     SingleVe,
 }
 
+/// Lets a tool take part in a run without changing the rovers' code: watch the systems
+/// (recording, statistics for a monitor) or stand in for some of them (replaying a
+/// recording). Every method but [`RunHooks::opened`] does nothing unless written.
+pub trait RunHooks: Send {
+    /// Systems whose autonomy code this run must not run: [`RunHooks::step`] sends for them.
+    fn replaced(&self) -> Vec<String> {
+        Vec::new()
+    }
+    /// Every system of this process is open; `start` is the scenario's time origin on their
+    /// clock.
+    fn opened(&mut self, systems: &[Comm], start: Time) -> Result<(), Box<dyn std::error::Error>>;
+    /// A control step at `t_s` of replaced `system`, where its code would have run.
+    fn step(&mut self, system: &str, t_s: f64) -> Result<(), Box<dyn std::error::Error>> {
+        let _ = (system, t_s);
+        Ok(())
+    }
+    /// The run is over (a simulation has settled): command records of the replaced systems
+    /// (what their code would have logged), for the tables.
+    fn finish(&mut self) -> Result<Vec<CommandRecord>, Box<dyn std::error::Error>> {
+        Ok(Vec::new())
+    }
+}
+
+/// Shared [`RunHooks`] for [`DemoOptions::hooks`].
+#[derive(Clone)]
+pub struct Hooks(pub Arc<Mutex<dyn RunHooks>>);
+
+impl std::fmt::Debug for Hooks {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Hooks")
+    }
+}
+
+impl Hooks {
+    fn lock(&self) -> std::sync::MutexGuard<'_, dyn RunHooks + 'static> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
 /// How to run the demonstration.
 #[derive(Clone, Debug)]
 pub struct DemoOptions {
@@ -336,6 +375,8 @@ pub struct DemoOptions {
     /// `examples/python/`): not opened here; the fleet must carry their traffic over a network
     /// transport. Real time only.
     pub external: Vec<String>,
+    /// A tool taking part in the run (recording, monitor statistics, replay).
+    pub hooks: Option<Hooks>,
 }
 
 impl Default for DemoOptions {
@@ -347,6 +388,7 @@ impl Default for DemoOptions {
             realtime: false,
             progress: false,
             external: Vec::new(),
+            hooks: None,
         }
     }
 }
@@ -417,6 +459,20 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         Some(s) => s.now(),
         None => Time::now_wall(),
     };
+    let replaced = match &options.hooks {
+        Some(h) => {
+            let systems = match (&sim, &local) {
+                (Some(s), _) => s.systems(),
+                (_, Some(l)) => l.systems(),
+                _ => unreachable!("one of the two is always open"),
+            };
+            let mut h = h.lock();
+            h.opened(systems, start)?;
+            h.replaced()
+        }
+        None => Vec::new(),
+    };
+    let is_replaced = |name: &str| replaced.iter().any(|r| r == name);
     let single = options.layout == Layout::SingleVe;
     let ve_of = |rover: &str| -> &'static str {
         match (single, rover) {
@@ -425,16 +481,23 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             _ => "VirtualEnv3",
         }
     };
-    let mut leader = Leader::new(
-        &system("Alpha")?,
-        "Charlie",
-        ve_of("Alpha"),
-        scenario.schedule.clone(),
-    )?;
+    let mut leader = match is_replaced(&leader_name) {
+        true => None,
+        false => Some(Leader::new(
+            &system("Alpha")?,
+            "Charlie",
+            ve_of("Alpha"),
+            scenario.schedule.clone(),
+        )?),
+    };
+    // Every follower in order, None where the hooks stand in for it.
     let mut followers = Vec::new();
     for (name, next) in [("Charlie", Some("Tango")), ("Tango", None)] {
-        if !external(name) {
-            followers.push(Follower::new(&system(name)?, next, ve_of(name), start)?);
+        if is_replaced(name) {
+            followers.push((name, None));
+        } else if !external(name) {
+            let f = Follower::new(&system(name)?, next, ve_of(name), start)?;
+            followers.push((name, Some(f)));
         }
     }
     let mut environments = Vec::new();
@@ -476,9 +539,17 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
                 std::thread::sleep(due.saturating_duration_since(Instant::now()));
             }
         }
-        leader.step(t)?;
-        for follower in &mut followers {
-            follower.step()?;
+        match (&mut leader, &options.hooks) {
+            (Some(leader), _) => leader.step(t)?,
+            (None, Some(h)) => h.lock().step(&leader_name, t)?,
+            (None, None) => {}
+        }
+        for (name, follower) in &mut followers {
+            match (follower, &options.hooks) {
+                (Some(f), _) => f.step()?,
+                (None, Some(h)) => h.lock().step(name, t)?,
+                (None, None) => {}
+            }
         }
         for ve in &environments {
             ve.step(t)?;
@@ -515,10 +586,29 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if options.progress {
         eprintln!();
     }
-    let mut commands = leader.sent;
-    for follower in followers {
-        commands.extend(follower.received);
+    // Each rover's records in its place, a replaced rover's from the hooks.
+    let mut hooked = match &options.hooks {
+        Some(h) => h.lock().finish()?,
+        None => Vec::new(),
+    };
+    let mut take = |name: &str| {
+        let (mine, rest) = std::mem::take(&mut hooked)
+            .into_iter()
+            .partition(|c: &CommandRecord| c.rover == name);
+        hooked = rest;
+        mine
+    };
+    let mut commands = match leader {
+        Some(l) => l.sent,
+        None => take(&leader_name),
+    };
+    for (name, follower) in followers {
+        commands.extend(match follower {
+            Some(f) => f.received,
+            None => take(name),
+        });
     }
+    commands.extend(hooked);
     let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
     samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
     Ok(DemoReport {

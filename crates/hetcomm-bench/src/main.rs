@@ -13,7 +13,8 @@
 //! `cpp-udp-ack`) in the same rounds as the Rust rows.
 //!
 //! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config` (validating a
-//! fleet file of 3 000 and 10 000 systems, in a child process). `--quick` runs every
+//! fleet file of 3 000 and 10 000 systems, in a child process), `record` (recording the demo,
+//! replaying a dense recording into the simulator). `--quick` runs every
 //! measurement briefly (small payloads, few iterations) for CI: it checks that everything
 //! runs, never how fast. See `benchmarks/README.md`.
 //!
@@ -30,6 +31,7 @@ mod config_scale;
 mod ext;
 mod hc;
 mod raw;
+mod record_bench;
 mod report;
 mod scale;
 mod secured;
@@ -77,7 +79,7 @@ fn comma_list(v: &str) -> Vec<String> {
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim,config] [--sizes BYTES,…] [--paths ROW,…] \
+[--only rtt,oneway,inproc,pinning,scale,sim,config,record] [--sizes BYTES,…] [--paths ROW,…] \
 [--cpp-bin PATH]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
@@ -483,6 +485,28 @@ fn run(o: &Options) -> Vec<Row> {
             Ok(s) => Row::sim(&name, s.systems, s.simulated_s, s.wall_s, s.delivered),
             Err(e) => Row::failed("sim", &name, 0, &e),
         });
+    }
+    if want("record") {
+        let dir = std::env::temp_dir().join(format!("hetcomm-bench-record-{}", std::process::id()));
+        match std::fs::create_dir_all(&dir) {
+            Ok(()) => {
+                log(o.quick, "record: demo with and without recording");
+                rows.push(record_bench::demo_overhead(
+                    &dir,
+                    if o.quick { 1 } else { 7 },
+                ));
+                log(
+                    o.quick,
+                    "record: dense recording replayed into the simulator",
+                );
+                rows.push(record_bench::replay_speed(
+                    &dir,
+                    if o.quick { 1 } else { 60 },
+                ));
+            }
+            Err(e) => rows.push(Row::failed("record", "temporary folder", 0, &e.to_string())),
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
     rows
 }

@@ -410,6 +410,7 @@ fn tables(rows: &[Row]) -> Vec<Table> {
         vec!["fleet", "table cells", "file MB", "seconds", "peak RSS MB"],
         cfg,
     ));
+    out.extend(crate::record_bench::tables(rows));
     out.retain(|(_, _, r)| !r.is_empty());
     out
 }

@@ -28,6 +28,8 @@ pub struct DemoArgs<'a> {
     pub external: Vec<String>,
     /// `--keys` / `--insecure`.
     pub security: &'a SecurityArgs,
+    /// Recording, replay or monitor statistics taking part in the run.
+    pub hooks: Option<leader_follower::Hooks>,
 }
 
 /// A transport definition for a letter, from a short name.
@@ -141,6 +143,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         realtime,
         external: args.external.clone(),
         progress: terminal,
+        hooks: args.hooks,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));

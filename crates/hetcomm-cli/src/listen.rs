@@ -75,6 +75,9 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
+    // HETCOMM_MONITOR=host:port: statistics for `hetcomm monitor` (docs/record-replay.md).
+    let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
+        .map_err(anyhow::Error::msg)?;
     let start = Time::now_wall();
     let started = Instant::now();
     let modules: Vec<String> = match args.module {

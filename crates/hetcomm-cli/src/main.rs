@@ -10,11 +10,15 @@ mod demo;
 mod experiment;
 mod keygen;
 mod listen;
+mod monitor;
 mod names;
 mod poke;
 mod security;
 
 use security::SecurityArgs;
+mod record;
+mod replay;
+mod topology;
 
 /// hetcomm: a heterogeneous communication layer and test harness for teams of robots.
 #[derive(Parser)]
@@ -107,6 +111,8 @@ enum Command {
         external: Vec<String>,
         #[command(flatten)]
         security: SecurityArgs,
+        #[command(flatten)]
+        tools: DemoToolArgs,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     ///
@@ -180,11 +186,122 @@ enum Command {
         #[command(flatten)]
         security: SecurityArgs,
     },
+    /// Record what systems of a live fleet receive into an MCAP file (docs/record-replay.md).
+    ///
+    /// Opens the systems (their endpoints) in this process, records every message arriving
+    /// at them (envelope and payload) until --duration or Ctrl-C, and writes the file. To
+    /// record a fleet's sends and outcomes too, record from inside the run (`hetcomm demo
+    /// --record`, or hetcomm_record::Recorder in a program).
+    Record {
+        /// The fleet file.
+        fleet: PathBuf,
+        /// The systems to record as (comma-separated).
+        #[arg(
+            long = "as",
+            value_name = "SYSTEM[,…]",
+            value_delimiter = ',',
+            required = true
+        )]
+        systems: Vec<String>,
+        /// The MCAP file to write.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Stop after this many seconds (default: at Ctrl-C / SIGTERM).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Raw MessagePack payloads (message encoding `msgpack`) instead of JSON with a JSON
+        /// Schema per message type.
+        #[arg(long)]
+        msgpack: bool,
+    },
+    /// Send a recording's messages again, with their recorded timing, into a live fleet or a
+    /// simulation of one (docs/record-replay.md).
+    ///
+    /// Each recorded send (first attempts) is sent again by the same system and module, to
+    /// the same destination, at the same offset from the recording's start (divided by
+    /// --speed). A damaged or truncated file is replayed as far as it reads, and the damage is
+    /// reported (exit code 1).
+    Replay {
+        /// The MCAP recording.
+        file: PathBuf,
+        /// The fleet to replay into.
+        #[arg(long)]
+        into: PathBuf,
+        /// Only the sends of these systems (comma-separated; default: every recorded sender).
+        #[arg(long, value_delimiter = ',')]
+        systems: Vec<String>,
+        /// Only the sends from these modules (comma-separated).
+        #[arg(long, value_delimiter = ',')]
+        modules: Vec<String>,
+        /// Time scale: 2 replays twice as fast, 0.5 half as fast.
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Into a simulation of the fleet (virtual time, as fast as it computes).
+        #[arg(long)]
+        sim: bool,
+        /// The simulation's seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Live: seconds to wait for outstanding outcomes at the end.
+        #[arg(long, default_value_t = 5.0)]
+        settle: f64,
+    },
+    /// Show live per-pair statistics of a fleet, refreshed once a second
+    /// (docs/record-replay.md).
+    ///
+    /// Processes publish their systems' statistics to the monitor's UDP address when
+    /// HETCOMM_MONITOR=host:port is set in their environment (hetcomm demo, listen, record,
+    /// replay, and programs using hetcomm_record::stats::Publisher).
+    Monitor {
+        /// The fleet file (names the pairs and transports).
+        fleet: PathBuf,
+        /// The UDP address to receive statistics on.
+        #[arg(long, default_value = hetcomm_record::stats::DEFAULT_MONITOR_ADDR)]
+        listen: String,
+        /// One JSON object per line and second instead of the terminal view.
+        #[arg(long)]
+        json: bool,
+        /// Exit after this many seconds.
+        #[arg(long)]
+        duration: Option<f64>,
+    },
+    /// Draw a fleet's systems and, per ordered pair, the transport that carries it
+    /// (docs/record-replay.md). SVG or PNG by the output's extension.
+    Topology {
+        /// The fleet file.
+        fleet: PathBuf,
+        /// The picture to write (.svg or .png).
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Also draw pairs that cannot talk (X in the table) as dotted lines.
+        #[arg(long)]
+        show_x: bool,
+    },
     /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
     Experiment {
         #[command(subcommand)]
         experiment: experiment::Experiment,
     },
+}
+
+/// Recording, replay and monitoring inside `hetcomm demo`.
+#[derive(clap::Args)]
+struct DemoToolArgs {
+    /// Record every send, receipt and outcome of the run into this MCAP file.
+    #[arg(long, value_name = "FILE")]
+    record: Option<PathBuf>,
+    /// Record only these systems (comma-separated; default every system).
+    #[arg(long, value_delimiter = ',', requires = "record")]
+    record_systems: Vec<String>,
+    /// Record raw MessagePack payloads instead of JSON.
+    #[arg(long, requires = "record")]
+    msgpack: bool,
+    /// Replay this recording: the --replace systems' recorded sends stand in for their code.
+    #[arg(long, value_name = "FILE", requires = "replace")]
+    replay: Option<PathBuf>,
+    /// The systems whose code the replay replaces (comma-separated).
+    #[arg(long, value_delimiter = ',', requires = "replay")]
+    replace: Vec<String>,
 }
 
 fn secs(s: f64) -> anyhow::Result<Duration> {
@@ -344,6 +461,65 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(verdict.exit_code())
         }
         Command::Experiment { experiment } => experiment::run(experiment),
+        Command::Record {
+            fleet,
+            systems,
+            out,
+            duration,
+            msgpack,
+        } => {
+            record::record(record::RecordArgs {
+                fleet: &fleet,
+                systems,
+                out: &out,
+                duration: duration.map(secs).transpose()?,
+                msgpack,
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Replay {
+            file,
+            into,
+            systems,
+            modules,
+            speed,
+            sim,
+            seed,
+            settle,
+        } => {
+            let clean = replay::run(replay::ReplayArgs {
+                file: &file,
+                into: &into,
+                filter: hetcomm_record::ReplayFilter { systems, modules },
+                speed,
+                sim,
+                seed,
+                settle: secs(settle)?,
+            })?;
+            Ok(if clean {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
+        }
+        Command::Monitor {
+            fleet,
+            listen,
+            json,
+            duration,
+        } => {
+            monitor::run(monitor::MonitorArgs {
+                fleet: &fleet,
+                listen: &listen,
+                json,
+                duration: duration.map(secs).transpose()?,
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Topology { fleet, out, show_x } => {
+            topology::run(&fleet, &out, show_x)?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Demo {
             seed,
             out,
@@ -354,8 +530,18 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             realtime,
             external,
             security,
+            tools,
         } => {
+            let hooks = record::DemoTools {
+                record: tools.record,
+                record_systems: tools.record_systems,
+                msgpack: tools.msgpack,
+                replay: tools.replay,
+                replace: tools.replace,
+            }
+            .hooks()?;
             demo::run(demo::DemoArgs {
+                hooks,
                 external,
                 security: &security,
                 seed,

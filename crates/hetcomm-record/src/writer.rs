@@ -1,0 +1,659 @@
+//! [`Recorder`]: an [`Observer`] that writes every send, retransmission, receipt and outcome
+//! of the systems it is attached to into an MCAP file.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+
+use hetcomm::config::Fleet;
+use hetcomm::observe::{OutcomeRecord, ReceiptRecord, RouteKind, SendRecord, Via};
+use hetcomm::wire::AckStatus;
+use hetcomm::{Comm, Header, Observer, ObserverHandle, Outcome, SendId, Time};
+use serde_json::Value;
+
+use crate::format::{self, Addr, Envelope, Event, OutcomeEvent, ReceiptEvent, SendEvent};
+
+/// How payloads (and the records around them) are written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Encoding {
+    /// JSON messages with a JSON Schema per channel (Foxglove and the `mcap` Python package
+    /// show the fields without hetcomm). The default.
+    #[default]
+    Json,
+    /// MessagePack maps (MCAP message encoding `msgpack`, no schema) with the payload's own
+    /// bytes untouched in `payload_msgpack`: smaller and faster, but readers need to know it.
+    MsgPack,
+}
+
+impl Encoding {
+    /// The MCAP message encoding name.
+    pub fn mcap_name(self) -> &'static str {
+        match self {
+            Encoding::Json => "json",
+            Encoding::MsgPack => "msgpack",
+        }
+    }
+}
+
+/// Options of a recording.
+#[derive(Clone, Debug)]
+pub struct RecordOptions {
+    /// Payload encoding.
+    pub encoding: Encoding,
+    /// The recording's time origin (a replay's time 0), on the recorded systems' clock.
+    pub origin: Time,
+    /// MCAP chunk size in bytes: a file cut short loses at most the chunk being written.
+    pub chunk_size: u64,
+}
+
+impl Default for RecordOptions {
+    fn default() -> Self {
+        RecordOptions {
+            encoding: Encoding::Json,
+            origin: Time::now_wall(),
+            chunk_size: 256 * 1024,
+        }
+    }
+}
+
+/// What a finished recording holds.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RecordSummary {
+    /// Send attempts written (first attempts and retransmissions).
+    pub sends: u64,
+    /// Receipts written.
+    pub receipts: u64,
+    /// Outcomes written.
+    pub outcomes: u64,
+    /// Events that could not be written (the first error is returned by
+    /// [`Recorder::finish`]).
+    pub lost: u64,
+}
+
+struct Names {
+    systems: HashMap<u16, String>,
+    modules: HashMap<u16, String>,
+    transports: HashMap<u8, String>,
+}
+
+impl Names {
+    fn new(fleet: &Fleet) -> Names {
+        Names {
+            systems: fleet
+                .systems
+                .iter()
+                .map(|s| (s.id.0, s.name.clone()))
+                .collect(),
+            modules: fleet
+                .modules
+                .iter()
+                .map(|m| (m.id.0, m.name.clone()))
+                .collect(),
+            transports: fleet
+                .transports
+                .iter()
+                .map(|t| (t.tag, t.name.clone()))
+                .collect(),
+        }
+    }
+    fn system(&self, id: u16) -> String {
+        self.systems
+            .get(&id)
+            .cloned()
+            .unwrap_or_else(|| format!("#{id}"))
+    }
+    fn module(&self, id: u16) -> String {
+        self.modules
+            .get(&id)
+            .cloned()
+            .unwrap_or_else(|| format!("#{id}"))
+    }
+}
+
+struct Inner {
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    /// topic → channel id.
+    channels: HashMap<String, u16>,
+    /// (kind, message type) → schema id.
+    schemas: HashMap<(&'static str, u32), u16>,
+    sequence: u32,
+    error: Option<String>,
+}
+
+/// Writes what the systems it is attached to send, receive and conclude into an MCAP file.
+///
+/// ```no_run
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// let fleet = hetcomm::LocalFleet::open_file("fleet.toml")?;
+/// let alpha = fleet.system("Alpha")?;
+/// let recorder = hetcomm_record::Recorder::create("run.mcap", alpha.fleet(), Default::default())?;
+/// let _handle = recorder.attach(&alpha);
+/// // … run …
+/// let summary = recorder.finish()?;
+/// println!("{} sends, {} outcomes", summary.sends, summary.outcomes);
+/// # Ok(()) }
+/// ```
+pub struct Recorder {
+    path: PathBuf,
+    names: Names,
+    encoding: Encoding,
+    inner: Mutex<Inner>,
+    /// Observed events on their way to the writer thread.
+    queue: Mutex<Queue>,
+    /// Signalled when a batch is ready (or the queue closes), and when room is made.
+    ready: Condvar,
+    room: Condvar,
+    thread: Mutex<Option<JoinHandle<()>>>,
+    sends: AtomicU64,
+    receipts: AtomicU64,
+    outcomes: AtomicU64,
+    lost: AtomicU64,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("path", &self.path)
+            .field("encoding", &self.encoding)
+            .finish()
+    }
+}
+
+/// A recording could not be started or finished.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {message}")]
+pub struct RecordError {
+    /// The file.
+    pub path: PathBuf,
+    /// What went wrong.
+    pub message: String,
+}
+
+impl Recorder {
+    /// Creates `path` (replacing it) and writes the recording's header and metadata.
+    pub fn create(
+        path: impl AsRef<Path>,
+        fleet: &Fleet,
+        options: RecordOptions,
+    ) -> Result<Arc<Recorder>, RecordError> {
+        let path = path.as_ref().to_path_buf();
+        let err = |m: String| RecordError {
+            path: path.clone(),
+            message: m,
+        };
+        let file = File::create(&path).map_err(|e| err(e.to_string()))?;
+        let mut writer = mcap::WriteOptions::new()
+            .profile(format::PROFILE)
+            .library(concat!("hetcomm-record ", env!("CARGO_PKG_VERSION")))
+            .compression(None)
+            .chunk_size(Some(options.chunk_size))
+            .create(BufWriter::with_capacity(1 << 16, file))
+            .map_err(|e| err(e.to_string()))?;
+        let mut metadata = BTreeMap::new();
+        metadata.insert("fleet".to_string(), fleet.name.clone().unwrap_or_default());
+        metadata.insert(
+            "origin_us".to_string(),
+            options.origin.as_micros().to_string(),
+        );
+        metadata.insert(
+            "encoding".to_string(),
+            options.encoding.mcap_name().to_string(),
+        );
+        metadata.insert("format_version".to_string(), "1".to_string());
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: format::METADATA_NAME.to_string(),
+                metadata,
+            })
+            .map_err(|e| err(e.to_string()))?;
+        let recorder = Arc::new(Recorder {
+            queue: Mutex::new(Queue::default()),
+            ready: Condvar::new(),
+            room: Condvar::new(),
+            thread: Mutex::new(None),
+            path: path.clone(),
+            names: Names::new(fleet),
+            encoding: options.encoding,
+            inner: Mutex::new(Inner {
+                writer: Some(writer),
+                channels: HashMap::new(),
+                schemas: HashMap::new(),
+                sequence: 0,
+                error: None,
+            }),
+            sends: AtomicU64::new(0),
+            receipts: AtomicU64::new(0),
+            outcomes: AtomicU64::new(0),
+            lost: AtomicU64::new(0),
+        });
+        let r = recorder.clone();
+        let thread = std::thread::Builder::new()
+            .name("hetcomm-record".into())
+            .spawn(move || r.drain())
+            .map_err(|e| err(e.to_string()))?;
+        *recorder.thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(thread);
+        Ok(recorder)
+    }
+
+    /// Hands an observed event to the writer thread. Cheap: a lock and a push; the writer is
+    /// woken once per [`BATCH`] events (or by its own timer), and the observed thread waits
+    /// only while [`QUEUE`] events are queued (nothing is dropped).
+    fn enqueue(&self, item: Item) {
+        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        while q.items.len() >= QUEUE && !q.closed {
+            q = self.room.wait(q).unwrap_or_else(|e| e.into_inner());
+        }
+        if q.closed {
+            drop(q);
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        q.items.push(item);
+        if q.items.len() == BATCH {
+            self.ready.notify_one();
+        }
+    }
+
+    /// The writer thread: takes batches and writes them until the queue is closed and empty.
+    fn drain(&self) {
+        let mut batch = Vec::new();
+        loop {
+            {
+                let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+                while q.items.len() < BATCH && !q.closed {
+                    let (g, _) = self
+                        .ready
+                        .wait_timeout(q, std::time::Duration::from_millis(20))
+                        .unwrap_or_else(|e| e.into_inner());
+                    q = g;
+                    if !q.items.is_empty() {
+                        break;
+                    }
+                }
+                if q.items.is_empty() && q.closed {
+                    return;
+                }
+                std::mem::swap(&mut batch, &mut q.items);
+                self.room.notify_all();
+            }
+            for item in batch.drain(..) {
+                self.process(item);
+            }
+        }
+    }
+
+    /// Records `comm`'s sends, receipts and outcomes until the handle is dropped.
+    pub fn attach(self: &Arc<Self>, comm: &Comm) -> ObserverHandle {
+        comm.observe(Arc::new(SystemRecorder {
+            recorder: self.clone(),
+            system: comm.name().into(),
+        }))
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Counts so far.
+    pub fn summary(&self) -> RecordSummary {
+        RecordSummary {
+            sends: self.sends.load(Ordering::Relaxed),
+            receipts: self.receipts.load(Ordering::Relaxed),
+            outcomes: self.outcomes.load(Ordering::Relaxed),
+            lost: self.lost.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Writes the summary and index and closes the file. Events after this are counted as
+    /// lost. An error says what failed first (a full disk, …) and how many events were lost.
+    pub fn finish(&self) -> Result<RecordSummary, RecordError> {
+        // Close the queue, let the writer thread write what is in it, and end.
+        self.queue.lock().unwrap_or_else(|e| e.into_inner()).closed = true;
+        self.ready.notify_all();
+        self.room.notify_all();
+        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(t) = thread {
+            if t.join().is_err() {
+                self.fail("the writer thread panicked".into());
+            }
+        }
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(mut w) = inner.writer.take() {
+            if let Err(e) = w.finish() {
+                inner.error.get_or_insert(e.to_string());
+            }
+        }
+        let summary = self.summary();
+        match inner.error.clone() {
+            Some(message) => Err(RecordError {
+                path: self.path.clone(),
+                message: format!("{message} ({} events not recorded)", summary.lost),
+            }),
+            None => Ok(summary),
+        }
+    }
+
+    fn envelope(&self, h: &Header, payload: &[u8]) -> Envelope {
+        let (value, b64) = match self.encoding {
+            Encoding::Json => format::payload_json(payload),
+            Encoding::MsgPack => (None, None),
+        };
+        Envelope {
+            source: Addr {
+                system: self.names.system(h.source.system.0),
+                module: self.names.module(h.source.module.0),
+            },
+            destination: Addr {
+                system: self.names.system(h.destination.system.0),
+                module: self.names.module(h.destination.module.0),
+            },
+            seq: h.seq,
+            message_type: h.message_type.0,
+            priority: h.priority.0,
+            transport: (h.transport as char).to_string(),
+            transport_name: self.names.transports.get(&h.transport).cloned(),
+            ack_requested: h.flags & hetcomm::wire::FLAG_ACK_REQUESTED != 0,
+            broadcast: h.flags & hetcomm::wire::FLAG_BROADCAST != 0,
+            timestamp_us: h.timestamp.as_micros(),
+            size: payload.len(),
+            payload: value,
+            payload_b64: b64,
+        }
+    }
+
+    /// Encodes and writes one event on `topic`.
+    fn write(&self, topic: String, kind: &'static str, event: &Event, payload: &[u8]) {
+        let (data, sample) = match self.encoding {
+            Encoding::Json => match serde_json::to_vec(event) {
+                Ok(d) => (d, event_payload(event)),
+                Err(e) => return self.fail(e.to_string()),
+            },
+            Encoding::MsgPack => match to_msgpack(event, payload, kind) {
+                Ok(d) => (d, None),
+                Err(e) => return self.fail(e),
+            },
+        };
+        let message_type = match event {
+            Event::Send(s) => s.message.message_type,
+            Event::Receipt(r) => r.message.message_type,
+            Event::Outcome(_) => 0,
+        };
+        let time = event.time_us() * 1000;
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let inner = &mut *inner;
+        let Some(writer) = inner.writer.as_mut() else {
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        let channel = match inner.channels.get(&topic) {
+            Some(&c) => Ok(c),
+            None => {
+                let schema = match self.encoding {
+                    Encoding::MsgPack => Ok(0),
+                    Encoding::Json => match inner.schemas.get(&(kind, message_type)) {
+                        Some(&s) => Ok(s),
+                        None => {
+                            let (name, schema) = if kind == "outcome" {
+                                ("hetcomm.Outcome".to_string(), format::outcome_schema())
+                            } else {
+                                (
+                                    format!(
+                                        "hetcomm.{}.type{message_type}",
+                                        if kind == "send" { "Send" } else { "Receipt" }
+                                    ),
+                                    format::message_schema(kind, message_type, sample.as_ref()),
+                                )
+                            };
+                            let text = serde_json::to_vec(&schema).unwrap_or_default();
+                            writer.add_schema(&name, "jsonschema", &text).inspect(|&s| {
+                                inner.schemas.insert((kind, message_type), s);
+                            })
+                        }
+                    },
+                };
+                schema.and_then(|s| {
+                    writer
+                        .add_channel(s, &topic, self.encoding.mcap_name(), &BTreeMap::new())
+                        .inspect(|&c| {
+                            inner.channels.insert(topic.clone(), c);
+                        })
+                })
+            }
+        };
+        let result = channel.and_then(|channel_id| {
+            inner.sequence = inner.sequence.wrapping_add(1);
+            writer.write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id,
+                    sequence: inner.sequence,
+                    log_time: time,
+                    publish_time: time,
+                },
+                &data,
+            )
+        });
+        match result {
+            Ok(()) => {
+                let counter = match kind {
+                    "send" => &self.sends,
+                    "receipt" => &self.receipts,
+                    _ => &self.outcomes,
+                };
+                counter.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => {
+                self.lost.fetch_add(1, Ordering::Relaxed);
+                inner.error.get_or_insert(e.to_string());
+            }
+        }
+    }
+
+    fn fail(&self, message: String) {
+        self.lost.fetch_add(1, Ordering::Relaxed);
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        inner.error.get_or_insert(message);
+    }
+}
+
+fn event_payload(event: &Event) -> Option<Value> {
+    match event {
+        Event::Send(s) => s.message.payload_value(),
+        Event::Receipt(r) => r.message.payload_value(),
+        Event::Outcome(_) => None,
+    }
+}
+
+/// The event as a MessagePack map, the payload's bytes as `payload_msgpack` (binary).
+fn to_msgpack(event: &Event, payload: &[u8], kind: &str) -> Result<Vec<u8>, String> {
+    let json = serde_json::to_value(event).map_err(|e| e.to_string())?;
+    let mut value = format::json_to_msgpack(&json);
+    if kind != "outcome" {
+        if let rmpv::Value::Map(m) = &mut value {
+            m.push((
+                rmpv::Value::from("payload_msgpack"),
+                rmpv::Value::Binary(payload.to_vec()),
+            ));
+        }
+    }
+    let mut out = Vec::with_capacity(payload.len() + 256);
+    rmpv::encode::write_value(&mut out, &value).map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+fn route_name(r: RouteKind) -> &'static str {
+    match r {
+        RouteKind::Routed => "routed",
+        RouteKind::Unqueued => "unqueued",
+        RouteKind::Direct => "direct",
+        _ => "other",
+    }
+}
+
+/// Events queued for the writer thread at most; an observer waits while the queue is full.
+const QUEUE: usize = 1 << 16;
+/// Events that wake the writer thread at once (it also wakes every 20 ms).
+const BATCH: usize = 512;
+
+#[derive(Default)]
+struct Queue {
+    items: Vec<Item>,
+    closed: bool,
+}
+
+/// An observed event, copied out of the observer's callback.
+enum Item {
+    Send {
+        header: Header,
+        payload: Vec<u8>,
+        time: Time,
+        route: RouteKind,
+        link: Option<usize>,
+        attempt: u32,
+    },
+    Receipt {
+        header: Header,
+        payload: Vec<u8>,
+        time: Time,
+        via: Via,
+        status: AckStatus,
+    },
+    Outcome {
+        system: Arc<str>,
+        id: SendId,
+        outcome: Outcome,
+        time: Time,
+    },
+}
+
+impl Recorder {
+    /// Encodes and writes one event (on the writer thread).
+    fn process(&self, item: Item) {
+        match item {
+            Item::Send {
+                header,
+                payload,
+                time,
+                route,
+                link,
+                attempt,
+            } => {
+                let message = self.envelope(&header, &payload);
+                let topic = format!(
+                    "/send/{}/{}/{}/{}",
+                    message.source.system,
+                    message.source.module,
+                    message.destination.system,
+                    message.destination.module
+                );
+                let event = Event::Send(SendEvent {
+                    time_us: time.as_micros(),
+                    message,
+                    attempt,
+                    route: route_name(route).to_string(),
+                    link,
+                });
+                self.write(topic, "send", &event, &payload);
+            }
+            Item::Receipt {
+                header,
+                payload,
+                time,
+                via,
+                status,
+            } => {
+                let message = self.envelope(&header, &payload);
+                let topic = format!(
+                    "/receipt/{}/{}",
+                    message.destination.system, message.destination.module
+                );
+                let status = match status {
+                    AckStatus::Delivered => "delivered",
+                    AckStatus::InboxFull => "inbox_full",
+                    AckStatus::UnknownModule => "unknown_module",
+                };
+                let event = Event::Receipt(ReceiptEvent {
+                    time_us: time.as_micros(),
+                    message,
+                    status: status.to_string(),
+                    link: match via {
+                        Via::Link(i) => Some(i),
+                        _ => None,
+                    },
+                });
+                self.write(topic, "receipt", &event, &payload);
+            }
+            Item::Outcome {
+                system,
+                id,
+                outcome,
+                time,
+            } => {
+                let (outcome, attempts, latency_us, reason) = format::outcome_parts(&outcome);
+                let destination = self.names.system(id.to.0);
+                let topic = format!("/outcome/{system}/{destination}");
+                let event = Event::Outcome(OutcomeEvent {
+                    time_us: time.as_micros(),
+                    source_system: system.to_string(),
+                    destination_system: destination,
+                    seq: id.seq,
+                    outcome: outcome.to_string(),
+                    attempts,
+                    latency_us,
+                    reason,
+                });
+                self.write(topic, "outcome", &event, &[]);
+            }
+        }
+    }
+}
+
+/// The recorder as seen by one system: copies each event and queues it for the writer
+/// thread, so the observed thread only pays for a copy.
+struct SystemRecorder {
+    recorder: Arc<Recorder>,
+    system: Arc<str>,
+}
+
+impl SystemRecorder {
+    fn send(&self, r: &SendRecord<'_>) {
+        self.recorder.enqueue(Item::Send {
+            header: r.header,
+            payload: r.payload.to_vec(),
+            time: r.time,
+            route: r.route,
+            link: r.link,
+            attempt: r.attempt,
+        });
+    }
+}
+
+impl Observer for SystemRecorder {
+    fn on_send(&self, record: &SendRecord<'_>) {
+        self.send(record);
+    }
+    fn on_retransmit(&self, record: &SendRecord<'_>) {
+        self.send(record);
+    }
+    fn on_receipt(&self, r: &ReceiptRecord<'_>) {
+        self.recorder.enqueue(Item::Receipt {
+            header: r.header,
+            payload: r.payload.to_vec(),
+            time: r.time,
+            via: r.via,
+            status: r.status,
+        });
+    }
+    fn on_outcome(&self, r: &OutcomeRecord<'_>) {
+        self.recorder.enqueue(Item::Outcome {
+            system: self.system.clone(),
+            id: r.id,
+            outcome: r.outcome.clone(),
+            time: r.time,
+        });
+    }
+}
