@@ -37,6 +37,7 @@ pub mod factory;
 pub mod link;
 pub mod msg;
 pub mod names;
+pub mod rostypes;
 pub mod settings;
 
 pub use factory::Ros2Factory;
