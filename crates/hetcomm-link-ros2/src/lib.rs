@@ -33,10 +33,12 @@
 //! `127.0.0.1`, so that participants of one host find each other without multicast on
 //! loopback (which Linux's `lo` lacks by default).
 
+pub mod bridge;
 pub mod factory;
 pub mod link;
 pub mod msg;
 pub mod names;
+pub mod raw;
 pub mod rostypes;
 pub mod settings;
 
@@ -48,4 +50,5 @@ pub use settings::{Reliability, Ros2Settings};
 /// feature).
 pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(Ros2Factory);
+    registry.register(bridge::Ros2BridgeFactory);
 }

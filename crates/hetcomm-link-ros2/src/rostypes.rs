@@ -299,11 +299,17 @@ fn write_value(out: &mut Vec<u8>, v: &Value, ty: &Ty, path: &str) -> Result<(), 
 
 /// Reads `ty`'s CDR body (after the 4-byte encapsulation header; `little` tells the byte
 /// order) into a MessagePack value: a map of every field by name.
-pub fn from_cdr(body: &[u8], little: bool, ty: &'static RosType) -> Result<Value, String> {
+pub fn from_cdr(
+    body: &[u8],
+    little: bool,
+    xcdr2: bool,
+    ty: &'static RosType,
+) -> Result<Value, String> {
     let mut r = Reader {
         body,
         pos: 0,
         little,
+        max_align: if xcdr2 { 4 } else { 8 },
     };
     let v = r.msg(ty, "")?;
     Ok(v)
@@ -313,12 +319,15 @@ struct Reader<'a> {
     body: &'a [u8],
     pos: usize,
     little: bool,
+    /// 8 for plain CDR, 4 for XCDR2.
+    max_align: usize,
 }
 
 impl Reader<'_> {
     fn take(&mut self, n: usize, path: &str) -> Result<&[u8], String> {
-        if self.pos % n.min(8) != 0 && n > 1 {
-            self.pos += n.min(8) - self.pos % n.min(8);
+        let a = n.min(self.max_align);
+        if self.pos % a != 0 {
+            self.pos += a - self.pos % a;
         }
         let end = self.pos + n;
         let bytes = self.body.get(self.pos..end).ok_or_else(|| {
@@ -407,7 +416,7 @@ mod tests {
         let cdr = to_cdr(&twist, &TWIST, "Command (type 40)").unwrap();
         assert_eq!(cdr.len(), 48);
         assert_eq!(&cdr[..8], &0.5f64.to_le_bytes());
-        assert_eq!(from_cdr(&cdr, true, &TWIST).unwrap(), twist);
+        assert_eq!(from_cdr(&cdr, true, false, &TWIST).unwrap(), twist);
     }
 
     #[test]
@@ -428,7 +437,7 @@ mod tests {
         // sec, nanosec, len 4, "map\0", then the first float64 at offset 16.
         assert_eq!(&cdr[8..16], &[4, 0, 0, 0, b'm', b'a', b'p', 0]);
         assert_eq!(&cdr[16..24], &1.0f64.to_le_bytes());
-        assert_eq!(from_cdr(&cdr, true, &POSE_STAMPED).unwrap(), stamped);
+        assert_eq!(from_cdr(&cdr, true, false, &POSE_STAMPED).unwrap(), stamped);
     }
 
     #[test]
@@ -457,12 +466,12 @@ mod tests {
     fn truncated_or_garbled_cdr_is_an_error_not_a_panic() {
         let cdr = to_cdr(&map(&[("data", "hello".into())]), &STRING, "T").unwrap();
         for cut in 0..cdr.len() - 1 {
-            assert!(from_cdr(&cdr[..cut], true, &STRING).is_err(), "cut at {cut}");
+            assert!(from_cdr(&cdr[..cut], true, false, &STRING).is_err(), "cut at {cut}");
         }
         let mut huge = cdr.clone();
         huge[..4].copy_from_slice(&u32::MAX.to_le_bytes());
-        assert!(from_cdr(&huge, true, &STRING).is_err());
-        assert!(from_cdr(&[1, 2, 3], true, &ODOMETRY).is_err());
+        assert!(from_cdr(&huge, true, false, &STRING).is_err());
+        assert!(from_cdr(&[1, 2, 3], true, false, &ODOMETRY).is_err());
         assert_eq!(lookup("nav_msgs/msg/Odometry").unwrap().name, "nav_msgs/Odometry");
         assert!(lookup("nav_msgs/Path").is_none());
     }
