@@ -55,11 +55,14 @@ pub struct Problems {
 }
 
 impl Problems {
-    fn report(&self, problem: String) {
+    /// Records `problem`; true (and printed to stderr) the first time it is seen.
+    fn report(&self, problem: String) -> bool {
         let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        if seen.insert(problem.clone()) {
+        let new = seen.insert(problem.clone());
+        if new {
             eprintln!("hetcomm ros2_bridge: {problem}");
         }
+        new
     }
 
     /// Every distinct problem seen so far.
@@ -336,11 +339,15 @@ impl Receiver {
             for w in &writers {
                 let t = &w.publication_topic_data;
                 if t.topic_name == topic && t.type_name != expected {
-                    self.shared.problems.report(format!(
+                    let new = self.shared.problems.report(format!(
                         "a publisher on {} has type {}, but the topic is mapped as {} ({}): its \
                          messages are not received",
                         inb.mapping.topic, t.type_name, inb.mapping.ros_type, expected
                     ));
+                    if new {
+                        // Counted once per such publisher: its samples never reach us.
+                        self.shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
                 }
             }
         }
