@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_config::TransportSettings;
+use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
 use crate::settings::{self, Ros2Settings};

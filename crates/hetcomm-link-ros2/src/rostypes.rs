@@ -55,24 +55,51 @@ macro_rules! ros_type {
 
 ros_type!(STRING, "std_msgs/String", [("data", Ty::Str)]);
 ros_type!(FLOAT64, "std_msgs/Float64", [("data", Ty::F64)]);
-ros_type!(TIME, "builtin_interfaces/Time", [("sec", Ty::I32), ("nanosec", Ty::U32)]);
-ros_type!(HEADER, "std_msgs/Header", [("stamp", Ty::Msg(&TIME)), ("frame_id", Ty::Str)]);
-ros_type!(VECTOR3, "geometry_msgs/Vector3", [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]);
-ros_type!(POINT, "geometry_msgs/Point", [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]);
+ros_type!(
+    TIME,
+    "builtin_interfaces/Time",
+    [("sec", Ty::I32), ("nanosec", Ty::U32)]
+);
+ros_type!(
+    HEADER,
+    "std_msgs/Header",
+    [("stamp", Ty::Msg(&TIME)), ("frame_id", Ty::Str)]
+);
+ros_type!(
+    VECTOR3,
+    "geometry_msgs/Vector3",
+    [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]
+);
+ros_type!(
+    POINT,
+    "geometry_msgs/Point",
+    [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]
+);
 ros_type!(
     QUATERNION,
     "geometry_msgs/Quaternion",
-    [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64), ("w", Ty::F64)]
+    [
+        ("x", Ty::F64),
+        ("y", Ty::F64),
+        ("z", Ty::F64),
+        ("w", Ty::F64)
+    ]
 );
 ros_type!(
     TWIST,
     "geometry_msgs/Twist",
-    [("linear", Ty::Msg(&VECTOR3)), ("angular", Ty::Msg(&VECTOR3))]
+    [
+        ("linear", Ty::Msg(&VECTOR3)),
+        ("angular", Ty::Msg(&VECTOR3))
+    ]
 );
 ros_type!(
     POSE,
     "geometry_msgs/Pose",
-    [("position", Ty::Msg(&POINT)), ("orientation", Ty::Msg(&QUATERNION))]
+    [
+        ("position", Ty::Msg(&POINT)),
+        ("orientation", Ty::Msg(&QUATERNION))
+    ]
 );
 ros_type!(
     POSE_STAMPED,
@@ -83,12 +110,18 @@ static COV36: Ty = Ty::F64;
 ros_type!(
     POSE_WITH_COVARIANCE,
     "geometry_msgs/PoseWithCovariance",
-    [("pose", Ty::Msg(&POSE)), ("covariance", Ty::Array(&COV36, 36))]
+    [
+        ("pose", Ty::Msg(&POSE)),
+        ("covariance", Ty::Array(&COV36, 36))
+    ]
 );
 ros_type!(
     TWIST_WITH_COVARIANCE,
     "geometry_msgs/TwistWithCovariance",
-    [("twist", Ty::Msg(&TWIST)), ("covariance", Ty::Array(&COV36, 36))]
+    [
+        ("twist", Ty::Msg(&TWIST)),
+        ("covariance", Ty::Array(&COV36, 36))
+    ]
 );
 ros_type!(
     ODOMETRY,
@@ -148,14 +181,13 @@ pub fn known_names() -> String {
 /// encapsulation header). `what` names the hetcomm type in errors.
 pub fn to_cdr(value: &Value, ty: &'static RosType, what: &str) -> Result<Vec<u8>, String> {
     let mut out = Vec::with_capacity(64);
-    write_msg(&mut out, value, ty, "").map_err(|e| {
-        format!("{what} does not convert to {}: {e}", ty.name)
-    })?;
+    write_msg(&mut out, value, ty, "")
+        .map_err(|e| format!("{what} does not convert to {}: {e}", ty.name))?;
     Ok(out)
 }
 
 fn align(out: &mut Vec<u8>, n: usize) {
-    while out.len() % n != 0 {
+    while !out.len().is_multiple_of(n) {
         out.push(0);
     }
 }
@@ -231,7 +263,12 @@ fn write_value(out: &mut Vec<u8>, v: &Value, ty: &Ty, path: &str) -> Result<(), 
     match ty {
         Ty::Bool => match v {
             Value::Boolean(b) => out.push(*b as u8),
-            _ => return Err(format!("field `{path}` is {}, the ROS field is bool", kind_of(v))),
+            _ => {
+                return Err(format!(
+                    "field `{path}` is {}, the ROS field is bool",
+                    kind_of(v)
+                ))
+            }
         },
         Ty::I8 => out.push(int_in(v, path, i8::MIN as i64, i8::MAX as i64, "int8")? as i8 as u8),
         Ty::U8 => out.push(int_in(v, path, 0, u8::MAX as i64, "uint8")? as u8),
@@ -267,7 +304,10 @@ fn write_value(out: &mut Vec<u8>, v: &Value, ty: &Ty, path: &str) -> Result<(), 
         }
         Ty::Str => {
             let Value::String(s) = v else {
-                return Err(format!("field `{path}` is {}, the ROS field is string", kind_of(v)));
+                return Err(format!(
+                    "field `{path}` is {}, the ROS field is string",
+                    kind_of(v)
+                ));
             };
             let bytes = s.as_bytes();
             align(out, 4);
@@ -326,7 +366,7 @@ struct Reader<'a> {
 impl Reader<'_> {
     fn take(&mut self, n: usize, path: &str) -> Result<&[u8], String> {
         let a = n.min(self.max_align);
-        if self.pos % a != 0 {
+        if !self.pos.is_multiple_of(a) {
             self.pos += a - self.pos % a;
         }
         let end = self.pos + n;
@@ -412,7 +452,10 @@ mod tests {
 
     #[test]
     fn a_twist_round_trips_and_its_cdr_is_what_ros_2_writes() {
-        let twist = map(&[("linear", vec3(0.5, 0.0, 0.0)), ("angular", vec3(0.0, 0.0, 0.25))]);
+        let twist = map(&[
+            ("linear", vec3(0.5, 0.0, 0.0)),
+            ("angular", vec3(0.0, 0.0, 0.25)),
+        ]);
         let cdr = to_cdr(&twist, &TWIST, "Command (type 40)").unwrap();
         assert_eq!(cdr.len(), 48);
         assert_eq!(&cdr[..8], &0.5f64.to_le_bytes());
@@ -429,7 +472,12 @@ mod tests {
             ("position", vec3(1.0, 2.0, 0.0)),
             (
                 "orientation",
-                map(&[("x", 0.0.into()), ("y", 0.0.into()), ("z", 0.0.into()), ("w", 1.0.into())]),
+                map(&[
+                    ("x", 0.0.into()),
+                    ("y", 0.0.into()),
+                    ("z", 0.0.into()),
+                    ("w", 1.0.into()),
+                ]),
             ),
         ]);
         let stamped = map(&[("header", header), ("pose", pose)]);
@@ -466,13 +514,19 @@ mod tests {
     fn truncated_or_garbled_cdr_is_an_error_not_a_panic() {
         let cdr = to_cdr(&map(&[("data", "hello".into())]), &STRING, "T").unwrap();
         for cut in 0..cdr.len() - 1 {
-            assert!(from_cdr(&cdr[..cut], true, false, &STRING).is_err(), "cut at {cut}");
+            assert!(
+                from_cdr(&cdr[..cut], true, false, &STRING).is_err(),
+                "cut at {cut}"
+            );
         }
         let mut huge = cdr.clone();
         huge[..4].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(from_cdr(&huge, true, false, &STRING).is_err());
         assert!(from_cdr(&[1, 2, 3], true, false, &ODOMETRY).is_err());
-        assert_eq!(lookup("nav_msgs/msg/Odometry").unwrap().name, "nav_msgs/Odometry");
+        assert_eq!(
+            lookup("nav_msgs/msg/Odometry").unwrap().name,
+            "nav_msgs/Odometry"
+        );
         assert!(lookup("nav_msgs/Path").is_none());
     }
 }

@@ -104,13 +104,21 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
         }
     }
     if s.has("history_depth") {
-        match s.int_in("history_depth", 1, 100_000, "samples kept per topic, e.g. 1000") {
+        match s.int_in(
+            "history_depth",
+            1,
+            100_000,
+            "samples kept per topic, e.g. 1000",
+        ) {
             Some(d) => out.history_depth = d as i32,
             None => ok = false,
         }
     }
     if s.has("interface") {
-        match s.string("interface", "a local IP address in quotes, e.g. \"10.0.0.2\"") {
+        match s.string(
+            "interface",
+            "a local IP address in quotes, e.g. \"10.0.0.2\"",
+        ) {
             Some(text) => match text.parse::<IpAddr>() {
                 Ok(ip) => out.interface = Some(ip),
                 Err(_) => {

@@ -61,8 +61,7 @@ fn the_keys_parse_into_settings_and_their_mistakes_are_located() {
         })
     );
     let defaults = hetcomm::parse_fleet(&fleet_text(""), "r.toml", None).expect("valid");
-    let hetcomm::config::TransportSettings::Registered(s) = &defaults.transports[0].settings
-    else {
+    let hetcomm::config::TransportSettings::Registered(s) = &defaults.transports[0].settings else {
         panic!("registered settings expected");
     };
     assert_eq!(
@@ -86,7 +85,8 @@ fn the_keys_parse_into_settings_and_their_mistakes_are_located() {
     );
     let e = errors("reliability = \"reliabel\"");
     assert!(
-        e.starts_with("r.toml:8:15: unknown reliability `reliabel`") && e.contains("did you mean `reliable`"),
+        e.starts_with("r.toml:8:15: unknown reliability `reliabel`")
+            && e.contains("did you mean `reliable`"),
         "{e}"
     );
     assert_eq!(
@@ -131,7 +131,10 @@ fn acknowledged_delivery_between_systems_opened_one_by_one() {
     let stats = a.stats();
     let (name, link) = &stats.links[0];
     assert_eq!(name, "r");
-    assert!(link.frames_sent >= 20 && link.frames_received >= 20, "{link:?}");
+    assert!(
+        link.frames_sent >= 20 && link.frames_received >= 20,
+        "{link:?}"
+    );
     assert_eq!(link.frames_dropped, 0, "{link:?}");
 }
 
@@ -153,7 +156,9 @@ fn a_secured_ros2_fleet_delivers() {
     let outcome = ma.send("B", "M", &ping).expect("send").wait();
     assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome:?}");
     assert_eq!(
-        mb.recv_timeout::<Ping>(Duration::from_secs(5)).unwrap().message,
+        mb.recv_timeout::<Ping>(Duration::from_secs(5))
+            .unwrap()
+            .message,
         ping
     );
 }
@@ -170,11 +175,21 @@ fn a_send_to_a_system_not_running_fails() {
     let a = Comm::open_fleet(&fleet, "A").expect("open A");
     let ma = a.module("M").unwrap();
     let outcome = ma
-        .send("B", "M", &Ping { n: 0, text: String::new() })
+        .send(
+            "B",
+            "M",
+            &Ping {
+                n: 0,
+                text: String::new(),
+            },
+        )
         .expect("send")
         .wait();
     assert!(
-        matches!(outcome, Outcome::Failed { .. } | Outcome::Unconfirmed { .. }),
+        matches!(
+            outcome,
+            Outcome::Failed { .. } | Outcome::Unconfirmed { .. }
+        ),
         "{outcome:?}"
     );
 }

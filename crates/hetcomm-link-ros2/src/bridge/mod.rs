@@ -142,9 +142,11 @@ impl Ros2Bridge {
         }
         let dp = participant(&settings.dds)?;
         let qos = qos(&settings.dds);
-        let dds_err = |what: String| move |e: rustdds::dds::CreateError| OpenError::Dds {
-            what,
-            reason: e.to_string(),
+        let dds_err = |what: String| {
+            move |e: rustdds::dds::CreateError| OpenError::Dds {
+                what,
+                reason: e.to_string(),
+            }
         };
         let topic = |m: &Mapping| {
             dp.create_topic(
@@ -288,7 +290,12 @@ impl Receiver {
                 }
             };
             let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema());
-            let value = match crate::rostypes::from_cdr(&sample.body, sample.little, sample.xcdr2, schema) {
+            let value = match crate::rostypes::from_cdr(
+                &sample.body,
+                sample.little,
+                sample.xcdr2,
+                schema,
+            ) {
                 Ok(v) => v,
                 Err(e) => {
                     self.drop_with(format!(
@@ -324,7 +331,10 @@ impl Receiver {
                 )
             };
             let frame = wire::encode(&header, &payload);
-            self.shared.counters.received.fetch_add(1, Ordering::Relaxed);
+            self.shared
+                .counters
+                .received
+                .fetch_add(1, Ordering::Relaxed);
             self.sink.on_frame(&frame, Peer::System(self.robot));
         }
     }
@@ -387,14 +397,20 @@ impl Link for Ros2Bridge {
         };
         let value = rmpv::decode::read_value(&mut &f.payload[..])
             .map_err(|e| unreachable(format!("payload is not MessagePack: {e}")))?;
-        let what = format!("message type {} for {}", out.mapping.message, out.mapping.module);
-        let body = crate::rostypes::to_cdr(&value, out.mapping.schema(), &what)
-            .map_err(unreachable)?;
-        match out.writer.write(RawCdr {
-            body,
-            little: true,
-            xcdr2: false,
-        }, None) {
+        let what = format!(
+            "message type {} for {}",
+            out.mapping.message, out.mapping.module
+        );
+        let body =
+            crate::rostypes::to_cdr(&value, out.mapping.schema(), &what).map_err(unreachable)?;
+        match out.writer.write(
+            RawCdr {
+                body,
+                little: true,
+                xcdr2: false,
+            },
+            None,
+        ) {
             Ok(()) => {
                 self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
                 Ok(())

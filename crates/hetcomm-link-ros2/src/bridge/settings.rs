@@ -54,7 +54,8 @@ pub const KEYS: [&str; 8] = [
     "subscribe",
 ];
 
-const MAPPING_HELP: &str = "write \"MODULE TYPE_ID ROS_TYPE\", e.g. \"Drive 40 geometry_msgs/Twist\"";
+const MAPPING_HELP: &str =
+    "write \"MODULE TYPE_ID ROS_TYPE\", e.g. \"Drive 40 geometry_msgs/Twist\"";
 
 fn mappings(s: &mut SettingsReader<'_, '_>, key: &str, ok: &mut bool) -> Vec<Mapping> {
     let Some(entries) = s.string_table(key, MAPPING_HELP) else {
@@ -78,7 +79,10 @@ fn mappings(s: &mut SettingsReader<'_, '_>, key: &str, ok: &mut bool) -> Vec<Map
             s.error_entry(
                 key,
                 &topic,
-                format!("mapping of `{topic}` must have three parts, found {:?}", text),
+                format!(
+                    "mapping of `{topic}` must have three parts, found {:?}",
+                    text
+                ),
                 MAPPING_HELP,
             );
             *ok = false;
@@ -118,9 +122,15 @@ fn mappings(s: &mut SettingsReader<'_, '_>, key: &str, ok: &mut bool) -> Vec<Map
 pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
     let mut ok = true;
     let robot = match s.has("robot") {
-        true => s.string("robot", "the name of the ROS robot's system in quotes, e.g. \"Tango\""),
+        true => s.string(
+            "robot",
+            "the name of the ROS robot's system in quotes, e.g. \"Tango\"",
+        ),
         false => {
-            s.missing("robot", "add `robot = \"NAME\"`: the system that runs ROS 2");
+            s.missing(
+                "robot",
+                "add `robot = \"NAME\"`: the system that runs ROS 2",
+            );
             None
         }
     };
