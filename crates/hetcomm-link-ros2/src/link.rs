@@ -258,20 +258,22 @@ fn receive(mut reader: DataReaderCdr<FrameMessage>, sink: Arc<dyn FrameSink>, sh
         {
             continue;
         }
-        // Edge-triggered: take everything there is.
+        // Edge-triggered: take everything there is, in batches.
         loop {
-            match reader.take_next_sample() {
-                Ok(Some(sample)) => {
-                    let msg = sample.into_value();
-                    if msg.data.is_empty() {
-                        shared.counters.malformed.fetch_add(1, Ordering::Relaxed);
-                        shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
-                        continue;
+            match reader.take(256, rustdds::ReadCondition::any()) {
+                Ok(batch) if batch.is_empty() => break,
+                Ok(batch) => {
+                    for sample in batch {
+                        let msg = sample.into_value();
+                        if msg.data.is_empty() {
+                            shared.counters.malformed.fetch_add(1, Ordering::Relaxed);
+                            shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
+                            continue;
+                        }
+                        shared.counters.received.fetch_add(1, Ordering::Relaxed);
+                        sink.on_frame(&msg.data, Peer::Unknown);
                     }
-                    shared.counters.received.fetch_add(1, Ordering::Relaxed);
-                    sink.on_frame(&msg.data, Peer::Unknown);
                 }
-                Ok(None) => break,
                 Err(_) => {
                     // A sample that is not a UInt8MultiArray: counted, never delivered.
                     shared.counters.malformed.fetch_add(1, Ordering::Relaxed);
