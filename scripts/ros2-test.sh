@@ -13,7 +13,9 @@
 # 3. the crate's tests: the link conformance suite (bare and wrapped in emulation), fleet keys
 #    and their errors, delivery through the facade (secured and `security = "none"`), and the
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
-#    Odometry and String back, mismatches, garbage and wrong-type publishers.
+#    Odometry and String back, mismatches, garbage and wrong-type publishers;
+# 4. the demo: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
+#    printing a table; it fails if Tango ends more than 1 m from its target.
 #
 # rustdds is compiled once (debug) and shared by both workspaces' builds in the same target
 # directory: the crate's Cargo.lock pins the versions the main Cargo.lock has.
@@ -42,3 +44,14 @@ export HETCOMM_ROS2_PYTHON=$VENV/bin/python
 
 step "ros2: crate tests (conformance, keys, delivery, bridge against a Cyclone DDS rover)"
 cargo test --manifest-path "$CRATE"
+
+step "ros2: demo: Tango (Cyclone DDS rover) follows hetcomm's leader through typed topics"
+cargo build -q --manifest-path "$CRATE" --example tango_follows
+PREFIX=/hc_demo_$$
+"$HETCOMM_ROS2_PYTHON" examples/ros2/tango_rover.py --prefix "$PREFIX" --domain 5 --seconds 40 >/dev/null &
+ROVER=$!
+trap 'kill $ROVER 2>/dev/null || true' EXIT
+"$CARGO_TARGET_DIR/debug/examples/tango_follows" --prefix "$PREFIX" --domain 5 --seconds 15
+kill $ROVER 2>/dev/null || true
+wait $ROVER 2>/dev/null || true
+trap - EXIT
