@@ -58,7 +58,8 @@ impl TransportFactory for Ros2Factory {
             .iter()
             .map(|s| (s.id, s.name.clone()))
             .collect();
-        let link = Ros2Link::open(request.local, &names, ros, request.sink)?;
+        // Read by the runtime's reactor or a waiting module thread (`Link::readable`).
+        let link = Ros2Link::open_driven(request.local, &names, ros, request.sink)?;
         let local_address = Some(format!("ros2://{}{}", ros.domain_id, link.topic()));
         Ok(Opened {
             link: Arc::new(link),

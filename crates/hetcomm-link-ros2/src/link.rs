@@ -8,7 +8,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReaderCdr, DataWriterCdr};
 use rustdds::policy::{Durability, History, Reliability as DdsReliability};
@@ -115,18 +115,41 @@ pub struct Ros2Link {
     connect_timeout: Duration,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
+    driven: Option<Driven>,
     // Dropped last: the writers and the reader belong to it.
     _participant: DomainParticipant,
 }
 
 impl Ros2Link {
-    /// Opens system `local`'s link: its participant, its reader (delivering to `sink`) and one
-    /// writer per other system in `names`.
+    /// Opens system `local`'s link: its participant, its reader (delivering to `sink`, read
+    /// by a thread of the link's own) and one writer per other system in `names`.
     pub fn open(
         local: SystemId,
         names: &[(SystemId, String)],
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
+    ) -> Result<Ros2Link, OpenError> {
+        Self::open_with(local, names, settings, sink, false)
+    }
+
+    /// Like [`open`](Self::open), but the reader is read through [`Link::readable`] by
+    /// whoever drives it (the runtime's reactor, a module thread waiting for a message): no
+    /// thread hand-off between the DDS reader and the router.
+    pub fn open_driven(
+        local: SystemId,
+        names: &[(SystemId, String)],
+        settings: &Ros2Settings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<Ros2Link, OpenError> {
+        Self::open_with(local, names, settings, sink, true)
+    }
+
+    fn open_with(
+        local: SystemId,
+        names: &[(SystemId, String)],
+        settings: &Ros2Settings,
+        sink: Arc<dyn FrameSink>,
+        driven: bool,
     ) -> Result<Ros2Link, OpenError> {
         let own = names
             .iter()
@@ -182,20 +205,40 @@ impl Ros2Link {
             counters: Counters::default(),
             closed: AtomicBool::new(false),
         });
-        let rx_shared = shared.clone();
-        let receiver = std::thread::Builder::new()
-            .name(format!("hetcomm-ros2-rx-{}", own.1))
-            .spawn(move || receive(reader, sink, rx_shared))
-            .map_err(|e| OpenError::Dds {
-                what: "the receive thread".into(),
-                reason: e.to_string(),
-            })?;
+        let io_err = |e: std::io::Error| OpenError::Dds {
+            what: "the receive side".into(),
+            reason: e.to_string(),
+        };
+        let rx = Rx::new(reader, sink).map_err(io_err)?;
+        let (receiver, driven) = if driven {
+            use std::os::fd::AsRawFd;
+            let fd = rx.poll.as_raw_fd();
+            let driven = Driven {
+                fd,
+                rx: Mutex::new(rx),
+                shared: shared.clone(),
+            };
+            (None, Some(driven))
+        } else {
+            let rx_shared = shared.clone();
+            let mut rx = rx;
+            let thread = std::thread::Builder::new()
+                .name(format!("hetcomm-ros2-rx-{}", own.1))
+                .spawn(move || {
+                    while !rx_shared.closed.load(Ordering::Relaxed) {
+                        rx.read(Duration::from_millis(50), &rx_shared);
+                    }
+                })
+                .map_err(io_err)?;
+            (Some(thread), None)
+        };
         Ok(Ros2Link {
             topic: own_topic,
             dests,
             connect_timeout: Duration::from_millis(settings.connect_timeout_ms),
             shared,
-            receiver: Some(receiver),
+            receiver,
+            driven,
             _participant: dp,
         })
     }
@@ -238,30 +281,38 @@ impl Ros2Link {
     }
 }
 
-/// The receive thread: polls the reader, hands every frame to the sink.
-fn receive(mut reader: DataReaderCdr<FrameMessage>, sink: Arc<dyn FrameSink>, shared: Arc<Shared>) {
-    let Ok(mut poll) = Poll::new() else {
-        return;
-    };
-    if poll
-        .registry()
-        .register(&mut reader, Token(0), Interest::READABLE)
-        .is_err()
-    {
-        return;
+/// The receive side: the reader, registered with its own `mio` poll.
+struct Rx {
+    poll: Poll,
+    events: Events,
+    reader: DataReaderCdr<FrameMessage>,
+    sink: Arc<dyn FrameSink>,
+}
+
+impl Rx {
+    fn new(
+        mut reader: DataReaderCdr<FrameMessage>,
+        sink: Arc<dyn FrameSink>,
+    ) -> std::io::Result<Rx> {
+        let poll = Poll::new()?;
+        poll.registry()
+            .register(&mut reader, Token(0), Interest::READABLE)?;
+        Ok(Rx {
+            poll,
+            events: Events::with_capacity(8),
+            reader,
+            sink,
+        })
     }
-    let mut events = Events::with_capacity(8);
-    while !shared.closed.load(Ordering::Relaxed) {
-        if poll
-            .poll(&mut events, Some(Duration::from_millis(50)))
-            .is_err()
-        {
-            continue;
-        }
-        // Edge-triggered: take everything there is, in batches.
+
+    /// Waits at most `timeout` for a notification, then takes everything there is (the
+    /// registration is edge-triggered), in batches; returns the frames handed on.
+    fn read(&mut self, timeout: Duration, shared: &Shared) -> usize {
+        let _ = self.poll.poll(&mut self.events, Some(timeout));
+        let mut frames = 0;
         loop {
-            match reader.take(256, rustdds::ReadCondition::any()) {
-                Ok(batch) if batch.is_empty() => break,
+            match self.reader.take(256, rustdds::ReadCondition::any()) {
+                Ok(batch) if batch.is_empty() => return frames,
                 Ok(batch) => {
                     for sample in batch {
                         let msg = sample.into_value();
@@ -271,16 +322,44 @@ fn receive(mut reader: DataReaderCdr<FrameMessage>, sink: Arc<dyn FrameSink>, sh
                             continue;
                         }
                         shared.counters.received.fetch_add(1, Ordering::Relaxed);
-                        sink.on_frame(&msg.data, Peer::Unknown);
+                        self.sink.on_frame(&msg.data, Peer::Unknown);
+                        frames += 1;
                     }
                 }
                 Err(_) => {
-                    // A sample that is not a UInt8MultiArray: counted, never delivered.
+                    // A sample that is not a UInt8MultiArray (rustdds consumed it): counted,
+                    // never delivered; the samples after it stay for the next batch.
                     shared.counters.malformed.fetch_add(1, Ordering::Relaxed);
                     shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }
+    }
+}
+
+/// The receive side read by the runtime's reactor or a waiting module thread
+/// ([`Ros2Link::open_driven`]): the poll's epoll descriptor turns readable when a sample
+/// notification arrives.
+struct Driven {
+    fd: std::os::fd::RawFd,
+    rx: Mutex<Rx>,
+    shared: Arc<Shared>,
+}
+
+impl Readable for Driven {
+    fn fd(&self) -> std::os::fd::RawFd {
+        self.fd
+    }
+
+    fn read_ready(&self, _budget: usize) -> std::io::Result<usize> {
+        // Everything is taken at once: the registration is edge-triggered, so samples left
+        // behind would wait for the next notification.
+        let mut rx = match self.rx.try_lock() {
+            Ok(rx) => rx,
+            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return Ok(0),
+        };
+        Ok(rx.read(Duration::ZERO, &self.shared))
     }
 }
 
@@ -334,6 +413,10 @@ impl Link for Ros2Link {
                 })
             }
         }
+    }
+
+    fn readable(&self) -> Option<&dyn Readable> {
+        self.driven.as_ref().map(|d| d as &dyn Readable)
     }
 
     fn stats(&self) -> LinkStats {
