@@ -45,6 +45,10 @@ export HETCOMM_ROS2_PYTHON=$VENV/bin/python
 step "ros2: crate tests (conformance, keys, delivery, bridge against a Cyclone DDS rover)"
 cargo test --manifest-path "$CRATE"
 
+step "ros2: hetcomm validate on the bridge example (CLI with --features ros2)"
+cargo build -q -p hetcomm-cli --features ros2
+"$CARGO_TARGET_DIR/debug/hetcomm" validate examples/ros2/tango-ros2.toml
+
 step "ros2: demo: Tango (Cyclone DDS rover) follows hetcomm's leader through typed topics"
 cargo build -q --manifest-path "$CRATE" --example tango_follows
 PREFIX=/hc_demo_$$
