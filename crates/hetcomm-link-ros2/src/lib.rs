@@ -37,6 +37,7 @@ pub mod bridge;
 pub mod factory;
 pub mod link;
 pub mod msg;
+pub mod msgs;
 pub mod names;
 pub mod raw;
 pub mod rostypes;
