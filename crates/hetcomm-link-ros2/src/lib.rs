@@ -26,6 +26,12 @@
 //! fails with `Unreachable` if none comes; once matched, sends do not wait. The router's
 //! acknowledgements make delivery reliable end to end on top.
 //!
+//! ## Bridges
+//!
+//! The crate also has the `ros2_bridge` kind ([`bridge`]): an external ROS 2 robot in the
+//! fleet through typed topics (docs/ros-bridges.md), with the standard types' schemas and
+//! CDR conversion in [`rostypes`] and Rust types for them in [`msgs`].
+//!
 //! ## Discovery
 //!
 //! DDS discovery (SPDP/SEDP): multicast on the LAN, plus, with `same_host = true` (the
