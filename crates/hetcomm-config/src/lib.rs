@@ -99,14 +99,7 @@ pub fn load_with(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErrors> {
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(
-        &text,
-        &origin,
-        Some(base),
-        Some(path.to_path_buf()),
-        kinds,
-        true,
-    )
+    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, true)
 }
 
 /// [`load_with`] without reading any key file: `[security] keys` may name a directory that
@@ -120,14 +113,7 @@ pub fn load_skipping_keys(path: &Path, kinds: &Kinds) -> Result<Fleet, ConfigErr
         Err(e) => return Err(unreadable(&origin, &e)),
     };
     let base = path.parent().unwrap_or(Path::new(""));
-    fleet_toml::parse(
-        &text,
-        &origin,
-        Some(base),
-        Some(path.to_path_buf()),
-        kinds,
-        false,
-    )
+    fleet_toml::parse(&text, &origin, Some(base), Some(path.to_path_buf()), kinds, false)
 }
 
 /// Validates fleet-file text. `origin` is the file name used in error locations; relative

@@ -67,10 +67,7 @@ fn a_keys_directory_gives_public_keys_and_private_key_files() {
     assert_eq!(f.keys_dir, Some(PathBuf::from("tests/keys/good")));
     let alpha = f.system_by_name("Alpha").unwrap();
     assert_eq!(alpha.public_key, Some(ALPHA));
-    assert_eq!(
-        alpha.private_key_file, None,
-        "no Alpha.key in the directory"
-    );
+    assert_eq!(alpha.private_key_file, None, "no Alpha.key in the directory");
     let bravo = f.system_by_name("Bravo").unwrap();
     assert_eq!(bravo.public_key, Some(BRAVO));
     assert_eq!(
@@ -78,10 +75,7 @@ fn a_keys_directory_gives_public_keys_and_private_key_files() {
         Some(PathBuf::from("tests/keys/good/Bravo.key"))
     );
     let charlie = f.system_by_name("Charlie").unwrap();
-    assert_eq!(
-        (charlie.public_key, &charlie.private_key_file),
-        (None, &None)
-    );
+    assert_eq!((charlie.public_key, &charlie.private_key_file), (None, &None));
     assert_eq!(f.transport("lan").unwrap().security, SecurityMode::Keys);
 }
 
@@ -116,19 +110,14 @@ fn keys_without_a_directory_and_relative_private_key_files() {
     assert_eq!(f.keys_dir, None);
     let alpha = f.system_by_name("Alpha").unwrap();
     assert_eq!(alpha.public_key, Some(ALPHA));
-    assert_eq!(
-        alpha.private_key_file,
-        Some(PathBuf::from("tests/alpha.key"))
-    );
+    assert_eq!(alpha.private_key_file, Some(PathBuf::from("tests/alpha.key")));
     assert_eq!(f.system_by_name("Bravo").unwrap().public_key, None);
 }
 
 #[test]
 fn a_missing_keys_directory_says_to_run_keygen() {
     assert_eq!(
-        error(&fleet_with(
-            "[security]\nkeys = \"no-keys\"\n\n[systems]\nAlpha = 0\nBravo = 1\n"
-        )),
+        error(&fleet_with("[security]\nkeys = \"no-keys\"\n\n[systems]\nAlpha = 0\nBravo = 1\n")),
         "fleet.toml:2:8: the keys directory `tests/no-keys` does not exist\n  \
          help: run `hetcomm keygen --fleet fleet.toml --out tests/no-keys` to write every \
          system's keys there, or correct the path"
@@ -219,9 +208,7 @@ fn a_missing_public_key_file_is_named() {
 fn bad_key_files_are_reported_at_their_line() {
     let shape = "\n  help: a key file holds one line of base64 (44 characters), after optional \
                  `#` comment lines, as `hetcomm keygen` writes it";
-    let text = fleet_with(
-        "[security]\nkeys = \"keys/bad\"\n\n[systems]\nAlpha = 0\nBravo = 1\nEmpty = 2\nLong = 3\n",
-    );
+    let text = fleet_with("[security]\nkeys = \"keys/bad\"\n\n[systems]\nAlpha = 0\nBravo = 1\nEmpty = 2\nLong = 3\n");
     assert_eq!(
         error(&text),
         [
@@ -279,16 +266,12 @@ fn security_modes_and_a_misspelt_one() {
 #[test]
 fn unknown_keys_in_security_are_suggested() {
     assert_eq!(
-        error(&fleet_with(
-            "[security]\nkey = \"keys/good\"\n\n[systems]\nAlpha = 0\nBravo = 1\n"
-        )),
+        error(&fleet_with("[security]\nkey = \"keys/good\"\n\n[systems]\nAlpha = 0\nBravo = 1\n")),
         "fleet.toml:2:1: unknown key `key` in `security`\n  \
          help: did you mean `keys`?"
     );
     assert_eq!(
-        error(&fleet_with(
-            "[security]\nkeys = 1\n\n[systems]\nAlpha = 0\nBravo = 1\n"
-        )),
+        error(&fleet_with("[security]\nkeys = 1\n\n[systems]\nAlpha = 0\nBravo = 1\n")),
         "fleet.toml:2:8: `security.keys` must be a string, found integer `1`\n  \
          help: write the directory `hetcomm keygen` wrote, in quotes, relative to the fleet \
          file, e.g. `keys = \"keys\"`"
@@ -368,33 +351,17 @@ fn apply_keys_dir_errors_change_nothing() {
     );
     let e = apply_keys_dir(&mut f, Path::new("tests/keys/bad")).unwrap_err();
     assert_eq!(e.0.len(), 2, "{e}");
-    assert!(
-        e.0[0]
-            .to_string()
-            .starts_with("tests/keys/bad/Alpha.pub:2:1: "),
-        "{e}"
-    );
-    assert!(
-        e.0[1]
-            .to_string()
-            .starts_with("tests/keys/bad/Bravo.pub:2:1: "),
-        "{e}"
-    );
+    assert!(e.0[0].to_string().starts_with("tests/keys/bad/Alpha.pub:2:1: "), "{e}");
+    assert!(e.0[1].to_string().starts_with("tests/keys/bad/Bravo.pub:2:1: "), "{e}");
     assert_eq!(f, before);
 }
 
 #[test]
 fn insecure_turns_every_transport_off() {
     let mut f = legacy_fleet();
-    assert!(f
-        .transports
-        .iter()
-        .all(|t| t.security == SecurityMode::Keys));
+    assert!(f.transports.iter().all(|t| t.security == SecurityMode::Keys));
     insecure(&mut f);
-    assert!(f
-        .transports
-        .iter()
-        .all(|t| t.security == SecurityMode::None));
+    assert!(f.transports.iter().all(|t| t.security == SecurityMode::None));
 }
 
 #[test]

@@ -344,15 +344,7 @@ mod tests {
     fn same(table: &str, tail: &str, fast_expected: bool) {
         let text = format!("{HEAD}{table}{tail}");
         let (fast, used) = parse_with(&text, "s.toml", None, None, &Default::default(), true, true);
-        let (slow, _) = parse_with(
-            &text,
-            "s.toml",
-            None,
-            None,
-            &Default::default(),
-            true,
-            false,
-        );
+        let (slow, _) = parse_with(&text, "s.toml", None, None, &Default::default(), true, false);
         assert_eq!(fast, slow, "{text}");
         assert_eq!(used, fast_expected, "fast path taken?\n{text}");
     }
