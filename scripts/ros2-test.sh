@@ -28,7 +28,9 @@ CRATE=crates/hetcomm-link-ros2/Cargo.toml
 step() { printf '\n== %s\n' "$*"; }
 
 step "ros2: format and lint"
-cargo fmt --manifest-path "$CRATE" --all -- --check
+# Not `--all`: that would also check the path dependencies (main workspace crates), with
+# settings that differ from the workspace's own `cargo fmt` run.
+cargo fmt --manifest-path "$CRATE" -- --check
 cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
 cargo clippy -p hetcomm-cli --features ros2 --all-targets -- -D warnings
 
