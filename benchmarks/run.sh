@@ -25,7 +25,7 @@ if ! command -v ddsperf >/dev/null 2>&1; then
     fi
 fi
 
-BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh"
+BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2"
 ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.toml"
 log "$BUILD_CMD"
 $BUILD_CMD || { log "build failed"; exit 1; }

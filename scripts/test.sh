@@ -42,6 +42,9 @@ cargo test --workspace
 step "ROS 1 against a real master (installs ros-core when missing)"
 bash scripts/ros1-test.sh
 
+step "ROS 2: conformance, a Cyclone DDS (Python) rover through typed topics"
+bash scripts/ros2-test.sh
+
 step "python bindings"
 bash scripts/test-python.sh
 

@@ -156,7 +156,13 @@ fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
 /// Round trips that may go unanswered before a measurement is abandoned.
 pub const MAX_LOST: u64 = 10;
 
-fn round_trips(m: &Module, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+/// Round trips from `m` to B's `M` and back (B echoes), after a probe that waits for the echo.
+pub(crate) fn round_trips(
+    m: &Module,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+) -> Result<Latency, String> {
     let msg = vec![7u8; size];
     let mut rec = Recorder::new();
     // Probe until the echo comes back (links may still be connecting).

@@ -33,6 +33,8 @@ mod hc;
 mod raw;
 mod record_bench;
 mod report;
+#[cfg(feature = "ros2")]
+mod ros2;
 mod scale;
 mod secured;
 mod stats;
@@ -346,6 +348,16 @@ fn run(o: &Options) -> Vec<Row> {
                     ext::zenoh_rtt(bin, size, warmup, iters),
                 ));
             }
+            #[cfg(feature = "ros2")]
+            if o.path_wanted(ros2::PATH) {
+                log(o.quick, &format!("rtt {} {size} B", ros2::PATH));
+                rows.push(lat_row(
+                    "rtt",
+                    ros2::PATH,
+                    size,
+                    ros2::rtt(size, warmup, iters),
+                ));
+            }
             if dds && o.path_wanted("cyclone-ddsperf") {
                 log(o.quick, &format!("rtt cyclone-ddsperf {size} B"));
                 rows.push(lat_row(
@@ -383,6 +395,11 @@ fn run(o: &Options) -> Vec<Row> {
                     size,
                     ext::zenoh_oneway(bin, size, p.oneway),
                 ));
+            }
+            #[cfg(feature = "ros2")]
+            if o.path_wanted(ros2::PATH) {
+                log(o.quick, &format!("oneway {} {size} B", ros2::PATH));
+                rows.push(tp_row(ros2::PATH, size, ros2::oneway(size, p.oneway)));
             }
             if dds && o.path_wanted("cyclone-ddsperf") {
                 log(o.quick, &format!("oneway cyclone-ddsperf {size} B"));

@@ -86,6 +86,41 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
         self.p.choice(v, &path, &vl, what, options)
     }
 
+    /// `key = { "name" = "text", … }` (or a `[transports.x.key]` section): each entry's name
+    /// and string value, in file order. Entries that are not strings are reported (and left
+    /// out); a `key` that is not a table is reported and gives None.
+    pub fn string_table(&mut self, key: &str, help: &str) -> Option<Vec<(String, String)>> {
+        let (v, vl, path) = self.item(key)?;
+        let t = self.p.table(v, &path, &vl)?;
+        let mut out = Vec::new();
+        for (name, item) in t.iter() {
+            let il = self.p.vloc(item, &vl);
+            if let Some(text) = self.p.string(item, &format!("{path}.{name}"), &il, help) {
+                out.push((name.to_string(), text.to_string()));
+            }
+        }
+        Some(out)
+    }
+
+    /// Reports a problem of entry `entry` of the table `key` (see
+    /// [`string_table`](Self::string_table)) at that entry's value.
+    pub fn error_entry(
+        &mut self,
+        key: &str,
+        entry: &str,
+        message: impl Into<String>,
+        help: impl Into<String>,
+    ) {
+        let loc = match self.item(key) {
+            Some((v, vl, _)) => match v.as_table_like().and_then(|t| t.get(entry)) {
+                Some(item) => self.p.vloc(item, &vl),
+                None => vl,
+            },
+            None => self.tloc.clone(),
+        };
+        self.p.diag.err_help(&loc, message, help);
+    }
+
     /// `key = { System = "host:port", … }`, checked as `udp` and `tcp` endpoints are: known
     /// systems, well-formed `host:port`, and no two systems of this kind on one address and
     /// port (port 0 excepted).

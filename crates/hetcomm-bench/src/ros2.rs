@@ -1,0 +1,92 @@
+//! The `ros2` transport (feature `ros2`): the same two-process round trip and one-way runs as
+//! [`crate::hc`], over DDS with ROS 2 names (docs/ros2.md), unsecured (`security = "none"`)
+//! so that the row stands beside Cyclone DDS's own `ddsperf` measured in the same run.
+
+use std::time::{Duration, Instant};
+
+use hetcomm::Comm;
+
+use crate::child::{Peer, DATA, STOP};
+use crate::raw::TempDir;
+use crate::stats::{parse_sink_line, Latency, Throughput};
+
+/// The row name.
+pub const PATH: &str = "hetcomm-ros2-unack";
+
+/// Systems A and B on one unacknowledged `ros2` transport, on a domain and namespace of
+/// their own (so concurrent runs do not meet).
+fn fleet_text() -> String {
+    let domain = 100 + std::process::id() % 100;
+    format!(
+        r#"[systems]
+A = 0
+B = 1
+[modules]
+M = 0
+[inbox]
+capacity = 65536
+overflow = "block"
+block_timeout_ms = 1000
+[transports.t]
+kind = "ros2"
+delivery = "unacknowledged"
+security = "none"
+domain_id = {domain}
+namespace = "/bench_{}"
+[table]
+columns = ["A", "B"]
+A = ["X", "t"]
+B = ["t", "X"]
+"#,
+        std::process::id()
+    )
+}
+
+fn open(role: &str) -> Result<(TempDir, Peer, Comm), String> {
+    let dir = TempDir::new()?;
+    let path = dir.0.join("fleet.toml");
+    std::fs::write(&path, fleet_text()).map_err(|e| format!("{}: {e}", path.display()))?;
+    let peer = Peer::spawn(None, &[format!("hc-{role}"), path.display().to_string()])?;
+    peer.expect("ready", Duration::from_secs(20))?;
+    let comm = Comm::open(&path, "A").map_err(|e| e.to_string())?;
+    Ok((dir, peer, comm))
+}
+
+/// Ping-pong round trips through a peer process that echoes.
+pub fn rtt(size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let (_dir, peer, comm) = open("echo")?;
+    let m = comm.module("M").map_err(|e| e.to_string())?;
+    let result = crate::hc::round_trips(&m, size, warmup, iters);
+    drop(m);
+    drop(comm);
+    peer.finish(Duration::from_secs(3));
+    result
+}
+
+/// One-way: A sends as fast as `send_raw` returns for `duration`; the peer counts.
+pub fn oneway(size: usize, duration: Duration) -> Result<Throughput, String> {
+    let (_dir, mut peer, comm) = open("sink")?;
+    let m = comm.module("M").map_err(|e| e.to_string())?;
+    let msg = vec![7u8; size];
+    // The first send waits for B's reader to be matched.
+    let mut sent = u64::from(m.send_raw("B", "M", DATA, &msg, Default::default()).is_ok());
+    std::thread::sleep(Duration::from_millis(50));
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        for _ in 0..16 {
+            if m.send_raw("B", "M", DATA, &msg, Default::default()).is_ok() {
+                sent += 1;
+            }
+        }
+    }
+    for _ in 0..3 {
+        let _ = m.send_raw("B", "M", STOP, &[0], Default::default());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    peer.close_input();
+    let line = peer.expect("result", Duration::from_secs(40))?;
+    drop(m);
+    drop(comm);
+    peer.finish(Duration::from_secs(3));
+    parse_sink_line(&line, sent).ok_or(format!("bad sink line {line:?}"))
+}

@@ -1,0 +1,149 @@
+//! The `ros2` transport's fleet-file settings ([`Ros2Settings`]) and how they are read
+//! ([`parse`], called by the factory's `KindSpec`).
+
+use std::net::IpAddr;
+
+use hetcomm_config::{RegisteredSettings, SettingsReader};
+
+use crate::names;
+
+/// DDS reliability of the transport's topics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reliability {
+    /// RTPS reliable: the writer keeps each sample (up to the history depth) and resends it
+    /// until every matched reliable reader has acknowledged it.
+    Reliable,
+    /// RTPS best effort: each sample is sent once.
+    BestEffort,
+}
+
+/// Settings of a `ros2` transport (fleet keys in parentheses).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Ros2Settings {
+    /// The ROS 2 domain id (`domain_id`, 0–232, default 0): `ROS_DOMAIN_ID`.
+    pub domain_id: u16,
+    /// The ROS namespace of the systems' topics (`namespace`, default `/hetcomm`): system
+    /// `Bravo` listens on `/hetcomm/Bravo`, DDS topic `rt/hetcomm/Bravo`.
+    pub namespace: String,
+    /// Reliability (`reliability = "reliable" | "best_effort"`, default reliable).
+    pub reliability: Reliability,
+    /// KeepLast history depth of the writers and readers (`history_depth`, 1–100000, default
+    /// 1000).
+    pub history_depth: i32,
+    /// Only this local address is used and announced for discovery and data (`interface`,
+    /// an IP address; default: every interface).
+    pub interface: Option<IpAddr>,
+    /// Whether participants of this host discover each other over loopback without multicast
+    /// (`same_host`, default true).
+    pub same_host: bool,
+    /// How long a send to a system waits for its subscriber to be matched (`connect_timeout_ms`,
+    /// 0–60000, default 2000).
+    pub connect_timeout_ms: u64,
+}
+
+impl Default for Ros2Settings {
+    fn default() -> Self {
+        Ros2Settings {
+            domain_id: 0,
+            namespace: "/hetcomm".to_string(),
+            reliability: Reliability::Reliable,
+            history_depth: 1000,
+            interface: None,
+            same_host: true,
+            connect_timeout_ms: 2000,
+        }
+    }
+}
+
+/// The keys of a `ros2` transport table, besides the ones every transport shares.
+pub const KEYS: [&str; 7] = [
+    "domain_id",
+    "namespace",
+    "reliability",
+    "history_depth",
+    "interface",
+    "same_host",
+    "connect_timeout_ms",
+];
+
+/// Reads a `ros2` transport's table; every problem is reported through `s` (located).
+pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+    let mut ok = true;
+    let mut out = Ros2Settings::default();
+    if s.has("domain_id") {
+        match s.int_in("domain_id", 0, 232, "a ROS_DOMAIN_ID, e.g. 0") {
+            Some(d) => out.domain_id = d as u16,
+            None => ok = false,
+        }
+    }
+    if s.has("namespace") {
+        match s.string("namespace", "a ROS namespace in quotes, e.g. \"/hetcomm\"") {
+            Some(ns) => match names::check_namespace(&ns) {
+                Ok(ns) => out.namespace = ns,
+                Err(why) => {
+                    s.error(
+                        "namespace",
+                        format!("`namespace` {ns:?} is not a ROS 2 namespace: {why}"),
+                        "use letters, digits and underscores between slashes, e.g. \"/fleet_a\"",
+                    );
+                    ok = false;
+                }
+            },
+            None => ok = false,
+        }
+    }
+    if s.has("reliability") {
+        match s.choice(
+            "reliability",
+            ("reliability", "reliabilities"),
+            &["reliable", "best_effort"],
+        ) {
+            Some(0) => out.reliability = Reliability::Reliable,
+            Some(_) => out.reliability = Reliability::BestEffort,
+            None => ok = false,
+        }
+    }
+    if s.has("history_depth") {
+        match s.int_in(
+            "history_depth",
+            1,
+            100_000,
+            "samples kept per topic, e.g. 1000",
+        ) {
+            Some(d) => out.history_depth = d as i32,
+            None => ok = false,
+        }
+    }
+    if s.has("interface") {
+        match s.string(
+            "interface",
+            "a local IP address in quotes, e.g. \"10.0.0.2\"",
+        ) {
+            Some(text) => match text.parse::<IpAddr>() {
+                Ok(ip) => out.interface = Some(ip),
+                Err(_) => {
+                    s.error(
+                        "interface",
+                        format!("`interface` {text:?} is not an IP address"),
+                        "write the address of a local interface, e.g. \"10.0.0.2\"",
+                    );
+                    ok = false;
+                }
+            },
+            None => ok = false,
+        }
+    }
+    if s.has("same_host") {
+        match s.boolean("same_host", "true or false") {
+            Some(b) => out.same_host = b,
+            None => ok = false,
+        }
+    }
+    if s.has("connect_timeout_ms") {
+        match s.int_in("connect_timeout_ms", 0, 60_000, "milliseconds, e.g. 2000") {
+            Some(ms) => out.connect_timeout_ms = ms as u64,
+            None => ok = false,
+        }
+    }
+    ok.then(|| RegisteredSettings::new(out))
+}

@@ -1,0 +1,295 @@
+//! The `ros2_bridge` kind against a foreign ROS 2 node: examples/ros2/tango_rover.py, a rover
+//! written with Cyclone DDS's Python package (no ROS 2, no hetcomm). Alpha (hetcomm) drives
+//! Tango with Twist commands and sees it move through its Odometry; a String goes there and
+//! back; garbage and a publisher of the wrong type on a mapped topic are counted and reported.
+//!
+//! The Python interpreter with `cyclonedds` is `$HETCOMM_ROS2_PYTHON` (scripts/ros2-test.sh
+//! sets it up); the fleet-file tests need no Python.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hetcomm::{Comm, Message, Outcome};
+use serde::{Deserialize, Serialize};
+
+/// `geometry_msgs/Vector3` by field name.
+#[derive(Serialize, Deserialize, Debug, Clone, Copy, PartialEq, Default)]
+struct Vector3 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+/// A user's command, mapped to `geometry_msgs/Twist` by its serde field names.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 40)]
+struct Drive {
+    linear: Vector3,
+    angular: Vector3,
+}
+
+/// A user's view of `nav_msgs/Odometry`: only the fields it needs.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 41)]
+struct Odom {
+    child_frame_id: String,
+    pose: PoseWithCovariance,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct PoseWithCovariance {
+    pose: Pose,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Pose {
+    position: Vector3,
+}
+
+/// `std_msgs/String`.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 42)]
+struct Text {
+    data: String,
+}
+
+/// A command that does not fit `geometry_msgs/Twist` (a `speed` field, no `linear`).
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 44)]
+struct BadDrive {
+    speed: f64,
+    angular: Vector3,
+}
+
+fn fleet_text(prefix: &str, domain: u16, extra: &str) -> String {
+    format!(
+        r#"[systems]
+Alpha = 0
+Tango = 4
+[modules]
+Drive = 1
+World = 2
+[transports.tango_ros]
+kind = "ros2_bridge"
+robot = "Tango"
+domain_id = {domain}
+delivery = "unacknowledged"
+security = "none"
+{extra}
+[transports.tango_ros.publish]
+"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
+"{prefix}/say" = "Drive 42 std_msgs/String"
+"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
+[transports.tango_ros.subscribe]
+"{prefix}/odom" = "World 41 nav_msgs/Odometry"
+"{prefix}/heard" = "World 42 std_msgs/String"
+[table]
+columns = ["Alpha", "Tango"]
+Alpha = ["X", "tango_ros"]
+Tango = ["tango_ros", "X"]
+"#
+    )
+}
+
+#[test]
+fn mappings_parse_and_their_mistakes_are_located() {
+    let ok = hetcomm::parse_fleet(&fleet_text("/t", 0, ""), "b.toml", None).expect("valid");
+    let hetcomm::config::TransportSettings::Registered(s) = &ok.transports[0].settings else {
+        panic!("registered settings expected");
+    };
+    let b: &hetcomm_link_ros2::bridge::BridgeSettings = s.downcast_ref().unwrap();
+    assert_eq!(b.robot, "Tango");
+    assert_eq!(b.publish.len(), 3);
+    assert_eq!(b.subscribe[0].ros_type, "nav_msgs/Odometry");
+    assert_eq!(b.subscribe[0].message, 41);
+
+    let errors = |text: String| {
+        hetcomm::parse_fleet(&text, "b.toml", None)
+            .unwrap_err()
+            .to_string()
+    };
+    let t = fleet_text("/t", 0, "").replace("nav_msgs/Odometry", "nav_msgs/Path");
+    let e = errors(t);
+    assert!(
+        e.starts_with("b.toml:19:13: mapping of `/t/odom`: this build does not know the ROS type `nav_msgs/Path`"),
+        "{e}"
+    );
+    assert!(
+        e.contains("known types: std_msgs/String, std_msgs/Float64"),
+        "{e}"
+    );
+    let e = errors(
+        fleet_text("/t", 0, "")
+            .replace("\"Drive 42 std_msgs/String\"", "\"Drive std_msgs/String\""),
+    );
+    assert!(
+        e.contains("b.toml:16:12: mapping of `/t/say` must have three parts"),
+        "{e}"
+    );
+    let e = errors(fleet_text("/t", 0, "").replace("delivery = \"unacknowledged\"\n", ""));
+    assert!(
+        e.contains("carries plain ROS messages, which nobody acknowledges")
+            && e.contains("add `delivery = \"unacknowledged\"`"),
+        "{e}"
+    );
+    let e = errors(fleet_text("/t", 0, "").replace("security = \"none\"\n", ""));
+    assert!(
+        e.contains("a ROS node cannot open hetcomm's secured sessions"),
+        "{e}"
+    );
+    let e = errors(fleet_text("t", 0, ""));
+    assert!(
+        e.contains("`t/cmd_vel` is not a ROS 2 topic name: it must start with `/`"),
+        "{e}"
+    );
+}
+
+#[test]
+fn opening_names_an_unknown_module() {
+    let text = fleet_text("/t", 0, "").replace("\"World 41", "\"Wrold 41");
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let e = Comm::open_fleet(&fleet, "Alpha")
+        .err()
+        .expect("open fails")
+        .to_string();
+    assert!(
+        e.contains("the mapping of /t/odom names module `Wrold`, which is not in [modules]"),
+        "{e}"
+    );
+}
+
+/// The rover process, killed when dropped.
+struct Rover(Child);
+
+impl Drop for Rover {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn rover(prefix: &str, domain: u16, extra: &[&str]) -> Rover {
+    let python = std::env::var("HETCOMM_ROS2_PYTHON").expect(
+        "set HETCOMM_ROS2_PYTHON to a Python with the `cyclonedds` package \
+         (bash scripts/ros2-test.sh does)",
+    );
+    let script =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/ros2/tango_rover.py");
+    let child = Command::new(python)
+        .arg(script)
+        .args([
+            "--domain",
+            &domain.to_string(),
+            "--prefix",
+            prefix,
+            "--seconds",
+            "60",
+        ])
+        .args(extra)
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("start the Python rover");
+    Rover(child)
+}
+
+fn prefix(tag: &str) -> String {
+    format!("/hc_{}_{tag}", std::process::id())
+}
+
+#[test]
+fn a_cyclone_dds_rover_follows_twist_commands_and_reports_odometry() {
+    let (p, domain) = (prefix("drive"), 71);
+    let fleet = hetcomm::parse_fleet(&fleet_text(&p, domain, ""), "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let (drive, world) = (
+        alpha.module("Drive").unwrap(),
+        alpha.module("World").unwrap(),
+    );
+    let _rover = rover(&p, domain, &[]);
+
+    // Odometry arrives as a typed message from Tango (the rover is at rest at first).
+    let first = world
+        .recv_timeout::<Odom>(Duration::from_secs(20))
+        .expect("odometry from the rover");
+    assert_eq!(first.message.child_frame_id, "base_link");
+    assert_eq!(first.envelope.source().system, hetcomm::SystemId(4));
+
+    // Commands go out as geometry_msgs/Twist: sent, without confirmation.
+    let forward = Drive {
+        linear: Vector3 {
+            x: 1.0,
+            ..Default::default()
+        },
+        angular: Vector3::default(),
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut x = 0.0;
+    while x < 0.5 {
+        assert!(Instant::now() < deadline, "the rover did not move: x = {x}");
+        let outcome = drive.send("Tango", "Drive", &forward).expect("send").wait();
+        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
+        std::thread::sleep(Duration::from_millis(100));
+        while let Ok(Some(odom)) = world.try_recv::<Odom>() {
+            x = odom.message.pose.pose.position.x;
+        }
+    }
+
+    // std_msgs/String there and back.
+    let text = Text {
+        data: "hello Tango".into(),
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let heard = loop {
+        assert!(Instant::now() < deadline, "no answer on /heard");
+        drive.send("Tango", "Drive", &text).expect("send").wait();
+        if let Ok(r) = world.recv_timeout::<Text>(Duration::from_millis(300)) {
+            break r.message;
+        }
+    };
+    assert_eq!(heard.data, "heard: hello Tango");
+
+    // A command that does not fit the mapped type fails, naming both types and the field.
+    let bad = BadDrive {
+        speed: 1.0,
+        angular: Vector3::default(),
+    };
+    let outcome = drive.send("Tango", "Drive", &bad).expect("send").wait();
+    let text = format!("{outcome:?}");
+    assert!(matches!(outcome, Outcome::Failed { .. }), "{text}");
+    assert!(
+        text.contains("message type 44 for Drive does not convert to geometry_msgs/Twist: field `speed` has no counterpart in geometry_msgs/Twist"),
+        "{text}"
+    );
+}
+
+#[test]
+fn garbage_and_wrong_types_on_a_mapped_topic_are_counted_not_delivered() {
+    let (p, domain) = (prefix("bad"), 72);
+    let fleet = hetcomm::parse_fleet(&fleet_text(&p, domain, ""), "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let world = alpha.module("World").unwrap();
+    let _rover = rover(&p, domain, &["--garbage", "20", "--wrong-type"]);
+    // Good odometry keeps arriving, nothing else reaches the module, and both the garbage
+    // samples and the String publisher are counted as dropped.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut good = 0;
+    loop {
+        let dropped = alpha.stats().links[0].1.frames_dropped;
+        if good >= 20 && dropped >= 2 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "good = {good}, dropped = {dropped}: {:?}",
+            alpha.stats()
+        );
+        if let Ok(r) = world.recv_timeout::<Odom>(Duration::from_millis(100)) {
+            assert_eq!(r.message.child_frame_id, "base_link");
+            good += 1;
+        }
+    }
+    assert!(world
+        .try_recv_raw()
+        .is_none_or(|m| m.envelope.message_type().0 == 41));
+}

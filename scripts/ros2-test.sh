@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Everything about the `ros2` and `ros2_bridge` transports (docs/ros2.md, docs/ros-bridges.md).
+# Called by scripts/test.sh.
+#
+#   bash scripts/ros2-test.sh
+#
+# 1. format and lint the ros2 crate (it is outside the workspace's members, so the
+#    workspace-wide steps of test.sh do not see it), and the facade and CLI with
+#    `--features ros2`;
+# 2. the Python side: Cyclone DDS's Python package (PyPI `cyclonedds`, wheels that bundle the
+#    C library; no ROS 2 install) in the project's venv, target/py-venv (the one
+#    scripts/test-python.sh makes, with the same pip);
+# 3. the crate's tests: the link conformance suite (bare and wrapped in emulation), fleet keys
+#    and their errors, delivery through the facade (secured and `security = "none"`), and the
+#    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
+#    Odometry and String back, mismatches, garbage and wrong-type publishers;
+# 4. the demo: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
+#    printing a table; it fails if Tango ends more than 1 m from its target.
+#
+# rustdds is compiled once (debug) and shared by both workspaces' builds in the same target
+# directory: the crate's Cargo.lock pins the versions the main Cargo.lock has.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
+CRATE=crates/hetcomm-link-ros2/Cargo.toml
+
+step() { printf '\n== %s\n' "$*"; }
+
+step "ros2: format and lint"
+# Not `--all`: that would also check the path dependencies (main workspace crates), with
+# settings that differ from the workspace's own `cargo fmt` run.
+cargo fmt --manifest-path "$CRATE" -- --check
+cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
+cargo clippy -p hetcomm-cli --features ros2 --all-targets -- -D warnings
+
+step "ros2: Cyclone DDS for Python in target/py-venv"
+VENV=$ROOT/target/py-venv
+if [ ! -x "$VENV/bin/python" ]; then
+    python3 -m venv "$VENV"
+fi
+if ! "$VENV/bin/python" -c 'import cyclonedds' >/dev/null 2>&1; then
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check "cyclonedds==11.0.1"
+fi
+export HETCOMM_ROS2_PYTHON=$VENV/bin/python
+
+step "ros2: crate tests (conformance, keys, delivery, bridge against a Cyclone DDS rover)"
+cargo test --manifest-path "$CRATE"
+
+step "ros2: hetcomm validate on the bridge example (CLI with --features ros2)"
+cargo build -q -p hetcomm-cli --features ros2
+"$CARGO_TARGET_DIR/debug/hetcomm" validate examples/ros2/tango-ros2.toml
+
+step "ros2: demo: Tango (Cyclone DDS rover) follows hetcomm's leader through typed topics"
+cargo build -q --manifest-path "$CRATE" --example tango_follows
+PREFIX=/hc_demo_$$
+"$HETCOMM_ROS2_PYTHON" examples/ros2/tango_rover.py --prefix "$PREFIX" --domain 5 --seconds 40 >/dev/null &
+ROVER=$!
+trap 'kill $ROVER 2>/dev/null || true' EXIT
+"$CARGO_TARGET_DIR/debug/examples/tango_follows" --prefix "$PREFIX" --domain 5 --seconds 15
+kill $ROVER 2>/dev/null || true
+wait $ROVER 2>/dev/null || true
+trap - EXIT
