@@ -468,6 +468,11 @@ impl SystemHarness {
         }
     }
 
+    /// Counts an item that could not be handed over.
+    pub(crate) fn count_lost(&self) {
+        bump(&self.counters.lost_on_close, 1);
+    }
+
     /// Injects an encoded payload on a message path or a topic.
     pub(crate) fn inject_bytes(
         &self,

@@ -19,7 +19,7 @@
 //! What the sender sees: a tap acts inside the receiving system, after the transport delivered
 //! the message, so an acknowledged send is `Delivered` even when a tap drops or delays it (the
 //! system did receive it). Every such action is counted in [`HarnessStats`]. To make a send
-//! *fail*, schedule a network fault instead ([`crate::scenario`]: partitions, silence, loss),
+//! *fail*, schedule a network fault instead ([`scenario`]: partitions, silence, loss),
 //! which acts on frames before they leave and so shows in outcomes and retransmissions.
 //!
 //! Cost: a system with no tap checks one relaxed atomic at each delivery; a topic with no tap
@@ -28,6 +28,7 @@
 
 mod engine;
 pub(crate) mod faults;
+pub mod scenario;
 
 use std::any::Any;
 use std::sync::{Arc, Weak};
