@@ -378,7 +378,7 @@ pub(super) fn parse_taps(p: &mut P<'_>, root: &Table, sc: &mut Scenario) {
         if kind == TapKind::Replace {
             if let Some(other) = sc.taps.iter().find(|o| {
                 o.kind == TapKind::Replace
-                    && o.path == path
+                    && paths_overlap(&o.path, &path)
                     && match (o.window, window) {
                         (Some(a), Some(b)) => a.overlaps(&b),
                         _ => true,
@@ -473,4 +473,32 @@ fn parse_script(p: &mut P<'_>, item: &Item, what: &str, window: Option<Window>) 
     }
     out.sort_by(|a, b| a.0.total_cmp(&b.0));
     out
+}
+
+/// Whether two tap paths can take the same message (a missing narrowing matches anything).
+fn paths_overlap(a: &TapSpec, b: &TapSpec) -> bool {
+    fn meet<T: PartialEq>(a: &Option<T>, b: &Option<T>) -> bool {
+        match (a, b) {
+            (Some(a), Some(b)) => a == b,
+            _ => true,
+        }
+    }
+    match (a, b) {
+        (TapSpec::Topic { .. }, TapSpec::Topic { .. }) => a == b,
+        (
+            TapSpec::Messages {
+                from: f1,
+                to: t1,
+                module: m1,
+                message_type: y1,
+            },
+            TapSpec::Messages {
+                from: f2,
+                to: t2,
+                module: m2,
+                message_type: y2,
+            },
+        ) => t1 == t2 && meet(f1, f2) && meet(m1, m2) && meet(y1, y2),
+        _ => false,
+    }
 }
