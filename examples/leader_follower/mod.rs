@@ -24,6 +24,8 @@ use hetcomm_sim::report::{self, CommandKind, CommandRecord};
 use hetcomm_sim::{Pose, PoseSample, Scenario, VirtualEnvironment};
 use serde::{Deserialize, Serialize};
 
+pub mod scenario;
+
 /// What the leader tells a follower to do (the thesis's Command message).
 #[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq, Eq)]
 #[message(id = 0)]
@@ -336,6 +338,8 @@ pub struct DemoOptions {
     /// `examples/python/`): not opened here; the fleet must carry their traffic over a network
     /// transport. Real time only.
     pub external: Vec<String>,
+    /// A scenario file's faults, injections and taps, applied at the start of the run.
+    pub scenario: Option<hetcomm::config::scenario::Scenario>,
 }
 
 impl Default for DemoOptions {
@@ -347,6 +351,7 @@ impl Default for DemoOptions {
             realtime: false,
             progress: false,
             external: Vec::new(),
+            scenario: None,
         }
     }
 }
@@ -362,6 +367,9 @@ pub struct DemoReport {
     pub wall: Duration,
     /// Simulated seconds.
     pub simulated_s: f64,
+    /// What the scenario (if any) did: its schedule, each system's harness counters, and the
+    /// injections' outcomes, one line each.
+    pub scenario: Vec<String>,
 }
 
 /// Runs the demonstration.
@@ -416,6 +424,11 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     let start = match &sim {
         Some(s) => s.now(),
         None => Time::now_wall(),
+    };
+    let scenario_run = match (&options.scenario, &sim, &local) {
+        (Some(sc), Some(s), _) => Some(s.apply_scenario(sc, options.seed)?),
+        (Some(sc), _, Some(l)) => Some(l.apply_scenario(sc, options.seed)?),
+        _ => None,
     };
     let single = options.layout == Layout::SingleVe;
     let ve_of = |rover: &str| -> &'static str {
@@ -515,6 +528,17 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if options.progress {
         eprintln!();
     }
+    let scenario = match (&options.scenario, &scenario_run) {
+        (Some(sc), Some(run)) => {
+            let stats: Vec<(String, hetcomm::HarnessStats)> = fleet
+                .systems
+                .iter()
+                .filter_map(|s| system(&s.name).ok().map(|c| (s.name.clone(), c.harness_stats())))
+                .collect();
+            scenario::report_lines(sc, run, &stats)
+        }
+        _ => Vec::new(),
+    };
     let mut commands = leader.sent;
     for follower in followers {
         commands.extend(follower.received);
@@ -526,6 +550,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         samples,
         wall: wall.elapsed(),
         simulated_s: end_s,
+        scenario,
     })
 }
 

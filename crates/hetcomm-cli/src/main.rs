@@ -38,6 +38,9 @@ enum Command {
         /// Legacy Bluetooth address file (Tables 3, 8, 18).
         #[arg(long, requires = "ids")]
         bluetooth: Option<PathBuf>,
+        /// A scenario file to check against the fleet too (docs/harness.md).
+        #[arg(long, value_name = "FILE")]
+        scenario: Option<PathBuf>,
     },
     /// Print a commented example fleet file.
     GenerateConfig,
@@ -76,6 +79,11 @@ enum Command {
         /// examples/python); needs --realtime and a fleet carrying its traffic over UDP/TCP.
         #[arg(long, value_name = "SYSTEM")]
         external: Vec<String>,
+        /// A scenario file (faults, injections, taps in scenario time; docs/harness.md), e.g.
+        /// examples/leader_follower/scenario-tango-cut.toml. In virtual time the run is also
+        /// made without it, and what changed is printed.
+        #[arg(long, value_name = "FILE")]
+        scenario: Option<PathBuf>,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     ///
@@ -190,6 +198,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             ids,
             table,
             bluetooth,
+            scenario,
         } => {
             let result = match (file, ids, table) {
                 (Some(file), _, _) => hetcomm::load_fleet(&file),
@@ -203,6 +212,22 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             match result {
                 Ok(fleet) => {
                     println!("ok: {}", fleet.summary());
+                    if let Some(path) = scenario {
+                        match hetcomm::config::scenario::load_scenario(&path, &fleet) {
+                            Ok(sc) => println!(
+                                "ok: scenario {}: {} fault(s), {} injection(s), {} tap(s), last event at {} s",
+                                path.display(),
+                                sc.faults.len(),
+                                sc.injections.len(),
+                                sc.taps.len(),
+                                sc.end_s()
+                            ),
+                            Err(errors) => {
+                                eprintln!("{errors}");
+                                return Ok(ExitCode::from(2));
+                            }
+                        }
+                    }
                     Ok(ExitCode::SUCCESS)
                 }
                 Err(errors) => {
@@ -271,9 +296,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             single_ve,
             realtime,
             external,
+            scenario,
         } => {
             demo::run(demo::DemoArgs {
                 external,
+                scenario: scenario.as_deref(),
                 seed,
                 out: &out,
                 fleet: fleet.as_deref(),
