@@ -48,19 +48,26 @@ pub fn compare(with: &DemoReport, without: &DemoReport) -> String {
     for rover in ["Charlie", "Tango"] {
         let (a, b) = (received(without, rover), received(with, rover));
         out.push_str(&format!("  {rover} received {} → {} commands\n", a.len(), b.len()));
-        for i in 0..a.len().max(b.len()) {
-            let show = |x: Option<&(f64, i64)>| {
-                x.map_or("—".to_string(), |(t, c)| format!("code {c} at {t:6.2} s"))
-            };
-            let (x, y) = (a.get(i), b.get(i));
-            let late = match (x, y) {
-                (Some((t0, _)), Some((t1, _))) if (t1 - t0).abs() > 1e-9 => {
-                    format!("  ({:+.2} s)", t1 - t0)
+        // Pair each command with the same one in the other run (order kept; a command the
+        // cut lost has no partner).
+        let show = |(t, c): &(f64, i64)| format!("code {c} at {t:6.2} s");
+        let mut j = 0;
+        for x in &a {
+            match b.get(j) {
+                Some(y) if y.1 == x.1 => {
+                    j += 1;
+                    let late = if (y.0 - x.0).abs() >= 0.0005 {
+                        format!("  ({:+.2} s)", y.0 - x.0)
+                    } else {
+                        String::new()
+                    };
+                    out.push_str(&format!("    {:<22} → {}{late}\n", show(x), show(y)));
                 }
-                (Some(_), None) => "  (never arrived)".to_string(),
-                _ => String::new(),
-            };
-            out.push_str(&format!("    {:<22} → {}{late}\n", show(x), show(y)));
+                _ => out.push_str(&format!("    {:<22} → never arrived\n", show(x))),
+            }
+        }
+        for y in &b[j.min(b.len())..] {
+            out.push_str(&format!("    {:<22} → {} (extra)\n", "—", show(y)));
         }
     }
     let last = |r: &DemoReport, rover: &str| {
