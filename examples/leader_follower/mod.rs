@@ -533,7 +533,11 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             let stats: Vec<(String, hetcomm::HarnessStats)> = fleet
                 .systems
                 .iter()
-                .filter_map(|s| system(&s.name).ok().map(|c| (s.name.clone(), c.harness_stats())))
+                .filter_map(|s| {
+                    system(&s.name)
+                        .ok()
+                        .map(|c| (s.name.clone(), c.harness_stats()))
+                })
                 .collect();
             scenario::report_lines(sc, run, &stats)
         }

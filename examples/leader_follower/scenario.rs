@@ -1,8 +1,8 @@
 //! What a scenario did to the demonstration: its schedule, the harness's counters, and the
 //! commands and final poses compared with the same run (same seed) without it.
 
-use hetcomm::harness::scenario::ScenarioRun;
 use hetcomm::config::scenario::Scenario;
+use hetcomm::harness::scenario::ScenarioRun;
 use hetcomm::HarnessStats;
 use hetcomm_sim::report::CommandKind;
 
@@ -30,7 +30,11 @@ pub fn report_lines(
             s.fault_dropped, s.fault_delayed, s.tapped, s.dropped, s.delayed, s.duplicated, s.replaced, s.injected
         ));
     }
-    lines.extend(run.injection_report().into_iter().map(|l| format!("  inject {l}")));
+    lines.extend(
+        run.injection_report()
+            .into_iter()
+            .map(|l| format!("  inject {l}")),
+    );
     lines
 }
 
@@ -47,7 +51,11 @@ pub fn compare(with: &DemoReport, without: &DemoReport) -> String {
     };
     for rover in ["Charlie", "Tango"] {
         let (a, b) = (received(without, rover), received(with, rover));
-        out.push_str(&format!("  {rover} received {} → {} commands\n", a.len(), b.len()));
+        out.push_str(&format!(
+            "  {rover} received {} → {} commands\n",
+            a.len(),
+            b.len()
+        ));
         // Pair each command with the same one in the other run (order kept; a command the
         // cut lost has no partner).
         let show = |(t, c): &(f64, i64)| format!("code {c} at {t:6.2} s");

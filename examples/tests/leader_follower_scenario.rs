@@ -12,8 +12,12 @@ fn run(seed: u64, with_cut: bool) -> DemoReport {
     )
     .unwrap();
     let sc = with_cut.then(|| {
-        hetcomm::config::scenario::parse_scenario(scenario::TANGO_CUT, "scenario-tango-cut.toml", &fleet)
-            .unwrap()
+        hetcomm::config::scenario::parse_scenario(
+            scenario::TANGO_CUT,
+            "scenario-tango-cut.toml",
+            &fleet,
+        )
+        .unwrap()
     });
     leader_follower::run(&DemoOptions {
         seed,
@@ -36,21 +40,35 @@ fn cutting_tango_off_delays_exactly_the_command_sent_during_the_cut() {
     for seed in [1, 2, 3] {
         let (cut, clear) = (run(seed, true), run(seed, false));
         // Charlie's link is untouched.
-        assert_eq!(received(&cut, "Charlie"), received(&clear, "Charlie"), "seed {seed}");
+        assert_eq!(
+            received(&cut, "Charlie"),
+            received(&clear, "Charlie"),
+            "seed {seed}"
+        );
         let (t_cut, t_clear) = (received(&cut, "Tango"), received(&clear, "Tango"));
         let before = |v: &[(f64, i64)]| v.iter().filter(|c| c.0 < 4.5).copied().collect::<Vec<_>>();
-        assert_eq!(before(&t_cut), before(&t_clear), "seed {seed}: before the cut");
+        assert_eq!(
+            before(&t_cut),
+            before(&t_clear),
+            "seed {seed}: before the cut"
+        );
         // What arrived in the cut without it arrives after the cut, or never (the radio's
         // attempts ran out); everything after comes as before.
         let codes = |v: &[(f64, i64)], from: f64| {
-            v.iter().filter(|c| c.0 >= from).map(|c| c.1).collect::<Vec<_>>()
+            v.iter()
+                .filter(|c| c.0 >= from)
+                .map(|c| c.1)
+                .collect::<Vec<_>>()
         };
         let in_cut: Vec<i64> = t_clear
             .iter()
             .filter(|c| (4.5..7.5).contains(&c.0))
             .map(|c| c.1)
             .collect();
-        assert!(!in_cut.is_empty(), "seed {seed}: the cut should catch a command");
+        assert!(
+            !in_cut.is_empty(),
+            "seed {seed}: the cut should catch a command"
+        );
         let after = codes(&t_cut, 7.5);
         let late = [in_cut.clone(), codes(&t_clear, 7.5)].concat();
         assert!(
@@ -58,10 +76,25 @@ fn cutting_tango_off_delays_exactly_the_command_sent_during_the_cut() {
             "seed {seed}: after the cut {after:?}, expected {late:?} or without {in_cut:?}"
         );
         // Nothing reaches Tango during the cut.
-        assert!(t_cut.iter().all(|(t, _)| !(4.5..7.5).contains(t)), "seed {seed}: {t_cut:?}");
+        assert!(
+            t_cut.iter().all(|(t, _)| !(4.5..7.5).contains(t)),
+            "seed {seed}: {t_cut:?}"
+        );
         // The scenario's report names the cut and counts the frames it dropped.
-        assert!(cut.scenario.iter().any(|l| l.contains("partition (cut): Charlie→Tango")), "{:?}", cut.scenario);
-        assert!(cut.scenario.iter().any(|l| l.starts_with("  Charlie: frames cut")), "{:?}", cut.scenario);
+        assert!(
+            cut.scenario
+                .iter()
+                .any(|l| l.contains("partition (cut): Charlie→Tango")),
+            "{:?}",
+            cut.scenario
+        );
+        assert!(
+            cut.scenario
+                .iter()
+                .any(|l| l.starts_with("  Charlie: frames cut")),
+            "{:?}",
+            cut.scenario
+        );
         // Tango pivoted longer, so it ends elsewhere; repeatable for the seed.
         let text = scenario::compare(&cut, &clear);
         assert!(text.contains("Tango ends at"), "{text}");

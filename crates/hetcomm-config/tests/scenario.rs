@@ -87,10 +87,16 @@ delay_ms = 100
     assert_eq!(sc.faults[0].effect, FaultEffect::Cut);
     assert_eq!(
         sc.faults[0].pairs,
-        [("Charlie".into(), "Tango".into()), ("Tango".into(), "Charlie".into())]
+        [
+            ("Charlie".into(), "Tango".into()),
+            ("Tango".into(), "Charlie".into())
+        ]
     );
     assert_eq!(sc.faults[1].pairs, [("Alpha".into(), "Charlie".into())]);
-    assert_eq!(sc.injections[0].payload, [0x81, 0xa4, b'c', b'o', b'd', b'e', 2]);
+    assert_eq!(
+        sc.injections[0].payload,
+        [0x81, 0xa4, b'c', b'o', b'd', b'e', 2]
+    );
     assert_eq!(sc.taps[0].kind, TapKind::Replace);
     assert_eq!(sc.taps[0].script.len(), 1);
     assert!(matches!(sc.taps[1].path, TapSpec::Topic { .. }));
@@ -191,7 +197,10 @@ fn unknown_keys_and_bad_toml_are_located() {
             "4:8: unknown key `ende` in [[partition]] at line 1",
         ]
     );
-    assert_eq!(errors("[[partition]\n"), ["1:12: not valid TOML: invalid table header"]);
+    assert_eq!(
+        errors("[[partition]\n"),
+        ["1:12: not valid TOML: invalid table header"]
+    );
     assert_eq!(
         errors("[[cut]]\nbetween = 1\n"),
         ["1:1: unknown key `cut` in a scenario file"]

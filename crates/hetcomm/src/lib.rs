@@ -59,10 +59,10 @@ mod transports;
 
 pub use comm::{Comm, LocalFleet, SystemStats};
 pub use error::{OpenError, RecvError, SendError};
-pub use inbox::InboxStats;
 pub use harness::{
     HarnessStats, Replacement, TapAction, TapError, TapHandle, TapMessage, TapPath, TapVerdict,
 };
+pub use inbox::InboxStats;
 pub use module::{Module, RawSender, SendOptions, Sender};
 pub use node::{Node, Notification, Publisher, Subscription, TopicError};
 pub use observe::{Observer, ObserverHandle};

@@ -393,7 +393,11 @@ impl<T: Any + Send + Sync> Subscription<T> {
 
     /// Values waiting.
     pub fn pending(&self) -> usize {
-        self.queue().0.lock().unwrap_or_else(|e| e.into_inner()).len()
+        self.queue()
+            .0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .len()
     }
 
     /// Values pushed out of a full queue so far.
@@ -453,10 +457,7 @@ impl Module {
 
     /// Subscribes this module to topic `topic` (Table 4's *Subscribe*): values queue in the
     /// returned [`Subscription`] (up to [`DEFAULT_TOPIC_CAPACITY`]).
-    pub fn subscribe<T: Message + Sync>(
-        &self,
-        topic: &str,
-    ) -> Result<Subscription<T>, TopicError> {
+    pub fn subscribe<T: Message + Sync>(&self, topic: &str) -> Result<Subscription<T>, TopicError> {
         self.subscribe_with_capacity(topic, DEFAULT_TOPIC_CAPACITY)
     }
 
@@ -499,7 +500,10 @@ impl Module {
             }
         });
         let sub = topics.subscribe(&t, self.core.id, SubKind::Notify(notify));
-        Ok(Notification { topic: t, id: sub.id })
+        Ok(Notification {
+            topic: t,
+            id: sub.id,
+        })
     }
 
     /// The thesis's name for [`Module::on_topic`] (Table 4's *Notification*).

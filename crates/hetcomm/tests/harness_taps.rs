@@ -11,9 +11,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm::sim::{SimFleet, SimOptions};
-use hetcomm::{
-    Comm, LocalFleet, Message, Module, Outcome, TapAction, TapPath, TapVerdict, Time,
-};
+use hetcomm::{Comm, LocalFleet, Message, Module, Outcome, TapAction, TapPath, TapVerdict, Time};
 use serde::{Deserialize, Serialize};
 
 #[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
@@ -140,10 +138,17 @@ fn observe_sees_every_message_and_changes_nothing() {
             .unwrap();
         let (plan, act) = (a.module("Plan").unwrap(), b.module("Act").unwrap());
         for i in 0..5 {
-            assert!(matches!(send(&env, &plan, i * 10 + 7), Outcome::Delivered { .. }), "{name}");
+            assert!(
+                matches!(send(&env, &plan, i * 10 + 7), Outcome::Delivered { .. }),
+                "{name}"
+            );
         }
         let got = env.take(&act, 5, Duration::from_secs(2));
-        assert_eq!(got.iter().map(|c| c.code).collect::<Vec<_>>(), [7, 17, 27, 37, 47], "{name}");
+        assert_eq!(
+            got.iter().map(|c| c.code).collect::<Vec<_>>(),
+            [7, 17, 27, 37, 47],
+            "{name}"
+        );
         assert_eq!(seen.load(Ordering::Relaxed), 5, "{name}");
         assert_eq!(b.harness_stats().tapped, 5, "{name}");
     }
@@ -157,13 +162,23 @@ fn drop_discards_and_counts_and_removing_the_tap_restores_the_path() {
         let (plan, act) = (a.module("Plan").unwrap(), b.module("Act").unwrap());
         for i in 0..3 {
             // The system received it: the sender's outcome says so; the harness dropped it.
-            assert!(matches!(send(&env, &plan, i), Outcome::Delivered { .. }), "{name}");
+            assert!(
+                matches!(send(&env, &plan, i), Outcome::Delivered { .. }),
+                "{name}"
+            );
         }
-        assert!(env.take(&act, 1, Duration::from_millis(200)).is_empty(), "{name}");
+        assert!(
+            env.take(&act, 1, Duration::from_millis(200)).is_empty(),
+            "{name}"
+        );
         assert_eq!(b.harness_stats().dropped, 3, "{name}");
         tap.remove();
         send(&env, &plan, 99);
-        assert_eq!(env.take(&act, 1, Duration::from_secs(2)), [Cmd { code: 99 }], "{name}");
+        assert_eq!(
+            env.take(&act, 1, Duration::from_secs(2)),
+            [Cmd { code: 99 }],
+            "{name}"
+        );
     }
 }
 
@@ -178,11 +193,17 @@ fn delay_holds_a_message_back_for_its_time() {
         let t0 = env.now();
         send(&env, &plan, 5);
         env.pass(Duration::from_millis(100));
-        assert!(act.try_recv::<Cmd>().unwrap().is_none(), "{name}: too early");
+        assert!(
+            act.try_recv::<Cmd>().unwrap().is_none(),
+            "{name}: too early"
+        );
         let got = env.take(&act, 1, Duration::from_secs(2));
         assert_eq!(got, [Cmd { code: 5 }], "{name}");
         let waited = env.now().saturating_since(t0);
-        assert!(waited >= Duration::from_millis(300), "{name}: after {waited:?}");
+        assert!(
+            waited >= Duration::from_millis(300),
+            "{name}: after {waited:?}"
+        );
         assert_eq!(b.harness_stats().delayed, 1, "{name}");
     }
 }
@@ -237,22 +258,38 @@ fn replace_discards_the_real_source_and_injects_as_if_from_it() {
         let replacement = b.replace(&path()).unwrap();
         send(&env, &plan, 1);
         replacement.inject(&Cmd { code: 500 }).unwrap();
-        let got = act.try_recv::<Cmd>().unwrap().expect("the injected message");
+        let got = act
+            .try_recv::<Cmd>()
+            .unwrap()
+            .expect("the injected message");
         assert_eq!(got.message, Cmd { code: 500 }, "{name}");
-        assert_eq!(got.envelope.source_system, "A", "{name}: looks as from the real source");
-        assert!(env.take(&act, 1, Duration::from_millis(200)).is_empty(), "{name}");
+        assert_eq!(
+            got.envelope.source_system, "A",
+            "{name}: looks as from the real source"
+        );
+        assert!(
+            env.take(&act, 1, Duration::from_millis(200)).is_empty(),
+            "{name}"
+        );
         assert_eq!(b.harness_stats().replaced, 1, "{name}");
         // A second replacement of the same path at once is refused.
         assert!(b.replace(&path()).is_err(), "{name}");
         replacement.end();
         send(&env, &plan, 2);
-        assert_eq!(env.take(&act, 1, Duration::from_secs(2)), [Cmd { code: 2 }], "{name}");
+        assert_eq!(
+            env.take(&act, 1, Duration::from_secs(2)),
+            [Cmd { code: 2 }],
+            "{name}"
+        );
     }
 }
 
 #[test]
 fn taps_on_a_topic_act_before_its_subscribers() {
-    for (name, env) in [("real time", Env::real(INPROC)), ("virtual time", Env::sim(INPROC))] {
+    for (name, env) in [
+        ("real time", Env::real(INPROC)),
+        ("virtual time", Env::sim(INPROC)),
+    ] {
         let b = env.system("B");
         let (plan, act) = (b.node("Plan").unwrap(), b.node("Act").unwrap());
         let publisher = plan.advertise::<Cmd>("cmd").unwrap();
@@ -298,7 +335,14 @@ fn taps_on_a_topic_act_before_its_subscribers() {
         assert_eq!(sub.try_recv().map(|c| c.code), Some(6), "{name}");
         let s = b.harness_stats();
         assert_eq!(
-            (s.modified, s.duplicated, s.dropped, s.delayed, s.replaced, s.injected),
+            (
+                s.modified,
+                s.duplicated,
+                s.dropped,
+                s.delayed,
+                s.replaced,
+                s.injected
+            ),
             (1, 1, 1, 1, 1, 1),
             "{name}"
         );
@@ -309,9 +353,13 @@ fn taps_on_a_topic_act_before_its_subscribers() {
 fn a_tap_on_a_path_that_does_not_exist_is_refused() {
     let env = Env::real(INPROC);
     let b = env.system("B");
-    let err = b.tap(&TapPath::messages("B").from("Z"), TapAction::Drop).unwrap_err();
+    let err = b
+        .tap(&TapPath::messages("B").from("Z"), TapAction::Drop)
+        .unwrap_err();
     assert!(err.to_string().contains("no system `Z`"), "{err}");
-    let err = b.tap(&TapPath::messages("B").module("Nope"), TapAction::Drop).unwrap_err();
+    let err = b
+        .tap(&TapPath::messages("B").module("Nope"), TapAction::Drop)
+        .unwrap_err();
     assert!(err.to_string().contains("no module `Nope`"), "{err}");
     let err = b.tap(&TapPath::messages("A"), TapAction::Drop).unwrap_err();
     assert!(err.to_string().contains("acts at system `A`"), "{err}");

@@ -84,8 +84,13 @@ fn the_same_node_also_sends_to_other_systems() {
     let _n = charlie_act
         .notification::<Cmd>("cmd", move |c| g.lock().unwrap().push(c.code))
         .unwrap();
-    alpha_plan.send("Charlie", "Plan", &Cmd { code: 9 }).unwrap().wait();
-    let m = charlie_plan.recv_timeout::<Cmd>(Duration::from_secs(1)).unwrap();
+    alpha_plan
+        .send("Charlie", "Plan", &Cmd { code: 9 })
+        .unwrap()
+        .wait();
+    let m = charlie_plan
+        .recv_timeout::<Cmd>(Duration::from_secs(1))
+        .unwrap();
     to_act.publish(m.message).unwrap();
     assert_eq!(*got.lock().unwrap(), [9]);
 }
@@ -98,14 +103,24 @@ fn a_topic_keeps_one_type_and_full_queues_count_their_losses() {
     plan.advertise::<Pose>("pose").unwrap();
     let err = plan.subscribe::<Cmd>("pose").unwrap_err();
     assert!(matches!(err, TopicError::TypeMismatch { .. }), "{err}");
-    assert_eq!(plan.advertise::<Pose>("").unwrap_err(), TopicError::EmptyName);
+    assert_eq!(
+        plan.advertise::<Pose>("").unwrap_err(),
+        TopicError::EmptyName
+    );
     let sub = alpha
         .node("Act")
         .unwrap()
         .subscribe_with_capacity::<Pose>("pose", 2)
         .unwrap();
     for i in 0..5 {
-        plan.publish("pose", Pose { x: i as f64, y: 0.0 }).unwrap();
+        plan.publish(
+            "pose",
+            Pose {
+                x: i as f64,
+                y: 0.0,
+            },
+        )
+        .unwrap();
     }
     assert_eq!((sub.pending(), sub.dropped(), sub.received()), (2, 3, 5));
     assert_eq!(sub.latest().unwrap().x, 4.0);

@@ -93,7 +93,10 @@ fn a_partition_changes_outcomes_exactly_as_scheduled() {
     let seed = 11;
     let (pings, drops) = run(CUT, seed);
     let (clear, _) = run("", seed);
-    assert!(clear.iter().all(|(_, d, at)| *d && at.is_some()), "seed {seed}: {clear:?}");
+    assert!(
+        clear.iter().all(|(_, d, at)| *d && at.is_some()),
+        "seed {seed}: {clear:?}"
+    );
     assert!(drops > 0, "seed {seed}");
     for (k, delivered, at) in &pings {
         let sent_ms = u64::from(*k) * 100;
@@ -101,14 +104,23 @@ fn a_partition_changes_outcomes_exactly_as_scheduled() {
             // Before the cut: as without it (arrival within the millisecond after sending).
             assert_eq!(at.map(|t| t - sent_ms), Some(1), "seed {seed}, ping {k}");
         } else if sent_ms >= 2500 {
-            assert!(*delivered && at.is_some(), "seed {seed}, ping {k} after the cut");
+            assert!(
+                *delivered && at.is_some(),
+                "seed {seed}, ping {k} after the cut"
+            );
         }
         // Nothing crosses during the cut; what was sent in it arrives after it or fails.
         if let Some(t) = at {
-            assert!(!(1000..2500).contains(t), "seed {seed}: ping {k} arrived at {t} ms");
+            assert!(
+                !(1000..2500).contains(t),
+                "seed {seed}: ping {k} arrived at {t} ms"
+            );
         }
         if (1000..2500).contains(&sent_ms) && *delivered {
-            assert!(at.is_some_and(|t| t >= 2500), "seed {seed}: ping {k} {at:?}");
+            assert!(
+                at.is_some_and(|t| t >= 2500),
+                "seed {seed}: ping {k} {at:?}"
+            );
         }
     }
     // The cut is visible in outcomes: some ping sent in it did not arrive on time.
@@ -139,7 +151,10 @@ end = 4.0
         for (k, _, at) in &pings {
             let sent = u64::from(*k) * 100;
             if let Some(t) = at {
-                assert!(*t >= sent + 40, "seed {seed}: ping {k} at {t} ms, sent {sent} ms");
+                assert!(
+                    *t >= sent + 40,
+                    "seed {seed}: ping {k} at {t} ms, sent {sent} ms"
+                );
             }
         }
         assert_eq!(run(sc, seed), (pings, drops), "seed {seed}");
@@ -181,12 +196,18 @@ end = 30.0
     sim.run_until(Time::ZERO + Duration::from_millis(499));
     assert!(b.try_recv::<Ping>().unwrap().is_none());
     sim.run_until(Time::ZERO + Duration::from_millis(501));
-    assert_eq!(b.try_recv::<Ping>().unwrap().unwrap().message, Ping { n: 7 });
+    assert_eq!(
+        b.try_recv::<Ping>().unwrap().unwrap().message,
+        Ping { n: 7 }
+    );
     sim.run_until(Time::ZERO + Duration::from_secs(60));
     assert!(a.try_recv::<Ping>().unwrap().is_none(), "B is silent");
     let report = run.injection_report();
     assert!(report[0].contains("delivered"), "{report:?}");
-    assert!(report[1].contains("Failed") || report[1].contains("Unconfirmed"), "{report:?}");
+    assert!(
+        report[1].contains("Failed") || report[1].contains("Unconfirmed"),
+        "{report:?}"
+    );
 }
 
 #[test]
@@ -206,7 +227,11 @@ fn a_partition_acts_in_real_time_too() {
     let ticket = a.send("B", "Act", &Ping { n: 1 }).unwrap();
     let got = b.recv_timeout::<Ping>(Duration::from_secs(10)).unwrap();
     // Cut for 0.3 s: the first attempts were lost, a retransmission after the cut got through.
-    assert!(t0.elapsed() >= Duration::from_millis(300), "{:?}", t0.elapsed());
+    assert!(
+        t0.elapsed() >= Duration::from_millis(300),
+        "{:?}",
+        t0.elapsed()
+    );
     assert_eq!(got.message, Ping { n: 1 });
     assert!(matches!(ticket.wait(), Outcome::Delivered { attempts, .. } if attempts > 1));
     assert!(local.system("A").unwrap().harness_stats().fault_dropped > 0);

@@ -191,10 +191,7 @@ impl Scenario {
     pub fn end_s(&self) -> f64 {
         let f = self.faults.iter().map(|f| f.window.end_s);
         let i = self.injections.iter().map(|i| i.at_s);
-        let t = self
-            .taps
-            .iter()
-            .filter_map(|t| t.window.map(|w| w.end_s));
+        let t = self.taps.iter().filter_map(|t| t.window.map(|w| w.end_s));
         f.chain(i).chain(t).fold(0.0, f64::max)
     }
 
@@ -237,7 +234,9 @@ impl Scenario {
             ));
         }
         for t in &self.taps {
-            let (a, b) = t.window.map_or((0.0, f64::INFINITY), |w| (w.start_s, w.end_s));
+            let (a, b) = t
+                .window
+                .map_or((0.0, f64::INFINITY), |w| (w.start_s, w.end_s));
             lines.push((
                 a,
                 format!("{a:6.2}–{b:6.2} s  tap {:?} on {:?}", t.kind, t.path),

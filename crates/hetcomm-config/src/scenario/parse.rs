@@ -6,9 +6,7 @@ use hetcomm_core::MessageType;
 use serde::ser::{Serialize, SerializeMap, SerializeSeq, Serializer};
 use toml_edit::{ImDocument, Item, Table, Value};
 
-use super::{
-    Fault, FaultEffect, Injection, Scenario, ScenarioTap, TapKind, TapSpec, Window,
-};
+use super::{Fault, FaultEffect, Injection, Scenario, ScenarioTap, TapKind, TapSpec, Window};
 use crate::error::{ConfigError, ConfigErrors, LineIndex};
 use crate::Fleet;
 
@@ -77,7 +75,11 @@ impl P<'_> {
         match item.as_str() {
             Some(s) => Some(s.to_string()),
             None => {
-                self.err(item.span(), format!("`{key}` of {what} must be a string"), None);
+                self.err(
+                    item.span(),
+                    format!("`{key}` of {what} must be a string"),
+                    None,
+                );
                 None
             }
         }
@@ -85,11 +87,7 @@ impl P<'_> {
 
     fn required<T>(&mut self, t: &Table, key: &str, what: &str, v: Option<T>) -> Option<T> {
         if v.is_none() && t.get(key).is_none() {
-            self.err(
-                t.span(),
-                format!("{what} is missing `{key}`"),
-                None,
-            );
+            self.err(t.span(), format!("{what} is missing `{key}`"), None);
         }
         v
     }
@@ -196,7 +194,10 @@ impl P<'_> {
             _ => {
                 self.err(
                     item.span(),
-                    format!("`{key}` of {what} must be a message type id (0 to {})", u32::MAX),
+                    format!(
+                        "`{key}` of {what} must be a message type id (0 to {})",
+                        u32::MAX
+                    ),
                     None,
                 );
                 None
@@ -251,7 +252,10 @@ impl P<'_> {
             p.err(
                 span.clone(),
                 format!("`between` of {what} must be two systems or two lists of systems"),
-                Some("between = [\"Charlie\", \"Tango\"] or between = [[\"A\", \"B\"], [\"C\"]]".into()),
+                Some(
+                    "between = [\"Charlie\", \"Tango\"] or between = [[\"A\", \"B\"], [\"C\"]]"
+                        .into(),
+                ),
             );
         };
         let Some(arr) = item.as_array().filter(|a| a.len() == 2) else {
@@ -281,11 +285,7 @@ impl P<'_> {
         let b = sides.pop()?;
         let a = sides.pop()?;
         if let Some(x) = a.iter().find(|x| b.contains(x)) {
-            self.err(
-                span,
-                format!("`{x}` is on both sides of {what}"),
-                None,
-            );
+            self.err(span, format!("`{x}` is on both sides of {what}"), None);
             return None;
         }
         Some((a, b))
@@ -318,7 +318,11 @@ pub fn parse_scenario(text: &str, origin: &str, fleet: &Fleet) -> Result<Scenari
     if let Some(item) = root.get("seed") {
         match item.as_integer() {
             Some(s) if s >= 0 => sc.seed = Some(s as u64),
-            _ => p.err(item.span(), "`seed` must be a whole number ≥ 0".into(), None),
+            _ => p.err(
+                item.span(),
+                "`seed` must be a whole number ≥ 0".into(),
+                None,
+            ),
         }
     }
     let systems: Vec<String> = fleet.systems.iter().map(|s| s.name.clone()).collect();

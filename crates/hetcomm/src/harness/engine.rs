@@ -632,11 +632,7 @@ impl SystemHarness {
         };
         bump(&self.counters.lost_on_close, left);
         self.wake.notify_all();
-        let handle = self
-            .driver
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
+        let handle = self.driver.lock().unwrap_or_else(|e| e.into_inner()).take();
         if let Some(h) = handle {
             if h.thread().id() != std::thread::current().id() {
                 let _ = h.join();

@@ -134,10 +134,22 @@ mod tests {
             7,
             SystemId(1),
         );
-        assert_eq!(f.verdict(t(0.5), SystemId(1), SystemId(2)), FaultVerdict::Pass);
-        assert_eq!(f.verdict(t(1.0), SystemId(1), SystemId(2)), FaultVerdict::Drop);
-        assert_eq!(f.verdict(t(1.5), SystemId(1), SystemId(3)), FaultVerdict::Pass);
-        assert_eq!(f.verdict(t(2.0), SystemId(1), SystemId(2)), FaultVerdict::Pass);
+        assert_eq!(
+            f.verdict(t(0.5), SystemId(1), SystemId(2)),
+            FaultVerdict::Pass
+        );
+        assert_eq!(
+            f.verdict(t(1.0), SystemId(1), SystemId(2)),
+            FaultVerdict::Drop
+        );
+        assert_eq!(
+            f.verdict(t(1.5), SystemId(1), SystemId(3)),
+            FaultVerdict::Pass
+        );
+        assert_eq!(
+            f.verdict(t(2.0), SystemId(1), SystemId(2)),
+            FaultVerdict::Pass
+        );
     }
 
     #[test]

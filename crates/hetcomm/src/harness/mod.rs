@@ -622,4 +622,3 @@ pub(crate) fn resolve(comm: &Comm, path: &TapPath) -> Result<engine::Target, Tap
         }
     }
 }
-

@@ -230,8 +230,13 @@ pub(crate) fn install(
                     .and_then(|id| sys.core.modules.get(id))
                     .cloned();
                 let result = match found {
-                    Some(core) => Module { sys, core }
-                        .send_raw(&to.0, &to.1, ty, &payload, SendOptions::default()),
+                    Some(core) => Module { sys, core }.send_raw(
+                        &to.0,
+                        &to.1,
+                        ty,
+                        &payload,
+                        SendOptions::default(),
+                    ),
                     None => Err(SendError::UnknownModule(module.clone())),
                 };
                 if let Some(log) = log.upgrade() {

@@ -19,7 +19,9 @@ impl Plain {
             Value::Integer(i) => Plain::Int(*i.value()),
             Value::Float(f) => Plain::Float(*f.value()),
             Value::String(s) => Plain::Str(s.value().clone()),
-            Value::Array(a) => Plain::Array(a.iter().map(Plain::from_value).collect::<Option<_>>()?),
+            Value::Array(a) => {
+                Plain::Array(a.iter().map(Plain::from_value).collect::<Option<_>>()?)
+            }
             Value::InlineTable(t) => Plain::Map(
                 t.iter()
                     .map(|(k, v)| Some((k.to_string(), Plain::from_value(v)?)))
@@ -79,7 +81,16 @@ pub(super) fn parse_links(p: &mut P<'_>, root: &Table, sc: &mut Scenario) {
         p.keys(
             t,
             &what,
-            &["between", "from", "to", "loss", "latency_ms", "jitter_ms", "start", "end"],
+            &[
+                "between",
+                "from",
+                "to",
+                "loss",
+                "latency_ms",
+                "jitter_ms",
+                "start",
+                "end",
+            ],
         );
         let pairs = if t.get("between").is_some() {
             if t.get("from").is_some() || t.get("to").is_some() {
@@ -254,7 +265,11 @@ pub(super) fn parse_taps(p: &mut P<'_>, root: &Table, sc: &mut Scenario) {
                     Some(TapSpec::Topic { system, topic })
                 }
                 (_, Some(_)) => {
-                    p.err(t.get("topic").and_then(Item::span), "empty topic name".into(), None);
+                    p.err(
+                        t.get("topic").and_then(Item::span),
+                        "empty topic name".into(),
+                        None,
+                    );
                     None
                 }
                 _ => None,
@@ -406,7 +421,12 @@ pub(super) fn parse_taps(p: &mut P<'_>, root: &Table, sc: &mut Scenario) {
     }
 }
 
-fn parse_script(p: &mut P<'_>, item: &Item, what: &str, window: Option<Window>) -> Vec<(f64, Vec<u8>)> {
+fn parse_script(
+    p: &mut P<'_>,
+    item: &Item,
+    what: &str,
+    window: Option<Window>,
+) -> Vec<(f64, Vec<u8>)> {
     let entries: Vec<Table> = match item {
         Item::ArrayOfTables(a) => a.iter().cloned().collect(),
         Item::Value(Value::Array(a)) => {
@@ -445,7 +465,11 @@ fn parse_script(p: &mut P<'_>, item: &Item, what: &str, window: Option<Window>) 
         // Entries converted from inline tables lose their spans: point at the script.
         let Some(at) = at else {
             if e.get("at").is_none() {
-                p.err(item.span(), format!("a `script` entry of {what} is missing `at`"), None);
+                p.err(
+                    item.span(),
+                    format!("a `script` entry of {what} is missing `at`"),
+                    None,
+                );
             }
             continue;
         };
@@ -468,7 +492,11 @@ fn parse_script(p: &mut P<'_>, item: &Item, what: &str, window: Option<Window>) 
                     out.push((at, bytes));
                 }
             }
-            None => p.err(item.span(), format!("a `script` entry of {what} is missing `payload`"), None),
+            None => p.err(
+                item.span(),
+                format!("a `script` entry of {what} is missing `payload`"),
+                None,
+            ),
         }
     }
     out.sort_by(|a, b| a.0.total_cmp(&b.0));
