@@ -112,7 +112,7 @@ impl Subscription {
             py.check_signals()?;
             if deadline.is_some_and(|d| Instant::now() >= d) {
                 return Err(new_err(
-                    "TimeoutError",
+                    "RecvTimeout",
                     format!("no value on topic `{}` in time", self.0.topic()),
                 ));
             }

@@ -427,18 +427,21 @@ impl<T> Drop for Subscription<T> {
 pub struct Notification {
     topic: Arc<TopicCore>,
     id: u64,
+    kept: bool,
 }
 
 impl Notification {
     /// Leaves the function on for as long as the system is open.
-    pub fn keep(self) {
-        std::mem::forget(self);
+    pub fn keep(mut self) {
+        self.kept = true;
     }
 }
 
 impl Drop for Notification {
     fn drop(&mut self) {
-        unsubscribe(&self.topic, self.id);
+        if !self.kept {
+            unsubscribe(&self.topic, self.id);
+        }
     }
 }
 
@@ -503,6 +506,7 @@ impl Module {
         Ok(Notification {
             topic: t,
             id: sub.id,
+            kept: false,
         })
     }
 
