@@ -50,7 +50,7 @@ fn messages(c: &mut Criterion) {
     let act = b.module("Act").unwrap();
     let payload = [7u8; 64];
     let mut g = c.benchmark_group("harness 64 B in process");
-    let mut one = |g: &mut criterion::BenchmarkGroup<'_, _>, name: &str| {
+    let one = |g: &mut criterion::BenchmarkGroup<'_, _>, name: &str| {
         g.bench_function(name, |bench| {
             bench.iter(|| {
                 let t = sender

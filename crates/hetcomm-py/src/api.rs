@@ -797,7 +797,11 @@ impl Module {
 
     /// Calls `callback(value)` for every value published on `topic` (the thesis's
     /// Notification), on the publishing thread; keep the returned handle.
-    fn on_topic(&self, topic: &str, callback: Py<PyAny>) -> PyResult<crate::node::TopicNotification> {
+    fn on_topic(
+        &self,
+        topic: &str,
+        callback: Py<PyAny>,
+    ) -> PyResult<crate::node::TopicNotification> {
         crate::node::on_topic(&self.get()?, topic, callback)
     }
 

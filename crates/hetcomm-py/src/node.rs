@@ -96,13 +96,16 @@ impl Subscription {
     #[pyo3(signature = (timeout=None))]
     fn recv(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
         let deadline = match timeout {
-            Some(t) if t.is_finite() && t >= 0.0 => Some(Instant::now() + Duration::from_secs_f64(t)),
+            Some(t) if t.is_finite() && t >= 0.0 => {
+                Some(Instant::now() + Duration::from_secs_f64(t))
+            }
             Some(t) => return Err(PyValueError::new_err(format!("bad timeout {t}"))),
             None => None,
         };
         loop {
             let slice = deadline.map_or(Duration::from_millis(100), |d| {
-                d.saturating_duration_since(Instant::now()).min(Duration::from_millis(100))
+                d.saturating_duration_since(Instant::now())
+                    .min(Duration::from_millis(100))
             });
             match py.detach(|| self.0.recv_timeout(slice)) {
                 Ok(v) => return to_py(py, &v),
@@ -228,13 +231,19 @@ fn message_dict<'py>(py: Python<'py>, m: &hetcomm::TapMessage) -> PyResult<Bound
     d.set_item("time_us", m.time().as_micros())?;
     if let Some(t) = m.topic() {
         d.set_item("topic", t)?;
-        let v = m.value::<PyTopicValue>().map(|v| to_py(py, v)).transpose()?;
+        let v = m
+            .value::<PyTopicValue>()
+            .map(|v| to_py(py, v))
+            .transpose()?;
         d.set_item("value", v)?;
     }
     if let Some(h) = m.header() {
         d.set_item("type", h.message_type.0)?;
         d.set_item("source", (h.source.system.0, h.source.module.0))?;
-        d.set_item("destination", (h.destination.system.0, h.destination.module.0))?;
+        d.set_item(
+            "destination",
+            (h.destination.system.0, h.destination.module.0),
+        )?;
         let payload = m
             .payload()
             .map(value::unpack_value)
@@ -298,10 +307,8 @@ pub fn action(
     delay: Option<f64>,
     copies: u32,
 ) -> PyResult<TapAction> {
-    let need_fn = || {
-        function
-            .clone()
-            .ok_or_else(|| PyTypeError::new_err(format!("action \"{kind}\" needs function=")))
+    let need_fn = move || {
+        function.ok_or_else(|| PyTypeError::new_err(format!("action \"{kind}\" needs function=")))
     };
     Ok(match kind {
         "observe" => {
@@ -376,7 +383,11 @@ pub fn subscribe(m: &hetcomm::Module, topic: &str, capacity: usize) -> PyResult<
 }
 
 /// `Module.on_topic`: `callback(value)` on the publishing thread, with the GIL.
-pub fn on_topic(m: &hetcomm::Module, topic: &str, callback: Py<PyAny>) -> PyResult<TopicNotification> {
+pub fn on_topic(
+    m: &hetcomm::Module,
+    topic: &str,
+    callback: Py<PyAny>,
+) -> PyResult<TopicNotification> {
     m.on_topic::<PyTopicValue>(topic, move |v| {
         let _ = Python::try_attach(|py| {
             if let Err(e) = to_py(py, &v).and_then(|o| callback.call1(py, (o,))) {

@@ -75,6 +75,9 @@ impl TapEntry {
     }
 }
 
+/// A scheduled action: run on the system's harness thread (or the simulator's) at its time.
+pub(crate) type Action = Box<dyn FnOnce(&SystemCore, Time) + Send>;
+
 /// Something held back until its time.
 pub(crate) enum Held {
     /// A message for one of this system's modules.
@@ -88,7 +91,7 @@ pub(crate) enum Held {
         bytes: Vec<u8>,
     },
     /// A scheduled action (an injection, a scripted value).
-    Run(Box<dyn FnOnce(&SystemCore, Time) + Send>),
+    Run(Action),
 }
 
 struct Due {
