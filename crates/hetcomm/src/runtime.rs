@@ -620,7 +620,14 @@ impl SystemCore {
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
         if self.harness.tapped() {
-            return self.harness.on_delivery(self, header, payload, now, None);
+            return self.harness.on_delivery(
+                self,
+                module,
+                header,
+                payload,
+                now,
+                Source::SameProcess,
+            );
         }
         if self.observers.active() {
             return self.deliver_observed(module, header, payload, now, Source::SameProcess);
@@ -895,13 +902,18 @@ impl SystemCore {
     /// Puts a delivery that came through the router (from a link) into its module's inbox
     /// (or callback queue).
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
-        if self.harness.tapped() {
-            return self
-                .harness
-                .on_delivery(self, d.header, d.payload, now, Some(d.link));
-        }
         let module = self.modules.get(&d.header.destination.module);
         let source = Source::Link(d.link);
+        if self.harness.tapped() {
+            return self.harness.on_delivery(
+                self,
+                module.map(|m| &**m),
+                d.header,
+                d.payload,
+                now,
+                source,
+            );
+        }
         if self.observers.active() {
             return self.deliver_observed(module.map(|m| &**m), d.header, d.payload, now, source);
         }
@@ -923,6 +935,19 @@ impl SystemCore {
             Some(l) => Source::Link(l),
             None => Source::Harness,
         };
+        self.deliver_passed(module, header, payload, now, source)
+    }
+
+    /// [`SystemCore::deliver_untapped`] with the module already looked up and the message's
+    /// own source (a message that passed its taps unchanged in time).
+    pub(crate) fn deliver_passed(
+        &self,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
         if self.observers.active() {
             return self.deliver_observed(module, header, payload, now, source);
         }
@@ -1104,7 +1129,7 @@ impl SystemCore {
 /// Where a message being delivered comes from: it decides whether a full `block` inbox may
 /// make the deliverer wait.
 #[derive(Clone, Copy)]
-enum Source {
+pub(crate) enum Source {
     /// Handed over by a sender of this process, on its own thread: it may wait for room.
     SameProcess,
     /// From a link (this index), through the router: refused at once when there is no room.

@@ -20,7 +20,12 @@ use super::faults::{FaultVerdict, Faults};
 use super::{
     Body, HarnessStats, InjectError, TapAction, TapError, TapMessage, TapVerdict, TopicValue,
 };
-use crate::runtime::SystemCore;
+use crate::runtime::{ModuleCore, Source, SystemCore};
+
+/// Whether the header a tap left points at another module than the one looked up.
+fn m_header_changed(h: &Header, module: Option<&ModuleCore>) -> bool {
+    module.is_some_and(|m| m.id != h.destination.module)
+}
 
 /// A resolved path ([`super::TapPath`] with ids).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -260,12 +265,25 @@ impl SystemHarness {
     pub(crate) fn on_delivery(
         &self,
         core: &SystemCore,
+        module: Option<&ModuleCore>,
         header: Header,
         payload: PayloadBuf,
         now: Time,
-        link: Option<usize>,
+        source: Source,
     ) -> AckStatus {
-        let taps = self.snapshot();
+        let taps = {
+            let taps = self.taps.read().unwrap_or_else(|e| e.into_inner());
+            let hit = taps.iter().any(|t| match &t.target {
+                Target::Messages(m) => m.matches(&header),
+                Target::Topic(_) => false,
+            });
+            if !hit {
+                // Taps elsewhere in this system: this message is not theirs.
+                drop(taps);
+                return core.deliver_passed(module, header, payload, now, source);
+            }
+            taps.clone()
+        };
         let mut msg: Option<TapMessage> = None;
         let mut delay = Duration::ZERO;
         let mut copies = 0u32;
@@ -293,7 +311,7 @@ impl SystemHarness {
             }
         }
         let (header, payload) = match (msg, payload) {
-            (None, Some(p)) => return core.deliver_untapped(header, p, now, link),
+            (None, Some(p)) => return core.deliver_passed(module, header, p, now, source),
             (Some(m), _) => match m.body {
                 Body::Bytes(b) => (m.header.unwrap_or(header), b),
                 Body::Value(_) => {
@@ -309,7 +327,11 @@ impl SystemHarness {
             for _ in 0..copies {
                 core.deliver_untapped(header, payload.clone(), now, None);
             }
-            core.deliver_untapped(header, payload, now, link)
+            if m_header_changed(&header, module) {
+                core.deliver_untapped(header, payload, now, None)
+            } else {
+                core.deliver_passed(module, header, payload, now, source)
+            }
         } else {
             bump(&self.counters.delayed, 1);
             for _ in 0..=copies {
