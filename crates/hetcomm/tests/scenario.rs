@@ -236,3 +236,77 @@ fn a_partition_acts_in_real_time_too() {
     assert!(matches!(ticket.wait(), Outcome::Delivered { attempts, .. } if attempts > 1));
     assert!(local.system("A").unwrap().harness_stats().fault_dropped > 0);
 }
+
+/// One system per `Comm` over real UDP sockets, as one process per system would run them:
+/// each applies the scenario to itself, and a partition written for both directions acts at
+/// both ends.
+#[test]
+fn each_system_applies_its_part_of_a_scenario() {
+    let port = || {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .unwrap()
+    };
+    let text = format!(
+        r#"
+[systems]
+A = 0
+B = 1
+[modules]
+Plan = 0
+Act = 1
+[transports.u]
+kind = "udp"
+security = "none"
+attempts = 12
+endpoints = {{ A = "127.0.0.1:{}", B = "127.0.0.1:{}" }}
+[table]
+columns = ["A", "B"]
+A = ["X", "u"]
+B = ["u", "X"]
+"#,
+        port(),
+        port()
+    );
+    let fleet = hetcomm::parse_fleet(&text, "udp.toml", None).unwrap();
+    let sc = parse_scenario(
+        "[[partition]]\nbetween = [\"A\", \"B\"]\nstart = 0.0\nend = 0.4\n",
+        "scenario.toml",
+        &fleet,
+    )
+    .unwrap();
+    let a = hetcomm::Comm::open_fleet(&fleet, "A").unwrap();
+    let b = hetcomm::Comm::open_fleet(&fleet, "B").unwrap();
+    let (_ra, _rb) = (
+        a.apply_scenario(&sc, 5).unwrap(),
+        b.apply_scenario(&sc, 5).unwrap(),
+    );
+    let t0 = std::time::Instant::now();
+    let ticket = a
+        .module("Plan")
+        .unwrap()
+        .send("B", "Act", &Ping { n: 3 })
+        .unwrap();
+    let got = b
+        .module("Act")
+        .unwrap()
+        .recv_timeout::<Ping>(Duration::from_secs(10));
+    let got = got.unwrap_or_else(|e| {
+        panic!(
+            "{e}: outcome {:?}, A {:?}, B {:?}",
+            ticket.try_outcome(),
+            a.harness_stats(),
+            b.harness_stats()
+        )
+    });
+    assert_eq!(got.message, Ping { n: 3 });
+    assert!(
+        t0.elapsed() >= Duration::from_millis(400),
+        "{:?}",
+        t0.elapsed()
+    );
+    assert!(matches!(ticket.wait(), Outcome::Delivered { attempts, .. } if attempts > 1));
+    // Both ends cut: A's data frames, and (once B has heard nothing) nothing of B's.
+    assert!(a.harness_stats().fault_dropped > 0);
+}
