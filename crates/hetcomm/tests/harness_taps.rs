@@ -364,3 +364,46 @@ fn a_tap_on_a_path_that_does_not_exist_is_refused() {
     let err = b.tap(&TapPath::messages("A"), TapAction::Drop).unwrap_err();
     assert!(err.to_string().contains("acts at system `A`"), "{err}");
 }
+
+#[test]
+fn a_tap_function_may_send_through_another_tapped_system() {
+    for (name, env) in [
+        ("real time", Env::real(INPROC)),
+        ("virtual time", Env::sim(INPROC)),
+    ] {
+        let (a, b) = (env.system("A"), env.system("B"));
+        let seen_at_a = Arc::new(AtomicU64::new(0));
+        let s = seen_at_a.clone();
+        let _at_a = a
+            .tap(
+                &TapPath::messages("A"),
+                TapAction::observe(move |_| {
+                    s.fetch_add(1, Ordering::Relaxed);
+                }),
+            )
+            .unwrap();
+        // B echoes every message it sees back to A, from inside its tap.
+        let echo = b.module("Plan").unwrap();
+        let _at_b = b
+            .tap(
+                &path(),
+                TapAction::observe(move |m| {
+                    let c: Cmd = m.decode().unwrap().unwrap();
+                    echo.send("A", "Act", &Cmd { code: c.code + 1 }).unwrap();
+                }),
+            )
+            .unwrap();
+        let plan = a.module("Plan").unwrap();
+        send(&env, &plan, 1);
+        send(&env, &plan, 10);
+        let back = env.take(&a.module("Act").unwrap(), 2, Duration::from_secs(2));
+        assert_eq!(back, [Cmd { code: 2 }, Cmd { code: 11 }], "{name}");
+        assert_eq!(seen_at_a.load(Ordering::Relaxed), 2, "{name}");
+        assert_eq!(
+            env.take(&b.module("Act").unwrap(), 2, Duration::from_secs(2))
+                .len(),
+            2,
+            "{name}"
+        );
+    }
+}

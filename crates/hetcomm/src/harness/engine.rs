@@ -140,16 +140,30 @@ fn bump(c: &AtomicU64, n: u64) {
     c.fetch_add(n, Ordering::Relaxed);
 }
 
+/// Numbers the lists of taps of every system of the process (0: never set).
+static TAP_VERSIONS: AtomicU64 = AtomicU64::new(1);
+
+/// Snapshot of taps type.
+type TapList = Arc<[Arc<TapEntry>]>;
+
+thread_local! {
+    /// The last list of taps this thread delivered through, with its version.
+    static TAPS_SEEN: std::cell::RefCell<(u64, Option<TapList>)> =
+        const { std::cell::RefCell::new((0, None)) };
+}
+
 /// One system's taps, faults and held items. A field of `SystemCore`.
 #[derive(Default)]
 pub(crate) struct SystemHarness {
     /// Some tap sits on a message path here: the gate every delivery checks.
     tapped: AtomicBool,
+    /// Which list of taps is current (see [`SystemHarness::with_taps`]); 0: none yet.
+    version: AtomicU64,
     /// Some tap sits on a topic path here: the gate every publish checks.
     topic_tapped: AtomicBool,
     /// A fault schedule is installed: the gate every frame checks.
     faulted: AtomicBool,
-    taps: RwLock<Arc<[Arc<TapEntry>]>>,
+    taps: RwLock<TapList>,
     next_tap: AtomicU64,
     faults: OnceLock<Faults>,
     queue: Mutex<BinaryHeap<Reverse<Due>>>,
@@ -229,13 +243,19 @@ impl SystemHarness {
     }
 
     fn set_gates(&self, taps: &[Arc<TapEntry>]) {
+        // A new number from a process-wide counter: no two lists of taps of any system share
+        // one, so a thread's cached copy is never taken for another's.
+        self.version.store(
+            TAP_VERSIONS.fetch_add(1, Ordering::Relaxed),
+            Ordering::Release,
+        );
         let msg = taps.iter().any(|t| matches!(t.target, Target::Messages(_)));
         let topic = taps.iter().any(|t| matches!(t.target, Target::Topic(_)));
         self.tapped.store(msg, Ordering::Release);
         self.topic_tapped.store(topic, Ordering::Release);
     }
 
-    fn snapshot(&self) -> Arc<[Arc<TapEntry>]> {
+    fn snapshot(&self) -> TapList {
         self.taps.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
@@ -271,19 +291,46 @@ impl SystemHarness {
         now: Time,
         source: Source,
     ) -> AckStatus {
-        let taps = {
-            let taps = self.taps.read().unwrap_or_else(|e| e.into_inner());
-            let hit = taps.iter().any(|t| match &t.target {
-                Target::Messages(m) => m.matches(&header),
-                Target::Topic(_) => false,
-            });
-            if !hit {
-                // Taps elsewhere in this system: this message is not theirs.
-                drop(taps);
-                return core.deliver_passed(module, header, payload, now, source);
+        self.with_taps(|taps| {
+            self.run_message_taps(taps, core, module, header, payload, now, source)
+        })
+    }
+
+    /// Calls `f` with this system's taps: from this thread's cached copy while the taps have
+    /// not changed since (no lock, no reference count: the common case of a thread delivering
+    /// to one system), else from a fresh snapshot, which then becomes the cached copy.
+    #[inline]
+    fn with_taps<R>(&self, f: impl FnOnce(&[Arc<TapEntry>]) -> R) -> R {
+        let version = self.version.load(Ordering::Acquire);
+        TAPS_SEEN.with(|cache| {
+            // Borrowed for the whole call: a tap function delivering to another system on
+            // this thread finds the cache busy and takes the snapshot path.
+            if let Ok(c) = cache.try_borrow() {
+                if c.0 == version {
+                    if let Some(taps) = &c.1 {
+                        return f(taps);
+                    }
+                }
             }
-            taps.clone()
-        };
+            let snapshot = self.snapshot();
+            if let Ok(mut c) = cache.try_borrow_mut() {
+                *c = (version, Some(snapshot.clone()));
+            }
+            f(&snapshot)
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)] // one delivery's description
+    fn run_message_taps(
+        &self,
+        taps: &[Arc<TapEntry>],
+        core: &SystemCore,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
         let mut msg: Option<TapMessage> = None;
         let mut delay = Duration::ZERO;
         let mut copies = 0u32;
@@ -400,7 +447,16 @@ impl SystemHarness {
         value: TopicValue,
         now: Time,
     ) -> Option<(TopicValue, u32)> {
-        let taps = self.snapshot();
+        self.with_taps(|taps| self.run_topic_taps(taps, topic, value, now))
+    }
+
+    fn run_topic_taps(
+        &self,
+        taps: &[Arc<TapEntry>],
+        topic: &Arc<str>,
+        value: TopicValue,
+        now: Time,
+    ) -> Option<(TopicValue, u32)> {
         let mut msg: Option<TapMessage> = None;
         let mut delay = Duration::ZERO;
         let mut copies = 0u32;
