@@ -920,6 +920,15 @@ impl Comm {
         crate::node::stats(py, &self.get()?.harness_stats())
     }
 
+    /// Applies the parts of a scenario file (docs/harness.md) that concern this system, with
+    /// scenario time 0 now; `seed` seeds random loss and jitter unless the file has its own.
+    #[pyo3(signature = (path, seed=0))]
+    fn apply_scenario(&self, path: PathBuf, seed: u64) -> PyResult<crate::node::ScenarioRun> {
+        let c = self.get()?;
+        let sc = crate::node::load_scenario(&path, c.fleet())?;
+        crate::node::scenario_run(c.apply_scenario(&sc, seed))
+    }
+
     /// Loads a fleet file and opens one system of it. Raises ConfigError (with
     /// file:line:column), UnknownSystemError, TransportUnavailableError, TransportError.
     /// On a secured fleet, `private_key_file` is this system's `.key` file (`hetcomm keygen`
@@ -1131,6 +1140,21 @@ impl LocalFleet {
 
 #[pymethods]
 impl LocalFleet {
+    /// Applies a scenario file (docs/harness.md) to every system of the fleet, with scenario
+    /// time 0 now; `seed` seeds random loss and jitter unless the file has its own.
+    #[pyo3(signature = (path, seed=0))]
+    fn apply_scenario(&self, path: PathBuf, seed: u64) -> PyResult<crate::node::ScenarioRun> {
+        self.with(|f| {
+            let fleet = f
+                .systems()
+                .first()
+                .map(|c| c.fleet().clone())
+                .ok_or_else(|| PyValueError::new_err("the fleet has no system open"))?;
+            let sc = crate::node::load_scenario(&path, &fleet)?;
+            crate::node::scenario_run(f.apply_scenario(&sc, seed))
+        })
+    }
+
     /// Loads a fleet file and opens every system of it.
     #[staticmethod]
     fn open_file(py: Python<'_>, path: PathBuf) -> PyResult<LocalFleet> {

@@ -420,5 +420,54 @@ pub fn add_classes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<TopicNotification>()?;
     m.add_class::<TapHandle>()?;
     m.add_class::<Replacement>()?;
+    m.add_class::<ScenarioRun>()?;
     Ok(())
+}
+
+/// A scenario file applied to systems of this process (`Comm.apply_scenario`,
+/// `LocalFleet.apply_scenario`); its taps stay while this object lives.
+#[pyclass(module = "hetcomm", frozen)]
+pub struct ScenarioRun(std::sync::Mutex<Option<hetcomm::harness::scenario::ScenarioRun>>);
+
+#[pymethods]
+impl ScenarioRun {
+    /// One line per injection: when, what, and its outcome so far.
+    fn injection_report(&self) -> Vec<String> {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .map(|r| r.injection_report())
+            .unwrap_or_default()
+    }
+    /// How many systems got a fault schedule.
+    #[getter]
+    fn faulted_systems(&self) -> usize {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .map_or(0, |r| r.faulted_systems())
+    }
+    /// Removes the scenario's taps (faults and injections stay scheduled).
+    fn end(&self) {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).take();
+    }
+}
+
+/// Loads a scenario file against `fleet`: ConfigError (file:line:column) when it is wrong.
+pub fn load_scenario(
+    path: &std::path::Path,
+    fleet: &hetcomm::config::Fleet,
+) -> PyResult<hetcomm::config::scenario::Scenario> {
+    hetcomm::config::scenario::load_scenario(path, fleet)
+        .map_err(|e| crate::errors::config_error(&e, e.to_string()))
+}
+
+/// Wraps an applied scenario.
+pub fn scenario_run(
+    r: Result<hetcomm::harness::scenario::ScenarioRun, hetcomm::harness::scenario::ScenarioError>,
+) -> PyResult<ScenarioRun> {
+    r.map(|r| ScenarioRun(std::sync::Mutex::new(Some(r))))
+        .map_err(|e| PyValueError::new_err(e.to_string()))
 }

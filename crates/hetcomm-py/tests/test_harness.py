@@ -96,3 +96,22 @@ def test_taps_on_topics_and_bad_paths(fleet):
         alpha.tap("drop", to="Charlie")
     with pytest.raises(TypeError, match="needs function="):
         alpha.tap("observe", to="Alpha")
+
+
+def test_scenario_files_from_python(fleet, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[silence]]\nsystem = "Tnago"\nstart = 0\nend = 1\n')
+    with pytest.raises(hetcomm.ConfigError, match="unknown system `Tnago`"):
+        fleet.apply_scenario(bad)
+    sc = tmp_path / "cut.toml"
+    sc.write_text('[[partition]]\nbetween = ["Alpha", "Charlie"]\nstart = 0.0\nend = 30.0\n'
+                  '[[inject]]\nat = 0.0\nfrom = "Charlie.Plan"\nto = "Alpha.Act"\ntype = 0\n'
+                  'payload = { code = 4 }\n')
+    run = fleet.apply_scenario(sc, seed=3)
+    assert run.faulted_systems == 2
+    plan = fleet.module("Alpha", "Plan")
+    ticket = plan.send("Charlie", "Act", Command(code=1))
+    assert not ticket.wait(timeout=0.3) or not ticket.try_outcome().delivered
+    assert fleet.system("Alpha").harness_stats()["fault_dropped"] > 0
+    time.sleep(0.2)
+    assert len(run.injection_report()) == 1
