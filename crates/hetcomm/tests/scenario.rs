@@ -310,3 +310,72 @@ B = ["u", "X"]
     // Both ends cut: A's data frames, and (once B has heard nothing) nothing of B's.
     assert!(a.harness_stats().fault_dropped > 0);
 }
+
+#[test]
+fn a_scenario_replaces_a_topic_source_and_delays_a_path_for_an_interval() {
+    let fleet = hetcomm::parse_fleet(FLEET, "fleet.toml", None).unwrap();
+    let sc = parse_scenario(
+        r#"
+[[tap]]
+system = "B"
+topic = "cmd"
+action = "replace"
+start = 1.0
+end = 2.0
+script = [{ at = 1.5, payload = { n = 99 } }]
+
+[[tap]]
+to = "B"
+from = "A"
+action = "delay"
+delay_ms = 250.0
+start = 3.0
+end = 4.0
+"#,
+        "scenario.toml",
+        &fleet,
+    )
+    .unwrap();
+    let sim = SimFleet::open(fleet, SimOptions::default()).unwrap();
+    let b = sim.system("B").unwrap();
+    let publisher = b.node("Plan").unwrap().advertise::<Ping>("cmd").unwrap();
+    let sub = b.node("Act").unwrap().subscribe::<Ping>("cmd").unwrap();
+    let run = sim.apply_scenario(&sc, 1).unwrap();
+    assert_eq!(run.taps(), 2);
+    let at = |s: f64| Time::ZERO + Duration::from_secs_f64(s);
+    let mut got = Vec::new();
+    for (t, n) in [(0.5, 1), (1.2, 2), (1.8, 3), (2.5, 4)] {
+        sim.run_until(at(t));
+        publisher.publish(Ping { n }).unwrap();
+        while let Some(p) = sub.try_recv() {
+            got.push((sim.now().as_micros() / 1000, p.n));
+        }
+        sim.run_until(at(t + 0.001));
+        while let Some(p) = sub.try_recv() {
+            got.push((sim.now().as_micros() / 1000, p.n));
+        }
+    }
+    // The real values of 1.2 s and 1.8 s are replaced; the script's value arrives at 1.5 s
+    // (taken at the next look, 1.8 s).
+    assert_eq!(got, [(500, 1), (1800, 99), (2500, 4)]);
+    assert_eq!(b.harness_stats().replaced, 2);
+
+    let a = sim.system("A").unwrap().module("Plan").unwrap();
+    let act = b.module("Act").unwrap();
+    for (t, n) in [(2.9, 10), (3.5, 11)] {
+        sim.run_until(at(t));
+        a.send("B", "Act", &Ping { n }).unwrap();
+        sim.run_until(at(t + 0.01));
+        let now = act.try_recv::<Ping>().unwrap().map(|m| m.message.n);
+        sim.run_until(at(t + 0.3));
+        let later = act.try_recv::<Ping>().unwrap().map(|m| m.message.n);
+        match n {
+            10 => assert_eq!((now, later), (Some(10), None)),
+            _ => assert_eq!(
+                (now, later),
+                (None, Some(11)),
+                "held 250 ms inside the window"
+            ),
+        }
+    }
+}
