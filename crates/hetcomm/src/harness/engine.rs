@@ -147,8 +147,9 @@ static TAP_VERSIONS: AtomicU64 = AtomicU64::new(1);
 type TapList = Arc<[Arc<TapEntry>]>;
 
 thread_local! {
-    /// The last list of taps this thread delivered through, with its version.
-    static TAPS_SEEN: std::cell::RefCell<(u64, Option<TapList>)> =
+    /// The last list of taps this thread delivered through, with its version. Weak: a list
+    /// replaced or a system closed frees its taps (and what their functions hold) at once.
+    static TAPS_SEEN: std::cell::RefCell<(u64, Option<Weak<[Arc<TapEntry>]>>)> =
         const { std::cell::RefCell::new((0, None)) };
 }
 
@@ -296,28 +297,27 @@ impl SystemHarness {
         })
     }
 
-    /// Calls `f` with this system's taps: from this thread's cached copy while the taps have
-    /// not changed since (no lock, no reference count: the common case of a thread delivering
-    /// to one system), else from a fresh snapshot, which then becomes the cached copy.
+    /// Calls `f` with this system's taps: through this thread's weak reference to the list
+    /// while the taps have not changed since (no lock: the common case of a thread
+    /// delivering to one system), else from a fresh snapshot, which the thread then keeps a
+    /// weak reference to.
     #[inline]
     fn with_taps<R>(&self, f: impl FnOnce(&[Arc<TapEntry>]) -> R) -> R {
         let version = self.version.load(Ordering::Acquire);
+        let cached = TAPS_SEEN.with(|cache| match cache.try_borrow() {
+            Ok(c) if c.0 == version => c.1.as_ref().and_then(Weak::upgrade),
+            _ => None,
+        });
+        if let Some(taps) = cached {
+            return f(&taps);
+        }
+        let snapshot = self.snapshot();
         TAPS_SEEN.with(|cache| {
-            // Borrowed for the whole call: a tap function delivering to another system on
-            // this thread finds the cache busy and takes the snapshot path.
-            if let Ok(c) = cache.try_borrow() {
-                if c.0 == version {
-                    if let Some(taps) = &c.1 {
-                        return f(taps);
-                    }
-                }
-            }
-            let snapshot = self.snapshot();
             if let Ok(mut c) = cache.try_borrow_mut() {
-                *c = (version, Some(snapshot.clone()));
+                *c = (version, Some(Arc::downgrade(&snapshot)));
             }
-            f(&snapshot)
-        })
+        });
+        f(&snapshot)
     }
 
     #[allow(clippy::too_many_arguments)] // one delivery's description
