@@ -24,6 +24,8 @@ use hetcomm_sim::report::{self, CommandKind, CommandRecord};
 use hetcomm_sim::{Pose, PoseSample, Scenario, VirtualEnvironment};
 use serde::{Deserialize, Serialize};
 
+pub mod scenario;
+
 /// What the leader tells a follower to do (the thesis's Command message).
 #[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq, Eq)]
 #[message(id = 0)]
@@ -377,6 +379,8 @@ pub struct DemoOptions {
     pub external: Vec<String>,
     /// A tool taking part in the run (recording, monitor statistics, replay).
     pub hooks: Option<Hooks>,
+    /// A scenario file's faults, injections and taps, applied at the start of the run.
+    pub scenario: Option<hetcomm::config::scenario::Scenario>,
 }
 
 impl Default for DemoOptions {
@@ -389,6 +393,7 @@ impl Default for DemoOptions {
             progress: false,
             external: Vec::new(),
             hooks: None,
+            scenario: None,
         }
     }
 }
@@ -404,6 +409,9 @@ pub struct DemoReport {
     pub wall: Duration,
     /// Simulated seconds.
     pub simulated_s: f64,
+    /// What the scenario (if any) did: its schedule, each system's harness counters, and the
+    /// injections' outcomes, one line each.
+    pub scenario: Vec<String>,
 }
 
 /// Runs the demonstration.
@@ -473,6 +481,11 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         None => Vec::new(),
     };
     let is_replaced = |name: &str| replaced.iter().any(|r| r == name);
+    let scenario_run = match (&options.scenario, &sim, &local) {
+        (Some(sc), Some(s), _) => Some(s.apply_scenario(sc, options.seed)?),
+        (Some(sc), _, Some(l)) => Some(l.apply_scenario(sc, options.seed)?),
+        _ => None,
+    };
     let single = options.layout == Layout::SingleVe;
     let ve_of = |rover: &str| -> &'static str {
         match (single, rover) {
@@ -586,6 +599,21 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if options.progress {
         eprintln!();
     }
+    let scenario = match (&options.scenario, &scenario_run) {
+        (Some(sc), Some(run)) => {
+            let stats: Vec<(String, hetcomm::HarnessStats)> = fleet
+                .systems
+                .iter()
+                .filter_map(|s| {
+                    system(&s.name)
+                        .ok()
+                        .map(|c| (s.name.clone(), c.harness_stats()))
+                })
+                .collect();
+            scenario::report_lines(sc, run, &stats)
+        }
+        _ => Vec::new(),
+    };
     // Each rover's records in its place, a replaced rover's from the hooks.
     let mut hooked = match &options.hooks {
         Some(h) => h.lock().finish()?,
@@ -616,6 +644,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         samples,
         wall: wall.elapsed(),
         simulated_s: end_s,
+        scenario,
     })
 }
 

@@ -30,6 +30,8 @@ pub struct DemoArgs<'a> {
     pub security: &'a SecurityArgs,
     /// Recording, replay or monitor statistics taking part in the run.
     pub hooks: Option<leader_follower::Hooks>,
+    /// A scenario file to apply.
+    pub scenario: Option<&'a Path>,
 }
 
 /// A transport definition for a letter, from a short name.
@@ -136,7 +138,14 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     if let Some(notice) = progress_notice(realtime, terminal) {
         eprintln!("{notice}");
     }
-    let report = leader_follower::run(&DemoOptions {
+    let scenario = match args.scenario {
+        Some(path) => match hetcomm::config::scenario::load_scenario(path, &fleet) {
+            Ok(sc) => Some(sc),
+            Err(errors) => anyhow::bail!("{errors}"),
+        },
+        None => None,
+    };
+    let options = DemoOptions {
         seed: args.seed,
         layout,
         fleet: Some(fleet),
@@ -144,9 +153,28 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         external: args.external.clone(),
         progress: terminal,
         hooks: args.hooks,
-    })
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+        scenario,
+    };
+    let report = leader_follower::run(&options).map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
+    let mut scenario_text = String::new();
+    if options.scenario.is_some() {
+        scenario_text = report.scenario.join("\n") + "\n";
+        if !realtime {
+            // Virtual time costs milliseconds: the same seed without the scenario shows what
+            // it changed.
+            let without = leader_follower::run(&DemoOptions {
+                scenario: None,
+                hooks: None,
+                progress: false,
+                ..options.clone()
+            })
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+            scenario_text.push('\n');
+            scenario_text.push_str(&leader_follower::scenario::compare(&report, &without));
+        }
+        println!("{scenario_text}");
+    }
     // How and why these figures differ from the thesis's: printed after the tables and
     // written beside them.
     let note = notes::thesis_comparison(
@@ -164,6 +192,12 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     std::fs::write(&note_path, &note)
         .with_context(|| format!("writing {}", note_path.display()))?;
     files.push(note_path);
+    if !scenario_text.is_empty() {
+        let path = args.out.join("scenario.txt");
+        std::fs::write(&path, &scenario_text)
+            .with_context(|| format!("writing {}", path.display()))?;
+        files.push(path);
+    }
     eprintln!(
         "{:.1} s of scenario in {:.3} s of wall time; wrote:",
         report.simulated_s,

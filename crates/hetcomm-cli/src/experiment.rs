@@ -78,6 +78,10 @@ pub struct ReliabilityArgs {
     /// Which modes to run.
     #[arg(long, value_enum, default_value_t = ModeArg::Both)]
     mode: ModeArg,
+    /// A scenario file (faults, injections, taps in scenario time; docs/harness.md) applied
+    /// to every trial from its start.
+    #[arg(long, value_name = "FILE")]
+    scenario: Option<PathBuf>,
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR", default_value = "hetcomm-out/reliability")]
     out: PathBuf,
@@ -148,9 +152,18 @@ fn load(args: &ReliabilityArgs, out: &Path) -> anyhow::Result<hetcomm::config::F
 
 fn reliability_cmd(args: ReliabilityArgs) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
-    let config = config(&args);
+    let mut config = config(&args);
     reliability::validate(&config)?;
     let fleet = load(&args, &args.out)?;
+    if let Some(path) = &args.scenario {
+        match hetcomm::config::scenario::load_scenario(path, &fleet) {
+            Ok(sc) => config.scenario = Some(sc),
+            Err(errors) => {
+                eprintln!("{errors}");
+                return Ok(ExitCode::from(2));
+            }
+        }
+    }
     let format = match args.format {
         FormatArg::Text => Format::Text,
         FormatArg::Csv => Format::Csv,

@@ -51,6 +51,9 @@ enum Command {
         /// `--keys DIR` (written by `hetcomm keygen`).
         #[arg(long, value_name = "DIR")]
         keys: Option<PathBuf>,
+        /// A scenario file to check against the fleet too (docs/harness.md).
+        #[arg(long, value_name = "FILE")]
+        scenario: Option<PathBuf>,
     },
     /// Print a commented example fleet file (secured: run `hetcomm keygen` for it next).
     GenerateConfig,
@@ -113,6 +116,11 @@ enum Command {
         security: SecurityArgs,
         #[command(flatten)]
         tools: DemoToolArgs,
+        /// A scenario file (faults, injections, taps in scenario time; docs/harness.md), e.g.
+        /// examples/leader_follower/scenario-tango-cut.toml. In virtual time the run is also
+        /// made without it, and what changed is printed.
+        #[arg(long, value_name = "FILE")]
+        scenario: Option<PathBuf>,
     },
     /// Print every message arriving at a system of a live fleet (like `rostopic echo`).
     ///
@@ -343,6 +351,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             table,
             bluetooth,
             keys,
+            scenario,
         } => {
             let kinds = hetcomm::registry().kinds();
             let result = match (file, ids, table, &keys) {
@@ -368,6 +377,22 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                     println!("ok: {}", fleet.summary());
                     for line in fleet.security_lines() {
                         println!("  {line}");
+                    }
+                    if let Some(path) = scenario {
+                        match hetcomm::config::scenario::load_scenario(&path, &fleet) {
+                            Ok(sc) => println!(
+                                "ok: scenario {}: {} fault(s), {} injection(s), {} tap(s), last event at {} s",
+                                path.display(),
+                                sc.faults.len(),
+                                sc.injections.len(),
+                                sc.taps.len(),
+                                sc.end_s()
+                            ),
+                            Err(errors) => {
+                                eprintln!("{errors}");
+                                return Ok(ExitCode::from(2));
+                            }
+                        }
                     }
                     Ok(ExitCode::SUCCESS)
                 }
@@ -531,6 +556,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             external,
             security,
             tools,
+            scenario,
         } => {
             let hooks = record::DemoTools {
                 record: tools.record,
@@ -544,6 +570,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 hooks,
                 external,
                 security: &security,
+                scenario: scenario.as_deref(),
                 seed,
                 out: &out,
                 fleet: fleet.as_deref(),

@@ -64,6 +64,7 @@ pub mod kinds;
 mod legacy;
 pub mod model;
 mod names;
+pub mod scenario;
 pub mod suggest;
 pub mod synthetic;
 mod table;

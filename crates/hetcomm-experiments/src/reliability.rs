@@ -211,6 +211,9 @@ pub struct ReliabilityConfig {
     /// links do, and are never reported to the sender, so thesis mode retries only
     /// transports that refuse a frame.
     pub realtime: bool,
+    /// A scenario file's faults, injections and taps, applied to every trial with scenario
+    /// time 0 at the trial's start (`hetcomm experiment reliability --scenario FILE`).
+    pub scenario: Option<hetcomm::config::scenario::Scenario>,
 }
 
 impl Default for ReliabilityConfig {
@@ -227,6 +230,7 @@ impl Default for ReliabilityConfig {
             point_to_point: POINT_TO_POINT,
             time_limit: Duration::from_secs(120),
             realtime: false,
+            scenario: None,
         }
     }
 }
@@ -994,6 +998,13 @@ fn run_mode(
                 },
             )?)
         };
+        let _scenario = match (&config.scenario, &sim) {
+            (Some(sc), Driver::Sim(s)) => Some(s.apply_scenario(sc, config.seed)),
+            (Some(sc), Driver::Real { fleet, .. }) => Some(fleet.apply_scenario(sc, config.seed)),
+            (None, _) => None,
+        }
+        .transpose()
+        .map_err(|e| ExperimentError::Invalid(e.to_string()))?;
         let modules = senders
             .iter()
             .map(|(id, _)| {

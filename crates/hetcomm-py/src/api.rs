@@ -782,6 +782,29 @@ impl Module {
         inbox_stats(py, &self.get()?.inbox_stats())
     }
 
+    /// Advertises topic `topic` of this module's system (the thesis's Advertise): a Publisher
+    /// whose `publish(obj)` hands `obj` itself to the topic's subscribers.
+    fn advertise(&self, topic: &str) -> PyResult<crate::node::Publisher> {
+        crate::node::advertise(&self.get()?, topic)
+    }
+
+    /// Subscribes to topic `topic` (the thesis's Subscribe): a Subscription queueing up to
+    /// `capacity` values.
+    #[pyo3(signature = (topic, capacity=64))]
+    fn subscribe(&self, topic: &str, capacity: usize) -> PyResult<crate::node::Subscription> {
+        crate::node::subscribe(&self.get()?, topic, capacity)
+    }
+
+    /// Calls `callback(value)` for every value published on `topic` (the thesis's
+    /// Notification), on the publishing thread; keep the returned handle.
+    fn on_topic(
+        &self,
+        topic: &str,
+        callback: Py<PyAny>,
+    ) -> PyResult<crate::node::TopicNotification> {
+        crate::node::on_topic(&self.get()?, topic, callback)
+    }
+
     fn __repr__(&self) -> String {
         match self.get() {
             Ok(m) => format!("<Module {}.{}>", self.system, m.name()),
@@ -853,6 +876,59 @@ fn open_options(private_key_file: Option<PathBuf>) -> PyResult<hetcomm::OpenOpti
 
 #[pymethods]
 impl Comm {
+    /// Places a tap (docs/harness.md) on topic `topic` of `system`, or on messages into
+    /// system `to` (narrowed by `from_`, `module`, `type`). `action`: "observe" or "modify"
+    /// (with `function`), "drop", "delay" (`delay` seconds), "duplicate" (`copies`).
+    #[pyo3(signature = (action, *, to=None, from_=None, module=None, r#type=None, system=None, topic=None, function=None, delay=None, copies=1))]
+    #[allow(clippy::too_many_arguments)] // Python keywords
+    fn tap(
+        &self,
+        action: &str,
+        to: Option<&str>,
+        from_: Option<&str>,
+        module: Option<&str>,
+        r#type: Option<u32>,
+        system: Option<&str>,
+        topic: Option<&str>,
+        function: Option<Py<PyAny>>,
+        delay: Option<f64>,
+        copies: u32,
+    ) -> PyResult<crate::node::TapHandle> {
+        let path = crate::node::path(system, topic, to, from_, module, r#type)?;
+        let action = crate::node::action(action, function, delay, copies)?;
+        crate::node::tap(&self.get()?, &path, action)
+    }
+
+    /// Replaces the source of a path (keywords as `tap`): real messages are discarded while
+    /// the returned Replacement lives; its `inject` / `publish` supply the path instead.
+    #[pyo3(signature = (*, to=None, from_=None, module=None, r#type=None, system=None, topic=None))]
+    fn replace(
+        &self,
+        to: Option<&str>,
+        from_: Option<&str>,
+        module: Option<&str>,
+        r#type: Option<u32>,
+        system: Option<&str>,
+        topic: Option<&str>,
+    ) -> PyResult<crate::node::Replacement> {
+        let path = crate::node::path(system, topic, to, from_, module, r#type)?;
+        crate::node::replace(&self.get()?, &path)
+    }
+
+    /// What this system's harness did: taps' and faults' counters.
+    fn harness_stats(&self, py: Python<'_>) -> PyResult<Py<PyDict>> {
+        crate::node::stats(py, &self.get()?.harness_stats())
+    }
+
+    /// Applies the parts of a scenario file (docs/harness.md) that concern this system, with
+    /// scenario time 0 now; `seed` seeds random loss and jitter unless the file has its own.
+    #[pyo3(signature = (path, seed=0))]
+    fn apply_scenario(&self, path: PathBuf, seed: u64) -> PyResult<crate::node::ScenarioRun> {
+        let c = self.get()?;
+        let sc = crate::node::load_scenario(&path, c.fleet())?;
+        crate::node::scenario_run(c.apply_scenario(&sc, seed))
+    }
+
     /// Loads a fleet file and opens one system of it. Raises ConfigError (with
     /// file:line:column), UnknownSystemError, TransportUnavailableError, TransportError.
     /// On a secured fleet, `private_key_file` is this system's `.key` file (`hetcomm keygen`
@@ -1064,6 +1140,21 @@ impl LocalFleet {
 
 #[pymethods]
 impl LocalFleet {
+    /// Applies a scenario file (docs/harness.md) to every system of the fleet, with scenario
+    /// time 0 now; `seed` seeds random loss and jitter unless the file has its own.
+    #[pyo3(signature = (path, seed=0))]
+    fn apply_scenario(&self, path: PathBuf, seed: u64) -> PyResult<crate::node::ScenarioRun> {
+        self.with(|f| {
+            let fleet = f
+                .systems()
+                .first()
+                .map(|c| c.fleet().clone())
+                .ok_or_else(|| PyValueError::new_err("the fleet has no system open"))?;
+            let sc = crate::node::load_scenario(&path, &fleet)?;
+            crate::node::scenario_run(f.apply_scenario(&sc, seed))
+        })
+    }
+
     /// Loads a fleet file and opens every system of it.
     #[staticmethod]
     fn open_file(py: Python<'_>, path: PathBuf) -> PyResult<LocalFleet> {
@@ -1195,5 +1286,6 @@ pub fn add_classes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(pack, m)?)?;
     m.add_function(wrap_pyfunction!(unpack_py, m)?)?;
     m.add_function(wrap_pyfunction!(decode_frame, m)?)?;
+    crate::node::add_classes(m)?;
     Ok(())
 }

@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 
 mod api;
 mod errors;
+mod node;
 mod value;
 
 #[pymodule]

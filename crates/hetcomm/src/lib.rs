@@ -44,8 +44,10 @@
 
 mod comm;
 mod error;
+pub mod harness;
 mod inbox;
 mod module;
+pub mod node;
 pub mod observe;
 mod reactor;
 mod received;
@@ -57,8 +59,12 @@ mod transports;
 
 pub use comm::{Comm, LocalFleet, SystemStats};
 pub use error::{OpenError, RecvError, SendError};
+pub use harness::{
+    HarnessStats, Replacement, TapAction, TapError, TapHandle, TapMessage, TapPath, TapVerdict,
+};
 pub use inbox::InboxStats;
 pub use module::{Module, RawSender, SendOptions, Sender};
+pub use node::{Node, Notification, Publisher, Subscription, TopicError};
 pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
 pub use runtime::{Clock, WallClock};

@@ -405,6 +405,8 @@ pub(crate) struct SystemCore {
     pub unknown_module: AtomicU64,
     /// Who sees every send, receipt and outcome ([`crate::observe`]).
     pub(crate) observers: Observers,
+    /// Taps, scheduled faults and topics ([`crate::harness`], [`crate::node`]).
+    pub(crate) harness: crate::harness::SystemHarness,
 }
 
 /// The in-process links of a system, through which a message skips framing, checksums and
@@ -460,6 +462,7 @@ impl SystemCore {
             reactor: OnceLock::new(),
             reactor_thread: Mutex::new(None),
             observers: Observers::default(),
+            harness: Default::default(),
         })
     }
 
@@ -471,6 +474,7 @@ impl SystemCore {
         linger_us: Vec<u32>,
         timer_thread: bool,
     ) -> std::io::Result<()> {
+        self.harness.attach(Arc::downgrade(self), timer_thread);
         let reactor = Reactor::new(&links)?;
         let batching = links
             .iter()
@@ -522,6 +526,10 @@ impl SystemCore {
 
     /// The destination system when a send to `to` over `link` can be handed over directly.
     pub(crate) fn direct_peer(&self, link: usize, to: SystemId) -> Option<Arc<SystemCore>> {
+        if self.harness.faulted() {
+            // Scheduled faults act on frames: every send takes the link.
+            return None;
+        }
         let d = self.direct.get()?;
         let name = d.names.get(link)?.as_ref()?;
         let mut cache = d.cache.lock().unwrap_or_else(|e| e.into_inner());
@@ -611,6 +619,16 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
+        if self.harness.tapped() {
+            return self.harness.on_delivery(
+                self,
+                module,
+                header,
+                payload,
+                now,
+                Source::SameProcess,
+            );
+        }
         if self.observers.active() {
             return self.deliver_observed(module, header, payload, now, Source::SameProcess);
         }
@@ -745,6 +763,13 @@ impl SystemCore {
         now: Time,
         traffic: Traffic,
     ) -> Result<(), TransmitError> {
+        if self.harness.faulted()
+            && self
+                .harness
+                .fault_frame(self.id, index, to, frame, body, now)
+        {
+            return Ok(());
+        }
         match self.links().get(index) {
             Some(link) => self
                 .transmit(index, &**link, to, frame, body, now, traffic)
@@ -879,10 +904,70 @@ impl SystemCore {
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let module = self.modules.get(&d.header.destination.module);
         let source = Source::Link(d.link);
+        if self.harness.tapped() {
+            return self.harness.on_delivery(
+                self,
+                module.map(|m| &**m),
+                d.header,
+                d.payload,
+                now,
+                source,
+            );
+        }
         if self.observers.active() {
             return self.deliver_observed(module.map(|m| &**m), d.header, d.payload, now, source);
         }
         self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, source)
+    }
+
+    /// Puts a message that passed this system's taps (or that the harness injected or held
+    /// back) into its module's inbox. `link`: the link it came on (None: from this process,
+    /// or from the harness, which never waits for room).
+    pub(crate) fn deliver_untapped(
+        &self,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        link: Option<usize>,
+    ) -> AckStatus {
+        let module = self.modules.get(&header.destination.module).map(|m| &**m);
+        let source = match link {
+            Some(l) => Source::Link(l),
+            None => Source::Harness,
+        };
+        self.deliver_passed(module, header, payload, now, source)
+    }
+
+    /// [`SystemCore::deliver_untapped`] with the module already looked up and the message's
+    /// own source (a message that passed its taps unchanged in time).
+    pub(crate) fn deliver_passed(
+        &self,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
+        if self.observers.active() {
+            return self.deliver_observed(module, header, payload, now, source);
+        }
+        self.deliver_to(module, header, payload, now, source)
+    }
+
+    /// Puts a frame the harness held back (a scheduled latency) on link `index`.
+    pub(crate) fn send_held_frame(
+        &self,
+        index: usize,
+        to: SystemId,
+        frame: &[u8],
+    ) -> Result<(), LinkError> {
+        if self.is_closed() {
+            return Err(LinkError::Closed);
+        }
+        match self.links().get(index) {
+            Some(link) => link.send(to, frame),
+            None => Err(LinkError::Closed),
+        }
     }
 
     /// Where every send's outcome goes, whichever way the send went: the observers see it,
@@ -948,7 +1033,7 @@ impl SystemCore {
             time: now,
             via: match source {
                 Source::Link(link) => Via::Link(link),
-                Source::SameProcess => Via::Direct,
+                Source::SameProcess | Source::Harness => Via::Direct,
             },
             status,
         });
@@ -987,7 +1072,7 @@ impl SystemCore {
         };
         let pushed = match source {
             Source::SameProcess => inbox.push(entry),
-            Source::Link(_) => inbox.push_from_link(entry),
+            Source::Link(_) | Source::Harness => inbox.push_from_link(entry),
         };
         match pushed {
             Ok(()) => {
@@ -1007,6 +1092,7 @@ impl SystemCore {
         if self.closed.swap(true, Ordering::AcqRel) {
             return;
         }
+        self.harness.close();
         // Let frames already inside the router finish, so that a message just delivered is
         // also acknowledged; bounded, since a frame's handling may be stuck on a full inbox.
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
@@ -1043,11 +1129,14 @@ impl SystemCore {
 /// Where a message being delivered comes from: it decides whether a full `block` inbox may
 /// make the deliverer wait.
 #[derive(Clone, Copy)]
-enum Source {
+pub(crate) enum Source {
     /// Handed over by a sender of this process, on its own thread: it may wait for room.
     SameProcess,
     /// From a link (this index), through the router: refused at once when there is no room.
     Link(usize),
+    /// Put there by the harness (held back, duplicated or injected): refused at once when
+    /// there is no room, as from a link.
+    Harness,
 }
 
 /// A leading module set to spin ([`crate::Module::set_wait_spin`]) looks at its links

@@ -533,6 +533,13 @@ impl SimFleet {
         loop {
             let next_frame = self.net.next_frame_time();
             let next_timer = self.cores.iter().filter_map(|c| c.next_deadline()).min();
+            // What the harness holds back (taps' delays, faults' latency, scheduled
+            // injections) is due like a timer.
+            let next_held = self.cores.iter().filter_map(|c| c.harness.next_due()).min();
+            let next_timer = match (next_timer, next_held) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
             let next = match (next_frame, next_timer) {
                 (Some(a), Some(b)) => a.min(b),
                 (a, b) => match a.or(b) {
@@ -562,6 +569,10 @@ impl SimFleet {
                             .frames_delivered += 1;
                         sink.on_frame(&ev.frame, Peer::Unknown);
                     }
+                }
+            } else if next_held.is_some_and(|t| t <= now) {
+                for core in &self.cores {
+                    core.harness.fire_due(core, now);
                 }
             } else {
                 for core in &self.cores {

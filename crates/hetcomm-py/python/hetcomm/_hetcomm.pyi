@@ -140,6 +140,46 @@ class Module:
     def on_any(self, callback: Callable[[Received], Any]) -> None: ...
     def on_raw(self, type_id: int, callback: Callable[[RawMessage], Any]) -> None: ...
     def inbox_stats(self) -> Dict[str, int]: ...
+    def advertise(self, topic: str) -> Publisher:
+        """The thesis's Advertise: publish(obj) hands obj itself to the topic's subscribers."""
+    def subscribe(self, topic: str, capacity: int = 64) -> Subscription: ...
+    def on_topic(self, topic: str, callback: Callable[[Any], Any]) -> TopicNotification:
+        """The thesis's Notification; keep the returned handle."""
+
+class Publisher:
+    """Publishes Python objects on one topic of a system (no serialization in process)."""
+
+    def publish(self, obj: Any) -> None: ...
+    @property
+    def topic(self) -> str: ...
+
+class Subscription:
+    """Values of one topic queued for one module."""
+
+    def try_recv(self) -> Optional[Any]: ...
+    def recv(self, timeout: Optional[float] = None) -> Any: ...
+    def latest(self) -> Optional[Any]: ...
+    @property
+    def pending(self) -> int: ...
+    @property
+    def dropped(self) -> int: ...
+    @property
+    def topic(self) -> str: ...
+
+class TopicNotification:
+    """Keeps a notification function on a topic while it lives."""
+
+class TapHandle:
+    """Keeps a tap on its path while it lives."""
+
+    def remove(self) -> None: ...
+
+class Replacement:
+    """The replaced source of a path: real messages are discarded while it lives."""
+
+    def inject(self, type_id: int, payload: Any) -> None: ...
+    def publish(self, obj: Any) -> None: ...
+    def end(self) -> None: ...
 
 class Comm:
     """One opened system of a fleet."""
@@ -168,6 +208,43 @@ class Comm:
     def __enter__(self) -> Comm: ...
     def __exit__(self, *exc: object) -> bool: ...
 
+    def tap(
+        self,
+        action: str,
+        *,
+        to: Optional[str] = None,
+        from_: Optional[str] = None,
+        module: Optional[str] = None,
+        type: Optional[int] = None,
+        system: Optional[str] = None,
+        topic: Optional[str] = None,
+        function: Optional[Callable[[Dict[str, Any]], Any]] = None,
+        delay: Optional[float] = None,
+        copies: int = 1,
+    ) -> TapHandle:
+        """A tap on a topic (system=, topic=) or on messages into to= (docs/harness.md)."""
+    def replace(
+        self,
+        *,
+        to: Optional[str] = None,
+        from_: Optional[str] = None,
+        module: Optional[str] = None,
+        type: Optional[int] = None,
+        system: Optional[str] = None,
+        topic: Optional[str] = None,
+    ) -> Replacement: ...
+    def harness_stats(self) -> Dict[str, int]: ...
+    def apply_scenario(self, path: _Path, seed: int = 0) -> ScenarioRun:
+        """Applies this system's part of a scenario file; ConfigError (file:line:column) if wrong."""
+
+class ScenarioRun:
+    """A scenario applied to systems of this process; its taps stay while it lives."""
+
+    def injection_report(self) -> List[str]: ...
+    @property
+    def faulted_systems(self) -> int: ...
+    def end(self) -> None: ...
+
 class LocalFleet:
     """Every system of a fleet in this process."""
 
@@ -184,6 +261,8 @@ class LocalFleet:
     def close(self) -> None: ...
     def __enter__(self) -> LocalFleet: ...
     def __exit__(self, *exc: object) -> bool: ...
+    def apply_scenario(self, path: _Path, seed: int = 0) -> ScenarioRun:
+        """Applies a scenario file to every system; ConfigError (file:line:column) if wrong."""
 
 def pack(obj: Any) -> bytes:
     """Encodes a value (dataclass, dict, list, …) as one MessagePack value."""

@@ -1,0 +1,763 @@
+//! One system's harness: its taps, its scheduled faults, and the queue of what is held back
+//! for later (delayed messages and frames, scheduled injections).
+//!
+//! The queue is driven by the simulator in virtual time (`SimFleet` asks for
+//! [`SystemHarness::next_due`] and calls [`SystemHarness::fire_due`], in time order with
+//! frames and timers), or in real time by a thread the harness starts the first time
+//! something is held, which stops when the system closes.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, RwLock, Weak};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use hetcomm_core::wire::AckStatus;
+use hetcomm_core::{Header, MessageType, ModuleId, PayloadBuf, SystemId, Time};
+
+use super::faults::{FaultVerdict, Faults};
+use super::{
+    Body, HarnessStats, InjectError, TapAction, TapError, TapMessage, TapVerdict, TopicValue,
+};
+use crate::runtime::{ModuleCore, Source, SystemCore};
+
+/// Whether the header a tap left points at another module than the one looked up.
+fn m_header_changed(h: &Header, module: Option<&ModuleCore>) -> bool {
+    module.is_some_and(|m| m.id != h.destination.module)
+}
+
+/// A resolved path ([`super::TapPath`] with ids).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) enum Target {
+    Topic(Arc<str>),
+    Messages(MessageMatch),
+}
+
+/// Which messages arriving at a system a tap takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct MessageMatch {
+    pub from: Option<SystemId>,
+    pub to: SystemId,
+    pub module: Option<ModuleId>,
+    pub message_type: Option<MessageType>,
+}
+
+impl MessageMatch {
+    #[inline]
+    fn matches(&self, h: &Header) -> bool {
+        self.from.is_none_or(|f| f == h.source.system)
+            && self.module.is_none_or(|m| m == h.destination.module)
+            && self.message_type.is_none_or(|t| t == h.message_type)
+    }
+
+    /// Whether two matches can take the same message.
+    fn overlaps(&self, o: &MessageMatch) -> bool {
+        fn meet<T: PartialEq>(a: Option<T>, b: Option<T>) -> bool {
+            match (a, b) {
+                (Some(a), Some(b)) => a == b,
+                _ => true,
+            }
+        }
+        self.to == o.to
+            && meet(self.from, o.from)
+            && meet(self.module, o.module)
+            && meet(self.message_type, o.message_type)
+    }
+}
+
+struct TapEntry {
+    id: u64,
+    target: Target,
+    action: TapAction,
+    window: Option<(Time, Time)>,
+}
+
+impl TapEntry {
+    #[inline]
+    fn active(&self, now: Time) -> bool {
+        self.window.is_none_or(|(a, b)| a <= now && now < b)
+    }
+}
+
+/// A scheduled action: run on the system's harness thread (or the simulator's) at its time.
+pub(crate) type Action = Box<dyn FnOnce(&SystemCore, Time) + Send>;
+
+/// Something held back until its time.
+pub(crate) enum Held {
+    /// A message for one of this system's modules.
+    Deliver { header: Header, payload: PayloadBuf },
+    /// A value for a topic's subscribers.
+    Topic { topic: Arc<str>, value: TopicValue },
+    /// A frame for link `link`, to system `to` (a fault's latency).
+    Frame {
+        link: usize,
+        to: SystemId,
+        bytes: Vec<u8>,
+    },
+    /// A scheduled action (an injection, a scripted value).
+    Run(Action),
+}
+
+struct Due {
+    at: Time,
+    id: u64,
+    item: Held,
+}
+
+impl PartialEq for Due {
+    fn eq(&self, o: &Self) -> bool {
+        (self.at, self.id) == (o.at, o.id)
+    }
+}
+impl Eq for Due {}
+impl PartialOrd for Due {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Due {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        (self.at, self.id).cmp(&(o.at, o.id))
+    }
+}
+
+#[derive(Default)]
+struct Counters {
+    tapped: AtomicU64,
+    dropped: AtomicU64,
+    delayed: AtomicU64,
+    duplicated: AtomicU64,
+    modified: AtomicU64,
+    replaced: AtomicU64,
+    injected: AtomicU64,
+    fault_dropped: AtomicU64,
+    fault_delayed: AtomicU64,
+    lost_on_close: AtomicU64,
+}
+
+fn bump(c: &AtomicU64, n: u64) {
+    c.fetch_add(n, Ordering::Relaxed);
+}
+
+/// Numbers the lists of taps of every system of the process (0: never set).
+static TAP_VERSIONS: AtomicU64 = AtomicU64::new(1);
+
+/// Snapshot of taps type.
+type TapList = Arc<[Arc<TapEntry>]>;
+
+thread_local! {
+    /// The last list of taps this thread delivered through, with its version. Weak: a list
+    /// replaced or a system closed frees its taps (and what their functions hold) at once.
+    static TAPS_SEEN: std::cell::RefCell<(u64, Option<Weak<[Arc<TapEntry>]>>)> =
+        const { std::cell::RefCell::new((0, None)) };
+}
+
+/// One system's taps, faults and held items. A field of `SystemCore`.
+#[derive(Default)]
+pub(crate) struct SystemHarness {
+    /// Some tap sits on a message path here: the gate every delivery checks.
+    tapped: AtomicBool,
+    /// Which list of taps is current (see [`SystemHarness::with_taps`]); 0: none yet.
+    version: AtomicU64,
+    /// Some tap sits on a topic path here: the gate every publish checks.
+    topic_tapped: AtomicBool,
+    /// A fault schedule is installed: the gate every frame checks.
+    faulted: AtomicBool,
+    taps: RwLock<TapList>,
+    next_tap: AtomicU64,
+    faults: OnceLock<Faults>,
+    queue: Mutex<BinaryHeap<Reverse<Due>>>,
+    next_due_id: AtomicU64,
+    wake: Condvar,
+    /// Set when the system starts: its core, and whether a thread must drive the queue.
+    owner: OnceLock<(Weak<SystemCore>, bool)>,
+    driver: Mutex<Option<JoinHandle<()>>>,
+    counters: Counters,
+    /// Sequence numbers of injected messages (their own space: the top bit set).
+    inject_seq: AtomicU64,
+    /// The system's topics ([`crate::node`]).
+    pub(crate) topics: crate::node::Topics,
+}
+
+impl SystemHarness {
+    /// Called when the system starts: `realtime` says whether a thread drives the queue.
+    pub(crate) fn attach(&self, core: Weak<SystemCore>, realtime: bool) {
+        let _ = self.owner.set((core, realtime));
+    }
+
+    /// Whether a message tap is placed here (one relaxed load).
+    #[inline(always)]
+    pub(crate) fn tapped(&self) -> bool {
+        self.tapped.load(Ordering::Relaxed)
+    }
+
+    /// Whether a topic tap is placed here (one relaxed load).
+    #[inline(always)]
+    pub(crate) fn topic_tapped(&self) -> bool {
+        self.topic_tapped.load(Ordering::Relaxed)
+    }
+
+    /// Whether faults are scheduled here (one relaxed load).
+    #[inline(always)]
+    pub(crate) fn faulted(&self) -> bool {
+        self.faulted.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn add_tap(
+        &self,
+        target: Target,
+        action: TapAction,
+        window: Option<(Time, Time)>,
+    ) -> Result<u64, TapError> {
+        let mut taps = self.taps.write().unwrap_or_else(|e| e.into_inner());
+        if matches!(action, TapAction::Replace) {
+            let clash = taps.iter().any(|t| {
+                matches!(t.action, TapAction::Replace)
+                    && same_path(&t.target, &target)
+                    && windows_meet(t.window, window)
+            });
+            if clash {
+                return Err(TapError::AlreadyReplaced {
+                    path: format!("{target:?}"),
+                });
+            }
+        }
+        let id = self.next_tap.fetch_add(1, Ordering::Relaxed);
+        let mut v: Vec<_> = taps.iter().cloned().collect();
+        v.push(Arc::new(TapEntry {
+            id,
+            target,
+            action,
+            window,
+        }));
+        *taps = v.into();
+        self.set_gates(&taps);
+        Ok(id)
+    }
+
+    pub(crate) fn remove_tap(&self, id: u64) {
+        let mut taps = self.taps.write().unwrap_or_else(|e| e.into_inner());
+        let v: Vec<_> = taps.iter().filter(|t| t.id != id).cloned().collect();
+        *taps = v.into();
+        self.set_gates(&taps);
+    }
+
+    fn set_gates(&self, taps: &[Arc<TapEntry>]) {
+        // A new number from a process-wide counter: no two lists of taps of any system share
+        // one, so a thread's cached copy is never taken for another's.
+        self.version.store(
+            TAP_VERSIONS.fetch_add(1, Ordering::Relaxed),
+            Ordering::Release,
+        );
+        let msg = taps.iter().any(|t| matches!(t.target, Target::Messages(_)));
+        let topic = taps.iter().any(|t| matches!(t.target, Target::Topic(_)));
+        self.tapped.store(msg, Ordering::Release);
+        self.topic_tapped.store(topic, Ordering::Release);
+    }
+
+    fn snapshot(&self) -> TapList {
+        self.taps.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    pub(crate) fn stats(&self) -> HarnessStats {
+        let c = &self.counters;
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        HarnessStats {
+            tapped: l(&c.tapped),
+            dropped: l(&c.dropped),
+            delayed: l(&c.delayed),
+            duplicated: l(&c.duplicated),
+            modified: l(&c.modified),
+            replaced: l(&c.replaced),
+            injected: l(&c.injected),
+            fault_dropped: l(&c.fault_dropped),
+            fault_delayed: l(&c.fault_delayed),
+            lost_on_close: l(&c.lost_on_close),
+        }
+    }
+
+    /// Runs the taps of this system's message paths over a message arriving for one of its
+    /// modules, then delivers it (now, later, several times, or not at all). `link`: the link
+    /// it came on (None: handed over in this process). Returns what the inbox answered, or
+    /// `Delivered` when the harness took the message over.
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn on_delivery(
+        &self,
+        core: &SystemCore,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
+        self.with_taps(|taps| {
+            self.run_message_taps(taps, core, module, header, payload, now, source)
+        })
+    }
+
+    /// Calls `f` with this system's taps: through this thread's weak reference to the list
+    /// while the taps have not changed since (no lock: the common case of a thread
+    /// delivering to one system), else from a fresh snapshot, which the thread then keeps a
+    /// weak reference to.
+    #[inline]
+    fn with_taps<R>(&self, f: impl FnOnce(&[Arc<TapEntry>]) -> R) -> R {
+        let version = self.version.load(Ordering::Acquire);
+        let cached = TAPS_SEEN.with(|cache| match cache.try_borrow() {
+            Ok(c) if c.0 == version => c.1.as_ref().and_then(Weak::upgrade),
+            _ => None,
+        });
+        if let Some(taps) = cached {
+            return f(&taps);
+        }
+        let snapshot = self.snapshot();
+        TAPS_SEEN.with(|cache| {
+            if let Ok(mut c) = cache.try_borrow_mut() {
+                *c = (version, Some(Arc::downgrade(&snapshot)));
+            }
+        });
+        f(&snapshot)
+    }
+
+    #[allow(clippy::too_many_arguments)] // one delivery's description
+    fn run_message_taps(
+        &self,
+        taps: &[Arc<TapEntry>],
+        core: &SystemCore,
+        module: Option<&ModuleCore>,
+        header: Header,
+        payload: PayloadBuf,
+        now: Time,
+        source: Source,
+    ) -> AckStatus {
+        let mut msg: Option<TapMessage> = None;
+        let mut delay = Duration::ZERO;
+        let mut copies = 0u32;
+        let mut payload = Some(payload);
+        for t in taps.iter() {
+            let Target::Messages(m) = &t.target else {
+                continue;
+            };
+            if !m.matches(&header) || !t.active(now) {
+                continue;
+            }
+            let msg = msg.get_or_insert_with(|| {
+                bump(&self.counters.tapped, 1);
+                TapMessage {
+                    header: Some(header),
+                    topic: None,
+                    time: now,
+                    body: Body::Bytes(payload.take().unwrap_or_default()),
+                    modified: false,
+                }
+            });
+            match self.apply(&t.action, msg, &mut delay, &mut copies) {
+                Some(()) => {}
+                None => return AckStatus::Delivered,
+            }
+        }
+        let (header, payload) = match (msg, payload) {
+            (None, Some(p)) => return core.deliver_passed(module, header, p, now, source),
+            (Some(m), _) => match m.body {
+                Body::Bytes(b) => (m.header.unwrap_or(header), b),
+                Body::Value(_) => {
+                    // A modify function put a topic value on a message path: it cannot be
+                    // delivered as a message.
+                    bump(&self.counters.dropped, 1);
+                    return AckStatus::Delivered;
+                }
+            },
+            (None, None) => return AckStatus::Delivered,
+        };
+        if delay.is_zero() {
+            for _ in 0..copies {
+                core.deliver_untapped(header, payload.clone(), now, None);
+            }
+            if m_header_changed(&header, module) {
+                core.deliver_untapped(header, payload, now, None)
+            } else {
+                core.deliver_passed(module, header, payload, now, source)
+            }
+        } else {
+            bump(&self.counters.delayed, 1);
+            for _ in 0..=copies {
+                self.hold(
+                    now + delay,
+                    Held::Deliver {
+                        header,
+                        payload: payload.clone(),
+                    },
+                );
+            }
+            AckStatus::Delivered
+        }
+    }
+
+    /// Applies one tap's action; None: the message is gone (dropped or replaced).
+    fn apply(
+        &self,
+        action: &TapAction,
+        msg: &mut TapMessage,
+        delay: &mut Duration,
+        copies: &mut u32,
+    ) -> Option<()> {
+        let verdict = match action {
+            TapAction::Observe(f) => {
+                f(msg);
+                TapVerdict::Pass
+            }
+            TapAction::Drop => TapVerdict::Drop,
+            TapAction::Delay(d) => TapVerdict::Delay(*d),
+            TapAction::Duplicate(n) => TapVerdict::Duplicate(*n),
+            TapAction::Modify(f) => {
+                let v = f(msg);
+                if std::mem::take(&mut msg.modified) {
+                    bump(&self.counters.modified, 1);
+                }
+                v
+            }
+            TapAction::Replace => {
+                bump(&self.counters.replaced, 1);
+                return None;
+            }
+        };
+        match verdict {
+            TapVerdict::Pass => {}
+            TapVerdict::Drop => {
+                bump(&self.counters.dropped, 1);
+                return None;
+            }
+            TapVerdict::Delay(d) => *delay += d,
+            TapVerdict::Duplicate(n) => {
+                bump(&self.counters.duplicated, u64::from(n));
+                *copies += n;
+            }
+        }
+        Some(())
+    }
+
+    /// Runs the taps of topic `topic` over a published value; returns the values to deliver
+    /// now (none, one, or copies) and holds delayed ones back.
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn on_publish(
+        &self,
+        topic: &Arc<str>,
+        value: TopicValue,
+        now: Time,
+    ) -> Option<(TopicValue, u32)> {
+        self.with_taps(|taps| self.run_topic_taps(taps, topic, value, now))
+    }
+
+    fn run_topic_taps(
+        &self,
+        taps: &[Arc<TapEntry>],
+        topic: &Arc<str>,
+        value: TopicValue,
+        now: Time,
+    ) -> Option<(TopicValue, u32)> {
+        let mut msg: Option<TapMessage> = None;
+        let mut delay = Duration::ZERO;
+        let mut copies = 0u32;
+        let mut value = Some(value);
+        for t in taps.iter() {
+            let Target::Topic(name) = &t.target else {
+                continue;
+            };
+            if name != topic || !t.active(now) {
+                continue;
+            }
+            let msg = msg.get_or_insert_with(|| {
+                bump(&self.counters.tapped, 1);
+                TapMessage {
+                    header: None,
+                    topic: Some(topic.clone()),
+                    time: now,
+                    body: Body::Value(value.take().expect("taken once")),
+                    modified: false,
+                }
+            });
+            self.apply(&t.action, msg, &mut delay, &mut copies)?;
+        }
+        let value = match (msg, value) {
+            (None, Some(v)) => v,
+            (Some(m), _) => match m.body {
+                Body::Value(v) => v,
+                Body::Bytes(b) => Arc::new(b.to_vec()) as TopicValue,
+            },
+            (None, None) => return None,
+        };
+        if delay.is_zero() {
+            return Some((value, copies));
+        }
+        bump(&self.counters.delayed, 1);
+        for _ in 0..=copies {
+            self.hold(
+                now + delay,
+                Held::Topic {
+                    topic: topic.clone(),
+                    value: value.clone(),
+                },
+            );
+        }
+        None
+    }
+
+    /// Installs a fault schedule (once per system).
+    pub(crate) fn set_faults(&self, faults: Faults) {
+        if self.faults.set(faults).is_ok() {
+            self.faulted.store(true, Ordering::Release);
+        }
+    }
+
+    /// What the scheduled faults do with a frame from this system to `to` at `now`.
+    pub(crate) fn fault_verdict(&self, now: Time, from: SystemId, to: SystemId) -> FaultVerdict {
+        match self.faults.get() {
+            Some(f) => f.verdict(now, from, to),
+            None => FaultVerdict::Pass,
+        }
+    }
+
+    /// Applies the fault schedule to a frame about to leave on `link`; true: the harness
+    /// took it (dropped it, or holds it back), false: it goes now.
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn fault_frame(
+        &self,
+        from: SystemId,
+        link: usize,
+        to: SystemId,
+        frame: &[u8],
+        body: &[u8],
+        now: Time,
+    ) -> bool {
+        match self.fault_verdict(now, from, to) {
+            FaultVerdict::Pass => false,
+            FaultVerdict::Drop => {
+                bump(&self.counters.fault_dropped, 1);
+                true
+            }
+            FaultVerdict::Delay(d) => {
+                bump(&self.counters.fault_delayed, 1);
+                let mut bytes = Vec::with_capacity(frame.len() + body.len());
+                bytes.extend_from_slice(frame);
+                bytes.extend_from_slice(body);
+                self.hold(now + d, Held::Frame { link, to, bytes });
+                true
+            }
+        }
+    }
+
+    /// Counts an item that could not be handed over.
+    pub(crate) fn count_lost(&self) {
+        bump(&self.counters.lost_on_close, 1);
+    }
+
+    /// Injects an encoded payload on a message path or a topic.
+    pub(crate) fn inject_bytes(
+        &self,
+        core: &SystemCore,
+        target: &Target,
+        message_type: MessageType,
+        payload: &[u8],
+        now: Time,
+    ) -> Result<(), InjectError> {
+        match target {
+            Target::Messages(m) => {
+                let module = m.module.ok_or_else(|| InjectError::Unsupported {
+                    path: format!("{target:?}"),
+                    reason: "the path names no destination module".into(),
+                })?;
+                let header = self.injected_header(core, m, module, message_type, now);
+                bump(&self.counters.injected, 1);
+                match core.deliver_untapped(header, PayloadBuf::copy_from_slice(payload), now, None)
+                {
+                    AckStatus::Delivered => Ok(()),
+                    other => Err(InjectError::Refused(other)),
+                }
+            }
+            Target::Topic(name) => {
+                let value = self.topics.decode(name, payload)?;
+                self.inject_value(target, value, now)
+            }
+        }
+    }
+
+    /// A header for an injected message: as from the path's source system (the destination
+    /// itself when the path names none), numbered in a space of its own.
+    fn injected_header(
+        &self,
+        core: &SystemCore,
+        m: &MessageMatch,
+        module: ModuleId,
+        message_type: MessageType,
+        now: Time,
+    ) -> Header {
+        let mut h = Header::data(
+            hetcomm_core::Address {
+                system: m.from.unwrap_or(core.id),
+                module,
+            },
+            hetcomm_core::Address {
+                system: m.to,
+                module,
+            },
+            m.message_type.unwrap_or(message_type),
+        );
+        h.seq = (1 << 63) | self.inject_seq.fetch_add(1, Ordering::Relaxed);
+        h.timestamp = now;
+        h
+    }
+
+    /// Publishes a value to a topic's subscribers, past its taps.
+    pub(crate) fn inject_value(
+        &self,
+        target: &Target,
+        value: TopicValue,
+        now: Time,
+    ) -> Result<(), InjectError> {
+        match target {
+            Target::Topic(name) => {
+                bump(&self.counters.injected, 1);
+                self.topics.deliver(name, value, now);
+                Ok(())
+            }
+            Target::Messages(_) => Err(InjectError::Unsupported {
+                path: format!("{target:?}"),
+                reason: "a message path takes encoded payloads (Replacement::inject)".into(),
+            }),
+        }
+    }
+
+    /// Holds `item` until `at`.
+    pub(crate) fn hold(&self, at: Time, item: Held) {
+        let id = self.next_due_id.fetch_add(1, Ordering::Relaxed);
+        self.queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(Reverse(Due { at, id, item }));
+        self.wake.notify_all();
+        self.ensure_driver();
+    }
+
+    /// The earliest time something held is due.
+    pub(crate) fn next_due(&self) -> Option<Time> {
+        self.queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .peek()
+            .map(|Reverse(d)| d.at)
+    }
+
+    /// Hands over everything due at or before `now`, in time order.
+    pub(crate) fn fire_due(&self, core: &SystemCore, now: Time) {
+        loop {
+            let item = {
+                let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+                match q.peek() {
+                    Some(Reverse(d)) if d.at <= now => q.pop().map(|Reverse(d)| d.item),
+                    _ => None,
+                }
+            };
+            let Some(item) = item else { return };
+            self.fire(core, item, now);
+        }
+    }
+
+    fn fire(&self, core: &SystemCore, item: Held, now: Time) {
+        match item {
+            Held::Deliver { header, payload } => {
+                if core.deliver_untapped(header, payload, now, None) != AckStatus::Delivered {
+                    bump(&self.counters.lost_on_close, 1);
+                }
+            }
+            Held::Topic { topic, value } => self.topics.deliver(&topic, value, now),
+            Held::Frame { link, to, bytes } => {
+                if core.send_held_frame(link, to, &bytes).is_err() {
+                    bump(&self.counters.lost_on_close, 1);
+                }
+            }
+            Held::Run(f) => f(core, now),
+        }
+    }
+
+    /// Starts the real-time driver thread if it is needed and not running.
+    fn ensure_driver(&self) {
+        let Some((weak, true)) = self.owner.get() else {
+            return;
+        };
+        let mut driver = self.driver.lock().unwrap_or_else(|e| e.into_inner());
+        if driver.is_some() {
+            return;
+        }
+        let weak = weak.clone();
+        let name = weak
+            .upgrade()
+            .map(|c| c.name)
+            .unwrap_or("closed")
+            .to_string();
+        *driver = std::thread::Builder::new()
+            .name(format!("hetcomm-harness-{name}"))
+            .spawn(move || drive(weak))
+            .ok();
+    }
+
+    /// Counts what is still held when the system closes, and wakes the driver so it ends.
+    pub(crate) fn close(&self) {
+        let left = {
+            let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+            let n = q.len() as u64;
+            q.clear();
+            n
+        };
+        bump(&self.counters.lost_on_close, left);
+        self.wake.notify_all();
+        let handle = self.driver.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(h) = handle {
+            if h.thread().id() != std::thread::current().id() {
+                let _ = h.join();
+            }
+        }
+    }
+}
+
+/// The real-time driver: sleeps until the next held item is due, hands it over, and ends when
+/// the system closes.
+fn drive(core: Weak<SystemCore>) {
+    loop {
+        let Some(c) = core.upgrade() else { return };
+        if c.is_closed() {
+            return;
+        }
+        let now = c.clock.now();
+        c.harness.fire_due(&c, now);
+        let h = &c.harness;
+        let q = h.queue.lock().unwrap_or_else(|e| e.into_inner());
+        let wait = match q.peek() {
+            Some(Reverse(d)) => {
+                Duration::from_micros(d.at.as_micros().saturating_sub(c.clock.now().as_micros()))
+            }
+            // Look again now and then so that a closed system's thread ends.
+            None => Duration::from_millis(200),
+        };
+        if !wait.is_zero() {
+            let _ = h.wake.wait_timeout(q, wait.min(Duration::from_millis(200)));
+        }
+    }
+}
+
+fn same_path(a: &Target, b: &Target) -> bool {
+    match (a, b) {
+        (Target::Topic(x), Target::Topic(y)) => x == y,
+        (Target::Messages(x), Target::Messages(y)) => x.overlaps(y),
+        _ => false,
+    }
+}
+
+fn windows_meet(a: Option<(Time, Time)>, b: Option<(Time, Time)>) -> bool {
+    match (a, b) {
+        (Some((a0, a1)), Some((b0, b1))) => a0 < b1 && b0 < a1,
+        _ => true,
+    }
+}
