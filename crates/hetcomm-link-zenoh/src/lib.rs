@@ -74,7 +74,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::Wait;
 
 pub use config::{validate_prefix, Mode, ZenohSettings};
-pub use presence::{PresenceEvent, PresenceEvents};
+pub use presence::{watch_all as watch_presence, PresenceEvent, PresenceEvents};
 use presence::{Presence, Seen};
 
 /// Registers the `zenoh` transport factory ([`factory::ZenohFactory`]).
@@ -195,7 +195,7 @@ impl ZenohLink {
             .iter()
             .map(|(id, n)| (n.clone(), *id))
             .collect();
-        let presence = Arc::new(Presence::new());
+        let presence = Arc::new(Presence::new(config.local));
         let live_prefix = format!("{}/live/", s.prefix);
         let follower = presence.clone();
         let live = session

@@ -45,6 +45,17 @@ impl PresenceEvents {
     }
 }
 
+/// Feeds of every link of the process ([`watch_all`]): the local system and the change.
+static EVERY_LINK: Mutex<Vec<mpsc::Sender<(SystemId, PresenceEvent)>>> = Mutex::new(Vec::new());
+
+/// Joins and leaves seen by every `zenoh` link of this process from now on, each with the
+/// system whose link saw it (what `hetcomm listen` prints).
+pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
+    let (tx, rx) = mpsc::channel();
+    EVERY_LINK.lock().unwrap_or_else(|e| e.into_inner()).push(tx);
+    rx
+}
+
 #[derive(Default)]
 struct State {
     seen: HashMap<SystemId, Seen>,
@@ -55,13 +66,15 @@ struct State {
 
 /// The presence table of one link, written by its liveliness subscriber.
 pub(crate) struct Presence {
+    local: SystemId,
     state: Mutex<State>,
     changed: Condvar,
 }
 
 impl Presence {
-    pub(crate) fn new() -> Presence {
+    pub(crate) fn new(local: SystemId) -> Presence {
         Presence {
+            local,
             state: Mutex::new(State::default()),
             changed: Condvar::new(),
         }
@@ -87,6 +100,10 @@ impl Presence {
         };
         st.listeners.retain(|l| l.send(event).is_ok());
         drop(st);
+        EVERY_LINK
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .retain(|l| l.send((self.local, event)).is_ok());
         self.changed.notify_all();
     }
 
@@ -152,7 +169,7 @@ mod tests {
 
     #[test]
     fn a_token_seen_then_gone_is_left_and_events_follow() {
-        let p = Presence::new();
+        let p = Presence::new(SystemId(0));
         let events = p.events();
         assert_eq!(
             p.wait_present(SystemId(1), Duration::from_millis(1)),
@@ -172,7 +189,7 @@ mod tests {
 
     #[test]
     fn a_waiting_send_wakes_when_the_token_appears() {
-        let p = std::sync::Arc::new(Presence::new());
+        let p = std::sync::Arc::new(Presence::new(SystemId(0)));
         let q = p.clone();
         let t = std::thread::spawn(move || q.wait_present(SystemId(2), Duration::from_secs(10)));
         std::thread::sleep(Duration::from_millis(20));
