@@ -137,11 +137,19 @@ pub(crate) fn zenoh_config(s: &ZenohSettings) -> Result<zenoh::Config, OpenError
     Ok(c)
 }
 
+/// Zenoh's error text without the ` at /path/to/zenoh/src/file.rs:123.` it appends.
+pub(crate) fn without_source_location(text: &str) -> String {
+    match text.find(" at /") {
+        Some(i) if text[i..].contains(".rs:") => text[..i].trim_end_matches('.').to_string(),
+        _ => text.to_string(),
+    }
+}
+
 /// Opens the session for `s`, turning a connect failure into [`OpenError::Unreachable`].
 pub(crate) fn open_session(s: &ZenohSettings) -> Result<zenoh::Session, OpenError> {
     let config = zenoh_config(s)?;
     zenoh::open(config).wait().map_err(|e| {
-        let reason = e.to_string();
+        let reason = without_source_location(&e.to_string());
         let endpoints = if s.connect.is_empty() {
             s.listen.join(", ")
         } else {
