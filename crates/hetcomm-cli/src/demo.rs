@@ -30,7 +30,9 @@ pub struct DemoArgs<'a> {
 /// reach it: every system is a client of it (loopback has no multicast for scouting).
 #[cfg(feature = "zenoh")]
 fn zenoh_router() -> anyhow::Result<(hetcomm_link_zenoh::router::ZenohRouter, String)> {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let router =
         hetcomm_link_zenoh::router::ZenohRouter::start(std::slice::from_ref(&endpoint), false)?;
@@ -43,7 +45,12 @@ fn zenoh_router() -> anyhow::Result<(hetcomm_link_zenoh::router::ZenohRouter, St
 
 /// A transport definition for a letter, from a short name; `zenoh_keys` are the keys of a
 /// `zenoh` transport (reaching the demo's router).
-fn transport_toml(name: &str, letter: char, spec: &str, zenoh_keys: &str) -> anyhow::Result<String> {
+fn transport_toml(
+    name: &str,
+    letter: char,
+    spec: &str,
+    zenoh_keys: &str,
+) -> anyhow::Result<String> {
     Ok(match spec {
         "zenoh" => format!("[transports.{name}]\nkind = \"zenoh\"\n{zenoh_keys}"),
         "inproc" => format!("[transports.{name}]\nkind = \"inproc\"\n"),
@@ -137,8 +144,16 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     if realtime && !args.realtime {
         eprintln!(
             "--{} uses a real {}: running in real time (as with --realtime)",
-            if args.r == "ros1" || args.r == "zenoh" { "r" } else { "b" },
-            if args.r == "ros1" { "ROS master" } else { "Zenoh router" }
+            if args.r == "ros1" || args.r == "zenoh" {
+                "r"
+            } else {
+                "b"
+            },
+            if args.r == "ros1" {
+                "ROS master"
+            } else {
+                "Zenoh router"
+            }
         );
     }
     let layout = if args.single_ve {

@@ -186,11 +186,19 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
 #[cfg(feature = "zenoh")]
 fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::Sender<Event>) {
     use hetcomm_link_zenoh::PresenceEvent;
-    let Some(me) = fleet.systems.iter().find(|s| s.name == system).map(|s| s.id) else {
+    let Some(me) = fleet
+        .systems
+        .iter()
+        .find(|s| s.name == system)
+        .map(|s| s.id)
+    else {
         return;
     };
-    let names: std::collections::HashMap<_, _> =
-        fleet.systems.iter().map(|s| (s.id, s.name.clone())).collect();
+    let names: std::collections::HashMap<_, _> = fleet
+        .systems
+        .iter()
+        .map(|s| (s.id, s.name.clone()))
+        .collect();
     let feed = hetcomm_link_zenoh::watch_presence();
     let _ = std::thread::Builder::new()
         .name("listen-presence".into())
@@ -204,7 +212,10 @@ fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::
                     PresenceEvent::Left(id) => (id, "left"),
                 };
                 let name = names.get(&id).cloned().unwrap_or_else(|| id.to_string());
-                if tx.send(Event::Presence(format!("{name} {what} (zenoh)"))).is_err() {
+                if tx
+                    .send(Event::Presence(format!("{name} {what} (zenoh)")))
+                    .is_err()
+                {
                     break;
                 }
             }

@@ -158,6 +158,10 @@ enum Command {
         /// router in `connect`).
         #[arg(long)]
         multicast_scouting: bool,
+        /// Zenoh's lease of the router's sessions, in milliseconds: its clients and peers
+        /// consider it gone after hearing nothing for this long.
+        #[arg(long, default_value_t = 10_000)]
+        lease_ms: u32,
     },
     /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
     Experiment {
@@ -279,7 +283,8 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
         Command::ZenohRouter {
             listen,
             multicast_scouting,
-        } => zenoh_router(&listen, multicast_scouting),
+            lease_ms,
+        } => zenoh_router(&listen, multicast_scouting, lease_ms),
         Command::Demo {
             seed,
             out,
@@ -307,9 +312,17 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
 
 /// `hetcomm zenoh-router`: runs until the process is killed.
 #[cfg(feature = "zenoh")]
-fn zenoh_router(listen: &[String], multicast_scouting: bool) -> anyhow::Result<ExitCode> {
+fn zenoh_router(
+    listen: &[String],
+    multicast_scouting: bool,
+    lease_ms: u32,
+) -> anyhow::Result<ExitCode> {
     use std::io::Write;
-    let router = hetcomm_link_zenoh::router::ZenohRouter::start(listen, multicast_scouting)?;
+    let router = hetcomm_link_zenoh::router::ZenohRouter::start_with_lease(
+        listen,
+        multicast_scouting,
+        lease_ms,
+    )?;
     eprintln!(
         "zenoh router {} listening on {} (multicast scouting {}); Ctrl-C to stop",
         router.zenoh_id(),
@@ -325,8 +338,10 @@ fn zenoh_router(listen: &[String], multicast_scouting: bool) -> anyhow::Result<E
 
 /// `hetcomm zenoh-router` in a build without Zenoh.
 #[cfg(not(feature = "zenoh"))]
-fn zenoh_router(_listen: &[String], _multicast_scouting: bool) -> anyhow::Result<ExitCode> {
-    anyhow::bail!(
-        "this build has no Zenoh: rebuild with `--features zenoh`"
-    )
+fn zenoh_router(
+    _listen: &[String],
+    _multicast_scouting: bool,
+    _lease_ms: u32,
+) -> anyhow::Result<ExitCode> {
+    anyhow::bail!("this build has no Zenoh: rebuild with `--features zenoh`")
 }

@@ -15,7 +15,9 @@
 //! | `received` | `{"event":"received","count":C,"duplicates":D,"tags":{TAG: C}}`: messages that reached module `M` since the start, how many of them a second time (same sender and text) |
 //! | `quit` | closes the system and exits |
 //!
-//! Every join and leave its Zenoh links see is printed as `{"event":"joined"|"left","system":..}`.
+//! Every join and leave its Zenoh links see is printed as
+//! `{"event":"joined"|"left","system":..,"links":N}`, N the number of its links that see that
+//! system now (a system on two `zenoh` transports has joined fully at 2, left fully at 0).
 
 use std::collections::HashMap;
 use std::io::{BufRead, Write};
@@ -113,6 +115,7 @@ fn main() {
         .map(|s| s.id);
     let presence = hetcomm_link_zenoh::watch_presence();
     std::thread::spawn(move || {
+        let mut links: HashMap<hetcomm::SystemId, u32> = HashMap::new();
         for (local, event) in presence {
             if Some(local) != me {
                 continue;
@@ -121,9 +124,14 @@ fn main() {
                 PresenceEvent::Joined(id) => (id, "joined"),
                 PresenceEvent::Left(id) => (id, "left"),
             };
+            let n = links.entry(id).or_insert(0);
+            match event {
+                PresenceEvent::Joined(_) => *n += 1,
+                PresenceEvent::Left(_) => *n = n.saturating_sub(1),
+            }
             let name = names.get(&id).cloned().unwrap_or_else(|| id.to_string());
             emit(format!(
-                "{{\"event\":\"{what}\",\"system\":{}}}",
+                "{{\"event\":\"{what}\",\"system\":{},\"links\":{n}}}",
                 quote(&name)
             ));
         }

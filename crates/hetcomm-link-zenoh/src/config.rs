@@ -40,11 +40,16 @@ pub struct ZenohSettings {
     /// `prefix`: the first chunks of every key expression of this transport (default
     /// `hetcomm`); fleets that share a Zenoh network each take their own.
     pub prefix: String,
-    /// `presence_timeout_ms`: how long a send waits for a destination never seen on the
-    /// network (its liveliness token) before it fails (default 2000).
+    /// `presence_timeout_ms`: for how long after the link opened a send waits for a destination
+    /// never seen on the network (its liveliness token) to appear; afterwards such a send fails
+    /// at once (default 2000).
     pub presence_timeout_ms: u32,
     /// `open_timeout_ms`: how long opening waits for a `connect` endpoint (default 5000).
     pub open_timeout_ms: u32,
+    /// `lease_ms`: Zenoh's lease for this session (default 10000, Zenoh's): the others
+    /// consider the session gone, and its token with it, when they hear nothing from it for
+    /// this long (a cut link, a dead host).
+    pub lease_ms: u32,
 }
 
 impl Default for ZenohSettings {
@@ -57,6 +62,7 @@ impl Default for ZenohSettings {
             prefix: "hetcomm".into(),
             presence_timeout_ms: 2000,
             open_timeout_ms: 5000,
+            lease_ms: 10_000,
         }
     }
 }
@@ -128,6 +134,7 @@ pub(crate) fn zenoh_config(s: &ZenohSettings) -> Result<zenoh::Config, OpenError
         "scouting/multicast/enabled",
         s.multicast_scouting.to_string(),
     )?;
+    set("transport/link/tx/lease", s.lease_ms.to_string())?;
     if !s.connect.is_empty() {
         // Opening fails, naming the endpoints, when none answers in time; once open, Zenoh
         // keeps reconnecting to them (a router that restarts is found again).
@@ -176,7 +183,9 @@ mod tests {
     fn prefixes_zenoh_rejects_are_refused_with_a_reason() {
         assert_eq!(validate_prefix("hetcomm"), Ok(()));
         assert_eq!(validate_prefix("site-a/fleet 1"), Ok(()));
-        for bad in ["", "a/*", "a/**/b", "/a", "a/", "a//b", "a?b", "a#b", "@/x", "a$*b"] {
+        for bad in [
+            "", "a/*", "a/**/b", "/a", "a/", "a//b", "a?b", "a#b", "@/x", "a$*b",
+        ] {
             assert!(validate_prefix(bad).is_err(), "{bad:?} accepted");
         }
     }

@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_config::TransportSettings;
+use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
 use crate::config::check_endpoint;
@@ -14,7 +14,7 @@ use crate::{validate_prefix, Mode, ZenohLink, ZenohLinkConfig, ZenohSettings};
 pub struct ZenohFactory;
 
 /// The keys of a `zenoh` transport, besides the ones every transport has.
-pub const KEYS: [&str; 7] = [
+pub const KEYS: [&str; 8] = [
     "mode",
     "connect",
     "listen",
@@ -22,6 +22,7 @@ pub const KEYS: [&str; 7] = [
     "prefix",
     "presence_timeout_ms",
     "open_timeout_ms",
+    "lease_ms",
 ];
 
 impl KindSpec for ZenohFactory {
@@ -110,6 +111,17 @@ impl KindSpec for ZenohFactory {
                     Some(v) => *slot = v as u32,
                     None => ok = false,
                 }
+            }
+        }
+        if s.has("lease_ms") {
+            match s.int_in(
+                "lease_ms",
+                500,
+                600_000,
+                "milliseconds; Zenoh's default is 10000",
+            ) {
+                Some(v) => z.lease_ms = v as u32,
+                None => ok = false,
             }
         }
         ok.then(|| RegisteredSettings::new(z))

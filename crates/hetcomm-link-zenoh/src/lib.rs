@@ -40,8 +40,9 @@
 //! * whose token has gone (it left, or its host was cut off and Zenoh's lease expired): fails
 //!   at once with [`LinkError::Unreachable`] and that reason, instead of waiting for the
 //!   router's retransmissions to run out;
-//! * never seen yet: waits for its token at most `presence_timeout_ms` (default 2 s), then
-//!   fails as unreachable. Waiting for the token also means the destination's subscription has
+//! * never seen: during the first `presence_timeout_ms` (default 2 s) after the link opened,
+//!   while discovery is still going on, waits for its token until then; afterwards fails at
+//!   once as unreachable. Waiting for the token also means the destination's subscription has
 //!   reached this session (it is declared before the token), so the first put is not lost to
 //!   discovery.
 //!
@@ -356,10 +357,9 @@ impl Link for ZenohLink {
                 return Err(LinkError::Unreachable {
                     peer: to,
                     reason: format!(
-                        "{} is not on the Zenoh network: no liveliness token `{}` within {} ms",
+                        "{} is not on the Zenoh network: no liveliness token `{}` seen since this link opened",
                         dest.name,
                         live_key(&self.prefix, &dest.name),
-                        self.presence_timeout.as_millis()
                     ),
                 })
             }

@@ -52,7 +52,10 @@ static EVERY_LINK: Mutex<Vec<mpsc::Sender<(SystemId, PresenceEvent)>>> = Mutex::
 /// system whose link saw it (what `hetcomm listen` prints).
 pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
     let (tx, rx) = mpsc::channel();
-    EVERY_LINK.lock().unwrap_or_else(|e| e.into_inner()).push(tx);
+    EVERY_LINK
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push(tx);
     rx
 }
 
@@ -67,6 +70,7 @@ struct State {
 /// The presence table of one link, written by its liveliness subscriber.
 pub(crate) struct Presence {
     local: SystemId,
+    opened: Instant,
     state: Mutex<State>,
     changed: Condvar,
 }
@@ -75,6 +79,7 @@ impl Presence {
     pub(crate) fn new(local: SystemId) -> Presence {
         Presence {
             local,
+            opened: Instant::now(),
             state: Mutex::new(State::default()),
             changed: Condvar::new(),
         }
@@ -107,10 +112,12 @@ impl Presence {
         self.changed.notify_all();
     }
 
-    /// `id`'s presence, waiting up to `timeout` for a token never seen to appear.
-    pub(crate) fn wait_present(&self, id: SystemId, timeout: Duration) -> Seen {
+    /// `id`'s presence. A token never seen is waited for until `grace` after the link opened
+    /// (while discovery is still going on); after that, not seen means absent at once, so a
+    /// send to a system that is not there never holds its caller (or the router's timer).
+    pub(crate) fn wait_present(&self, id: SystemId, grace: Duration) -> Seen {
         let mut st = self.lock();
-        let deadline = Instant::now() + timeout;
+        let deadline = self.opened + grace;
         loop {
             let seen = st.seen.get(&id).copied().unwrap_or(Seen::Never);
             if seen != Seen::Never || st.closed {
@@ -171,10 +178,7 @@ mod tests {
     fn a_token_seen_then_gone_is_left_and_events_follow() {
         let p = Presence::new(SystemId(0));
         let events = p.events();
-        assert_eq!(
-            p.wait_present(SystemId(1), Duration::from_millis(1)),
-            Seen::Never
-        );
+        assert_eq!(p.wait_present(SystemId(1), Duration::ZERO), Seen::Never);
         p.set(SystemId(1), Seen::Present);
         p.set(SystemId(1), Seen::Present); // a duplicate report changes nothing
         assert_eq!(p.present(), [SystemId(1)]);
@@ -185,6 +189,18 @@ mod tests {
         assert_eq!(events.try_recv(), Some(PresenceEvent::Left(SystemId(1))));
         assert_eq!(events.try_recv(), None);
         assert_eq!(p.joins(), 1);
+    }
+
+    #[test]
+    fn a_token_never_seen_is_waited_for_only_while_the_link_is_new() {
+        let p = Presence::new(SystemId(0));
+        std::thread::sleep(Duration::from_millis(30));
+        let started = Instant::now();
+        assert_eq!(
+            p.wait_present(SystemId(3), Duration::from_millis(20)),
+            Seen::Never
+        );
+        assert!(started.elapsed() < Duration::from_millis(10));
     }
 
     #[test]

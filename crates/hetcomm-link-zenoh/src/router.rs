@@ -18,6 +18,16 @@ impl ZenohRouter {
     /// Starts a router listening on `listen` (e.g. `tcp/0.0.0.0:7447`), with multicast scouting
     /// on or off. Fails, naming the endpoint, when it cannot listen there.
     pub fn start(listen: &[String], multicast_scouting: bool) -> Result<ZenohRouter, OpenError> {
+        Self::start_with_lease(listen, multicast_scouting, 10_000)
+    }
+
+    /// [`ZenohRouter::start`] with Zenoh's lease for the router's sessions (how long the
+    /// others wait before they consider the router gone; Zenoh's default is 10 000 ms).
+    pub fn start_with_lease(
+        listen: &[String],
+        multicast_scouting: bool,
+        lease_ms: u32,
+    ) -> Result<ZenohRouter, OpenError> {
         if listen.is_empty() {
             return Err(OpenError::Setting {
                 key: "listen".into(),
@@ -42,18 +52,14 @@ impl ZenohRouter {
         set("listen/endpoints", format!("[{}]", quoted.join(",")))?;
         set("listen/exit_on_failure", "true".into())?;
         set("connect/endpoints", "[]".into())?;
-        set(
-            "scouting/multicast/enabled",
-            multicast_scouting.to_string(),
-        )?;
-        let session = zenoh::open(c)
-            .wait()
-            .map_err(|e| OpenError::Unreachable {
-                mode: "router",
-                endpoints: listen.join(", "),
-                timeout_ms: 0,
-                reason: e.to_string(),
-            })?;
+        set("transport/link/tx/lease", lease_ms.to_string())?;
+        set("scouting/multicast/enabled", multicast_scouting.to_string())?;
+        let session = zenoh::open(c).wait().map_err(|e| OpenError::Unreachable {
+            mode: "router",
+            endpoints: listen.join(", "),
+            timeout_ms: 0,
+            reason: e.to_string(),
+        })?;
         Ok(ZenohRouter {
             session: Some(session),
             listen: listen.to_vec(),

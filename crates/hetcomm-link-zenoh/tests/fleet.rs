@@ -102,21 +102,35 @@ fn the_keys_parse_into_settings_and_their_mistakes_are_located() {
          help: add `connect = [\"tcp/ROUTER:7447\"]`"
     );
     let e = errors("prefx = \"x\"");
-    assert!(e.contains("unknown key `prefx`") && e.contains("did you mean `prefix`"), "{e}");
+    assert!(
+        e.contains("unknown key `prefx`") && e.contains("did you mean `prefix`"),
+        "{e}"
+    );
 }
 
 #[test]
 fn an_unreachable_router_fails_the_open_within_seconds_naming_it() {
     let endpoint = format!("tcp/127.0.0.1:{}", common::free_port());
-    let keys = client_keys(&endpoint, &common::unique_prefix(), "open_timeout_ms = 1000");
+    let keys = client_keys(
+        &endpoint,
+        &common::unique_prefix(),
+        "open_timeout_ms = 1000",
+    );
     let fleet = hetcomm::parse_fleet(&fleet_text(&keys), "z.toml", None).expect("valid");
     let started = Instant::now();
     let Err(err) = Comm::open_fleet(&fleet, "A") else {
         panic!("no router listens there: opening must fail");
     };
     let text = err.to_string();
-    assert!(started.elapsed() < Duration::from_secs(5), "took {:?}", started.elapsed());
-    assert!(text.contains(&endpoint) && text.contains("did not answer"), "{text}");
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "took {:?}",
+        started.elapsed()
+    );
+    assert!(
+        text.contains(&endpoint) && text.contains("did not answer"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -127,11 +141,19 @@ fn acknowledged_sends_are_delivered_and_a_system_that_left_fails_at_once() {
     let to = b.module("M").unwrap();
     for i in 0..20u8 {
         let outcome = from
-            .send_raw("B", "M", hetcomm::MessageType(7), &[0x91, i], SendOptions::default())
+            .send_raw(
+                "B",
+                "M",
+                hetcomm::MessageType(7),
+                &[0x91, i],
+                SendOptions::default(),
+            )
             .expect("send")
             .wait();
         assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome}");
-        let got = to.recv_raw_timeout(Some(Duration::from_secs(5))).expect("recv");
+        let got = to
+            .recv_raw_timeout(Some(Duration::from_secs(5)))
+            .expect("recv");
         assert_eq!(got.payload, [0x91, i]);
     }
     drop(to);
@@ -141,12 +163,22 @@ fn acknowledged_sends_are_delivered_and_a_system_that_left_fails_at_once() {
     loop {
         let started = Instant::now();
         let outcome = from
-            .send_raw("B", "M", hetcomm::MessageType(7), &[0x90], SendOptions::default())
+            .send_raw(
+                "B",
+                "M",
+                hetcomm::MessageType(7),
+                &[0x90],
+                SendOptions::default(),
+            )
             .expect("send")
             .wait();
         match outcome {
             Outcome::Failed { reason, .. } if reason.to_string().contains("is absent") => {
-                assert!(started.elapsed() < Duration::from_millis(500), "{:?}", started.elapsed());
+                assert!(
+                    started.elapsed() < Duration::from_millis(500),
+                    "{:?}",
+                    started.elapsed()
+                );
                 assert!(reason.to_string().contains("liveliness token"), "{reason}");
                 break;
             }
@@ -169,7 +201,13 @@ fn unacknowledged_sends_are_sent_and_arrive_between_peers_through_a_router() {
     let to = b.module("M").unwrap();
     for i in 0..50u8 {
         let outcome = from
-            .send_raw("B", "M", hetcomm::MessageType(7), &[0x91, i], SendOptions::default())
+            .send_raw(
+                "B",
+                "M",
+                hetcomm::MessageType(7),
+                &[0x91, i],
+                SendOptions::default(),
+            )
             .expect("send")
             .wait();
         assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
@@ -193,13 +231,18 @@ fn a_malformed_put_is_counted_and_dropped() {
     // A plain Zenoh client puts bytes that are not a frame on B's key.
     let mut c = zenoh::Config::default();
     c.insert_json5("mode", "\"client\"").unwrap();
-    c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]")).unwrap();
-    c.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
     let raw = zenoh::open(c).wait().expect("raw session");
     let key = data_key(&prefix, "B");
     let deadline = Instant::now() + Duration::from_secs(10);
     while b.stats().router.malformed == 0 {
-        assert!(Instant::now() < deadline, "the malformed put was not counted");
+        assert!(
+            Instant::now() < deadline,
+            "the malformed put was not counted"
+        );
         raw.put(&key, b"not a frame".to_vec()).wait().expect("put");
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -207,7 +250,13 @@ fn a_malformed_put_is_counted_and_dropped() {
     let outcome = a
         .module("M")
         .unwrap()
-        .send_raw("B", "M", hetcomm::MessageType(7), &[0xc0], SendOptions::default())
+        .send_raw(
+            "B",
+            "M",
+            hetcomm::MessageType(7),
+            &[0xc0],
+            SendOptions::default(),
+        )
         .unwrap()
         .wait();
     assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome}");

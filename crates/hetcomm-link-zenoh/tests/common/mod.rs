@@ -33,9 +33,7 @@ pub fn unique_prefix() -> String {
 
 /// Names for the systems the conformance suite uses (1 and 2) and a few more.
 pub fn systems() -> HashMap<SystemId, String> {
-    (1..=8)
-        .map(|i| (SystemId(i), format!("S{i}")))
-        .collect()
+    (1..=8).map(|i| (SystemId(i), format!("S{i}"))).collect()
 }
 
 /// A router on a free loopback port, multicast scouting off.
