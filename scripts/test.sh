@@ -34,6 +34,9 @@ cargo test --workspace
 step "ROS 1 against a real master (installs ros-core when missing)"
 bash scripts/ros1-test.sh
 
+step "Zenoh: conformance, a Python Zenoh client, multi-host in network namespaces"
+bash scripts/zenoh-test.sh
+
 step "python bindings"
 bash scripts/test-python.sh
 
