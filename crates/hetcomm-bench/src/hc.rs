@@ -22,6 +22,9 @@ pub enum Kind {
     Tcp,
     /// `inproc` (one process, two threads).
     Inproc,
+    /// `zenoh`: two Zenoh peers (TCP on loopback, multicast scouting off) that find each other
+    /// through a Zenoh router in the measuring process, then talk directly.
+    Zenoh,
 }
 
 impl Kind {
@@ -31,6 +34,7 @@ impl Kind {
             Kind::Udp => "udp",
             Kind::Tcp => "tcp",
             Kind::Inproc => "inproc",
+            Kind::Zenoh => "zenoh",
         }
     }
 }
@@ -56,9 +60,15 @@ fn free_port(kind: Kind) -> Result<u16, String> {
     port.map_err(|e| format!("finding a free port: {e}"))
 }
 
-/// The fleet file text: systems A and B, module M, one transport `t`.
+/// The fleet file text: systems A and B, module M, one transport `t`. For `zenoh`, `ports`
+/// is the router's port (twice).
 pub fn fleet_text(kind: Kind, acked: bool, ports: Option<(u16, u16)>) -> String {
     let endpoints = match ports {
+        Some((r, _)) if kind == Kind::Zenoh => format!(
+            "mode = \"peer\"\nconnect = [\"tcp/127.0.0.1:{r}\"]\nlisten = [\"tcp/127.0.0.1:0\"]\n\
+             multicast_scouting = false\nprefix = \"hetcomm-bench/{}\"\n",
+            std::process::id()
+        ),
         Some((a, b)) => format!("endpoints = {{ A = \"127.0.0.1:{a}\", B = \"127.0.0.1:{b}\" }}\n"),
         None => String::new(),
     };
@@ -92,6 +102,9 @@ B = ["t", "X"]
 /// System A of a two-process pair plus its peer process (system B in role `role`).
 struct Pair {
     _dir: TempDir,
+    /// The Zenoh router the peers find each other through (`zenoh` only).
+    #[cfg(feature = "hetcomm-zenoh")]
+    _router: Option<hetcomm_link_zenoh::router::ZenohRouter>,
     peer: Peer,
     comm: Comm,
     m: Module,
@@ -100,6 +113,17 @@ struct Pair {
 fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     let dir = TempDir::new()?;
     let ports = (free_port(kind)?, free_port(kind)?);
+    #[cfg(feature = "hetcomm-zenoh")]
+    let router = match kind {
+        Kind::Zenoh => Some(
+            hetcomm_link_zenoh::router::ZenohRouter::start(
+                &[format!("tcp/127.0.0.1:{}", ports.0)],
+                false,
+            )
+            .map_err(|e| format!("zenoh router: {e}"))?,
+        ),
+        _ => None,
+    };
     let path = dir.0.join("fleet.toml");
     std::fs::write(&path, fleet_text(kind, acked, Some(ports)))
         .map_err(|e| format!("{}: {e}", path.display()))?;
@@ -109,6 +133,8 @@ fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     let m = comm.module("M").map_err(|e| e.to_string())?;
     Ok(Pair {
         _dir: dir,
+        #[cfg(feature = "hetcomm-zenoh")]
+        _router: router,
         peer,
         comm,
         m,

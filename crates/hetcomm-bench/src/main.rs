@@ -281,7 +281,7 @@ fn run(o: &Options) -> Vec<Row> {
     };
     let dds = !o.no_ddsperf && ext::ddsperf_available();
     let mut rows = Vec::new();
-    let hc_paths = [
+    let mut hc_paths = vec![
         (hc::Kind::Udp, false),
         (hc::Kind::Udp, true),
         (hc::Kind::Tcp, false),
@@ -289,6 +289,9 @@ fn run(o: &Options) -> Vec<Row> {
         (hc::Kind::Inproc, false),
         (hc::Kind::Inproc, true),
     ];
+    if cfg!(feature = "hetcomm-zenoh") {
+        hc_paths.extend([(hc::Kind::Zenoh, false), (hc::Kind::Zenoh, true)]);
+    }
     let raws = [raw::RawKind::Udp, raw::RawKind::Tcp, raw::RawKind::Unix];
 
     if want("rtt") {
