@@ -46,7 +46,9 @@ fn fleet_text(n: usize, endpoint: &str, prefix: &str) -> String {
     );
     t.push_str("]\n");
     for i in 0..n {
-        let row: Vec<&str> = (0..n).map(|j| if i == j { "\"X\"" } else { "\"z\"" }).collect();
+        let row: Vec<&str> = (0..n)
+            .map(|j| if i == j { "\"X\"" } else { "\"z\"" })
+            .collect();
         t.push_str(&format!("S{i} = [{}]\n", row.join(",")));
     }
     t
@@ -86,8 +88,11 @@ fn run(n: usize) -> Result<String, String> {
     let broadcast_seen = Arc::new(AtomicU64::new(0));
     let last_arrival = Arc::new(Mutex::new(Instant::now()));
     for m in &modules {
-        let (received, broadcast_seen, last_arrival) =
-            (received.clone(), broadcast_seen.clone(), last_arrival.clone());
+        let (received, broadcast_seen, last_arrival) = (
+            received.clone(),
+            broadcast_seen.clone(),
+            last_arrival.clone(),
+        );
         m.on_any(move |msg| {
             if msg.envelope.header.is_broadcast() {
                 broadcast_seen.fetch_add(1, Ordering::Relaxed);
@@ -127,7 +132,10 @@ fn run(n: usize) -> Result<String, String> {
             .filter(|(_, o)| matches!(o, Outcome::Delivered { .. }))
             .count();
         if delivered != n - 1 {
-            return Err(format!("broadcast {round}: {delivered} of {} delivered", n - 1));
+            return Err(format!(
+                "broadcast {round}: {delivered} of {} delivered",
+                n - 1
+            ));
         }
         bcast.push(reached);
     }
@@ -148,7 +156,13 @@ fn run(n: usize) -> Result<String, String> {
         let to = format!("S{}", (from + 1) % n);
         tickets.push(
             modules[from]
-                .send_raw(&to, "M", MessageType(1), &[0x11; 64], SendOptions::default())
+                .send_raw(
+                    &to,
+                    "M",
+                    MessageType(1),
+                    &[0x11; 64],
+                    SendOptions::default(),
+                )
                 .map_err(|e| e.to_string())?,
         );
     }

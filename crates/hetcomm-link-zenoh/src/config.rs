@@ -40,9 +40,9 @@ pub struct ZenohSettings {
     /// `prefix`: the first chunks of every key expression of this transport (default
     /// `hetcomm`); fleets that share a Zenoh network each take their own.
     pub prefix: String,
-    /// `presence_timeout_ms`: for how long after the link opened a send waits for a destination
-    /// never seen on the network (its liveliness token) to appear; afterwards such a send fails
-    /// at once (default 2000).
+    /// `presence_timeout_ms`: how long the first send to a destination never seen on the
+    /// network waits for its liveliness token to appear; afterwards sends to it fail at once
+    /// until it appears (default 5000).
     pub presence_timeout_ms: u32,
     /// `open_timeout_ms`: how long opening waits for a `connect` endpoint (default 5000).
     pub open_timeout_ms: u32,
@@ -60,7 +60,7 @@ impl Default for ZenohSettings {
             listen: Vec::new(),
             multicast_scouting: true,
             prefix: "hetcomm".into(),
-            presence_timeout_ms: 2000,
+            presence_timeout_ms: 5000,
             open_timeout_ms: 5000,
             lease_ms: 10_000,
         }

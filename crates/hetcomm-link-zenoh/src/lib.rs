@@ -40,9 +40,9 @@
 //! * whose token has gone (it left, or its host was cut off and Zenoh's lease expired): fails
 //!   at once with [`LinkError::Unreachable`] and that reason, instead of waiting for the
 //!   router's retransmissions to run out;
-//! * never seen: during the first `presence_timeout_ms` (default 2 s) after the link opened,
-//!   while discovery is still going on, waits for its token until then; afterwards fails at
-//!   once as unreachable. Waiting for the token also means the destination's subscription has
+//! * never seen: the first send to it waits for its token, at most `presence_timeout_ms`
+//!   (default 5 s: discovery may still be going on); if it does not come, that send and every
+//!   later one fails at once as unreachable, until the token appears. Waiting for the token also means the destination's subscription has
 //!   reached this session (it is declared before the token), so the first put is not lost to
 //!   discovery.
 //!
@@ -353,16 +353,14 @@ impl Link for ZenohLink {
                     ),
                 })
             }
-            Seen::Never => {
-                return Err(LinkError::Unreachable {
-                    peer: to,
-                    reason: format!(
-                        "{} is not on the Zenoh network: no liveliness token `{}` seen since this link opened",
-                        dest.name,
-                        live_key(&self.prefix, &dest.name),
-                    ),
-                })
-            }
+            Seen::Never => return Err(LinkError::Unreachable {
+                peer: to,
+                reason: format!(
+                    "{} is not on the Zenoh network: its liveliness token `{}` has not been seen",
+                    dest.name,
+                    live_key(&self.prefix, &dest.name),
+                ),
+            }),
         }
         let publisher = self.publisher(to, dest)?;
         publisher

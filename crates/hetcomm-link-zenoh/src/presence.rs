@@ -62,6 +62,8 @@ pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
 #[derive(Default)]
 struct State {
     seen: HashMap<SystemId, Seen>,
+    /// When a send first waited for a system never seen.
+    first_wait: HashMap<SystemId, Instant>,
     joins: u64,
     listeners: Vec<mpsc::Sender<PresenceEvent>>,
     closed: bool,
@@ -70,7 +72,6 @@ struct State {
 /// The presence table of one link, written by its liveliness subscriber.
 pub(crate) struct Presence {
     local: SystemId,
-    opened: Instant,
     state: Mutex<State>,
     changed: Condvar,
 }
@@ -79,7 +80,6 @@ impl Presence {
     pub(crate) fn new(local: SystemId) -> Presence {
         Presence {
             local,
-            opened: Instant::now(),
             state: Mutex::new(State::default()),
             changed: Condvar::new(),
         }
@@ -112,12 +112,12 @@ impl Presence {
         self.changed.notify_all();
     }
 
-    /// `id`'s presence. A token never seen is waited for until `grace` after the link opened
-    /// (while discovery is still going on); after that, not seen means absent at once, so a
-    /// send to a system that is not there never holds its caller (or the router's timer).
+    /// `id`'s presence. A token never seen is waited for until `grace` after the first send
+    /// that asked (discovery may still be going on); after that, not seen means absent at
+    /// once, so a system that is not there holds a caller (or the router's timer) only once.
     pub(crate) fn wait_present(&self, id: SystemId, grace: Duration) -> Seen {
         let mut st = self.lock();
-        let deadline = self.opened + grace;
+        let deadline = *st.first_wait.entry(id).or_insert_with(Instant::now) + grace;
         loop {
             let seen = st.seen.get(&id).copied().unwrap_or(Seen::Never);
             if seen != Seen::Never || st.closed {
@@ -192,15 +192,20 @@ mod tests {
     }
 
     #[test]
-    fn a_token_never_seen_is_waited_for_only_while_the_link_is_new() {
+    fn a_token_never_seen_is_waited_for_once() {
         let p = Presence::new(SystemId(0));
-        std::thread::sleep(Duration::from_millis(30));
         let started = Instant::now();
         assert_eq!(
-            p.wait_present(SystemId(3), Duration::from_millis(20)),
+            p.wait_present(SystemId(3), Duration::from_millis(30)),
             Seen::Never
         );
-        assert!(started.elapsed() < Duration::from_millis(10));
+        assert!(started.elapsed() >= Duration::from_millis(30));
+        let again = Instant::now();
+        assert_eq!(
+            p.wait_present(SystemId(3), Duration::from_millis(30)),
+            Seen::Never
+        );
+        assert!(again.elapsed() < Duration::from_millis(10));
     }
 
     #[test]
