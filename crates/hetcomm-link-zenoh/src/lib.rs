@@ -353,14 +353,16 @@ impl Link for ZenohLink {
                     ),
                 })
             }
-            Seen::Never => return Err(LinkError::Unreachable {
-                peer: to,
-                reason: format!(
+            Seen::Never => {
+                return Err(LinkError::Unreachable {
+                    peer: to,
+                    reason: format!(
                     "{} is not on the Zenoh network: its liveliness token `{}` has not been seen",
                     dest.name,
                     live_key(&self.prefix, &dest.name),
                 ),
-            }),
+                })
+            }
         }
         let publisher = self.publisher(to, dest)?;
         publisher
