@@ -52,9 +52,11 @@
 //! ## Threads
 //!
 //! Zenoh runs its own tokio runtime (shared by every session of the process). Received frames
-//! are handed to the [`FrameSink`] on one thread per link, `hetcomm-zenoh-rx`, fed by the
-//! subscription's bounded queue (when the queue is full, Zenoh's reader waits: backpressure
-//! rather than loss), so a sink may send (an acknowledgement, a reply) without stalling Zenoh.
+//! are handed to the [`FrameSink`] on Zenoh's receiving thread (a subscriber callback): no
+//! hand-off to another thread. A send made from there (the router's acknowledgement, a
+//! callback's reply) never waits for presence: to a system never seen it puts anyway (that
+//! system has just sent a frame), to one seen leaving it fails at once. A sink that blocks
+//! (an inbox full under the `block` policy) holds Zenoh's reader: backpressure, not loss.
 //! [`Link::send`] puts on the caller's thread.
 
 mod config;
@@ -65,7 +67,6 @@ pub mod router;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, RwLock};
-use std::thread::JoinHandle;
 use std::time::Duration;
 
 use hetcomm_core::SystemId;
@@ -167,7 +168,13 @@ pub struct ZenohLink {
     counters: Arc<Counters>,
     _token: zenoh::liveliness::LivelinessToken,
     _live: zenoh::pubsub::Subscriber<()>,
-    rx: Option<JoinHandle<()>>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+}
+
+thread_local! {
+    /// True while this thread runs the sink for a frame Zenoh delivered: a send made from
+    /// there (an acknowledgement, a reply) must not wait for presence on Zenoh's thread.
+    static IN_CALLBACK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
 impl ZenohLink {
@@ -217,9 +224,24 @@ impl ZenohLink {
             .wait()
             .map_err(zerr("liveliness subscriber"))?;
 
-        // The subscription before the token: whoever sees the token can put to us.
+        // The subscription before the token: whoever sees the token can put to us. Frames go
+        // to the sink on Zenoh's receiving thread, with no hand-off to another thread (a
+        // wake-up that crosses CPUs costs tens of microseconds a frame).
+        let counters = Arc::new(Counters::default());
+        let rx_counters = counters.clone();
         let sub = session
             .declare_subscriber(data_key(&s.prefix, &local_name))
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                if bytes.is_empty() {
+                    rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
+                    return;
+                }
+                rx_counters.received.fetch_add(1, Ordering::Relaxed);
+                IN_CALLBACK.with(|c| c.set(true));
+                sink.on_frame(&bytes, Peer::Unknown);
+                IN_CALLBACK.with(|c| c.set(false));
+            })
             .wait()
             .map_err(zerr("subscriber"))?;
         let token = session
@@ -227,24 +249,6 @@ impl ZenohLink {
             .declare_token(live_key(&s.prefix, &local_name))
             .wait()
             .map_err(zerr("liveliness token"))?;
-
-        let counters = Arc::new(Counters::default());
-        let rx_counters = counters.clone();
-        let rx = std::thread::Builder::new()
-            .name("hetcomm-zenoh-rx".into())
-            .spawn(move || {
-                // Ends when the session closes (the subscription's queue is then closed).
-                while let Ok(sample) = sub.recv() {
-                    let bytes = sample.payload().to_bytes();
-                    if bytes.is_empty() {
-                        rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
-                        continue;
-                    }
-                    rx_counters.received.fetch_add(1, Ordering::Relaxed);
-                    sink.on_frame(&bytes, Peer::Unknown);
-                }
-            })
-            .map_err(|e| OpenError::Zenoh(format!("spawn the receive thread: {e}")))?;
 
         let dests = config
             .systems
@@ -270,7 +274,7 @@ impl ZenohLink {
             counters,
             _token: token,
             _live: live,
-            rx: Some(rx),
+            _sub: sub,
         })
     }
 
@@ -341,7 +345,16 @@ impl Link for ZenohLink {
                 reason: "not a system of this zenoh transport".into(),
             });
         };
-        match self.presence.wait_present(to, self.presence_timeout) {
+        // On Zenoh's receiving thread (a sink answering a frame): never wait; a system never
+        // seen gets the frame anyway (it has just sent us one, so it is probably there).
+        let seen = match IN_CALLBACK.with(|c| c.get()) {
+            true => match self.presence.peek(to) {
+                Seen::Never => Seen::Present,
+                seen => seen,
+            },
+            false => self.presence.wait_present(to, self.presence_timeout),
+        };
+        match seen {
             Seen::Present => {}
             Seen::Left => {
                 return Err(LinkError::Unreachable {
@@ -396,13 +409,7 @@ impl Drop for ZenohLink {
                 .unwrap_or_else(|e| e.into_inner())
                 .take();
         }
-        // Closing undeclares the token (others see this system leave) and the subscription,
-        // which ends the receive thread.
+        // Closing undeclares the token (others see this system leave) and the subscription.
         let _ = self.session.close().wait();
-        if let Some(rx) = self.rx.take() {
-            if rx.thread().id() != std::thread::current().id() {
-                let _ = rx.join();
-            }
-        }
     }
 }

@@ -135,6 +135,11 @@ impl Presence {
         }
     }
 
+    /// `id`'s presence now, without waiting or starting a wait.
+    pub(crate) fn peek(&self, id: SystemId) -> Seen {
+        self.lock().seen.get(&id).copied().unwrap_or(Seen::Never)
+    }
+
     /// The systems present now, by id.
     pub(crate) fn present(&self) -> Vec<SystemId> {
         let mut ids: Vec<SystemId> = self
