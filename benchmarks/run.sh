@@ -49,7 +49,7 @@ target/release/hetcomm-bench --json "$OUT/results.json" --markdown "$TMP/body.md
 BENCH_RC=${PIPESTATUS[0]}
 
 # Zenoh scale: 50, 100 and 200 systems, each its own Zenoh session, clients of one router.
-ZSCALE_CMD="cargo run -q --release --manifest-path crates/hetcomm-link-zenoh/Cargo.toml --example zenoh_scale -- 50 100 200"
+ZSCALE_CMD="target/release/hetcomm-bench zenoh-scale 50 100 200"
 log "$ZSCALE_CMD"
 $ZSCALE_CMD >"$TMP/zenoh-scale.md" 2>"$TMP/zenoh-scale.err" || log "zenoh scale failed: $(tail -1 "$TMP/zenoh-scale.err")"
 
@@ -105,7 +105,7 @@ fi
         echo "## Zenoh scale"
         echo
         echo "N systems in one process, each its own Zenoh session, all clients of one Zenoh router"
-        echo "(also in that process) over one acknowledged \`zenoh\` transport (crates/hetcomm-link-zenoh/examples/zenoh_scale.rs)."
+        echo "(also in that process) over one acknowledged \`zenoh\` transport (crates/hetcomm-bench/src/zenoh_scale.rs)."
         echo
         cat "$TMP/zenoh-scale.md"
     fi

@@ -27,6 +27,8 @@ mod hc;
 mod raw;
 mod report;
 mod scale;
+#[cfg(feature = "hetcomm-zenoh")]
+mod zenoh_scale;
 mod stats;
 
 use std::path::PathBuf;
@@ -471,6 +473,11 @@ fn run(o: &Options) -> Vec<Row> {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    #[cfg(feature = "hetcomm-zenoh")]
+    if args.first().map(String::as_str) == Some("zenoh-scale") {
+        zenoh_scale::main(&args[1..]);
+        return;
+    }
     if args.first().map(String::as_str) == Some("__validate") {
         match config_scale::child(&args[1..]) {
             Ok(()) => std::process::exit(0),

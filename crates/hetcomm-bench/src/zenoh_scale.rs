@@ -1,8 +1,9 @@
-//! The Zenoh scale benchmark: N systems in this process, each its own Zenoh session, all
-//! clients of one Zenoh router (also in this process), over one acknowledged `zenoh` transport.
+//! The Zenoh scale benchmark (feature `hetcomm-zenoh`): N systems in this process, each its
+//! own Zenoh session, all clients of one Zenoh router (also in this process), over one
+//! acknowledged `zenoh` transport.
 //!
 //! ```text
-//! cargo run --release --manifest-path crates/hetcomm-link-zenoh/Cargo.toml --example zenoh_scale -- 50 100 200
+//! hetcomm-bench zenoh-scale 50 100 200
 //! ```
 //!
 //! For each N it measures: the time to open the N systems (one after the other), the memory
@@ -205,11 +206,9 @@ fn run(n: usize) -> Result<String, String> {
     ))
 }
 
-fn main() {
-    let sizes: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
-        .collect();
+/// `hetcomm-bench zenoh-scale N…`: prints the table; exits 1 if a size failed.
+pub fn main(args: &[String]) {
+    let sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
     let sizes = if sizes.is_empty() {
         vec![50, 100, 200]
     } else {
