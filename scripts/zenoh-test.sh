@@ -26,7 +26,8 @@ step() { printf '\n== %s\n' "$*"; }
 step "zenoh: format and lint"
 cargo fmt --manifest-path "$CRATE" --all -- --check
 cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
-cargo clippy -p hetcomm-cli --features zenoh --all-targets -- -D warnings
+cargo clippy -p hetcomm-cli -p hetcomm-bench --features hetcomm-cli/zenoh,hetcomm-bench/hetcomm-zenoh \
+    --all-targets -- -D warnings
 
 step "zenoh: crate tests (conformance, keys, opening, delivery, presence)"
 cargo test --manifest-path "$CRATE"
