@@ -27,9 +27,9 @@ mod hc;
 mod raw;
 mod report;
 mod scale;
+mod stats;
 #[cfg(feature = "hetcomm-zenoh")]
 mod zenoh_scale;
-mod stats;
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
