@@ -25,7 +25,7 @@ if ! command -v ddsperf >/dev/null 2>&1; then
     fi
 fi
 
-BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2"
+BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/hetcomm-zenoh"
 ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.toml"
 log "$BUILD_CMD"
 $BUILD_CMD || { log "build failed"; exit 1; }
@@ -66,6 +66,11 @@ target/release/hetcomm-bench --json "$OUT/results.json" --markdown "$TMP/body.md
     --reliability-wall "$REL" "${CPP_ARGS[@]}" | tee "$OUT/results.txt"
 BENCH_RC=${PIPESTATUS[0]}
 
+# Zenoh scale: 50, 100 and 200 systems, each its own Zenoh session, clients of one router.
+ZSCALE_CMD="target/release/hetcomm-bench zenoh-scale 50 100 200"
+log "$ZSCALE_CMD"
+$ZSCALE_CMD >"$TMP/zenoh-scale.md" 2>"$TMP/zenoh-scale.err" || log "zenoh scale failed: $(tail -1 "$TMP/zenoh-scale.err")"
+
 CRIT_CMD="cargo bench -p hetcomm-bench --bench codec --bench router -- --warm-up-time 1 --measurement-time 3"
 if [ -z "${SKIP_CRITERION:-}" ]; then
     log "$CRIT_CMD"
@@ -97,6 +102,7 @@ fi
     echo "$CPP_CMD"
     echo "target/release/hetcomm experiment reliability --trials 20 --out <tmp>"
     echo "$BENCH_CMD <wall time of the previous command>"
+    echo "$ZSCALE_CMD"
     [ -z "${SKIP_CRITERION:-}" ] && echo "$CRIT_CMD"
     echo '```'
     echo
@@ -113,6 +119,15 @@ fi
     echo "## Results"
     echo
     sed 's/^### /### /' "$TMP/body.md"
+    if [ -s "$TMP/zenoh-scale.md" ]; then
+        echo
+        echo "## Zenoh scale"
+        echo
+        echo "N systems in one process, each its own Zenoh session, all clients of one Zenoh router"
+        echo "(also in that process) over one acknowledged \`zenoh\` transport (crates/hetcomm-bench/src/zenoh_scale.rs)."
+        echo
+        cat "$TMP/zenoh-scale.md"
+    fi
     if [ -s "$TMP/criterion.txt" ]; then
         echo
         echo "## Criterion micro-benchmarks"

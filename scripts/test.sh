@@ -45,6 +45,9 @@ bash scripts/ros1-test.sh
 step "ROS 2: conformance, a Cyclone DDS (Python) rover through typed topics"
 bash scripts/ros2-test.sh
 
+step "Zenoh: conformance, a Python Zenoh client, multi-host in network namespaces"
+bash scripts/zenoh-test.sh
+
 step "python bindings"
 bash scripts/test-python.sh
 

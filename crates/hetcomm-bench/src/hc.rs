@@ -27,6 +27,9 @@ pub enum Kind {
     UdpSecured,
     /// `tcp`, secured.
     TcpSecured,
+    /// `zenoh`: two Zenoh peers (TCP on loopback, multicast scouting off) that find each other
+    /// through a Zenoh router in the measuring process, then talk directly.
+    Zenoh,
 }
 
 impl Kind {
@@ -36,6 +39,7 @@ impl Kind {
             Kind::Udp | Kind::UdpSecured => "udp",
             Kind::Tcp | Kind::TcpSecured => "tcp",
             Kind::Inproc => "inproc",
+            Kind::Zenoh => "zenoh",
         }
     }
 
@@ -70,9 +74,14 @@ fn free_port(kind: Kind) -> Result<u16, String> {
 
 /// The fleet file text: systems A and B, module M, one transport `t`. A secured kind reads
 /// its keys from `keys/` beside the file (see [`write_keys`]); the plain network kinds say
-/// `security = "none"`.
+/// `security = "none"`. For `zenoh`, `ports` is the router's port (twice).
 pub fn fleet_text(kind: Kind, acked: bool, ports: Option<(u16, u16)>) -> String {
     let endpoints = match ports {
+        Some((r, _)) if kind == Kind::Zenoh => format!(
+            "mode = \"peer\"\nconnect = [\"tcp/127.0.0.1:{r}\"]\nlisten = [\"tcp/127.0.0.1:0\"]\n\
+             multicast_scouting = false\nprefix = \"hetcomm-bench/{}\"\n",
+            std::process::id()
+        ),
         Some((a, b)) => format!("endpoints = {{ A = \"127.0.0.1:{a}\", B = \"127.0.0.1:{b}\" }}\n"),
         None => String::new(),
     };
@@ -115,6 +124,9 @@ B = ["t", "X"]
 /// System A of a two-process pair plus its peer process (system B in role `role`).
 struct Pair {
     _dir: TempDir,
+    /// The Zenoh router the peers find each other through (`zenoh` only).
+    #[cfg(feature = "hetcomm-zenoh")]
+    _router: Option<hetcomm_link_zenoh::router::ZenohRouter>,
     peer: Peer,
     comm: Comm,
     m: Module,
@@ -138,6 +150,17 @@ fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     if kind.secured() {
         write_keys(&dir.0)?;
     }
+    #[cfg(feature = "hetcomm-zenoh")]
+    let router = match kind {
+        Kind::Zenoh => Some(
+            hetcomm_link_zenoh::router::ZenohRouter::start(
+                &[format!("tcp/127.0.0.1:{}", ports.0)],
+                false,
+            )
+            .map_err(|e| format!("zenoh router: {e}"))?,
+        ),
+        _ => None,
+    };
     let path = dir.0.join("fleet.toml");
     std::fs::write(&path, fleet_text(kind, acked, Some(ports)))
         .map_err(|e| format!("{}: {e}", path.display()))?;
@@ -147,6 +170,8 @@ fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     let m = comm.module("M").map_err(|e| e.to_string())?;
     Ok(Pair {
         _dir: dir,
+        #[cfg(feature = "hetcomm-zenoh")]
+        _router: router,
         peer,
         comm,
         m,

@@ -38,6 +38,8 @@ mod ros2;
 mod scale;
 mod secured;
 mod stats;
+#[cfg(feature = "hetcomm-zenoh")]
+mod zenoh_scale;
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -295,7 +297,7 @@ fn run(o: &Options) -> Vec<Row> {
     };
     let dds = !o.no_ddsperf && ext::ddsperf_available();
     let mut rows = Vec::new();
-    let hc_paths = [
+    let mut hc_paths = vec![
         (hc::Kind::Udp, false),
         (hc::Kind::Udp, true),
         (hc::Kind::Tcp, false),
@@ -306,6 +308,9 @@ fn run(o: &Options) -> Vec<Row> {
         (hc::Kind::UdpSecured, true),
         (hc::Kind::TcpSecured, false),
     ];
+    if cfg!(feature = "hetcomm-zenoh") {
+        hc_paths.extend([(hc::Kind::Zenoh, false), (hc::Kind::Zenoh, true)]);
+    }
     let raws = [raw::RawKind::Udp, raw::RawKind::Tcp, raw::RawKind::Unix];
 
     if want("rtt") {
@@ -530,6 +535,11 @@ fn run(o: &Options) -> Vec<Row> {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    #[cfg(feature = "hetcomm-zenoh")]
+    if args.first().map(String::as_str) == Some("zenoh-scale") {
+        zenoh_scale::main(&args[1..]);
+        return;
+    }
     if args.first().map(String::as_str) == Some("__validate") {
         match config_scale::child(&args[1..]) {
             Ok(()) => std::process::exit(0),

@@ -16,9 +16,9 @@ pub struct DemoArgs<'a> {
     pub out: &'a Path,
     /// A fleet file to use instead of the embedded one.
     pub fleet: Option<&'a Path>,
-    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1).
+    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1, zenoh).
     pub r: &'a str,
-    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth).
+    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth, zenoh).
     pub b: &'a str,
     /// One VE with callbacks instead of one polling VE per rover.
     pub single_ve: bool,
@@ -34,9 +34,33 @@ pub struct DemoArgs<'a> {
     pub scenario: Option<&'a Path>,
 }
 
-/// A transport definition for a letter, from a short name.
-fn transport_toml(name: &str, letter: char, spec: &str) -> anyhow::Result<String> {
+/// A Zenoh router for `--r zenoh` / `--b zenoh`, in this process, and the transport keys that
+/// reach it: every system is a client of it (loopback has no multicast for scouting).
+#[cfg(feature = "zenoh")]
+fn zenoh_router() -> anyhow::Result<(hetcomm_link_zenoh::router::ZenohRouter, String)> {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let router =
+        hetcomm_link_zenoh::router::ZenohRouter::start(std::slice::from_ref(&endpoint), false)?;
+    let keys = format!(
+        "mode = \"client\"\nconnect = [\"{endpoint}\"]\nmulticast_scouting = false\nprefix = \"hetcomm-demo/{}\"\n",
+        std::process::id()
+    );
+    Ok((router, keys))
+}
+
+/// A transport definition for a letter, from a short name; `zenoh_keys` are the keys of a
+/// `zenoh` transport (reaching the demo's router).
+fn transport_toml(
+    name: &str,
+    letter: char,
+    spec: &str,
+    zenoh_keys: &str,
+) -> anyhow::Result<String> {
     Ok(match spec {
+        "zenoh" => format!("[transports.{name}]\nkind = \"zenoh\"\n{zenoh_keys}"),
         "inproc" => format!("[transports.{name}]\nkind = \"inproc\"\n"),
         "wired" | "wifi" => format!(
             "[transports.{name}]\nkind = \"emulated\"\nprofile = \"{spec}\"\nattempts = 8\n"
@@ -51,7 +75,7 @@ fn transport_toml(name: &str, letter: char, spec: &str) -> anyhow::Result<String
             "[transports.{name}]\nkind = \"bluetooth\"\naddresses = {{ Charlie = \"68:A3:C4:4A:B3:BA\", Tango = \"E4:B3:18:09:09:06\" }}\n"
         ),
         other => anyhow::bail!(
-            "--{} {other}: expected inproc, wired, wifi, bluetooth-classic{}",
+            "--{} {other}: expected inproc, wired, wifi, bluetooth-classic, zenoh{}",
             letter.to_ascii_lowercase(),
             if letter == 'R' { ", or ros1" } else { ", or bluetooth" }
         ),
@@ -59,7 +83,12 @@ fn transport_toml(name: &str, letter: char, spec: &str) -> anyhow::Result<String
 }
 
 /// The embedded fleet with R and B mapped as asked.
-fn embedded_fleet(single_ve: bool, r: &str, b: &str) -> anyhow::Result<hetcomm::config::Fleet> {
+fn embedded_fleet(
+    single_ve: bool,
+    r: &str,
+    b: &str,
+    zenoh_keys: &str,
+) -> anyhow::Result<hetcomm::config::Fleet> {
     let base = if single_ve {
         leader_follower::EMBEDDED_SINGLE_VE_FLEET
     } else {
@@ -73,8 +102,8 @@ fn embedded_fleet(single_ve: bool, r: &str, b: &str) -> anyhow::Result<hetcomm::
     let text = format!(
         "{}{}\n{}\n{}",
         &base[..start],
-        transport_toml("wired", 'R', r)?,
-        transport_toml("radio", 'B', b)?,
+        transport_toml("wired", 'R', r, zenoh_keys)?,
+        transport_toml("radio", 'B', b, zenoh_keys)?,
         &base[end..]
     );
     Ok(hetcomm::parse_fleet(
@@ -99,19 +128,45 @@ fn progress_notice(realtime: bool, stderr_is_terminal: bool) -> Option<String> {
 
 /// Runs the demonstration and prints its tables and the files written.
 pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
+    let wants_zenoh = args.fleet.is_none() && (args.r == "zenoh" || args.b == "zenoh");
+    // The router lives as long as the run.
+    #[cfg(feature = "zenoh")]
+    let (_router, zenoh_keys) = match wants_zenoh {
+        true => {
+            let (router, keys) = zenoh_router()?;
+            (Some(router), keys)
+        }
+        false => (None, String::new()),
+    };
+    // Without Zenoh compiled in, opening the transport says which feature to rebuild with.
+    #[cfg(not(feature = "zenoh"))]
+    let zenoh_keys = String::from("mode = \"client\"\nconnect = [\"tcp/127.0.0.1:7447\"]\n");
     let fleet = match args.fleet {
         Some(path) => args.security.load(path)?,
         None => {
-            let mut fleet = embedded_fleet(args.single_ve, args.r, args.b)?;
+            let mut fleet = embedded_fleet(args.single_ve, args.r, args.b, &zenoh_keys)?;
             args.security.apply(&mut fleet)?;
             fleet
         }
     };
     // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`
-    // would never reach the ROS master: a real transport forces real time.
-    let realtime = args.realtime || (args.fleet.is_none() && args.r == "ros1");
+    // would never reach the ROS master (nor `zenoh` a Zenoh router): a real transport forces
+    // real time.
+    let realtime = args.realtime || (args.fleet.is_none() && args.r == "ros1") || wants_zenoh;
     if realtime && !args.realtime {
-        eprintln!("--r ros1 uses a real ROS master: running in real time (as with --realtime)");
+        eprintln!(
+            "--{} uses a real {}: running in real time (as with --realtime)",
+            if args.r == "ros1" || args.r == "zenoh" {
+                "r"
+            } else {
+                "b"
+            },
+            if args.r == "ros1" {
+                "ROS master"
+            } else {
+                "Zenoh router"
+            }
+        );
     }
     let layout = if args.single_ve {
         Layout::SingleVe

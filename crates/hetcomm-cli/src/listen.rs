@@ -40,6 +40,9 @@ enum Event {
     Message(String, RawMessage),
     /// SIGINT or SIGTERM (its name).
     Stop(&'static str),
+    /// A system joined or left a Zenoh network this system is on (a line for stderr).
+    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    Presence(String),
 }
 
 /// How often the counters are looked at: the status line comes at most this often.
@@ -74,6 +77,8 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     if let Some(m) = args.module {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
+    #[cfg(feature = "zenoh")]
+    watch_zenoh_presence(&fleet, args.system, tx.clone());
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
     // HETCOMM_MONITOR=host:port: statistics for `hetcomm monitor` (docs/record-replay.md).
     let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
@@ -162,6 +167,9 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
                     break;
                 }
             }
+            Ok(Event::Presence(line)) => {
+                eprintln!("{}  {line}", clock.format(Time::now_wall()));
+            }
             Ok(Event::Stop(signal)) => {
                 stopped = Some(format!("stopped by {signal}"));
                 break;
@@ -176,6 +184,48 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     }
     eprintln!("{}", summary(seen, &comm.stats()));
     Ok(())
+}
+
+/// Forwards the joins and leaves that `system`'s Zenoh links see (liveliness tokens) to the
+/// main loop, which prints them on stderr. Started before the system opens, so the systems
+/// already present are reported too.
+#[cfg(feature = "zenoh")]
+fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::Sender<Event>) {
+    use hetcomm_link_zenoh::PresenceEvent;
+    let Some(me) = fleet
+        .systems
+        .iter()
+        .find(|s| s.name == system)
+        .map(|s| s.id)
+    else {
+        return;
+    };
+    let names: std::collections::HashMap<_, _> = fleet
+        .systems
+        .iter()
+        .map(|s| (s.id, s.name.clone()))
+        .collect();
+    let feed = hetcomm_link_zenoh::watch_presence();
+    let _ = std::thread::Builder::new()
+        .name("listen-presence".into())
+        .spawn(move || {
+            for (local, event) in feed {
+                if local != me {
+                    continue;
+                }
+                let (id, what) = match event {
+                    PresenceEvent::Joined(id) => (id, "joined"),
+                    PresenceEvent::Left(id) => (id, "left"),
+                };
+                let name = names.get(&id).cloned().unwrap_or_else(|| id.to_string());
+                if tx
+                    .send(Event::Presence(format!("{name} {what} (zenoh)")))
+                    .is_err()
+                {
+                    break;
+                }
+            }
+        });
 }
 
 /// The line printed at the end: messages printed, then every counter (zeros included, so

@@ -92,14 +92,16 @@ enum Command {
         #[arg(long, conflicts_with_all = ["r", "b"])]
         fleet: Option<PathBuf>,
         /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), or ros1.
+        /// profiles), ros1, or zenoh (through a Zenoh router started in this process; needs
+        /// the `zenoh` feature).
         #[arg(long, default_value = "inproc",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1", "zenoh"])]
         r: String,
         /// What the table letter B means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), or bluetooth (real RFCOMM; Table 8 addresses).
+        /// profiles), bluetooth (real RFCOMM; Table 8 addresses), or zenoh (through a Zenoh
+        /// router started in this process; needs the `zenoh` feature).
         #[arg(long, default_value = "bluetooth-classic",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth", "zenoh"])]
         b: String,
         /// One virtual environment receiving every rover's Wheels through callbacks, instead
         /// of one polling VE per rover.
@@ -285,6 +287,22 @@ enum Command {
         #[arg(long)]
         show_x: bool,
     },
+    /// Run a Zenoh router for fleets with `zenoh` transports (docs/zenoh.md): the zenoh
+    /// crate's router mode, listening on the given endpoints until killed (SIGINT/SIGTERM).
+    /// Prints `ready` on stdout once it listens.
+    ZenohRouter {
+        /// Endpoint to listen on (repeatable).
+        #[arg(long, default_value = "tcp/0.0.0.0:7447")]
+        listen: Vec<String>,
+        /// Answer and send multicast scouting (off by default: peers and clients name the
+        /// router in `connect`).
+        #[arg(long)]
+        multicast_scouting: bool,
+        /// Zenoh's lease of the router's sessions, in milliseconds: its clients and peers
+        /// consider it gone after hearing nothing for this long.
+        #[arg(long, default_value_t = 10_000)]
+        lease_ms: u32,
+    },
     /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
     Experiment {
         #[command(subcommand)]
@@ -332,7 +350,7 @@ fn main() -> ExitCode {
 /// command that means rebuilding the `hetcomm-cli` package with its feature of that name.
 fn for_this_command(message: &str) -> String {
     let mut out = message.to_string();
-    for feature in ["ros1", "bluetooth"] {
+    for feature in ["ros1", "bluetooth", "zenoh"] {
         out = out.replace(
             &format!("rebuild with `--features {feature}`"),
             &format!(
@@ -545,6 +563,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             topology::run(&fleet, &out, show_x)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::ZenohRouter {
+            listen,
+            multicast_scouting,
+            lease_ms,
+        } => zenoh_router(&listen, multicast_scouting, lease_ms),
         Command::Demo {
             seed,
             out,
@@ -582,4 +605,40 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `hetcomm zenoh-router`: runs until the process is killed.
+#[cfg(feature = "zenoh")]
+fn zenoh_router(
+    listen: &[String],
+    multicast_scouting: bool,
+    lease_ms: u32,
+) -> anyhow::Result<ExitCode> {
+    use std::io::Write;
+    let router = hetcomm_link_zenoh::router::ZenohRouter::start_with_lease(
+        listen,
+        multicast_scouting,
+        lease_ms,
+    )?;
+    eprintln!(
+        "zenoh router {} listening on {} (multicast scouting {}); Ctrl-C to stop",
+        router.zenoh_id(),
+        listen.join(", "),
+        if multicast_scouting { "on" } else { "off" }
+    );
+    println!("ready");
+    let _ = std::io::stdout().flush();
+    loop {
+        std::thread::park();
+    }
+}
+
+/// `hetcomm zenoh-router` in a build without Zenoh.
+#[cfg(not(feature = "zenoh"))]
+fn zenoh_router(
+    _listen: &[String],
+    _multicast_scouting: bool,
+    _lease_ms: u32,
+) -> anyhow::Result<ExitCode> {
+    anyhow::bail!("this build has no Zenoh: rebuild with `--features zenoh`")
 }

@@ -334,13 +334,13 @@ fn demo_letters_suggest_the_nearest_value() {
             "--r",
             "wfi",
             "wifi",
-            "inproc, wired, wifi, bluetooth-classic, ros1",
+            "inproc, wired, wifi, bluetooth-classic, ros1, zenoh",
         ),
         (
             "--b",
             "bluetoth",
             "bluetooth",
-            "inproc, wired, wifi, bluetooth-classic, bluetooth",
+            "inproc, wired, wifi, bluetooth-classic, bluetooth, zenoh",
         ),
     ] {
         let f = hetcomm(&["demo", flag, typo], deadline);

@@ -73,6 +73,22 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
         self.p.int_in(v, &path, &vl, min, max, help)
     }
 
+    /// An array of strings (`["a", "b"]`, possibly empty); `help` says what to write instead
+    /// of something else.
+    pub fn strings(&mut self, key: &str, help: &str) -> Option<Vec<String>> {
+        let (v, vl, path) = self.item(key)?;
+        let strings = v.as_array().and_then(|a| {
+            a.iter()
+                .map(|e| e.as_str().map(str::to_string))
+                .collect::<Option<Vec<String>>>()
+        });
+        if strings.is_none() {
+            self.p
+                .wrong_type(&vl, &path, "an array of strings", v, help);
+        }
+        strings
+    }
+
     /// `true` or `false`.
     pub fn boolean(&mut self, key: &str, help: &str) -> Option<bool> {
         let (v, vl, path) = self.item(key)?;

@@ -1,0 +1,415 @@
+//! # hetcomm-link-zenoh — the `zenoh` transport kind
+//!
+//! Carries hetcomm frames as [Zenoh](https://zenoh.io) puts, so that systems on many hosts find
+//! each other through Zenoh (peer-to-peer with multicast scouting, or through Zenoh routers
+//! that span networks) instead of through addresses written in the fleet file. This crate
+//! writes no Zenoh protocol itself: it opens one Zenoh session per system with the `zenoh`
+//! crate (default features off, TCP links only).
+//!
+//! ## Key expressions
+//!
+//! With the transport's `prefix` (default `hetcomm`; give each fleet its own to share one Zenoh
+//! network between fleets), a system named `Bravo`:
+//!
+//! | key expression | what |
+//! |---|---|
+//! | `<prefix>/sys/Bravo` | frames for Bravo: one put per frame, the payload is the frame byte for byte (`docs/wire-format.md`) |
+//! | `<prefix>/live/Bravo` | Bravo's liveliness token, declared while its link is open |
+//!
+//! A system subscribes once, to its own `sys` key; the module a frame is for is in the frame's
+//! header. `docs/zenoh.md` describes the layout for programs that are not hetcomm ([`data_key`],
+//! [`live_key`]).
+//!
+//! ## What the link guarantees
+//!
+//! [`LinkCaps`]: `reliable = false`, `ordered = false`. Puts go on Zenoh's reliable channel with
+//! congestion control `Block` (a full queue makes the put wait, never drops the frame:
+//! `Drop` congestion control discards messages without telling the application, zenoh issues
+//! #1835, #2258, #2587), but Zenoh still loses what is put before the destination's
+//! subscription has reached the sender and what is in flight when a connection or a router
+//! goes away, and a change of route (direct peer link ↔ through a router) can reorder. The
+//! router's acknowledgements and retransmissions make delivery reliable on top, exactly as over
+//! UDP; `ordered = true` on the transport restores each sender's order at the receiver.
+//!
+//! ## Presence
+//!
+//! Each link declares a liveliness token on its system's `live` key and follows the tokens of
+//! every system of the fleet (a liveliness subscriber with history). A send to a system:
+//!
+//! * whose token is present: put at once;
+//! * whose token has gone (it left, or its host was cut off and Zenoh's lease expired): fails
+//!   at once with [`LinkError::Unreachable`] and that reason, instead of waiting for the
+//!   router's retransmissions to run out;
+//! * never seen: the first send to it waits for its token, at most `presence_timeout_ms`
+//!   (default 5 s: discovery may still be going on); if it does not come, that send and every
+//!   later one fails at once as unreachable, until the token appears. Waiting for the token also means the destination's subscription has
+//!   reached this session (it is declared before the token), so the first put is not lost to
+//!   discovery.
+//!
+//! [`ZenohLink::presence`] lists who is present; [`ZenohLink::presence_events`] yields systems
+//! joining and leaving (`hetcomm listen` prints them).
+//!
+//! ## Threads
+//!
+//! Zenoh runs its own tokio runtime (shared by every session of the process). Received frames
+//! are handed to the [`FrameSink`] on Zenoh's receiving thread (a subscriber callback): no
+//! hand-off to another thread. A send made from there (the router's acknowledgement, a
+//! callback's reply) never waits for presence: to a system never seen it puts anyway (that
+//! system has just sent a frame), to one seen leaving it fails at once. A sink that blocks
+//! (an inbox full under the `block` policy) holds Zenoh's reader: backpressure, not loss.
+//! [`Link::send`] puts on the caller's thread.
+
+mod config;
+pub mod factory;
+mod presence;
+pub mod router;
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+
+use hetcomm_core::SystemId;
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::Wait;
+
+pub use config::{validate_prefix, Mode, ZenohSettings};
+pub use presence::{watch_all as watch_presence, PresenceEvent, PresenceEvents};
+use presence::{Presence, Seen};
+
+/// Registers the `zenoh` transport factory ([`factory::ZenohFactory`]).
+pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
+    registry.register(factory::ZenohFactory);
+}
+
+/// Largest frame a `zenoh` link accepts: the wire format's largest frame (16 MiB payload plus
+/// the 48-byte header). Zenoh fragments it on the way.
+pub const MAX_FRAME: usize = hetcomm_core::wire::HEADER_LEN + hetcomm_core::wire::MAX_PAYLOAD;
+
+/// The key expression frames for system `name` are put on: `<prefix>/sys/<name>`.
+pub fn data_key(prefix: &str, name: &str) -> String {
+    format!("{prefix}/sys/{name}")
+}
+
+/// The key expression of system `name`'s liveliness token: `<prefix>/live/<name>`.
+pub fn live_key(prefix: &str, name: &str) -> String {
+    format!("{prefix}/live/{name}")
+}
+
+/// Everything a `zenoh` link needs to open.
+#[derive(Clone, Debug)]
+pub struct ZenohLinkConfig {
+    /// The system the link is for.
+    pub local: SystemId,
+    /// Every system the link may send to (and whose presence it follows), by id, with its
+    /// name (the last chunk of its key expressions).
+    pub systems: HashMap<SystemId, String>,
+    /// The transport's settings.
+    pub settings: ZenohSettings,
+}
+
+/// Why a `zenoh` link could not open.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OpenError {
+    /// The local system is not among the configured systems.
+    #[error("system {0} is not a system of this fleet")]
+    UnknownSystem(SystemId),
+    /// A setting Zenoh refused (an endpoint that does not parse, a key expression).
+    #[error("zenoh setting {key}: {reason}")]
+    Setting {
+        /// The Zenoh configuration key or the key expression.
+        key: String,
+        /// Zenoh's reason.
+        reason: String,
+    },
+    /// No endpoint of `connect` answered within `open_timeout_ms` (or a `listen` endpoint
+    /// could not be bound).
+    #[error("cannot open a Zenoh {mode} session: {endpoints} did not answer within {timeout_ms} ms ({reason})")]
+    Unreachable {
+        /// `peer` or `client`.
+        mode: &'static str,
+        /// The endpoints tried, comma-separated.
+        endpoints: String,
+        /// The time allowed.
+        timeout_ms: u32,
+        /// Zenoh's reason.
+        reason: String,
+    },
+    /// Zenoh failed to open the session or to declare an entity.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+/// One destination: its name and the publisher on its data key, declared on first use.
+struct Dest {
+    name: String,
+    publisher: RwLock<Option<Arc<Publisher<'static>>>>,
+}
+
+#[derive(Default)]
+struct Counters {
+    sent: AtomicU64,
+    received: AtomicU64,
+    dropped: AtomicU64,
+}
+
+/// A system's endpoint on a Zenoh network: one session, a subscription to its own data key, a
+/// liveliness token, and publishers towards the systems it sends to. See the crate docs.
+pub struct ZenohLink {
+    session: zenoh::Session,
+    local: SystemId,
+    prefix: String,
+    dests: HashMap<SystemId, Dest>,
+    presence: Arc<Presence>,
+    presence_timeout: Duration,
+    counters: Arc<Counters>,
+    _token: zenoh::liveliness::LivelinessToken,
+    _live: zenoh::pubsub::Subscriber<()>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+}
+
+thread_local! {
+    /// True while this thread runs the sink for a frame Zenoh delivered: a send made from
+    /// there (an acknowledgement, a reply) must not wait for presence on Zenoh's thread.
+    static IN_CALLBACK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+impl ZenohLink {
+    /// Opens `config.local`'s session and starts delivering the frames put on its data key to
+    /// `sink`. Fails within `open_timeout_ms` when a `connect` endpoint (a router) does not
+    /// answer, naming it.
+    pub fn open(config: ZenohLinkConfig, sink: Arc<dyn FrameSink>) -> Result<ZenohLink, OpenError> {
+        let s = &config.settings;
+        let local_name = config
+            .systems
+            .get(&config.local)
+            .ok_or(OpenError::UnknownSystem(config.local))?
+            .clone();
+        validate_prefix(&s.prefix).map_err(|reason| OpenError::Setting {
+            key: s.prefix.clone(),
+            reason,
+        })?;
+        let session = config::open_session(s)?;
+        let zerr = |what: &str| {
+            let what = what.to_string();
+            move |e: zenoh::Error| OpenError::Zenoh(format!("{what}: {e}"))
+        };
+
+        let names: HashMap<String, SystemId> = config
+            .systems
+            .iter()
+            .map(|(id, n)| (n.clone(), *id))
+            .collect();
+        let presence = Arc::new(Presence::new(config.local));
+        let live_prefix = format!("{}/live/", s.prefix);
+        let follower = presence.clone();
+        let live = session
+            .liveliness()
+            .declare_subscriber(format!("{}/live/*", s.prefix))
+            .history(true)
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str();
+                let Some(id) = key.strip_prefix(&live_prefix).and_then(|n| names.get(n)) else {
+                    return;
+                };
+                let seen = match sample.kind() {
+                    zenoh::sample::SampleKind::Put => Seen::Present,
+                    zenoh::sample::SampleKind::Delete => Seen::Left,
+                };
+                follower.set(*id, seen);
+            })
+            .wait()
+            .map_err(zerr("liveliness subscriber"))?;
+
+        // The subscription before the token: whoever sees the token can put to us. Frames go
+        // to the sink on Zenoh's receiving thread, with no hand-off to another thread (a
+        // wake-up that crosses CPUs costs tens of microseconds a frame).
+        let counters = Arc::new(Counters::default());
+        let rx_counters = counters.clone();
+        let sub = session
+            .declare_subscriber(data_key(&s.prefix, &local_name))
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                if bytes.is_empty() {
+                    rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
+                    return;
+                }
+                rx_counters.received.fetch_add(1, Ordering::Relaxed);
+                IN_CALLBACK.with(|c| c.set(true));
+                sink.on_frame(&bytes, Peer::Unknown);
+                IN_CALLBACK.with(|c| c.set(false));
+            })
+            .wait()
+            .map_err(zerr("subscriber"))?;
+        let token = session
+            .liveliness()
+            .declare_token(live_key(&s.prefix, &local_name))
+            .wait()
+            .map_err(zerr("liveliness token"))?;
+
+        let dests = config
+            .systems
+            .iter()
+            .filter(|(id, _)| **id != config.local)
+            .map(|(id, name)| {
+                (
+                    *id,
+                    Dest {
+                        name: name.clone(),
+                        publisher: RwLock::new(None),
+                    },
+                )
+            })
+            .collect();
+        Ok(ZenohLink {
+            session,
+            local: config.local,
+            prefix: s.prefix.clone(),
+            dests,
+            presence,
+            presence_timeout: Duration::from_millis(s.presence_timeout_ms as u64),
+            counters,
+            _token: token,
+            _live: live,
+            _sub: sub,
+        })
+    }
+
+    /// The system this link is for.
+    pub fn local(&self) -> SystemId {
+        self.local
+    }
+
+    /// The systems whose liveliness token this link sees now, by id.
+    pub fn presence(&self) -> Vec<SystemId> {
+        self.presence.present()
+    }
+
+    /// Systems joining and leaving from now on (tokens appearing and disappearing).
+    pub fn presence_events(&self) -> PresenceEvents {
+        self.presence.events()
+    }
+
+    /// This session's Zenoh id, as `zenoh` tools print it.
+    pub fn zenoh_id(&self) -> String {
+        self.session.zid().to_string()
+    }
+
+    fn publisher(&self, to: SystemId, dest: &Dest) -> Result<Arc<Publisher<'static>>, LinkError> {
+        if let Some(p) = &*dest.publisher.read().unwrap_or_else(|e| e.into_inner()) {
+            return Ok(p.clone());
+        }
+        let mut slot = dest.publisher.write().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = &*slot {
+            return Ok(p.clone());
+        }
+        let publisher = self
+            .session
+            .declare_publisher(data_key(&self.prefix, &dest.name))
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(|e| LinkError::Unreachable {
+                peer: to,
+                reason: format!("zenoh publisher for {}: {e}", dest.name),
+            })?;
+        let publisher = Arc::new(publisher);
+        *slot = Some(publisher.clone());
+        Ok(publisher)
+    }
+}
+
+impl Link for ZenohLink {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: MAX_FRAME,
+            mtu: MAX_FRAME,
+            reliable: false,
+            ordered: false,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        if frame.len() > MAX_FRAME {
+            return Err(LinkError::TooLarge {
+                len: frame.len(),
+                max: MAX_FRAME,
+            });
+        }
+        let Some(dest) = self.dests.get(&to) else {
+            return Err(LinkError::Unreachable {
+                peer: to,
+                reason: "not a system of this zenoh transport".into(),
+            });
+        };
+        // On Zenoh's receiving thread (a sink answering a frame): never wait; a system never
+        // seen gets the frame anyway (it has just sent us one, so it is probably there).
+        let seen = match IN_CALLBACK.with(|c| c.get()) {
+            true => match self.presence.peek(to) {
+                Seen::Never => Seen::Present,
+                seen => seen,
+            },
+            false => self.presence.wait_present(to, self.presence_timeout),
+        };
+        match seen {
+            Seen::Present => {}
+            Seen::Left => {
+                return Err(LinkError::Unreachable {
+                    peer: to,
+                    reason: format!(
+                        "{} is absent: its liveliness token `{}` is gone",
+                        dest.name,
+                        live_key(&self.prefix, &dest.name)
+                    ),
+                })
+            }
+            Seen::Never => {
+                return Err(LinkError::Unreachable {
+                    peer: to,
+                    reason: format!(
+                    "{} is not on the Zenoh network: its liveliness token `{}` has not been seen",
+                    dest.name,
+                    live_key(&self.prefix, &dest.name),
+                ),
+                })
+            }
+        }
+        let publisher = self.publisher(to, dest)?;
+        publisher
+            .put(frame.to_vec())
+            .wait()
+            .map_err(|e| LinkError::Unreachable {
+                peer: to,
+                reason: format!("zenoh put to {}: {e}", dest.name),
+            })?;
+        self.counters.sent.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+
+    fn stats(&self) -> LinkStats {
+        LinkStats {
+            frames_sent: self.counters.sent.load(Ordering::Relaxed),
+            frames_received: self.counters.received.load(Ordering::Relaxed),
+            frames_dropped: self.counters.dropped.load(Ordering::Relaxed),
+            connects: self.presence.joins(),
+            ..LinkStats::default()
+        }
+    }
+}
+
+impl Drop for ZenohLink {
+    fn drop(&mut self) {
+        self.presence.close();
+        for dest in self.dests.values() {
+            dest.publisher
+                .write()
+                .unwrap_or_else(|e| e.into_inner())
+                .take();
+        }
+        // Closing undeclares the token (others see this system leave) and the subscription.
+        let _ = self.session.close().wait();
+    }
+}

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Everything about the `zenoh` transport (docs/zenoh.md). Called by scripts/test.sh.
+#
+#   bash scripts/zenoh-test.sh
+#
+# 1. format and lint the zenoh crate (it is outside the workspace's members, so the
+#    workspace-wide steps of test.sh do not see it) and the facade and CLI with `--features zenoh`;
+# 2. the crate's tests: the conformance suite (peers, clients of a router; bare and wrapped),
+#    fleet keys and their errors, opening errors, delivery, presence, malformed puts;
+# 3. a Python eclipse-zenoh program written from the docs talks to `hetcomm listen` / `send`
+#    through a `hetcomm zenoh-router` process (scripts/zenoh-python.sh);
+# 4. the multi-host run: network namespaces on a bridge, a router process, 30 systems as
+#    processes, partition, router restart, join and leave (scripts/zenoh-multihost.py; needs
+#    root and iproute2, skipped with a message otherwise).
+#
+# zenoh is compiled once (debug) and shared by both workspaces' builds in the same target
+# directory: the crate's Cargo.lock pins the versions the main Cargo.lock has.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
+CRATE=crates/hetcomm-link-zenoh/Cargo.toml
+
+step() { printf '\n== %s\n' "$*"; }
+
+step "zenoh: format and lint"
+cargo fmt --manifest-path "$CRATE" --all -- --check
+cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
+cargo clippy -p hetcomm-cli -p hetcomm-bench --features hetcomm-cli/zenoh,hetcomm-bench/hetcomm-zenoh \
+    --all-targets -- -D warnings
+
+step "zenoh: crate tests (conformance, keys, opening, delivery, presence)"
+cargo test --manifest-path "$CRATE"
+
+step "zenoh: building the CLI and the multi-host node"
+cargo build -q -p hetcomm-cli --features zenoh
+cargo build -q --manifest-path "$CRATE" --example fleet_node
+HETCOMM=$TARGET/debug/hetcomm
+NODE=$TARGET/debug/examples/fleet_node
+
+step "zenoh: a Python eclipse-zenoh system against hetcomm listen/send"
+VENV=$ROOT/target/zenoh-venv
+if ! "$VENV/bin/python" -c 'import zenoh' >/dev/null 2>&1; then
+    python3 -m venv "$VENV"
+    "$VENV/bin/pip" install --quiet --disable-pip-version-check "eclipse-zenoh==1.10.2"
+fi
+bash scripts/zenoh-python.sh "$HETCOMM" "$VENV/bin/python"
+
+step "zenoh: multi-host (namespaces, router process, 30 systems)"
+if [ "$(id -u)" -eq 0 ] && command -v ip >/dev/null 2>&1 && ip netns list >/dev/null 2>&1; then
+    python3 scripts/zenoh-multihost.py "$HETCOMM" "$NODE"
+else
+    echo "skipped: needs root and iproute2 (network namespaces)"
+fi
