@@ -83,7 +83,20 @@ impl Secured {
                     };
                     drop(st);
                     if let Some(init) = init {
-                        send_handshake(&*below, to, &init);
+                        if let Err(e) = try_send_handshake(&*below, to, &init) {
+                            // The link cannot reach the peer (no subscriber, no route): say so
+                            // now, as the bare link would, instead of holding the frame for a
+                            // handshake that cannot start. Later frames try again.
+                            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                            st.pending = None;
+                            if let Some(frame) = st.queue.pop_back() {
+                                st.queued_bytes -= frame.len();
+                            }
+                            if st.queue.is_empty() {
+                                st.waiting_since = None;
+                            }
+                            return Err(e);
+                        }
                     }
                     return Ok(());
                 }

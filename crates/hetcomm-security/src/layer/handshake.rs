@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use hetcomm_core::SystemId;
-use hetcomm_link::Link;
+use hetcomm_link::{Link, LinkError};
 
 use super::*;
 use crate::session::{self, Entropy, Session};
@@ -213,7 +213,14 @@ impl Secured {
 /// Sends a handshake message; once more if the link refused it (a stream link reconnects on
 /// the next send after a write to a connection the peer closed, as a restarted peer's was).
 pub(super) fn send_handshake(below: &dyn Link, to: SystemId, message: &[u8]) {
-    if below.send(to, message).is_err() {
-        let _ = below.send(to, message);
-    }
+    let _ = try_send_handshake(below, to, message);
+}
+
+/// [`send_handshake`], telling whether the link took the message in the end.
+pub(super) fn try_send_handshake(
+    below: &dyn Link,
+    to: SystemId,
+    message: &[u8],
+) -> Result<(), LinkError> {
+    below.send(to, message).or_else(|_| below.send(to, message))
 }

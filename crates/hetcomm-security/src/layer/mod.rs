@@ -25,7 +25,7 @@ mod handshake;
 mod sim;
 
 use data::Incoming;
-use handshake::send_handshake;
+use handshake::{send_handshake, try_send_handshake};
 pub use sim::SimSessions;
 
 /// Who may say what to this system over one transport: its keys, its peers' public keys, and
@@ -179,6 +179,17 @@ impl Secured {
         }
     }
 
+    /// Frames waiting for a handshake (or leaving after one), over every peer.
+    fn queued_frames(&self) -> usize {
+        self.peers
+            .values()
+            .map(|p| {
+                let st = p.state.lock().unwrap_or_else(|e| e.into_inner());
+                st.queue.len() + usize::from(st.flushing)
+            })
+            .sum()
+    }
+
     fn queued_bytes(&self) -> usize {
         self.peers
             .values()
@@ -251,6 +262,35 @@ forward_link! {
     // Authenticated encryption protects every byte: the router need not checksum payloads.
     fn checksums_payload(&self) -> bool {
         true
+    }
+}
+
+/// How long closing a secured link waits for frames that wait for a handshake.
+const CLOSE_WAIT: Duration = Duration::from_secs(2);
+
+impl Drop for SecureLink {
+    /// Frames taken while a handshake ran (e.g. `hetcomm send` of an unacknowledged message,
+    /// which exits at once) leave before the link closes: wait, bounded, for the handshakes to
+    /// complete and the queues to drain, reading the link meanwhile if nobody else does (a
+    /// driven link whose reader has stopped).
+    fn drop(&mut self) {
+        let deadline = Instant::now() + CLOSE_WAIT;
+        while self.secured.queued_frames() > 0 && Instant::now() < deadline {
+            match self.below.readable() {
+                Some(r) => {
+                    let mut p = libc::pollfd {
+                        fd: r.fd(),
+                        events: libc::POLLIN,
+                        revents: 0,
+                    };
+                    // SAFETY: one valid pollfd, exclusively borrowed for the call.
+                    unsafe { libc::poll(&mut p, 1, 5) };
+                    let _ = r.read_ready(64);
+                }
+                None => std::thread::sleep(Duration::from_millis(2)),
+            }
+        }
+        let _ = self.below.flush();
     }
 }
 
