@@ -146,10 +146,13 @@ static TAP_VERSIONS: AtomicU64 = AtomicU64::new(1);
 /// Snapshot of taps type.
 type TapList = Arc<[Arc<TapEntry>]>;
 
+/// A version of a tap list and a weak reference to it.
+type SeenTaps = (u64, Option<Weak<[Arc<TapEntry>]>>);
+
 thread_local! {
     /// The last list of taps this thread delivered through, with its version. Weak: a list
     /// replaced or a system closed frees its taps (and what their functions hold) at once.
-    static TAPS_SEEN: std::cell::RefCell<(u64, Option<Weak<[Arc<TapEntry>]>>)> =
+    static TAPS_SEEN: std::cell::RefCell<SeenTaps> =
         const { std::cell::RefCell::new((0, None)) };
 }
 
