@@ -11,7 +11,9 @@ use hetcomm::{Comm, Outcome, SendOptions};
 use hetcomm_link_zenoh::{data_key, Mode, ZenohSettings};
 use zenoh::Wait;
 
-/// A fleet of A and B on one zenoh transport `z` with `keys`.
+/// A fleet of A and B on one zenoh transport `z` with `keys`. Unsecured: these tests look at
+/// the transport (a malformed put must reach its counters); the secured path over zenoh runs
+/// in the conformance suite and the multi-host script.
 fn fleet_text(keys: &str) -> String {
     format!(
         r#"[systems]
@@ -21,10 +23,8 @@ B = 1
 M = 0
 [transports.z]
 kind = "zenoh"
-# Unsecured: these tests look at the transport (a malformed put must reach its counters). The
-# secured path over zenoh runs in the conformance suite and the multi-host script.
-security = "none"
 {keys}
+security = "none"
 [table]
 columns = ["A", "B"]
 A = ["X", "z"]
