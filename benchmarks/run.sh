@@ -34,7 +34,7 @@ $ZBUILD_CMD || log "zenoh peer build failed: the Zenoh baseline is skipped"
 
 # The C++ API's round trip (two C++ processes): libhetcomm_c in release, installed with its
 # CMake package into a scratch prefix, and examples/cpp built against it.
-CPP_DIR=target/cpp-bench
+CPP_DIR=$ROOT/target/cpp-bench
 CPP_CMD="cmake -S crates/hetcomm-c -B $CPP_DIR/package; cmake -S examples/cpp -B $CPP_DIR/examples -DCMAKE_BUILD_TYPE=Release (see benchmarks/run.sh)"
 log "C++ pingpong: $CPP_CMD"
 CPP_ARGS=()

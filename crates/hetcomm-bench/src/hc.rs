@@ -86,7 +86,9 @@ pub fn fleet_text(kind: Kind, acked: bool, ports: Option<(u16, u16)>) -> String 
         None => String::new(),
     };
     let security = match kind {
-        Kind::Udp | Kind::Tcp => "security = \"none\"\n",
+        // Unsecured, to stand beside raw sockets and raw Zenoh; the secured rows are UdpSecured
+        // and TcpSecured.
+        Kind::Udp | Kind::Tcp | Kind::Zenoh => "security = \"none\"\n",
         _ => "",
     };
     let keys = if kind.secured() {
