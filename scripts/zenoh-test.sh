@@ -19,6 +19,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
+# The zenoh crate is a workspace of its own: without this its builds would go to its own
+# target/ (and compile zenoh a second time), where the steps below would not find them.
+export CARGO_TARGET_DIR=$TARGET
 CRATE=crates/hetcomm-link-zenoh/Cargo.toml
 
 step() { printf '\n== %s\n' "$*"; }
