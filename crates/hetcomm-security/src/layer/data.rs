@@ -15,6 +15,7 @@ impl Secured {
     /// Seals and sends `head` + `body` to `to`, or queues it until a session exists.
     pub(super) fn send(
         &self,
+        below: &dyn Link,
         to: SystemId,
         head: &[u8],
         body: &[u8],
@@ -27,7 +28,6 @@ impl Secured {
                 self.transport
             ),
         })?;
-        let below = self.below().ok_or(LinkError::Closed)?;
         let max = below.caps().max_frame.saturating_sub(OVERHEAD);
         if head.len() + body.len() > max {
             return Err(LinkError::TooLarge {
@@ -83,7 +83,7 @@ impl Secured {
                     };
                     drop(st);
                     if let Some(init) = init {
-                        if let Err(e) = try_send_handshake(&*below, to, &init) {
+                        if let Err(e) = try_send_handshake(below, to, &init) {
                             // The link cannot reach the peer (no subscriber, no route): say so
                             // now, as the bare link would, instead of holding the frame for a
                             // handshake that cannot start. Later frames try again.

@@ -244,13 +244,13 @@ forward_link! {
         caps
     }
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(to, frame, &[], false)
+        self.secured.send(&*self.below, to, frame, &[], false)
     }
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(to, head, body, false)
+        self.secured.send(&*self.below, to, head, body, false)
     }
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(to, frame, &[], true)
+        self.secured.send(&*self.below, to, frame, &[], true)
     }
     fn stats(&self) -> hetcomm_link::LinkStats {
         let mut stats = self.below.stats();
