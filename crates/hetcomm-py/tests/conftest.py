@@ -66,13 +66,18 @@ def fleet():
         yield f
 
 
-def free_port(kind: str) -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
+def free_ports(kind: str, count: int) -> List[int]:
+    """`count` distinct free ports: every socket stays bound until all are picked, so the
+    kernel cannot hand the same port out twice."""
+    family = socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM
+    sockets = [socket.socket(socket.AF_INET, family) for _ in range(count)]
     try:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
     finally:
-        s.close()
+        for s in sockets:
+            s.close()
 
 
 def ip_fleet(
@@ -90,7 +95,7 @@ def ip_fleet(
     if not secured:
         lines.append('security = "none"')
     lines += ["[transports.lan.endpoints]"]
-    lines += [f'{s} = "127.0.0.1:{free_port(kind)}"' for s in systems]
+    lines += [f'{s} = "127.0.0.1:{p}"' for s, p in zip(systems, free_ports(kind, len(systems)))]
     lines += ["[table]", "columns = [" + ", ".join(f'"{s}"' for s in systems) + "]"]
     for s in systems:
         row = ['"X"' if s == d else '"lan"' for d in systems]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import re
 
-from conftest import CLI, PYTHON, ROOT, cli, free_port
+from conftest import CLI, PYTHON, ROOT, cli, free_ports
 
 TANGO = ROOT / "examples" / "python" / "tango.py"
 FLEET = ROOT / "examples" / "python" / "leader-follower-python.toml"
@@ -27,8 +27,9 @@ def pose_rows(demo_stdout: str, rover: str):
 def test_python_tango_follows_the_rust_leader(tmp_path, children):
     # The shipped fleet with free ports.
     text = FLEET.read_text()
-    for old in re.findall(r"127\.0\.0\.1:(\d+)", text):
-        text = text.replace(f"127.0.0.1:{old}", f"127.0.0.1:{free_port('udp')}")
+    olds = sorted(set(re.findall(r"127\.0\.0\.1:(\d+)", text)))
+    for old, new in zip(olds, free_ports("udp", len(olds))):
+        text = text.replace(f"127.0.0.1:{old}", f"127.0.0.1:{new}")
     fleet = tmp_path / "fleet.toml"
     fleet.write_text(text)
     # Its keys, as its README says to make them.

@@ -25,11 +25,18 @@ import time
 from pathlib import Path
 
 
-def free_port(kind: str) -> int:
+def free_ports(kind: str, count: int) -> list[int]:
+    """`count` distinct free ports: every socket stays bound until all are picked, so the
+    kernel cannot hand the same port out twice (it did, and two systems shared an endpoint)."""
     family = socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM
-    with socket.socket(socket.AF_INET, family) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    sockets = [socket.socket(socket.AF_INET, family) for _ in range(count)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 class Child:
@@ -96,9 +103,10 @@ def secure(cli: str, fleet: Path, keys: str = "keys") -> None:
 
 def interop(args: argparse.Namespace) -> int:
     text = Path(args.template).read_text()
+    port_cpp, port_peer = free_ports(args.kind, 2)
     text = (text.replace("@KIND@", args.kind)
-            .replace("@PORT_CPP@", str(free_port(args.kind)))
-            .replace("@PORT_PEER@", str(free_port(args.kind)))
+            .replace("@PORT_CPP@", str(port_cpp))
+            .replace("@PORT_PEER@", str(port_peer))
             .replace("@SETTINGS@", ""))
     with tempfile.TemporaryDirectory() as tmp:
         fleet = Path(tmp) / "fleet.toml"
@@ -134,8 +142,9 @@ def pose_rows(demo_stdout: str, rover: str) -> list[tuple[float, ...]]:
 
 def demo(args: argparse.Namespace) -> int:
     text = Path(args.fleet).read_text()
-    for old in set(re.findall(r"127\.0\.0\.1:(\d+)", text)):
-        text = text.replace(f"127.0.0.1:{old}", f"127.0.0.1:{free_port('udp')}")
+    olds = sorted(set(re.findall(r"127\.0\.0\.1:(\d+)", text)))
+    for old, new in zip(olds, free_ports("udp", len(olds))):
+        text = text.replace(f"127.0.0.1:{old}", f"127.0.0.1:{new}")
     with tempfile.TemporaryDirectory() as tmp:
         fleet = Path(tmp) / "fleet.toml"
         fleet.write_text(text)

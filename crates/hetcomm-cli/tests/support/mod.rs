@@ -45,20 +45,37 @@ impl Deadline {
 
 /// A free UDP port on 127.0.0.1: bind port 0, read it, close. Another process could take the
 /// port between this and the child binding it; that tiny race is accepted in exchange for
-/// never using fixed ports.
+/// never using fixed ports. Within this process no port is handed out twice (the kernel can
+/// return a just-closed port again, and two systems of one fleet then share an endpoint).
 pub fn free_udp_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .expect("bind udp port 0")
-        .port()
+    not_given_before(|| {
+        UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .expect("bind udp port 0")
+            .port()
+    })
+}
+
+/// Calls `pick` until it returns a port this process has not handed out yet.
+fn not_given_before(pick: impl Fn() -> u16) -> u16 {
+    static GIVEN: std::sync::Mutex<std::collections::BTreeSet<u16>> =
+        std::sync::Mutex::new(std::collections::BTreeSet::new());
+    loop {
+        let port = pick();
+        if GIVEN.lock().unwrap_or_else(|e| e.into_inner()).insert(port) {
+            return port;
+        }
+    }
 }
 
 /// A free TCP port on 127.0.0.1 (same accepted race as [`free_udp_port`]).
 pub fn free_tcp_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .expect("bind tcp port 0")
-        .port()
+    not_given_before(|| {
+        TcpListener::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .expect("bind tcp port 0")
+            .port()
+    })
 }
 
 /// A free port for a transport kind (`udp` or `tcp`).

@@ -71,10 +71,12 @@ pub fn id(name: &str) -> u16 {
 
 fn free_port(kind: &Kind) -> u16 {
     match kind {
-        Kind::Tcp => TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map(|a| a.port())
-            .expect("a free TCP port"),
+        Kind::Tcp => super::not_given_before(|| {
+            TcpListener::bind("127.0.0.1:0")
+                .and_then(|l| l.local_addr())
+                .map(|a| a.port())
+                .expect("a free TCP port")
+        }),
         _ => super::free_udp_port(),
     }
 }
