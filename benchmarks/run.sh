@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every benchmark once and writes benchmarks/RESULTS.md (plus results.json and the raw
-# outputs next to it). Release build, with the Zenoh baseline; installs Cyclone DDS's
-# ddsperf when missing (needs root and apt-get; without it that baseline is skipped).
+# outputs next to it). Release build, with the Zenoh baseline; installs what it needs (Cyclone
+# DDS's ddsperf, cmake, ...) through scripts/install.sh (without ddsperf that baseline is skipped).
 #
 #   bash benchmarks/run.sh            # everything (~10 min on 2 cores, builds included)
 #   SKIP_CRITERION=1 bash benchmarks/run.sh
@@ -14,16 +14,7 @@ trap 'rm -rf "$TMP"' EXIT
 
 log() { echo "== $*" >&2; }
 
-if ! command -v ddsperf >/dev/null 2>&1; then
-    log "installing cyclonedds-tools (ddsperf)"
-    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-        apt-get update -qq >/dev/null 2>&1 || true
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq cyclonedds-tools >/dev/null 2>&1 \
-            || log "could not install cyclonedds-tools: the DDS baseline is skipped"
-    else
-        log "not root or no apt-get: the DDS baseline is skipped"
-    fi
-fi
+bash scripts/install.sh apt || log "could not install the Debian packages: baselines that need them are skipped"
 
 BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/hetcomm-zenoh"
 ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.toml"
@@ -38,8 +29,7 @@ CPP_DIR=$ROOT/target/cpp-bench
 CPP_CMD="cmake -S crates/hetcomm-c -B $CPP_DIR/package; cmake -S examples/cpp -B $CPP_DIR/examples -DCMAKE_BUILD_TYPE=Release (see benchmarks/run.sh)"
 log "C++ pingpong: $CPP_CMD"
 CPP_ARGS=()
-if bash scripts/apt-install.sh cmake g++ libmsgpack-cxx-dev \
-    && cmake -S crates/hetcomm-c -B "$CPP_DIR/package" -DHETCOMM_CARGO_PROFILE=release >/dev/null \
+if cmake -S crates/hetcomm-c -B "$CPP_DIR/package" -DHETCOMM_CARGO_PROFILE=release >/dev/null \
     && cmake --build "$CPP_DIR/package" >/dev/null \
     && cmake --install "$CPP_DIR/package" --prefix "$CPP_DIR/prefix" >/dev/null \
     && cmake -S examples/cpp -B "$CPP_DIR/examples" -DCMAKE_BUILD_TYPE=Release \

@@ -3,7 +3,7 @@
 #
 #   bash scripts/cpp-test.sh
 #
-# 1. Debian packages through scripts/apt-install.sh: cmake, g++, pkg-config, valgrind,
+# 1. Debian packages through scripts/install.sh: cmake, g++, pkg-config, valgrind,
 #    libmsgpack-cxx-dev;
 # 2. the Rust pieces (debug): libhetcomm_c, the Rust interop peer, the hetcomm CLI; the Python
 #    package from target/py-venv (made by scripts/test-python.sh, run first when missing);
@@ -23,7 +23,7 @@ JOBS=$(nproc 2>/dev/null || echo 2)
 
 step() { printf '\n=== %s ===\n' "$*"; }
 
-bash scripts/apt-install.sh cmake g++ pkg-config valgrind libmsgpack-cxx-dev
+bash scripts/install.sh
 
 step "Rust: libhetcomm_c, the interop peer, the hetcomm CLI"
 # Separate invocations: each package builds with its own features, as the CMake package

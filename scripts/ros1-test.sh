@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Tests of the `ros1` transport against a real ROS master.
 #
-# Installs the ROS 1 tools when `rosmaster` is missing (Debian packages: ros-core,
-# python3-rospy, python3-rostopic, ros-std-msgs; python3-msgpack for the rospy example), then
+# Installs the ROS 1 tools when missing (through scripts/install.sh: ros-core, python3-rospy,
+# python3-rostopic, the message packages; python3-msgpack for the rospy example), then
 # runs the transport crate's tests (conformance, master restart, first frame to a new peer,
 # rospy interop, rostopic), the facade's tests (the security attack suite over ros1
 # included) and the CLI's `ros1_send` acceptance test (50
@@ -11,9 +11,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-if ! command -v rosmaster >/dev/null 2>&1 || ! /usr/bin/python3 -c 'import rospy, msgpack' >/dev/null 2>&1; then
-    bash scripts/apt-install.sh ros-core python3-rospy python3-rostopic ros-std-msgs python3-msgpack
-fi
+bash scripts/install.sh apt
 
 # Nodes of this machine reach each other (and the test masters) over loopback.
 export ROS_HOSTNAME="${ROS_HOSTNAME:-127.0.0.1}"

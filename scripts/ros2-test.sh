@@ -8,8 +8,7 @@
 #    workspace-wide steps of test.sh do not see it), and the facade and CLI with
 #    `--features ros2`;
 # 2. the Python side: Cyclone DDS's Python package (PyPI `cyclonedds`, wheels that bundle the
-#    C library; no ROS 2 install) in the project's venv, target/py-venv (the one
-#    scripts/test-python.sh makes, with the same pip);
+#    C library; no ROS 2 install) in the project's venv, target/py-venv (scripts/install.sh);
 # 3. the crate's tests: the link conformance suite (bare and wrapped in emulation), fleet keys
 #    and their errors, delivery through the facade (secured and `security = "none"`), and the
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
@@ -35,13 +34,8 @@ cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
 cargo clippy -p hetcomm-cli --features ros2 --all-targets -- -D warnings
 
 step "ros2: Cyclone DDS for Python in target/py-venv"
+bash scripts/install.sh python
 VENV=$ROOT/target/py-venv
-if [ ! -x "$VENV/bin/python" ]; then
-    python3 -m venv "$VENV"
-fi
-if ! "$VENV/bin/python" -c 'import cyclonedds' >/dev/null 2>&1; then
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check "cyclonedds==11.0.1"
-fi
 export HETCOMM_ROS2_PYTHON=$VENV/bin/python
 
 step "ros2: crate tests (conformance, keys, delivery, bridge against a Cyclone DDS rover)"

@@ -4,8 +4,8 @@
 #
 #   bash scripts/test-python.sh [pytest args...]
 #
-# 1. a virtual environment in target/py-venv with maturin, pytest and cryptography (reused
-#    across runs);
+# 1. the virtual environment target/py-venv with maturin, pytest and the packages the tests
+#    import (scripts/install.sh; reused across runs);
 # 2. the `hetcomm` wheel (abi3, debug build) built by maturin and installed into it;
 # 3. the `hetcomm` CLI (debug), which the cross-process tests run as the Rust peer;
 # 4. pytest on crates/hetcomm-py/tests.
@@ -15,29 +15,10 @@ ROOT=$PWD
 
 step() { printf '\n=== %s ===\n' "$*"; }
 
+# maturin, pytest and the packages the tests import, through the one install script.
+bash scripts/install.sh python
 VENV=$ROOT/target/py-venv
 PY=$VENV/bin/python
-if [ ! -x "$PY" ]; then
-  step "python venv in target/py-venv"
-  python3 -m venv "$VENV"
-fi
-if ! "$PY" -c 'import maturin, pytest' >/dev/null 2>&1 && ! { [ -x "$VENV/bin/maturin" ] && "$PY" -c 'import pytest' >/dev/null 2>&1; }; then
-  step "installing maturin and pytest"
-  "$PY" -m pip install --quiet --disable-pip-version-check --upgrade pip
-  "$PY" -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "pytest>=7"
-fi
-
-if ! "$PY" -c 'import cryptography' >/dev/null 2>&1; then
-  # X25519 and AES-GCM for test_secured_vectors.py, which checks the secured-frame vectors
-  # with a port of docs/wire-format.md (the standard library has neither).
-  step "installing cryptography"
-  "$PY" -m pip install --quiet --disable-pip-version-check "cryptography>=42"
-fi
-# The `mcap` package reads the CLI's recordings back (tests/test_mcap_recording.py).
-if ! "$PY" -c 'import mcap' >/dev/null 2>&1; then
-  step "installing mcap"
-  "$PY" -m pip install --quiet --disable-pip-version-check "mcap>=1.1,<2"
-fi
 
 step "building the hetcomm wheel (maturin, debug)"
 WHEELS=$ROOT/target/py-wheels

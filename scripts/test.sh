@@ -18,13 +18,9 @@ if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 
   rustup component add rustfmt clippy
 fi
 
-# tmux: the monitor's test reads its screen from a real terminal (capture-pane).
-if ! command -v tmux >/dev/null 2>&1; then
-  step "installing tmux"
-  SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq tmux >/dev/null
-fi
+# Every Debian and Python package the steps below use, through the one install script.
+step "install"
+bash scripts/install.sh
 
 step "format"
 cargo fmt --all -- --check

@@ -42,11 +42,8 @@ HETCOMM=$TARGET/debug/hetcomm
 NODE=$TARGET/debug/examples/fleet_node
 
 step "zenoh: a Python eclipse-zenoh system against hetcomm listen/send"
-VENV=$ROOT/target/zenoh-venv
-if ! "$VENV/bin/python" -c 'import zenoh' >/dev/null 2>&1; then
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check "eclipse-zenoh==1.10.2"
-fi
+bash scripts/install.sh python
+VENV=$ROOT/target/py-venv
 bash scripts/zenoh-python.sh "$HETCOMM" "$VENV/bin/python"
 
 step "zenoh: multi-host (namespaces, router process, 30 systems)"
