@@ -4,8 +4,12 @@
 //!
 //! The fleet file is generated and written to a temporary file by this process; a child
 //! process (this binary, `__validate FILE`) validates it and reports its wall time and its own
-//! peak resident set size (`getrusage`, `ru_maxrss`), so the figure is the validation's alone,
-//! not this process's. `cargo run --release -p hetcomm-bench -- --only config` runs this alone.
+//! peak resident set size (`VmHWM` in `/proc/self/status`), so the figure is the validation's
+//! alone, not this process's. Not `getrusage`'s `ru_maxrss`: Linux folds the high-water mark of
+//! the address space a process had before `exec` into it — for a child spawned with vfork that
+//! is the parent's, so inside the full benchmark run (parent at ~1.2 GB after the throughput
+//! rows) it reported 1 242 MB for a validation that peaks at ~355 MB.
+//! `cargo run --release -p hetcomm-bench -- --only config` runs this alone.
 
 use std::io::Write;
 use std::process::Command;
@@ -32,15 +36,17 @@ pub fn full_fleet_text(n: usize) -> String {
     hetcomm::config::synthetic::scale_fleet_text(n, true)
 }
 
-/// Peak resident set size of this process, bytes (0 if getrusage fails).
+/// Peak resident set size of this process's own address space since `exec`, bytes (0 if
+/// `/proc/self/status` cannot be read).
 fn peak_rss_bytes() -> u64 {
-    // SAFETY: a zeroed rusage is a valid out-parameter for getrusage.
-    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `ru` is a valid, writable rusage.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
-        return 0;
-    }
-    u64::try_from(ru.ru_maxrss).unwrap_or(0) * 1024 // kilobytes on Linux
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|status| {
+            let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+            let kib = line.split_whitespace().nth(1)?.parse::<u64>().ok()?;
+            Some(kib * 1024)
+        })
+        .unwrap_or(0)
 }
 
 /// The child (`__validate FILE`): validates the file and prints `seconds peak_rss_bytes`.
