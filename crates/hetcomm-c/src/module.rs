@@ -414,19 +414,8 @@ pub unsafe extern "C" fn hetcomm_module_recv_alloc(
     timeout_ms: i64,
     message: *mut *mut hetcomm_message,
 ) -> hetcomm_status {
-    guard(|| {
-        // SAFETY: the caller's contract.
-        let m = unsafe { handle(module, "module")? };
-        let out = out_arg(message, "message")?;
-        let raw = m.take(timeout_ms)?;
-        let msg = hetcomm_message {
-            envelope: (&raw.envelope).into(),
-            raw,
-        };
-        // SAFETY: checked non-NULL, writable by contract.
-        unsafe { *out = Box::into_raw(Box::new(msg)) };
-        Ok(())
-    })
+    // SAFETY: the caller's contract, passed on.
+    unsafe { recv_alloc(module, None, timeout_ms, message) }
 }
 
 /// [`hetcomm_module_recv_alloc`] for a message of type `message_type` only: when the next
@@ -442,17 +431,32 @@ pub unsafe extern "C" fn hetcomm_module_recv_alloc_type(
     timeout_ms: i64,
     message: *mut *mut hetcomm_message,
 ) -> hetcomm_status {
+    // SAFETY: the caller's contract, passed on.
+    unsafe { recv_alloc(module, Some(message_type), timeout_ms, message) }
+}
+
+/// The two allocating receives: the next message (of `only_type`, when given; another type
+/// stays first in line and gives `HETCOMM_STATUS_WRONG_TYPE`) as a new library-owned message.
+///
+/// # Safety
+/// As [`hetcomm_module_recv_alloc`].
+unsafe fn recv_alloc(
+    module: *const hetcomm_module,
+    only_type: Option<u32>,
+    timeout_ms: i64,
+    message: *mut *mut hetcomm_message,
+) -> hetcomm_status {
     guard(|| {
         // SAFETY: the caller's contract.
         let m = unsafe { handle(module, "module")? };
         let out = out_arg(message, "message")?;
         let raw = m.take(timeout_ms)?;
         let found = raw.envelope.message_type().0;
-        if found != message_type {
+        if let Some(wanted) = only_type.filter(|&wanted| wanted != found) {
             m.held().push_front(raw);
             return Err(Error::new(
                 hetcomm_status::WrongType,
-                format!("the next message is of type {found}, not {message_type}: it stays in the inbox"),
+                format!("the next message is of type {found}, not {wanted}: it stays in the inbox"),
             ));
         }
         let msg = hetcomm_message {
