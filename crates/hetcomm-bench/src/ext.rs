@@ -208,14 +208,9 @@ pub fn ddsperf_oneway(size: usize, seconds: f64) -> Result<Throughput, String> {
 /// counts as the Rust `hetcomm-udp-ack` row; the pinging process reports each round trip.
 pub fn cpp_rtt(bin: &Path, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
     let dir = TempDir::new()?;
-    let udp_port = || {
-        std::net::UdpSocket::bind("127.0.0.1:0")
-            .and_then(|s| s.local_addr())
-            .map(|a| a.port())
-            .map_err(|e| e.to_string())
-    };
     let path = dir.0.join("fleet.toml");
-    let text = crate::hc::fleet_text(crate::hc::Kind::Udp, true, Some((udp_port()?, udp_port()?)));
+    let ports = crate::hc::free_port_pair(crate::hc::Kind::Udp)?;
+    let text = crate::hc::fleet_text(crate::hc::Kind::Udp, true, Some(ports));
     std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
     let fleet = path.display().to_string();
     let echo = Peer::spawn(Some(bin), &["echo".into(), fleet.clone()])?;

@@ -60,16 +60,22 @@ pub fn path_name(kind: Kind, acked: bool) -> String {
     )
 }
 
-fn free_port(kind: Kind) -> Result<u16, String> {
-    let port = match kind {
-        Kind::Udp | Kind::UdpSecured => std::net::UdpSocket::bind("127.0.0.1:0")
-            .and_then(|s| s.local_addr())
-            .map(|a| a.port()),
-        _ => std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|s| s.local_addr())
-            .map(|a| a.port()),
+/// Two distinct free loopback ports for `kind`: both sockets stay bound until both are read,
+/// so the kernel cannot hand out the same port twice (two systems would share an endpoint).
+pub fn free_port_pair(kind: Kind) -> Result<(u16, u16), String> {
+    use std::net::{TcpListener, UdpSocket};
+    let pair = if matches!(kind, Kind::Udp | Kind::UdpSecured) {
+        UdpSocket::bind("127.0.0.1:0").and_then(|a| {
+            let b = UdpSocket::bind("127.0.0.1:0")?;
+            Ok((a.local_addr()?.port(), b.local_addr()?.port()))
+        })
+    } else {
+        TcpListener::bind("127.0.0.1:0").and_then(|a| {
+            let b = TcpListener::bind("127.0.0.1:0")?;
+            Ok((a.local_addr()?.port(), b.local_addr()?.port()))
+        })
     };
-    port.map_err(|e| format!("finding a free port: {e}"))
+    pair.map_err(|e| format!("finding free ports: {e}"))
 }
 
 /// The fleet file text: systems A and B, module M, one transport `t`. A secured kind reads
@@ -148,7 +154,7 @@ pub fn write_keys(dir: &std::path::Path) -> Result<(), String> {
 
 fn open_pair(kind: Kind, acked: bool, role: &str) -> Result<Pair, String> {
     let dir = TempDir::new()?;
-    let ports = (free_port(kind)?, free_port(kind)?);
+    let ports = free_port_pair(kind)?;
     if kind.secured() {
         write_keys(&dir.0)?;
     }

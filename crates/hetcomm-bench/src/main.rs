@@ -445,21 +445,35 @@ fn run(o: &Options) -> Vec<Row> {
     }
     if want("pinning") {
         let (warmup, iters) = (p.rtt_iters)(64);
+        // With the C++ program, its acknowledged round trip beside Rust's, both pinned: the
+        // unpinned figures swing between two modes (whether the two processes share a vCPU),
+        // which can put the two rows of one comparison in different modes.
+        let mut whiches = vec!["raw-udp", "hetcomm-udp-unack", "hetcomm-udp-unack-spin"];
+        if o.cpp_bin.is_some() {
+            whiches.extend(["hetcomm-udp-ack", report::CPP_PATH]);
+        }
         for (label, cpu) in [("pinned-cpu0", Some(0)), ("unpinned", None)] {
-            for which in ["raw-udp", "hetcomm-udp-unack", "hetcomm-udp-unack-spin"] {
+            for &which in &whiches {
                 log(o.quick, &format!("pinning {which} {label}"));
                 let rounds = if o.quick { 1 } else { RTT_ROUNDS };
                 let runs = (0..rounds)
                     .map(|_| {
                         let which_s = which.to_string();
+                        let cpp_bin = o.cpp_bin.clone();
                         let handle = std::thread::spawn(move || {
                             if !pin_thread(cpu) {
                                 return Err("sched_setaffinity failed".to_string());
                             }
-                            match which_s.as_str() {
-                                "raw-udp" => raw::rtt(raw::RawKind::Udp, 64, warmup, iters),
-                                "hetcomm-udp-unack" => {
+                            match (which_s.as_str(), cpp_bin) {
+                                ("raw-udp", _) => raw::rtt(raw::RawKind::Udp, 64, warmup, iters),
+                                ("hetcomm-udp-unack", _) => {
                                     hc::rtt(hc::Kind::Udp, false, 64, warmup, iters)
+                                }
+                                ("hetcomm-udp-ack", _) => {
+                                    hc::rtt(hc::Kind::Udp, true, 64, warmup, iters)
+                                }
+                                (report::CPP_PATH, Some(bin)) => {
+                                    ext::cpp_rtt(&bin, 64, warmup, iters)
                                 }
                                 _ => hc::rtt_spinning(hc::Kind::Udp, 64, warmup, iters),
                             }
