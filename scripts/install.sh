@@ -56,7 +56,7 @@ install_apt() {
     [ "$(id -u)" -eq 0 ] || sudo="sudo"
     RECOVER="$sudo dpkg --configure -a" retry_once $sudo apt-get update -qq
     RECOVER="$sudo dpkg --configure -a" retry_once \
-        env DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}" >/dev/null
+        $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
 }
 
 install_python() {
