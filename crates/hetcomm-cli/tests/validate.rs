@@ -205,5 +205,8 @@ fn a_fleet_file_tap_on_a_path_that_does_not_exist_is_a_located_error() {
         ),
         "{stderr}"
     );
-    assert!(stderr.contains("help: tap a pair the table connects"), "{stderr}");
+    assert!(
+        stderr.contains("help: tap a pair the table connects"),
+        "{stderr}"
+    );
 }

@@ -105,7 +105,10 @@ script = [{ at = 0.5, payload = { code = 1 } }]
     assert_eq!(fleet.taps[2].kind, TapKind::Replace);
     assert_eq!(fleet.taps[2].script.len(), 1);
     // A fleet without taps has none, and the same fleet read the ordinary way agrees.
-    assert!(parse_str(FLEET, "fleet.toml", None).unwrap().taps.is_empty());
+    assert!(parse_str(FLEET, "fleet.toml", None)
+        .unwrap()
+        .taps
+        .is_empty());
     let slow_text = format!("{}\n{}", slow(FLEET), &text[FLEET.len() + 1..]);
     assert_ne!(slow_text, text);
     let slow_fleet = parse_str(&slow_text, "fleet.toml", None).unwrap();

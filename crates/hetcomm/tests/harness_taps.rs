@@ -433,8 +433,14 @@ action = "observe"
 #[test]
 fn taps_from_the_fleet_file_act_from_the_start_in_real_and_virtual_time() {
     let envs = [
-        ("real time, in-process", Env::real(&format!("{INPROC}{FLEET_TAPS}"))),
-        ("real time, udp", Env::real(&format!("{}{FLEET_TAPS}", udp()))),
+        (
+            "real time, in-process",
+            Env::real(&format!("{INPROC}{FLEET_TAPS}")),
+        ),
+        (
+            "real time, udp",
+            Env::real(&format!("{}{FLEET_TAPS}", udp())),
+        ),
         ("virtual time", Env::sim(&format!("{INPROC}{FLEET_TAPS}"))),
     ];
     for (name, env) in envs {
@@ -482,11 +488,10 @@ fn taps_from_the_fleet_file_act_from_the_start_in_real_and_virtual_time() {
 
 #[test]
 fn a_fleet_built_in_code_with_a_tap_that_cannot_be_placed_fails_to_open_at_its_line() {
-    let mut fleet = hetcomm::parse_fleet(&format!("{INPROC}{FLEET_TAPS}"), "taps.toml", None)
-        .unwrap();
+    let mut fleet =
+        hetcomm::parse_fleet(&format!("{INPROC}{FLEET_TAPS}"), "taps.toml", None).unwrap();
     // The loader refuses this; a fleet edited in code can still hold it.
-    if let hetcomm::config::scenario::TapSpec::Messages { module, .. } = &mut fleet.taps[0].path
-    {
+    if let hetcomm::config::scenario::TapSpec::Messages { module, .. } = &mut fleet.taps[0].path {
         *module = Some("Nope".into());
     }
     let line = fleet.taps[0].line;
@@ -495,7 +500,9 @@ fn a_fleet_built_in_code_with_a_tap_that_cannot_be_placed_fails_to_open_at_its_l
         Ok(_) => panic!("opened with a tap on a module that does not exist"),
     };
     assert!(
-        err.contains(&format!("the fleet file:{line}:1: tap on A -> B.Nope type 40: no module `Nope`")),
+        err.contains(&format!(
+            "the fleet file:{line}:1: tap on A -> B.Nope type 40: no module `Nope`"
+        )),
         "{err}"
     );
 }

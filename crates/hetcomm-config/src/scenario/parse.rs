@@ -270,7 +270,9 @@ impl P<'_> {
                 self.err(
                     other.span(),
                     format!("`{key}` must be written as [[{key}]] tables"),
-                    Some(format!("write each one as a table under a `[[{key}]]` line")),
+                    Some(format!(
+                        "write each one as a table under a `[[{key}]]` line"
+                    )),
                 );
                 Vec::new()
             }

@@ -300,10 +300,10 @@ pub(crate) fn install_fleet_taps(comm: &Comm) -> Result<(), crate::OpenError> {
         return Ok(());
     }
     let sc = Scenario {
-        origin: fleet.source.as_ref().map_or_else(
-            || "the fleet file".to_string(),
-            |p| p.display().to_string(),
-        ),
+        origin: fleet
+            .source
+            .as_ref()
+            .map_or_else(|| "the fleet file".to_string(), |p| p.display().to_string()),
         taps: fleet.taps.clone(),
         ..Scenario::default()
     };
@@ -317,15 +317,15 @@ pub(crate) fn install_fleet_taps(comm: &Comm) -> Result<(), crate::OpenError> {
             origin,
             line,
             source,
-        }) => Err(crate::OpenError::Config(hetcomm_config::ConfigErrors(vec![
-            hetcomm_config::ConfigError {
+        }) => Err(crate::OpenError::Config(hetcomm_config::ConfigErrors(
+            vec![hetcomm_config::ConfigError {
                 file: origin,
                 line,
                 column: 1,
                 message: source.to_string(),
                 help: Some("correct or remove this [[tap]]".into()),
-            },
-        ]))),
+            }],
+        ))),
     }
 }
 
