@@ -506,3 +506,64 @@ fn a_fleet_built_in_code_with_a_tap_that_cannot_be_placed_fails_to_open_at_its_l
         "{err}"
     );
 }
+
+#[test]
+fn many_taps_each_take_exactly_their_paths() {
+    // Eleven taps on B.Act, more than the delivery gate keeps apart (eight): types 0 to 9,
+    // and 26, which shares type 5's bit in the gate's filter (as does 47, untapped).
+    let types: Vec<u32> = (0..10).chain([26]).collect();
+    for (name, env) in [
+        ("real time", Env::real(INPROC)),
+        ("virtual time", Env::sim(INPROC)),
+    ] {
+        let (a, b) = (env.system("A"), env.system("B"));
+        let counts: Vec<Arc<AtomicU64>> = types.iter().map(|_| Arc::default()).collect();
+        let _taps: Vec<_> = types
+            .iter()
+            .zip(&counts)
+            .map(|(&t, c)| {
+                let c = c.clone();
+                let path = TapPath::messages("B")
+                    .from("A")
+                    .module("Act")
+                    .message_type(hetcomm::MessageType(t));
+                b.tap(
+                    &path,
+                    TapAction::observe(move |_| {
+                        c.fetch_add(1, Ordering::Relaxed);
+                    }),
+                )
+                .unwrap()
+            })
+            .collect();
+        let (plan, act) = (a.module("Plan").unwrap(), b.module("Act").unwrap());
+        let sent = [9u32, 5, 47, 26, 9];
+        for t in sent {
+            plan.send_raw(
+                "B",
+                "Act",
+                hetcomm::MessageType(t),
+                &[1, 2, 3],
+                Default::default(),
+            )
+            .unwrap();
+        }
+        env.pass(Duration::from_millis(50));
+        let mut got = Vec::new();
+        while let Some(m) = act.try_recv_raw() {
+            got.push(m.envelope.header.message_type.0);
+        }
+        assert_eq!(got, sent, "{name}: every message arrives, in order");
+        let seen: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
+        let mut want = vec![0u64; types.len()];
+        want[9] = 2;
+        want[5] = 1;
+        want[10] = 1; // type 26
+        assert_eq!(seen, want, "{name}");
+        assert_eq!(
+            b.harness_stats().tapped,
+            4,
+            "{name}: 47 went through no tap"
+        );
+    }
+}
