@@ -250,7 +250,7 @@ type Table = (String, Vec<&'static str>, Vec<Vec<String>>);
 
 /// The section's table.
 pub fn tables(rows: &[Row]) -> Vec<Table> {
-    let f = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
+    let f = crate::report::num;
     let body: Vec<Vec<String>> = rows
         .iter()
         .filter(|r| r.section == "harness")

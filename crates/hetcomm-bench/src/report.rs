@@ -196,7 +196,8 @@ fn size_name(s: usize) -> String {
     }
 }
 
-fn num(v: Option<f64>, digits: usize) -> String {
+/// `v` with `digits` decimals, or `-` when there is none.
+pub(crate) fn num(v: Option<f64>, digits: usize) -> String {
     match v {
         Some(v) if v.is_finite() => format!("{v:.digits$}"),
         _ => "-".into(),

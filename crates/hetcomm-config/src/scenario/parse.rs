@@ -23,7 +23,17 @@ struct P<'a> {
     errors: Vec<ConfigError>,
 }
 
-impl P<'_> {
+impl<'a> P<'a> {
+    fn new(text: &'a str, origin: &'a str, fleet: &'a Fleet) -> P<'a> {
+        P {
+            text,
+            origin,
+            lines: LineIndex::new(text),
+            fleet,
+            errors: Vec::new(),
+        }
+    }
+
     /// `sc` if nothing was wrong, else every error in file order.
     fn finish(mut self, sc: Scenario) -> Result<Scenario, ConfigErrors> {
         if self.errors.is_empty() {
@@ -337,13 +347,7 @@ pub(crate) fn parse_fleet_taps(
     origin: &str,
     fleet: &Fleet,
 ) -> Result<Vec<ScenarioTap>, ConfigErrors> {
-    let mut p = P {
-        text,
-        origin,
-        lines: LineIndex::new(text),
-        fleet,
-        errors: Vec::new(),
-    };
+    let mut p = P::new(text, origin, fleet);
     let mut sc = Scenario::default();
     parse_taps(&mut p, root, &mut sc);
     p.finish(sc).map(|sc| sc.taps)
@@ -351,13 +355,7 @@ pub(crate) fn parse_fleet_taps(
 
 /// Parses and checks a scenario file's text against `fleet`; `origin` names it in errors.
 pub fn parse_scenario(text: &str, origin: &str, fleet: &Fleet) -> Result<Scenario, ConfigErrors> {
-    let mut p = P {
-        text,
-        origin,
-        lines: LineIndex::new(text),
-        fleet,
-        errors: Vec::new(),
-    };
+    let mut p = P::new(text, origin, fleet);
     let doc = match ImDocument::parse(text) {
         Ok(d) => d,
         Err(e) => {
