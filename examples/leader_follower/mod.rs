@@ -412,6 +412,8 @@ pub struct DemoReport {
     /// What the scenario (if any) did: its schedule, each system's harness counters, and the
     /// injections' outcomes, one line each.
     pub scenario: Vec<String>,
+    /// When the scenario cut systems off (partitions, silences), shaded in the plots.
+    pub bands: Vec<report::plot::Band>,
 }
 
 /// Runs the demonstration.
@@ -599,6 +601,12 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if options.progress {
         eprintln!();
     }
+    let bands = match (&options.scenario, &scenario_run) {
+        (Some(sc), Some(run)) => {
+            scenario::bands(sc, run.start().saturating_since(start).as_secs_f64())
+        }
+        _ => Vec::new(),
+    };
     let scenario = match (&options.scenario, &scenario_run) {
         (Some(sc), Some(run)) => {
             let stats: Vec<(String, hetcomm::HarnessStats)> = fleet
@@ -645,6 +653,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         wall: wall.elapsed(),
         simulated_s: end_s,
         scenario,
+        bands,
     })
 }
 
@@ -658,6 +667,7 @@ pub fn write_outputs(
         dir,
         &report.samples,
         &report.commands,
+        &report.bands,
     )?);
     Ok(files)
 }

@@ -1,9 +1,10 @@
 //! What a scenario did to the demonstration: its schedule, the harness's counters, and the
 //! commands and final poses compared with the same run (same seed) without it.
 
-use hetcomm::config::scenario::Scenario;
+use hetcomm::config::scenario::{FaultEffect, Scenario};
 use hetcomm::harness::scenario::ScenarioRun;
 use hetcomm::HarnessStats;
+use hetcomm_sim::report::plot::Band;
 use hetcomm_sim::report::CommandKind;
 
 use super::DemoReport;
@@ -36,6 +37,42 @@ pub fn report_lines(
             .map(|l| format!("  inject {l}")),
     );
     lines
+}
+
+/// The intervals in which the scenario cuts systems off (its partitions and silences), as
+/// bands for the plots: `offset_s` is when the scenario started, in seconds of the
+/// demonstration's time axis.
+pub fn bands(sc: &Scenario, offset_s: f64) -> Vec<Band> {
+    let mut bands: Vec<Band> = sc
+        .faults
+        .iter()
+        .filter(|f| f.effect == FaultEffect::Cut)
+        .map(|f| {
+            // The pairs both ways between the two sides; a silence's system is in every one.
+            let mut pairs: Vec<(&str, &str)> = f
+                .pairs
+                .iter()
+                .map(|(a, b)| (a.min(b).as_str(), a.max(b).as_str()))
+                .collect();
+            pairs.sort_unstable();
+            pairs.dedup();
+            let who = match (f.kind, pairs.as_slice()) {
+                ("silence", [(a, b), ..]) => {
+                    let silent = f.pairs.iter().all(|(x, y)| x == a || y == a);
+                    (if silent { *a } else { *b }).to_string()
+                }
+                (_, [(a, b)]) => format!("{a}–{b}"),
+                (_, many) => format!("{} pairs", many.len()),
+            };
+            Band {
+                start_s: offset_s + f.window.start_s,
+                end_s: offset_s + f.window.end_s,
+                label: format!("{} {who}", f.kind),
+            }
+        })
+        .collect();
+    bands.sort_by(|a, b| a.start_s.total_cmp(&b.start_s));
+    bands
 }
 
 /// Per follower, each command received with and without the scenario (time and code), and

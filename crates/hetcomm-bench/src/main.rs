@@ -14,7 +14,8 @@
 //!
 //! Sections: `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config` (validating a
 //! fleet file of 3 000 and 10 000 systems, in a child process), `record` (recording the demo,
-//! replaying a dense recording into the simulator). `--quick` runs every
+//! replaying a dense recording into the simulator), `harness` (what the Test Harness's taps
+//! cost an in-process message). `--quick` runs every
 //! measurement briefly (small payloads, few iterations) for CI: it checks that everything
 //! runs, never how fast. See `benchmarks/README.md`.
 //!
@@ -29,6 +30,7 @@
 mod child;
 mod config_scale;
 mod ext;
+mod harness_cost;
 mod hc;
 mod raw;
 mod record_bench;
@@ -83,7 +85,7 @@ fn comma_list(v: &str) -> Vec<String> {
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim,config,record] [--sizes BYTES,…] [--paths ROW,…] \
+[--only rtt,oneway,inproc,pinning,scale,sim,config,record,harness] [--sizes BYTES,…] [--paths ROW,…] \
 [--cpp-bin PATH]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
@@ -521,6 +523,11 @@ fn run(o: &Options) -> Vec<Row> {
             Ok(s) => Row::sim(&name, s.systems, s.simulated_s, s.wall_s, s.delivered),
             Err(e) => Row::failed("sim", &name, 0, &e),
         });
+    }
+    if want("harness") {
+        log(o.quick, "harness: taps' cost per in-process message");
+        let (rounds, per_round) = if o.quick { (3, 2_000) } else { (401, 5_000) };
+        rows.extend(harness_cost::measure(rounds, per_round));
     }
     if want("record") {
         let dir = std::env::temp_dir().join(format!("hetcomm-bench-record-{}", std::process::id()));

@@ -10,7 +10,7 @@ use crate::stats::{Latency, Outcomes, Throughput};
 /// One measurement.
 #[derive(Clone, Debug)]
 pub struct Row {
-    /// `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim` or `config`.
+    /// `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config`, `record` or `harness`.
     pub section: &'static str,
     /// What was measured (`raw-udp`, `hetcomm-udp-unack`, …).
     pub path: String,
@@ -196,7 +196,8 @@ fn size_name(s: usize) -> String {
     }
 }
 
-fn num(v: Option<f64>, digits: usize) -> String {
+/// `v` with `digits` decimals, or `-` when there is none.
+pub(crate) fn num(v: Option<f64>, digits: usize) -> String {
     match v {
         Some(v) if v.is_finite() => format!("{v:.digits$}"),
         _ => "-".into(),
@@ -411,6 +412,7 @@ fn tables(rows: &[Row]) -> Vec<Table> {
         cfg,
     ));
     out.extend(crate::record_bench::tables(rows));
+    out.extend(crate::harness_cost::tables(rows));
     out.retain(|(_, _, r)| !r.is_empty());
     out
 }
@@ -869,6 +871,7 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
         ),
     });
     t.extend(crate::secured::targets(rows));
+    t.extend(crate::harness_cost::targets(rows));
     t
 }
 

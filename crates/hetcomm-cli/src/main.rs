@@ -396,6 +396,9 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                     for line in fleet.security_lines() {
                         println!("  {line}");
                     }
+                    if !fleet.taps.is_empty() {
+                        println!("  {} tap(s) placed for the whole run", fleet.taps.len());
+                    }
                     if let Some(path) = scenario {
                         match hetcomm::config::scenario::load_scenario(&path, &fleet) {
                             Ok(sc) => println!(

@@ -180,3 +180,33 @@ fn a_missing_fleet_file_is_named_without_a_made_up_position() {
         "{first}"
     );
 }
+
+#[test]
+fn a_fleet_file_tap_on_a_path_that_does_not_exist_is_a_located_error() {
+    let dir = temp_dir("validate-taps");
+    let fleet = "[systems]\nA = 0\nB = 1\nC = 2\n[modules]\nPlan = 0\n[transports.net]\nkind = \"inproc\"\n[table]\ncolumns = [\"A\", \"B\", \"C\"]\nA = [\"X\", \"net\", \"X\"]\nB = [\"net\", \"X\", \"net\"]\nC = [\"X\", \"net\", \"X\"]\n\n[[tap]]\nto = \"B\"\nfrom = \"A\"\naction = \"observe\"\n";
+    let good = dir.join("good.toml");
+    std::fs::write(&good, fleet).unwrap();
+    let (code, stdout, stderr) = hetcomm(&["validate", good.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(
+        stdout.contains("1 tap(s) placed for the whole run"),
+        "{stdout}"
+    );
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, fleet.replace("to = \"B\"", "to = \"C\"")).unwrap();
+    let (code, stdout, stderr) = hetcomm(&["validate", bad.to_str().unwrap()]);
+    assert_eq!(code, 2, "{stdout}{stderr}");
+    assert_eq!(
+        stderr.lines().next().unwrap_or_default(),
+        format!(
+            "{}:17:8: [[tap]] at line 15 is on a path that does not exist: the communication table has `X` from A to C",
+            bad.display()
+        ),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("help: tap a pair the table connects"),
+        "{stderr}"
+    );
+}

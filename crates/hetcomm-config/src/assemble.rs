@@ -654,6 +654,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         table: pairs.into_iter().collect(),
         keys_dir,
         secure_in_process,
+        taps: Vec::new(),
     })
 }
 

@@ -29,6 +29,10 @@ pub struct Fleet {
     /// (in-process and emulated transports), as a test of the secured path; network
     /// transports are secured whatever this says, unless they say `security = "none"`.
     pub secure_in_process: bool,
+    /// `[[tap]]` tables of the fleet file: taps placed on every system of the fleet when it
+    /// opens, for the whole run (the same syntax and checks as a scenario file's `[[tap]]`;
+    /// a window's times count from when the system opens).
+    pub taps: Vec<crate::scenario::ScenarioTap>,
 }
 
 /// One system (robot or virtual environment).

@@ -17,7 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Charlie hears the leader at once; Tango, at the end of the Bluetooth hop, 0.5 s later.
     let run = Scenario::thesis().run_open_loop(&[(CHARLIE, 0.0), (TANGO, 0.5)])?;
     let mut written = report::write_tables(&dir, &run.commands, &run.samples)?;
-    written.extend(plot::write_all(&dir, &run.samples, &run.commands)?);
+    written.extend(plot::write_all(&dir, &run.samples, &run.commands, &[])?);
     for p in written {
         println!("{}", p.display());
     }

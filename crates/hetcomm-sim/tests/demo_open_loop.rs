@@ -196,7 +196,7 @@ fn writes_report_and_plots() {
         csv.lines().nth(1),
         Some("0.000000,Alpha,-190.494000,-200.000000,0.000000")
     );
-    let plots = plot::write_all(&dir, &run.samples, &run.commands).unwrap();
+    let plots = plot::write_all(&dir, &run.samples, &run.commands, &[]).unwrap();
     let names: Vec<String> = plots
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
@@ -216,7 +216,7 @@ fn plots_refuse_empty_input() {
         Err(plot::PlotError::NoData)
     ));
     assert!(matches!(
-        plot::plot_time_series(&dir, &[], &[], plot::Quantity::X),
+        plot::plot_time_series(&dir, &[], &[], plot::Quantity::X, &[]),
         Err(plot::PlotError::NoData)
     ));
 }

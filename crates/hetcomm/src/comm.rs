@@ -258,13 +258,15 @@ impl Comm {
             .collect();
         core.start(links, linger, env.sim.is_none())
             .map_err(|e| OpenError::transport("(timer)", system, e))?;
-        Ok(Comm {
+        let comm = Comm {
             handle: Arc::new(SystemHandle {
                 core,
                 fleet,
                 endpoints,
             }),
-        })
+        };
+        crate::harness::scenario::install_fleet_taps(&comm)?;
+        Ok(comm)
     }
 
     /// This system's friendly name.

@@ -619,7 +619,7 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        if self.harness.tapped() {
+        if self.harness.tapped_for(&header) {
             return self.harness.on_delivery(
                 self,
                 module,
@@ -904,7 +904,7 @@ impl SystemCore {
     fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
         let module = self.modules.get(&d.header.destination.module);
         let source = Source::Link(d.link);
-        if self.harness.tapped() {
+        if self.harness.tapped_for(&d.header) {
             return self.harness.on_delivery(
                 self,
                 module.map(|m| &**m),

@@ -36,7 +36,7 @@ use crate::model::*;
 use crate::suggest;
 
 /// Keys allowed at the top level.
-pub(crate) const TOP_KEYS: [&str; 9] = [
+pub(crate) const TOP_KEYS: [&str; 10] = [
     "name",
     "security",
     "systems",
@@ -46,6 +46,7 @@ pub(crate) const TOP_KEYS: [&str; 9] = [
     "table",
     "legacy",
     "letters",
+    "tap",
 ];
 /// Keys of `[inbox]`.
 pub(crate) const INBOX_KEYS: [&str; 3] = ["capacity", "overflow", "block_timeout_ms"];
@@ -217,7 +218,8 @@ fn parse_with(
                     endpoints_seen: FxHashMap::default(),
                 };
                 let parts = p.walk(root, source, Some(scanned.table));
-                return (assemble::finish(parts, p.diag), true);
+                let fleet = assemble::finish(parts, p.diag);
+                return (with_taps(fleet, root, &scanned.rest, origin), true);
             }
         }
     }
@@ -254,7 +256,23 @@ fn parse_with(
         }
     };
     let parts = p.walk(doc.as_table(), source, None);
-    (assemble::finish(parts, p.diag), false)
+    let fleet = assemble::finish(parts, p.diag);
+    (with_taps(fleet, doc.as_table(), text, origin), false)
+}
+
+/// Reads the fleet file's `[[tap]]` tables with the scenario file's parser, checked against
+/// the fleet the rest of the file built (so only once that is valid).
+fn with_taps(
+    fleet: Result<Fleet, ConfigErrors>,
+    root: &toml_edit::Table,
+    text: &str,
+    origin: &str,
+) -> Result<Fleet, ConfigErrors> {
+    let mut fleet = fleet?;
+    if root.contains_key("tap") {
+        fleet.taps = crate::scenario::parse_fleet_taps(root, text, origin, &fleet)?;
+    }
+    Ok(fleet)
 }
 
 /// Quotes a key for a dotted path when it is not a bare key.

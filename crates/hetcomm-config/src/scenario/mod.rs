@@ -50,6 +50,7 @@ use hetcomm_core::MessageType;
 use crate::error::ConfigErrors;
 use crate::Fleet;
 
+pub(crate) use parse::parse_fleet_taps;
 pub use parse::parse_scenario;
 
 /// A window of scenario time, in seconds.

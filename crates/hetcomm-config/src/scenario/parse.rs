@@ -23,7 +23,27 @@ struct P<'a> {
     errors: Vec<ConfigError>,
 }
 
-impl P<'_> {
+impl<'a> P<'a> {
+    fn new(text: &'a str, origin: &'a str, fleet: &'a Fleet) -> P<'a> {
+        P {
+            text,
+            origin,
+            lines: LineIndex::new(text),
+            fleet,
+            errors: Vec::new(),
+        }
+    }
+
+    /// `sc` if nothing was wrong, else every error in file order.
+    fn finish(mut self, sc: Scenario) -> Result<Scenario, ConfigErrors> {
+        if self.errors.is_empty() {
+            Ok(sc)
+        } else {
+            self.errors.sort_by_key(|e| (e.line, e.column));
+            Err(ConfigErrors(self.errors))
+        }
+    }
+
     fn at(&self, span: Option<Range<usize>>) -> (usize, usize) {
         span.map_or((1, 1), |r| self.lines.locate(self.text, r.start))
     }
@@ -163,6 +183,30 @@ impl P<'_> {
         None
     }
 
+    /// Reports `module` when system `system` (a known one) does not host it: no message for
+    /// it can arrive there.
+    fn hosted(&mut self, system: &str, module: &str, span: Option<Range<usize>>, what: &str) {
+        let (Some(sys), Some(m)) = (
+            self.fleet.system_by_name(system),
+            self.fleet.module_by_name(module),
+        ) else {
+            return;
+        };
+        let Some(hosted) = &sys.modules else { return };
+        if !hosted.contains(&m.id) {
+            let names: Vec<&str> = hosted
+                .iter()
+                .filter_map(|id| self.fleet.modules.iter().find(|x| x.id == *id))
+                .map(|x| x.name.as_str())
+                .collect();
+            self.err(
+                span,
+                format!("{what} is on a path that does not exist: system `{system}` does not host module `{module}`"),
+                Some(format!("`{system}` hosts {}", names.join(", "))),
+            );
+        }
+    }
+
     fn system_key(&mut self, t: &Table, key: &str, what: &str) -> Option<String> {
         let s = self.string(t, key, what)?;
         let span = t.get(key).and_then(Item::span);
@@ -198,7 +242,7 @@ impl P<'_> {
                         "`{key}` of {what} must be a message type id (0 to {})",
                         u32::MAX
                     ),
-                    None,
+                    Some(format!("write the type's number, e.g. `{key} = 0`")),
                 );
                 None
             }
@@ -236,7 +280,9 @@ impl P<'_> {
                 self.err(
                     other.span(),
                     format!("`{key}` must be written as [[{key}]] tables"),
-                    None,
+                    Some(format!(
+                        "write each one as a table under a `[[{key}]]` line"
+                    )),
                 );
                 Vec::new()
             }
@@ -292,15 +338,24 @@ impl P<'_> {
     }
 }
 
+/// Reads and checks the `[[tap]]` tables of a fleet file (`root`, parsed from `text`) against
+/// the fleet the rest of that file describes: the same syntax, checks and messages as a
+/// scenario file's taps.
+pub(crate) fn parse_fleet_taps(
+    root: &Table,
+    text: &str,
+    origin: &str,
+    fleet: &Fleet,
+) -> Result<Vec<ScenarioTap>, ConfigErrors> {
+    let mut p = P::new(text, origin, fleet);
+    let mut sc = Scenario::default();
+    parse_taps(&mut p, root, &mut sc);
+    p.finish(sc).map(|sc| sc.taps)
+}
+
 /// Parses and checks a scenario file's text against `fleet`; `origin` names it in errors.
 pub fn parse_scenario(text: &str, origin: &str, fleet: &Fleet) -> Result<Scenario, ConfigErrors> {
-    let mut p = P {
-        text,
-        origin,
-        lines: LineIndex::new(text),
-        fleet,
-        errors: Vec::new(),
-    };
+    let mut p = P::new(text, origin, fleet);
     let doc = match ImDocument::parse(text) {
         Ok(d) => d,
         Err(e) => {
@@ -372,10 +427,5 @@ pub fn parse_scenario(text: &str, origin: &str, fleet: &Fleet) -> Result<Scenari
     parse_links(&mut p, root, &mut sc);
     parse_injections(&mut p, root, &mut sc);
     parse_taps(&mut p, root, &mut sc);
-    if p.errors.is_empty() {
-        Ok(sc)
-    } else {
-        p.errors.sort_by_key(|e| (e.line, e.column));
-        Err(ConfigErrors(p.errors))
-    }
+    p.finish(sc)
 }

@@ -18,6 +18,9 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::{Path, PathBuf};
 
+mod band;
+pub use band::{Band, BAND_FILL, BAND_TEXT};
+
 /// DejaVu Sans 2.37, unmodified (see `assets/DejaVuSans-LICENSE.txt`).
 static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
@@ -342,6 +345,7 @@ pub fn render_time_series(
     samples: &[PoseSample],
     commands: &[CommandRecord],
     quantity: Quantity,
+    bands: &[Band],
 ) -> Result<RgbImage, PlotError> {
     ensure_font();
     let mut rovers = rover_order(samples);
@@ -432,6 +436,7 @@ pub fn render_time_series(
                 quantity,
                 (t_min, t_max),
                 y_range,
+                bands,
                 last,
             )?;
         }
@@ -452,6 +457,7 @@ fn draw_time_panel(
     quantity: Quantity,
     (t_min, t_max): (f64, f64),
     (y_lo, y_hi): (f64, f64),
+    bands: &[Band],
     last: bool,
 ) -> Result<(), PlotError> {
     let mut chart = ChartBuilder::on(panel)
@@ -464,6 +470,8 @@ fn draw_time_panel(
         .build_cartesian_2d(t_min..t_max, y_lo..y_hi)
         .map_err(draw_err)?;
     let axis_px = chart.plotting_area().dim_in_pixel().0;
+    // Under the grid, so the grid still reads across a band.
+    band::draw_bands(&mut chart, bands, (t_min, t_max), (y_lo, y_hi))?;
     let mut mesh = chart.configure_mesh();
     mesh.y_desc(quantity.axis())
         .x_labels(x_tick_count(t_min, t_max, axis_px))
@@ -523,6 +531,7 @@ fn draw_time_panel(
     }
 
     draw_thick_line(&chart, &simplify(points.iter().copied()), color, LINE_WIDTH)?;
+    band::label_bands(&chart, panel, bands, (t_min, t_max), y_hi)?;
     Ok(())
 }
 
@@ -821,8 +830,9 @@ pub fn plot_time_series(
     samples: &[PoseSample],
     commands: &[CommandRecord],
     quantity: Quantity,
+    bands: &[Band],
 ) -> Result<PathBuf, PlotError> {
-    let img = render_time_series(samples, commands, quantity)?;
+    let img = render_time_series(samples, commands, quantity, bands)?;
     save(dir, quantity.file_name(), &img)
 }
 
@@ -835,15 +845,17 @@ pub fn plot_trajectory(dir: &Path, samples: &[PoseSample]) -> Result<PathBuf, Pl
 }
 
 /// Writes all four plots (`x.png`, `y.png`, `theta.png`, `trajectory.png`) into `dir`,
-/// creating it if needed, and returns their paths in that order.
+/// creating it if needed, and returns their paths in that order; the time series shade
+/// `bands`.
 pub fn write_all(
     dir: &Path,
     samples: &[PoseSample],
     commands: &[CommandRecord],
+    bands: &[Band],
 ) -> Result<Vec<PathBuf>, PlotError> {
     let mut paths = Vec::new();
     for q in Quantity::ALL {
-        paths.push(plot_time_series(dir, samples, commands, q)?);
+        paths.push(plot_time_series(dir, samples, commands, q, bands)?);
     }
     paths.push(plot_trajectory(dir, samples)?);
     Ok(paths)

@@ -8,7 +8,7 @@
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, OnceLock, RwLock, Weak};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -43,7 +43,38 @@ pub(crate) struct MessageMatch {
     pub message_type: Option<MessageType>,
 }
 
+/// How many message taps of a system get a filter slot of their own.
+const FILTERS: usize = 8;
+
+/// Width of each of the three fields of a [`PathFilter`] word, in bits.
+const FIELD: u32 = 21;
+/// A field with every bit set: "any value".
+const ANY: u64 = (1 << FIELD) - 1;
+
+/// The bit of value `v` in a field.
+#[inline(always)]
+fn field_bit(v: u32) -> u64 {
+    1 << (v % FIELD)
+}
+
+/// A message's path as a filter key: one bit in each field (source system, destination
+/// module, message type).
+#[inline(always)]
+fn path_key(h: &Header) -> u64 {
+    field_bit(u32::from(h.source.system.0))
+        | field_bit(u32::from(h.destination.module.0)) << FIELD
+        | field_bit(h.message_type.0) << (2 * FIELD)
+}
+
 impl MessageMatch {
+    /// The filter bits of the paths this match takes (see [`SystemHarness::tapped_for`]).
+    fn filter_bits(&self) -> u64 {
+        let f = |v: Option<u32>| v.map_or(ANY, field_bit);
+        f(self.from.map(|s| u32::from(s.0)))
+            | f(self.module.map(|m| u32::from(m.0))) << FIELD
+            | f(self.message_type.map(|t| t.0)) << (2 * FIELD)
+    }
+
     #[inline]
     fn matches(&self, h: &Header) -> bool {
         self.from.is_none_or(|f| f == h.source.system)
@@ -159,8 +190,12 @@ thread_local! {
 /// One system's taps, faults and held items. A field of `SystemCore`.
 #[derive(Default)]
 pub(crate) struct SystemHarness {
-    /// Some tap sits on a message path here: the gate every delivery checks.
-    tapped: AtomicBool,
+    /// The filter bits of each message tap here, the first [`FILTERS`]` - 1` taps one slot
+    /// each and the rest merged into the last: the gate every delivery checks
+    /// ([`SystemHarness::tapped_for`]).
+    filters: [AtomicU64; FILTERS],
+    /// How many of `filters` are in use (0: no message tap).
+    filters_used: AtomicUsize,
     /// Which list of taps is current (see [`SystemHarness::with_taps`]); 0: none yet.
     version: AtomicU64,
     /// Some tap sits on a topic path here: the gate every publish checks.
@@ -189,10 +224,28 @@ impl SystemHarness {
         let _ = self.owner.set((core, realtime));
     }
 
-    /// Whether a message tap is placed here (one relaxed load).
+    /// Whether a message tap may sit on `h`'s path. Without message taps: one load. With
+    /// some: each tap has a filter word with, in three fields, the bit of its source system,
+    /// destination module and message type (every bit of a field it leaves open), and a
+    /// message goes to the taps only when its own three bits are all set in one tap's word.
+    /// So a path no tap can take costs a few loads and masks (one cache line) even while
+    /// other paths here are tapped; values that share a bit (ids 21 apart) or taps past the
+    /// eighth (merged into one word) only send a message to the taps, which then find none
+    /// for it.
     #[inline(always)]
-    pub(crate) fn tapped(&self) -> bool {
-        self.tapped.load(Ordering::Relaxed)
+    pub(crate) fn tapped_for(&self, h: &Header) -> bool {
+        // Acquire: the slots were written before the count that covers them.
+        let used = self.filters_used.load(Ordering::Acquire);
+        used != 0 && self.tapped_slow(h, used)
+    }
+
+    /// [`SystemHarness::tapped_for`] once some message tap exists here.
+    #[inline]
+    fn tapped_slow(&self, h: &Header, used: usize) -> bool {
+        let key = path_key(h);
+        self.filters[..used.min(FILTERS)]
+            .iter()
+            .any(|f| f.load(Ordering::Relaxed) & key == key)
     }
 
     /// Whether a topic tap is placed here (one relaxed load).
@@ -253,9 +306,24 @@ impl SystemHarness {
             TAP_VERSIONS.fetch_add(1, Ordering::Relaxed),
             Ordering::Release,
         );
-        let msg = taps.iter().any(|t| matches!(t.target, Target::Messages(_)));
+        // One tap a slot; past the last, merged into it (wider, never narrower). Each slot is
+        // written once, in order, and a tap that stays only moves to an earlier slot, so a
+        // delivery reading the slots meanwhile still finds every tap that stays.
+        let mut slots = [0u64; FILTERS];
+        let mut used = 0;
+        for bits in taps.iter().filter_map(|t| match &t.target {
+            Target::Messages(m) => Some(m.filter_bits()),
+            Target::Topic(_) => None,
+        }) {
+            slots[used.min(FILTERS - 1)] |= bits;
+            used += 1;
+        }
+        for (slot, bits) in self.filters.iter().zip(slots) {
+            slot.store(bits, Ordering::Relaxed);
+        }
         let topic = taps.iter().any(|t| matches!(t.target, Target::Topic(_)));
-        self.tapped.store(msg, Ordering::Release);
+        self.filters_used
+            .store(used.min(FILTERS), Ordering::Release);
         self.topic_tapped.store(topic, Ordering::Release);
     }
 

@@ -22,9 +22,11 @@
 //! *fail*, schedule a network fault instead ([`scenario`]: partitions, silence, loss),
 //! which acts on frames before they leave and so shows in outcomes and retransmissions.
 //!
-//! Cost: a system with no tap checks one relaxed atomic at each delivery; a topic with no tap
-//! the same at each publish. An observe-only tap costs a function call and a path match per
-//! message (`cargo bench -p hetcomm-bench --bench harness`).
+//! Cost: a system with no message tap checks one atomic at each delivery; one with taps
+//! checks a filter word per tap (source, module, type), so a path no tap can take never reads
+//! the list of taps. A system with no topic tap checks one atomic at each publish. An
+//! observe-only tap costs a path match, a counter and the function call per message
+//! (`hetcomm-bench --only harness`; docs/harness.md has the figures).
 
 mod engine;
 pub(crate) mod faults;

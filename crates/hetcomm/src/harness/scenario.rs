@@ -127,6 +127,16 @@ impl ScenarioRun {
     }
 }
 
+impl ScenarioRun {
+    /// Leaves its taps and replacements on for as long as their systems are open.
+    fn keep(self) {
+        self.taps.into_iter().for_each(TapHandle::keep);
+        for r in self.replacements {
+            r.tap.keep();
+        }
+    }
+}
+
 impl std::fmt::Debug for ScenarioRun {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ScenarioRun")
@@ -278,6 +288,45 @@ pub(crate) fn install(
             .push(comm.tap_between(&path, action, window).map_err(located)?);
     }
     Ok(run)
+}
+
+/// Places the fleet file's `[[tap]]`s that act at `comm`'s system, for as long as it is open;
+/// their windows and scripts count from now. The loader checked them against the fleet, so
+/// an error here means a [`hetcomm_config::Fleet`] built by hand with a tap that cannot be
+/// placed; it is reported at the tap's line.
+pub(crate) fn install_fleet_taps(comm: &Comm) -> Result<(), crate::OpenError> {
+    let fleet = comm.fleet();
+    if fleet.taps.is_empty() {
+        return Ok(());
+    }
+    let sc = Scenario {
+        origin: fleet
+            .source
+            .as_ref()
+            .map_or_else(|| "the fleet file".to_string(), |p| p.display().to_string()),
+        taps: fleet.taps.clone(),
+        ..Scenario::default()
+    };
+    let now = comm.handle.core.clock.now();
+    match install(std::slice::from_ref(comm), &sc, now, 0) {
+        Ok(run) => {
+            run.keep();
+            Ok(())
+        }
+        Err(ScenarioError::Tap {
+            origin,
+            line,
+            source,
+        }) => Err(crate::OpenError::Config(hetcomm_config::ConfigErrors(
+            vec![hetcomm_config::ConfigError {
+                file: origin,
+                line,
+                column: 1,
+                message: source.to_string(),
+                help: Some("correct or remove this [[tap]]".into()),
+            }],
+        ))),
+    }
 }
 
 /// Schedules a replacement's scripted messages or values on the destination system.

@@ -286,6 +286,9 @@ pub(super) fn parse_taps(p: &mut P<'_>, root: &Table, sc: &mut Scenario) {
                 None => None,
             };
             let message_type = p.message_type(t, "type", &what);
+            if let (Some(d), Some(m)) = (&to, &module) {
+                p.hosted(d, m, t.get("module").and_then(Item::span), &what);
+            }
             match (&from, &to) {
                 (Some(f), Some(d)) if f != d => {
                     let a = p.fleet.system_by_name(f).map(|s| s.id);
