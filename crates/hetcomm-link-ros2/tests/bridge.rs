@@ -101,7 +101,7 @@ fn mappings_parse_and_their_mistakes_are_located() {
     let b: &hetcomm_link_ros2::bridge::BridgeSettings = s.downcast_ref().unwrap();
     assert_eq!(b.robot, "Tango");
     assert_eq!(b.publish.len(), 3);
-    assert_eq!(b.subscribe[0].ros_type, "nav_msgs/Odometry");
+    assert_eq!(b.subscribe[0].ros_type(), "nav_msgs/Odometry");
     assert_eq!(b.subscribe[0].message, 41);
 
     let errors = |text: String| {

@@ -21,16 +21,18 @@
 
 mod settings;
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
 use hetcomm_config::{TransportKind, TransportSettings};
-use hetcomm_core::wire::{self, FrameKind, Header};
-use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
+use hetcomm_core::wire;
+use hetcomm_core::{MessageType, ModuleId, SystemId};
+use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
+use hetcomm_rosmsg::schema::Flavour;
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use rustdds::mio1::{Events, Interest, Poll, Token};
@@ -46,30 +48,6 @@ use crate::raw::{RawAdapter, RawCdr};
 /// The kind's name in fleet files: `kind = "ros2_bridge"`.
 pub fn kind() -> TransportKind {
     TransportKind::new("ros2_bridge")
-}
-
-/// What went wrong with input from ROS, each distinct problem once, in order.
-#[derive(Default)]
-pub struct Problems {
-    seen: Mutex<BTreeSet<String>>,
-}
-
-impl Problems {
-    /// Records `problem`; true (and printed to stderr) the first time it is seen.
-    fn report(&self, problem: String) -> bool {
-        let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        let new = seen.insert(problem.clone());
-        if new {
-            eprintln!("hetcomm ros2_bridge: {problem}");
-        }
-        new
-    }
-
-    /// Every distinct problem seen so far.
-    pub fn list(&self) -> Vec<String> {
-        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        seen.iter().cloned().collect()
-    }
 }
 
 struct Outbound {
@@ -107,18 +85,6 @@ pub struct Ros2Bridge {
     _participant: DomainParticipant,
 }
 
-fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, OpenFailure> {
-    fleet
-        .modules
-        .iter()
-        .find(|m| m.name == name)
-        .map(|m| m.id)
-        .ok_or_else(|| {
-            format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
-                .into()
-        })
-}
-
 impl Ros2Bridge {
     /// Opens the bridge on system `local` of `fleet` with `settings`.
     pub fn open(
@@ -127,19 +93,7 @@ impl Ros2Bridge {
         settings: &BridgeSettings,
         sink: Arc<dyn FrameSink>,
     ) -> Result<Ros2Bridge, OpenFailure> {
-        let robot = fleet
-            .systems
-            .iter()
-            .find(|s| s.name == settings.robot)
-            .map(|s| s.id)
-            .ok_or_else(|| format!("robot `{}` is not in [systems]", settings.robot))?;
-        if robot == local {
-            return Err(format!(
-                "`{}` is the external ROS 2 robot of this bridge: it runs ROS 2, not hetcomm",
-                settings.robot
-            )
-            .into());
-        }
+        let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros2)?;
         let dp = participant(&settings.dds)?;
         let qos = qos(&settings.dds);
         let dds_err = |what: String| {
@@ -151,7 +105,7 @@ impl Ros2Bridge {
         let topic = |m: &Mapping| {
             dp.create_topic(
                 names::dds_topic(&m.topic),
-                names::dds_type(m.ros_type),
+                names::dds_type(m.ros_type()),
                 &qos,
                 TopicKind::NoKey,
             )
@@ -191,18 +145,16 @@ impl Ros2Bridge {
         }
         let shared = Arc::new(Shared {
             counters: Counters::default(),
-            problems: Problems::default(),
+            problems: Problems::new("ros2_bridge"),
             closed: AtomicBool::new(false),
         });
         let rx = Receiver {
             dp: dp.clone(),
             inbound,
-            local,
             robot,
             sink,
             shared: shared.clone(),
-            incarnation: rand::random::<u32>() | 1,
-            seq: HashMap::new(),
+            frames: FrameMaker::new(local, robot),
         };
         let receiver = std::thread::Builder::new()
             .name(format!("hetcomm-ros2-bridge-{}", settings.robot))
@@ -224,24 +176,14 @@ impl Ros2Bridge {
     }
 }
 
-fn now() -> Time {
-    let us = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_micros() as u64)
-        .unwrap_or(0);
-    Time::from_micros(us)
-}
-
 /// The bridge's receive side: every subscribed topic's reader, polled on one thread.
 struct Receiver {
     dp: DomainParticipant,
     inbound: Vec<Inbound>,
-    local: SystemId,
     robot: SystemId,
     sink: Arc<dyn FrameSink>,
     shared: Arc<Shared>,
-    incarnation: u32,
-    seq: HashMap<ModuleId, u64>,
+    frames: FrameMaker,
 }
 
 impl Receiver {
@@ -305,32 +247,14 @@ impl Receiver {
                     continue;
                 }
             };
-            let mut payload = Vec::with_capacity(sample.body.len() + 16);
-            if rmpv::encode::write_value(&mut payload, &value).is_err() {
-                self.drop_with(format!("a sample on {topic} could not be encoded"));
-                continue;
-            }
             let inb = &self.inbound[i];
-            let seq = self.seq.entry(inb.module).or_insert(0);
-            *seq += 1;
-            let header = Header {
-                kind: FrameKind::Data,
-                incarnation: self.incarnation,
-                seq: *seq,
-                timestamp: now(),
-                ..Header::data(
-                    Address {
-                        system: self.robot,
-                        module: inb.module,
-                    },
-                    Address {
-                        system: self.local,
-                        module: inb.module,
-                    },
-                    MessageType(inb.mapping.message),
-                )
+            let frame = match self.frames.frame(inb.module, inb.mapping.message, &value) {
+                Ok(f) => f,
+                Err(e) => {
+                    self.drop_with(format!("a sample on {topic} {e}"));
+                    continue;
+                }
             };
-            let frame = wire::encode(&header, &payload);
             self.shared
                 .counters
                 .received
@@ -345,14 +269,17 @@ impl Receiver {
         let writers = self.dp.discovered_writers();
         for inb in &self.inbound {
             let topic = names::dds_topic(&inb.mapping.topic);
-            let expected = names::dds_type(inb.mapping.ros_type);
+            let expected = names::dds_type(inb.mapping.ros_type());
             for w in &writers {
                 let t = &w.publication_topic_data;
                 if t.topic_name == topic && t.type_name != expected {
                     let new = self.shared.problems.report(format!(
                         "a publisher on {} has type {}, but the topic is mapped as {} ({}): its \
                          messages are not received",
-                        inb.mapping.topic, t.type_name, inb.mapping.ros_type, expected
+                        inb.mapping.topic,
+                        t.type_name,
+                        inb.mapping.ros_type(),
+                        expected
                     ));
                     if new {
                         // Counted once per such publisher: its samples never reach us.
@@ -383,20 +310,16 @@ impl Link for Ros2Bridge {
                 self.robot_name
             )));
         }
-        let f = wire::decode(frame).map_err(|e| unreachable(format!("not a frame: {e}")))?;
-        if f.header.kind != FrameKind::Data {
-            // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
             return Ok(());
-        }
-        let key = (f.header.destination.module, f.header.message_type);
+        };
         let Some(out) = self.outbound.get(&key) else {
             return Err(unreachable(format!(
                 "no ROS topic is mapped for message type {} to {}'s module {}",
                 key.1 .0, self.robot_name, key.0 .0
             )));
         };
-        let value = rmpv::decode::read_value(&mut &f.payload[..])
-            .map_err(|e| unreachable(format!("payload is not MessagePack: {e}")))?;
         let what = format!(
             "message type {} for {}",
             out.mapping.message, out.mapping.module

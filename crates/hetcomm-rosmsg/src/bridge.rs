@@ -1,0 +1,321 @@
+//! What the `ros1_bridge` and `ros2_bridge` transport kinds share besides the conversion:
+//! reading their fleet-file tables ([`parse_common`]: `robot`, the `publish` and `subscribe`
+//! mappings, the required `delivery` and `security`), naming the robot and modules
+//! ([`robot_id`], [`module_id`]), reporting bad input once ([`Problems`]) and turning a ROS
+//! message into a hetcomm frame from the robot ([`FrameMaker`]).
+
+use std::collections::{BTreeSet, HashMap};
+use std::sync::Mutex;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use hetcomm_config::{Fleet, SettingsReader};
+use hetcomm_core::wire::{self, FrameKind, Header};
+use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
+use rmpv::Value;
+
+use crate::schema::{Flavour, RosType};
+
+/// One mapping between a hetcomm (module, message type) and a ROS topic of a ROS type.
+#[derive(Clone, Debug)]
+pub struct Mapping {
+    /// The ROS topic, e.g. `/tango/cmd_vel`.
+    pub topic: String,
+    /// The hetcomm module: on the robot (publish) or on this system (subscribe).
+    pub module: String,
+    /// The hetcomm message type id.
+    pub message: u32,
+    /// The ROS type's schema (its `name` is `pkg/Type`).
+    pub schema: &'static RosType,
+}
+
+impl Mapping {
+    /// The ROS type's name, `pkg/Type`.
+    pub fn ros_type(&self) -> &'static str {
+        self.schema.name
+    }
+}
+
+impl PartialEq for Mapping {
+    fn eq(&self, other: &Mapping) -> bool {
+        (&self.topic, &self.module, self.message, self.schema.name)
+            == (&other.topic, &other.module, other.message, other.schema.name)
+    }
+}
+
+impl Eq for Mapping {}
+
+/// The keys every bridge kind reads (besides the shared ones and its own).
+pub const COMMON_KEYS: [&str; 3] = ["robot", "publish", "subscribe"];
+
+/// What every bridge's table says: the robot and the mappings.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Common {
+    /// The external system (it runs ROS, not hetcomm): `robot = "Tango"`.
+    pub robot: String,
+    /// `[transports.x.publish]`: sends to (robot, module) of a message type become ROS
+    /// messages on a topic.
+    pub publish: Vec<Mapping>,
+    /// `[transports.x.subscribe]`: ROS messages on a topic become messages of a type from the
+    /// robot, to this system's module.
+    pub subscribe: Vec<Mapping>,
+}
+
+const MAPPING_HELP: &str =
+    "write \"MODULE TYPE_ID ROS_TYPE\", e.g. \"Drive 40 geometry_msgs/Twist\"";
+
+fn mappings(
+    s: &mut SettingsReader<'_, '_>,
+    key: &str,
+    flavour: Flavour,
+    check_topic: fn(&str) -> Result<(), String>,
+    ok: &mut bool,
+) -> Vec<Mapping> {
+    let Some(entries) = s.string_table(key, MAPPING_HELP) else {
+        *ok &= !s.has(key);
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for (topic, text) in entries {
+        if let Err(why) = check_topic(&topic) {
+            s.error_entry(
+                key,
+                &topic,
+                format!("`{topic}` is not a {} topic name: {why}", flavour.label()),
+                "write the full name, e.g. \"/tango/cmd_vel\"",
+            );
+            *ok = false;
+            continue;
+        }
+        let parts: Vec<&str> = text.split_whitespace().collect();
+        let [module, id, ros_type] = parts[..] else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}` must have three parts, found {text:?}"),
+                MAPPING_HELP,
+            );
+            *ok = false;
+            continue;
+        };
+        let Ok(message) = id.parse::<u32>() else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}`: `{id}` is not a message type id"),
+                "the number in the message's #[message(id = N)]",
+            );
+            *ok = false;
+            continue;
+        };
+        let Some(schema) = flavour.lookup(ros_type) else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}`: this build does not know the ROS type `{ros_type}`"),
+                format!("known types: {}", flavour.known_names()),
+            );
+            *ok = false;
+            continue;
+        };
+        out.push(Mapping {
+            topic,
+            module: module.to_string(),
+            message,
+            schema,
+        });
+    }
+    out
+}
+
+/// Reads `robot`, `publish`, `subscribe` and checks `delivery = "unacknowledged"` and
+/// `security = "none"` of a bridge table of `kind` (e.g. `ros1_bridge`); `check_topic` says
+/// why a topic name is not valid. Problems are reported through `s`; None if there was one.
+pub fn parse_common(
+    s: &mut SettingsReader<'_, '_>,
+    flavour: Flavour,
+    kind: &str,
+    check_topic: fn(&str) -> Result<(), String>,
+) -> Option<Common> {
+    let mut ok = true;
+    let robot = match s.has("robot") {
+        true => s.string(
+            "robot",
+            "the name of the ROS robot's system in quotes, e.g. \"Tango\"",
+        ),
+        false => {
+            let help = format!("add `robot = \"NAME\"`: the system that runs {}", flavour.label());
+            s.missing("robot", &help);
+            None
+        }
+    };
+    ok &= robot.is_some();
+    // A ROS node cannot acknowledge hetcomm messages nor open hetcomm's secured sessions.
+    if s.string("delivery", "").as_deref() != Some("unacknowledged") {
+        s.error(
+            "delivery",
+            format!(
+                "transport `{}` (kind {kind}) carries plain ROS messages, which nobody \
+                 acknowledges",
+                s.transport()
+            ),
+            "add `delivery = \"unacknowledged\"`: sends end as Sent (without confirmation)",
+        );
+        ok = false;
+    }
+    if s.string("security", "").as_deref() != Some("none") {
+        s.error(
+            "security",
+            format!(
+                "transport `{}` (kind {kind}) carries plain ROS messages: a ROS node cannot \
+                 open hetcomm's secured sessions",
+                s.transport()
+            ),
+            "add `security = \"none\"` (see docs/ros-bridges.md, \"Security\")",
+        );
+        ok = false;
+    }
+    let publish = mappings(s, "publish", flavour, check_topic, &mut ok);
+    let subscribe = mappings(s, "subscribe", flavour, check_topic, &mut ok);
+    if ok && publish.is_empty() && subscribe.is_empty() {
+        s.error(
+            "publish",
+            format!("a {kind} maps no topic"),
+            "add a [transports.NAME.publish] or [transports.NAME.subscribe] section",
+        );
+        ok = false;
+    }
+    ok.then_some(Common {
+        robot: robot?,
+        publish,
+        subscribe,
+    })
+}
+
+/// The id of the bridge's `robot`, which must be in the fleet and not be `local` (it runs
+/// ROS, not hetcomm).
+pub fn robot_id(
+    fleet: &Fleet,
+    local: SystemId,
+    robot: &str,
+    flavour: Flavour,
+) -> Result<SystemId, String> {
+    let id = fleet
+        .systems
+        .iter()
+        .find(|s| s.name == robot)
+        .map(|s| s.id)
+        .ok_or_else(|| format!("robot `{robot}` is not in [systems]"))?;
+    if id == local {
+        let ros = flavour.label();
+        return Err(format!(
+            "`{robot}` is the external {ros} robot of this bridge: it runs {ros}, not hetcomm"
+        ));
+    }
+    Ok(id)
+}
+
+/// The id of the module `name` that the mapping of `topic` names.
+pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, String> {
+    fleet
+        .modules
+        .iter()
+        .find(|m| m.name == name)
+        .map(|m| m.id)
+        .ok_or_else(|| {
+            format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
+        })
+}
+
+/// What went wrong with input from ROS, each distinct problem once, in order.
+pub struct Problems {
+    kind: &'static str,
+    seen: Mutex<BTreeSet<String>>,
+}
+
+impl Problems {
+    /// No problems yet; `kind` (e.g. `ros1_bridge`) prefixes what is printed.
+    pub fn new(kind: &'static str) -> Problems {
+        Problems {
+            kind,
+            seen: Mutex::default(),
+        }
+    }
+
+    /// Records `problem`; true (and printed to stderr) the first time it is seen.
+    pub fn report(&self, problem: String) -> bool {
+        let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        let new = seen.insert(problem.clone());
+        if new {
+            eprintln!("hetcomm {}: {problem}", self.kind);
+        }
+        new
+    }
+
+    /// Every distinct problem seen so far.
+    pub fn list(&self) -> Vec<String> {
+        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        seen.iter().cloned().collect()
+    }
+}
+
+/// A hetcomm payload sent to the robot, as the bridge will convert it: the mapping key
+/// (robot's module, message type) and the payload as a MessagePack value. None for frames
+/// that are not data (acknowledgements have no ROS counterpart).
+pub fn outgoing(frame: &[u8]) -> Result<Option<((ModuleId, MessageType), Value)>, String> {
+    let f = wire::decode(frame).map_err(|e| format!("not a frame: {e}"))?;
+    if f.header.kind != FrameKind::Data {
+        return Ok(None);
+    }
+    let key = (f.header.destination.module, f.header.message_type);
+    let value = rmpv::decode::read_value(&mut &f.payload[..])
+        .map_err(|e| format!("payload is not MessagePack: {e}"))?;
+    Ok(Some((key, value)))
+}
+
+/// Makes the hetcomm frames of messages received from the robot: data from (robot, module) to
+/// (this system, module), numbered per module under one random incarnation.
+pub struct FrameMaker {
+    local: SystemId,
+    robot: SystemId,
+    incarnation: u32,
+    seq: HashMap<ModuleId, u64>,
+}
+
+impl FrameMaker {
+    /// Frames from `robot` to `local`.
+    pub fn new(local: SystemId, robot: SystemId) -> FrameMaker {
+        FrameMaker {
+            local,
+            robot,
+            incarnation: rand::random::<u32>() | 1,
+            seq: HashMap::new(),
+        }
+    }
+
+    /// The frame of `value` (a decoded ROS message) for `module` as message type `message`.
+    pub fn frame(
+        &mut self,
+        module: ModuleId,
+        message: u32,
+        value: &Value,
+    ) -> Result<Vec<u8>, String> {
+        let mut payload = Vec::with_capacity(128);
+        rmpv::encode::write_value(&mut payload, value)
+            .map_err(|e| format!("could not be encoded: {e}"))?;
+        let seq = self.seq.entry(module).or_insert(0);
+        *seq += 1;
+        let us = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_micros() as u64)
+            .unwrap_or(0);
+        let at = |system| Address { system, module };
+        let header = Header {
+            kind: FrameKind::Data,
+            incarnation: self.incarnation,
+            seq: *seq,
+            timestamp: Time::from_micros(us),
+            ..Header::data(at(self.robot), at(self.local), MessageType(message))
+        };
+        Ok(wire::encode(&header, &payload))
+    }
+}
