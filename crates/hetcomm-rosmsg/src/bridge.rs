@@ -38,7 +38,12 @@ impl Mapping {
 impl PartialEq for Mapping {
     fn eq(&self, other: &Mapping) -> bool {
         (&self.topic, &self.module, self.message, self.schema.name)
-            == (&other.topic, &other.module, other.message, other.schema.name)
+            == (
+                &other.topic,
+                &other.module,
+                other.message,
+                other.schema.name,
+            )
     }
 }
 
@@ -143,7 +148,10 @@ pub fn parse_common(
             "the name of the ROS robot's system in quotes, e.g. \"Tango\"",
         ),
         false => {
-            let help = format!("add `robot = \"NAME\"`: the system that runs {}", flavour.label());
+            let help = format!(
+                "add `robot = \"NAME\"`: the system that runs {}",
+                flavour.label()
+            );
             s.missing("robot", &help);
             None
         }

@@ -49,7 +49,12 @@ impl Wire {
 
 /// Converts a MessagePack value (a hetcomm payload) into `ty`'s body in `wire` (CDR is
 /// written XCDR1 little endian whatever `wire` says). `what` names the hetcomm type in errors.
-pub fn encode(value: &Value, ty: &'static RosType, wire: Wire, what: &str) -> Result<Vec<u8>, String> {
+pub fn encode(
+    value: &Value,
+    ty: &'static RosType,
+    wire: Wire,
+    what: &str,
+) -> Result<Vec<u8>, String> {
     let mut w = Writer {
         out: Vec::with_capacity(64),
         cdr: wire != Wire::Ros1,
@@ -177,7 +182,9 @@ impl Writer {
                 let n = int_in(v, path, i8::MIN as i64, i8::MAX as i64, "int8")?;
                 self.out.push(n as i8 as u8)
             }
-            Ty::U8 => self.out.push(int_in(v, path, 0, u8::MAX as i64, "uint8")? as u8),
+            Ty::U8 => self
+                .out
+                .push(int_in(v, path, 0, u8::MAX as i64, "uint8")? as u8),
             Ty::U16 => {
                 let n = int_in(v, path, 0, u16::MAX as i64, "uint16")? as u16;
                 self.put(&n.to_le_bytes());
@@ -389,7 +396,10 @@ mod tests {
     fn ros_1_bodies_are_packed_with_a_seq_and_strings_without_nul() {
         let header = map(&[
             ("seq", 9u32.into()),
-            ("stamp", map(&[("secs", 5u32.into()), ("nsecs", 7u32.into())])),
+            (
+                "stamp",
+                map(&[("secs", 5u32.into()), ("nsecs", 7u32.into())]),
+            ),
             ("frame_id", "map".into()),
         ]);
         let stamped = map(&[("header", header), ("pose", pose())]);
@@ -399,10 +409,16 @@ mod tests {
         assert_eq!(&body[12..19], &[3, 0, 0, 0, b'm', b'a', b'p']);
         assert_eq!(&body[19..27], &1.0f64.to_le_bytes());
         assert_eq!(body.len(), 19 + 7 * 8);
-        assert_eq!(decode(&body, &ros1::POSE_STAMPED, Wire::Ros1).unwrap(), stamped);
+        assert_eq!(
+            decode(&body, &ros1::POSE_STAMPED, Wire::Ros1).unwrap(),
+            stamped
+        );
         // A ROS 2 header is not a ROS 1 header: the field is named.
         let ros2_header = map(&[
-            ("header", map(&[("stamp", map(&[])), ("frame_id", "".into())])),
+            (
+                "header",
+                map(&[("stamp", map(&[])), ("frame_id", "".into())]),
+            ),
             ("pose", pose()),
         ]);
         let err = encode(&ros2_header, &ros1::POSE_STAMPED, Wire::Ros1, "Fix").unwrap_err();

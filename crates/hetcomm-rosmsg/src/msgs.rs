@@ -249,29 +249,53 @@ mod tests {
         H: Clone + Serialize + DeserializeOwned + PartialEq + std::fmt::Debug,
     {
         let twist = Twist {
-            linear: Vector3 { x: 1.0, y: 0.0, z: 0.0 },
-            angular: Vector3 { x: 0.0, y: 0.0, z: 0.5 },
+            linear: Vector3 {
+                x: 1.0,
+                y: 0.0,
+                z: 0.0,
+            },
+            angular: Vector3 {
+                x: 0.0,
+                y: 0.0,
+                z: 0.5,
+            },
         };
         let pose = Pose {
-            position: Point { x: 1.0, y: 2.0, z: 3.0 },
+            position: Point {
+                x: 1.0,
+                y: 2.0,
+                z: 3.0,
+            },
             orientation: Quaternion::default(),
         };
         round_trip(StringMsg { data: "hi".into() }, flavour, "std_msgs/String");
         round_trip(Float64 { data: 2.5 }, flavour, "std_msgs/Float64");
         round_trip(twist, flavour, "geometry_msgs/Twist");
         round_trip(pose, flavour, "geometry_msgs/Pose");
-        let ps = PoseStamped { header: header.clone(), pose };
+        let ps = PoseStamped {
+            header: header.clone(),
+            pose,
+        };
         round_trip(ps, flavour, "geometry_msgs/PoseStamped");
         let odom = Odometry {
             header: header.clone(),
             child_frame_id: "base_link".into(),
-            pose: PoseWithCovariance { pose, covariance: vec![0.1; 36] },
-            twist: TwistWithCovariance { twist, covariance: vec![0.0; 36] },
+            pose: PoseWithCovariance {
+                pose,
+                covariance: vec![0.1; 36],
+            },
+            twist: TwistWithCovariance {
+                twist,
+                covariance: vec![0.0; 36],
+            },
         };
         round_trip(odom, flavour, "nav_msgs/Odometry");
         let fix = NavSatFix {
             header,
-            status: NavSatStatus { status: -1, service: 1 },
+            status: NavSatStatus {
+                status: -1,
+                service: 1,
+            },
             latitude: 60.2,
             longitude: 24.9,
             altitude: 12.0,

@@ -31,10 +31,10 @@ use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
 use hetcomm_config::{TransportKind, TransportSettings};
 use hetcomm_core::wire;
 use hetcomm_core::{MessageType, ModuleId, SystemId};
-use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
-use hetcomm_rosmsg::schema::Flavour;
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
+use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReader, DataWriter};
 use rustdds::{DomainParticipant, TopicKind};
@@ -231,7 +231,7 @@ impl Receiver {
                     continue;
                 }
             };
-            let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema());
+            let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema);
             let value = match crate::rostypes::from_cdr(
                 &sample.body,
                 sample.little,
@@ -325,7 +325,7 @@ impl Link for Ros2Bridge {
             out.mapping.message, out.mapping.module
         );
         let body =
-            crate::rostypes::to_cdr(&value, out.mapping.schema(), &what).map_err(unreachable)?;
+            crate::rostypes::to_cdr(&value, out.mapping.schema, &what).map_err(unreachable)?;
         match out.writer.write(
             RawCdr {
                 body,

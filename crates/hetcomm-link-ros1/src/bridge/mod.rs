@@ -1,0 +1,441 @@
+//! The `ros1_bridge` transport kind: an external ROS 1 robot (a system that runs ROS 1, not
+//! hetcomm) in the fleet, through typed ROS topics of its master.
+//!
+//! The ROS 1 twin of `ros2_bridge`, with the same fleet-file shape (docs/ros-bridges.md). A
+//! bridge is a link between this system and the robot; its table maps, per module and message
+//! type, to ROS topics and types ([`BridgeSettings`]):
+//!
+//! * **publish** (hetcomm → ROS): a message of type `TYPE_ID` sent to (robot, `MODULE`) is
+//!   converted by field name (`hetcomm_rosmsg::codec`, ROS 1 serialization) and published on
+//!   the topic, advertised with the ROS type's MD5 sum and definition. Nobody acknowledges it:
+//!   the transport must say `delivery = "unacknowledged"`, and the outcome is Sent (without
+//!   confirmation). A message that does not convert fails its send, naming both types and the
+//!   field.
+//! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
+//!   `MODULE` as a message of type `TYPE_ID` from the robot.
+//!
+//! Bad input never reaches a module: a message that does not deserialize as the mapped type,
+//! and a publisher on a mapped topic whose type is another (ROS 1 refuses its connection at
+//! the handshake, for its MD5 sum; the bridge asks the master who publishes each mapped topic
+//! and each publisher's `getPublications` for its type), are counted (dropped frames in the
+//! link's stats) and described in [`Ros1Bridge::problems`], each problem printed once to
+//! stderr. Plain ROS messages are unauthenticated: the transport must say
+//! `security = "none"`.
+
+mod settings;
+mod types;
+
+use std::collections::{BTreeSet, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
+use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_core::wire;
+use hetcomm_core::{MessageType, ModuleId, SystemId};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
+use hetcomm_rosmsg::codec::{self, Wire};
+use hetcomm_rosmsg::schema::Flavour;
+use roslibrust::ros1::{NodeHandle, PublisherAny};
+use tokio::sync::mpsc;
+
+pub use settings::{check_topic, BridgeSettings, Mapping, KEYS};
+pub use types::description;
+
+use crate::xmlrpc;
+
+/// The kind's name in fleet files: `kind = "ros1_bridge"`.
+pub fn kind() -> TransportKind {
+    TransportKind::new("ros1_bridge")
+}
+
+/// How often the bridge asks the master who publishes its subscribed topics.
+const CHECK_INTERVAL: Duration = Duration::from_millis(500);
+/// Longest wait for one XML-RPC call of that check.
+const CALL_TIMEOUT: Duration = Duration::from_secs(1);
+/// Queue size of each ROS publisher and subscriber (messages).
+const ROS_QUEUE: usize = 64;
+/// Messages `send` can queue for the publishing task before it reports congestion.
+const SEND_QUEUE: usize = 1024;
+/// Longest time `open` waits for the master.
+const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
+
+#[derive(Default)]
+struct Counters {
+    sent: AtomicU64,
+    received: AtomicU64,
+    dropped: AtomicU64,
+}
+
+/// What the bridge's tasks share.
+struct Shared {
+    counters: Counters,
+    problems: Problems,
+}
+
+impl Shared {
+    fn drop_with(&self, n: u64, problem: String) {
+        self.counters.dropped.fetch_add(n, Ordering::Relaxed);
+        self.problems.report(problem);
+    }
+}
+
+/// An inbound mapping, as its receive task sees it.
+struct Inbound {
+    mapping: Mapping,
+    module: ModuleId,
+}
+
+/// The publishing side of an outbound mapping.
+struct Outbound {
+    mapping: Mapping,
+    index: usize,
+}
+
+/// A link to an external ROS 1 robot through typed topics.
+pub struct Ros1Bridge {
+    robot: SystemId,
+    robot_name: String,
+    /// By (robot's module, message type).
+    outbound: HashMap<(ModuleId, MessageType), Outbound>,
+    /// To the publishing task: (index of the publisher, TCPROS-framed message).
+    publish: mpsc::Sender<(usize, Vec<u8>)>,
+    shared: Arc<Shared>,
+    runtime: Option<tokio::runtime::Runtime>,
+    node: Option<NodeHandle>,
+}
+
+impl Ros1Bridge {
+    /// Opens the bridge on system `local` of `fleet` with `settings`: registers a ROS node
+    /// with the master, advertises every published topic and subscribes to every subscribed
+    /// one (received messages go to `sink`).
+    pub fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<Ros1Bridge, OpenFailure> {
+        let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros1)?;
+        let mut inbound = Vec::new();
+        for m in &settings.subscribe {
+            let module = module_id(fleet, &m.module, &m.topic)?;
+            inbound.push(Inbound {
+                mapping: m.clone(),
+                module,
+            });
+        }
+        let mut outbound = HashMap::new();
+        for (index, m) in settings.publish.iter().enumerate() {
+            let module = module_id(fleet, &m.module, &m.topic)?;
+            let out = Outbound {
+                mapping: m.clone(),
+                index,
+            };
+            outbound.insert((module, MessageType(m.message)), out);
+        }
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("hetcomm-ros1-bridge")
+            .enable_all()
+            .build()?;
+        let shared = Arc::new(Shared {
+            counters: Counters::default(),
+            problems: Problems::new("ros1_bridge"),
+        });
+        let node_name = format!(
+            "/hetcomm_bridge_{}_{}_{}",
+            settings.robot,
+            std::process::id(),
+            rand::random::<u16>()
+        );
+        let uri = settings.master_uri.clone();
+        let opened = runtime.block_on(async {
+            tokio::time::timeout(OPEN_TIMEOUT, async {
+                let node = NodeHandle::new(&uri, &node_name)
+                    .await
+                    .map_err(|e| format!("the ROS master at {uri}: {e}"))?;
+                let mut publishers = Vec::new();
+                for m in &settings.publish {
+                    let d = description(m.schema);
+                    let p = node
+                        .advertise_any(&m.topic, d.ros_type_name, d.definition, ROS_QUEUE, false)
+                        .await
+                        .map_err(|e| format!("advertising {}: {e}", m.topic))?;
+                    publishers.push(p);
+                }
+                Ok::<_, String>((node, publishers))
+            })
+            .await
+            .unwrap_or_else(|_| {
+                Err(format!(
+                    "the ROS master at {uri} did not answer within {OPEN_TIMEOUT:?} (is \
+                     `rosmaster --core` running? check the transport's `master_uri`)"
+                ))
+            })
+        });
+        let (node, publishers) = match opened {
+            Ok(o) => o,
+            Err(e) => {
+                runtime.shutdown_timeout(Duration::from_millis(500));
+                return Err(e.into());
+            }
+        };
+        let (tx_frames, mut rx_frames) = mpsc::channel::<Vec<u8>>(ROS_QUEUE);
+        let frames = Arc::new(Mutex::new(FrameMaker::new(local, robot)));
+        let subscribed = runtime.block_on(async {
+            let mut topics = Vec::new();
+            for inb in inbound {
+                types::subscribe(
+                    &node,
+                    inb,
+                    ROS_QUEUE,
+                    frames.clone(),
+                    tx_frames.clone(),
+                    shared.clone(),
+                )
+                .await?;
+            }
+            for m in &settings.subscribe {
+                topics.push(m.clone());
+            }
+            Ok::<_, String>(topics)
+        });
+        let subscribed = match subscribed {
+            Ok(s) => s,
+            Err(e) => {
+                drop(node);
+                runtime.shutdown_timeout(Duration::from_millis(500));
+                return Err(e.into());
+            }
+        };
+        drop(tx_frames);
+        // Frames reach the sink on a thread of their own, as the `ros1` link's do.
+        std::thread::Builder::new()
+            .name(format!("hetcomm-ros1-bridge-{}", settings.robot))
+            .spawn(move || {
+                while let Some(frame) = rx_frames.blocking_recv() {
+                    sink.on_frame(&frame, Peer::System(robot));
+                }
+            })?;
+        let (publish, publish_rx) = mpsc::channel(SEND_QUEUE);
+        runtime.spawn(publish_loop(publishers, publish_rx));
+        runtime.spawn(check_publisher_types(
+            settings.master_uri.clone(),
+            node_name,
+            subscribed,
+            shared.clone(),
+        ));
+        Ok(Ros1Bridge {
+            robot,
+            robot_name: settings.robot.clone(),
+            outbound,
+            publish,
+            shared,
+            runtime: Some(runtime),
+            node: Some(node),
+        })
+    }
+
+    /// The problems seen with input from ROS (messages that do not deserialize, publishers
+    /// of another type on a mapped topic), each once.
+    pub fn problems(&self) -> Vec<String> {
+        self.shared.problems.list()
+    }
+}
+
+async fn publish_loop(publishers: Vec<PublisherAny>, mut rx: mpsc::Receiver<(usize, Vec<u8>)>) {
+    while let Some((index, framed)) = rx.recv().await {
+        if let Some(p) = publishers.get(index) {
+            // The outcome is already Sent (without confirmation); ROS 1 says nothing more.
+            let _ = p.publish(framed).await;
+        }
+    }
+}
+
+/// Reports publishers on a mapped topic whose type is not the mapped one: ROS 1 refuses
+/// their connection (MD5 mismatch), so their messages would otherwise vanish without a word.
+/// Each publishing node is asked once per topic.
+async fn check_publisher_types(
+    master: String,
+    me: String,
+    subscribed: Vec<Mapping>,
+    shared: Arc<Shared>,
+) {
+    let http = reqwest::Client::new();
+    let mut checked = BTreeSet::new();
+    loop {
+        tokio::time::sleep(CHECK_INTERVAL).await;
+        let args = vec![me.clone().into()];
+        let Ok(state) = xmlrpc::call(&http, &master, "getSystemState", args, CALL_TIMEOUT).await
+        else {
+            continue;
+        };
+        let graph = xmlrpc::Graph::from_value(&state);
+        for m in &subscribed {
+            for node in graph.publishers(&m.topic) {
+                if checked.contains(&(m.topic.clone(), node.clone())) {
+                    continue;
+                }
+                let args = vec![me.clone().into(), node.clone().into()];
+                let Ok(serde_xmlrpc::Value::String(uri)) =
+                    xmlrpc::call(&http, &master, "lookupNode", args, CALL_TIMEOUT).await
+                else {
+                    continue;
+                };
+                let args = vec![me.clone().into()];
+                let Ok(pubs) =
+                    xmlrpc::call(&http, &uri, "getPublications", args, CALL_TIMEOUT).await
+                else {
+                    continue;
+                };
+                checked.insert((m.topic.clone(), node.clone()));
+                match xmlrpc::publication_type(&pubs, &m.topic) {
+                    Some(ty) if ty != m.ros_type() => shared.drop_with(
+                        1,
+                        format!(
+                            "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
+                             as {}: ROS 1 refuses its connection (MD5 sum mismatch), its \
+                             messages are not received",
+                            m.topic,
+                            m.ros_type()
+                        ),
+                    ),
+                    _ => {}
+                }
+            }
+        }
+    }
+}
+
+impl Link for Ros1Bridge {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+            mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+            reliable: false,
+            ordered: true,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
+        if to != self.robot {
+            return Err(unreachable(format!(
+                "this ros1_bridge reaches only {}",
+                self.robot_name
+            )));
+        }
+        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+            return Ok(());
+        };
+        let Some(out) = self.outbound.get(&key) else {
+            return Err(unreachable(format!(
+                "no ROS topic is mapped for message type {} to {}'s module {}",
+                key.1 .0, self.robot_name, key.0 .0
+            )));
+        };
+        let m = &out.mapping;
+        let what = format!("message type {} for {}", m.message, m.module);
+        let body = codec::encode(&value, m.schema, Wire::Ros1, &what).map_err(unreachable)?;
+        // TCPROS frames each message with its length.
+        let mut framed = Vec::with_capacity(body.len() + 4);
+        framed.extend_from_slice(&(body.len() as u32).to_le_bytes());
+        framed.extend_from_slice(&body);
+        match self.publish.try_send((out.index, framed)) {
+            Ok(()) => {
+                self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => Err(LinkError::Congested {
+                peer: to,
+                reason: format!("the publishing queue of {} is full", m.topic),
+            }),
+            Err(mpsc::error::TrySendError::Closed(_)) => {
+                Err(unreachable("the bridge is closing".into()))
+            }
+        }
+    }
+
+    fn stats(&self) -> LinkStats {
+        let c = &self.shared.counters;
+        LinkStats {
+            frames_sent: c.sent.load(Ordering::Relaxed),
+            frames_received: c.received.load(Ordering::Relaxed),
+            frames_dropped: c.dropped.load(Ordering::Relaxed),
+            ..LinkStats::default()
+        }
+    }
+}
+
+impl Drop for Ros1Bridge {
+    fn drop(&mut self) {
+        let (Some(runtime), node) = (self.runtime.take(), self.node.take()) else {
+            return;
+        };
+        // On a plain thread: this may run inside another async runtime, where blocking on
+        // ours is not allowed; roslibrust unregisters a dropped node with blocking calls.
+        let shutdown = std::thread::Builder::new()
+            .name("hetcomm-ros1-bridge-close".into())
+            .spawn(move || {
+                {
+                    let _guard = runtime.enter();
+                    drop(node);
+                }
+                runtime.shutdown_timeout(Duration::from_secs(1));
+            });
+        if let Ok(handle) = shutdown {
+            let _ = handle.join();
+        }
+    }
+}
+
+/// Reads `ros1_bridge` tables and opens them as [`Ros1Bridge`]s.
+pub struct Ros1BridgeFactory;
+
+impl KindSpec for Ros1BridgeFactory {
+    fn kind(&self) -> TransportKind {
+        kind()
+    }
+
+    fn keys(&self) -> &[&'static str] {
+        &KEYS
+    }
+
+    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+        settings::parse(s)
+    }
+}
+
+impl TransportFactory for Ros1BridgeFactory {
+    fn kind(&self) -> TransportKind {
+        kind()
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
+    }
+
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
+        let TransportSettings::Registered(s) = &request.transport.settings else {
+            return Err("expected ros1_bridge settings".into());
+        };
+        let settings: &BridgeSettings = s
+            .downcast_ref()
+            .ok_or("the transport's settings are not ros1_bridge settings")?;
+        let bridge = Ros1Bridge::open(request.fleet, request.local, settings, request.sink)?;
+        let local_address = Some(format!(
+            "ros1_bridge://{}/{}",
+            settings.master_uri.trim_start_matches("http://"),
+            settings.robot
+        ));
+        Ok(Opened {
+            link: Arc::new(bridge),
+            local_address,
+        })
+    }
+}

@@ -1,0 +1,461 @@
+//! The `ros1_bridge` kind against real ROS 1 software on a real master: `rosmsg` (MD5 sums),
+//! `rostopic pub` and `rostopic echo`, rospy (examples/ros1/tango_rover.py, a rover driven by
+//! a hetcomm system that gets its odometry back), and bad input (a message that does not
+//! deserialize, a publisher of another type on a mapped topic), counted and reported.
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use common::Master;
+use hetcomm::{Comm, Message, Outcome};
+use hetcomm_link::{FrameSink, Peer};
+use hetcomm_link_ros1::bridge::{description, BridgeSettings, Ros1Bridge};
+use hetcomm_rosmsg::schema::Flavour;
+use serde::{Deserialize, Serialize};
+
+/// `geometry_msgs/Vector3` by field name.
+#[derive(Serialize, Deserialize, Debug, Clone, Copy, PartialEq, Default)]
+struct Vector3 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+/// A user's command, mapped to `geometry_msgs/Twist` by its serde field names.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 40)]
+struct Drive {
+    linear: Vector3,
+    angular: Vector3,
+}
+
+/// A user's view of `nav_msgs/Odometry`: only the fields it needs.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 41)]
+struct Odom {
+    header: Header,
+    child_frame_id: String,
+    pose: PoseWithCovariance,
+}
+
+/// ROS 1's header: `seq` and `stamp.secs`, as the rover's rospy fills them in.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Header {
+    seq: u32,
+    stamp: Stamp,
+    frame_id: String,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Stamp {
+    secs: u32,
+    nsecs: u32,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct PoseWithCovariance {
+    pose: Pose,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Pose {
+    position: Vector3,
+}
+
+/// `std_msgs/String`.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 42)]
+struct Text {
+    data: String,
+}
+
+/// A command that does not fit `geometry_msgs/Twist` (a `speed` field, no `linear`).
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 44)]
+struct BadDrive {
+    speed: f64,
+    angular: Vector3,
+}
+
+fn fleet_text(prefix: &str, master: &str) -> String {
+    format!(
+        r#"[systems]
+Alpha = 0
+Tango = 4
+[modules]
+Drive = 1
+World = 2
+[transports.tango_ros]
+kind = "ros1_bridge"
+robot = "Tango"
+master_uri = "{master}"
+delivery = "unacknowledged"
+security = "none"
+[transports.tango_ros.publish]
+"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
+"{prefix}/say" = "Drive 42 std_msgs/String"
+"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
+[transports.tango_ros.subscribe]
+"{prefix}/odom" = "World 41 nav_msgs/Odometry"
+"{prefix}/heard" = "World 42 std_msgs/String"
+"{prefix}/cmd_in" = "World 40 geometry_msgs/Twist"
+[table]
+columns = ["Alpha", "Tango"]
+Alpha = ["X", "tango_ros"]
+Tango = ["tango_ros", "X"]
+"#
+    )
+}
+
+fn settings(fleet: &hetcomm::config::Fleet) -> &BridgeSettings {
+    let hetcomm::config::TransportSettings::Registered(s) = &fleet.transports[0].settings else {
+        panic!("registered settings expected");
+    };
+    s.downcast_ref().expect("ros1_bridge settings")
+}
+
+#[test]
+fn the_md5_sums_are_those_rosmsg_computes() {
+    if !common::ros_available() {
+        return;
+    }
+    for ty in Flavour::Ros1.known() {
+        let out = Command::new("rosmsg")
+            .args(["md5", ty.name])
+            .output()
+            .expect("running rosmsg");
+        let theirs = String::from_utf8_lossy(&out.stdout).trim().to_string();
+        let d = description(ty);
+        assert_eq!(d.md5sum, theirs, "{}", ty.name);
+        assert_eq!(d.ros_type_name, ty.name);
+    }
+}
+
+#[test]
+fn mappings_parse_and_their_mistakes_are_located() {
+    let ok = hetcomm::parse_fleet(&fleet_text("/t", "http://127.0.0.1:1"), "b.toml", None)
+        .expect("valid");
+    let b = settings(&ok);
+    assert_eq!(b.robot, "Tango");
+    assert_eq!(b.master_uri, "http://127.0.0.1:1");
+    assert_eq!(b.publish.len(), 3);
+    assert_eq!(b.subscribe[0].ros_type(), "nav_msgs/Odometry");
+    assert_eq!(b.subscribe[0].message, 41);
+
+    let errors = |text: String| {
+        hetcomm::parse_fleet(&text, "b.toml", None)
+            .unwrap_err()
+            .to_string()
+    };
+    let good = fleet_text("/t", "http://127.0.0.1:1");
+    let e = errors(good.replace("nav_msgs/Odometry", "nav_msgs/Path"));
+    assert!(
+        e.starts_with("b.toml:18:13: mapping of `/t/odom`: this build does not know the ROS type `nav_msgs/Path`"),
+        "{e}"
+    );
+    assert!(e.contains("known types: std_msgs/String"), "{e}");
+    let e = errors(good.replace("delivery = \"unacknowledged\"\n", ""));
+    assert!(
+        e.contains("(kind ros1_bridge) carries plain ROS messages, which nobody acknowledges"),
+        "{e}"
+    );
+    let e = errors(good.replace("security = \"none\"\n", ""));
+    assert!(
+        e.contains("a ROS node cannot open hetcomm's secured sessions"),
+        "{e}"
+    );
+    let e = errors(good.replace("\"/t/say\"", "\"/t/2say\""));
+    assert!(
+        e.contains(
+            "b.toml:15:13: `/t/2say` is not a ROS 1 topic name: `2say` is not a name segment"
+        ),
+        "{e}"
+    );
+    let e = errors(good.replace("http://127.0.0.1:1", "127.0.0.1:1"));
+    assert!(e.contains("`master_uri` must be an http:// URI"), "{e}");
+}
+
+#[test]
+fn opening_names_an_unknown_module_and_an_absent_master() {
+    let text = fleet_text("/t", "http://127.0.0.1:1").replace("\"World 41", "\"Wrold 41");
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let e = Comm::open_fleet(&fleet, "Alpha")
+        .err()
+        .expect("open fails")
+        .to_string();
+    assert!(
+        e.contains("the mapping of /t/odom names module `Wrold`, which is not in [modules]"),
+        "{e}"
+    );
+    common::ros_env();
+    let port = common::free_port();
+    let text = fleet_text("/t", &format!("http://127.0.0.1:{port}"));
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let e = Comm::open_fleet(&fleet, "Alpha")
+        .err()
+        .expect("open fails")
+        .to_string();
+    assert!(
+        e.contains(&format!("the ROS master at http://127.0.0.1:{port}")),
+        "{e}"
+    );
+}
+
+/// A child process, killed when dropped.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn rover(master: &Master, prefix: &str, extra: &[&str]) -> Proc {
+    let script =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/ros1/tango_rover.py");
+    let child = Command::new("/usr/bin/python3")
+        .arg(script)
+        .args(["--prefix", prefix, "--seconds", "60"])
+        .args(extra)
+        .envs(master.env())
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("start the rospy rover");
+    Proc(child)
+}
+
+fn prefix(tag: &str) -> String {
+    format!("/hc_{}_{tag}", std::process::id())
+}
+
+fn open(master: &Master, prefix: &str) -> Comm {
+    let text = fleet_text(prefix, &master.uri());
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    Comm::open_fleet(&fleet, "Alpha").expect("open Alpha")
+}
+
+#[test]
+fn rostopic_pub_reaches_a_module_as_a_typed_message() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("pub");
+    let alpha = open(&master, &p);
+    let world = alpha.module("World").unwrap();
+    let _pub = Proc(
+        Command::new("rostopic")
+            .args([
+                "pub",
+                "-r",
+                "10",
+                &format!("{p}/cmd_in"),
+                "geometry_msgs/Twist",
+            ])
+            .arg("{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: 0.25}}")
+            .envs(master.env())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("rostopic pub"),
+    );
+    let got = world
+        .recv_timeout::<Drive>(Duration::from_secs(20))
+        .expect("a Twist from rostopic pub");
+    assert_eq!(got.message.linear.x, 0.5);
+    assert_eq!(got.message.angular.z, 0.25);
+    assert_eq!(got.envelope.source().system, hetcomm::SystemId(4));
+}
+
+#[test]
+fn rostopic_echo_prints_what_hetcomm_publishes() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("echo");
+    let alpha = open(&master, &p);
+    let drive = alpha.module("Drive").unwrap();
+    let echo = Command::new("rostopic")
+        .args(["echo", "-n", "1", &format!("{p}/cmd_vel")])
+        .envs(master.env())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("rostopic echo");
+    let echo = Arc::new(Mutex::new(Some(echo)));
+    let cmd = Drive {
+        linear: Vector3 {
+            x: 1.25,
+            ..Default::default()
+        },
+        angular: Vector3 {
+            z: -0.5,
+            ..Default::default()
+        },
+    };
+    // rostopic echo connects some time after it starts: publish until it has printed.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let out = loop {
+        assert!(Instant::now() < deadline, "rostopic echo printed nothing");
+        let outcome = drive.send("Tango", "Drive", &cmd).expect("send").wait();
+        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
+        std::thread::sleep(Duration::from_millis(200));
+        let mut guard = echo.lock().unwrap();
+        if let Ok(Some(_)) = guard.as_mut().unwrap().try_wait() {
+            break guard
+                .take()
+                .unwrap()
+                .wait_with_output()
+                .expect("echo output");
+        }
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("linear: \n  x: 1.25\n  y: 0.0\n  z: 0.0")
+            && text.contains("angular: \n  x: 0.0\n  y: 0.0\n  z: -0.5"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("drive");
+    let alpha = open(&master, &p);
+    let (drive, world) = (
+        alpha.module("Drive").unwrap(),
+        alpha.module("World").unwrap(),
+    );
+    let _rover = rover(&master, &p, &[]);
+
+    // Odometry arrives as a typed message from Tango, ROS 1 header included.
+    let first = world
+        .recv_timeout::<Odom>(Duration::from_secs(30))
+        .expect("odometry from the rover");
+    assert_eq!(first.message.child_frame_id, "base_link");
+    assert_eq!(first.message.header.frame_id, "odom");
+    assert!(first.message.header.stamp.secs > 1_600_000_000);
+    assert_eq!(first.envelope.source().system, hetcomm::SystemId(4));
+
+    // Commands go out as geometry_msgs/Twist: sent, without confirmation.
+    let forward = Drive {
+        linear: Vector3 {
+            x: 1.0,
+            ..Default::default()
+        },
+        angular: Vector3::default(),
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut x = 0.0;
+    while x < 0.5 {
+        assert!(Instant::now() < deadline, "the rover did not move: x = {x}");
+        let outcome = drive.send("Tango", "Drive", &forward).expect("send").wait();
+        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
+        std::thread::sleep(Duration::from_millis(100));
+        while let Ok(Some(odom)) = world.try_recv::<Odom>() {
+            x = odom.message.pose.pose.position.x;
+        }
+    }
+
+    // std_msgs/String there and back through rospy.
+    let text = Text {
+        data: "hello Tango".into(),
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let heard = loop {
+        assert!(Instant::now() < deadline, "no answer on /heard");
+        drive.send("Tango", "Drive", &text).expect("send").wait();
+        if let Ok(r) = world.recv_timeout::<Text>(Duration::from_millis(300)) {
+            break r.message;
+        }
+    };
+    assert_eq!(heard.data, "heard: hello Tango");
+
+    // A command that does not fit the mapped type fails, naming both types and the field.
+    let bad = BadDrive {
+        speed: 1.0,
+        angular: Vector3::default(),
+    };
+    let outcome = drive.send("Tango", "Drive", &bad).expect("send").wait();
+    let text = format!("{outcome:?}");
+    assert!(matches!(outcome, Outcome::Failed { .. }), "{text}");
+    assert!(
+        text.contains("message type 44 for Drive does not convert to geometry_msgs/Twist: field `speed` has no counterpart in geometry_msgs/Twist"),
+        "{text}"
+    );
+}
+
+/// A sink that keeps the frames a bridge hands it.
+#[derive(Default)]
+struct Frames(Mutex<Vec<Vec<u8>>>);
+
+impl FrameSink for Frames {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.0.lock().unwrap().push(frame.to_vec());
+    }
+}
+
+#[test]
+fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivered() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("bad");
+    let text = fleet_text(&p, &master.uri());
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let sink = Arc::new(Frames::default());
+    let bridge = Ros1Bridge::open(&fleet, hetcomm::SystemId(0), settings(&fleet), sink.clone())
+        .expect("open the bridge");
+    let _rover = rover(&master, &p, &["--garbage", "20"]);
+    let _wrong = Proc(
+        Command::new("rostopic")
+            .args(["pub", "-r", "10", &format!("{p}/odom"), "std_msgs/String"])
+            .arg("data: not an odometry")
+            .envs(master.env())
+            .stdout(Stdio::null())
+            // It logs every refused connection attempt of the bridge, with the definition.
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("rostopic pub"),
+    );
+    // Good odometry keeps arriving; the garbage and the String publisher are counted (the
+    // rover's first few garbage messages may go out before the bridge's connection is up).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let good = sink.0.lock().unwrap().len();
+        let dropped = hetcomm_link::Link::stats(&bridge).frames_dropped;
+        if good >= 20 && dropped >= 6 && bridge.problems().len() == 2 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "good = {good}, dropped = {dropped}: {:?}",
+            bridge.problems()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    for frame in sink.0.lock().unwrap().iter() {
+        let f = hetcomm_core::wire::decode(frame).expect("a frame");
+        assert_eq!(f.header.message_type.0, 41);
+        let odom: Odom = rmp_serde::from_slice(f.payload).expect("an Odom");
+        assert_eq!(odom.child_frame_id, "base_link");
+    }
+    let problems = bridge.problems().join("\n");
+    assert!(
+        problems.contains(&format!("a message on {p}/odom is not a nav_msgs/Odometry")),
+        "{problems}"
+    );
+    assert!(
+        problems.contains(&format!("a publisher on {p}/odom (/rostopic_"))
+            && problems.contains(
+                "has type std_msgs/String, but the topic is mapped as nav_msgs/Odometry: ROS 1 \
+                 refuses its connection (MD5 sum mismatch)"
+            ),
+        "{problems}"
+    );
+}
