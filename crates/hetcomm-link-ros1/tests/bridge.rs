@@ -390,6 +390,82 @@ fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
     );
 }
 
+/// The full pose of `nav_msgs/Odometry`, for steering.
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 41)]
+struct Pose2 {
+    pose: Pose2WithCovariance,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Pose2WithCovariance {
+    pose: FullPose,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct FullPose {
+    position: Vector3,
+    orientation: Quaternion,
+}
+
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+struct Quaternion {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[test]
+fn tango_follows_a_hetcomm_leader_through_the_bridge() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("follow");
+    let alpha = open(&master, &p);
+    let (drive, world) = (
+        alpha.module("Drive").unwrap(),
+        alpha.module("World").unwrap(),
+    );
+    let _rover = rover(&master, &p, &[]);
+    world
+        .recv_timeout::<Pose2>(Duration::from_secs(30))
+        .expect("odometry from the rover");
+    // The leader (virtual, in Alpha) starts 1 m from Tango and drives at 0.3 m/s along the
+    // 45° diagonal; Tango is steered, from its odometry alone, to a point 1 m behind it.
+    let dir = std::f64::consts::FRAC_1_SQRT_2;
+    let (mut tx, mut ty, mut heading) = (0.0, 0.0, 0.0f64);
+    let start = Instant::now();
+    let mut distance = f64::MAX;
+    while start.elapsed() < Duration::from_secs(15) {
+        let along = 0.3 * start.elapsed().as_secs_f64();
+        let (gx, gy) = (along * dir, along * dir);
+        while let Ok(Some(o)) = world.try_recv::<Pose2>() {
+            let pose = o.message.pose.pose;
+            (tx, ty) = (pose.position.x, pose.position.y);
+            heading = 2.0 * pose.orientation.z.atan2(pose.orientation.w);
+        }
+        distance = (gx - tx).hypot(gy - ty);
+        let error = (gy - ty).atan2(gx - tx) - heading;
+        let turn = error.sin().atan2(error.cos());
+        let cmd = Drive {
+            linear: Vector3 {
+                x: (distance * 1.5).min(0.8) * turn.cos().max(0.0),
+                ..Default::default()
+            },
+            angular: Vector3 {
+                z: (2.0 * turn).clamp(-1.5, 1.5),
+                ..Default::default()
+            },
+        };
+        let outcome = drive.send("Tango", "Drive", &cmd).expect("send").wait();
+        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(tx > 2.0 && ty > 2.0, "Tango did not follow: at ({tx:.2}, {ty:.2})");
+    assert!(distance < 0.4, "Tango is {distance:.2} m from its target");
+}
+
 /// A sink that keeps the frames a bridge hands it.
 #[derive(Default)]
 struct Frames(Mutex<Vec<Vec<u8>>>);
