@@ -20,6 +20,12 @@
 //! (the router checks and drops malformed frames) with [`Peer::Unknown`]: the router reads the
 //! sender from the frame header.
 //!
+//! ## Bridges
+//!
+//! The crate also has the `ros1_bridge` kind ([`bridge`]): an external ROS 1 robot (one that
+//! runs ROS 1, not hetcomm) in the fleet through its own typed topics (docs/ros-bridges.md),
+//! with the conversion shared with the ROS 2 bridge in `hetcomm_rosmsg`.
+//!
 //! ## What the link guarantees
 //!
 //! [`LinkCaps`]: `reliable = false`, `ordered = true`. A publisher/subscriber pair talks over one

@@ -462,7 +462,10 @@ fn tango_follows_a_hetcomm_leader_through_the_bridge() {
         assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
         std::thread::sleep(Duration::from_millis(50));
     }
-    assert!(tx > 2.0 && ty > 2.0, "Tango did not follow: at ({tx:.2}, {ty:.2})");
+    assert!(
+        tx > 2.0 && ty > 2.0,
+        "Tango did not follow: at ({tx:.2}, {ty:.2})"
+    );
     assert!(distance < 0.4, "Tango is {distance:.2} m from its target");
 }
 

@@ -266,10 +266,13 @@ impl Problems {
     }
 }
 
-/// A hetcomm payload sent to the robot, as the bridge will convert it: the mapping key
-/// (robot's module, message type) and the payload as a MessagePack value. None for frames
-/// that are not data (acknowledgements have no ROS counterpart).
-pub fn outgoing(frame: &[u8]) -> Result<Option<((ModuleId, MessageType), Value)>, String> {
+/// Which mapping a message sent to the robot takes: (robot's module, message type).
+pub type MappingKey = (ModuleId, MessageType);
+
+/// A hetcomm payload sent to the robot, as the bridge will convert it: the mapping key and
+/// the payload as a MessagePack value. None for frames that are not data (acknowledgements
+/// have no ROS counterpart).
+pub fn outgoing(frame: &[u8]) -> Result<Option<(MappingKey, Value)>, String> {
     let f = wire::decode(frame).map_err(|e| format!("not a frame: {e}"))?;
     if f.header.kind != FrameKind::Data {
         return Ok(None);
