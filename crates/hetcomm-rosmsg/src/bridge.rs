@@ -1,18 +1,22 @@
 //! What the `ros1_bridge` and `ros2_bridge` transport kinds share besides the conversion:
 //! reading their fleet-file tables ([`parse_common`]: `robot`, the `publish` and `subscribe`
 //! mappings, the required `delivery` and `security`), naming the robot and modules
-//! ([`robot_id`], [`module_id`]), reporting bad input once ([`Problems`]) and turning a ROS
-//! message into a hetcomm frame from the robot ([`FrameMaker`]).
+//! ([`robot_id`], [`module_id`]), converting what is sent to the robot ([`Outbound`]),
+//! counting and reporting bad input once ([`Tally`]), turning a ROS message into a hetcomm
+//! frame from the robot ([`FrameMaker`]), and what the link promises ([`caps`]).
 
 use std::collections::{BTreeSet, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use hetcomm_config::{Fleet, SettingsReader};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
+use hetcomm_link::{LinkCaps, LinkError, LinkStats};
 use rmpv::Value;
 
+use crate::codec::{self, Wire};
 use crate::schema::{Flavour, RosType};
 
 /// One mapping between a hetcomm (module, message type) and a ROS topic of a ROS type.
@@ -234,23 +238,40 @@ pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, Str
         })
 }
 
-/// What went wrong with input from ROS, each distinct problem once, in order.
-pub struct Problems {
+/// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
+/// distinct problem once, in order; shared by its send side and its receive tasks.
+pub struct Tally {
     kind: &'static str,
+    sent: AtomicU64,
+    received: AtomicU64,
+    dropped: AtomicU64,
     seen: Mutex<BTreeSet<String>>,
 }
 
-impl Problems {
-    /// No problems yet; `kind` (e.g. `ros1_bridge`) prefixes what is printed.
-    pub fn new(kind: &'static str) -> Problems {
-        Problems {
+impl Tally {
+    /// Nothing counted yet; `kind` (e.g. `ros1_bridge`) prefixes what is printed.
+    pub fn new(kind: &'static str) -> Tally {
+        Tally {
             kind,
+            sent: AtomicU64::new(0),
+            received: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
             seen: Mutex::default(),
         }
     }
 
+    /// One message handed to ROS.
+    pub fn sent(&self) {
+        self.sent.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// One message from ROS handed to the system.
+    pub fn received(&self) {
+        self.received.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Records `problem`; true (and printed to stderr) the first time it is seen.
-    pub fn report(&self, problem: String) -> bool {
+    fn report(&self, problem: String) -> bool {
         let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
         let new = seen.insert(problem.clone());
         if new {
@@ -259,10 +280,46 @@ impl Problems {
         new
     }
 
+    /// `n` messages from ROS dropped because of `problem` (reported the first time).
+    pub fn dropped(&self, n: u64, problem: String) {
+        self.dropped.fetch_add(n, Ordering::Relaxed);
+        self.report(problem);
+    }
+
+    /// A problem that costs messages no one can count (a publisher ROS does not connect):
+    /// counted as one drop and reported, the first time it is seen only.
+    pub fn dropped_once(&self, problem: String) {
+        if self.report(problem) {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
     /// Every distinct problem seen so far.
-    pub fn list(&self) -> Vec<String> {
+    pub fn problems(&self) -> Vec<String> {
         let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
         seen.iter().cloned().collect()
+    }
+
+    /// The link's stats: sent, received and dropped messages.
+    pub fn stats(&self) -> LinkStats {
+        LinkStats {
+            frames_sent: self.sent.load(Ordering::Relaxed),
+            frames_received: self.received.load(Ordering::Relaxed),
+            frames_dropped: self.dropped.load(Ordering::Relaxed),
+            ..LinkStats::default()
+        }
+    }
+}
+
+/// What a bridge link promises: ordered per topic, not reliable (nobody acknowledges), any
+/// frame size, no broadcast.
+pub fn caps() -> LinkCaps {
+    LinkCaps {
+        max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+        mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+        reliable: false,
+        ordered: true,
+        broadcast: false,
     }
 }
 
@@ -272,7 +329,7 @@ pub type MappingKey = (ModuleId, MessageType);
 /// A hetcomm payload sent to the robot, as the bridge will convert it: the mapping key and
 /// the payload as a MessagePack value. None for frames that are not data (acknowledgements
 /// have no ROS counterpart).
-pub fn outgoing(frame: &[u8]) -> Result<Option<(MappingKey, Value)>, String> {
+fn outgoing(frame: &[u8]) -> Result<Option<(MappingKey, Value)>, String> {
     let f = wire::decode(frame).map_err(|e| format!("not a frame: {e}"))?;
     if f.header.kind != FrameKind::Data {
         return Ok(None);
@@ -281,6 +338,77 @@ pub fn outgoing(frame: &[u8]) -> Result<Option<(MappingKey, Value)>, String> {
     let value = rmpv::decode::read_value(&mut &f.payload[..])
         .map_err(|e| format!("payload is not MessagePack: {e}"))?;
     Ok(Some((key, value)))
+}
+
+/// A message sent to the robot, ready to publish.
+pub struct Converted<'a, T> {
+    /// Its mapping.
+    pub mapping: &'a Mapping,
+    /// The mapping's publisher.
+    pub publisher: &'a T,
+    /// The ROS message body, in the bridge's wire encoding.
+    pub body: Vec<u8>,
+}
+
+/// A bridge's publish mappings, by (robot's module, message type), each with the transport's
+/// publisher `T`: turns a frame sent to the robot into the ROS message to publish.
+pub struct Outbound<T> {
+    kind: &'static str,
+    robot: SystemId,
+    robot_name: String,
+    wire: Wire,
+    by_key: HashMap<MappingKey, (Mapping, T)>,
+}
+
+impl<T> Outbound<T> {
+    /// No mappings yet, for a bridge of `kind` to `robot` (named `robot_name`), writing `wire`.
+    pub fn new(kind: &'static str, robot: SystemId, robot_name: &str, wire: Wire) -> Outbound<T> {
+        Outbound {
+            kind,
+            robot,
+            robot_name: robot_name.to_string(),
+            wire,
+            by_key: HashMap::new(),
+        }
+    }
+
+    /// Maps sends of `mapping.message` to `module` onto `publisher`.
+    pub fn insert(&mut self, module: ModuleId, mapping: Mapping, publisher: T) {
+        let key = (module, MessageType(mapping.message));
+        self.by_key.insert(key, (mapping, publisher));
+    }
+
+    /// The mapping, publisher and converted body of `frame`, sent to `to`; None for frames
+    /// that are not data. A frame to another system, of an unmapped type, or whose payload
+    /// does not convert (named by both types and the field) is [`LinkError::Unreachable`].
+    pub fn convert(
+        &self,
+        to: SystemId,
+        frame: &[u8],
+    ) -> Result<Option<Converted<'_, T>>, LinkError> {
+        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
+        if to != self.robot {
+            let (kind, name) = (self.kind, &self.robot_name);
+            return Err(unreachable(format!("this {kind} reaches only {name}")));
+        }
+        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+            return Ok(None);
+        };
+        let Some((m, publisher)) = self.by_key.get(&key) else {
+            return Err(unreachable(format!(
+                "no ROS topic is mapped for message type {} to {}'s module {}",
+                key.1 .0, self.robot_name, key.0 .0
+            )));
+        };
+        let what = format!("message type {} for {}", m.message, m.module);
+        let body = codec::encode(&value, m.schema, self.wire, &what).map_err(unreachable)?;
+        Ok(Some(Converted {
+            mapping: m,
+            publisher,
+            body,
+        }))
+    }
 }
 
 /// Makes the hetcomm frames of messages received from the robot: data from (robot, module) to

@@ -25,19 +25,17 @@
 mod settings;
 mod types;
 
-use std::collections::{BTreeSet, HashMap};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
 use hetcomm_config::{TransportKind, TransportSettings};
-use hetcomm_core::wire;
-use hetcomm_core::{MessageType, ModuleId, SystemId};
+use hetcomm_core::{ModuleId, SystemId};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
-use hetcomm_rosmsg::codec::{self, Wire};
+use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use roslibrust::ros1::{NodeHandle, PublisherAny};
 use tokio::sync::mpsc;
@@ -63,47 +61,19 @@ const SEND_QUEUE: usize = 1024;
 /// Longest time `open` waits for the master.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
 
-#[derive(Default)]
-struct Counters {
-    sent: AtomicU64,
-    received: AtomicU64,
-    dropped: AtomicU64,
-}
-
-/// What the bridge's tasks share.
-struct Shared {
-    counters: Counters,
-    problems: Problems,
-}
-
-impl Shared {
-    fn drop_with(&self, n: u64, problem: String) {
-        self.counters.dropped.fetch_add(n, Ordering::Relaxed);
-        self.problems.report(problem);
-    }
-}
-
 /// An inbound mapping, as its receive task sees it.
 struct Inbound {
     mapping: Mapping,
     module: ModuleId,
 }
 
-/// The publishing side of an outbound mapping.
-struct Outbound {
-    mapping: Mapping,
-    index: usize,
-}
-
 /// A link to an external ROS 1 robot through typed topics.
 pub struct Ros1Bridge {
-    robot: SystemId,
-    robot_name: String,
-    /// By (robot's module, message type).
-    outbound: HashMap<(ModuleId, MessageType), Outbound>,
+    /// Each publish mapping with the index of its publisher.
+    outbound: Outbound<usize>,
     /// To the publishing task: (index of the publisher, TCPROS-framed message).
     publish: mpsc::Sender<(usize, Vec<u8>)>,
-    shared: Arc<Shared>,
+    tally: Arc<Tally>,
     runtime: Option<tokio::runtime::Runtime>,
     node: Option<NodeHandle>,
 }
@@ -127,24 +97,16 @@ impl Ros1Bridge {
                 module,
             });
         }
-        let mut outbound = HashMap::new();
+        let mut outbound = Outbound::new("ros1_bridge", robot, &settings.robot, Wire::Ros1);
         for (index, m) in settings.publish.iter().enumerate() {
-            let module = module_id(fleet, &m.module, &m.topic)?;
-            let out = Outbound {
-                mapping: m.clone(),
-                index,
-            };
-            outbound.insert((module, MessageType(m.message)), out);
+            outbound.insert(module_id(fleet, &m.module, &m.topic)?, m.clone(), index);
         }
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .thread_name("hetcomm-ros1-bridge")
             .enable_all()
             .build()?;
-        let shared = Arc::new(Shared {
-            counters: Counters::default(),
-            problems: Problems::new("ros1_bridge"),
-        });
+        let tally = Arc::new(Tally::new("ros1_bridge"));
         let node_name = format!(
             "/hetcomm_bridge_{}_{}_{}",
             settings.robot,
@@ -194,7 +156,7 @@ impl Ros1Bridge {
                     ROS_QUEUE,
                     frames.clone(),
                     tx_frames.clone(),
-                    shared.clone(),
+                    tally.clone(),
                 )
                 .await?;
             }
@@ -226,14 +188,12 @@ impl Ros1Bridge {
             settings.master_uri.clone(),
             node_name,
             subscribed,
-            shared.clone(),
+            tally.clone(),
         ));
         Ok(Ros1Bridge {
-            robot,
-            robot_name: settings.robot.clone(),
             outbound,
             publish,
-            shared,
+            tally,
             runtime: Some(runtime),
             node: Some(node),
         })
@@ -242,7 +202,7 @@ impl Ros1Bridge {
     /// The problems seen with input from ROS (messages that do not deserialize, publishers
     /// of another type on a mapped topic), each once.
     pub fn problems(&self) -> Vec<String> {
-        self.shared.problems.list()
+        self.tally.problems()
     }
 }
 
@@ -262,7 +222,7 @@ async fn check_publisher_types(
     master: String,
     me: String,
     subscribed: Vec<Mapping>,
-    shared: Arc<Shared>,
+    tally: Arc<Tally>,
 ) {
     let http = reqwest::Client::new();
     let mut checked = BTreeSet::new();
@@ -293,16 +253,13 @@ async fn check_publisher_types(
                 };
                 checked.insert((m.topic.clone(), node.clone()));
                 match xmlrpc::publication_type(&pubs, &m.topic) {
-                    Some(ty) if ty != m.ros_type() => shared.drop_with(
-                        1,
-                        format!(
-                            "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
+                    Some(ty) if ty != m.ros_type() => tally.dropped_once(format!(
+                        "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
                              as {}: ROS 1 refuses its connection (MD5 sum mismatch), its \
                              messages are not received",
-                            m.topic,
-                            m.ros_type()
-                        ),
-                    ),
+                        m.topic,
+                        m.ros_type()
+                    )),
                     _ => {}
                 }
             }
@@ -312,63 +269,36 @@ async fn check_publisher_types(
 
 impl Link for Ros1Bridge {
     fn caps(&self) -> LinkCaps {
-        LinkCaps {
-            max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            reliable: false,
-            ordered: true,
-            broadcast: false,
-        }
+        caps()
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
-        if to != self.robot {
-            return Err(unreachable(format!(
-                "this ros1_bridge reaches only {}",
-                self.robot_name
-            )));
-        }
-        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
-        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+        let Some(out) = self.outbound.convert(to, frame)? else {
             return Ok(());
         };
-        let Some(out) = self.outbound.get(&key) else {
-            return Err(unreachable(format!(
-                "no ROS topic is mapped for message type {} to {}'s module {}",
-                key.1 .0, self.robot_name, key.0 .0
-            )));
-        };
-        let m = &out.mapping;
-        let what = format!("message type {} for {}", m.message, m.module);
-        let body = codec::encode(&value, m.schema, Wire::Ros1, &what).map_err(unreachable)?;
+        let (m, index, body) = (out.mapping, *out.publisher, out.body);
         // TCPROS frames each message with its length.
         let mut framed = Vec::with_capacity(body.len() + 4);
         framed.extend_from_slice(&(body.len() as u32).to_le_bytes());
         framed.extend_from_slice(&body);
-        match self.publish.try_send((out.index, framed)) {
+        match self.publish.try_send((index, framed)) {
             Ok(()) => {
-                self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
+                self.tally.sent();
                 Ok(())
             }
             Err(mpsc::error::TrySendError::Full(_)) => Err(LinkError::Congested {
                 peer: to,
                 reason: format!("the publishing queue of {} is full", m.topic),
             }),
-            Err(mpsc::error::TrySendError::Closed(_)) => {
-                Err(unreachable("the bridge is closing".into()))
-            }
+            Err(mpsc::error::TrySendError::Closed(_)) => Err(LinkError::Unreachable {
+                peer: to,
+                reason: "the bridge is closing".into(),
+            }),
         }
     }
 
     fn stats(&self) -> LinkStats {
-        let c = &self.shared.counters;
-        LinkStats {
-            frames_sent: c.sent.load(Ordering::Relaxed),
-            frames_received: c.received.load(Ordering::Relaxed),
-            frames_dropped: c.dropped.load(Ordering::Relaxed),
-            ..LinkStats::default()
-        }
+        self.tally.stats()
     }
 }
 

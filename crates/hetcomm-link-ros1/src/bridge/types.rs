@@ -2,17 +2,16 @@
 //! sum and definition, and for a subscriber that ROS 1 matches by MD5 sum), and the receive
 //! task that turns its messages into hetcomm frames.
 
-use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 
-use hetcomm_rosmsg::bridge::FrameMaker;
+use hetcomm_rosmsg::bridge::{FrameMaker, Tally};
 use hetcomm_rosmsg::codec::{self, Wire};
 use hetcomm_rosmsg::schema::RosType;
 use roslibrust::ros1::{NodeHandle, Subscriber};
 use roslibrust::{MessageDescriptor, RosMessageType};
 use tokio::sync::mpsc;
 
-use super::{Inbound, Shared};
+use super::Inbound;
 use crate::msgs::{geometry_msgs, nav_msgs, sensor_msgs, std_msgs};
 
 /// Calls `$body` with `$T` the generated type of the schema named `$name` (one of
@@ -68,7 +67,7 @@ pub(super) async fn subscribe(
     queue: usize,
     maker: Arc<Mutex<FrameMaker>>,
     frames: mpsc::Sender<Vec<u8>>,
-    shared: Arc<Shared>,
+    tally: Arc<Tally>,
 ) -> Result<(), String> {
     let topic = inb.mapping.topic.clone();
     with_type!(inb.mapping.ros_type(), T => {
@@ -76,7 +75,7 @@ pub(super) async fn subscribe(
             .subscribe(&topic, queue)
             .await
             .map_err(|e| format!("subscribing to {topic}: {e}"))?;
-        tokio::spawn(receive(sub, inb, maker, frames, shared));
+        tokio::spawn(receive(sub, inb, maker, frames, tally));
     });
     Ok(())
 }
@@ -86,7 +85,7 @@ async fn receive<T: RosMessageType>(
     inb: Inbound,
     maker: Arc<Mutex<FrameMaker>>,
     frames: mpsc::Sender<Vec<u8>>,
-    shared: Arc<Shared>,
+    tally: Arc<Tally>,
 ) {
     let (topic, schema) = (&inb.mapping.topic, inb.mapping.schema);
     while let Some(next) = sub.next().await {
@@ -100,11 +99,11 @@ async fn receive<T: RosMessageType>(
                     .strip_prefix("you are too slow, ")
                     .and_then(|rest| rest.split(' ').next()?.parse::<u64>().ok());
                 match lagged {
-                    Some(n) => shared.drop_with(
+                    Some(n) => tally.dropped(
                         n,
                         format!("the bridge fell behind on {topic}: messages were lost"),
                     ),
-                    None => shared.drop_with(
+                    None => tally.dropped(
                         1,
                         format!(
                             "a message on {topic} is not a {}: {text} (dropped)",
@@ -126,7 +125,7 @@ async fn receive<T: RosMessageType>(
                     "a message on {topic} is not a {}: {e} (dropped)",
                     schema.name
                 );
-                shared.drop_with(1, why);
+                tally.dropped(1, why);
                 continue;
             }
         };
@@ -137,13 +136,13 @@ async fn receive<T: RosMessageType>(
         );
         match frame {
             Ok(f) => {
-                shared.counters.received.fetch_add(1, Ordering::Relaxed);
+                tally.received();
                 // Waits only while the sink is busy; the subscriber's queue absorbs bursts.
                 if frames.send(f).await.is_err() {
                     return;
                 }
             }
-            Err(e) => shared.drop_with(1, format!("a message on {topic} {e}")),
+            Err(e) => tally.dropped(1, format!("a message on {topic} {e}")),
         }
     }
 }

@@ -21,19 +21,18 @@
 
 mod settings;
 
-use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
 use hetcomm_config::{TransportKind, TransportSettings};
-use hetcomm_core::wire;
-use hetcomm_core::{MessageType, ModuleId, SystemId};
+use hetcomm_core::{ModuleId, SystemId};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_rosmsg::bridge::{module_id, outgoing, robot_id, FrameMaker, Problems};
+use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReader, DataWriter};
@@ -50,36 +49,21 @@ pub fn kind() -> TransportKind {
     TransportKind::new("ros2_bridge")
 }
 
-struct Outbound {
-    mapping: Mapping,
-    writer: DataWriter<RawCdr, RawAdapter>,
-}
-
 struct Inbound {
     mapping: Mapping,
     module: ModuleId,
     reader: DataReader<RawCdr, RawAdapter>,
 }
 
-#[derive(Default)]
-struct Counters {
-    sent: AtomicU64,
-    received: AtomicU64,
-    dropped: AtomicU64,
-}
-
 struct Shared {
-    counters: Counters,
-    problems: Problems,
+    tally: Tally,
     closed: AtomicBool,
 }
 
 /// A link to an external ROS 2 robot through typed topics.
 pub struct Ros2Bridge {
-    robot: SystemId,
-    robot_name: String,
-    /// By (robot's module, message type).
-    outbound: HashMap<(ModuleId, MessageType), Outbound>,
+    /// Each publish mapping with its DDS writer.
+    outbound: Outbound<DataWriter<RawCdr, RawAdapter>>,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
     _participant: DomainParticipant,
@@ -114,19 +98,13 @@ impl Ros2Bridge {
         let publisher = dp
             .create_publisher(&qos)
             .map_err(dds_err("a publisher".into()))?;
-        let mut outbound = HashMap::new();
+        let mut outbound = Outbound::new("ros2_bridge", robot, &settings.robot, Wire::CDR);
         for m in &settings.publish {
             let module = module_id(fleet, &m.module, &m.topic)?;
             let writer = publisher
                 .create_datawriter_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the writer of {}", m.topic)))?;
-            outbound.insert(
-                (module, MessageType(m.message)),
-                Outbound {
-                    mapping: m.clone(),
-                    writer,
-                },
-            );
+            outbound.insert(module, m.clone(), writer);
         }
         let subscriber = dp
             .create_subscriber(&qos)
@@ -144,8 +122,7 @@ impl Ros2Bridge {
             });
         }
         let shared = Arc::new(Shared {
-            counters: Counters::default(),
-            problems: Problems::new("ros2_bridge"),
+            tally: Tally::new("ros2_bridge"),
             closed: AtomicBool::new(false),
         });
         let rx = Receiver {
@@ -160,8 +137,6 @@ impl Ros2Bridge {
             .name(format!("hetcomm-ros2-bridge-{}", settings.robot))
             .spawn(move || rx.run())?;
         Ok(Ros2Bridge {
-            robot,
-            robot_name: settings.robot.clone(),
             outbound,
             shared,
             receiver: Some(receiver),
@@ -172,7 +147,7 @@ impl Ros2Bridge {
     /// The problems seen with input from ROS (undecodable samples, publishers of another
     /// type on a mapped topic), each once.
     pub fn problems(&self) -> Vec<String> {
-        self.shared.problems.list()
+        self.shared.tally.problems()
     }
 }
 
@@ -215,8 +190,7 @@ impl Receiver {
     }
 
     fn drop_with(&self, problem: String) {
-        self.shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
-        self.shared.problems.report(problem);
+        self.shared.tally.dropped(1, problem);
     }
 
     fn drain(&mut self, i: usize) {
@@ -255,10 +229,7 @@ impl Receiver {
                     continue;
                 }
             };
-            self.shared
-                .counters
-                .received
-                .fetch_add(1, Ordering::Relaxed);
+            self.shared.tally.received();
             self.sink.on_frame(&frame, Peer::System(self.robot));
         }
     }
@@ -273,7 +244,8 @@ impl Receiver {
             for w in &writers {
                 let t = &w.publication_topic_data;
                 if t.topic_name == topic && t.type_name != expected {
-                    let new = self.shared.problems.report(format!(
+                    // Counted once per such publisher: its samples never reach us.
+                    self.shared.tally.dropped_once(format!(
                         "a publisher on {} has type {}, but the topic is mapped as {} ({}): its \
                          messages are not received",
                         inb.mapping.topic,
@@ -281,10 +253,6 @@ impl Receiver {
                         inb.mapping.ros_type(),
                         expected
                     ));
-                    if new {
-                        // Counted once per such publisher: its samples never reach us.
-                        self.shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
                 }
             }
         }
@@ -293,70 +261,37 @@ impl Receiver {
 
 impl Link for Ros2Bridge {
     fn caps(&self) -> LinkCaps {
-        LinkCaps {
-            max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            reliable: false,
-            ordered: true,
-            broadcast: false,
-        }
+        caps()
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
-        if to != self.robot {
-            return Err(unreachable(format!(
-                "this ros2_bridge reaches only {}",
-                self.robot_name
-            )));
-        }
-        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
-        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+        let Some(out) = self.outbound.convert(to, frame)? else {
             return Ok(());
         };
-        let Some(out) = self.outbound.get(&key) else {
-            return Err(unreachable(format!(
-                "no ROS topic is mapped for message type {} to {}'s module {}",
-                key.1 .0, self.robot_name, key.0 .0
-            )));
+        let (m, writer) = (out.mapping, out.publisher);
+        let cdr = RawCdr {
+            body: out.body,
+            little: true,
+            xcdr2: false,
         };
-        let what = format!(
-            "message type {} for {}",
-            out.mapping.message, out.mapping.module
-        );
-        let body =
-            crate::rostypes::to_cdr(&value, out.mapping.schema, &what).map_err(unreachable)?;
-        match out.writer.write(
-            RawCdr {
-                body,
-                little: true,
-                xcdr2: false,
-            },
-            None,
-        ) {
+        match writer.write(cdr, None) {
             Ok(()) => {
-                self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
+                self.shared.tally.sent();
                 Ok(())
             }
             Err(rustdds::dds::WriteError::WouldBlock { .. }) => Err(LinkError::Congested {
                 peer: to,
-                reason: format!("the DDS writer of {} is full", out.mapping.topic),
+                reason: format!("the DDS writer of {} is full", m.topic),
             }),
-            Err(e) => Err(unreachable(format!(
-                "DDS write on {}: {e}",
-                out.mapping.topic
-            ))),
+            Err(e) => Err(LinkError::Unreachable {
+                peer: to,
+                reason: format!("DDS write on {}: {e}", m.topic),
+            }),
         }
     }
 
     fn stats(&self) -> LinkStats {
-        let c = &self.shared.counters;
-        LinkStats {
-            frames_sent: c.sent.load(Ordering::Relaxed),
-            frames_received: c.received.load(Ordering::Relaxed),
-            frames_dropped: c.dropped.load(Ordering::Relaxed),
-            ..LinkStats::default()
-        }
+        self.shared.tally.stats()
     }
 }
 
