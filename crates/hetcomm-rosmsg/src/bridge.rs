@@ -3,17 +3,21 @@
 //! mappings, the required `delivery` and `security`), naming the robot and modules
 //! ([`robot_id`], [`module_id`]), converting what is sent to the robot ([`Outbound`]),
 //! counting and reporting bad input once ([`Tally`]), turning a ROS message into a hetcomm
-//! frame from the robot ([`FrameMaker`]), and what the link promises ([`caps`]).
+//! frame from the robot ([`FrameMaker`]), what the link promises ([`caps`]), and the kind's
+//! registration ([`BridgeFactory`] of a [`BridgeKind`]).
 
 use std::collections::{BTreeSet, HashMap};
+use std::marker::PhantomData;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use hetcomm_config::{Fleet, SettingsReader};
+use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
+use hetcomm_config::{TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
-use hetcomm_link::{LinkCaps, LinkError, LinkStats};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
 use rmpv::Value;
 
 use crate::codec::{self, Wire};
@@ -456,5 +460,73 @@ impl FrameMaker {
             ..Header::data(at(self.robot), at(self.local), MessageType(message))
         };
         Ok(wire::encode(&header, &payload))
+    }
+}
+
+/// One bridge kind (`ros1_bridge`, `ros2_bridge`), as [`BridgeFactory`] registers it: its
+/// name, keys, settings and how it opens.
+pub trait BridgeKind: Send + Sync + 'static {
+    /// Its settings, as [`BridgeKind::parse`] reads them.
+    type Settings: KindSettings;
+    /// The kind's name in fleet files.
+    const NAME: &'static str;
+    /// Its keys, besides the shared ones.
+    const KEYS: &'static [&'static str];
+    /// Reads its table; problems are reported through `s`.
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
+    /// Opens the bridge on system `local` of `fleet`: the link and its local address.
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &Self::Settings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure>;
+}
+
+/// Reads a bridge kind's tables and opens them ([`KindSpec`] and [`TransportFactory`]).
+pub struct BridgeFactory<K>(PhantomData<K>);
+
+impl<K> Default for BridgeFactory<K> {
+    fn default() -> Self {
+        BridgeFactory(PhantomData)
+    }
+}
+
+impl<K: BridgeKind> KindSpec for BridgeFactory<K> {
+    fn kind(&self) -> TransportKind {
+        TransportKind::new(K::NAME)
+    }
+
+    fn keys(&self) -> &[&'static str] {
+        K::KEYS
+    }
+
+    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+        K::parse(s).map(RegisteredSettings::new)
+    }
+}
+
+impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
+    fn kind(&self) -> TransportKind {
+        TransportKind::new(K::NAME)
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
+    }
+
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
+        let name = K::NAME;
+        let TransportSettings::Registered(s) = &request.transport.settings else {
+            return Err(format!("expected {name} settings").into());
+        };
+        let settings: &K::Settings = s
+            .downcast_ref()
+            .ok_or_else(|| format!("the transport's settings are not {name} settings"))?;
+        let (link, address) = K::open(request.fleet, request.local, settings, request.sink)?;
+        Ok(Opened {
+            link,
+            local_address: Some(address),
+        })
     }
 }

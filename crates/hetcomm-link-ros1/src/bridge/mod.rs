@@ -29,12 +29,12 @@ use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
-use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use roslibrust::ros1::{NodeHandle, PublisherAny};
@@ -47,7 +47,7 @@ use crate::xmlrpc;
 
 /// The kind's name in fleet files: `kind = "ros1_bridge"`.
 pub fn kind() -> TransportKind {
-    TransportKind::new("ros1_bridge")
+    TransportKind::new(Ros1BridgeKind::NAME)
 }
 
 /// How often the bridge asks the master who publishes its subscribed topics.
@@ -324,48 +324,33 @@ impl Drop for Ros1Bridge {
     }
 }
 
+/// The `ros1_bridge` kind, registered as a [`BridgeFactory`] ([`Ros1BridgeFactory`]).
+pub struct Ros1BridgeKind;
+
 /// Reads `ros1_bridge` tables and opens them as [`Ros1Bridge`]s.
-pub struct Ros1BridgeFactory;
+pub type Ros1BridgeFactory = BridgeFactory<Ros1BridgeKind>;
 
-impl KindSpec for Ros1BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
+impl BridgeKind for Ros1BridgeKind {
+    type Settings = BridgeSettings;
+    const NAME: &'static str = "ros1_bridge";
+    const KEYS: &'static [&'static str] = &KEYS;
 
-    fn keys(&self) -> &[&'static str] {
-        &KEYS
-    }
-
-    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
     }
-}
 
-impl TransportFactory for Ros1BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
-
-    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
-        Some(self)
-    }
-
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err("expected ros1_bridge settings".into());
-        };
-        let settings: &BridgeSettings = s
-            .downcast_ref()
-            .ok_or("the transport's settings are not ros1_bridge settings")?;
-        let bridge = Ros1Bridge::open(request.fleet, request.local, settings, request.sink)?;
-        let local_address = Some(format!(
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure> {
+        let bridge = Ros1Bridge::open(fleet, local, settings, sink)?;
+        let address = format!(
             "ros1_bridge://{}/{}",
             settings.master_uri.trim_start_matches("http://"),
             settings.robot
-        ));
-        Ok(Opened {
-            link: Arc::new(bridge),
-            local_address,
-        })
+        );
+        Ok((Arc::new(bridge), address))
     }
 }

@@ -1,7 +1,7 @@
 //! The `ros1_bridge` transport's settings: the robot, its master, and its topic mappings (read
 //! as every bridge's are, by `hetcomm_rosmsg::bridge::parse_common`).
 
-use hetcomm_config::{RegisteredSettings, SettingsReader};
+use hetcomm_config::SettingsReader;
 use hetcomm_rosmsg::bridge::{parse_common, COMMON_KEYS};
 use hetcomm_rosmsg::schema::Flavour;
 
@@ -43,7 +43,7 @@ pub fn check_topic(topic: &str) -> Result<(), String> {
 }
 
 /// Reads a `ros1_bridge` table.
-pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
     let help = "write the master's XML-RPC URI, e.g. \"http://127.0.0.1:11311\"";
     let master_uri = match s.has("master_uri") {
         true => {
@@ -61,12 +61,12 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
         false => hetcomm_config::default_master_uri(),
     };
     let common = parse_common(s, Flavour::Ros1, "ros1_bridge", check_topic)?;
-    Some(RegisteredSettings::new(BridgeSettings {
+    Some(BridgeSettings {
         robot: common.robot,
         master_uri,
         publish: common.publish,
         subscribe: common.subscribe,
-    }))
+    })
 }
 
 #[cfg(test)]

@@ -26,12 +26,12 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
-use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
@@ -46,7 +46,7 @@ use crate::raw::{RawAdapter, RawCdr};
 
 /// The kind's name in fleet files: `kind = "ros2_bridge"`.
 pub fn kind() -> TransportKind {
-    TransportKind::new("ros2_bridge")
+    TransportKind::new(Ros2BridgeKind::NAME)
 }
 
 struct Inbound {
@@ -304,47 +304,32 @@ impl Drop for Ros2Bridge {
     }
 }
 
+/// The `ros2_bridge` kind, registered as a [`BridgeFactory`] ([`Ros2BridgeFactory`]).
+pub struct Ros2BridgeKind;
+
 /// Reads `ros2_bridge` tables and opens them as [`Ros2Bridge`]s.
-pub struct Ros2BridgeFactory;
+pub type Ros2BridgeFactory = BridgeFactory<Ros2BridgeKind>;
 
-impl KindSpec for Ros2BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
+impl BridgeKind for Ros2BridgeKind {
+    type Settings = BridgeSettings;
+    const NAME: &'static str = "ros2_bridge";
+    const KEYS: &'static [&'static str] = &KEYS;
 
-    fn keys(&self) -> &[&'static str] {
-        &KEYS
-    }
-
-    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
     }
-}
 
-impl TransportFactory for Ros2BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
-
-    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
-        Some(self)
-    }
-
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err("expected ros2_bridge settings".into());
-        };
-        let settings: &BridgeSettings = s
-            .downcast_ref()
-            .ok_or("the transport's settings are not ros2_bridge settings")?;
-        let bridge = Ros2Bridge::open(request.fleet, request.local, settings, request.sink)?;
-        let local_address = Some(format!(
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure> {
+        let bridge = Ros2Bridge::open(fleet, local, settings, sink)?;
+        let address = format!(
             "ros2_bridge://{}/{}",
             settings.dds.domain_id, settings.robot
-        ));
-        Ok(Opened {
-            link: Arc::new(bridge),
-            local_address,
-        })
+        );
+        Ok((Arc::new(bridge), address))
     }
 }

@@ -1,7 +1,7 @@
 //! The `ros2_bridge` transport's settings: the robot, its DDS settings, and its topic mappings
 //! (read as every bridge's are, by `hetcomm_rosmsg::bridge::parse_common`).
 
-use hetcomm_config::{RegisteredSettings, SettingsReader};
+use hetcomm_config::SettingsReader;
 use hetcomm_rosmsg::bridge::{parse_common, COMMON_KEYS};
 use hetcomm_rosmsg::schema::Flavour;
 
@@ -39,17 +39,17 @@ pub const KEYS: [&str; 8] = [
 ];
 
 /// Reads a `ros2_bridge` table.
-pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
     // The DDS keys read exactly as a `ros2` transport's.
     let dds = ros2::parse(s).and_then(|r| r.downcast_ref::<Ros2Settings>().cloned());
     let common = parse_common(s, Flavour::Ros2, "ros2_bridge", |t| {
         names::check_topic(t).map_err(|e| e.to_string())
     });
     let common = common?;
-    Some(RegisteredSettings::new(BridgeSettings {
+    Some(BridgeSettings {
         robot: common.robot,
         dds: dds?,
         publish: common.publish,
         subscribe: common.subscribe,
-    }))
+    })
 }
