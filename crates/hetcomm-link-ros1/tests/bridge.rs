@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 #[path = "../../hetcomm-rosmsg/tests/support/rover.rs"]
 mod tango;
-use tango::{drive_and_talk, Drive, Odom, Vector3};
+use tango::{drive_and_talk, mappings_and_table, Drive, Odom, Vector3};
 
 /// `nav_msgs/Odometry`'s ROS 1 header, as the rover's rospy fills it in (read from the raw
 /// payload: one system knows one Rust type per message type id, `Odom` here).
@@ -55,19 +55,11 @@ robot = "Tango"
 master_uri = "{master}"
 delivery = "unacknowledged"
 security = "none"
-[transports.tango_ros.publish]
-"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
-"{prefix}/say" = "Drive 42 std_msgs/String"
-"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
-[transports.tango_ros.subscribe]
-"{prefix}/odom" = "World 41 nav_msgs/Odometry"
-"{prefix}/heard" = "World 42 std_msgs/String"
-"{prefix}/cmd_in" = "World 40 geometry_msgs/Twist"
-[table]
-columns = ["Alpha", "Tango"]
-Alpha = ["X", "tango_ros"]
-Tango = ["tango_ros", "X"]
-"#
+{}"#,
+        mappings_and_table(
+            prefix,
+            &format!("\"{prefix}/cmd_in\" = \"World 40 geometry_msgs/Twist\"\n")
+        )
     )
 }
 
@@ -199,6 +191,31 @@ fn open(master: &Master, prefix: &str) -> Comm {
     Comm::open_fleet(&fleet, "Alpha").expect("open Alpha")
 }
 
+/// A master, Alpha with its bridge, and the rospy rover on topics `/hc_<pid>_<tag>/…`
+/// (dropped in this order: the rover first, the master last).
+struct Scene {
+    _rover: Proc,
+    drive: hetcomm::Module,
+    world: hetcomm::Module,
+    _alpha: Comm,
+    _master: Master,
+}
+
+impl Scene {
+    fn start(tag: &str) -> Option<Scene> {
+        let master = Master::start()?;
+        let p = prefix(tag);
+        let alpha = open(&master, &p);
+        Some(Scene {
+            _rover: rover(&master, &p, &[]),
+            drive: alpha.module("Drive").unwrap(),
+            world: alpha.module("World").unwrap(),
+            _alpha: alpha,
+            _master: master,
+        })
+    }
+}
+
 #[test]
 fn rostopic_pub_reaches_a_module_as_a_typed_message() {
     let Some(master) = Master::start() else {
@@ -282,16 +299,10 @@ fn rostopic_echo_prints_what_hetcomm_publishes() {
 
 #[test]
 fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
-    let Some(master) = Master::start() else {
+    let Some(scene) = Scene::start("drive") else {
         return;
     };
-    let p = prefix("drive");
-    let alpha = open(&master, &p);
-    let (drive, world) = (
-        alpha.module("Drive").unwrap(),
-        alpha.module("World").unwrap(),
-    );
-    let _rover = rover(&master, &p, &[]);
+    let (drive, world) = (&scene.drive, &scene.world);
 
     // Odometry arrives as a typed message from Tango, ROS 1 header included.
     let first = world
@@ -307,7 +318,7 @@ fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
 
     // Twist commands drive it (outcome Sent), a String goes there and back through rospy, a
     // command that does not fit Twist fails naming both types and the field.
-    drive_and_talk(&drive, &world);
+    drive_and_talk(drive, world);
 }
 
 /// The full pose of `nav_msgs/Odometry`, for steering.
@@ -338,16 +349,10 @@ struct Quaternion {
 
 #[test]
 fn tango_follows_a_hetcomm_leader_through_the_bridge() {
-    let Some(master) = Master::start() else {
+    let Some(scene) = Scene::start("follow") else {
         return;
     };
-    let p = prefix("follow");
-    let alpha = open(&master, &p);
-    let (drive, world) = (
-        alpha.module("Drive").unwrap(),
-        alpha.module("World").unwrap(),
-    );
-    let _rover = rover(&master, &p, &[]);
+    let (drive, world) = (&scene.drive, &scene.world);
     world
         .recv_timeout::<Pose2>(Duration::from_secs(30))
         .expect("odometry from the rover");

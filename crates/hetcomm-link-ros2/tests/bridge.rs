@@ -14,7 +14,7 @@ use hetcomm::Comm;
 
 #[path = "../../hetcomm-rosmsg/tests/support/rover.rs"]
 mod tango;
-use tango::{drive_and_talk, Odom};
+use tango::{drive_and_talk, mappings_and_table, Odom};
 
 fn fleet_text(prefix: &str, domain: u16, extra: &str) -> String {
     format!(
@@ -31,18 +31,8 @@ domain_id = {domain}
 delivery = "unacknowledged"
 security = "none"
 {extra}
-[transports.tango_ros.publish]
-"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
-"{prefix}/say" = "Drive 42 std_msgs/String"
-"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
-[transports.tango_ros.subscribe]
-"{prefix}/odom" = "World 41 nav_msgs/Odometry"
-"{prefix}/heard" = "World 42 std_msgs/String"
-[table]
-columns = ["Alpha", "Tango"]
-Alpha = ["X", "tango_ros"]
-Tango = ["tango_ros", "X"]
-"#
+{}"#,
+        mappings_and_table(prefix, "")
     )
 }
 

@@ -59,6 +59,26 @@ pub struct BadDrive {
     pub angular: Vector3,
 }
 
+/// The end of a fleet file for the rover under `prefix` (after the bridge transport
+/// `tango_ros`'s own keys): its `publish` and `subscribe` sections, `more_subscribe` lines
+/// added to the latter, and the table of Alpha and Tango.
+pub fn mappings_and_table(prefix: &str, more_subscribe: &str) -> String {
+    format!(
+        r#"[transports.tango_ros.publish]
+"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
+"{prefix}/say" = "Drive 42 std_msgs/String"
+"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
+[transports.tango_ros.subscribe]
+"{prefix}/odom" = "World 41 nav_msgs/Odometry"
+"{prefix}/heard" = "World 42 std_msgs/String"
+{more_subscribe}[table]
+columns = ["Alpha", "Tango"]
+Alpha = ["X", "tango_ros"]
+Tango = ["tango_ros", "X"]
+"#
+    )
+}
+
 /// With the rover's odometry arriving in `world` (mapped as type 41) and `drive` mapped to its
 /// `cmd_vel` (type 40, Twist), `say` (type 42, String) and a Twist topic for type 44: commands
 /// go out (outcome Sent) until the odometry shows the rover moved half a metre, a String goes
