@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::Master;
-use hetcomm::{Comm, Message, Outcome};
+use hetcomm::{Comm, Outcome};
 use hetcomm_link::{FrameSink, Peer};
 use hetcomm_link_ros1::bridge::{description, BridgeSettings, Ros1Bridge};
 use hetcomm_rosmsg::schema::Flavour;
@@ -181,6 +181,19 @@ fn rover(master: &Master, prefix: &str, extra: &[&str]) -> Proc {
     Proc(child)
 }
 
+/// `rostopic pub -r 10 TOPIC TYPE VALUE`. Its stderr is dropped: it logs every connection it
+/// refuses (with the whole definition), as a publisher of the wrong type does.
+fn rostopic_pub(master: &Master, topic: &str, ty: &str, value: &str) -> Proc {
+    let child = Command::new("rostopic")
+        .args(["pub", "-r", "10", topic, ty, value])
+        .envs(master.env())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("rostopic pub");
+    Proc(child)
+}
+
 fn prefix(tag: &str) -> String {
     format!("/hc_{}_{tag}", std::process::id())
 }
@@ -224,20 +237,12 @@ fn rostopic_pub_reaches_a_module_as_a_typed_message() {
     let p = prefix("pub");
     let alpha = open(&master, &p);
     let world = alpha.module("World").unwrap();
-    let _pub = Proc(
-        Command::new("rostopic")
-            .args([
-                "pub",
-                "-r",
-                "10",
-                &format!("{p}/cmd_in"),
-                "geometry_msgs/Twist",
-            ])
-            .arg("{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: 0.25}}")
-            .envs(master.env())
-            .stdout(Stdio::null())
-            .spawn()
-            .expect("rostopic pub"),
+    let twist = "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: 0.25}}";
+    let _pub = rostopic_pub(
+        &master,
+        &format!("{p}/cmd_in"),
+        "geometry_msgs/Twist",
+        twist,
     );
     let got = world
         .recv_timeout::<Drive>(Duration::from_secs(20))
@@ -321,32 +326,6 @@ fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
     drive_and_talk(drive, world);
 }
 
-/// The full pose of `nav_msgs/Odometry`, for steering.
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 41)]
-struct Pose2 {
-    pose: Pose2WithCovariance,
-}
-
-#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
-struct Pose2WithCovariance {
-    pose: FullPose,
-}
-
-#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
-struct FullPose {
-    position: Vector3,
-    orientation: Quaternion,
-}
-
-#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
-struct Quaternion {
-    x: f64,
-    y: f64,
-    z: f64,
-    w: f64,
-}
-
 #[test]
 fn tango_follows_a_hetcomm_leader_through_the_bridge() {
     let Some(scene) = Scene::start("follow") else {
@@ -354,7 +333,7 @@ fn tango_follows_a_hetcomm_leader_through_the_bridge() {
     };
     let (drive, world) = (&scene.drive, &scene.world);
     world
-        .recv_timeout::<Pose2>(Duration::from_secs(30))
+        .recv_timeout::<Odom>(Duration::from_secs(30))
         .expect("odometry from the rover");
     // The leader (virtual, in Alpha) starts 1 m from Tango and drives at 0.3 m/s along the
     // 45° diagonal; Tango is steered, from its odometry alone, to a point 1 m behind it.
@@ -365,7 +344,7 @@ fn tango_follows_a_hetcomm_leader_through_the_bridge() {
     while start.elapsed() < Duration::from_secs(15) {
         let along = 0.3 * start.elapsed().as_secs_f64();
         let (gx, gy) = (along * dir, along * dir);
-        while let Ok(Some(o)) = world.try_recv::<Pose2>() {
+        while let Ok(Some(o)) = world.try_recv::<Odom>() {
             let pose = o.message.pose.pose;
             (tx, ty) = (pose.position.x, pose.position.y);
             heading = 2.0 * pose.orientation.z.atan2(pose.orientation.w);
@@ -416,17 +395,8 @@ fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivere
     let bridge = Ros1Bridge::open(&fleet, hetcomm::SystemId(0), settings(&fleet), sink.clone())
         .expect("open the bridge");
     let _rover = rover(&master, &p, &["--garbage", "20"]);
-    let _wrong = Proc(
-        Command::new("rostopic")
-            .args(["pub", "-r", "10", &format!("{p}/odom"), "std_msgs/String"])
-            .arg("data: not an odometry")
-            .envs(master.env())
-            .stdout(Stdio::null())
-            // It logs every refused connection attempt of the bridge, with the definition.
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("rostopic pub"),
-    );
+    let topic = format!("{p}/odom");
+    let _wrong = rostopic_pub(&master, &topic, "std_msgs/String", "data: not an odometry");
     // Good odometry keeps arriving; the garbage and the String publisher are counted (the
     // rover's first few garbage messages may go out before the bridge's connection is up).
     let deadline = Instant::now() + Duration::from_secs(30);

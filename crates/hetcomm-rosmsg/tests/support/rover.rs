@@ -42,6 +42,16 @@ pub struct PoseWithCovariance {
 #[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
 pub struct Pose {
     pub position: Vector3,
+    pub orientation: Quaternion,
+}
+
+/// `geometry_msgs/Quaternion` by field name.
+#[derive(Serialize, Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct Quaternion {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    pub w: f64,
 }
 
 /// `std_msgs/String`.
