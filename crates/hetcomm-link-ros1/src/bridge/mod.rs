@@ -148,31 +148,21 @@ impl Ros1Bridge {
         let (tx_frames, mut rx_frames) = mpsc::channel::<Vec<u8>>(ROS_QUEUE);
         let frames = Arc::new(Mutex::new(FrameMaker::new(local, robot)));
         let subscribed = runtime.block_on(async {
-            let mut topics = Vec::new();
             for inb in inbound {
-                types::subscribe(
-                    &node,
-                    inb,
-                    ROS_QUEUE,
-                    frames.clone(),
-                    tx_frames.clone(),
-                    tally.clone(),
-                )
-                .await?;
+                let (maker, frames, tally) = (frames.clone(), tx_frames.clone(), tally.clone());
+                types::subscribe(&node, inb, ROS_QUEUE, maker, frames, tally).await?;
             }
-            for m in &settings.subscribe {
-                topics.push(m.clone());
-            }
-            Ok::<_, String>(topics)
+            Ok::<_, String>(())
         });
-        let subscribed = match subscribed {
-            Ok(s) => s,
-            Err(e) => {
+        if let Err(e) = subscribed {
+            {
+                // roslibrust unregisters a dropped node from within the runtime.
+                let _guard = runtime.enter();
                 drop(node);
-                runtime.shutdown_timeout(Duration::from_millis(500));
-                return Err(e.into());
             }
-        };
+            runtime.shutdown_timeout(Duration::from_millis(500));
+            return Err(e.into());
+        }
         drop(tx_frames);
         // Frames reach the sink on a thread of their own, as the `ros1` link's do.
         std::thread::Builder::new()
@@ -187,7 +177,7 @@ impl Ros1Bridge {
         runtime.spawn(check_publisher_types(
             settings.master_uri.clone(),
             node_name,
-            subscribed,
+            settings.subscribe.clone(),
             tally.clone(),
         ));
         Ok(Ros1Bridge {
