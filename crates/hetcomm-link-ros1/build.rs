@@ -1,5 +1,7 @@
-//! Generates the Rust type of `std_msgs/UInt8MultiArray` (and the two messages it uses) from the
-//! `.msg` files in `msg/std_msgs`, with roslibrust's code generator.
+//! Generates the Rust types of the ROS 1 messages this crate uses from the `.msg` files in
+//! `msg/` (copied from Debian's ROS 1 packages), with roslibrust's code generator:
+//! `std_msgs/UInt8MultiArray` (and the two messages it uses) for the `ros1` transport, and the
+//! standard types the `ros1_bridge` maps (their MD5 sums and full definitions).
 
 use std::path::PathBuf;
 
@@ -11,7 +13,7 @@ fn main() {
         ])
         .unwrap_or_else(|e| panic!("generating ROS message types from {}: {e}", dir.display()));
     let out = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
-    std::fs::write(out.join("std_msgs.rs"), source.to_string())
+    std::fs::write(out.join("ros_msgs.rs"), source.to_string())
         .unwrap_or_else(|e| panic!("writing generated ROS message types: {e}"));
     println!("cargo:rerun-if-changed=msg");
     for p in paths {

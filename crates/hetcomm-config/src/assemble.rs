@@ -489,7 +489,7 @@ pub(crate) fn bt_addresses(
 }
 
 /// The ROS master URI when the file gives none: the environment's, as ROS tools do.
-pub(crate) fn default_master_uri() -> String {
+pub fn default_master_uri() -> String {
     std::env::var("ROS_MASTER_URI")
         .ok()
         .filter(|s| !s.trim().is_empty())

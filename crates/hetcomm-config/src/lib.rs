@@ -72,6 +72,7 @@ mod table;
 use std::path::Path;
 use std::rc::Rc;
 
+pub use assemble::default_master_uri;
 pub use error::{ConfigError, ConfigErrors};
 pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
 pub use keys::{apply_keys_dir, insecure, KEY_LEN};

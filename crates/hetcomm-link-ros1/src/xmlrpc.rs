@@ -81,7 +81,40 @@ fn string(v: &Value) -> Option<&str> {
 /// Who publishes and who subscribes, as the master's `getSystemState` lists them.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Graph {
+    publishers: Vec<(String, Vec<String>)>,
     subscribers: Vec<(String, Vec<String>)>,
+}
+
+/// One list of a `getSystemState` answer: `[topic, [node, …]]` entries; others are skipped.
+fn topic_nodes(list: Option<&Value>) -> Vec<(String, Vec<String>)> {
+    let Some(Value::Array(entries)) = list else {
+        return Vec::new();
+    };
+    entries
+        .iter()
+        .filter_map(|entry| {
+            let Value::Array(pair) = entry else {
+                return None;
+            };
+            let topic = string(pair.first()?)?.to_string();
+            let Value::Array(nodes) = pair.get(1)? else {
+                return None;
+            };
+            let nodes = nodes.iter().filter_map(string).map(str::to_string);
+            Some((topic, nodes.collect()))
+        })
+        .collect()
+}
+
+fn nodes_of(list: &[(String, Vec<String>)], topic: &str) -> Vec<String> {
+    let mut nodes: Vec<String> = list
+        .iter()
+        .filter(|(t, _)| t == topic)
+        .flat_map(|(_, n)| n.iter().cloned())
+        .collect();
+    nodes.sort();
+    nodes.dedup();
+    nodes
 }
 
 impl Graph {
@@ -91,38 +124,34 @@ impl Graph {
         let Value::Array(parts) = value else {
             return Graph::default();
         };
-        let Some(Value::Array(subs)) = parts.get(1) else {
-            return Graph::default();
-        };
-        let subscribers = subs
-            .iter()
-            .filter_map(|entry| {
-                let Value::Array(pair) = entry else {
-                    return None;
-                };
-                let topic = string(pair.first()?)?.to_string();
-                let Value::Array(nodes) = pair.get(1)? else {
-                    return None;
-                };
-                let nodes = nodes.iter().filter_map(string).map(str::to_string);
-                Some((topic, nodes.collect()))
-            })
-            .collect();
-        Graph { subscribers }
+        Graph {
+            publishers: topic_nodes(parts.first()),
+            subscribers: topic_nodes(parts.get(1)),
+        }
     }
 
     /// The nodes subscribed to `topic`, sorted.
     pub(crate) fn subscribers(&self, topic: &str) -> Vec<String> {
-        let mut nodes: Vec<String> = self
-            .subscribers
-            .iter()
-            .filter(|(t, _)| t == topic)
-            .flat_map(|(_, n)| n.iter().cloned())
-            .collect();
-        nodes.sort();
-        nodes.dedup();
-        nodes
+        nodes_of(&self.subscribers, topic)
     }
+
+    /// The nodes publishing `topic`, sorted.
+    pub(crate) fn publishers(&self, topic: &str) -> Vec<String> {
+        nodes_of(&self.publishers, topic)
+    }
+}
+
+/// The type a node's `getPublications` answer (`[[topic, type], …]`) gives `topic`.
+pub(crate) fn publication_type(publications: &Value, topic: &str) -> Option<String> {
+    let Value::Array(entries) = publications else {
+        return None;
+    };
+    entries.iter().find_map(|entry| match entry {
+        Value::Array(pair) if pair.first().and_then(string) == Some(topic) => {
+            pair.get(1).and_then(string).map(str::to_string)
+        }
+        _ => None,
+    })
 }
 
 /// Whether a `getBusInfo` answer (a list of `[id, peer, direction, transport, topic,
@@ -178,6 +207,13 @@ mod tests {
         assert_eq!(g.subscribers("/a"), vec!["/y", "/z"]);
         assert_eq!(g.subscribers("/b"), vec!["/x"]);
         assert!(g.subscribers("/pub").is_empty());
+        assert_eq!(g.publishers("/a"), vec!["/pub"]);
+        let pubs = Value::Array(vec![Value::Array(vec![s("/a"), s("std_msgs/String")])]);
+        assert_eq!(
+            publication_type(&pubs, "/a").as_deref(),
+            Some("std_msgs/String")
+        );
+        assert_eq!(publication_type(&pubs, "/b"), None);
         assert!(Graph::from_value(&Value::Int(1))
             .subscribers("/a")
             .is_empty());

@@ -57,5 +57,5 @@ pub use settings::{Reliability, Ros2Settings};
 /// feature).
 pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(Ros2Factory);
-    registry.register(bridge::Ros2BridgeFactory);
+    registry.register(bridge::Ros2BridgeFactory::default());
 }

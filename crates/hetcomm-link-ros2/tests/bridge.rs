@@ -10,57 +10,11 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hetcomm::{Comm, Message, Outcome};
-use serde::{Deserialize, Serialize};
+use hetcomm::Comm;
 
-/// `geometry_msgs/Vector3` by field name.
-#[derive(Serialize, Deserialize, Debug, Clone, Copy, PartialEq, Default)]
-struct Vector3 {
-    x: f64,
-    y: f64,
-    z: f64,
-}
-
-/// A user's command, mapped to `geometry_msgs/Twist` by its serde field names.
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 40)]
-struct Drive {
-    linear: Vector3,
-    angular: Vector3,
-}
-
-/// A user's view of `nav_msgs/Odometry`: only the fields it needs.
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 41)]
-struct Odom {
-    child_frame_id: String,
-    pose: PoseWithCovariance,
-}
-
-#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
-struct PoseWithCovariance {
-    pose: Pose,
-}
-
-#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
-struct Pose {
-    position: Vector3,
-}
-
-/// `std_msgs/String`.
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 42)]
-struct Text {
-    data: String,
-}
-
-/// A command that does not fit `geometry_msgs/Twist` (a `speed` field, no `linear`).
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 44)]
-struct BadDrive {
-    speed: f64,
-    angular: Vector3,
-}
+#[path = "../../hetcomm-rosmsg/tests/support/rover.rs"]
+mod tango;
+use tango::{drive_and_talk, mappings_and_table, Odom};
 
 fn fleet_text(prefix: &str, domain: u16, extra: &str) -> String {
     format!(
@@ -77,18 +31,8 @@ domain_id = {domain}
 delivery = "unacknowledged"
 security = "none"
 {extra}
-[transports.tango_ros.publish]
-"{prefix}/cmd_vel" = "Drive 40 geometry_msgs/Twist"
-"{prefix}/say" = "Drive 42 std_msgs/String"
-"{prefix}/cmd_vel_bad" = "Drive 44 geometry_msgs/Twist"
-[transports.tango_ros.subscribe]
-"{prefix}/odom" = "World 41 nav_msgs/Odometry"
-"{prefix}/heard" = "World 42 std_msgs/String"
-[table]
-columns = ["Alpha", "Tango"]
-Alpha = ["X", "tango_ros"]
-Tango = ["tango_ros", "X"]
-"#
+{}"#,
+        mappings_and_table(prefix, "")
     )
 }
 
@@ -101,7 +45,7 @@ fn mappings_parse_and_their_mistakes_are_located() {
     let b: &hetcomm_link_ros2::bridge::BridgeSettings = s.downcast_ref().unwrap();
     assert_eq!(b.robot, "Tango");
     assert_eq!(b.publish.len(), 3);
-    assert_eq!(b.subscribe[0].ros_type, "nav_msgs/Odometry");
+    assert_eq!(b.subscribe[0].ros_type(), "nav_msgs/Odometry");
     assert_eq!(b.subscribe[0].message, 41);
 
     let errors = |text: String| {
@@ -215,52 +159,9 @@ fn a_cyclone_dds_rover_follows_twist_commands_and_reports_odometry() {
     assert_eq!(first.message.child_frame_id, "base_link");
     assert_eq!(first.envelope.source().system, hetcomm::SystemId(4));
 
-    // Commands go out as geometry_msgs/Twist: sent, without confirmation.
-    let forward = Drive {
-        linear: Vector3 {
-            x: 1.0,
-            ..Default::default()
-        },
-        angular: Vector3::default(),
-    };
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let mut x = 0.0;
-    while x < 0.5 {
-        assert!(Instant::now() < deadline, "the rover did not move: x = {x}");
-        let outcome = drive.send("Tango", "Drive", &forward).expect("send").wait();
-        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
-        std::thread::sleep(Duration::from_millis(100));
-        while let Ok(Some(odom)) = world.try_recv::<Odom>() {
-            x = odom.message.pose.pose.position.x;
-        }
-    }
-
-    // std_msgs/String there and back.
-    let text = Text {
-        data: "hello Tango".into(),
-    };
-    let deadline = Instant::now() + Duration::from_secs(10);
-    let heard = loop {
-        assert!(Instant::now() < deadline, "no answer on /heard");
-        drive.send("Tango", "Drive", &text).expect("send").wait();
-        if let Ok(r) = world.recv_timeout::<Text>(Duration::from_millis(300)) {
-            break r.message;
-        }
-    };
-    assert_eq!(heard.data, "heard: hello Tango");
-
-    // A command that does not fit the mapped type fails, naming both types and the field.
-    let bad = BadDrive {
-        speed: 1.0,
-        angular: Vector3::default(),
-    };
-    let outcome = drive.send("Tango", "Drive", &bad).expect("send").wait();
-    let text = format!("{outcome:?}");
-    assert!(matches!(outcome, Outcome::Failed { .. }), "{text}");
-    assert!(
-        text.contains("message type 44 for Drive does not convert to geometry_msgs/Twist: field `speed` has no counterpart in geometry_msgs/Twist"),
-        "{text}"
-    );
+    // Twist commands drive it (outcome Sent), a String goes there and back, a command that
+    // does not fit Twist fails naming both types and the field.
+    drive_and_talk(&drive, &world);
 }
 
 #[test]

@@ -46,7 +46,7 @@ pub fn registry() -> &'static Registry {
         let mut registry = Registry::new();
         hetcomm_link_ip::register_transports(&mut registry);
         link_crate!(registry, "bluetooth", hetcomm_link_bluetooth, ["bluetooth"]);
-        link_crate!(registry, "ros1", hetcomm_link_ros1, ["ros1"]);
+        link_crate!(registry, "ros1", hetcomm_link_ros1, ["ros1", "ros1_bridge"]);
         link_crate!(registry, "ros2", hetcomm_link_ros2, ["ros2", "ros2_bridge"]);
         link_crate!(registry, "zenoh", hetcomm_link_zenoh, ["zenoh"]);
         registry

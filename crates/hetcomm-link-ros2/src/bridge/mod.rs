@@ -21,18 +21,19 @@
 
 mod settings;
 
-use std::collections::{BTreeSet, HashMap};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
-use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
-use hetcomm_core::wire::{self, FrameKind, Header};
-use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
-use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_config::{Fleet, SettingsReader, TransportKind};
+use hetcomm_core::{ModuleId, SystemId};
+use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
+use hetcomm_rosmsg::codec::Wire;
+use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReader, DataWriter};
 use rustdds::{DomainParticipant, TopicKind};
@@ -45,36 +46,7 @@ use crate::raw::{RawAdapter, RawCdr};
 
 /// The kind's name in fleet files: `kind = "ros2_bridge"`.
 pub fn kind() -> TransportKind {
-    TransportKind::new("ros2_bridge")
-}
-
-/// What went wrong with input from ROS, each distinct problem once, in order.
-#[derive(Default)]
-pub struct Problems {
-    seen: Mutex<BTreeSet<String>>,
-}
-
-impl Problems {
-    /// Records `problem`; true (and printed to stderr) the first time it is seen.
-    fn report(&self, problem: String) -> bool {
-        let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        let new = seen.insert(problem.clone());
-        if new {
-            eprintln!("hetcomm ros2_bridge: {problem}");
-        }
-        new
-    }
-
-    /// Every distinct problem seen so far.
-    pub fn list(&self) -> Vec<String> {
-        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        seen.iter().cloned().collect()
-    }
-}
-
-struct Outbound {
-    mapping: Mapping,
-    writer: DataWriter<RawCdr, RawAdapter>,
+    TransportKind::new(Ros2BridgeKind::NAME)
 }
 
 struct Inbound {
@@ -83,40 +55,18 @@ struct Inbound {
     reader: DataReader<RawCdr, RawAdapter>,
 }
 
-#[derive(Default)]
-struct Counters {
-    sent: AtomicU64,
-    received: AtomicU64,
-    dropped: AtomicU64,
-}
-
 struct Shared {
-    counters: Counters,
-    problems: Problems,
+    tally: Tally,
     closed: AtomicBool,
 }
 
 /// A link to an external ROS 2 robot through typed topics.
 pub struct Ros2Bridge {
-    robot: SystemId,
-    robot_name: String,
-    /// By (robot's module, message type).
-    outbound: HashMap<(ModuleId, MessageType), Outbound>,
+    /// Each publish mapping with its DDS writer.
+    outbound: Outbound<DataWriter<RawCdr, RawAdapter>>,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
     _participant: DomainParticipant,
-}
-
-fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, OpenFailure> {
-    fleet
-        .modules
-        .iter()
-        .find(|m| m.name == name)
-        .map(|m| m.id)
-        .ok_or_else(|| {
-            format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
-                .into()
-        })
 }
 
 impl Ros2Bridge {
@@ -127,19 +77,7 @@ impl Ros2Bridge {
         settings: &BridgeSettings,
         sink: Arc<dyn FrameSink>,
     ) -> Result<Ros2Bridge, OpenFailure> {
-        let robot = fleet
-            .systems
-            .iter()
-            .find(|s| s.name == settings.robot)
-            .map(|s| s.id)
-            .ok_or_else(|| format!("robot `{}` is not in [systems]", settings.robot))?;
-        if robot == local {
-            return Err(format!(
-                "`{}` is the external ROS 2 robot of this bridge: it runs ROS 2, not hetcomm",
-                settings.robot
-            )
-            .into());
-        }
+        let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros2)?;
         let dp = participant(&settings.dds)?;
         let qos = qos(&settings.dds);
         let dds_err = |what: String| {
@@ -151,7 +89,7 @@ impl Ros2Bridge {
         let topic = |m: &Mapping| {
             dp.create_topic(
                 names::dds_topic(&m.topic),
-                names::dds_type(m.ros_type),
+                names::dds_type(m.ros_type()),
                 &qos,
                 TopicKind::NoKey,
             )
@@ -160,19 +98,13 @@ impl Ros2Bridge {
         let publisher = dp
             .create_publisher(&qos)
             .map_err(dds_err("a publisher".into()))?;
-        let mut outbound = HashMap::new();
+        let mut outbound = Outbound::new("ros2_bridge", robot, &settings.robot, Wire::CDR);
         for m in &settings.publish {
             let module = module_id(fleet, &m.module, &m.topic)?;
             let writer = publisher
                 .create_datawriter_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the writer of {}", m.topic)))?;
-            outbound.insert(
-                (module, MessageType(m.message)),
-                Outbound {
-                    mapping: m.clone(),
-                    writer,
-                },
-            );
+            outbound.insert(module, m.clone(), writer);
         }
         let subscriber = dp
             .create_subscriber(&qos)
@@ -190,26 +122,21 @@ impl Ros2Bridge {
             });
         }
         let shared = Arc::new(Shared {
-            counters: Counters::default(),
-            problems: Problems::default(),
+            tally: Tally::new("ros2_bridge"),
             closed: AtomicBool::new(false),
         });
         let rx = Receiver {
             dp: dp.clone(),
             inbound,
-            local,
             robot,
             sink,
             shared: shared.clone(),
-            incarnation: rand::random::<u32>() | 1,
-            seq: HashMap::new(),
+            frames: FrameMaker::new(local, robot),
         };
         let receiver = std::thread::Builder::new()
             .name(format!("hetcomm-ros2-bridge-{}", settings.robot))
             .spawn(move || rx.run())?;
         Ok(Ros2Bridge {
-            robot,
-            robot_name: settings.robot.clone(),
             outbound,
             shared,
             receiver: Some(receiver),
@@ -220,28 +147,18 @@ impl Ros2Bridge {
     /// The problems seen with input from ROS (undecodable samples, publishers of another
     /// type on a mapped topic), each once.
     pub fn problems(&self) -> Vec<String> {
-        self.shared.problems.list()
+        self.shared.tally.problems()
     }
-}
-
-fn now() -> Time {
-    let us = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_micros() as u64)
-        .unwrap_or(0);
-    Time::from_micros(us)
 }
 
 /// The bridge's receive side: every subscribed topic's reader, polled on one thread.
 struct Receiver {
     dp: DomainParticipant,
     inbound: Vec<Inbound>,
-    local: SystemId,
     robot: SystemId,
     sink: Arc<dyn FrameSink>,
     shared: Arc<Shared>,
-    incarnation: u32,
-    seq: HashMap<ModuleId, u64>,
+    frames: FrameMaker,
 }
 
 impl Receiver {
@@ -273,8 +190,7 @@ impl Receiver {
     }
 
     fn drop_with(&self, problem: String) {
-        self.shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
-        self.shared.problems.report(problem);
+        self.shared.tally.dropped(1, problem);
     }
 
     fn drain(&mut self, i: usize) {
@@ -289,7 +205,7 @@ impl Receiver {
                     continue;
                 }
             };
-            let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema());
+            let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema);
             let value = match crate::rostypes::from_cdr(
                 &sample.body,
                 sample.little,
@@ -305,36 +221,15 @@ impl Receiver {
                     continue;
                 }
             };
-            let mut payload = Vec::with_capacity(sample.body.len() + 16);
-            if rmpv::encode::write_value(&mut payload, &value).is_err() {
-                self.drop_with(format!("a sample on {topic} could not be encoded"));
-                continue;
-            }
             let inb = &self.inbound[i];
-            let seq = self.seq.entry(inb.module).or_insert(0);
-            *seq += 1;
-            let header = Header {
-                kind: FrameKind::Data,
-                incarnation: self.incarnation,
-                seq: *seq,
-                timestamp: now(),
-                ..Header::data(
-                    Address {
-                        system: self.robot,
-                        module: inb.module,
-                    },
-                    Address {
-                        system: self.local,
-                        module: inb.module,
-                    },
-                    MessageType(inb.mapping.message),
-                )
+            let frame = match self.frames.frame(inb.module, inb.mapping.message, &value) {
+                Ok(f) => f,
+                Err(e) => {
+                    self.drop_with(format!("a sample on {topic} {e}"));
+                    continue;
+                }
             };
-            let frame = wire::encode(&header, &payload);
-            self.shared
-                .counters
-                .received
-                .fetch_add(1, Ordering::Relaxed);
+            self.shared.tally.received();
             self.sink.on_frame(&frame, Peer::System(self.robot));
         }
     }
@@ -345,19 +240,19 @@ impl Receiver {
         let writers = self.dp.discovered_writers();
         for inb in &self.inbound {
             let topic = names::dds_topic(&inb.mapping.topic);
-            let expected = names::dds_type(inb.mapping.ros_type);
+            let expected = names::dds_type(inb.mapping.ros_type());
             for w in &writers {
                 let t = &w.publication_topic_data;
                 if t.topic_name == topic && t.type_name != expected {
-                    let new = self.shared.problems.report(format!(
+                    // Counted once per such publisher: its samples never reach us.
+                    self.shared.tally.dropped_once(format!(
                         "a publisher on {} has type {}, but the topic is mapped as {} ({}): its \
                          messages are not received",
-                        inb.mapping.topic, t.type_name, inb.mapping.ros_type, expected
+                        inb.mapping.topic,
+                        t.type_name,
+                        inb.mapping.ros_type(),
+                        expected
                     ));
-                    if new {
-                        // Counted once per such publisher: its samples never reach us.
-                        self.shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
                 }
             }
         }
@@ -366,74 +261,37 @@ impl Receiver {
 
 impl Link for Ros2Bridge {
     fn caps(&self) -> LinkCaps {
-        LinkCaps {
-            max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
-            reliable: false,
-            ordered: true,
-            broadcast: false,
-        }
+        caps()
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
-        if to != self.robot {
-            return Err(unreachable(format!(
-                "this ros2_bridge reaches only {}",
-                self.robot_name
-            )));
-        }
-        let f = wire::decode(frame).map_err(|e| unreachable(format!("not a frame: {e}")))?;
-        if f.header.kind != FrameKind::Data {
-            // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        let Some(out) = self.outbound.convert(to, frame)? else {
             return Ok(());
-        }
-        let key = (f.header.destination.module, f.header.message_type);
-        let Some(out) = self.outbound.get(&key) else {
-            return Err(unreachable(format!(
-                "no ROS topic is mapped for message type {} to {}'s module {}",
-                key.1 .0, self.robot_name, key.0 .0
-            )));
         };
-        let value = rmpv::decode::read_value(&mut &f.payload[..])
-            .map_err(|e| unreachable(format!("payload is not MessagePack: {e}")))?;
-        let what = format!(
-            "message type {} for {}",
-            out.mapping.message, out.mapping.module
-        );
-        let body =
-            crate::rostypes::to_cdr(&value, out.mapping.schema(), &what).map_err(unreachable)?;
-        match out.writer.write(
-            RawCdr {
-                body,
-                little: true,
-                xcdr2: false,
-            },
-            None,
-        ) {
+        let (m, writer) = (out.mapping, out.publisher);
+        let cdr = RawCdr {
+            body: out.body,
+            little: true,
+            xcdr2: false,
+        };
+        match writer.write(cdr, None) {
             Ok(()) => {
-                self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
+                self.shared.tally.sent();
                 Ok(())
             }
             Err(rustdds::dds::WriteError::WouldBlock { .. }) => Err(LinkError::Congested {
                 peer: to,
-                reason: format!("the DDS writer of {} is full", out.mapping.topic),
+                reason: format!("the DDS writer of {} is full", m.topic),
             }),
-            Err(e) => Err(unreachable(format!(
-                "DDS write on {}: {e}",
-                out.mapping.topic
-            ))),
+            Err(e) => Err(LinkError::Unreachable {
+                peer: to,
+                reason: format!("DDS write on {}: {e}", m.topic),
+            }),
         }
     }
 
     fn stats(&self) -> LinkStats {
-        let c = &self.shared.counters;
-        LinkStats {
-            frames_sent: c.sent.load(Ordering::Relaxed),
-            frames_received: c.received.load(Ordering::Relaxed),
-            frames_dropped: c.dropped.load(Ordering::Relaxed),
-            ..LinkStats::default()
-        }
+        self.shared.tally.stats()
     }
 }
 
@@ -446,47 +304,32 @@ impl Drop for Ros2Bridge {
     }
 }
 
+/// The `ros2_bridge` kind, registered as a [`BridgeFactory`] ([`Ros2BridgeFactory`]).
+pub struct Ros2BridgeKind;
+
 /// Reads `ros2_bridge` tables and opens them as [`Ros2Bridge`]s.
-pub struct Ros2BridgeFactory;
+pub type Ros2BridgeFactory = BridgeFactory<Ros2BridgeKind>;
 
-impl KindSpec for Ros2BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
+impl BridgeKind for Ros2BridgeKind {
+    type Settings = BridgeSettings;
+    const NAME: &'static str = "ros2_bridge";
+    const KEYS: &'static [&'static str] = &KEYS;
 
-    fn keys(&self) -> &[&'static str] {
-        &KEYS
-    }
-
-    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
     }
-}
 
-impl TransportFactory for Ros2BridgeFactory {
-    fn kind(&self) -> TransportKind {
-        kind()
-    }
-
-    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
-        Some(self)
-    }
-
-    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err("expected ros2_bridge settings".into());
-        };
-        let settings: &BridgeSettings = s
-            .downcast_ref()
-            .ok_or("the transport's settings are not ros2_bridge settings")?;
-        let bridge = Ros2Bridge::open(request.fleet, request.local, settings, request.sink)?;
-        let local_address = Some(format!(
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure> {
+        let bridge = Ros2Bridge::open(fleet, local, settings, sink)?;
+        let address = format!(
             "ros2_bridge://{}/{}",
             settings.dds.domain_id, settings.robot
-        ));
-        Ok(Opened {
-            link: Arc::new(bridge),
-            local_address,
-        })
+        );
+        Ok((Arc::new(bridge), address))
     }
 }

@@ -1,0 +1,346 @@
+//! The `ros1_bridge` transport kind: an external ROS 1 robot (a system that runs ROS 1, not
+//! hetcomm) in the fleet, through typed ROS topics of its master.
+//!
+//! The ROS 1 twin of `ros2_bridge`, with the same fleet-file shape (docs/ros-bridges.md). A
+//! bridge is a link between this system and the robot; its table maps, per module and message
+//! type, to ROS topics and types ([`BridgeSettings`]):
+//!
+//! * **publish** (hetcomm → ROS): a message of type `TYPE_ID` sent to (robot, `MODULE`) is
+//!   converted by field name (`hetcomm_rosmsg::codec`, ROS 1 serialization) and published on
+//!   the topic, advertised with the ROS type's MD5 sum and definition. Nobody acknowledges it:
+//!   the transport must say `delivery = "unacknowledged"`, and the outcome is Sent (without
+//!   confirmation). A message that does not convert fails its send, naming both types and the
+//!   field.
+//! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
+//!   `MODULE` as a message of type `TYPE_ID` from the robot.
+//!
+//! Bad input never reaches a module: a message that does not deserialize as the mapped type,
+//! and a publisher on a mapped topic whose type is another (ROS 1 refuses its connection at
+//! the handshake, for its MD5 sum; the bridge asks the master who publishes each mapped topic
+//! and each publisher's `getPublications` for its type), are counted (dropped frames in the
+//! link's stats) and described in [`Ros1Bridge::problems`], each problem printed once to
+//! stderr. Plain ROS messages are unauthenticated: the transport must say
+//! `security = "none"`.
+
+mod settings;
+mod types;
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use hetcomm_config::{Fleet, SettingsReader, TransportKind};
+use hetcomm_core::{ModuleId, SystemId};
+use hetcomm_link::registry::OpenFailure;
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
+use hetcomm_rosmsg::codec::Wire;
+use hetcomm_rosmsg::schema::Flavour;
+use roslibrust::ros1::{NodeHandle, PublisherAny};
+use tokio::sync::mpsc;
+
+pub use settings::{check_topic, BridgeSettings, Mapping, KEYS};
+pub use types::description;
+
+use crate::xmlrpc;
+
+/// The kind's name in fleet files: `kind = "ros1_bridge"`.
+pub fn kind() -> TransportKind {
+    TransportKind::new(Ros1BridgeKind::NAME)
+}
+
+/// How often the bridge asks the master who publishes its subscribed topics.
+const CHECK_INTERVAL: Duration = Duration::from_millis(500);
+/// Longest wait for one XML-RPC call of that check.
+const CALL_TIMEOUT: Duration = Duration::from_secs(1);
+/// Queue size of each ROS publisher and subscriber (messages).
+const ROS_QUEUE: usize = 64;
+/// Messages `send` can queue for the publishing task before it reports congestion.
+const SEND_QUEUE: usize = 1024;
+/// Longest time `open` waits for the master.
+const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// An inbound mapping, as its receive task sees it.
+struct Inbound {
+    mapping: Mapping,
+    module: ModuleId,
+}
+
+/// A link to an external ROS 1 robot through typed topics.
+pub struct Ros1Bridge {
+    /// Each publish mapping with the index of its publisher.
+    outbound: Outbound<usize>,
+    /// To the publishing task: (index of the publisher, TCPROS-framed message).
+    publish: mpsc::Sender<(usize, Vec<u8>)>,
+    tally: Arc<Tally>,
+    runtime: Option<tokio::runtime::Runtime>,
+    node: Option<NodeHandle>,
+}
+
+impl Ros1Bridge {
+    /// Opens the bridge on system `local` of `fleet` with `settings`: registers a ROS node
+    /// with the master, advertises every published topic and subscribes to every subscribed
+    /// one (received messages go to `sink`).
+    pub fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<Ros1Bridge, OpenFailure> {
+        let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros1)?;
+        let mut inbound = Vec::new();
+        for m in &settings.subscribe {
+            let module = module_id(fleet, &m.module, &m.topic)?;
+            inbound.push(Inbound {
+                mapping: m.clone(),
+                module,
+            });
+        }
+        let mut outbound = Outbound::new("ros1_bridge", robot, &settings.robot, Wire::Ros1);
+        for (index, m) in settings.publish.iter().enumerate() {
+            outbound.insert(module_id(fleet, &m.module, &m.topic)?, m.clone(), index);
+        }
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("hetcomm-ros1-bridge")
+            .enable_all()
+            .build()?;
+        let tally = Arc::new(Tally::new("ros1_bridge"));
+        let node_name = format!(
+            "/hetcomm_bridge_{}_{}_{}",
+            settings.robot,
+            std::process::id(),
+            rand::random::<u16>()
+        );
+        let uri = settings.master_uri.clone();
+        let opened = runtime.block_on(async {
+            tokio::time::timeout(OPEN_TIMEOUT, async {
+                let node = NodeHandle::new(&uri, &node_name)
+                    .await
+                    .map_err(|e| format!("the ROS master at {uri}: {e}"))?;
+                let mut publishers = Vec::new();
+                for m in &settings.publish {
+                    let d = description(m.schema);
+                    let p = node
+                        .advertise_any(&m.topic, d.ros_type_name, d.definition, ROS_QUEUE, false)
+                        .await
+                        .map_err(|e| format!("advertising {}: {e}", m.topic))?;
+                    publishers.push(p);
+                }
+                Ok::<_, String>((node, publishers))
+            })
+            .await
+            .unwrap_or_else(|_| {
+                Err(format!(
+                    "the ROS master at {uri} did not answer within {OPEN_TIMEOUT:?} (is \
+                     `rosmaster --core` running? check the transport's `master_uri`)"
+                ))
+            })
+        });
+        let (node, publishers) = match opened {
+            Ok(o) => o,
+            Err(e) => {
+                runtime.shutdown_timeout(Duration::from_millis(500));
+                return Err(e.into());
+            }
+        };
+        let (tx_frames, mut rx_frames) = mpsc::channel::<Vec<u8>>(ROS_QUEUE);
+        let frames = Arc::new(Mutex::new(FrameMaker::new(local, robot)));
+        let subscribed = runtime.block_on(async {
+            for inb in inbound {
+                let (maker, frames, tally) = (frames.clone(), tx_frames.clone(), tally.clone());
+                types::subscribe(&node, inb, ROS_QUEUE, maker, frames, tally).await?;
+            }
+            Ok::<_, String>(())
+        });
+        if let Err(e) = subscribed {
+            {
+                // roslibrust unregisters a dropped node from within the runtime.
+                let _guard = runtime.enter();
+                drop(node);
+            }
+            runtime.shutdown_timeout(Duration::from_millis(500));
+            return Err(e.into());
+        }
+        drop(tx_frames);
+        // Frames reach the sink on a thread of their own, as the `ros1` link's do.
+        std::thread::Builder::new()
+            .name(format!("hetcomm-ros1-bridge-{}", settings.robot))
+            .spawn(move || {
+                while let Some(frame) = rx_frames.blocking_recv() {
+                    sink.on_frame(&frame, Peer::System(robot));
+                }
+            })?;
+        let (publish, publish_rx) = mpsc::channel(SEND_QUEUE);
+        runtime.spawn(publish_loop(publishers, publish_rx));
+        runtime.spawn(check_publisher_types(
+            settings.master_uri.clone(),
+            node_name,
+            settings.subscribe.clone(),
+            tally.clone(),
+        ));
+        Ok(Ros1Bridge {
+            outbound,
+            publish,
+            tally,
+            runtime: Some(runtime),
+            node: Some(node),
+        })
+    }
+
+    /// The problems seen with input from ROS (messages that do not deserialize, publishers
+    /// of another type on a mapped topic), each once.
+    pub fn problems(&self) -> Vec<String> {
+        self.tally.problems()
+    }
+}
+
+async fn publish_loop(publishers: Vec<PublisherAny>, mut rx: mpsc::Receiver<(usize, Vec<u8>)>) {
+    while let Some((index, framed)) = rx.recv().await {
+        if let Some(p) = publishers.get(index) {
+            // The outcome is already Sent (without confirmation); ROS 1 says nothing more.
+            let _ = p.publish(framed).await;
+        }
+    }
+}
+
+/// Reports publishers on a mapped topic whose type is not the mapped one: ROS 1 refuses
+/// their connection (MD5 mismatch), so their messages would otherwise vanish without a word.
+/// Each publishing node is asked once per topic.
+async fn check_publisher_types(
+    master: String,
+    me: String,
+    subscribed: Vec<Mapping>,
+    tally: Arc<Tally>,
+) {
+    let http = reqwest::Client::new();
+    let mut checked = BTreeSet::new();
+    loop {
+        tokio::time::sleep(CHECK_INTERVAL).await;
+        let args = vec![me.clone().into()];
+        let Ok(state) = xmlrpc::call(&http, &master, "getSystemState", args, CALL_TIMEOUT).await
+        else {
+            continue;
+        };
+        let graph = xmlrpc::Graph::from_value(&state);
+        for m in &subscribed {
+            for node in graph.publishers(&m.topic) {
+                if checked.contains(&(m.topic.clone(), node.clone())) {
+                    continue;
+                }
+                let args = vec![me.clone().into(), node.clone().into()];
+                let Ok(serde_xmlrpc::Value::String(uri)) =
+                    xmlrpc::call(&http, &master, "lookupNode", args, CALL_TIMEOUT).await
+                else {
+                    continue;
+                };
+                let args = vec![me.clone().into()];
+                let Ok(pubs) =
+                    xmlrpc::call(&http, &uri, "getPublications", args, CALL_TIMEOUT).await
+                else {
+                    continue;
+                };
+                checked.insert((m.topic.clone(), node.clone()));
+                match xmlrpc::publication_type(&pubs, &m.topic) {
+                    Some(ty) if ty != m.ros_type() => tally.dropped_once(format!(
+                        "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
+                             as {}: ROS 1 refuses its connection (MD5 sum mismatch), its \
+                             messages are not received",
+                        m.topic,
+                        m.ros_type()
+                    )),
+                    _ => {}
+                }
+            }
+        }
+    }
+}
+
+impl Link for Ros1Bridge {
+    fn caps(&self) -> LinkCaps {
+        caps()
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let Some(out) = self.outbound.convert(to, frame)? else {
+            return Ok(());
+        };
+        let (m, index, body) = (out.mapping, *out.publisher, out.body);
+        // TCPROS frames each message with its length.
+        let mut framed = Vec::with_capacity(body.len() + 4);
+        framed.extend_from_slice(&(body.len() as u32).to_le_bytes());
+        framed.extend_from_slice(&body);
+        match self.publish.try_send((index, framed)) {
+            Ok(()) => {
+                self.tally.sent();
+                Ok(())
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => Err(LinkError::Congested {
+                peer: to,
+                reason: format!("the publishing queue of {} is full", m.topic),
+            }),
+            Err(mpsc::error::TrySendError::Closed(_)) => Err(LinkError::Unreachable {
+                peer: to,
+                reason: "the bridge is closing".into(),
+            }),
+        }
+    }
+
+    fn stats(&self) -> LinkStats {
+        self.tally.stats()
+    }
+}
+
+impl Drop for Ros1Bridge {
+    fn drop(&mut self) {
+        let (Some(runtime), node) = (self.runtime.take(), self.node.take()) else {
+            return;
+        };
+        // On a plain thread: this may run inside another async runtime, where blocking on
+        // ours is not allowed; roslibrust unregisters a dropped node with blocking calls.
+        let shutdown = std::thread::Builder::new()
+            .name("hetcomm-ros1-bridge-close".into())
+            .spawn(move || {
+                {
+                    let _guard = runtime.enter();
+                    drop(node);
+                }
+                runtime.shutdown_timeout(Duration::from_secs(1));
+            });
+        if let Ok(handle) = shutdown {
+            let _ = handle.join();
+        }
+    }
+}
+
+/// The `ros1_bridge` kind, registered as a [`BridgeFactory`] ([`Ros1BridgeFactory`]).
+pub struct Ros1BridgeKind;
+
+/// Reads `ros1_bridge` tables and opens them as [`Ros1Bridge`]s.
+pub type Ros1BridgeFactory = BridgeFactory<Ros1BridgeKind>;
+
+impl BridgeKind for Ros1BridgeKind {
+    type Settings = BridgeSettings;
+    const NAME: &'static str = "ros1_bridge";
+    const KEYS: &'static [&'static str] = &KEYS;
+
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
+        settings::parse(s)
+    }
+
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure> {
+        let bridge = Ros1Bridge::open(fleet, local, settings, sink)?;
+        let address = format!(
+            "ros1_bridge://{}/{}",
+            settings.master_uri.trim_start_matches("http://"),
+            settings.robot
+        );
+        Ok((Arc::new(bridge), address))
+    }
+}

@@ -1,0 +1,532 @@
+//! What the `ros1_bridge` and `ros2_bridge` transport kinds share besides the conversion:
+//! reading their fleet-file tables ([`parse_common`]: `robot`, the `publish` and `subscribe`
+//! mappings, the required `delivery` and `security`), naming the robot and modules
+//! ([`robot_id`], [`module_id`]), converting what is sent to the robot ([`Outbound`]),
+//! counting and reporting bad input once ([`Tally`]), turning a ROS message into a hetcomm
+//! frame from the robot ([`FrameMaker`]), what the link promises ([`caps`]), and the kind's
+//! registration ([`BridgeFactory`] of a [`BridgeKind`]).
+
+use std::collections::{BTreeSet, HashMap};
+use std::marker::PhantomData;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
+use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_core::wire::{self, FrameKind, Header};
+use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
+use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
+use rmpv::Value;
+
+use crate::codec::{self, Wire};
+use crate::schema::{Flavour, RosType};
+
+/// One mapping between a hetcomm (module, message type) and a ROS topic of a ROS type.
+#[derive(Clone, Debug)]
+pub struct Mapping {
+    /// The ROS topic, e.g. `/tango/cmd_vel`.
+    pub topic: String,
+    /// The hetcomm module: on the robot (publish) or on this system (subscribe).
+    pub module: String,
+    /// The hetcomm message type id.
+    pub message: u32,
+    /// The ROS type's schema (its `name` is `pkg/Type`).
+    pub schema: &'static RosType,
+}
+
+impl Mapping {
+    /// The ROS type's name, `pkg/Type`.
+    pub fn ros_type(&self) -> &'static str {
+        self.schema.name
+    }
+}
+
+impl PartialEq for Mapping {
+    fn eq(&self, other: &Mapping) -> bool {
+        (&self.topic, &self.module, self.message, self.schema.name)
+            == (
+                &other.topic,
+                &other.module,
+                other.message,
+                other.schema.name,
+            )
+    }
+}
+
+impl Eq for Mapping {}
+
+/// The keys every bridge kind reads (besides the shared ones and its own).
+pub const COMMON_KEYS: [&str; 3] = ["robot", "publish", "subscribe"];
+
+/// What every bridge's table says: the robot and the mappings.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Common {
+    /// The external system (it runs ROS, not hetcomm): `robot = "Tango"`.
+    pub robot: String,
+    /// `[transports.x.publish]`: sends to (robot, module) of a message type become ROS
+    /// messages on a topic.
+    pub publish: Vec<Mapping>,
+    /// `[transports.x.subscribe]`: ROS messages on a topic become messages of a type from the
+    /// robot, to this system's module.
+    pub subscribe: Vec<Mapping>,
+}
+
+const MAPPING_HELP: &str =
+    "write \"MODULE TYPE_ID ROS_TYPE\", e.g. \"Drive 40 geometry_msgs/Twist\"";
+
+fn mappings(
+    s: &mut SettingsReader<'_, '_>,
+    key: &str,
+    flavour: Flavour,
+    check_topic: fn(&str) -> Result<(), String>,
+    ok: &mut bool,
+) -> Vec<Mapping> {
+    let Some(entries) = s.string_table(key, MAPPING_HELP) else {
+        *ok &= !s.has(key);
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for (topic, text) in entries {
+        if let Err(why) = check_topic(&topic) {
+            s.error_entry(
+                key,
+                &topic,
+                format!("`{topic}` is not a {} topic name: {why}", flavour.label()),
+                "write the full name, e.g. \"/tango/cmd_vel\"",
+            );
+            *ok = false;
+            continue;
+        }
+        let parts: Vec<&str> = text.split_whitespace().collect();
+        let [module, id, ros_type] = parts[..] else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}` must have three parts, found {text:?}"),
+                MAPPING_HELP,
+            );
+            *ok = false;
+            continue;
+        };
+        let Ok(message) = id.parse::<u32>() else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}`: `{id}` is not a message type id"),
+                "the number in the message's #[message(id = N)]",
+            );
+            *ok = false;
+            continue;
+        };
+        let Some(schema) = flavour.lookup(ros_type) else {
+            s.error_entry(
+                key,
+                &topic,
+                format!("mapping of `{topic}`: this build does not know the ROS type `{ros_type}`"),
+                format!("known types: {}", flavour.known_names()),
+            );
+            *ok = false;
+            continue;
+        };
+        out.push(Mapping {
+            topic,
+            module: module.to_string(),
+            message,
+            schema,
+        });
+    }
+    out
+}
+
+/// Reads `robot`, `publish`, `subscribe` and checks `delivery = "unacknowledged"` and
+/// `security = "none"` of a bridge table of `kind` (e.g. `ros1_bridge`); `check_topic` says
+/// why a topic name is not valid. Problems are reported through `s`; None if there was one.
+pub fn parse_common(
+    s: &mut SettingsReader<'_, '_>,
+    flavour: Flavour,
+    kind: &str,
+    check_topic: fn(&str) -> Result<(), String>,
+) -> Option<Common> {
+    let mut ok = true;
+    let robot = match s.has("robot") {
+        true => s.string(
+            "robot",
+            "the name of the ROS robot's system in quotes, e.g. \"Tango\"",
+        ),
+        false => {
+            let help = format!(
+                "add `robot = \"NAME\"`: the system that runs {}",
+                flavour.label()
+            );
+            s.missing("robot", &help);
+            None
+        }
+    };
+    ok &= robot.is_some();
+    // A ROS node cannot acknowledge hetcomm messages nor open hetcomm's secured sessions.
+    if s.string("delivery", "").as_deref() != Some("unacknowledged") {
+        s.error(
+            "delivery",
+            format!(
+                "transport `{}` (kind {kind}) carries plain ROS messages, which nobody \
+                 acknowledges",
+                s.transport()
+            ),
+            "add `delivery = \"unacknowledged\"`: sends end as Sent (without confirmation)",
+        );
+        ok = false;
+    }
+    if s.string("security", "").as_deref() != Some("none") {
+        s.error(
+            "security",
+            format!(
+                "transport `{}` (kind {kind}) carries plain ROS messages: a ROS node cannot \
+                 open hetcomm's secured sessions",
+                s.transport()
+            ),
+            "add `security = \"none\"` (see docs/ros-bridges.md, \"Security\")",
+        );
+        ok = false;
+    }
+    let publish = mappings(s, "publish", flavour, check_topic, &mut ok);
+    let subscribe = mappings(s, "subscribe", flavour, check_topic, &mut ok);
+    if ok && publish.is_empty() && subscribe.is_empty() {
+        s.error(
+            "publish",
+            format!("a {kind} maps no topic"),
+            "add a [transports.NAME.publish] or [transports.NAME.subscribe] section",
+        );
+        ok = false;
+    }
+    ok.then_some(Common {
+        robot: robot?,
+        publish,
+        subscribe,
+    })
+}
+
+/// The id of the bridge's `robot`, which must be in the fleet and not be `local` (it runs
+/// ROS, not hetcomm).
+pub fn robot_id(
+    fleet: &Fleet,
+    local: SystemId,
+    robot: &str,
+    flavour: Flavour,
+) -> Result<SystemId, String> {
+    let id = fleet
+        .systems
+        .iter()
+        .find(|s| s.name == robot)
+        .map(|s| s.id)
+        .ok_or_else(|| format!("robot `{robot}` is not in [systems]"))?;
+    if id == local {
+        let ros = flavour.label();
+        return Err(format!(
+            "`{robot}` is the external {ros} robot of this bridge: it runs {ros}, not hetcomm"
+        ));
+    }
+    Ok(id)
+}
+
+/// The id of the module `name` that the mapping of `topic` names.
+pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, String> {
+    fleet
+        .modules
+        .iter()
+        .find(|m| m.name == name)
+        .map(|m| m.id)
+        .ok_or_else(|| {
+            format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
+        })
+}
+
+/// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
+/// distinct problem once, in order; shared by its send side and its receive tasks.
+pub struct Tally {
+    kind: &'static str,
+    sent: AtomicU64,
+    received: AtomicU64,
+    dropped: AtomicU64,
+    seen: Mutex<BTreeSet<String>>,
+}
+
+impl Tally {
+    /// Nothing counted yet; `kind` (e.g. `ros1_bridge`) prefixes what is printed.
+    pub fn new(kind: &'static str) -> Tally {
+        Tally {
+            kind,
+            sent: AtomicU64::new(0),
+            received: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            seen: Mutex::default(),
+        }
+    }
+
+    /// One message handed to ROS.
+    pub fn sent(&self) {
+        self.sent.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// One message from ROS handed to the system.
+    pub fn received(&self) {
+        self.received.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Records `problem`; true (and printed to stderr) the first time it is seen.
+    fn report(&self, problem: String) -> bool {
+        let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        let new = seen.insert(problem.clone());
+        if new {
+            eprintln!("hetcomm {}: {problem}", self.kind);
+        }
+        new
+    }
+
+    /// `n` messages from ROS dropped because of `problem` (reported the first time).
+    pub fn dropped(&self, n: u64, problem: String) {
+        self.dropped.fetch_add(n, Ordering::Relaxed);
+        self.report(problem);
+    }
+
+    /// A problem that costs messages no one can count (a publisher ROS does not connect):
+    /// counted as one drop and reported, the first time it is seen only.
+    pub fn dropped_once(&self, problem: String) {
+        if self.report(problem) {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Every distinct problem seen so far.
+    pub fn problems(&self) -> Vec<String> {
+        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        seen.iter().cloned().collect()
+    }
+
+    /// The link's stats: sent, received and dropped messages.
+    pub fn stats(&self) -> LinkStats {
+        LinkStats {
+            frames_sent: self.sent.load(Ordering::Relaxed),
+            frames_received: self.received.load(Ordering::Relaxed),
+            frames_dropped: self.dropped.load(Ordering::Relaxed),
+            ..LinkStats::default()
+        }
+    }
+}
+
+/// What a bridge link promises: ordered per topic, not reliable (nobody acknowledges), any
+/// frame size, no broadcast.
+pub fn caps() -> LinkCaps {
+    LinkCaps {
+        max_frame: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+        mtu: wire::HEADER_LEN + wire::MAX_PAYLOAD,
+        reliable: false,
+        ordered: true,
+        broadcast: false,
+    }
+}
+
+/// Which mapping a message sent to the robot takes: (robot's module, message type).
+pub type MappingKey = (ModuleId, MessageType);
+
+/// A hetcomm payload sent to the robot, as the bridge will convert it: the mapping key and
+/// the payload as a MessagePack value. None for frames that are not data (acknowledgements
+/// have no ROS counterpart).
+fn outgoing(frame: &[u8]) -> Result<Option<(MappingKey, Value)>, String> {
+    let f = wire::decode(frame).map_err(|e| format!("not a frame: {e}"))?;
+    if f.header.kind != FrameKind::Data {
+        return Ok(None);
+    }
+    let key = (f.header.destination.module, f.header.message_type);
+    let value = rmpv::decode::read_value(&mut &f.payload[..])
+        .map_err(|e| format!("payload is not MessagePack: {e}"))?;
+    Ok(Some((key, value)))
+}
+
+/// A message sent to the robot, ready to publish.
+pub struct Converted<'a, T> {
+    /// Its mapping.
+    pub mapping: &'a Mapping,
+    /// The mapping's publisher.
+    pub publisher: &'a T,
+    /// The ROS message body, in the bridge's wire encoding.
+    pub body: Vec<u8>,
+}
+
+/// A bridge's publish mappings, by (robot's module, message type), each with the transport's
+/// publisher `T`: turns a frame sent to the robot into the ROS message to publish.
+pub struct Outbound<T> {
+    kind: &'static str,
+    robot: SystemId,
+    robot_name: String,
+    wire: Wire,
+    by_key: HashMap<MappingKey, (Mapping, T)>,
+}
+
+impl<T> Outbound<T> {
+    /// No mappings yet, for a bridge of `kind` to `robot` (named `robot_name`), writing `wire`.
+    pub fn new(kind: &'static str, robot: SystemId, robot_name: &str, wire: Wire) -> Outbound<T> {
+        Outbound {
+            kind,
+            robot,
+            robot_name: robot_name.to_string(),
+            wire,
+            by_key: HashMap::new(),
+        }
+    }
+
+    /// Maps sends of `mapping.message` to `module` onto `publisher`.
+    pub fn insert(&mut self, module: ModuleId, mapping: Mapping, publisher: T) {
+        let key = (module, MessageType(mapping.message));
+        self.by_key.insert(key, (mapping, publisher));
+    }
+
+    /// The mapping, publisher and converted body of `frame`, sent to `to`; None for frames
+    /// that are not data. A frame to another system, of an unmapped type, or whose payload
+    /// does not convert (named by both types and the field) is [`LinkError::Unreachable`].
+    pub fn convert(
+        &self,
+        to: SystemId,
+        frame: &[u8],
+    ) -> Result<Option<Converted<'_, T>>, LinkError> {
+        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
+        if to != self.robot {
+            let (kind, name) = (self.kind, &self.robot_name);
+            return Err(unreachable(format!("this {kind} reaches only {name}")));
+        }
+        // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
+        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+            return Ok(None);
+        };
+        let Some((m, publisher)) = self.by_key.get(&key) else {
+            return Err(unreachable(format!(
+                "no ROS topic is mapped for message type {} to {}'s module {}",
+                key.1 .0, self.robot_name, key.0 .0
+            )));
+        };
+        let what = format!("message type {} for {}", m.message, m.module);
+        let body = codec::encode(&value, m.schema, self.wire, &what).map_err(unreachable)?;
+        Ok(Some(Converted {
+            mapping: m,
+            publisher,
+            body,
+        }))
+    }
+}
+
+/// Makes the hetcomm frames of messages received from the robot: data from (robot, module) to
+/// (this system, module), numbered per module under one random incarnation.
+pub struct FrameMaker {
+    local: SystemId,
+    robot: SystemId,
+    incarnation: u32,
+    seq: HashMap<ModuleId, u64>,
+}
+
+impl FrameMaker {
+    /// Frames from `robot` to `local`.
+    pub fn new(local: SystemId, robot: SystemId) -> FrameMaker {
+        FrameMaker {
+            local,
+            robot,
+            incarnation: rand::random::<u32>() | 1,
+            seq: HashMap::new(),
+        }
+    }
+
+    /// The frame of `value` (a decoded ROS message) for `module` as message type `message`.
+    pub fn frame(
+        &mut self,
+        module: ModuleId,
+        message: u32,
+        value: &Value,
+    ) -> Result<Vec<u8>, String> {
+        let mut payload = Vec::with_capacity(128);
+        rmpv::encode::write_value(&mut payload, value)
+            .map_err(|e| format!("could not be encoded: {e}"))?;
+        let seq = self.seq.entry(module).or_insert(0);
+        *seq += 1;
+        let us = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_micros() as u64)
+            .unwrap_or(0);
+        let at = |system| Address { system, module };
+        let header = Header {
+            kind: FrameKind::Data,
+            incarnation: self.incarnation,
+            seq: *seq,
+            timestamp: Time::from_micros(us),
+            ..Header::data(at(self.robot), at(self.local), MessageType(message))
+        };
+        Ok(wire::encode(&header, &payload))
+    }
+}
+
+/// One bridge kind (`ros1_bridge`, `ros2_bridge`), as [`BridgeFactory`] registers it: its
+/// name, keys, settings and how it opens.
+pub trait BridgeKind: Send + Sync + 'static {
+    /// Its settings, as [`BridgeKind::parse`] reads them.
+    type Settings: KindSettings;
+    /// The kind's name in fleet files.
+    const NAME: &'static str;
+    /// Its keys, besides the shared ones.
+    const KEYS: &'static [&'static str];
+    /// Reads its table; problems are reported through `s`.
+    fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
+    /// Opens the bridge on system `local` of `fleet`: the link and its local address.
+    fn open(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &Self::Settings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<(Arc<dyn Link>, String), OpenFailure>;
+}
+
+/// Reads a bridge kind's tables and opens them ([`KindSpec`] and [`TransportFactory`]).
+pub struct BridgeFactory<K>(PhantomData<K>);
+
+impl<K> Default for BridgeFactory<K> {
+    fn default() -> Self {
+        BridgeFactory(PhantomData)
+    }
+}
+
+impl<K: BridgeKind> KindSpec for BridgeFactory<K> {
+    fn kind(&self) -> TransportKind {
+        TransportKind::new(K::NAME)
+    }
+
+    fn keys(&self) -> &[&'static str] {
+        K::KEYS
+    }
+
+    fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+        K::parse(s).map(RegisteredSettings::new)
+    }
+}
+
+impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
+    fn kind(&self) -> TransportKind {
+        TransportKind::new(K::NAME)
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
+    }
+
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
+        let name = K::NAME;
+        let TransportSettings::Registered(s) = &request.transport.settings else {
+            return Err(format!("expected {name} settings").into());
+        };
+        let settings: &K::Settings = s
+            .downcast_ref()
+            .ok_or_else(|| format!("the transport's settings are not {name} settings"))?;
+        let (link, address) = K::open(request.fleet, request.local, settings, request.sink)?;
+        Ok(Opened {
+            link,
+            local_address: Some(address),
+        })
+    }
+}

@@ -1,0 +1,473 @@
+//! Conversion between a hetcomm payload (MessagePack, structs as maps keyed by serde field
+//! names) and a ROS message on the wire, field by field, by name, for both encodings:
+//! ROS 2's CDR (XCDR1 little endian when writing; either byte order and XCDR2 when reading)
+//! and ROS 1's serialization (little endian, packed, strings without a NUL).
+//!
+//! A hetcomm message maps to a ROS type when its serde fields are named as the ROS type's:
+//! `struct Twist { linear: Vector3, angular: Vector3 }` with `struct Vector3 { x: f64, y: f64,
+//! z: f64 }` is `geometry_msgs/Twist`. Towards ROS, every ROS field must be present (numbers
+//! convert when they fit) and no other field may be: a mismatch is an error naming both types
+//! and the field. From ROS, the message becomes a map of every ROS field; a hetcomm struct may
+//! declare only some of them (serde ignores the rest).
+
+use rmpv::Value;
+
+use crate::schema::{RosType, Ty};
+
+/// A wire encoding of ROS messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wire {
+    /// ROS 2's CDR body (after the 4-byte encapsulation header). `little` is the byte order;
+    /// `xcdr2` caps alignment at 4 bytes. [`encode`] writes XCDR1 little endian only.
+    Cdr {
+        /// Little endian.
+        little: bool,
+        /// XCDR2 (8-byte values aligned to 4).
+        xcdr2: bool,
+    },
+    /// ROS 1's serialization of a message body (without TCPROS's 4-byte length): little
+    /// endian, no padding, strings as a `u32` length and the bytes, fixed arrays bare.
+    Ros1,
+}
+
+impl Wire {
+    /// What ROS 2 writes: XCDR1, little endian.
+    pub const CDR: Wire = Wire::Cdr {
+        little: true,
+        xcdr2: false,
+    };
+
+    /// Largest alignment (0: none, as in ROS 1).
+    fn max_align(self) -> usize {
+        match self {
+            Wire::Cdr { xcdr2: true, .. } => 4,
+            Wire::Cdr { .. } => 8,
+            Wire::Ros1 => 0,
+        }
+    }
+}
+
+/// Converts a MessagePack value (a hetcomm payload) into `ty`'s body in `wire` (CDR is
+/// written XCDR1 little endian whatever `wire` says). `what` names the hetcomm type in errors.
+pub fn encode(
+    value: &Value,
+    ty: &'static RosType,
+    wire: Wire,
+    what: &str,
+) -> Result<Vec<u8>, String> {
+    let mut w = Writer {
+        out: Vec::with_capacity(64),
+        cdr: wire != Wire::Ros1,
+    };
+    w.msg(value, ty, "")
+        .map_err(|e| format!("{what} does not convert to {}: {e}", ty.name))?;
+    Ok(w.out)
+}
+
+/// Reads `ty`'s body in `wire` into a MessagePack value: a map of every field by name. ROS 1
+/// bodies must end where the message does (trailing bytes are an error: another type).
+pub fn decode(body: &[u8], ty: &'static RosType, wire: Wire) -> Result<Value, String> {
+    let mut r = Reader {
+        body,
+        pos: 0,
+        little: !matches!(wire, Wire::Cdr { little: false, .. }),
+        max_align: wire.max_align(),
+    };
+    let v = r.msg(ty, "")?;
+    if wire == Wire::Ros1 && r.pos != body.len() {
+        return Err(format!(
+            "{} bytes are left after the message ({} bytes)",
+            body.len() - r.pos,
+            body.len()
+        ));
+    }
+    Ok(v)
+}
+
+fn field_path(prefix: &str, name: &str) -> String {
+    if prefix.is_empty() {
+        name.to_string()
+    } else {
+        format!("{prefix}.{name}")
+    }
+}
+
+fn kind_of(v: &Value) -> &'static str {
+    match v {
+        Value::Nil => "nil",
+        Value::Boolean(_) => "a boolean",
+        Value::Integer(_) => "an integer",
+        Value::F32(_) | Value::F64(_) => "a float",
+        Value::String(_) => "a string",
+        Value::Binary(_) => "bytes",
+        Value::Array(_) => "an array",
+        Value::Map(_) => "a map",
+        Value::Ext(..) => "an extension",
+    }
+}
+
+fn int_in(v: &Value, path: &str, min: i64, max: i64, ros: &str) -> Result<i64, String> {
+    let n = match v {
+        Value::Integer(i) => i.as_i64(),
+        _ => None,
+    };
+    match n {
+        Some(n) if (min..=max).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "field `{path}` is {} ({v}), the ROS field is {ros}",
+            kind_of(v)
+        )),
+    }
+}
+
+struct Writer {
+    out: Vec<u8>,
+    /// CDR (aligned, strings with a NUL) rather than ROS 1.
+    cdr: bool,
+}
+
+impl Writer {
+    fn put(&mut self, bytes: &[u8]) {
+        if self.cdr {
+            while !self.out.len().is_multiple_of(bytes.len()) {
+                self.out.push(0);
+            }
+        }
+        self.out.extend_from_slice(bytes);
+    }
+
+    fn msg(&mut self, value: &Value, ty: &RosType, path: &str) -> Result<(), String> {
+        let Value::Map(entries) = value else {
+            return Err(format!(
+                "`{}` is {}, {} is a message",
+                if path.is_empty() { "the message" } else { path },
+                kind_of(value),
+                ty.name
+            ));
+        };
+        for (k, _) in entries {
+            let name = k.as_str().unwrap_or_default();
+            if !ty.fields.iter().any(|(f, _)| *f == name) {
+                return Err(format!(
+                    "field `{}` has no counterpart in {}",
+                    field_path(path, name),
+                    ty.name
+                ));
+            }
+        }
+        for (name, fty) in ty.fields {
+            let p = field_path(path, name);
+            let v = entries
+                .iter()
+                .find(|(k, _)| k.as_str() == Some(name))
+                .map(|(_, v)| v)
+                .ok_or_else(|| format!("field `{p}` of {} is missing", ty.name))?;
+            self.value(v, fty, &p)?;
+        }
+        Ok(())
+    }
+
+    fn value(&mut self, v: &Value, ty: &Ty, path: &str) -> Result<(), String> {
+        match ty {
+            Ty::Bool => match v {
+                Value::Boolean(b) => self.out.push(*b as u8),
+                _ => {
+                    return Err(format!(
+                        "field `{path}` is {}, the ROS field is bool",
+                        kind_of(v)
+                    ))
+                }
+            },
+            Ty::I8 => {
+                let n = int_in(v, path, i8::MIN as i64, i8::MAX as i64, "int8")?;
+                self.out.push(n as i8 as u8)
+            }
+            Ty::U8 => self
+                .out
+                .push(int_in(v, path, 0, u8::MAX as i64, "uint8")? as u8),
+            Ty::U16 => {
+                let n = int_in(v, path, 0, u16::MAX as i64, "uint16")? as u16;
+                self.put(&n.to_le_bytes());
+            }
+            Ty::I32 => {
+                let n = int_in(v, path, i32::MIN as i64, i32::MAX as i64, "int32")? as i32;
+                self.put(&n.to_le_bytes());
+            }
+            Ty::U32 => {
+                let n = int_in(v, path, 0, u32::MAX as i64, "uint32")? as u32;
+                self.put(&n.to_le_bytes());
+            }
+            Ty::F64 => {
+                let x = match v {
+                    Value::F64(x) => *x,
+                    Value::F32(x) => *x as f64,
+                    Value::Integer(i) => i.as_f64().unwrap_or(f64::NAN),
+                    _ => {
+                        return Err(format!(
+                            "field `{path}` is {}, the ROS field is float64",
+                            kind_of(v)
+                        ))
+                    }
+                };
+                self.put(&x.to_le_bytes());
+            }
+            Ty::Str => {
+                let Value::String(s) = v else {
+                    return Err(format!(
+                        "field `{path}` is {}, the ROS field is string",
+                        kind_of(v)
+                    ));
+                };
+                let bytes = s.as_bytes();
+                // CDR counts and writes a terminating NUL; ROS 1 has none.
+                let nul = self.cdr as usize;
+                self.put(&((bytes.len() + nul) as u32).to_le_bytes());
+                self.out.extend_from_slice(bytes);
+                if self.cdr {
+                    self.out.push(0);
+                }
+            }
+            Ty::Array(elem, n) => {
+                let Value::Array(items) = v else {
+                    return Err(format!(
+                        "field `{path}` is {}, the ROS field is an array of {n}",
+                        kind_of(v)
+                    ));
+                };
+                if items.len() != *n {
+                    return Err(format!(
+                        "field `{path}` has {} elements, the ROS field has {n}",
+                        items.len()
+                    ));
+                }
+                for (i, item) in items.iter().enumerate() {
+                    self.value(item, elem, &format!("{path}[{i}]"))?;
+                }
+            }
+            Ty::Msg(inner) => self.msg(v, inner, path)?,
+        }
+        Ok(())
+    }
+}
+
+struct Reader<'a> {
+    body: &'a [u8],
+    pos: usize,
+    little: bool,
+    /// 8 for plain CDR, 4 for XCDR2, 0 for ROS 1 (no alignment, no NUL after strings).
+    max_align: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize, path: &str) -> Result<&[u8], String> {
+        let a = n.min(self.max_align);
+        if a > 1 && !self.pos.is_multiple_of(a) {
+            self.pos += a - self.pos % a;
+        }
+        let end = self.pos.saturating_add(n);
+        let bytes = self.body.get(self.pos..end).ok_or_else(|| {
+            format!(
+                "the message ends at byte {} while reading `{path}`",
+                self.body.len()
+            )
+        })?;
+        self.pos = end;
+        Ok(bytes)
+    }
+
+    fn num<const N: usize>(&mut self, path: &str) -> Result<[u8; N], String> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N, path)?);
+        if !self.little {
+            a.reverse();
+        }
+        Ok(a)
+    }
+
+    fn msg(&mut self, ty: &'static RosType, path: &str) -> Result<Value, String> {
+        let mut map = Vec::with_capacity(ty.fields.len());
+        for (name, fty) in ty.fields {
+            let p = field_path(path, name);
+            map.push((Value::from(*name), self.value(fty, &p)?));
+        }
+        Ok(Value::Map(map))
+    }
+
+    fn value(&mut self, ty: &Ty, path: &str) -> Result<Value, String> {
+        Ok(match ty {
+            Ty::Bool => Value::Boolean(self.take(1, path)?[0] != 0),
+            Ty::I8 => Value::from(self.take(1, path)?[0] as i8),
+            Ty::U8 => Value::from(self.take(1, path)?[0]),
+            Ty::U16 => Value::from(u16::from_le_bytes(self.num(path)?)),
+            Ty::I32 => Value::from(i32::from_le_bytes(self.num(path)?)),
+            Ty::U32 => Value::from(u32::from_le_bytes(self.num(path)?)),
+            Ty::F64 => Value::F64(f64::from_le_bytes(self.num(path)?)),
+            Ty::Str => {
+                let len = u32::from_le_bytes(self.num(path)?) as usize;
+                let cdr = self.max_align > 0;
+                if cdr && len == 0 {
+                    return Err(format!("string `{path}` has length 0 (no terminating NUL)"));
+                }
+                let raw = self
+                    .body
+                    .get(self.pos..self.pos.saturating_add(len))
+                    .ok_or_else(|| format!("string `{path}` runs past the end of the message"))?;
+                self.pos += len;
+                let text = if cdr { &raw[..len - 1] } else { raw };
+                let text = std::str::from_utf8(text)
+                    .map_err(|_| format!("string `{path}` is not UTF-8"))?;
+                Value::from(text)
+            }
+            Ty::Array(elem, n) => {
+                let mut items = Vec::with_capacity(*n);
+                for i in 0..*n {
+                    items.push(self.value(elem, &format!("{path}[{i}]"))?);
+                }
+                Value::Array(items)
+            }
+            Ty::Msg(inner) => self.msg(inner, path)?,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::schema::{ros1, ros2, FLOAT64, STRING, TWIST};
+
+    fn map(pairs: &[(&str, Value)]) -> Value {
+        Value::Map(
+            pairs
+                .iter()
+                .map(|(k, v)| (Value::from(*k), v.clone()))
+                .collect(),
+        )
+    }
+
+    fn vec3(x: f64, y: f64, z: f64) -> Value {
+        map(&[("x", x.into()), ("y", y.into()), ("z", z.into())])
+    }
+
+    fn pose() -> Value {
+        map(&[
+            ("position", vec3(1.0, 2.0, 0.0)),
+            (
+                "orientation",
+                map(&[
+                    ("x", 0.0.into()),
+                    ("y", 0.0.into()),
+                    ("z", 0.0.into()),
+                    ("w", 1.0.into()),
+                ]),
+            ),
+        ])
+    }
+
+    #[test]
+    fn a_twist_round_trips_and_its_cdr_is_what_ros_2_writes() {
+        let twist = map(&[
+            ("linear", vec3(0.5, 0.0, 0.0)),
+            ("angular", vec3(0.0, 0.0, 0.25)),
+        ]);
+        let cdr = encode(&twist, &TWIST, Wire::CDR, "Command (type 40)").unwrap();
+        assert_eq!(cdr.len(), 48);
+        assert_eq!(&cdr[..8], &0.5f64.to_le_bytes());
+        assert_eq!(decode(&cdr, &TWIST, Wire::CDR).unwrap(), twist);
+        // Six float64s have no padding either way: ROS 1's body is the same bytes.
+        assert_eq!(encode(&twist, &TWIST, Wire::Ros1, "C").unwrap(), cdr);
+    }
+
+    #[test]
+    fn strings_and_nested_headers_are_aligned_as_cdr_says() {
+        let header = map(&[
+            ("stamp", map(&[("sec", 5.into()), ("nanosec", 7u32.into())])),
+            ("frame_id", "map".into()),
+        ]);
+        let stamped = map(&[("header", header), ("pose", pose())]);
+        let cdr = encode(&stamped, &ros2::POSE_STAMPED, Wire::CDR, "Fix").unwrap();
+        // sec, nanosec, len 4, "map\0", then the first float64 at offset 16.
+        assert_eq!(&cdr[8..16], &[4, 0, 0, 0, b'm', b'a', b'p', 0]);
+        assert_eq!(&cdr[16..24], &1.0f64.to_le_bytes());
+        let back = decode(&cdr, &ros2::POSE_STAMPED, Wire::CDR).unwrap();
+        assert_eq!(back, stamped);
+    }
+
+    #[test]
+    fn ros_1_bodies_are_packed_with_a_seq_and_strings_without_nul() {
+        let header = map(&[
+            ("seq", 9u32.into()),
+            (
+                "stamp",
+                map(&[("secs", 5u32.into()), ("nsecs", 7u32.into())]),
+            ),
+            ("frame_id", "map".into()),
+        ]);
+        let stamped = map(&[("header", header), ("pose", pose())]);
+        let body = encode(&stamped, &ros1::POSE_STAMPED, Wire::Ros1, "Fix").unwrap();
+        // seq, secs, nsecs, len 3, "map", then the first float64 right after (byte 19).
+        assert_eq!(&body[..4], &9u32.to_le_bytes());
+        assert_eq!(&body[12..19], &[3, 0, 0, 0, b'm', b'a', b'p']);
+        assert_eq!(&body[19..27], &1.0f64.to_le_bytes());
+        assert_eq!(body.len(), 19 + 7 * 8);
+        assert_eq!(
+            decode(&body, &ros1::POSE_STAMPED, Wire::Ros1).unwrap(),
+            stamped
+        );
+        // A ROS 2 header is not a ROS 1 header: the field is named.
+        let ros2_header = map(&[
+            (
+                "header",
+                map(&[("stamp", map(&[])), ("frame_id", "".into())]),
+            ),
+            ("pose", pose()),
+        ]);
+        let err = encode(&ros2_header, &ros1::POSE_STAMPED, Wire::Ros1, "Fix").unwrap_err();
+        assert_eq!(
+            err,
+            "Fix does not convert to geometry_msgs/PoseStamped: field `header.seq` of \
+             std_msgs/Header is missing"
+        );
+    }
+
+    #[test]
+    fn mismatches_name_both_types_and_the_field() {
+        let missing = map(&[("linear", vec3(1.0, 0.0, 0.0))]);
+        assert_eq!(
+            encode(&missing, &TWIST, Wire::CDR, "Command (type 40)").unwrap_err(),
+            "Command (type 40) does not convert to geometry_msgs/Twist: field `angular` of \
+             geometry_msgs/Twist is missing"
+        );
+        let extra = map(&[("data", 1.0.into()), ("unit", "m".into())]);
+        assert_eq!(
+            encode(&extra, &FLOAT64, Wire::Ros1, "Range (type 7)").unwrap_err(),
+            "Range (type 7) does not convert to std_msgs/Float64: field `unit` has no \
+             counterpart in std_msgs/Float64"
+        );
+        let wrong = map(&[("data", "high".into())]);
+        assert_eq!(
+            encode(&wrong, &FLOAT64, Wire::CDR, "Range (type 7)").unwrap_err(),
+            "Range (type 7) does not convert to std_msgs/Float64: field `data` is a string, \
+             the ROS field is float64"
+        );
+    }
+
+    #[test]
+    fn truncated_or_garbled_bodies_are_an_error_not_a_panic() {
+        for wire in [Wire::CDR, Wire::Ros1] {
+            let body = encode(&map(&[("data", "hello".into())]), &STRING, wire, "T").unwrap();
+            for cut in 0..body.len() - 1 {
+                assert!(decode(&body[..cut], &STRING, wire).is_err(), "cut at {cut}");
+            }
+            let mut huge = body.clone();
+            huge[..4].copy_from_slice(&u32::MAX.to_le_bytes());
+            assert!(decode(&huge, &STRING, wire).is_err());
+            assert!(decode(&[1, 2, 3], &ros1::ODOMETRY, wire).is_err());
+        }
+        // A std_msgs/String "abcdef" read as a Float64 on ROS 1 is refused for its length.
+        let s = encode(&map(&[("data", "abcdef".into())]), &STRING, Wire::Ros1, "T").unwrap();
+        assert_eq!(
+            decode(&s, &FLOAT64, Wire::Ros1).unwrap_err(),
+            "2 bytes are left after the message (10 bytes)"
+        );
+    }
+}

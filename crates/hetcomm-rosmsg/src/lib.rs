@@ -1,0 +1,18 @@
+//! # hetcomm-rosmsg — what the ROS 1 and ROS 2 bridges share
+//!
+//! The `ros1_bridge` (crate `hetcomm-link-ros1`) and `ros2_bridge` (crate
+//! `hetcomm-link-ros2`) transport kinds put an external ROS robot in a fleet through typed
+//! topics (docs/ros-bridges.md). Everything about them that does not depend on the ROS
+//! transport is here, once:
+//!
+//! * [`schema`]: the 7 standard types a bridge maps, for ROS 1 and ROS 2 (they differ only in
+//!   `std_msgs/Header`);
+//! * [`codec`]: conversion between a hetcomm payload and a ROS message body, by serde field
+//!   name, in ROS 1's serialization or ROS 2's CDR;
+//! * [`msgs`]: Rust types of those messages whose serde names are the ROS names;
+//! * [`bridge`]: reading a bridge's fleet-file table, and the receive and report helpers.
+
+pub mod bridge;
+pub mod codec;
+pub mod msgs;
+pub mod schema;
