@@ -54,7 +54,16 @@ def main() -> int:
 
     inbox: "queue.Queue[bytes]" = queue.Queue()
     me = f"{a.prefix}/sys/{a.name}"
-    sub = session.declare_subscriber(me, lambda s: inbox.put(bytes(s.payload.to_bytes())))
+    def frames(put: bytes) -> None:
+        """A put carries one frame or several back to back (docs/zenoh.md): queues each."""
+        while put:
+            declared = (docport.HEADER_LEN + int.from_bytes(put[40:44], "little")
+                        if len(put) >= docport.HEADER_LEN else len(put))
+            n = declared if declared <= len(put) else len(put)
+            inbox.put(put[:n])
+            put = put[n:]
+
+    sub = session.declare_subscriber(me, lambda s: frames(bytes(s.payload.to_bytes())))
     token = session.liveliness().declare_token(f"{a.prefix}/live/{a.name}")
     present = set()
     live = session.liveliness().declare_subscriber(
