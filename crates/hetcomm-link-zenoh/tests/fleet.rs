@@ -265,3 +265,67 @@ fn a_malformed_put_is_counted_and_dropped() {
     assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome}");
     let _ = raw.close().wait();
 }
+
+/// A put may carry several frames back to back (docs/zenoh.md): a plain Zenoh client puts two
+/// data frames from A in one put on B's key, and B's module takes both, in order.
+#[test]
+fn frames_back_to_back_in_one_put_are_each_delivered() {
+    use hetcomm_core::wire::{self, Header};
+    use hetcomm_core::{Address, ModuleId, SystemId};
+    let (_router, endpoint) = common::router();
+    let prefix = common::unique_prefix();
+    let fleet = hetcomm::parse_fleet(
+        &fleet_text(&client_keys(&endpoint, &prefix, "")),
+        "z.toml",
+        None,
+    )
+    .expect("valid fleet");
+    let b = Comm::open_fleet(&fleet, "B").expect("open B");
+    let m = b.module("M").unwrap();
+    let mut c = zenoh::Config::default();
+    c.insert_json5("mode", "\"client\"").unwrap();
+    c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    let raw = zenoh::open(c).wait().expect("raw session");
+    let mut put = Vec::new();
+    for seq in 1..=2u64 {
+        let mut h = Header::data(
+            Address {
+                system: SystemId(0),
+                module: ModuleId(0),
+            },
+            Address {
+                system: SystemId(1),
+                module: ModuleId(0),
+            },
+            hetcomm_core::MessageType(9),
+        );
+        h.seq = seq;
+        h.incarnation = 7;
+        // MessagePack `false` and `true`.
+        put.extend_from_slice(&wire::encode(&h, &[0xc1 + seq as u8]));
+    }
+    // Until B's subscription has reached the router, a put may go nowhere: repeat it (B
+    // drops the duplicates) until the first frame arrives.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let first = loop {
+        raw.put(data_key(&prefix, "B"), put.clone())
+            .wait()
+            .expect("put");
+        if let Ok(msg) = m.recv_raw_timeout(Some(Duration::from_millis(100))) {
+            break msg;
+        }
+        assert!(Instant::now() < deadline, "nothing arrived");
+    };
+    let second = m
+        .recv_raw_timeout(Some(Duration::from_secs(5)))
+        .expect("the second frame of the put");
+    assert_eq!(
+        (&first.payload[..], &second.payload[..]),
+        (&[0xc2][..], &[0xc3][..])
+    );
+    assert_eq!(b.stats().router.malformed, 0);
+    let _ = raw.close().wait();
+}
