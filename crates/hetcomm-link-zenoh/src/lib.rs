@@ -64,15 +64,14 @@ pub mod factory;
 mod presence;
 pub mod router;
 
-use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
-use hetcomm_core::wire::HEADER_LEN;
-use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_core::{BufferPool, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link_ip::udp::{batch_records, BATCH_MAGIC, BATCH_VERSION};
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::Wait;
@@ -152,8 +151,8 @@ struct Dest {
     publishers: RwLock<Option<Arc<Publishers>>>,
     /// [`micros`] at the last put to this destination.
     last_put_us: AtomicU64,
-    /// Frames held back by [`Link::send_held`], back to back, for one put.
-    held: Mutex<Vec<u8>>,
+    /// Frames held back by [`Link::send_held`], for one put.
+    held: Mutex<Held>,
 }
 
 /// Held frames to one destination are put together once they reach this many bytes.
@@ -175,25 +174,68 @@ struct Publishers {
 /// throughput 25-fold).
 const EXPRESS_AFTER_IDLE_US: u64 = 50;
 
-/// The frames of one put's payload: one frame, or several back to back (each is 48 bytes of
-/// header plus the `payload_len` at offset 40). Bytes that do not split into whole frames end
-/// the iteration as one piece, which the router's decoder then refuses (and counts).
-fn frames_in(mut payload: &[u8]) -> impl Iterator<Item = &[u8]> {
-    std::iter::from_fn(move || {
-        if payload.is_empty() {
-            return None;
+/// Capacity of received large frames a link keeps for reuse ([`BufferPool`]).
+const RECEIVE_POOL_BYTES: usize = 4 << 20;
+
+/// The header of a put that carries several frames: the UDP batch header
+/// (`docs/wire-format.md`, "UDP batches"), then one record per frame.
+const BATCH_HEADER: [u8; 4] = [BATCH_MAGIC[0], BATCH_MAGIC[1], BATCH_VERSION, 0];
+
+/// Frames held for one destination: a batch put being written.
+#[derive(Default)]
+struct Held {
+    /// [`BATCH_HEADER`], then a record (u32 length, little-endian, and the frame) per frame.
+    put: Vec<u8>,
+    frames: u64,
+}
+
+impl Held {
+    fn push(&mut self, head: &[u8], body: &[u8]) {
+        if self.put.is_empty() {
+            self.put.extend_from_slice(&BATCH_HEADER);
         }
-        let declared = payload
-            .get(40..44)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize + HEADER_LEN);
-        let len = match declared {
-            Some(len) if len <= payload.len() => len,
-            _ => payload.len(),
-        };
-        let (frame, rest) = payload.split_at(len);
-        payload = rest;
-        Some(frame)
-    })
+        self.put
+            .extend_from_slice(&((head.len() + body.len()) as u32).to_le_bytes());
+        self.put.extend_from_slice(head);
+        self.put.extend_from_slice(body);
+        self.frames += 1;
+    }
+
+    /// The put for what is held (a lone frame as it is, unless it would read as a batch),
+    /// and the number of frames in it; nothing is held after.
+    fn take(&mut self) -> (Vec<u8>, u64) {
+        let (mut put, frames) = (
+            std::mem::take(&mut self.put),
+            std::mem::take(&mut self.frames),
+        );
+        let record = BATCH_HEADER.len() + 4;
+        if frames == 1 && !put[record..].starts_with(&BATCH_MAGIC) {
+            put.drain(..record);
+        }
+        (put, frames)
+    }
+}
+
+/// Hands the frames of one put to `sink`: a batch (it starts with [`BATCH_MAGIC`]) frame by
+/// frame, anything else as one frame. A batch with a header this version does not read, or
+/// with a malformed tail, counts one drop (its whole records still go up).
+fn deliver(sink: &dyn FrameSink, counters: &Counters, put: &[u8]) {
+    if !put.starts_with(&BATCH_MAGIC) {
+        counters.received.fetch_add(1, Ordering::Relaxed);
+        return sink.on_frame(put, Peer::Unknown);
+    }
+    let Some(records) = batch_records(put) else {
+        counters.dropped.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    let mut walk = records.clone();
+    counters
+        .received
+        .fetch_add(walk.by_ref().count() as u64, Ordering::Relaxed);
+    if !walk.rest().is_empty() {
+        counters.dropped.fetch_add(1, Ordering::Relaxed);
+    }
+    sink.on_frames(&mut records.clone(), Peer::Unknown);
 }
 
 /// Microseconds since the first call in this process.
@@ -286,31 +328,32 @@ impl ZenohLink {
         let counters = Arc::new(Counters::default());
         let rx_counters = counters.clone();
         let takes_frames = sink.takes_frames();
+        let pool = BufferPool::new(RECEIVE_POOL_BYTES);
         let sub = session
             .declare_subscriber(data_key(&s.prefix, &local_name))
             .callback(move |sample| {
-                let bytes = sample.payload().to_bytes();
-                if bytes.is_empty() {
+                let payload = sample.payload();
+                if payload.is_empty() {
                     rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
                     return;
                 }
                 IN_CALLBACK.with(|c| c.set(true));
-                let whole = frames_in(&bytes).next().map_or(0, <[u8]>::len) == bytes.len();
-                if whole {
-                    rx_counters.received.fetch_add(1, Ordering::Relaxed);
-                    match bytes {
-                        // A frame Zenoh carried in fragments has just been joined into a
-                        // buffer of its own: the sink may keep it (as the message's payload)
-                        // rather than copy it once more.
-                        Cow::Owned(frame) if takes_frames => {
-                            sink.on_frame_owned(FrameBuf::from(frame), Peer::Unknown)
-                        }
-                        bytes => sink.on_frame(&bytes, Peer::Unknown),
+                let contiguous = payload.slices().nth(1).is_none();
+                if !contiguous && takes_frames {
+                    // A frame Zenoh carried in fragments: joined into a buffer of the link's
+                    // pool that the sink keeps (as the message's payload) rather than copies
+                    // once more; it comes back to the pool when the message is dropped (a
+                    // fresh allocation per large frame costs page faults).
+                    let mut buf = pool.take(payload.len());
+                    payload.slices().for_each(|s| buf.extend_from_slice(s));
+                    if buf.starts_with(&BATCH_MAGIC) {
+                        deliver(&*sink, &rx_counters, &buf);
+                    } else {
+                        rx_counters.received.fetch_add(1, Ordering::Relaxed);
+                        sink.on_frame_owned(pool.wrap(buf), Peer::Unknown);
                     }
                 } else {
-                    let n = frames_in(&bytes).count() as u64;
-                    rx_counters.received.fetch_add(n, Ordering::Relaxed);
-                    sink.on_frames(&mut frames_in(&bytes), Peer::Unknown);
+                    deliver(&*sink, &rx_counters, &payload.to_bytes());
                 }
                 IN_CALLBACK.with(|c| c.set(false));
             })
@@ -333,7 +376,7 @@ impl ZenohLink {
                         name: name.clone(),
                         publishers: RwLock::new(None),
                         last_put_us: AtomicU64::new(0),
-                        held: Mutex::new(Vec::new()),
+                        held: Mutex::new(Held::default()),
                     },
                 )
             })
@@ -449,12 +492,12 @@ impl ZenohLink {
     }
 
     /// Puts what is held for `dest` now; the frames of a put that fails are counted dropped.
-    fn put_held(&self, to: SystemId, dest: &Dest, held: &mut Vec<u8>) -> Result<(), LinkError> {
-        if held.is_empty() {
+    fn put_held(&self, to: SystemId, dest: &Dest, held: &mut Held) -> Result<(), LinkError> {
+        if held.frames == 0 {
             return Ok(());
         }
-        let frames = frames_in(held).count() as u64;
-        let result = self.put(to, dest, std::mem::take(held), frames);
+        let (put, frames) = held.take();
+        let result = self.put(to, dest, put, frames);
         if result.is_err() {
             self.counters.dropped.fetch_add(frames, Ordering::Relaxed);
         }
@@ -507,7 +550,7 @@ impl Link for ZenohLink {
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
         let dest = self.reachable(to, head.len() + body.len())?;
         let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
-        if held.is_empty() {
+        if held.frames == 0 && !head.starts_with(&BATCH_MAGIC) {
             drop(held);
             // The one copy of the frame: Zenoh keeps the put's payload until it is sent.
             let mut frame = Vec::with_capacity(head.len() + body.len());
@@ -516,8 +559,7 @@ impl Link for ZenohLink {
             return self.put(to, dest, frame, 1);
         }
         // After the frames held for the same destination, in the same put.
-        held.extend_from_slice(head);
-        held.extend_from_slice(body);
+        held.push(head, body);
         self.put_held(to, dest, &mut held)
     }
 
@@ -532,8 +574,8 @@ impl Link for ZenohLink {
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         let dest = self.reachable(to, frame.len())?;
         let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
-        held.extend_from_slice(frame);
-        if held.len() < HELD_MAX {
+        held.push(frame, &[]);
+        if held.put.len() < HELD_MAX {
             return Ok(());
         }
         self.put_held(to, dest, &mut held)
@@ -584,24 +626,22 @@ impl Drop for ZenohLink {
 mod tests {
     use super::*;
 
-    fn frame(payload_len: u32) -> Vec<u8> {
-        let mut f = vec![0u8; HEADER_LEN + payload_len as usize];
-        f[40..44].copy_from_slice(&payload_len.to_le_bytes());
-        f
-    }
-
     #[test]
-    fn a_put_splits_into_its_frames_and_a_bad_tail_stays_whole() {
-        let mut put = frame(3);
-        put.extend(frame(0));
-        let lens: Vec<usize> = frames_in(&put).map(<[u8]>::len).collect();
-        assert_eq!(lens, [51, 48]);
-        // A length that runs past the end, or fewer bytes than a header: one piece.
-        put.extend(&frame(100)[..60]);
-        let lens: Vec<usize> = frames_in(&put).map(<[u8]>::len).collect();
-        assert_eq!(lens, [51, 48, 60]);
-        let lens: Vec<usize> = frames_in(b"not a frame").map(<[u8]>::len).collect();
-        assert_eq!(lens, [11]);
-        assert_eq!(frames_in(&[]).count(), 0);
+    fn held_frames_make_a_batch_and_a_lone_frame_goes_bare() {
+        let mut held = Held::default();
+        held.push(b"HCone", &[]);
+        assert_eq!(held.take(), (b"HCone".to_vec(), 1));
+        held.push(b"HC", b"two");
+        held.push(b"", &[]);
+        let (put, frames) = held.take();
+        assert_eq!(frames, 2);
+        let got: Vec<&[u8]> = batch_records(&put).unwrap().collect();
+        assert_eq!(got, [&b"HCtwo"[..], &b""[..]]);
+        // A lone frame that would read as a batch stays one.
+        held.push(b"HBnot a batch", &[]);
+        let (put, _) = held.take();
+        let got: Vec<&[u8]> = batch_records(&put).unwrap().collect();
+        assert_eq!(got, [&b"HBnot a batch"[..]]);
+        assert_eq!(held.take(), (Vec::new(), 0));
     }
 }

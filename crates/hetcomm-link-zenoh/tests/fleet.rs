@@ -266,10 +266,11 @@ fn a_malformed_put_is_counted_and_dropped() {
     let _ = raw.close().wait();
 }
 
-/// A put may carry several frames back to back (docs/zenoh.md): a plain Zenoh client puts two
-/// data frames from A in one put on B's key, and B's module takes both, in order.
+/// A put may carry several frames as a batch (docs/zenoh.md: the UDP batch layout): a plain
+/// Zenoh client puts two data frames from A in one put on B's key, and B's module takes both,
+/// in order.
 #[test]
-fn frames_back_to_back_in_one_put_are_each_delivered() {
+fn a_batch_of_frames_in_one_put_is_delivered_frame_by_frame() {
     use hetcomm_core::wire::{self, Header};
     use hetcomm_core::{Address, ModuleId, SystemId};
     let (_router, endpoint) = common::router();
@@ -289,7 +290,8 @@ fn frames_back_to_back_in_one_put_are_each_delivered() {
     c.insert_json5("scouting/multicast/enabled", "false")
         .unwrap();
     let raw = zenoh::open(c).wait().expect("raw session");
-    let mut put = Vec::new();
+    // The batch header: "HB", version 1, a reserved zero; then (u32 length, frame) records.
+    let mut put = b"HB\x01\x00".to_vec();
     for seq in 1..=2u64 {
         let mut h = Header::data(
             Address {
@@ -305,7 +307,9 @@ fn frames_back_to_back_in_one_put_are_each_delivered() {
         h.seq = seq;
         h.incarnation = 7;
         // MessagePack `false` and `true`.
-        put.extend_from_slice(&wire::encode(&h, &[0xc1 + seq as u8]));
+        let frame = wire::encode(&h, &[0xc1 + seq as u8]);
+        put.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+        put.extend_from_slice(&frame);
     }
     // Until B's subscription has reached the router, a put may go nowhere: repeat it (B
     // drops the duplicates) until the first frame arrives.

@@ -55,13 +55,19 @@ def main() -> int:
     inbox: "queue.Queue[bytes]" = queue.Queue()
     me = f"{a.prefix}/sys/{a.name}"
     def frames(put: bytes) -> None:
-        """A put carries one frame or several back to back (docs/zenoh.md): queues each."""
-        while put:
-            declared = (docport.HEADER_LEN + int.from_bytes(put[40:44], "little")
-                        if len(put) >= docport.HEADER_LEN else len(put))
-            n = declared if declared <= len(put) else len(put)
-            inbox.put(put[:n])
-            put = put[n:]
+        """A put is one frame, or a batch of them (docs/zenoh.md): queues each frame."""
+        if not put.startswith(b"HB"):
+            inbox.put(put)
+            return
+        if put[:4] != b"HB\x01\x00":
+            return  # a batch version this program does not read
+        rest = put[4:]
+        while len(rest) >= 4:
+            n = int.from_bytes(rest[:4], "little")
+            if n > len(rest) - 4:
+                return  # a malformed tail
+            inbox.put(rest[4:4 + n])
+            rest = rest[4 + n:]
 
     sub = session.declare_subscriber(me, lambda s: frames(bytes(s.payload.to_bytes())))
     token = session.liveliness().declare_token(f"{a.prefix}/live/{a.name}")
