@@ -226,19 +226,24 @@ fn unacknowledged_sends_are_sent_and_arrive_between_peers_through_a_router() {
     assert_eq!(got, (0..50).collect::<Vec<u8>>());
 }
 
-#[test]
-fn a_malformed_put_is_counted_and_dropped() {
-    let (_router, endpoint) = common::router();
-    let prefix = common::unique_prefix();
-    let (a, b) = open_pair(&client_keys(&endpoint, &prefix, ""));
-    // A plain Zenoh client puts bytes that are not a frame on B's key.
+/// A plain Zenoh client of the router at `endpoint` (not a hetcomm system).
+fn raw_client(endpoint: &str) -> zenoh::Session {
     let mut c = zenoh::Config::default();
     c.insert_json5("mode", "\"client\"").unwrap();
     c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
         .unwrap();
     c.insert_json5("scouting/multicast/enabled", "false")
         .unwrap();
-    let raw = zenoh::open(c).wait().expect("raw session");
+    zenoh::open(c).wait().expect("raw session")
+}
+
+#[test]
+fn a_malformed_put_is_counted_and_dropped() {
+    let (_router, endpoint) = common::router();
+    let prefix = common::unique_prefix();
+    let (a, b) = open_pair(&client_keys(&endpoint, &prefix, ""));
+    // A plain Zenoh client puts bytes that are not a frame on B's key.
+    let raw = raw_client(&endpoint);
     let key = data_key(&prefix, "B");
     let deadline = Instant::now() + Duration::from_secs(10);
     while b.stats().router.malformed == 0 {
@@ -283,13 +288,7 @@ fn a_batch_of_frames_in_one_put_is_delivered_frame_by_frame() {
     .expect("valid fleet");
     let b = Comm::open_fleet(&fleet, "B").expect("open B");
     let m = b.module("M").unwrap();
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", "\"client\"").unwrap();
-    c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    let raw = zenoh::open(c).wait().expect("raw session");
+    let raw = raw_client(&endpoint);
     // The batch header: "HB", version 1, a reserved zero; then (u32 length, frame) records.
     let mut put = b"HB\x01\x00".to_vec();
     for seq in 1..=2u64 {
