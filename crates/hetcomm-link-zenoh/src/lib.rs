@@ -13,7 +13,7 @@
 //!
 //! | key expression | what |
 //! |---|---|
-//! | `<prefix>/sys/Bravo` | frames for Bravo: one put per frame, the payload is the frame byte for byte (`docs/wire-format.md`) |
+//! | `<prefix>/sys/Bravo` | frames for Bravo: a put's payload is one frame byte for byte (`docs/wire-format.md`), or several held frames as a batch in the UDP batch layout (`"HB"` header, length-prefixed records) |
 //! | `<prefix>/live/Bravo` | Bravo's liveliness token, declared while its link is open |
 //!
 //! A system subscribes once, to its own `sys` key; the module a frame is for is in the frame's
@@ -22,7 +22,8 @@
 //!
 //! ## What the link guarantees
 //!
-//! [`LinkCaps`]: `reliable = false`, `ordered = false`. Puts go on Zenoh's reliable channel with
+//! [`LinkCaps`]: `reliable = false`, `ordered = false`; the link batches ([`Link::send_held`])
+//! and checksums payloads (Zenoh over TCP delivers a message whole or not at all). Puts go on Zenoh's reliable channel with
 //! congestion control `Block` (a full queue makes the put wait, never drops the frame:
 //! `Drop` congestion control discards messages without telling the application, zenoh issues
 //! #1835, #2258, #2587), but Zenoh still loses what is put before the destination's
@@ -57,7 +58,8 @@
 //! callback's reply) never waits for presence: to a system never seen it puts anyway (that
 //! system has just sent a frame), to one seen leaving it fails at once. A sink that blocks
 //! (an inbox full under the `block` policy) holds Zenoh's reader: backpressure, not loss.
-//! [`Link::send`] puts on the caller's thread.
+//! [`Link::send`] puts on the caller's thread: `express` after the destination was idle for
+//! 50 µs, left to Zenoh's batching when frames follow closer.
 
 mod config;
 pub mod factory;
@@ -66,11 +68,12 @@ pub mod router;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{BufferPool, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link_ip::udp::{batch_records, BATCH_MAGIC, BATCH_VERSION};
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::Wait;
@@ -143,10 +146,107 @@ pub enum OpenError {
     Zenoh(String),
 }
 
-/// One destination: its name and the publisher on its data key, declared on first use.
+/// One destination: its name, the publishers on its data key (declared on first use) and when
+/// the last frame was put to it.
 struct Dest {
     name: String,
-    publisher: RwLock<Option<Arc<Publisher<'static>>>>,
+    publishers: RwLock<Option<Arc<Publishers>>>,
+    /// [`micros`] at the last put to this destination.
+    last_put_us: AtomicU64,
+    /// Frames held back by [`Link::send_held`], for one put.
+    held: Mutex<Held>,
+}
+
+/// Held frames to one destination are put together once they reach this many bytes.
+const HELD_MAX: usize = 32 * 1024;
+
+/// Two publishers on one data key, with the same reliability and congestion control: frames
+/// put through `express` leave at once, each in its own Zenoh batch; frames put through
+/// `batched` may share a batch with the frames put right after them. Both go through the same
+/// Zenoh queue, in the order they are put.
+struct Publishers {
+    express: Publisher<'static>,
+    batched: Publisher<'static>,
+}
+
+/// A frame put to a destination that has had nothing for this long goes `express`: the
+/// destination is probably waiting for it (a request, a reply, an acknowledgement), and
+/// express saves the Zenoh transmitter's look for more frames to batch with it. Frames that
+/// follow closer than this are a stream and are batched (express for every frame cuts 64 B
+/// throughput 25-fold).
+const EXPRESS_AFTER_IDLE_US: u64 = 50;
+
+/// Capacity of received large frames a link keeps for reuse ([`BufferPool`]).
+const RECEIVE_POOL_BYTES: usize = 4 << 20;
+
+/// The header of a put that carries several frames: the UDP batch header
+/// (`docs/wire-format.md`, "UDP batches"), then one record per frame.
+const BATCH_HEADER: [u8; 4] = [BATCH_MAGIC[0], BATCH_MAGIC[1], BATCH_VERSION, 0];
+
+/// Frames held for one destination: a batch put being written.
+#[derive(Default)]
+struct Held {
+    /// [`BATCH_HEADER`], then a record (u32 length, little-endian, and the frame) per frame.
+    put: Vec<u8>,
+    frames: u64,
+}
+
+impl Held {
+    fn push(&mut self, head: &[u8], body: &[u8]) {
+        if self.put.is_empty() {
+            self.put.extend_from_slice(&BATCH_HEADER);
+        }
+        self.put
+            .extend_from_slice(&((head.len() + body.len()) as u32).to_le_bytes());
+        self.put.extend_from_slice(head);
+        self.put.extend_from_slice(body);
+        self.frames += 1;
+    }
+
+    /// The put for what is held (a lone frame as it is, unless it would read as a batch),
+    /// and the number of frames in it; nothing is held after.
+    fn take(&mut self) -> (Vec<u8>, u64) {
+        let (mut put, frames) = (
+            std::mem::take(&mut self.put),
+            std::mem::take(&mut self.frames),
+        );
+        let record = BATCH_HEADER.len() + 4;
+        if frames == 1 && !put[record..].starts_with(&BATCH_MAGIC) {
+            put.drain(..record);
+        }
+        (put, frames)
+    }
+}
+
+/// Hands the frames of one put to `sink`: a batch (it starts with [`BATCH_MAGIC`]) frame by
+/// frame, anything else as one frame. A batch with a header this version does not read, or
+/// with a malformed tail, counts one drop (its whole records still go up).
+fn deliver(sink: &dyn FrameSink, counters: &Counters, put: &[u8]) {
+    if !put.starts_with(&BATCH_MAGIC) {
+        counters.received.fetch_add(1, Ordering::Relaxed);
+        return sink.on_frame(put, Peer::Unknown);
+    }
+    let Some(records) = batch_records(put) else {
+        counters.dropped.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    let mut walk = records.clone();
+    counters
+        .received
+        .fetch_add(walk.by_ref().count() as u64, Ordering::Relaxed);
+    if !walk.rest().is_empty() {
+        counters.dropped.fetch_add(1, Ordering::Relaxed);
+    }
+    sink.on_frames(&mut records.clone(), Peer::Unknown);
+}
+
+/// Microseconds since the first call in this process.
+fn micros() -> u64 {
+    static EPOCH: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    EPOCH
+        .get_or_init(std::time::Instant::now)
+        .elapsed()
+        .as_micros() as u64
 }
 
 #[derive(Default)]
@@ -229,17 +329,34 @@ impl ZenohLink {
         // wake-up that crosses CPUs costs tens of microseconds a frame).
         let counters = Arc::new(Counters::default());
         let rx_counters = counters.clone();
+        let takes_frames = sink.takes_frames();
+        let pool = BufferPool::new(RECEIVE_POOL_BYTES);
         let sub = session
             .declare_subscriber(data_key(&s.prefix, &local_name))
             .callback(move |sample| {
-                let bytes = sample.payload().to_bytes();
-                if bytes.is_empty() {
+                let payload = sample.payload();
+                if payload.is_empty() {
                     rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
                     return;
                 }
-                rx_counters.received.fetch_add(1, Ordering::Relaxed);
                 IN_CALLBACK.with(|c| c.set(true));
-                sink.on_frame(&bytes, Peer::Unknown);
+                let contiguous = payload.slices().nth(1).is_none();
+                if !contiguous && takes_frames {
+                    // A frame Zenoh carried in fragments: joined into a buffer of the link's
+                    // pool that the sink keeps (as the message's payload) rather than copies
+                    // once more; it comes back to the pool when the message is dropped (a
+                    // fresh allocation per large frame costs page faults).
+                    let mut buf = pool.take(payload.len());
+                    payload.slices().for_each(|s| buf.extend_from_slice(s));
+                    if buf.starts_with(&BATCH_MAGIC) {
+                        deliver(&*sink, &rx_counters, &buf);
+                    } else {
+                        rx_counters.received.fetch_add(1, Ordering::Relaxed);
+                        sink.on_frame_owned(pool.wrap(buf), Peer::Unknown);
+                    }
+                } else {
+                    deliver(&*sink, &rx_counters, &payload.to_bytes());
+                }
                 IN_CALLBACK.with(|c| c.set(false));
             })
             .wait()
@@ -259,7 +376,9 @@ impl ZenohLink {
                     *id,
                     Dest {
                         name: name.clone(),
-                        publisher: RwLock::new(None),
+                        publishers: RwLock::new(None),
+                        last_put_us: AtomicU64::new(0),
+                        held: Mutex::new(Held::default()),
                     },
                 )
             })
@@ -298,44 +417,12 @@ impl ZenohLink {
         self.session.zid().to_string()
     }
 
-    fn publisher(&self, to: SystemId, dest: &Dest) -> Result<Arc<Publisher<'static>>, LinkError> {
-        if let Some(p) = &*dest.publisher.read().unwrap_or_else(|e| e.into_inner()) {
-            return Ok(p.clone());
-        }
-        let mut slot = dest.publisher.write().unwrap_or_else(|e| e.into_inner());
-        if let Some(p) = &*slot {
-            return Ok(p.clone());
-        }
-        let publisher = self
-            .session
-            .declare_publisher(data_key(&self.prefix, &dest.name))
-            .congestion_control(CongestionControl::Block)
-            .wait()
-            .map_err(|e| LinkError::Unreachable {
-                peer: to,
-                reason: format!("zenoh publisher for {}: {e}", dest.name),
-            })?;
-        let publisher = Arc::new(publisher);
-        *slot = Some(publisher.clone());
-        Ok(publisher)
-    }
-}
-
-impl Link for ZenohLink {
-    fn caps(&self) -> LinkCaps {
-        LinkCaps {
-            max_frame: MAX_FRAME,
-            mtu: MAX_FRAME,
-            reliable: false,
-            ordered: false,
-            broadcast: false,
-        }
-    }
-
-    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        if frame.len() > MAX_FRAME {
+    /// The destination `to`, if a frame of `len` bytes may be put to it now (see the crate
+    /// docs on presence).
+    fn reachable(&self, to: SystemId, len: usize) -> Result<&Dest, LinkError> {
+        if len > MAX_FRAME {
             return Err(LinkError::TooLarge {
-                len: frame.len(),
+                len,
                 max: MAX_FRAME,
             });
         }
@@ -377,16 +464,139 @@ impl Link for ZenohLink {
                 })
             }
         }
-        let publisher = self.publisher(to, dest)?;
-        publisher
-            .put(frame.to_vec())
-            .wait()
-            .map_err(|e| LinkError::Unreachable {
+        Ok(dest)
+    }
+
+    /// Puts `payload` (one frame or several back to back) on `dest`'s data key: `express` when
+    /// nothing went to it for [`EXPRESS_AFTER_IDLE_US`], batched by Zenoh otherwise.
+    fn put(
+        &self,
+        to: SystemId,
+        dest: &Dest,
+        payload: Vec<u8>,
+        frames: u64,
+    ) -> Result<(), LinkError> {
+        let publishers = self.publishers(to, dest)?;
+        let now = micros();
+        let last = dest.last_put_us.swap(now, Ordering::Relaxed);
+        let publisher = match now.saturating_sub(last) >= EXPRESS_AFTER_IDLE_US {
+            true => &publishers.express,
+            false => &publishers.batched,
+        };
+        if let Err(e) = publisher.put(payload).wait() {
+            return Err(LinkError::Unreachable {
                 peer: to,
                 reason: format!("zenoh put to {}: {e}", dest.name),
-            })?;
-        self.counters.sent.fetch_add(1, Ordering::Relaxed);
+            });
+        }
+        self.counters.sent.fetch_add(frames, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// Puts what is held for `dest` now; the frames of a put that fails are counted dropped.
+    fn put_held(&self, to: SystemId, dest: &Dest, held: &mut Held) -> Result<(), LinkError> {
+        if held.frames == 0 {
+            return Ok(());
+        }
+        let (put, frames) = held.take();
+        let result = self.put(to, dest, put, frames);
+        if result.is_err() {
+            self.counters.dropped.fetch_add(frames, Ordering::Relaxed);
+        }
+        result
+    }
+
+    fn publishers(&self, to: SystemId, dest: &Dest) -> Result<Arc<Publishers>, LinkError> {
+        if let Some(p) = &*dest.publishers.read().unwrap_or_else(|e| e.into_inner()) {
+            return Ok(p.clone());
+        }
+        let mut slot = dest.publishers.write().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = &*slot {
+            return Ok(p.clone());
+        }
+        let declare = |express: bool| {
+            self.session
+                .declare_publisher(data_key(&self.prefix, &dest.name))
+                .congestion_control(CongestionControl::Block)
+                .express(express)
+                .wait()
+                .map_err(|e| LinkError::Unreachable {
+                    peer: to,
+                    reason: format!("zenoh publisher for {}: {e}", dest.name),
+                })
+        };
+        let publishers = Arc::new(Publishers {
+            express: declare(true)?,
+            batched: declare(false)?,
+        });
+        *slot = Some(publishers.clone());
+        Ok(publishers)
+    }
+}
+
+impl Link for ZenohLink {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: MAX_FRAME,
+            mtu: MAX_FRAME,
+            reliable: false,
+            ordered: false,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.send_parts(to, frame, &[])
+    }
+
+    fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
+        let dest = self.reachable(to, head.len() + body.len())?;
+        let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+        if held.frames == 0 && !head.starts_with(&BATCH_MAGIC) {
+            drop(held);
+            // The one copy of the frame: Zenoh keeps the put's payload until it is sent.
+            let mut frame = Vec::with_capacity(head.len() + body.len());
+            frame.extend_from_slice(head);
+            frame.extend_from_slice(body);
+            return self.put(to, dest, frame, 1);
+        }
+        // After the frames held for the same destination, in the same put.
+        held.push(head, body);
+        self.put_held(to, dest, &mut held)
+    }
+
+    /// True: this build carries Zenoh over TCP only, whose checksummed connections deliver
+    /// each Zenoh message whole and unaltered or not at all, hop by hop (through routers
+    /// too), as the `tcp` transport's stream does. So frames may carry a header-only CRC
+    /// (`FLAG_HEADER_CRC`) and large payloads go to [`Link::send_parts`] uncopied.
+    fn checksums_payload(&self) -> bool {
+        true
+    }
+
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        let dest = self.reachable(to, frame.len())?;
+        let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+        held.push(frame, &[]);
+        if held.put.len() < HELD_MAX {
+            return Ok(());
+        }
+        self.put_held(to, dest, &mut held)
+    }
+
+    fn flush(&self) -> Result<(), LinkError> {
+        let mut first = Ok(());
+        for (to, dest) in &self.dests {
+            let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+            let result = self.put_held(*to, dest, &mut held);
+            if first.is_ok() {
+                first = result;
+            }
+        }
+        first
+    }
+
+    fn batches(&self) -> bool {
+        true
     }
 
     fn stats(&self) -> LinkStats {
@@ -404,12 +614,36 @@ impl Drop for ZenohLink {
     fn drop(&mut self) {
         self.presence.close();
         for dest in self.dests.values() {
-            dest.publisher
+            dest.publishers
                 .write()
                 .unwrap_or_else(|e| e.into_inner())
                 .take();
         }
         // Closing undeclares the token (others see this system leave) and the subscription.
         let _ = self.session.close().wait();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn held_frames_make_a_batch_and_a_lone_frame_goes_bare() {
+        let mut held = Held::default();
+        held.push(b"HCone", &[]);
+        assert_eq!(held.take(), (b"HCone".to_vec(), 1));
+        held.push(b"HC", b"two");
+        held.push(b"", &[]);
+        let (put, frames) = held.take();
+        assert_eq!(frames, 2);
+        let got: Vec<&[u8]> = batch_records(&put).unwrap().collect();
+        assert_eq!(got, [&b"HCtwo"[..], &b""[..]]);
+        // A lone frame that would read as a batch stays one.
+        held.push(b"HBnot a batch", &[]);
+        let (put, _) = held.take();
+        let got: Vec<&[u8]> = batch_records(&put).unwrap().collect();
+        assert_eq!(got, [&b"HBnot a batch"[..]]);
+        assert_eq!(held.take(), (Vec::new(), 0));
     }
 }

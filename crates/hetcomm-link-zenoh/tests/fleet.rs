@@ -226,19 +226,24 @@ fn unacknowledged_sends_are_sent_and_arrive_between_peers_through_a_router() {
     assert_eq!(got, (0..50).collect::<Vec<u8>>());
 }
 
-#[test]
-fn a_malformed_put_is_counted_and_dropped() {
-    let (_router, endpoint) = common::router();
-    let prefix = common::unique_prefix();
-    let (a, b) = open_pair(&client_keys(&endpoint, &prefix, ""));
-    // A plain Zenoh client puts bytes that are not a frame on B's key.
+/// A plain Zenoh client of the router at `endpoint` (not a hetcomm system).
+fn raw_client(endpoint: &str) -> zenoh::Session {
     let mut c = zenoh::Config::default();
     c.insert_json5("mode", "\"client\"").unwrap();
     c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
         .unwrap();
     c.insert_json5("scouting/multicast/enabled", "false")
         .unwrap();
-    let raw = zenoh::open(c).wait().expect("raw session");
+    zenoh::open(c).wait().expect("raw session")
+}
+
+#[test]
+fn a_malformed_put_is_counted_and_dropped() {
+    let (_router, endpoint) = common::router();
+    let prefix = common::unique_prefix();
+    let (a, b) = open_pair(&client_keys(&endpoint, &prefix, ""));
+    // A plain Zenoh client puts bytes that are not a frame on B's key.
+    let raw = raw_client(&endpoint);
     let key = data_key(&prefix, "B");
     let deadline = Instant::now() + Duration::from_secs(10);
     while b.stats().router.malformed == 0 {
@@ -263,5 +268,67 @@ fn a_malformed_put_is_counted_and_dropped() {
         .unwrap()
         .wait();
     assert!(matches!(outcome, Outcome::Delivered { .. }), "{outcome}");
+    let _ = raw.close().wait();
+}
+
+/// A put may carry several frames as a batch (docs/zenoh.md: the UDP batch layout): a plain
+/// Zenoh client puts two data frames from A in one put on B's key, and B's module takes both,
+/// in order.
+#[test]
+fn a_batch_of_frames_in_one_put_is_delivered_frame_by_frame() {
+    use hetcomm_core::wire::{self, Header};
+    use hetcomm_core::{Address, ModuleId, SystemId};
+    let (_router, endpoint) = common::router();
+    let prefix = common::unique_prefix();
+    let fleet = hetcomm::parse_fleet(
+        &fleet_text(&client_keys(&endpoint, &prefix, "")),
+        "z.toml",
+        None,
+    )
+    .expect("valid fleet");
+    let b = Comm::open_fleet(&fleet, "B").expect("open B");
+    let m = b.module("M").unwrap();
+    let raw = raw_client(&endpoint);
+    // The batch header: "HB", version 1, a reserved zero; then (u32 length, frame) records.
+    let mut put = b"HB\x01\x00".to_vec();
+    for seq in 1..=2u64 {
+        let mut h = Header::data(
+            Address {
+                system: SystemId(0),
+                module: ModuleId(0),
+            },
+            Address {
+                system: SystemId(1),
+                module: ModuleId(0),
+            },
+            hetcomm_core::MessageType(9),
+        );
+        h.seq = seq;
+        h.incarnation = 7;
+        // MessagePack `false` and `true`.
+        let frame = wire::encode(&h, &[0xc1 + seq as u8]);
+        put.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+        put.extend_from_slice(&frame);
+    }
+    // Until B's subscription has reached the router, a put may go nowhere: repeat it (B
+    // drops the duplicates) until the first frame arrives.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let first = loop {
+        raw.put(data_key(&prefix, "B"), put.clone())
+            .wait()
+            .expect("put");
+        if let Ok(msg) = m.recv_raw_timeout(Some(Duration::from_millis(100))) {
+            break msg;
+        }
+        assert!(Instant::now() < deadline, "nothing arrived");
+    };
+    let second = m
+        .recv_raw_timeout(Some(Duration::from_secs(5)))
+        .expect("the second frame of the put");
+    assert_eq!(
+        (&first.payload[..], &second.payload[..]),
+        (&[0xc2][..], &[0xc3][..])
+    );
+    assert_eq!(b.stats().router.malformed, 0);
     let _ = raw.close().wait();
 }

@@ -54,7 +54,22 @@ def main() -> int:
 
     inbox: "queue.Queue[bytes]" = queue.Queue()
     me = f"{a.prefix}/sys/{a.name}"
-    sub = session.declare_subscriber(me, lambda s: inbox.put(bytes(s.payload.to_bytes())))
+    def frames(put: bytes) -> None:
+        """A put is one frame, or a batch of them (docs/zenoh.md): queues each frame."""
+        if not put.startswith(b"HB"):
+            inbox.put(put)
+            return
+        if put[:4] != b"HB\x01\x00":
+            return  # a batch version this program does not read
+        rest = put[4:]
+        while len(rest) >= 4:
+            n = int.from_bytes(rest[:4], "little")
+            if n > len(rest) - 4:
+                return  # a malformed tail
+            inbox.put(rest[4:4 + n])
+            rest = rest[4 + n:]
+
+    sub = session.declare_subscriber(me, lambda s: frames(bytes(s.payload.to_bytes())))
     token = session.liveliness().declare_token(f"{a.prefix}/live/{a.name}")
     present = set()
     live = session.liveliness().declare_subscriber(
