@@ -308,9 +308,7 @@ forward_sink! {
         self.secured.receive(Incoming::Owned(frame));
     }
     fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
-        for frame in frames {
-            self.secured.receive(Incoming::Borrowed(frame));
-        }
+        self.secured.receive_batch(frames);
     }
 }
 
