@@ -23,6 +23,10 @@ use crate::stats::SinkCounter;
 pub const DATA: hetcomm::MessageType = hetcomm::MessageType(1);
 /// The message type that ends a sink.
 pub const STOP: hetcomm::MessageType = hetcomm::MessageType(2);
+/// The message type of the probe a one-way run sends before its timed part (it makes sure
+/// the receiver is there, and starts a secured link's handshake): not counted, so that the
+/// receiver's window starts with the timed messages.
+pub const PROBE: hetcomm::MessageType = hetcomm::MessageType(3);
 
 /// A running peer process.
 pub struct Peer {
@@ -213,11 +217,21 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                     let wait = Some(Duration::from_millis(20));
                     match m.recv_raw_many(&mut batch, crate::hc::RECV_BATCH, wait) {
                         Ok(_) => {
+                            let (mut n, mut bytes, mut stop) = (0, 0, false);
                             for msg in batch.drain(..) {
-                                if msg.envelope.message_type() == STOP {
-                                    break 'recv;
+                                match msg.envelope.message_type() {
+                                    STOP => stop = true,
+                                    PROBE => {}
+                                    _ if !stop => {
+                                        n += 1;
+                                        bytes += msg.payload.len();
+                                    }
+                                    _ => {}
                                 }
-                                c.add(msg.payload.len());
+                            }
+                            c.add_many(n, bytes);
+                            if stop {
+                                break 'recv;
                             }
                             last = Instant::now();
                         }

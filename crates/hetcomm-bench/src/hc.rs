@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use hetcomm::{Comm, LocalFleet, Module, RouterStats};
 
-use crate::child::{Peer, DATA, STOP};
+use crate::child::{Peer, DATA, PROBE, STOP};
 use crate::raw::TempDir;
 use crate::stats::{parse_sink_line, Latency, Outcomes, Recorder, SinkCounter, Throughput};
 
@@ -296,12 +296,14 @@ pub fn oneway(
         return inproc_oneway(acked, size, duration).map(|(t, _)| t);
     }
     let mut pair = open_pair(kind, acked, "sink")?;
-    let before = pair.comm.stats().router;
     let msg = vec![7u8; size];
-    // Make sure B is there: a first message, acknowledged or not, then the timed run.
-    let first = pair.m.send_raw("B", "M", DATA, &msg, Default::default());
+    // Make sure B is there (and a secured link's handshake done): a probe, acknowledged or
+    // not, which B does not count, then the timed run. B's clock starts at the first timed
+    // message, so that its rate is the timed run's alone.
+    let _ = pair.m.send_raw("B", "M", PROBE, &msg, Default::default());
     std::thread::sleep(Duration::from_millis(50));
-    let mut sent = u64::from(first.is_ok());
+    let before = pair.comm.stats().router;
+    let mut sent = 0;
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {

@@ -35,81 +35,98 @@ impl Secured {
                 max,
             });
         }
-        let session = {
-            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-            if st.current.is_none() {
-                if let Handshakes::InMemory(sim) = &self.handshakes {
-                    if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
-                        st.install(s);
-                        bump(&self.counters.handshakes);
-                    }
+        let mut buf = take_scratch(&TX);
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        if st.current.is_none() {
+            if let Handshakes::InMemory(sim) = &self.handshakes {
+                if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
+                    st.install(s);
+                    bump(&self.counters.handshakes);
                 }
             }
-            match st.current.clone().filter(|_| !st.flushing) {
-                Some(s) => s,
-                None if st.flushing => {
-                    // Behind the frames that waited for the handshake, which are leaving now.
-                    let mut frame = Vec::with_capacity(head.len() + body.len());
-                    frame.extend_from_slice(head);
-                    frame.extend_from_slice(body);
-                    st.queued_bytes += frame.len();
-                    st.queue.push_back(frame);
-                    return Ok(());
-                }
-                None => {
-                    // Wait for the handshake; start (or restart) it if needed.
-                    if st.queue.len() >= QUEUE_FRAMES
-                        || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
-                    {
-                        return Err(LinkError::Congested {
-                            peer: to,
-                            reason: "frames waiting for the security handshake".into(),
-                        });
-                    }
-                    let mut frame = Vec::with_capacity(head.len() + body.len());
-                    frame.extend_from_slice(head);
-                    frame.extend_from_slice(body);
-                    st.queued_bytes += frame.len();
-                    st.queue.push_back(frame);
-                    st.waiting_since.get_or_insert_with(Instant::now);
-                    let stale = st
-                        .pending
-                        .as_ref()
-                        .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
-                    let init = if stale {
-                        self.start_handshake(to, slot, &mut st)
-                    } else {
-                        None
-                    };
-                    drop(st);
-                    if let Some(init) = init {
-                        if let Err(e) = try_send_handshake(below, to, &init) {
-                            // The link cannot reach the peer (no subscriber, no route): say so
-                            // now, as the bare link would, instead of holding the frame for a
-                            // handshake that cannot start. Later frames try again.
-                            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-                            st.pending = None;
-                            if let Some(frame) = st.queue.pop_back() {
-                                st.queued_bytes -= frame.len();
-                            }
-                            if st.queue.is_empty() {
-                                st.waiting_since = None;
-                            }
-                            return Err(e);
-                        }
-                    }
-                    return Ok(());
-                }
+        }
+        match &st.current {
+            // Sealed under the lock (it orders nothing: the counter is atomic), which spares
+            // taking a reference to the session for every frame.
+            Some(session) if !st.flushing => {
+                session.seal(&mut buf, self.policy.local, to, head, body);
+                drop(st);
+                let sent = if held {
+                    below.send_held(to, &buf)
+                } else {
+                    below.send(to, &buf)
+                };
+                give_scratch(&TX, buf);
+                sent
             }
+            _ => {
+                give_scratch(&TX, buf);
+                self.hold(below, to, slot, st, head, body)
+            }
+        }
+    }
+
+    /// Queues `head` + `body` for `to` while there is no session (starting the handshake if
+    /// needed), or behind the frames that waited for it while they leave.
+    fn hold(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        mut st: std::sync::MutexGuard<'_, PeerState>,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<(), LinkError> {
+        if st.flushing {
+            // Behind the frames that waited for the handshake, which are leaving now.
+            let mut frame = Vec::with_capacity(head.len() + body.len());
+            frame.extend_from_slice(head);
+            frame.extend_from_slice(body);
+            st.queued_bytes += frame.len();
+            st.queue.push_back(frame);
+            return Ok(());
+        }
+        // Wait for the handshake; start (or restart) it if needed.
+        if st.queue.len() >= QUEUE_FRAMES || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
+        {
+            return Err(LinkError::Congested {
+                peer: to,
+                reason: "frames waiting for the security handshake".into(),
+            });
+        }
+        let mut frame = Vec::with_capacity(head.len() + body.len());
+        frame.extend_from_slice(head);
+        frame.extend_from_slice(body);
+        st.queued_bytes += frame.len();
+        st.queue.push_back(frame);
+        st.waiting_since.get_or_insert_with(Instant::now);
+        let stale = st
+            .pending
+            .as_ref()
+            .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
+        let init = if stale {
+            self.start_handshake(to, slot, &mut st)
+        } else {
+            None
         };
-        with_scratch(&TX, |buf| {
-            session.seal(buf, self.policy.local, to, head, body);
-            if held {
-                below.send_held(to, buf)
-            } else {
-                below.send(to, buf)
+        drop(st);
+        if let Some(init) = init {
+            if let Err(e) = try_send_handshake(below, to, &init) {
+                // The link cannot reach the peer (no subscriber, no route): say so now, as
+                // the bare link would, instead of holding the frame for a handshake that
+                // cannot start. Later frames try again.
+                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                st.pending = None;
+                if let Some(frame) = st.queue.pop_back() {
+                    st.queued_bytes -= frame.len();
+                }
+                if st.queue.is_empty() {
+                    st.waiting_since = None;
+                }
+                return Err(e);
             }
-        })
+        }
+        Ok(())
     }
 
     /// Sends what waited for `peer`'s handshake, now that `session` exists, and what joins
@@ -298,7 +315,7 @@ impl Secured {
             bump(&self.counters.replay);
             return false;
         }
-        if !self.allowed(sender, inner) {
+        if !allowed(slot, sender, self.policy.local, inner) {
             bump(&self.counters.table);
             return false;
         }
@@ -336,29 +353,25 @@ impl Secured {
             inner.deliver(&*self.sink, Peer::System(sender));
         }
     }
+}
 
-    /// Whether the inner frame's header agrees with its authenticated sender and the table.
-    pub(super) fn allowed(&self, sender: SystemId, inner: &[u8]) -> bool {
-        // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the
-        // router counts it as malformed.
-        if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
-            return true;
-        }
-        let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
-        let destination = SystemId(u16::from_le_bytes([inner[12], inner[13]]));
-        if source != sender || destination != self.policy.local {
-            return false;
-        }
-        match inner[3] {
-            0 => self.policy.data_from.contains(&sender),
-            1 => self.policy.acks_from.contains(&sender),
-            // Unknown kinds: the router refuses them.
-            _ => true,
-        }
+/// Whether the inner frame's header agrees with its authenticated sender and the table.
+fn allowed(slot: &PeerSlot, sender: SystemId, local: SystemId, inner: &[u8]) -> bool {
+    // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the router
+    // counts it as malformed.
+    if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
+        return true;
     }
-
-    pub(super) fn may_talk(&self, peer: SystemId) -> bool {
-        self.policy.data_from.contains(&peer) || self.policy.acks_from.contains(&peer)
+    let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
+    let destination = SystemId(u16::from_le_bytes([inner[12], inner[13]]));
+    if source != sender || destination != local {
+        return false;
+    }
+    match inner[3] {
+        0 => slot.sends_data,
+        1 => slot.sends_acks,
+        // Unknown kinds: the router refuses them.
+        _ => true,
     }
 }
 
@@ -483,11 +496,4 @@ pub(super) fn give_scratch(key: &'static Scratch, buf: Vec<u8>) {
     if buf.capacity() <= SCRATCH_KEEP {
         key.with(|c| c.set(buf));
     }
-}
-
-pub(super) fn with_scratch<R>(key: &'static Scratch, f: impl FnOnce(&mut Vec<u8>) -> R) -> R {
-    let mut buf = take_scratch(key);
-    let r = f(&mut buf);
-    give_scratch(key, buf);
-    r
 }

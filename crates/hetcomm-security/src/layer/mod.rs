@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
 use hetcomm_link::{forward_link, forward_sink, FrameSink, Link, LinkError, Peer, SecurityStats};
+use rustc_hash::FxHashMap;
 
 use crate::envelope::OVERHEAD;
 use crate::keys::{Keypair, PublicKey};
@@ -102,6 +103,11 @@ fn bump(c: &AtomicU64) {
 
 struct PeerSlot {
     public: PublicKey,
+    /// The table puts this peer's messages to us on this transport ([`Policy::data_from`]).
+    sends_data: bool,
+    /// Our messages to this peer go on this transport: its acknowledgements come back here
+    /// ([`Policy::acks_from`]).
+    sends_acks: bool,
     state: Mutex<PeerState>,
 }
 
@@ -153,7 +159,9 @@ struct Secured {
     transport: String,
     policy: Policy,
     handshakes: Handshakes,
-    peers: HashMap<SystemId, PeerSlot>,
+    /// Looked up for every frame, by ids from the fleet file only (never inserted into from
+    /// the wire): a fast hash is enough.
+    peers: FxHashMap<SystemId, PeerSlot>,
     /// The router's sink (above us).
     sink: Arc<dyn FrameSink>,
     /// The link below us, for handshake frames sent from the receive side. Weak: the link
@@ -310,6 +318,11 @@ forward_sink! {
     fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
         self.secured.receive_batch(frames);
     }
+    // Owned frames are opened where they lie and handed up in the same buffer: a large frame
+    // is then neither copied here nor by the router (see `on_frame_owned`).
+    fn takes_frames(&self) -> bool {
+        self.secured.sink.takes_frames()
+    }
 }
 
 impl LinkLayer for SecurityLayer {
@@ -328,6 +341,8 @@ impl LinkLayer for SecurityLayer {
                     id,
                     PeerSlot {
                         public,
+                        sends_data: self.policy.data_from.contains(&id),
+                        sends_acks: self.policy.acks_from.contains(&id),
                         state: Mutex::new(PeerState::default()),
                     },
                 )
