@@ -304,6 +304,7 @@ pub fn oneway(
     std::thread::sleep(Duration::from_millis(50));
     let before = pair.comm.stats().router;
     let mut sent = 0;
+    let cpu_before = crate::child::cpu_us(libc::RUSAGE_THREAD);
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {
@@ -311,6 +312,13 @@ pub fn oneway(
                 sent += 1;
             }
         }
+    }
+    if crate::child::cpu_report_wanted() && sent > 0 {
+        // The sending thread's own CPU time: a sender's cost, as the sink's line gives the
+        // receiver's.
+        let after = crate::child::cpu_us(libc::RUSAGE_THREAD);
+        let who = format!("sender {} {size} B", path_name(kind, acked));
+        crate::child::print_cpu(&who, sent, (after.0 - cpu_before.0, after.1 - cpu_before.1));
     }
     // Counted before STOP is sent: the outcomes are those of the measured messages.
     let outcomes = acked.then(|| wait_for_outcomes(&pair.comm, &before, OUTCOME_WAIT));

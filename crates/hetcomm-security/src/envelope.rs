@@ -80,11 +80,14 @@ pub fn prefix(frame: &[u8]) -> Option<Prefix> {
 
 /// Writes the 8-byte prefix.
 pub fn write_prefix(out: &mut Vec<u8>, kind: Kind, sender: SystemId, receiver: SystemId) {
-    out.extend_from_slice(&MAGIC);
-    out.push(VERSION);
-    out.push(kind as u8);
-    out.extend_from_slice(&sender.0.to_le_bytes());
-    out.extend_from_slice(&receiver.0.to_le_bytes());
+    out.extend_from_slice(&prefix_bytes(kind, sender, receiver));
+}
+
+/// The 8-byte prefix.
+fn prefix_bytes(kind: Kind, sender: SystemId, receiver: SystemId) -> [u8; 8] {
+    let [s0, s1] = sender.0.to_le_bytes();
+    let [r0, r1] = receiver.0.to_le_bytes();
+    [MAGIC[0], MAGIC[1], VERSION, kind as u8, s0, s1, r0, r1]
 }
 
 /// Reads a little-endian u32 at `at` (the caller checked the length).
@@ -111,7 +114,8 @@ impl DirectionKey {
         Nonce::assume_unique_for_key(n)
     }
 
-    /// Makes `out` the data frame carrying `head` + `body` (whatever `out` held is replaced).
+    /// Makes `out` the data frame carrying `head` + `body` (whatever `out` held is replaced,
+    /// without zeroing it first).
     /// `head` and `body` are encrypted straight from where they lie into `out`: no copy of the
     /// plaintext is made first.
     pub fn seal(
@@ -123,14 +127,13 @@ impl DirectionKey {
         head: &[u8],
         body: &[u8],
     ) {
-        out.clear();
-        write_prefix(out, Kind::Data, sender, receiver);
-        out.extend_from_slice(&session.to_le_bytes());
-        out.extend_from_slice(&counter.to_le_bytes());
         // Only the bytes beyond the buffer's earlier length are zeroed (a reused scratch
         // buffer is already long enough), and every byte is overwritten below.
         out.resize(OVERHEAD + head.len() + body.len(), 0);
         let (clear, rest) = out.split_at_mut(DATA_HEADER_LEN);
+        clear[..8].copy_from_slice(&prefix_bytes(Kind::Data, sender, receiver));
+        clear[8..12].copy_from_slice(&session.to_le_bytes());
+        clear[12..].copy_from_slice(&counter.to_le_bytes());
         let (head_out, body_out_and_tag) = rest.split_at_mut(head.len());
         self.0
             .seal_out_of_place_scatter(
