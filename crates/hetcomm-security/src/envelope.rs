@@ -14,6 +14,9 @@
 //! nonce), `20 …` the inner frame encrypted with AES-256-GCM, then the 16-byte tag. The 20
 //! clear bytes are the associated data, so none of them can be changed either.
 //!
+//! Data batch (type 4): as data, but what is encrypted is several inner frames, each behind
+//! its length (u32 little-endian): frames sent together cost one seal and one open.
+//!
 //! Initiation (type 1): `8 u32` the initiator's session index, `12 …` Noise KK message 1.
 //! Response (type 2): `8 u32` the responder's session index, `12 u32` the initiator's
 //! session index, `16 …` Noise KK message 2.
@@ -47,6 +50,59 @@ pub enum Kind {
     Response = 2,
     /// An encrypted inner frame.
     Data = 3,
+    /// Encrypted inner frames, each behind its length.
+    Batch = 4,
+}
+
+/// Bytes in front of each inner frame of a data batch: its length (u32 little-endian).
+pub const RECORD_HEADER: usize = 4;
+
+/// Appends `head` + `body` to a data batch's plaintext, behind its length.
+pub fn push_record(records: &mut Vec<u8>, head: &[u8], body: &[u8]) {
+    let len = u32::try_from(head.len() + body.len()).expect("frames are far below 4 GiB");
+    records.extend_from_slice(&len.to_le_bytes());
+    records.extend_from_slice(head);
+    records.extend_from_slice(body);
+}
+
+/// The inner frames of a data batch's plaintext, as ranges of it. Stops at the first record
+/// that is not well formed (empty, or running past the end; then [`Records::malformed`]).
+pub struct Records<'a> {
+    plain: &'a [u8],
+    at: usize,
+    /// A record was not well formed: it and what follows it are not frames.
+    pub malformed: bool,
+}
+
+/// The records of `plain` (a data batch's plaintext).
+pub fn records(plain: &[u8]) -> Records<'_> {
+    Records {
+        plain,
+        at: 0,
+        malformed: false,
+    }
+}
+
+impl Iterator for Records<'_> {
+    type Item = std::ops::Range<usize>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.at == self.plain.len() || self.malformed {
+            return None;
+        }
+        let start = self.at + RECORD_HEADER;
+        let len = (start <= self.plain.len()).then(|| u32_at(self.plain, self.at) as usize);
+        match len {
+            Some(len) if len > 0 && len <= self.plain.len() - start => {
+                self.at = start + len;
+                Some(start..start + len)
+            }
+            _ => {
+                self.malformed = true;
+                None
+            }
+        }
+    }
 }
 
 /// The clear part every secured frame starts with.
@@ -69,6 +125,7 @@ pub fn prefix(frame: &[u8]) -> Option<Prefix> {
         1 => Kind::Init,
         2 => Kind::Response,
         3 => Kind::Data,
+        4 => Kind::Batch,
         _ => return None,
     };
     Some(Prefix {
@@ -121,9 +178,33 @@ impl DirectionKey {
     pub fn seal(
         &self,
         out: &mut Vec<u8>,
-        (sender, receiver): (SystemId, SystemId),
+        ids: (SystemId, SystemId),
         session: u32,
         counter: u64,
+        head: &[u8],
+        body: &[u8],
+    ) {
+        self.seal_kind(out, Kind::Data, ids, (session, counter), head, body);
+    }
+
+    /// Makes `out` the data batch carrying `records` (see [`push_record`]).
+    pub fn seal_batch(
+        &self,
+        out: &mut Vec<u8>,
+        ids: (SystemId, SystemId),
+        session: u32,
+        counter: u64,
+        records: &[u8],
+    ) {
+        self.seal_kind(out, Kind::Batch, ids, (session, counter), records, &[]);
+    }
+
+    fn seal_kind(
+        &self,
+        out: &mut Vec<u8>,
+        kind: Kind,
+        (sender, receiver): (SystemId, SystemId),
+        (session, counter): (u32, u64),
         head: &[u8],
         body: &[u8],
     ) {
@@ -131,7 +212,7 @@ impl DirectionKey {
         // buffer is already long enough), and every byte is overwritten below.
         out.resize(OVERHEAD + head.len() + body.len(), 0);
         let (clear, rest) = out.split_at_mut(DATA_HEADER_LEN);
-        clear[..8].copy_from_slice(&prefix_bytes(Kind::Data, sender, receiver));
+        clear[..8].copy_from_slice(&prefix_bytes(kind, sender, receiver));
         clear[8..12].copy_from_slice(&session.to_le_bytes());
         clear[12..].copy_from_slice(&counter.to_le_bytes());
         let (head_out, body_out_and_tag) = rest.split_at_mut(head.len());
@@ -195,6 +276,31 @@ pub fn data_counter(frame: &[u8]) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn batches_seal_and_their_records_read_back() {
+        let key = DirectionKey::new(&[7; 32]);
+        let mut plain = Vec::new();
+        push_record(&mut plain, b"one", b"");
+        push_record(&mut plain, b"tw", b"o");
+        let mut out = Vec::new();
+        key.seal_batch(&mut out, (SystemId(1), SystemId(2)), 9, 4, &plain);
+        assert_eq!(prefix(&out).unwrap().kind, Kind::Batch);
+        let mut inner = vec![0; inner_len(out.len())];
+        assert!(key.open_into(&out, &mut inner));
+        let mut r = records(&inner);
+        let got: Vec<&[u8]> = r.by_ref().map(|x| &inner[x]).collect();
+        assert_eq!(got, [&b"one"[..], b"two"]);
+        assert!(!r.malformed);
+        // The type is authenticated: a batch does not open as a single frame.
+        out[3] = Kind::Data as u8;
+        assert!(!key.open_into(&out, &mut inner));
+        for bad in [&[1, 0, 0][..], &[0, 0, 0, 0], &[5, 0, 0, 0, 1, 2]] {
+            let mut r = records(bad);
+            assert_eq!(r.next(), None);
+            assert!(r.malformed, "{bad:?}");
+        }
+    }
 
     #[test]
     fn sealed_frames_open_and_any_changed_byte_is_refused() {

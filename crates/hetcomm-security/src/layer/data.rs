@@ -8,11 +8,12 @@ use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, LinkError, Peer};
 
 use super::*;
-use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, TAG_LEN};
+use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, RECORD_HEADER, TAG_LEN};
 use crate::session::Session;
 
 impl Secured {
-    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists.
+    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists; `held`:
+    /// the router lets it wait to leave with the frames after it (see [`Link::send_held`]).
     pub(super) fn send(
         &self,
         below: &dyn Link,
@@ -28,13 +29,108 @@ impl Secured {
                 self.transport
             ),
         })?;
-        let max = below.caps().max_frame.saturating_sub(OVERHEAD);
+        let caps = below.caps();
+        let max = caps.max_frame.saturating_sub(OVERHEAD);
         if head.len() + body.len() > max {
             return Err(LinkError::TooLarge {
                 len: head.len() + body.len(),
                 max,
             });
         }
+        // Frames the router lets wait go into one data batch per peer, sealed once, that
+        // fits one datagram (`mtu`) of the link below.
+        let limit = caps.mtu.min(BATCH_BYTES).saturating_sub(OVERHEAD);
+        let record = RECORD_HEADER + head.len() + body.len();
+        let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
+        if held && record <= limit {
+            if h.frames > 0 && h.records.len() + record > limit {
+                // Held frames go first. Their failure is counted; the result is this frame's.
+                let _ = self.send_held_batch(below, to, slot, &mut h);
+            }
+            envelope::push_record(&mut h.records, head, body);
+            h.frames += 1;
+            if limit - h.records.len() < RECORD_HEADER + MIN_FRAME {
+                // No further frame can fit: holding these longer would only add latency.
+                return self.send_held_batch(below, to, slot, &mut h);
+            }
+            return Ok(());
+        }
+        if h.frames > 0 {
+            let _ = self.send_held_batch(below, to, slot, &mut h);
+        }
+        drop(h);
+        self.send_now(below, to, slot, head, body, held)
+    }
+
+    /// Seals and sends the frames held for `to` as one data batch (a single frame as a data
+    /// message), or, with no session to seal them in, queues them for the handshake. A batch
+    /// the link refuses is counted in the link's `frames_dropped`.
+    pub(super) fn send_held_batch(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        h: &mut Held,
+    ) -> Result<(), LinkError> {
+        if h.frames == 0 {
+            return Ok(());
+        }
+        let frames = std::mem::take(&mut h.frames);
+        let st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let result = match &st.current {
+            Some(session) if !st.flushing => {
+                let mut buf = take_scratch(&TX);
+                if frames == 1 {
+                    session.seal(
+                        &mut buf,
+                        self.policy.local,
+                        to,
+                        &h.records[RECORD_HEADER..],
+                        &[],
+                    );
+                } else {
+                    session.seal_batch(&mut buf, self.policy.local, to, &h.records);
+                }
+                drop(st);
+                let sent = below.send(to, &buf);
+                give_scratch(&TX, buf);
+                if sent.is_err() {
+                    self.held_dropped
+                        .fetch_add(frames as u64, Ordering::Relaxed);
+                }
+                sent
+            }
+            _ => {
+                // No session (or its waiting frames are leaving): these wait with them.
+                drop(st);
+                let mut first = Ok(());
+                for r in envelope::records(&h.records) {
+                    let st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                    let queued = self.hold(below, to, slot, st, &h.records[r], &[]);
+                    if queued.is_err() {
+                        self.held_dropped.fetch_add(1, Ordering::Relaxed);
+                        if first.is_ok() {
+                            first = queued;
+                        }
+                    }
+                }
+                first
+            }
+        };
+        h.records.clear();
+        result
+    }
+
+    /// Seals and sends `head` + `body` to `to` now, or queues it until a session exists.
+    fn send_now(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        head: &[u8],
+        body: &[u8],
+        held: bool,
+    ) -> Result<(), LinkError> {
         let mut buf = take_scratch(&TX);
         let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
         if st.current.is_none() {
@@ -183,14 +279,17 @@ impl Secured {
     fn dispatch(&self, prefix: envelope::Prefix, slot: &PeerSlot, frame: Incoming<'_>) {
         match prefix.kind {
             Kind::Data => self.receive_data(prefix.sender, slot, frame),
+            Kind::Batch => self.receive_batch(&mut std::iter::once(frame.bytes())),
             Kind::Init => self.receive_init(prefix.sender, slot, frame.bytes()),
             Kind::Response => self.receive_response(prefix.sender, slot, frame.bytes()),
         }
     }
 
-    /// The frames of one batch datagram: each checked and opened as [`Self::receive`] does,
-    /// into one buffer, and what passes handed to the router in one call (one router lock
-    /// and one wake-up per datagram, as without security) instead of one call per frame.
+    /// The frames of one batch datagram (or one data batch): each checked and opened as
+    /// [`Self::receive`] does, into one buffer, and what passes handed to the router in one
+    /// call (one router lock and one wake-up per datagram, as without security) instead of
+    /// one call per frame. A data batch's inner frames are checked against the table one by
+    /// one, after the batch passed authentication and the replay window as one frame.
     pub(super) fn receive_batch(&self, frames: &mut dyn Iterator<Item = &[u8]>) {
         let mut batch = BATCH.with(|c| c.take());
         // The session of the previous frame: a batch comes from one peer, so its state is
@@ -201,11 +300,16 @@ impl Secured {
                 continue;
             };
             let sender = prefix.sender;
-            if prefix.kind != Kind::Data || frame.len() < OVERHEAD {
+            let kind = prefix.kind;
+            if !matches!(kind, Kind::Data | Kind::Batch) {
                 // Handshakes (rare) act at once: what opened before them goes first.
                 batch.deliver(&*self.sink);
                 cached = None;
                 self.dispatch(prefix, slot, Incoming::Borrowed(frame));
+                continue;
+            }
+            if frame.len() < OVERHEAD {
+                bump(&self.counters.auth);
                 continue;
             }
             let index = envelope::u32_at(frame, 8);
@@ -222,28 +326,45 @@ impl Secured {
                 batch.deliver(&*self.sink);
                 batch.sender = Some(sender);
             }
-            let start = batch.arena.len();
-            batch
-                .arena
-                .resize(start + envelope::inner_len(frame.len()), 0);
-            let opened = session.open_into(frame, &mut batch.arena[start..]);
-            if !opened {
+            let Batch { arena, ranges, .. } = &mut batch;
+            let start = arena.len();
+            arena.resize(start + envelope::inner_len(frame.len()), 0);
+            if !session.open_into(frame, &mut arena[start..]) {
                 bump(&self.counters.auth);
+                arena.truncate(start);
+                continue;
             }
-            let counter = envelope::data_counter(frame);
-            let passed = opened
-                && self.accept(
-                    sender,
-                    slot,
-                    session,
-                    unconfirmed,
-                    counter,
-                    &batch.arena[start..],
-                );
-            if passed && batch.arena.len() > start {
-                batch.ranges.push(start..batch.arena.len());
+            if !self.fresh(session, envelope::data_counter(frame)) {
+                arena.truncate(start);
+                continue;
+            }
+            let before = ranges.len();
+            let mut passed = false;
+            if kind == Kind::Data {
+                passed = self.admit(slot, sender, &arena[start..]);
+                if passed && arena.len() > start {
+                    ranges.push(start..arena.len());
+                }
             } else {
-                batch.arena.truncate(start);
+                // The records' length fields stay in the buffer, between the frames.
+                let mut records = envelope::records(&arena[start..]);
+                for r in records.by_ref() {
+                    let r = start + r.start..start + r.end;
+                    if self.admit(slot, sender, &arena[r.clone()]) {
+                        passed = true;
+                        ranges.push(r);
+                    }
+                }
+                if records.malformed {
+                    bump(&self.counters.auth);
+                }
+            }
+            if ranges.len() == before {
+                arena.truncate(start);
+            }
+            if passed && *unconfirmed {
+                self.confirmed(sender, slot, session);
+                *unconfirmed = false;
             }
         }
         batch.deliver(&*self.sink);
@@ -311,12 +432,7 @@ impl Secured {
         counter: u64,
         inner: &[u8],
     ) -> bool {
-        if !session.accept_counter(counter) {
-            bump(&self.counters.replay);
-            return false;
-        }
-        if !allowed(slot, sender, self.policy.local, inner) {
-            bump(&self.counters.table);
+        if !self.fresh(session, counter) || !self.admit(slot, sender, inner) {
             return false;
         }
         if *unconfirmed {
@@ -324,6 +440,25 @@ impl Secured {
             *unconfirmed = false;
         }
         true
+    }
+
+    /// The replay window's verdict on an authenticated frame's counter (counted if it is a
+    /// replay).
+    fn fresh(&self, session: &Session, counter: u64) -> bool {
+        let fresh = session.accept_counter(counter);
+        if !fresh {
+            bump(&self.counters.replay);
+        }
+        fresh
+    }
+
+    /// The table's verdict on an authenticated inner frame (counted if it refuses it).
+    fn admit(&self, slot: &PeerSlot, sender: SystemId, inner: &[u8]) -> bool {
+        let ok = allowed(slot, sender, self.policy.local, inner);
+        if !ok {
+            bump(&self.counters.table);
+        }
+        ok
     }
 
     pub(super) fn receive_data(&self, sender: SystemId, slot: &PeerSlot, frame: Incoming<'_>) {
@@ -470,6 +605,13 @@ impl Batch {
         self.arena.clear();
     }
 }
+
+/// The largest data batch (before sealing), on links whose datagrams (`mtu`) are larger.
+const BATCH_BYTES: usize = 64 << 10;
+
+/// The smallest inner frame (a header): a batch with less room left than this and a record
+/// length is full.
+const MIN_FRAME: usize = hetcomm_core::wire::HEADER_LEN;
 
 /// Scratch buffers larger than this are not kept: one 16 MiB frame should not pin 16 MiB
 /// per thread.
