@@ -15,7 +15,8 @@
 //! - no panic;
 //! - every frame fed has exactly the outcome the model predicts from the document's order of
 //!   checks (prefix → receiver → known sender → session index → authentication → replay
-//!   window → inner source / destination / table): one refusal counter up by exactly one, or
+//!   window → inner source / destination / table; a data batch, type 4, like a data message):
+//!   one refusal counter up by exactly one, or
 //!   the inner frame handed up once (labelled with the authenticated sender), or a handshake
 //!   completed, or — for the two silent cases the layer has, an authenticated empty inner frame
 //!   and an initiation it ignores because it is the lower id with a handshake of its own under
@@ -326,7 +327,7 @@ impl Run {
     /// depend on what the layer sends back.
     fn predict(&mut self, b: &[u8]) -> Expect {
         use Expect::Refused;
-        if b.len() < 8 || &b[..2] != b"HS" || b[2] != 1 || !(1..=3).contains(&b[3]) {
+        if b.len() < 8 || &b[..2] != b"HS" || b[2] != 1 || !(1..=4).contains(&b[3]) {
             return Refused("rejected_auth");
         }
         let (sender, receiver) = (SystemId(u16_at(b, 4)), SystemId(u16_at(b, 6)));
@@ -337,7 +338,9 @@ impl Run {
             return Refused("rejected_unknown_sender");
         }
         match b[3] {
-            3 => self.predict_data(sender, b),
+            // A data batch (type 4) is checked as a data message up to its authentication;
+            // the target seals none, so none of them authenticates.
+            3 | 4 => self.predict_data(sender, b),
             1 => {
                 if self.in_memory {
                     return Refused("rejected_auth");
