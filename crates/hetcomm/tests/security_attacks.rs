@@ -107,7 +107,10 @@ impl World {
                 }
                 w.exchange(1);
             }
-            assert!(!w.captured_data().is_empty(), "the sniffer hears A's frames");
+            assert!(
+                !w.captured_data().is_empty(),
+                "the sniffer hears A's frames"
+            );
         }
         w
     }

@@ -76,7 +76,8 @@ impl Secured {
             return Ok(());
         }
         let frames = std::mem::take(&mut h.frames);
-        let st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        self.take_sim_session(to, &mut st);
         let result = match &st.current {
             Some(session) if !st.flushing => {
                 let mut buf = take_scratch(&TX);
@@ -121,6 +122,18 @@ impl Secured {
         result
     }
 
+    /// In a simulation, the session with `to` the first frame to it takes (made in memory).
+    fn take_sim_session(&self, to: SystemId, st: &mut PeerState) {
+        if st.current.is_none() {
+            if let Handshakes::InMemory(sim) = &self.handshakes {
+                if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
+                    st.install(s);
+                    bump(&self.counters.handshakes);
+                }
+            }
+        }
+    }
+
     /// Seals and sends `head` + `body` to `to` now, or queues it until a session exists.
     fn send_now(
         &self,
@@ -133,14 +146,7 @@ impl Secured {
     ) -> Result<(), LinkError> {
         let mut buf = take_scratch(&TX);
         let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-        if st.current.is_none() {
-            if let Handshakes::InMemory(sim) = &self.handshakes {
-                if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
-                    st.install(s);
-                    bump(&self.counters.handshakes);
-                }
-            }
-        }
+        self.take_sim_session(to, &mut st);
         match &st.current {
             // Sealed under the lock (it orders nothing: the counter is atomic), which spares
             // taking a reference to the session for every frame.

@@ -289,49 +289,45 @@ pub fn section() -> Section {
 
     let mut sealed = Vec::new();
     // A data message, or with `batch` a data batch whose records are `inner`.
-    let mut seal_kind = |name: &str,
-                         description: &str,
-                         forward: bool,
-                         inner: &[u8],
-                         batch: bool|
-     -> Vec<u8> {
-        let (session, from, to, key) = if forward {
-            (
-                &made.initiator,
-                INITIATOR,
-                RESPONDER,
-                "initiator_to_responder",
-            )
-        } else {
-            (
-                &made.responder,
-                RESPONDER,
-                INITIATOR,
-                "responder_to_initiator",
-            )
+    let mut seal_kind =
+        |name: &str, description: &str, forward: bool, inner: &[u8], batch: bool| -> Vec<u8> {
+            let (session, from, to, key) = if forward {
+                (
+                    &made.initiator,
+                    INITIATOR,
+                    RESPONDER,
+                    "initiator_to_responder",
+                )
+            } else {
+                (
+                    &made.responder,
+                    RESPONDER,
+                    INITIATOR,
+                    "responder_to_initiator",
+                )
+            };
+            let mut out = Vec::new();
+            if batch {
+                session.seal_batch(&mut out, from, to, inner);
+            } else {
+                session.seal(&mut out, from, to, inner, &[]);
+            }
+            let counter = u64::from_le_bytes(out[12..20].try_into().expect("8 bytes"));
+            sealed.push(Sealed {
+                name: name.into(),
+                description: description.into(),
+                sender: from.0,
+                receiver: to.0,
+                key,
+                kind: out[3],
+                session_index: session.peer_index,
+                counter,
+                nonce_hex: hex(&nonce(counter)),
+                inner_hex: hex(inner),
+                secured_hex: hex(&out),
+            });
+            out
         };
-        let mut out = Vec::new();
-        if batch {
-            session.seal_batch(&mut out, from, to, inner);
-        } else {
-            session.seal(&mut out, from, to, inner, &[]);
-        }
-        let counter = u64::from_le_bytes(out[12..20].try_into().expect("8 bytes"));
-        sealed.push(Sealed {
-            name: name.into(),
-            description: description.into(),
-            sender: from.0,
-            receiver: to.0,
-            key,
-            kind: out[3],
-            session_index: session.peer_index,
-            counter,
-            nonce_hex: hex(&nonce(counter)),
-            inner_hex: hex(inner),
-            secured_hex: hex(&out),
-        });
-        out
-    };
     let mut seal = |name: &str, description: &str, forward: bool, inner: &[u8]| {
         seal_kind(name, description, forward, inner, false)
     };
