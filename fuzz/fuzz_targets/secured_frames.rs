@@ -587,7 +587,12 @@ impl Run {
                 let cut = inner.len() / 2;
                 self.link.send_parts(p, &inner[..cut], &inner[cut..])
             }
-            _ => self.link.send_held(p, &inner),
+            // The layer holds it until the flush (the runtime's, at the latest when its
+            // linger runs out); alone, it leaves as a data message.
+            _ => self
+                .link
+                .send_held(p, &inner)
+                .and_then(|()| self.link.flush()),
         };
         r.expect("the layer takes the frame");
         assert_eq!(self.link.stats().security, self.stats);
