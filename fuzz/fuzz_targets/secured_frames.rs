@@ -146,6 +146,9 @@ impl Held {
 struct PeerModel {
     current: Option<Held>,
     previous: Option<Held>,
+    /// Sessions the layer answered (as responder) that no authentic frame has used yet, the
+    /// newest last (at most two): the first frame that passes in one makes it current.
+    unconfirmed: Vec<Held>,
     /// The layer's initiation under way: its index and bytes.
     pending: Option<(u32, Vec<u8>)>,
     last_init: Option<u64>,
@@ -163,7 +166,19 @@ impl PeerModel {
         [self.current.as_mut(), self.previous.as_mut()]
             .into_iter()
             .flatten()
+            .chain(self.unconfirmed.iter_mut())
             .find(|h| h.index == index)
+    }
+
+    /// A frame passed in the session `index`: if it is an unconfirmed one, it becomes current
+    /// (the others are forgotten, and the layer's own handshake is over).
+    fn confirm(&mut self, index: u32) {
+        if let Some(i) = self.unconfirmed.iter().position(|h| h.index == index) {
+            let held = self.unconfirmed.remove(i);
+            self.unconfirmed.clear();
+            self.pending = None;
+            self.install(held);
+        }
     }
 }
 
@@ -420,6 +435,9 @@ impl Run {
                 }
             }
         };
+        if matches!(verdict, Expect::HandedUp(..) | Expect::Silent) {
+            self.peers.get_mut(&sender).unwrap().confirm(index);
+        }
         if taken {
             self.peers.get_mut(&sender).unwrap().taken = true;
             *stat(&mut self.stats, "handshakes") += 1;
@@ -501,8 +519,13 @@ impl Run {
                     });
                 let pm = self.peers.get_mut(&p).unwrap();
                 pm.last_init = Some(timestamp);
-                pm.pending = None;
-                pm.install(Held::new(u32_at(&response, 8), clear_index, mine));
+                // Held apart until the peer's first frame in it; the layer's own handshake
+                // (if any) goes on.
+                if pm.unconfirmed.len() == 2 {
+                    pm.unconfirmed.remove(0);
+                }
+                pm.unconfirmed
+                    .push(Held::new(u32_at(&response, 8), clear_index, mine));
                 self.history.push(response);
                 self.check_sent(sent[1..].to_vec());
             }
@@ -510,6 +533,11 @@ impl Run {
                 let pm = self.peers.get_mut(&p).unwrap();
                 let index = self.mine[sid].1.peer_index;
                 pm.install(Held::new(index, u32_at(&b, 8), Some(sid)));
+                if pm.out.is_empty() {
+                    // With nothing waiting, the initiator confirms the session with one data
+                    // message whose inner frame is empty.
+                    pm.out.push_back(Vec::new());
+                }
                 let sent = self.take_sent();
                 self.check_sent(sent);
             }
