@@ -415,7 +415,8 @@ impl Run {
             Some(_) if !held.accept(counter) => Refused("rejected_replay"),
             Some(s) => {
                 let inner = &s.inner;
-                let allowed = inner.len() < 16 || {
+                // Not a hetcomm frame (short, or without the magic "HC"): the router refuses it.
+                let allowed = inner.len() < 16 || inner[..2] != wire::MAGIC || {
                     let (source, destination) =
                         (SystemId(u16_at(inner, 8)), SystemId(u16_at(inner, 12)));
                     source == sender

@@ -198,7 +198,7 @@ class Receiver:
 
     def check_inner(self, sender: int, inner: bytes) -> tuple[str, bytes]:
         """Check 8 on one authenticated inner frame, and what is handed up."""
-        if len(inner) >= 16:
+        if len(inner) >= 16 and inner[:2] == b"HC":
             kind, source, destination = inner[3], *struct.unpack_from("<H2xH", inner, 8)
             if source != sender or destination != self.local:
                 return "rejected_table", b""
