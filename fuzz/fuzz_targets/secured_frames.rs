@@ -15,7 +15,8 @@
 //! - no panic;
 //! - every frame fed has exactly the outcome the model predicts from the document's order of
 //!   checks (prefix → receiver → known sender → session index → authentication → replay
-//!   window → inner source / destination / table): one refusal counter up by exactly one, or
+//!   window → inner source / destination / table; a data batch, type 4, like a data message):
+//!   one refusal counter up by exactly one, or
 //!   the inner frame handed up once (labelled with the authenticated sender), or a handshake
 //!   completed, or — for the two silent cases the layer has, an authenticated empty inner frame
 //!   and an initiation it ignores because it is the lower id with a handshake of its own under
@@ -145,6 +146,9 @@ impl Held {
 struct PeerModel {
     current: Option<Held>,
     previous: Option<Held>,
+    /// Sessions the layer answered (as responder) that no authentic frame has used yet, the
+    /// newest last (at most two): the first frame that passes in one makes it current.
+    unconfirmed: Vec<Held>,
     /// The layer's initiation under way: its index and bytes.
     pending: Option<(u32, Vec<u8>)>,
     last_init: Option<u64>,
@@ -162,7 +166,19 @@ impl PeerModel {
         [self.current.as_mut(), self.previous.as_mut()]
             .into_iter()
             .flatten()
+            .chain(self.unconfirmed.iter_mut())
             .find(|h| h.index == index)
+    }
+
+    /// A frame passed in the session `index`: if it is an unconfirmed one, it becomes current
+    /// (the others are forgotten, and the layer's own handshake is over).
+    fn confirm(&mut self, index: u32) {
+        if let Some(i) = self.unconfirmed.iter().position(|h| h.index == index) {
+            let held = self.unconfirmed.remove(i);
+            self.unconfirmed.clear();
+            self.pending = None;
+            self.install(held);
+        }
     }
 }
 
@@ -326,7 +342,7 @@ impl Run {
     /// depend on what the layer sends back.
     fn predict(&mut self, b: &[u8]) -> Expect {
         use Expect::Refused;
-        if b.len() < 8 || &b[..2] != b"HS" || b[2] != 1 || !(1..=3).contains(&b[3]) {
+        if b.len() < 8 || &b[..2] != b"HS" || b[2] != 1 || !(1..=4).contains(&b[3]) {
             return Refused("rejected_auth");
         }
         let (sender, receiver) = (SystemId(u16_at(b, 4)), SystemId(u16_at(b, 6)));
@@ -337,7 +353,9 @@ impl Run {
             return Refused("rejected_unknown_sender");
         }
         match b[3] {
-            3 => self.predict_data(sender, b),
+            // A data batch (type 4) is checked as a data message up to its authentication;
+            // the target seals none, so none of them authenticates.
+            3 | 4 => self.predict_data(sender, b),
             1 => {
                 if self.in_memory {
                     return Refused("rejected_auth");
@@ -397,7 +415,8 @@ impl Run {
             Some(_) if !held.accept(counter) => Refused("rejected_replay"),
             Some(s) => {
                 let inner = &s.inner;
-                let allowed = inner.len() < 16 || {
+                // Not a hetcomm frame (short, or without the magic "HC"): the router refuses it.
+                let allowed = inner.len() < 16 || inner[..2] != wire::MAGIC || {
                     let (source, destination) =
                         (SystemId(u16_at(inner, 8)), SystemId(u16_at(inner, 12)));
                     source == sender
@@ -417,6 +436,9 @@ impl Run {
                 }
             }
         };
+        if matches!(verdict, Expect::HandedUp(..) | Expect::Silent) {
+            self.peers.get_mut(&sender).unwrap().confirm(index);
+        }
         if taken {
             self.peers.get_mut(&sender).unwrap().taken = true;
             *stat(&mut self.stats, "handshakes") += 1;
@@ -498,8 +520,13 @@ impl Run {
                     });
                 let pm = self.peers.get_mut(&p).unwrap();
                 pm.last_init = Some(timestamp);
-                pm.pending = None;
-                pm.install(Held::new(u32_at(&response, 8), clear_index, mine));
+                // Held apart until the peer's first frame in it; the layer's own handshake
+                // (if any) goes on.
+                if pm.unconfirmed.len() == 2 {
+                    pm.unconfirmed.remove(0);
+                }
+                pm.unconfirmed
+                    .push(Held::new(u32_at(&response, 8), clear_index, mine));
                 self.history.push(response);
                 self.check_sent(sent[1..].to_vec());
             }
@@ -507,6 +534,11 @@ impl Run {
                 let pm = self.peers.get_mut(&p).unwrap();
                 let index = self.mine[sid].1.peer_index;
                 pm.install(Held::new(index, u32_at(&b, 8), Some(sid)));
+                if pm.out.is_empty() {
+                    // With nothing waiting, the initiator confirms the session with one data
+                    // message whose inner frame is empty.
+                    pm.out.push_back(Vec::new());
+                }
                 let sent = self.take_sent();
                 self.check_sent(sent);
             }
@@ -584,7 +616,12 @@ impl Run {
                 let cut = inner.len() / 2;
                 self.link.send_parts(p, &inner[..cut], &inner[cut..])
             }
-            _ => self.link.send_held(p, &inner),
+            // The layer holds it until the flush (the runtime's, at the latest when its
+            // linger runs out); alone, it leaves as a data message.
+            _ => self
+                .link
+                .send_held(p, &inner)
+                .and_then(|()| self.link.flush()),
         };
         r.expect("the layer takes the frame");
         assert_eq!(self.link.stats().security, self.stats);

@@ -23,6 +23,10 @@ use crate::stats::SinkCounter;
 pub const DATA: hetcomm::MessageType = hetcomm::MessageType(1);
 /// The message type that ends a sink.
 pub const STOP: hetcomm::MessageType = hetcomm::MessageType(2);
+/// The message type of the probe a one-way run sends before its timed part (it makes sure
+/// the receiver is there, and starts a secured link's handshake): not counted, so that the
+/// receiver's window starts with the timed messages.
+pub const PROBE: hetcomm::MessageType = hetcomm::MessageType(3);
 
 /// A running peer process.
 pub struct Peer {
@@ -213,11 +217,21 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                     let wait = Some(Duration::from_millis(20));
                     match m.recv_raw_many(&mut batch, crate::hc::RECV_BATCH, wait) {
                         Ok(_) => {
+                            let (mut n, mut bytes, mut stop) = (0, 0, false);
                             for msg in batch.drain(..) {
-                                if msg.envelope.message_type() == STOP {
-                                    break 'recv;
+                                match msg.envelope.message_type() {
+                                    STOP => stop = true,
+                                    PROBE => {}
+                                    _ if !stop => {
+                                        n += 1;
+                                        bytes += msg.payload.len();
+                                    }
+                                    _ => {}
                                 }
-                                c.add(msg.payload.len());
+                            }
+                            c.add_many(n, bytes);
+                            if stop {
+                                break 'recv;
                             }
                             last = Instant::now();
                         }
@@ -321,25 +335,40 @@ fn tcp_role(stream: std::net::TcpStream, echo: bool) -> Result<(), String> {
     Ok(())
 }
 
-/// With `HETCOMM_BENCH_SINK_CPU` set (a developer aid, see `main.rs`), a sink says on
-/// standard error how much CPU time its whole process used per message received: the
-/// receiver's cost, which throughput alone hides when the machine is busy.
-fn report_cpu(role: &str, count: u64) {
-    if std::env::var_os("HETCOMM_BENCH_SINK_CPU").is_none() || count == 0 {
-        return;
-    }
+/// Whether `HETCOMM_BENCH_SINK_CPU` is set (a developer aid, see `main.rs`).
+pub(crate) fn cpu_report_wanted() -> bool {
+    std::env::var_os("HETCOMM_BENCH_SINK_CPU").is_some()
+}
+
+/// CPU time (user, system) in µs used so far by this process (`libc::RUSAGE_SELF`) or by
+/// the calling thread (`libc::RUSAGE_THREAD`).
+pub(crate) fn cpu_us(who: libc::c_int) -> (f64, f64) {
     // SAFETY: getrusage writes into the zeroed struct we pass.
     let usage = unsafe {
         let mut u: libc::rusage = std::mem::zeroed();
-        libc::getrusage(libc::RUSAGE_SELF, &mut u);
+        libc::getrusage(who, &mut u);
         u
     };
     let us = |t: libc::timeval| t.tv_sec as f64 * 1e6 + t.tv_usec as f64;
-    let (user, sys) = (us(usage.ru_utime), us(usage.ru_stime));
+    (us(usage.ru_utime), us(usage.ru_stime))
+}
+
+/// Prints on standard error the CPU time (user, system; µs) `who` used per message.
+pub(crate) fn print_cpu(who: &str, count: u64, (user, sys): (f64, f64)) {
     eprintln!(
-        "sink {role}: {count} messages, CPU per message {:.2} µs (user {:.2}, sys {:.2})",
+        "{who}: {count} messages, CPU per message {:.2} µs (user {:.2}, sys {:.2})",
         (user + sys) / count as f64,
         user / count as f64,
         sys / count as f64
     );
+}
+
+/// With `HETCOMM_BENCH_SINK_CPU` set (a developer aid, see `main.rs`), a sink says on
+/// standard error how much CPU time its whole process used per message received: the
+/// receiver's cost, which throughput alone hides when the machine is busy.
+fn report_cpu(role: &str, count: u64) {
+    if !cpu_report_wanted() || count == 0 {
+        return;
+    }
+    print_cpu(&format!("sink {role}"), count, cpu_us(libc::RUSAGE_SELF));
 }

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use hetcomm::{Comm, LocalFleet, Module, RouterStats};
 
-use crate::child::{Peer, DATA, STOP};
+use crate::child::{Peer, DATA, PROBE, STOP};
 use crate::raw::TempDir;
 use crate::stats::{parse_sink_line, Latency, Outcomes, Recorder, SinkCounter, Throughput};
 
@@ -302,12 +302,15 @@ pub fn oneway(
         return inproc_oneway(acked, size, duration).map(|(t, _)| t);
     }
     let mut pair = open_pair(kind, acked, "sink")?;
-    let before = pair.comm.stats().router;
     let msg = vec![7u8; size];
-    // Make sure B is there: a first message, acknowledged or not, then the timed run.
-    let first = pair.m.send_raw("B", "M", DATA, &msg, Default::default());
+    // Make sure B is there (and a secured link's handshake done): a probe, acknowledged or
+    // not, which B does not count, then the timed run. B's clock starts at the first timed
+    // message, so that its rate is the timed run's alone.
+    let _ = pair.m.send_raw("B", "M", PROBE, &msg, Default::default());
     std::thread::sleep(Duration::from_millis(50));
-    let mut sent = u64::from(first.is_ok());
+    let before = pair.comm.stats().router;
+    let mut sent = 0;
+    let cpu_before = crate::child::cpu_us(libc::RUSAGE_THREAD);
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {
@@ -315,6 +318,13 @@ pub fn oneway(
                 sent += 1;
             }
         }
+    }
+    if crate::child::cpu_report_wanted() && sent > 0 {
+        // The sending thread's own CPU time: a sender's cost, as the sink's line gives the
+        // receiver's.
+        let after = crate::child::cpu_us(libc::RUSAGE_THREAD);
+        let who = format!("sender {} {size} B", path_name(kind, acked));
+        crate::child::print_cpu(&who, sent, (after.0 - cpu_before.0, after.1 - cpu_before.1));
     }
     // Counted before STOP is sent: the outcomes are those of the measured messages.
     let outcomes = acked.then(|| wait_for_outcomes(&pair.comm, &before, OUTCOME_WAIT));

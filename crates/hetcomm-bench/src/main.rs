@@ -25,7 +25,8 @@
 //! `--paths raw-tcp,hetcomm-tcp-unack`; `zenoh-tcp`, `cyclone-ddsperf` included). With the
 //! environment variable `HETCOMM_BENCH_SINK_CPU` set, the raw TCP and hetcomm sink processes
 //! of the `oneway` section also print to standard error the CPU time (user + system, whole
-//! process) they used per message received.
+//! process) they used per message received, and the hetcomm rows' sending thread the CPU
+//! time it used per message sent.
 
 mod child;
 mod config_scale;

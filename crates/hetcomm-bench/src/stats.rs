@@ -174,6 +174,19 @@ impl SinkCounter {
         self.bytes += len as u64;
     }
 
+    /// Counts `n` messages of `len` bytes in all, taken together now (a batch): one clock
+    /// reading for all of them. Nothing if `n` is 0.
+    pub fn add_many(&mut self, n: u64, len: usize) {
+        if n == 0 {
+            return;
+        }
+        let now = Instant::now();
+        self.first.get_or_insert(now);
+        self.last = Some(now);
+        self.count += n;
+        self.bytes += len as u64;
+    }
+
     /// Nanoseconds from the first to the last message.
     pub fn elapsed_ns(&self) -> u128 {
         match (self.first, self.last) {

@@ -2,8 +2,8 @@
 "Secured frames" section written from the document alone: the Noise KK handshake (X25519,
 SHA-256, AES-256-GCM, HKDF as in the Noise specification) from the stated static and ephemeral
 private keys, the split keys, every sealed data frame (AES-256-GCM, nonce 4 zero bytes + the
-counter little-endian, associated data the 20 clear bytes), and the receiver's checks in the
-documented order for every frame of `received`.
+counter little-endian, associated data the 20 clear bytes; a data batch's records), and the
+receiver's checks in the documented order for every frame of `received`.
 
 The primitives come from the `cryptography` package (scripts/test-python.sh installs it); the
 protocol around them is here, in a few dozen lines, and uses nothing of hetcomm."""
@@ -125,8 +125,8 @@ def test_handshake_and_split_keys() -> None:
     assert k2.hex() == h["key_responder_to_initiator_hex"]
 
 
-def seal(key: bytes, sender: int, receiver: int, index: int, counter: int, inner: bytes) -> bytes:
-    clear = DATA.pack(b"HS", 1, 3, sender, receiver, index, counter)
+def seal(key: bytes, kind: int, sender: int, receiver: int, index: int, counter: int, inner: bytes) -> bytes:
+    clear = DATA.pack(b"HS", 1, kind, sender, receiver, index, counter)
     nonce = b"\0" * 4 + struct.pack("<Q", counter)
     return clear + AESGCM(key).encrypt(nonce, inner, clear)
 
@@ -135,7 +135,9 @@ def seal(key: bytes, sender: int, receiver: int, index: int, counter: int, inner
 def test_sealed(v: dict) -> None:
     key = bytes.fromhex(SECURED["handshake"]["key_" + v["key"] + "_hex"])
     assert v["nonce_hex"] == (b"\0" * 4 + struct.pack("<Q", v["counter"])).hex()
-    out = seal(key, v["sender"], v["receiver"], v["session_index"], v["counter"], bytes.fromhex(v["inner_hex"]))
+    out = seal(
+        key, v["type"], v["sender"], v["receiver"], v["session_index"], v["counter"], bytes.fromhex(v["inner_hex"])
+    )
     assert out.hex() == v["secured_hex"]
 
 
@@ -159,27 +161,44 @@ class Receiver:
         if len(frame) < 8:
             return "rejected_auth", b""
         magic, version, kind, sender, receiver = PREFIX.unpack_from(frame)
-        if magic != b"HS" or version != 1 or kind not in (1, 2, 3):
+        if magic != b"HS" or version != 1 or kind not in (1, 2, 3, 4):
             return "rejected_auth", b""
         if receiver != self.local:
             return "rejected_table", b""
         if sender not in self.peers:
             return "rejected_unknown_sender", b""
-        assert kind == 3, "the vectors hold data frames only"
+        assert kind in (3, 4), "the vectors hold data messages and data batches only"
         if len(frame) < DATA.size + TAG:
             return "rejected_auth", b""
         index, counter = struct.unpack_from("<IQ", frame, 8)
         if index != self.my_index:
             return "rejected_no_session", b""
         try:
-            inner = AESGCM(self.key).decrypt(b"\0" * 4 + struct.pack("<Q", counter), frame[20:], frame[:20])
+            plain = AESGCM(self.key).decrypt(b"\0" * 4 + struct.pack("<Q", counter), frame[20:], frame[:20])
         except Exception:
             return "rejected_auth", b""
         if counter in self.seen or (self.top is not None and counter < self.top and self.top - counter >= WINDOW):
             return "rejected_replay", b""
         self.seen.add(counter)
         self.top = counter if self.top is None else max(self.top, counter)
-        if len(inner) >= 16:
+        if kind == 3:
+            return self.check_inner(sender, plain)
+        # A data batch: records (u32 length, at least 1, then the frame) to the end; each frame
+        # is checked on its own, and what passes is handed up (here: one after the other).
+        handed, verdict, at = b"", "rejected_table", 0
+        while at < len(plain):
+            (length,) = struct.unpack_from("<I", plain, at) if at + 4 <= len(plain) else (0,)
+            if length == 0 or at + 4 + length > len(plain):
+                return ("handed_up", handed) if handed else ("rejected_auth", b"")
+            one, inner = self.check_inner(sender, plain[at + 4 : at + 4 + length])
+            if one == "handed_up":
+                handed, verdict = handed + inner, one
+            at += 4 + length
+        return verdict, handed
+
+    def check_inner(self, sender: int, inner: bytes) -> tuple[str, bytes]:
+        """Check 8 on one authenticated inner frame, and what is handed up."""
+        if len(inner) >= 16 and inner[:2] == b"HC":
             kind, source, destination = inner[3], *struct.unpack_from("<H2xH", inner, 8)
             if source != sender or destination != self.local:
                 return "rejected_table", b""

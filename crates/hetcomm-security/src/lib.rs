@@ -9,9 +9,10 @@
 //! - **Sessions** ([`session`]): a Noise KK handshake (`Noise_KK_25519_AESGCM_SHA256`, by the
 //!   `snow` crate) per pair of systems and link, with fresh ephemeral keys on both sides, so
 //!   frames of an old session (before either side restarted) never open in a new one.
-//! - **Frames** ([`envelope`]): every frame is sealed with AES-256-GCM (`ring`) under the
+//! - **Frames** ([`envelope`]): every frame is sealed with AES-256-GCM (`aws-lc-rs`) under the
 //!   session's key for its direction: the whole inner frame (header and payload) is encrypted,
-//!   and the clear prefix (sender, receiver, session, counter) is authenticated.
+//!   and the clear prefix (sender, receiver, session, counter) is authenticated. Frames the
+//!   router lets wait to leave together are sealed together, as one data batch.
 //! - **Freshness** ([`replay`]): a per-session replay window (RFC 6479), moved only by
 //!   frames that authenticated.
 //! - **The table on receipt** ([`Policy`]): an authentic frame whose inner header claims

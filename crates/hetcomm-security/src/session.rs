@@ -56,9 +56,22 @@ impl Session {
             .seal(out, (local, peer), self.peer_index, counter, head, body);
     }
 
+    /// Seals the data batch `records` from `local` to `peer` into `out`.
+    pub fn seal_batch(&self, out: &mut Vec<u8>, local: SystemId, peer: SystemId, records: &[u8]) {
+        let counter = self.counter.fetch_add(1, Ordering::Relaxed);
+        self.send
+            .seal_batch(out, (local, peer), self.peer_index, counter, records);
+    }
+
     /// Decrypts a data frame in place. False if it does not authenticate.
     pub fn open(&self, frame: &mut [u8]) -> bool {
         self.recv.open(frame)
+    }
+
+    /// Decrypts a data frame into `out` (of the inner frame's length), leaving the frame as
+    /// it is. False if it does not authenticate.
+    pub fn open_into(&self, frame: &[u8], out: &mut [u8]) -> bool {
+        self.recv.open_into(frame, out)
     }
 
     /// Records an authenticated frame's counter; false if it was seen before (a replay).

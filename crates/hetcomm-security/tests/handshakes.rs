@@ -1,6 +1,7 @@
 //! The security layer's handshakes over a link whose frames the test holds, drops, replays
 //! and delivers by hand: restarts of either side, an initiation replayed after the responder
-//! restarted, responses that come late or not at all.
+//! restarted, responses that come late or not at all; and held frames leaving as one data
+//! batch.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::{Arc, Mutex};
@@ -148,15 +149,25 @@ impl Node {
         }
     }
 
-    /// Sends a data frame numbered `seq` to the peer.
-    fn send(&self, seq: u64) {
+    /// A data frame numbered `seq` to the peer.
+    fn frame(&self, seq: u64) -> Vec<u8> {
         let at = |system| Address {
             system,
             module: ModuleId(0),
         };
         let mut h = Header::data(at(self.local), at(self.peer), MessageType(1));
         h.seq = seq;
-        self.link.send(self.peer, &wire::encode(&h, b"x")).unwrap();
+        wire::encode(&h, b"x")
+    }
+
+    /// Sends a data frame numbered `seq` to the peer.
+    fn send(&self, seq: u64) {
+        self.link.send(self.peer, &self.frame(seq)).unwrap();
+    }
+
+    /// Sends a data frame numbered `seq` to the peer, letting it wait for the next ones.
+    fn send_held(&self, seq: u64) {
+        self.link.send_held(self.peer, &self.frame(seq)).unwrap();
     }
 
     /// The sequence numbers the router got.
@@ -255,4 +266,43 @@ fn a_handshake_started_by_an_unknown_session_is_retried_when_its_response_is_los
     b.send(2);
     net.run();
     assert_eq!(a.got(), [2], "B's frames reach the new A");
+}
+
+/// Frames the router lets wait (`send_held`) leave at `flush` as one data batch (type 4),
+/// sealed once; the receiver hands every one up in order, and refuses the batch replayed as
+/// one replay. A lone held frame leaves as a data message (type 3).
+#[test]
+fn held_frames_leave_as_one_data_batch() {
+    let (net, keys) = (Arc::new(Net::default()), keys());
+    let a = Node::open(&net, &keys, A);
+    let b = Node::open(&net, &keys, B);
+    a.send(1);
+    net.run();
+    assert_eq!(b.got(), [1]);
+    for seq in 2..=6 {
+        a.send_held(seq);
+    }
+    assert!(net.queue.lock().unwrap().is_empty(), "held until the flush");
+    a.link.flush().unwrap();
+    let (to, batch) = net.take(4).expect("a data batch");
+    assert_eq!(to, B);
+    assert!(
+        net.queue.lock().unwrap().is_empty(),
+        "one secured frame for five"
+    );
+    net.deliver(B, &batch);
+    assert_eq!(b.got(), [1, 2, 3, 4, 5, 6]);
+    net.deliver(B, &batch);
+    assert_eq!(b.got().len(), 6, "a replayed batch hands nothing up");
+    assert_eq!(b.link.stats().security.rejected_replay, 1);
+    a.send_held(7);
+    a.link.flush().unwrap();
+    let (_, single) = net.take(3).expect("a lone held frame, as a data message");
+    net.deliver(B, &single);
+    // A held frame goes before a later plain one.
+    a.send_held(8);
+    a.send(9);
+    net.run();
+    assert_eq!(b.got(), [1, 2, 3, 4, 5, 6, 7, 8, 9]);
+    assert_eq!(b.link.stats().security.rejected(), 1);
 }

@@ -184,14 +184,12 @@ fn split_keys_seal_the_data_vectors() {
             SystemId(n(v, "sender") as u16),
             SystemId(n(v, "receiver") as u16),
         );
-        key.seal(
-            &mut out,
-            ids,
-            n(v, "session_index") as u32,
-            counter,
-            &inner,
-            &[],
-        );
+        let index = n(v, "session_index") as u32;
+        match n(v, "type") {
+            3 => key.seal(&mut out, ids, index, counter, &inner, &[]),
+            4 => key.seal_batch(&mut out, ids, index, counter, &inner),
+            other => panic!("{}: type {other}", s(v, "name")),
+        }
         assert_eq!(hex(&out), s(v, "secured_hex"), "{}", s(v, "name"));
         assert!(key.open(&mut out), "{}", s(v, "name"));
         assert_eq!(&out[DATA_HEADER_LEN..out.len() - TAG_LEN], &inner[..]);
@@ -292,7 +290,9 @@ fn a_security_layer_gives_each_verdict() {
         let new: Vec<&[u8]> = frames[handed..].iter().map(|f| &f.bytes[..]).collect();
         match verdict {
             "handed_up" => {
-                assert_eq!(new, [&unhex(s(v, "inner_hex"))[..]], "{name}");
+                // A data batch hands up several frames: `inner_hex` is all of them in order.
+                assert!(!new.is_empty(), "{name}");
+                assert_eq!(new.concat(), unhex(s(v, "inner_hex")), "{name}");
                 let sender = if n(v, "receiver") == 1 {
                     RESPONDER
                 } else {

@@ -143,12 +143,14 @@ impl Sim {
         assert_eq!(got, want, "seed {}", self.seed);
     }
 
-    /// The sealed data frames A sent B, recorded since the last call.
+    /// The sealed data messages and data batches A sent B, recorded since the last call.
     fn recorded_data(&self) -> Vec<Vec<u8>> {
         self.sim
             .take_recorded()
             .into_iter()
-            .filter(|f| secured_kind(&f.bytes) == Some(3) && secured_pair(&f.bytes) == (A, B))
+            .filter(|f| {
+                matches!(secured_kind(&f.bytes), Some(3 | 4)) && secured_pair(&f.bytes) == (A, B)
+            })
             .map(|f| f.bytes)
             .collect()
     }

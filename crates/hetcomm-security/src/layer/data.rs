@@ -8,11 +8,12 @@ use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, LinkError, Peer};
 
 use super::*;
-use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, TAG_LEN};
+use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, RECORD_HEADER, TAG_LEN};
 use crate::session::Session;
 
 impl Secured {
-    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists.
+    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists; `held`:
+    /// the router lets it wait to leave with the frames after it (see [`Link::send_held`]).
     pub(super) fn send(
         &self,
         below: &dyn Link,
@@ -28,88 +29,206 @@ impl Secured {
                 self.transport
             ),
         })?;
-        let max = below.caps().max_frame.saturating_sub(OVERHEAD);
+        let caps = below.caps();
+        let max = caps.max_frame.saturating_sub(OVERHEAD);
         if head.len() + body.len() > max {
             return Err(LinkError::TooLarge {
                 len: head.len() + body.len(),
                 max,
             });
         }
-        let session = {
-            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-            if st.current.is_none() {
-                if let Handshakes::InMemory(sim) = &self.handshakes {
-                    if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
-                        st.install(s);
-                        bump(&self.counters.handshakes);
-                    }
-                }
+        // Frames the router lets wait go into one data batch per peer, sealed once, that
+        // fits one datagram (`mtu`) of the link below.
+        let limit = caps.mtu.min(BATCH_BYTES).saturating_sub(OVERHEAD);
+        let record = RECORD_HEADER + head.len() + body.len();
+        let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
+        if held && record <= limit {
+            if h.frames > 0 && h.records.len() + record > limit {
+                // Held frames go first. Their failure is counted; the result is this frame's.
+                let _ = self.send_held_batch(below, to, slot, &mut h);
             }
-            match st.current.clone().filter(|_| !st.flushing) {
-                Some(s) => s,
-                None if st.flushing => {
-                    // Behind the frames that waited for the handshake, which are leaving now.
-                    let mut frame = Vec::with_capacity(head.len() + body.len());
-                    frame.extend_from_slice(head);
-                    frame.extend_from_slice(body);
-                    st.queued_bytes += frame.len();
-                    st.queue.push_back(frame);
-                    return Ok(());
+            envelope::push_record(&mut h.records, head, body);
+            h.frames += 1;
+            if limit - h.records.len() < RECORD_HEADER + MIN_FRAME {
+                // No further frame can fit: holding these longer would only add latency.
+                return self.send_held_batch(below, to, slot, &mut h);
+            }
+            return Ok(());
+        }
+        if h.frames > 0 {
+            let _ = self.send_held_batch(below, to, slot, &mut h);
+        }
+        drop(h);
+        self.send_now(below, to, slot, head, body, held)
+    }
+
+    /// Seals and sends the frames held for `to` as one data batch (a single frame as a data
+    /// message), or, with no session to seal them in, queues them for the handshake. A batch
+    /// the link refuses is counted in the link's `frames_dropped`.
+    pub(super) fn send_held_batch(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        h: &mut Held,
+    ) -> Result<(), LinkError> {
+        if h.frames == 0 {
+            return Ok(());
+        }
+        let frames = std::mem::take(&mut h.frames);
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        self.take_sim_session(to, &mut st);
+        let result = match &st.current {
+            Some(session) if !st.flushing => {
+                let mut buf = take_scratch(&TX);
+                if frames == 1 {
+                    session.seal(
+                        &mut buf,
+                        self.policy.local,
+                        to,
+                        &h.records[RECORD_HEADER..],
+                        &[],
+                    );
+                } else {
+                    session.seal_batch(&mut buf, self.policy.local, to, &h.records);
                 }
-                None => {
-                    // Wait for the handshake; start (or restart) it if needed.
-                    if st.queue.len() >= QUEUE_FRAMES
-                        || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
-                    {
-                        return Err(LinkError::Congested {
-                            peer: to,
-                            reason: "frames waiting for the security handshake".into(),
-                        });
-                    }
-                    let mut frame = Vec::with_capacity(head.len() + body.len());
-                    frame.extend_from_slice(head);
-                    frame.extend_from_slice(body);
-                    st.queued_bytes += frame.len();
-                    st.queue.push_back(frame);
-                    st.waiting_since.get_or_insert_with(Instant::now);
-                    let stale = st
-                        .pending
-                        .as_ref()
-                        .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
-                    let init = if stale {
-                        self.start_handshake(to, slot, &mut st)
-                    } else {
-                        None
-                    };
-                    drop(st);
-                    if let Some(init) = init {
-                        if let Err(e) = try_send_handshake(below, to, &init) {
-                            // The link cannot reach the peer (no subscriber, no route): say so
-                            // now, as the bare link would, instead of holding the frame for a
-                            // handshake that cannot start. Later frames try again.
-                            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-                            st.pending = None;
-                            if let Some(frame) = st.queue.pop_back() {
-                                st.queued_bytes -= frame.len();
-                            }
-                            if st.queue.is_empty() {
-                                st.waiting_since = None;
-                            }
-                            return Err(e);
+                drop(st);
+                let sent = below.send(to, &buf);
+                give_scratch(&TX, buf);
+                if sent.is_err() {
+                    self.held_dropped
+                        .fetch_add(frames as u64, Ordering::Relaxed);
+                }
+                sent
+            }
+            _ => {
+                // No session (or its waiting frames are leaving): these wait with them.
+                drop(st);
+                let mut first = Ok(());
+                for r in envelope::records(&h.records) {
+                    let st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                    let queued = self.hold(below, to, slot, st, &h.records[r], &[]);
+                    if queued.is_err() {
+                        self.held_dropped.fetch_add(1, Ordering::Relaxed);
+                        if first.is_ok() {
+                            first = queued;
                         }
                     }
-                    return Ok(());
                 }
+                first
             }
         };
-        with_scratch(&TX, |buf| {
-            session.seal(buf, self.policy.local, to, head, body);
-            if held {
-                below.send_held(to, buf)
-            } else {
-                below.send(to, buf)
+        h.records.clear();
+        result
+    }
+
+    /// In a simulation, the session with `to` the first frame to it takes (made in memory).
+    fn take_sim_session(&self, to: SystemId, st: &mut PeerState) {
+        if st.current.is_none() {
+            if let Handshakes::InMemory(sim) = &self.handshakes {
+                if let Some(s) = sim.half(&self.transport, self.policy.local, to) {
+                    st.install(s);
+                    bump(&self.counters.handshakes);
+                }
             }
-        })
+        }
+    }
+
+    /// Seals and sends `head` + `body` to `to` now, or queues it until a session exists.
+    fn send_now(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        head: &[u8],
+        body: &[u8],
+        held: bool,
+    ) -> Result<(), LinkError> {
+        let mut buf = take_scratch(&TX);
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        self.take_sim_session(to, &mut st);
+        match &st.current {
+            // Sealed under the lock (it orders nothing: the counter is atomic), which spares
+            // taking a reference to the session for every frame.
+            Some(session) if !st.flushing => {
+                session.seal(&mut buf, self.policy.local, to, head, body);
+                drop(st);
+                let sent = if held {
+                    below.send_held(to, &buf)
+                } else {
+                    below.send(to, &buf)
+                };
+                give_scratch(&TX, buf);
+                sent
+            }
+            _ => {
+                give_scratch(&TX, buf);
+                self.hold(below, to, slot, st, head, body)
+            }
+        }
+    }
+
+    /// Queues `head` + `body` for `to` while there is no session (starting the handshake if
+    /// needed), or behind the frames that waited for it while they leave.
+    fn hold(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        mut st: std::sync::MutexGuard<'_, PeerState>,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<(), LinkError> {
+        if st.flushing {
+            // Behind the frames that waited for the handshake, which are leaving now.
+            let mut frame = Vec::with_capacity(head.len() + body.len());
+            frame.extend_from_slice(head);
+            frame.extend_from_slice(body);
+            st.queued_bytes += frame.len();
+            st.queue.push_back(frame);
+            return Ok(());
+        }
+        // Wait for the handshake; start (or restart) it if needed.
+        if st.queue.len() >= QUEUE_FRAMES || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
+        {
+            return Err(LinkError::Congested {
+                peer: to,
+                reason: "frames waiting for the security handshake".into(),
+            });
+        }
+        let mut frame = Vec::with_capacity(head.len() + body.len());
+        frame.extend_from_slice(head);
+        frame.extend_from_slice(body);
+        st.queued_bytes += frame.len();
+        st.queue.push_back(frame);
+        st.waiting_since.get_or_insert_with(Instant::now);
+        let stale = st
+            .pending
+            .as_ref()
+            .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
+        let init = if stale {
+            self.start_handshake(to, slot, &mut st)
+        } else {
+            None
+        };
+        drop(st);
+        if let Some(init) = init {
+            if let Err(e) = try_send_handshake(below, to, &init) {
+                // The link cannot reach the peer (no subscriber, no route): say so now, as
+                // the bare link would, instead of holding the frame for a handshake that
+                // cannot start. Later frames try again.
+                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                st.pending = None;
+                if let Some(frame) = st.queue.pop_back() {
+                    st.queued_bytes -= frame.len();
+                }
+                if st.queue.is_empty() {
+                    st.waiting_since = None;
+                }
+                return Err(e);
+            }
+        }
+        Ok(())
     }
 
     /// Sends what waited for `peer`'s handshake, now that `session` exists, and what joins
@@ -139,25 +258,213 @@ impl Secured {
 
     /// A frame from the link: checked, opened, and handed to the router if it passes.
     pub(super) fn receive(&self, frame: Incoming<'_>) {
-        let bytes = frame.bytes();
+        if let Some((prefix, slot)) = self.check_prefix(frame.bytes()) {
+            self.dispatch(prefix, slot, frame);
+        }
+    }
+
+    /// The checks of the clear prefix: a secured frame, for this system, from a system with a
+    /// key. None (counted) if it fails one.
+    fn check_prefix(&self, bytes: &[u8]) -> Option<(envelope::Prefix, &PeerSlot)> {
         let Some(prefix) = envelope::prefix(bytes) else {
             // Not a secured frame: an unsecured sender, or garbage. Nothing is trusted.
             bump(&self.counters.auth);
-            return;
+            return None;
         };
         if prefix.receiver != self.policy.local {
             bump(&self.counters.table);
-            return;
+            return None;
         }
         let Some(slot) = self.peers.get(&prefix.sender) else {
             bump(&self.counters.unknown);
-            return;
+            return None;
         };
+        Some((prefix, slot))
+    }
+
+    fn dispatch(&self, prefix: envelope::Prefix, slot: &PeerSlot, frame: Incoming<'_>) {
         match prefix.kind {
             Kind::Data => self.receive_data(prefix.sender, slot, frame),
-            Kind::Init => self.receive_init(prefix.sender, slot, bytes),
-            Kind::Response => self.receive_response(prefix.sender, slot, bytes),
+            Kind::Batch => self.receive_batch(&mut std::iter::once(frame.bytes())),
+            Kind::Init => self.receive_init(prefix.sender, slot, frame.bytes()),
+            Kind::Response => self.receive_response(prefix.sender, slot, frame.bytes()),
         }
+    }
+
+    /// The frames of one batch datagram (or one data batch): each checked and opened as
+    /// [`Self::receive`] does, into one buffer, and what passes handed to the router in one
+    /// call (one router lock and one wake-up per datagram, as without security) instead of
+    /// one call per frame. A data batch's inner frames are checked against the table one by
+    /// one, after the batch passed authentication and the replay window as one frame.
+    pub(super) fn receive_batch(&self, frames: &mut dyn Iterator<Item = &[u8]>) {
+        let mut batch = BATCH.with(|c| c.take());
+        // The session of the previous frame: a batch comes from one peer, so its state is
+        // locked once per batch, not once per frame.
+        let mut cached: Option<(SystemId, Arc<Session>, bool)> = None;
+        for frame in frames {
+            let Some((prefix, slot)) = self.check_prefix(frame) else {
+                continue;
+            };
+            let sender = prefix.sender;
+            let kind = prefix.kind;
+            if !matches!(kind, Kind::Data | Kind::Batch) {
+                // Handshakes (rare) act at once: what opened before them goes first.
+                batch.deliver(&*self.sink);
+                cached = None;
+                self.dispatch(prefix, slot, Incoming::Borrowed(frame));
+                continue;
+            }
+            if frame.len() < OVERHEAD {
+                bump(&self.counters.auth);
+                continue;
+            }
+            let index = envelope::u32_at(frame, 8);
+            let hit = matches!(&cached, Some((s, session, _)) if *s == sender && session.my_index == index);
+            if !hit {
+                cached = self
+                    .data_session(sender, slot, index)
+                    .map(|(session, unconfirmed)| (sender, session, unconfirmed));
+            }
+            let Some((_, session, unconfirmed)) = &mut cached else {
+                continue;
+            };
+            if batch.sender != Some(sender) {
+                batch.deliver(&*self.sink);
+                batch.sender = Some(sender);
+            }
+            let Batch { arena, ranges, .. } = &mut batch;
+            let start = arena.len();
+            arena.resize(start + envelope::inner_len(frame.len()), 0);
+            if !session.open_into(frame, &mut arena[start..]) {
+                bump(&self.counters.auth);
+                arena.truncate(start);
+                continue;
+            }
+            if !self.fresh(session, envelope::data_counter(frame)) {
+                arena.truncate(start);
+                continue;
+            }
+            let before = ranges.len();
+            let mut passed = false;
+            if kind == Kind::Data {
+                passed = self.admit(slot, sender, &arena[start..]);
+                if passed && arena.len() > start {
+                    ranges.push(start..arena.len());
+                }
+            } else {
+                // The records' length fields stay in the buffer, between the frames.
+                let mut records = envelope::records(&arena[start..]);
+                for r in records.by_ref() {
+                    let r = start + r.start..start + r.end;
+                    if self.admit(slot, sender, &arena[r.clone()]) {
+                        passed = true;
+                        ranges.push(r);
+                    }
+                }
+                if records.malformed {
+                    bump(&self.counters.auth);
+                }
+            }
+            if ranges.len() == before {
+                arena.truncate(start);
+            }
+            if passed && *unconfirmed {
+                self.confirmed(sender, slot, session);
+                *unconfirmed = false;
+            }
+        }
+        batch.deliver(&*self.sink);
+        batch.sender = None;
+        if batch.arena.capacity() <= SCRATCH_KEEP {
+            BATCH.with(|c| c.set(batch));
+        }
+    }
+
+    /// The session a data frame from `sender` names by `index`, and whether it is one this
+    /// side answered that the peer has not used yet. None (counted) if there is none; then a
+    /// handshake may start.
+    fn data_session(
+        &self,
+        sender: SystemId,
+        slot: &PeerSlot,
+        index: u32,
+    ) -> Option<(Arc<Session>, bool)> {
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(s) = st.session(index) {
+            let unconfirmed = st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, &s));
+            return Some((s, unconfirmed));
+        }
+        if let Handshakes::InMemory(sim) = &self.handshakes {
+            // The peer made the session first: take our half.
+            return match sim.half(&self.transport, self.policy.local, sender) {
+                Some(s) if s.my_index == index => {
+                    st.install(s.clone());
+                    bump(&self.counters.handshakes);
+                    Some((s, false))
+                }
+                _ => {
+                    bump(&self.counters.no_session);
+                    None
+                }
+            };
+        }
+        bump(&self.counters.no_session);
+        // The peer has a session we do not (it or we restarted): start a new one, at most
+        // once a second, since anyone can forge this.
+        let due = st.pending.is_none()
+            && st
+                .last_trigger
+                .is_none_or(|t| t.elapsed() >= TRIGGER_INTERVAL);
+        if due {
+            st.last_trigger = Some(Instant::now());
+            let init = self.start_handshake(sender, slot, &mut st);
+            drop(st);
+            if let (Some(init), Some(below)) = (init, self.below()) {
+                send_handshake(&*below, sender, &init);
+            }
+        }
+        None
+    }
+
+    /// What an authenticated frame must pass before the router sees it, in this order: the
+    /// replay window, then the table (its inner header against its authenticated sender).
+    /// A frame that passes in an unconfirmed session confirms it.
+    fn accept(
+        &self,
+        sender: SystemId,
+        slot: &PeerSlot,
+        session: &Arc<Session>,
+        unconfirmed: &mut bool,
+        counter: u64,
+        inner: &[u8],
+    ) -> bool {
+        if !self.fresh(session, counter) || !self.admit(slot, sender, inner) {
+            return false;
+        }
+        if *unconfirmed {
+            self.confirmed(sender, slot, session);
+            *unconfirmed = false;
+        }
+        true
+    }
+
+    /// The replay window's verdict on an authenticated frame's counter (counted if it is a
+    /// replay).
+    fn fresh(&self, session: &Session, counter: u64) -> bool {
+        let fresh = session.accept_counter(counter);
+        if !fresh {
+            bump(&self.counters.replay);
+        }
+        fresh
+    }
+
+    /// The table's verdict on an authenticated inner frame (counted if it refuses it).
+    fn admit(&self, slot: &PeerSlot, sender: SystemId, inner: &[u8]) -> bool {
+        let ok = allowed(slot, sender, self.policy.local, inner);
+        if !ok {
+            bump(&self.counters.table);
+        }
+        ok
     }
 
     pub(super) fn receive_data(&self, sender: SystemId, slot: &PeerSlot, frame: Incoming<'_>) {
@@ -166,94 +473,46 @@ impl Secured {
             bump(&self.counters.auth);
             return;
         }
-        let index = envelope::u32_at(bytes, 8);
         let counter = envelope::data_counter(bytes);
-        let mut unconfirmed = false;
-        let session = {
-            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
-            match st.session(index) {
-                Some(s) => {
-                    unconfirmed = st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, &s));
-                    s
-                }
-                None => {
-                    if let Handshakes::InMemory(sim) = &self.handshakes {
-                        // The peer made the session first: take our half.
-                        match sim.half(&self.transport, self.policy.local, sender) {
-                            Some(s) if s.my_index == index => {
-                                st.install(s.clone());
-                                bump(&self.counters.handshakes);
-                                s
-                            }
-                            _ => {
-                                bump(&self.counters.no_session);
-                                return;
-                            }
-                        }
-                    } else {
-                        bump(&self.counters.no_session);
-                        // The peer has a session we do not (it or we restarted): start a new
-                        // one, at most once a second, since anyone can forge this.
-                        let due = st.pending.is_none()
-                            && st
-                                .last_trigger
-                                .is_none_or(|t| t.elapsed() >= TRIGGER_INTERVAL);
-                        if due {
-                            st.last_trigger = Some(Instant::now());
-                            let init = self.start_handshake(sender, slot, &mut st);
-                            drop(st);
-                            if let (Some(init), Some(below)) = (init, self.below()) {
-                                send_handshake(&*below, sender, &init);
-                            }
-                        }
-                        return;
-                    }
-                }
-            }
-        };
-        let inner = match frame.open(&session) {
-            Some(inner) => inner,
-            None => {
-                bump(&self.counters.auth);
-                return;
-            }
-        };
-        if !session.accept_counter(counter) {
-            bump(&self.counters.replay);
+        let Some((session, mut unconfirmed)) =
+            self.data_session(sender, slot, envelope::u32_at(bytes, 8))
+        else {
             return;
-        }
-        if !self.allowed(sender, inner.bytes()) {
-            bump(&self.counters.table);
+        };
+        let Some(inner) = frame.open(&session) else {
+            bump(&self.counters.auth);
             return;
-        }
-        if unconfirmed {
-            self.confirmed(sender, slot, &session);
-        }
-        inner.deliver(&*self.sink, Peer::System(sender));
-    }
-
-    /// Whether the inner frame's header agrees with its authenticated sender and the table.
-    pub(super) fn allowed(&self, sender: SystemId, inner: &[u8]) -> bool {
-        // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the
-        // router counts it as malformed.
-        if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
-            return true;
-        }
-        let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
-        let destination = SystemId(u16::from_le_bytes([inner[12], inner[13]]));
-        if source != sender || destination != self.policy.local {
-            return false;
-        }
-        match inner[3] {
-            0 => self.policy.data_from.contains(&sender),
-            1 => self.policy.acks_from.contains(&sender),
-            // Unknown kinds: the router refuses them.
-            _ => true,
+        };
+        if self.accept(
+            sender,
+            slot,
+            &session,
+            &mut unconfirmed,
+            counter,
+            inner.bytes(),
+        ) {
+            inner.deliver(&*self.sink, Peer::System(sender));
         }
     }
+}
 
-    pub(super) fn may_talk(&self, peer: SystemId) -> bool {
-        self.policy.data_from.contains(&peer) || self.policy.acks_from.contains(&peer)
+/// Whether the inner frame's header agrees with its authenticated sender and the table.
+fn allowed(slot: &PeerSlot, sender: SystemId, local: SystemId, inner: &[u8]) -> bool {
+    // Not a hetcomm frame (too short, no magic): authentic but meaningless, and the router
+    // counts it as malformed.
+    if inner.len() < 16 || inner[0..2] != hetcomm_core::wire::MAGIC {
+        return true;
+    }
+    let source = SystemId(u16::from_le_bytes([inner[8], inner[9]]));
+    let destination = SystemId(u16::from_le_bytes([inner[12], inner[13]]));
+    if source != sender || destination != local {
+        return false;
+    }
+    match inner[3] {
+        0 => slot.sends_data,
+        1 => slot.sends_acks,
+        // Unknown kinds: the router refuses them.
+        _ => true,
     }
 }
 
@@ -280,10 +539,11 @@ impl Incoming<'_> {
     pub(super) fn open(self, session: &Session) -> Option<Opened> {
         match self {
             Incoming::Borrowed(b) => {
+                // Decrypted from where the link lent it straight into the scratch buffer.
                 let mut buf = take_scratch(&RX);
-                buf.clear();
-                buf.extend_from_slice(b);
-                if !session.open(&mut buf) {
+                buf.resize(OVERHEAD + envelope::inner_len(b.len()), 0);
+                let end = buf.len() - TAG_LEN;
+                if !session.open_into(b, &mut buf[DATA_HEADER_LEN..end]) {
                     give_scratch(&RX, buf);
                     return None;
                 }
@@ -328,7 +588,45 @@ impl Opened {
     }
 }
 
+/// The frames of a batch datagram opened so far, all from `sender`: their inner frames lie in
+/// `arena` at `ranges`.
+#[derive(Default)]
+struct Batch {
+    sender: Option<SystemId>,
+    arena: Vec<u8>,
+    ranges: Vec<std::ops::Range<usize>>,
+}
+
+impl Batch {
+    /// Hands what was opened to the router in one call, and empties the batch.
+    fn deliver(&mut self, sink: &dyn FrameSink) {
+        if let (Some(sender), false) = (self.sender, self.ranges.is_empty()) {
+            let arena = &self.arena;
+            sink.on_frames(
+                &mut self.ranges.iter().map(|r| &arena[r.clone()]),
+                Peer::System(sender),
+            );
+        }
+        self.ranges.clear();
+        self.arena.clear();
+    }
+}
+
+/// The largest data batch (before sealing), on links whose datagrams (`mtu`) are larger.
+const BATCH_BYTES: usize = 64 << 10;
+
+/// The smallest inner frame (a header): a batch with less room left than this and a record
+/// length is full.
+const MIN_FRAME: usize = hetcomm_core::wire::HEADER_LEN;
+
+/// Scratch buffers larger than this are not kept: one 16 MiB frame should not pin 16 MiB
+/// per thread.
+const SCRATCH_KEEP: usize = 256 << 10;
+
 thread_local! {
+    /// The batch being opened on this thread (taken out while in use, like the buffers below).
+    static BATCH: std::cell::Cell<Batch> = std::cell::Cell::new(Batch::default());
+
     /// Per-thread buffers for sealing (TX) and opening (RX), so the common path allocates
     /// nothing. Taken out while in use: a nested call (a receive that sends an
     /// acknowledgement on the same thread) gets a fresh one.
@@ -343,15 +641,7 @@ pub(super) fn take_scratch(key: &'static Scratch) -> Vec<u8> {
 }
 
 pub(super) fn give_scratch(key: &'static Scratch, buf: Vec<u8>) {
-    // Large buffers are not kept: one 16 MiB frame should not pin 16 MiB per thread.
-    if buf.capacity() <= 256 << 10 {
+    if buf.capacity() <= SCRATCH_KEEP {
         key.with(|c| c.set(buf));
     }
-}
-
-pub(super) fn with_scratch<R>(key: &'static Scratch, f: impl FnOnce(&mut Vec<u8>) -> R) -> R {
-    let mut buf = take_scratch(key);
-    let r = f(&mut buf);
-    give_scratch(key, buf);
-    r
 }

@@ -118,7 +118,7 @@ impl Secured {
             bump(&self.counters.auth);
             return;
         }
-        if !self.may_talk(sender) {
+        if !(slot.sends_data || slot.sends_acks) {
             bump(&self.counters.table);
             return;
         }

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
 use hetcomm_link::{forward_link, forward_sink, FrameSink, Link, LinkError, Peer, SecurityStats};
+use rustc_hash::FxHashMap;
 
 use crate::envelope::OVERHEAD;
 use crate::keys::{Keypair, PublicKey};
@@ -102,7 +103,22 @@ fn bump(c: &AtomicU64) {
 
 struct PeerSlot {
     public: PublicKey,
+    /// The table puts this peer's messages to us on this transport ([`Policy::data_from`]).
+    sends_data: bool,
+    /// Our messages to this peer go on this transport: its acknowledgements come back here
+    /// ([`Policy::acks_from`]).
+    sends_acks: bool,
     state: Mutex<PeerState>,
+    /// Frames the router let wait, to leave together (locked before `state`, never after).
+    held: Mutex<Held>,
+}
+
+/// Frames held for one peer: the plaintext of a data batch being filled.
+#[derive(Default)]
+struct Held {
+    /// The frames, each behind its length ([`crate::envelope::push_record`]).
+    records: Vec<u8>,
+    frames: usize,
 }
 
 #[derive(Default)]
@@ -153,7 +169,9 @@ struct Secured {
     transport: String,
     policy: Policy,
     handshakes: Handshakes,
-    peers: HashMap<SystemId, PeerSlot>,
+    /// Looked up for every frame, by ids from the fleet file only (never inserted into from
+    /// the wire): a fast hash is enough.
+    peers: FxHashMap<SystemId, PeerSlot>,
     /// The router's sink (above us).
     sink: Arc<dyn FrameSink>,
     /// The link below us, for handshake frames sent from the receive side. Weak: the link
@@ -161,6 +179,8 @@ struct Secured {
     below: OnceLock<Weak<dyn Link>>,
     counters: Counters,
     last_timestamp: AtomicU64,
+    /// Held frames the link refused when their batch left (counted in `frames_dropped`).
+    held_dropped: AtomicU64,
 }
 
 impl Secured {
@@ -194,12 +214,33 @@ impl Secured {
         self.peers
             .values()
             .map(|p| {
-                p.state
+                let held = p
+                    .held
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .records
+                    .len();
+                held + p
+                    .state
                     .lock()
                     .unwrap_or_else(|e| e.into_inner())
                     .queued_bytes
             })
             .sum()
+    }
+
+    /// Sends every peer's held frames; the first error is returned.
+    fn flush_held(&self, below: &dyn Link) -> Result<(), LinkError> {
+        let mut first = Ok(());
+        for (&to, slot) in &self.peers {
+            let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
+            if let Err(e) = self.send_held_batch(below, to, slot, &mut h) {
+                if first.is_ok() {
+                    first = Err(e);
+                }
+            }
+        }
+        first
     }
 
     fn below(&self) -> Option<Arc<dyn Link>> {
@@ -252,11 +293,17 @@ forward_link! {
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         self.secured.send(&*self.below, to, frame, &[], true)
     }
+    fn flush(&self) -> Result<(), LinkError> {
+        let held = self.secured.flush_held(&*self.below);
+        let below = self.below.flush();
+        held.and(below)
+    }
     fn stats(&self) -> hetcomm_link::LinkStats {
         let mut stats = self.below.stats();
         stats.security = self.secured.stats();
-        // Frames waiting for a handshake are queued in this link too.
+        // Frames waiting for a handshake, or held to leave together, are in this link too.
         stats.buffered_bytes += self.secured.queued_bytes() as u64;
+        stats.frames_dropped += self.secured.held_dropped.load(Ordering::Relaxed);
         stats
     }
     // Authenticated encryption protects every byte: the router need not checksum payloads.
@@ -274,6 +321,7 @@ impl Drop for SecureLink {
     /// complete and the queues to drain, reading the link meanwhile if nobody else does (a
     /// driven link whose reader has stopped).
     fn drop(&mut self) {
+        let _ = self.secured.flush_held(&*self.below);
         let deadline = Instant::now() + CLOSE_WAIT;
         while self.secured.queued_frames() > 0 && Instant::now() < deadline {
             match self.below.readable() {
@@ -308,9 +356,12 @@ forward_sink! {
         self.secured.receive(Incoming::Owned(frame));
     }
     fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, _from: Peer) {
-        for frame in frames {
-            self.secured.receive(Incoming::Borrowed(frame));
-        }
+        self.secured.receive_batch(frames);
+    }
+    // Owned frames are opened where they lie and handed up in the same buffer: a large frame
+    // is then neither copied here nor by the router (see `on_frame_owned`).
+    fn takes_frames(&self) -> bool {
+        self.secured.sink.takes_frames()
     }
 }
 
@@ -330,7 +381,10 @@ impl LinkLayer for SecurityLayer {
                     id,
                     PeerSlot {
                         public,
+                        sends_data: self.policy.data_from.contains(&id),
+                        sends_acks: self.policy.acks_from.contains(&id),
                         state: Mutex::new(PeerState::default()),
+                        held: Mutex::new(Held::default()),
                     },
                 )
             })
@@ -344,6 +398,7 @@ impl LinkLayer for SecurityLayer {
             below: OnceLock::new(),
             counters: Counters::default(),
             last_timestamp: AtomicU64::new(0),
+            held_dropped: AtomicU64::new(0),
         });
         let _ = self.secured.set(secured.clone());
         Arc::new(SecureSink { secured })

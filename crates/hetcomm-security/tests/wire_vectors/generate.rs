@@ -156,6 +156,9 @@ pub struct Sealed {
     receiver: u16,
     /// "initiator_to_responder" or "responder_to_initiator".
     key: &'static str,
+    /// 3 (a data message) or 4 (a data batch: `inner_hex` is then its records).
+    #[serde(rename = "type")]
+    kind: u8,
     session_index: u32,
     counter: u64,
     nonce_hex: String,
@@ -285,38 +288,48 @@ pub fn section() -> Section {
     let (i, r) = (INITIATOR.0, RESPONDER.0);
 
     let mut sealed = Vec::new();
-    let mut seal = |name: &str, description: &str, forward: bool, inner: &[u8]| -> Vec<u8> {
-        let (session, from, to, key) = if forward {
-            (
-                &made.initiator,
-                INITIATOR,
-                RESPONDER,
-                "initiator_to_responder",
-            )
-        } else {
-            (
-                &made.responder,
-                RESPONDER,
-                INITIATOR,
-                "responder_to_initiator",
-            )
+    // A data message, or with `batch` a data batch whose records are `inner`.
+    let mut seal_kind =
+        |name: &str, description: &str, forward: bool, inner: &[u8], batch: bool| -> Vec<u8> {
+            let (session, from, to, key) = if forward {
+                (
+                    &made.initiator,
+                    INITIATOR,
+                    RESPONDER,
+                    "initiator_to_responder",
+                )
+            } else {
+                (
+                    &made.responder,
+                    RESPONDER,
+                    INITIATOR,
+                    "responder_to_initiator",
+                )
+            };
+            let mut out = Vec::new();
+            if batch {
+                session.seal_batch(&mut out, from, to, inner);
+            } else {
+                session.seal(&mut out, from, to, inner, &[]);
+            }
+            let counter = u64::from_le_bytes(out[12..20].try_into().expect("8 bytes"));
+            sealed.push(Sealed {
+                name: name.into(),
+                description: description.into(),
+                sender: from.0,
+                receiver: to.0,
+                key,
+                kind: out[3],
+                session_index: session.peer_index,
+                counter,
+                nonce_hex: hex(&nonce(counter)),
+                inner_hex: hex(inner),
+                secured_hex: hex(&out),
+            });
+            out
         };
-        let mut out = Vec::new();
-        session.seal(&mut out, from, to, inner, &[]);
-        let counter = u64::from_le_bytes(out[12..20].try_into().expect("8 bytes"));
-        sealed.push(Sealed {
-            name: name.into(),
-            description: description.into(),
-            sender: from.0,
-            receiver: to.0,
-            key,
-            session_index: session.peer_index,
-            counter,
-            nonce_hex: hex(&nonce(counter)),
-            inner_hex: hex(inner),
-            secured_hex: hex(&out),
-        });
-        out
+    let mut seal = |name: &str, description: &str, forward: bool, inner: &[u8]| {
+        seal_kind(name, description, forward, inner, false)
     };
 
     let header_only_h = data_header(i, r, 1);
@@ -391,6 +404,22 @@ pub fn section() -> Section {
         false,
         &wire::encode(&data_header(r, i, 1), &[]),
     );
+    let batch_frames = [
+        wire::encode(&data_header(i, r, 10), &[]),
+        wire::encode(&data_header(i, r, 11), &[0x5a; 7]),
+    ];
+    let mut records = Vec::new();
+    for f in &batch_frames {
+        hetcomm_security::envelope::push_record(&mut records, f, &[]);
+    }
+    let s_batch = seal_kind(
+        "batch",
+        "A data batch (type 4) of two data frames, sealed once (counter 7): the first of 48 \
+         bytes, the second with a 7-byte payload, each behind its length (u32 little-endian).",
+        true,
+        &records,
+        true,
+    );
 
     let changed = |frame: &[u8], at: usize, to: u8| {
         let mut f = frame.to_vec();
@@ -454,12 +483,30 @@ pub fn section() -> Section {
         ),
         rx(
             "bad_type",
-            "header_only with type 4.",
+            "header_only with type 5.",
+            r,
+            &[],
+            &changed(&s_header, 3, 5),
+            "rejected_auth",
+            &[],
+        ),
+        rx(
+            "data_as_batch",
+            "header_only with type 4 (a data batch): the type is authenticated.",
             r,
             &[],
             &changed(&s_header, 3, 4),
             "rejected_auth",
             &[],
+        ),
+        rx(
+            "accept_batch",
+            "Both frames of the batch are handed up (inner_hex: the two, one after the other).",
+            r,
+            &[],
+            &s_batch,
+            "handed_up",
+            &batch_frames.concat(),
         ),
         rx(
             "wrong_receiver",
