@@ -40,7 +40,10 @@
 //! loopback (which Linux's `lo` lacks by default).
 
 pub mod bridge;
+#[cfg(feature = "cyclone")]
+pub mod cyclone;
 pub mod factory;
+pub mod frame_cdr;
 pub mod link;
 pub mod msg;
 pub mod msgs;
@@ -51,7 +54,7 @@ pub mod settings;
 
 pub use factory::Ros2Factory;
 pub use link::{OpenError, Ros2Link, MAX_FRAME};
-pub use settings::{Reliability, Ros2Settings};
+pub use settings::{Backend, Reliability, Ros2Settings};
 
 /// Registers the `ros2` transport kind (called by `hetcomm`'s registry with the `ros2`
 /// feature).

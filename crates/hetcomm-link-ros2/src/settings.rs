@@ -17,6 +17,19 @@ pub enum Reliability {
     BestEffort,
 }
 
+/// The DDS implementation under a `ros2` transport (`dds` key). Both put the same bytes on
+/// the same topics (ROS 2 names, `std_msgs/msg/UInt8MultiArray` in CDR), so systems on
+/// either backend talk to each other and to any ROS 2 / DDS program.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Backend {
+    /// rustdds, pure Rust (`dds = "rustdds"`, the default).
+    #[default]
+    RustDds,
+    /// Cyclone DDS, the C library, through the `cyclors` bindings (`dds = "cyclone"`; needs
+    /// this crate's cargo feature `cyclone`, which builds Cyclone DDS from source).
+    Cyclone,
+}
+
 /// Settings of a `ros2` transport (fleet keys in parentheses).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Ros2Settings {
@@ -39,6 +52,8 @@ pub struct Ros2Settings {
     /// How long a send to a system waits for its subscriber to be matched (`connect_timeout_ms`,
     /// 0–60000, default 2000).
     pub connect_timeout_ms: u64,
+    /// The DDS implementation (`dds = "rustdds" | "cyclone"`, default rustdds).
+    pub dds: Backend,
 }
 
 impl Default for Ros2Settings {
@@ -51,12 +66,13 @@ impl Default for Ros2Settings {
             interface: None,
             same_host: true,
             connect_timeout_ms: 2000,
+            dds: Backend::RustDds,
         }
     }
 }
 
 /// The keys of a `ros2` transport table, besides the ones every transport shares.
-pub const KEYS: [&str; 7] = [
+pub const KEYS: [&str; 8] = [
     "domain_id",
     "namespace",
     "reliability",
@@ -64,6 +80,7 @@ pub const KEYS: [&str; 7] = [
     "interface",
     "same_host",
     "connect_timeout_ms",
+    "dds",
 ];
 
 /// Reads a `ros2` transport's table; every problem is reported through `s` (located).
@@ -142,6 +159,22 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
     if s.has("connect_timeout_ms") {
         match s.int_in("connect_timeout_ms", 0, 60_000, "milliseconds, e.g. 2000") {
             Some(ms) => out.connect_timeout_ms = ms as u64,
+            None => ok = false,
+        }
+    }
+    if s.has("dds") {
+        match s.choice("dds", ("DDS implementation", "DDS implementations"), &["rustdds", "cyclone"]) {
+            Some(0) => out.dds = Backend::RustDds,
+            Some(_) if cfg!(feature = "cyclone") => out.dds = Backend::Cyclone,
+            Some(_) => {
+                s.error(
+                    "dds",
+                    "`dds = \"cyclone\"` needs Cyclone DDS, which this build does not include",
+                    "rebuild with the cargo feature `ros2-cyclone` (of hetcomm, hetcomm-cli or \
+                     hetcomm-bench; `cyclone` of hetcomm-link-ros2), or use `dds = \"rustdds\"`",
+                );
+                ok = false;
+            }
             None => ok = false,
         }
     }

@@ -1,0 +1,91 @@
+//! The reader's data-available listener and the eventfd it makes readable: how a sample
+//! stored by Cyclone DDS's receive thread wakes whoever reads the link.
+
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use cyclors::*;
+
+/// An eventfd signalled by the listener once, until the reader is drained and the notifier
+/// re-armed ([`rearm`](Notifier::rearm)): one `write` per burst of samples, not per sample.
+pub struct Notifier {
+    fd: OwnedFd,
+    armed: AtomicBool,
+}
+
+impl Notifier {
+    /// A fresh, armed notifier.
+    pub fn new() -> std::io::Result<Notifier> {
+        // SAFETY: plain syscall; the descriptor is owned from here on.
+        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
+        if fd < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        Ok(Notifier {
+            // SAFETY: a fresh descriptor of ours.
+            fd: unsafe { OwnedFd::from_raw_fd(fd) },
+            armed: AtomicBool::new(true),
+        })
+    }
+
+    /// The descriptor: readable once a sample arrived since the last re-arm.
+    pub fn fd(&self) -> RawFd {
+        self.fd.as_raw_fd()
+    }
+
+    /// Clears the descriptor and re-arms the listener; call before taking the reader's
+    /// samples, so that any sample stored after the take signals again.
+    pub fn rearm(&self) {
+        let mut count = 0u64;
+        // SAFETY: reads 8 bytes into a u64 from our non-blocking eventfd.
+        unsafe { libc::read(self.fd(), (&mut count as *mut u64).cast(), 8) };
+        self.armed.store(true, Ordering::SeqCst);
+    }
+
+    /// Waits at most `timeout` for the descriptor to be readable.
+    pub fn wait(&self, timeout: Duration) -> bool {
+        let mut pfd = libc::pollfd {
+            fd: self.fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd.
+        unsafe { libc::poll(&mut pfd, 1, timeout.as_millis() as libc::c_int) > 0 }
+    }
+
+    fn signal(&self) {
+        if self.armed.swap(false, Ordering::SeqCst) {
+            let one = 1u64;
+            // SAFETY: writes 8 bytes to our eventfd (cannot block: the count stays small).
+            unsafe { libc::write(self.fd(), (&one as *const u64).cast(), 8) };
+        }
+    }
+
+    /// Creates a reader of `topic` whose data-available listener signals this notifier. The
+    /// notifier must outlive the reader (deleting the reader waits for listener calls).
+    pub fn create_reader(
+        &self,
+        participant: dds_entity_t,
+        topic: dds_entity_t,
+        qos: *const dds_qos_t,
+    ) -> dds_entity_t {
+        // SAFETY: the listener's argument is this notifier, alive as long as the reader; the
+        // listener object is copied into the reader and deleted here.
+        unsafe {
+            let listener = dds_create_listener(self as *const Notifier as *mut _);
+            dds_lset_data_available(listener, Some(on_data_available));
+            let reader = dds_create_reader(participant, topic, qos, listener);
+            dds_delete_listener(listener);
+            reader
+        }
+    }
+}
+
+/// Called by Cyclone DDS's receive thread (or a local writer's thread) after it stored a
+/// sample in the reader.
+unsafe extern "C" fn on_data_available(_reader: dds_entity_t, arg: *mut std::ffi::c_void) {
+    // SAFETY: `arg` is the notifier given to `create_reader`, alive as long as the reader.
+    let notifier = unsafe { &*(arg as *const Notifier) };
+    notifier.signal();
+}
