@@ -163,7 +163,11 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
         }
     }
     if s.has("dds") {
-        match s.choice("dds", ("DDS implementation", "DDS implementations"), &["rustdds", "cyclone"]) {
+        match s.choice(
+            "dds",
+            ("DDS implementation", "DDS implementations"),
+            &["rustdds", "cyclone"],
+        ) {
             Some(0) => out.dds = Backend::RustDds,
             Some(_) if cfg!(feature = "cyclone") => out.dds = Backend::Cyclone,
             Some(_) => {

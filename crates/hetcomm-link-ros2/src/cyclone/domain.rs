@@ -199,8 +199,14 @@ pub fn blob_topic(
     let ty = CString::new(type_name).map_err(bad)?;
     // SAFETY: both strings are copied (the type name into the sertype, the topic name into
     // the topic); the pointers are only read although the binding takes them as `*mut`.
-    let handle =
-        unsafe { cdds_create_blob_topic(participant, t.as_ptr() as *mut _, ty.as_ptr() as *mut _, true) };
+    let handle = unsafe {
+        cdds_create_blob_topic(
+            participant,
+            t.as_ptr() as *mut _,
+            ty.as_ptr() as *mut _,
+            true,
+        )
+    };
     if handle < 0 {
         return Err(dds_err(format!("topic {topic}"), handle));
     }
@@ -221,6 +227,9 @@ mod tests {
         s.interface = Some("10.0.0.2".parse().unwrap());
         let c = config(&s);
         assert!(!c.contains("Peer"), "{c}");
-        assert!(c.contains("<NetworkInterface address=\"10.0.0.2\"/>"), "{c}");
+        assert!(
+            c.contains("<NetworkInterface address=\"10.0.0.2\"/>"),
+            "{c}"
+        );
     }
 }
