@@ -21,6 +21,7 @@ APT_PACKAGES=(
     python3-geometry-msgs python3-nav-msgs python3-sensor-msgs
     cyclonedds-tools          # ddsperf: the DDS baseline of the benchmarks
     cmake g++ pkg-config valgrind libmsgpack-cxx-dev                       # the C and C++ API
+    libclang-dev              # bindgen, for Cyclone DDS under the ros2 transport (ros2-cyclone)
 )
 
 # Installed into target/py-venv, the one venv every Python step uses.
