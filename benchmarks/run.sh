@@ -16,7 +16,7 @@ log() { echo "== $*" >&2; }
 
 bash scripts/install.sh apt || log "could not install the Debian packages: baselines that need them are skipped"
 
-BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/hetcomm-zenoh"
+BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/ros2-cyclone,hetcomm-bench/hetcomm-zenoh"
 ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.toml"
 log "$BUILD_CMD"
 $BUILD_CMD || { log "build failed"; exit 1; }

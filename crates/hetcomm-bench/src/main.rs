@@ -38,6 +38,8 @@ mod record_bench;
 mod report;
 #[cfg(feature = "ros2")]
 mod ros2;
+#[cfg(feature = "ros2-cyclone")]
+mod ros2cyclone;
 mod scale;
 mod secured;
 mod stats;
@@ -375,6 +377,15 @@ fn run(o: &Options) -> Vec<Row> {
                     ext::ddsperf_rtt(size, p.dds_seconds),
                 ));
             }
+            #[cfg(feature = "ros2-cyclone")]
+            for (path, acked, spin) in ros2cyclone::PATHS {
+                // The spinning row at 64 B only.
+                if o.path_wanted(path) && (!spin || size == 64) {
+                    log(o.quick, &format!("rtt {path} {size} B"));
+                    let r = ros2cyclone::rtt(acked, spin, size, warmup, iters);
+                    rows.push(lat_row("rtt", path, size, r));
+                }
+            }
         }
     }
     if want("oneway") {
@@ -416,6 +427,13 @@ fn run(o: &Options) -> Vec<Row> {
                     size,
                     ext::ddsperf_oneway(size, p.dds_seconds),
                 ));
+            }
+            // Unacknowledged only, as the rustdds row.
+            #[cfg(feature = "ros2-cyclone")]
+            if o.path_wanted(ros2cyclone::PATHS[0].0) {
+                let path = ros2cyclone::PATHS[0].0;
+                log(o.quick, &format!("oneway {path} {size} B"));
+                rows.push(tp_row(path, size, ros2cyclone::oneway(size, p.oneway)));
             }
         }
     }

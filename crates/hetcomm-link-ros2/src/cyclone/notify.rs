@@ -37,6 +37,9 @@ impl Notifier {
     /// Clears the descriptor and re-arms the listener; call before taking the reader's
     /// samples, so that any sample stored after the take signals again.
     pub fn rearm(&self) {
+        if self.armed.load(Ordering::SeqCst) {
+            return; // nothing signalled: a spinning reader makes no syscall here
+        }
         let mut count = 0u64;
         // SAFETY: reads 8 bytes into a u64 from our non-blocking eventfd.
         unsafe { libc::read(self.fd(), (&mut count as *mut u64).cast(), 8) };
