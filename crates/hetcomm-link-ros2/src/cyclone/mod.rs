@@ -6,10 +6,16 @@
 //!   ([`crate::frame_cdr`]) are handed to Cyclone DDS as a raw sample (`dds_writecdr`), which
 //!   sends the datagram before it returns.
 //! * **Receiving**: Cyclone DDS's receive thread stores the sample in the reader and calls
-//!   the reader's data-available listener, which makes an eventfd readable (once until the
-//!   reader is next drained). Whoever drives the link ([`Link::readable`]: the runtime's
-//!   reactor, a module thread waiting for a message) or the link's own receive thread then
-//!   takes every sample and hands the frames to the sink.
+//!   the reader's data-available listener, which takes the samples and hands the frames to
+//!   the sink right there: no hand-off to another thread (a wake-up through an eventfd
+//!   doubled the round trip). Two cases are left to a notifier instead (an eventfd, made
+//!   readable once until the reader is next drained): a listener call made inside one of
+//!   this process's own writes (Cyclone delivers to readers of the same process on the
+//!   writing thread, and a delivery that writes back to the same reader would re-enter its
+//!   listener, which Cyclone waits for: a deadlock), and a call that finds another thread
+//!   taking samples already. Whoever drives the link ([`Link::readable`], on a link opened
+//!   with [`open_driven`](CycloneLink::open_driven) as the runtime opens it) or, with
+//!   [`open`](CycloneLink::open), a thread of the link's own then takes those.
 //! * **Losses**: what Cyclone DDS reports as lost or rejected on the reader (sample lost /
 //!   sample rejected statuses) is counted in [`LinkStats::frames_dropped`], with samples that
 //!   are not frames. A KeepLast reader history that overflows before it is read drops its
@@ -19,6 +25,7 @@
 mod domain;
 mod notify;
 
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -43,6 +50,11 @@ pub use domain::config;
 /// Samples taken from the reader per call.
 const BATCH: usize = 32;
 
+thread_local! {
+    /// Whether this thread is inside a link's `dds_writecdr` (see the module's docs).
+    static WRITING: Cell<bool> = const { Cell::new(false) };
+}
+
 /// One destination: its topic and writer.
 struct Dest {
     topic: String,
@@ -61,9 +73,10 @@ struct Counters {
 /// What the receive side and the link share.
 struct Shared {
     counters: Counters,
-    closed: AtomicBool,
     reader: dds_entity_t,
-    notifier: Arc<Notifier>,
+    /// Signalled by the listener when it leaves the samples to the link's driver.
+    notifier: Notifier,
+    closed: AtomicBool,
     sink: Arc<dyn FrameSink>,
     /// One reader at a time: samples are taken and delivered in order.
     reading: Mutex<()>,
@@ -72,19 +85,21 @@ struct Shared {
 /// A `ros2` link on Cyclone DDS: frames as `std_msgs/msg/UInt8MultiArray` on
 /// `<namespace>/<System>`.
 pub struct CycloneLink {
-    // Dropped first (after the receive thread is joined): deleting it deletes the reader
-    // and waits for its listener's calls, which use the notifier in `shared`.
+    // Dropped first: deleting it deletes the reader and waits for its listener's calls,
+    // which use `shared`.
     _participant: Participant,
     topic: String,
     dests: HashMap<SystemId, Dest>,
     connect_timeout: Duration,
     shared: Arc<Shared>,
+    /// Takes what the listener left, on a link opened with [`open`](CycloneLink::open).
     receiver: Option<JoinHandle<()>>,
     driven: bool,
 }
 
 impl CycloneLink {
-    /// Opens system `local`'s link, read by a thread of its own.
+    /// Opens system `local`'s link, with a thread of its own for the samples the listener
+    /// leaves.
     pub fn open(
         local: SystemId,
         names: &[(SystemId, String)],
@@ -119,7 +134,7 @@ impl CycloneLink {
             what: "the receive side".into(),
             reason: e.to_string(),
         };
-        let notifier = Arc::new(Notifier::new().map_err(io_err)?);
+        let notifier = Notifier::new().map_err(io_err)?;
         let participant = Participant::new(settings)?;
         let dp = participant.handle;
         let qos = Qos::new(settings);
@@ -128,7 +143,8 @@ impl CycloneLink {
 
         let own_topic = topic_of(&own.1);
         let topic = blob_topic(dp, &names::dds_topic(&own_topic), &type_name)?;
-        let reader = notifier.create_reader(dp, topic, qos.0);
+        // SAFETY: valid handles and QoS; the listener is set below, once `shared` exists.
+        let reader = unsafe { dds_create_reader(dp, topic, qos.0, std::ptr::null()) };
         if reader < 0 {
             return Err(dds_err(format!("the reader of {own_topic}"), reader));
         }
@@ -146,27 +162,43 @@ impl CycloneLink {
 
         let shared = Arc::new(Shared {
             counters: Counters::default(),
-            closed: AtomicBool::new(false),
             reader,
             notifier,
+            closed: AtomicBool::new(false),
             sink,
             reading: Mutex::new(()),
         });
-        let receiver = if driven {
-            None
-        } else {
-            let rx = shared.clone();
-            let thread = std::thread::Builder::new()
-                .name(format!("hetcomm-cyclone-rx-{}", own.1))
-                .spawn(move || {
-                    while !rx.closed.load(Ordering::Relaxed) {
-                        if rx.notifier.wait(Duration::from_millis(50)) {
-                            rx.read();
+        // SAFETY: the listener's argument is `shared`, which outlives the reader (the
+        // participant, deleted first when the link drops, takes the reader with it and waits
+        // for listener calls in progress); the listener object is copied and deleted here.
+        let rc = unsafe {
+            let listener = dds_create_listener(Arc::as_ptr(&shared) as *mut _);
+            dds_lset_data_available(listener, Some(on_data_available));
+            let rc = dds_set_listener(reader, listener);
+            dds_delete_listener(listener);
+            rc
+        };
+        if rc < 0 {
+            return Err(dds_err(format!("the listener of {own_topic}"), rc));
+        }
+        // Samples stored before the listener was set raised no call: the driver takes them.
+        shared.notifier.signal();
+        let receiver = match driven {
+            true => None,
+            false => {
+                let rx = shared.clone();
+                let thread = std::thread::Builder::new()
+                    .name(format!("hetcomm-cyclone-rx-{}", own.1))
+                    .spawn(move || {
+                        while !rx.closed.load(Ordering::Relaxed) {
+                            if rx.notifier.wait(Duration::from_millis(50)) {
+                                rx.read(false);
+                            }
                         }
-                    }
-                })
-                .map_err(io_err)?;
-            Some(thread)
+                    })
+                    .map_err(io_err)?;
+                Some(thread)
+            }
         };
         Ok(CycloneLink {
             _participant: participant,
@@ -280,7 +312,10 @@ impl CycloneLink {
                     iovs.as_ptr(),
                     size,
                 );
-                dds_writecdr(dest.writer, sample)
+                WRITING.with(|w| w.set(true));
+                let rc = dds_writecdr(dest.writer, sample);
+                WRITING.with(|w| w.set(false));
+                rc
             }
         };
         match rc {
@@ -308,14 +343,20 @@ impl CycloneLink {
 
 impl Shared {
     /// Takes every sample in the reader and hands the frames to the sink; returns how many.
-    /// Another thread reading already: returns 0 (it takes what there is).
-    fn read(&self) -> usize {
+    /// Another thread taking already: returns 0, and signals the notifier when `listener`
+    /// (the sample that called the listener may have come after that thread's last take).
+    fn read(&self, listener: bool) -> usize {
         let _reading = match self.reading.try_lock() {
             Ok(guard) => guard,
             Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return 0,
+            Err(std::sync::TryLockError::WouldBlock) => {
+                if listener {
+                    self.notifier.signal();
+                }
+                return 0;
+            }
         };
-        // Re-armed before taking: a sample stored after this makes the fd readable again.
+        // Re-armed before taking: a sample left to the driver after this signals again.
         self.notifier.rearm();
         let mut frames = 0;
         let mut samples = [std::ptr::null_mut::<ddsi_serdata>(); BATCH];
@@ -379,6 +420,18 @@ impl Shared {
     }
 }
 
+/// Called by Cyclone DDS's receive thread (or a local writer's thread) after it stored a
+/// sample in the reader.
+unsafe extern "C" fn on_data_available(_reader: dds_entity_t, arg: *mut std::ffi::c_void) {
+    // SAFETY: `arg` is the link's `Shared`, alive as long as the reader.
+    let shared = unsafe { &*(arg as *const Shared) };
+    if WRITING.with(|w| w.get()) {
+        shared.notifier.signal();
+    } else {
+        shared.read(true);
+    }
+}
+
 impl Readable for Shared {
     fn fd(&self) -> std::os::fd::RawFd {
         self.notifier.fd()
@@ -386,7 +439,7 @@ impl Readable for Shared {
 
     fn read_ready(&self, _budget: usize) -> std::io::Result<usize> {
         // Everything is taken at once: the notifier signals once until it is re-armed.
-        Ok(self.read())
+        Ok(self.read(false))
     }
 }
 

@@ -1,11 +1,9 @@
-//! The reader's data-available listener and the eventfd it makes readable: how a sample
-//! stored by Cyclone DDS's receive thread wakes whoever reads the link.
+//! The eventfd the reader's data-available listener makes readable when it does not take the
+//! sample itself: how such a sample wakes whoever drives the link.
 
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
-
-use cyclors::*;
 
 /// An eventfd signalled by the listener once, until the reader is drained and the notifier
 /// re-armed ([`rearm`](Notifier::rearm)): one `write` per burst of samples, not per sample.
@@ -57,38 +55,12 @@ impl Notifier {
         unsafe { libc::poll(&mut pfd, 1, timeout.as_millis() as libc::c_int) > 0 }
     }
 
-    fn signal(&self) {
+    /// Makes the descriptor readable, unless it already is (and not yet re-armed).
+    pub fn signal(&self) {
         if self.armed.swap(false, Ordering::SeqCst) {
             let one = 1u64;
             // SAFETY: writes 8 bytes to our eventfd (cannot block: the count stays small).
             unsafe { libc::write(self.fd(), (&one as *const u64).cast(), 8) };
         }
     }
-
-    /// Creates a reader of `topic` whose data-available listener signals this notifier. The
-    /// notifier must outlive the reader (deleting the reader waits for listener calls).
-    pub fn create_reader(
-        &self,
-        participant: dds_entity_t,
-        topic: dds_entity_t,
-        qos: *const dds_qos_t,
-    ) -> dds_entity_t {
-        // SAFETY: the listener's argument is this notifier, alive as long as the reader; the
-        // listener object is copied into the reader and deleted here.
-        unsafe {
-            let listener = dds_create_listener(self as *const Notifier as *mut _);
-            dds_lset_data_available(listener, Some(on_data_available));
-            let reader = dds_create_reader(participant, topic, qos, listener);
-            dds_delete_listener(listener);
-            reader
-        }
-    }
-}
-
-/// Called by Cyclone DDS's receive thread (or a local writer's thread) after it stored a
-/// sample in the reader.
-unsafe extern "C" fn on_data_available(_reader: dds_entity_t, arg: *mut std::ffi::c_void) {
-    // SAFETY: `arg` is the notifier given to `create_reader`, alive as long as the reader.
-    let notifier = unsafe { &*(arg as *const Notifier) };
-    notifier.signal();
 }
