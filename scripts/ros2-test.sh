@@ -9,10 +9,15 @@
 #    `--features ros2`;
 # 2. the Python side: Cyclone DDS's Python package (PyPI `cyclonedds`, wheels that bundle the
 #    C library; no ROS 2 install) in the project's venv, target/py-venv (scripts/install.sh);
-# 3. the crate's tests: the link conformance suite (bare and wrapped in emulation), fleet keys
-#    and their errors, delivery through the facade (secured and `security = "none"`), and the
+# 3. the crate's tests, built once with the `cyclone` feature (the second DDS backend, Cyclone
+#    DDS through `cyclors`, compiled from source with cmake: about a minute more on 2 cores), so
+#    that every link test runs on rustdds and on Cyclone DDS: the link conformance suite (bare
+#    and wrapped in emulation), fleet keys and their errors, delivery through the facade
+#    (secured and `security = "none"`), a Cyclone-backed system and a rustdds-backed one
+#    exchanging acknowledged messages, frames echoed by a Python `cyclonedds` program, and the
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
-#    Odometry and String back, mismatches, garbage and wrong-type publishers;
+#    Odometry and String back, mismatches, garbage and wrong-type publishers; then, without
+#    the feature, the fleet-key test (`dds = "cyclone"` refused, naming the feature);
 # 4. the demo: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
 #    printing a table; it fails if Tango ends more than 1 m from its target.
 #
@@ -26,11 +31,15 @@ CRATE=crates/hetcomm-link-ros2/Cargo.toml
 
 step() { printf '\n== %s\n' "$*"; }
 
+step "ros2: Debian packages (cmake and libclang build Cyclone DDS for the cyclone feature)"
+bash scripts/install.sh apt
+
 step "ros2: format and lint"
 # Not `--all`: that would also check the path dependencies (main workspace crates), with
 # settings that differ from the workspace's own `cargo fmt` run.
 cargo fmt --manifest-path "$CRATE" -- --check
 cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
+cargo clippy --manifest-path "$CRATE" --all-targets --features cyclone -- -D warnings
 cargo clippy -p hetcomm-cli --features ros2 --all-targets -- -D warnings
 
 step "ros2: Cyclone DDS for Python in target/py-venv"
@@ -38,8 +47,9 @@ bash scripts/install.sh python
 VENV=$ROOT/target/py-venv
 export HETCOMM_ROS2_PYTHON=$VENV/bin/python
 
-step "ros2: crate tests (conformance, keys, delivery, bridge against a Cyclone DDS rover)"
-cargo test --manifest-path "$CRATE"
+step "ros2: crate tests on rustdds and Cyclone DDS (conformance, keys, delivery, interop, bridge)"
+cargo test --manifest-path "$CRATE" --features cyclone
+cargo test --manifest-path "$CRATE" --test fleet the_keys_parse
 
 step "ros2: hetcomm validate on the bridge example (CLI with --features ros2)"
 cargo build -q -p hetcomm-cli --features ros2

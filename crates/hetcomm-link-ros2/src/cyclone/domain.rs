@@ -145,14 +145,26 @@ impl Drop for Participant {
     }
 }
 
-/// The QoS of the transport's readers and writers: reliability (reliable writes block up to
-/// 100 ms when Cyclone's write buffer is full), volatile durability, KeepLast history.
-/// Deleted on drop.
+/// The QoS of the transport's readers and writers: reliability, volatile durability,
+/// KeepLast history of `history_depth`. Deleted on drop.
 pub struct Qos(pub *mut dds_qos_t);
 
 impl Qos {
-    /// The settings' QoS.
-    pub fn new(settings: &Ros2Settings) -> Qos {
+    /// The readers' QoS.
+    pub fn reader(settings: &Ros2Settings) -> Qos {
+        Self::new(settings, false)
+    }
+
+    /// The writers' QoS: as the readers', but a reliable writer keeps **all** unacknowledged
+    /// samples (KeepAll): Cyclone DDS then blocks a write (up to 100 ms, then the send fails
+    /// as congested) while its unacknowledged bytes are over its high watermark, where a
+    /// KeepLast writer would drop the oldest unacknowledged samples without telling anyone.
+    /// History is not matched between writers and readers, so peers see no difference.
+    pub fn writer(settings: &Ros2Settings) -> Qos {
+        Self::new(settings, settings.reliability == Reliability::Reliable)
+    }
+
+    fn new(settings: &Ros2Settings, keep_all: bool) -> Qos {
         // SAFETY: plain QoS calls on a fresh QoS object.
         unsafe {
             let q = dds_create_qos();
@@ -167,11 +179,14 @@ impl Qos {
                 }
             }
             dds_qset_durability(q, dds_durability_kind_DDS_DURABILITY_VOLATILE);
-            dds_qset_history(
-                q,
-                dds_history_kind_DDS_HISTORY_KEEP_LAST,
-                settings.history_depth,
-            );
+            match keep_all {
+                true => dds_qset_history(q, dds_history_kind_DDS_HISTORY_KEEP_ALL, 0),
+                false => dds_qset_history(
+                    q,
+                    dds_history_kind_DDS_HISTORY_KEEP_LAST,
+                    settings.history_depth,
+                ),
+            }
             Qos(q)
         }
     }

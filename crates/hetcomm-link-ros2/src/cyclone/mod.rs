@@ -137,7 +137,7 @@ impl CycloneLink {
         let notifier = Notifier::new().map_err(io_err)?;
         let participant = Participant::new(settings)?;
         let dp = participant.handle;
-        let qos = Qos::new(settings);
+        let (qos, wqos) = (Qos::reader(settings), Qos::writer(settings));
         let type_name = names::dds_type(FRAME_TYPE);
         let topic_of = |name: &str| names::system_topic(&settings.namespace, name);
 
@@ -153,7 +153,7 @@ impl CycloneLink {
             let t = topic_of(name);
             let topic = blob_topic(dp, &names::dds_topic(&t), &type_name)?;
             // SAFETY: valid handles and QoS; no listener.
-            let writer = unsafe { dds_create_writer(dp, topic, qos.0, std::ptr::null()) };
+            let writer = unsafe { dds_create_writer(dp, topic, wqos.0, std::ptr::null()) };
             if writer < 0 {
                 return Err(dds_err(format!("the writer of {t}"), writer));
             }
