@@ -21,7 +21,7 @@ struct Garbage {
 
 /// A link of either backend, with what the test reads of it.
 enum Either {
-    RustDds(Ros2Link),
+    RustDds(Box<Ros2Link>),
     #[cfg(feature = "cyclone")]
     Cyclone(hetcomm_link_ros2::cyclone::CycloneLink),
 }
@@ -35,9 +35,9 @@ impl Either {
         sink: std::sync::Arc<CollectSink>,
     ) -> Either {
         match dds {
-            Backend::RustDds => {
-                Either::RustDds(Ros2Link::open(id, names, settings, sink).expect("open"))
-            }
+            Backend::RustDds => Either::RustDds(Box::new(
+                Ros2Link::open(id, names, settings, sink).expect("open"),
+            )),
             #[cfg(feature = "cyclone")]
             Backend::Cyclone => Either::Cyclone(
                 hetcomm_link_ros2::cyclone::CycloneLink::open(id, names, settings, sink)
@@ -50,7 +50,7 @@ impl Either {
 
     fn link(&self) -> &dyn Link {
         match self {
-            Either::RustDds(l) => l,
+            Either::RustDds(l) => &**l,
             #[cfg(feature = "cyclone")]
             Either::Cyclone(l) => l,
         }
