@@ -1,8 +1,8 @@
 //! The Cyclone DDS backend's own cases (feature `cyclone`): two links of one process that
 //! answer every frame from inside their sinks. Cyclone delivers to readers of the same process
-//! on the writing thread, so an answer written from inside a delivery would re-enter the
-//! listener it came from; the link must hand such samples to its own receive thread instead
-//! of deadlocking, and the ping-pong must run to the end.
+//! on the writing thread, so the link must not take and deliver samples from inside the
+//! listener (an answer would re-enter the listener it came from, which Cyclone waits for: a
+//! deadlock); the ping-pong must run to the end.
 #![cfg(feature = "cyclone")]
 
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -6,16 +6,16 @@
 //!   ([`crate::frame_cdr`]) are handed to Cyclone DDS as a raw sample (`dds_writecdr`), which
 //!   sends the datagram before it returns.
 //! * **Receiving**: Cyclone DDS's receive thread stores the sample in the reader and calls
-//!   the reader's data-available listener, which takes the samples and hands the frames to
-//!   the sink right there: no hand-off to another thread (a wake-up through an eventfd
-//!   doubled the round trip). Two cases are left to a notifier instead (an eventfd, made
-//!   readable once until the reader is next drained): a listener call made inside one of
-//!   this process's own writes (Cyclone delivers to readers of the same process on the
-//!   writing thread, and a delivery that writes back to the same reader would re-enter its
-//!   listener, which Cyclone waits for: a deadlock), and a call that finds another thread
-//!   taking samples already. Whoever drives the link ([`Link::readable`], on a link opened
-//!   with [`open_driven`](CycloneLink::open_driven) as the runtime opens it) or, with
-//!   [`open`](CycloneLink::open), a thread of the link's own then takes those.
+//!   the reader's data-available listener, which only makes an eventfd readable (once until
+//!   the reader is next drained). Whoever drives the link ([`Link::readable`], on a link
+//!   opened with [`open_driven`](CycloneLink::open_driven) as the runtime opens it) or, with
+//!   [`open`](CycloneLink::open), a thread of the link's own then takes every sample and
+//!   hands the frames to the sink. Frames are not delivered on the receive thread itself,
+//!   although that saves a few microseconds: the router answers from inside a delivery
+//!   (acknowledgements), and a reliable write that Cyclone throttles waits for
+//!   acknowledgements that only the receive thread can read — from the receive thread, such
+//!   a write timed out; nor could an answer to a reader of the same process be written there
+//!   (Cyclone delivers to it on the writing thread, re-entering a listener it waits for).
 //! * **Losses**: what Cyclone DDS reports as lost or rejected on the reader (sample lost /
 //!   sample rejected statuses) is counted in [`LinkStats::frames_dropped`], with samples that
 //!   are not frames. A KeepLast reader history that overflows before it is read drops its
@@ -25,7 +25,6 @@
 mod domain;
 mod notify;
 
-use std::cell::Cell;
 use std::collections::HashMap;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -50,11 +49,6 @@ pub use domain::config;
 /// Samples taken from the reader per call.
 const BATCH: usize = 32;
 
-thread_local! {
-    /// Whether this thread is inside a link's `dds_writecdr` (see the module's docs).
-    static WRITING: Cell<bool> = const { Cell::new(false) };
-}
-
 /// One destination: its topic and writer.
 struct Dest {
     topic: String,
@@ -74,7 +68,7 @@ struct Counters {
 struct Shared {
     counters: Counters,
     reader: dds_entity_t,
-    /// Signalled by the listener when it leaves the samples to the link's driver.
+    /// Signalled by the listener: the samples wait for the link's driver.
     notifier: Notifier,
     closed: AtomicBool,
     sink: Arc<dyn FrameSink>,
@@ -98,8 +92,7 @@ pub struct CycloneLink {
 }
 
 impl CycloneLink {
-    /// Opens system `local`'s link, with a thread of its own for the samples the listener
-    /// leaves.
+    /// Opens system `local`'s link, read by a thread of its own.
     pub fn open(
         local: SystemId,
         names: &[(SystemId, String)],
@@ -192,7 +185,7 @@ impl CycloneLink {
                     .spawn(move || {
                         while !rx.closed.load(Ordering::Relaxed) {
                             if rx.notifier.wait(Duration::from_millis(50)) {
-                                rx.read(false);
+                                rx.read();
                             }
                         }
                     })
@@ -312,10 +305,7 @@ impl CycloneLink {
                     iovs.as_ptr(),
                     size,
                 );
-                WRITING.with(|w| w.set(true));
-                let rc = dds_writecdr(dest.writer, sample);
-                WRITING.with(|w| w.set(false));
-                rc
+                dds_writecdr(dest.writer, sample)
             }
         };
         match rc {
@@ -343,20 +333,15 @@ impl CycloneLink {
 
 impl Shared {
     /// Takes every sample in the reader and hands the frames to the sink; returns how many.
-    /// Another thread taking already: returns 0, and signals the notifier when `listener`
-    /// (the sample that called the listener may have come after that thread's last take).
-    fn read(&self, listener: bool) -> usize {
+    /// Another thread taking already: returns 0 (it re-armed the notifier before it took, so
+    /// a sample stored after its last take signals again).
+    fn read(&self) -> usize {
         let _reading = match self.reading.try_lock() {
             Ok(guard) => guard,
             Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => {
-                if listener {
-                    self.notifier.signal();
-                }
-                return 0;
-            }
+            Err(std::sync::TryLockError::WouldBlock) => return 0,
         };
-        // Re-armed before taking: a sample left to the driver after this signals again.
+        // Re-armed before taking: a sample stored after this signals again.
         self.notifier.rearm();
         let mut frames = 0;
         let mut samples = [std::ptr::null_mut::<ddsi_serdata>(); BATCH];
@@ -425,11 +410,7 @@ impl Shared {
 unsafe extern "C" fn on_data_available(_reader: dds_entity_t, arg: *mut std::ffi::c_void) {
     // SAFETY: `arg` is the link's `Shared`, alive as long as the reader.
     let shared = unsafe { &*(arg as *const Shared) };
-    if WRITING.with(|w| w.get()) {
-        shared.notifier.signal();
-    } else {
-        shared.read(true);
-    }
+    shared.notifier.signal();
 }
 
 impl Readable for Shared {
@@ -439,7 +420,7 @@ impl Readable for Shared {
 
     fn read_ready(&self, _budget: usize) -> std::io::Result<usize> {
         // Everything is taken at once: the notifier signals once until it is re-armed.
-        Ok(self.read(false))
+        Ok(self.read())
     }
 }
 
