@@ -373,3 +373,5 @@ impl<T> Router<T> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod broadcast_tests;
