@@ -242,6 +242,14 @@ impl Comm {
             .collect();
         let mut config = RouterConfig::new(me, incarnation, routes);
         config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        // Who may send here, on which link: a frame every system of a transport receives
+        // (a native broadcast) is taken only where the table allows it.
+        config.inbound = fleet
+            .table
+            .iter()
+            .filter(|((_, d), _)| *d == me)
+            .filter_map(|(&(s, _), t)| link_index.get(t).map(|&l| (s, l)))
+            .collect();
         config.ordered_sources = fleet
             .table
             .iter()

@@ -361,6 +361,10 @@ impl<T> Router<T> {
     /// Transmissions handed out so far for the unresolved send `id` (the one just polled
     /// from [`Router::poll_transmit`] included); None once it ended.
     pub fn attempts(&self, id: SendId) -> Option<u32> {
+        if id.to == TO_ALL_SYSTEM {
+            // A broadcast's one frame goes once (retransmissions are copies to one system).
+            return self.broadcasts.contains_key(&id.wire_seq()).then_some(1);
+        }
         self.pending.get(&id).map(|p| p.attempts)
     }
 
