@@ -282,6 +282,10 @@ forward_link! {
         let mut caps = self.below.caps();
         caps.max_frame = caps.max_frame.saturating_sub(OVERHEAD);
         caps.mtu = caps.mtu.saturating_sub(OVERHEAD);
+        // Frames are sealed per pair session: one frame cannot be sealed for every receiver,
+        // and a frame under a key shared by all would not tell a receiver which member sent
+        // it. So no native broadcasts: the router sends a copy per destination.
+        caps.broadcast = false;
         caps
     }
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
