@@ -119,7 +119,8 @@ fn broadcast_rounds(local: &LocalFleet, rounds: u8, success: fn(&Outcome) -> boo
         assert_eq!(got, (0..rounds).collect::<Vec<u8>>(), "{to}");
         // Nothing more: no message delivered twice.
         assert!(
-            m.recv_raw_timeout(Some(Duration::from_millis(100))).is_err(),
+            m.recv_raw_timeout(Some(Duration::from_millis(100)))
+                .is_err(),
             "{to} got a message twice"
         );
     }
@@ -176,7 +177,11 @@ fn a_secured_transport_sends_a_copy_per_destination() {
     warm_up(&local);
     let rounds = 5;
     let puts = broadcast_rounds(&local, rounds, |o| matches!(o, Outcome::Delivered { .. }));
-    assert_eq!(puts, 4 * rounds as u64, "one sealed copy per zenoh destination");
+    assert_eq!(
+        puts,
+        4 * rounds as u64,
+        "one sealed copy per zenoh destination"
+    );
     // G never hears of them: the copies go to their destinations only.
     let g = local.system("G").unwrap().stats();
     assert_eq!(g.router.misrouted, 0);

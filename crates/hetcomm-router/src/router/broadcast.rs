@@ -44,7 +44,12 @@ impl<T> Router<T> {
         };
         let same = |r: &Route| {
             (r.tag, r.acknowledged, r.attempts, r.max_frame)
-                == (first.tag, first.acknowledged, first.attempts, first.max_frame)
+                == (
+                    first.tag,
+                    first.acknowledged,
+                    first.attempts,
+                    first.max_frame,
+                )
         };
         group
             .into_iter()
@@ -85,7 +90,11 @@ impl<T> Router<T> {
         let len = HEADER_LEN + req.payload.len();
         let max = route.max_frame.min(HEADER_LEN + wire::MAX_PAYLOAD);
         if len > max {
-            return Err(SendError::TooLarge { len, max, to: first });
+            return Err(SendError::TooLarge {
+                len,
+                max,
+                to: first,
+            });
         }
         for &to in dests {
             let r = self
@@ -95,8 +104,7 @@ impl<T> Router<T> {
                 .ok_or(SendError::NoRoute { from, to })?;
             let towards = self.towards.get(&to);
             let (pending, bytes) = towards.map_or((0, 0), |t| (t.pending, t.pending_bytes));
-            if pending >= r.max_in_flight || (pending > 0 && bytes + len > r.max_in_flight_bytes)
-            {
+            if pending >= r.max_in_flight || (pending > 0 && bytes + len > r.max_in_flight_bytes) {
                 return Err(SendError::Backpressure {
                     to,
                     limit: r.max_in_flight,

@@ -90,7 +90,10 @@ fn one_frame_reaches_every_destination_and_each_has_its_outcome() {
         h.flags,
         FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_BROADCAST_SEQ | FLAG_TO_ALL
     );
-    assert_eq!((h.destination.system, h.seq, h.transport), (TO_ALL_SYSTEM, 1, b'Z'));
+    assert_eq!(
+        (h.destination.system, h.seq, h.transport),
+        (TO_ALL_SYSTEM, 1, b'Z')
+    );
     let frame = tx.frame.clone();
     a.transmit_result(now, tx, Ok(()));
     let later = now + Duration::from_millis(3);
@@ -98,7 +101,10 @@ fn one_frame_reaches_every_destination_and_each_has_its_outcome() {
         let mut r = receiver(s);
         let ack = receive(&mut r, now, 0, &frame).expect("acknowledged");
         let ah = wire::decode(&ack).unwrap().header;
-        assert_eq!((ah.kind, ah.flags, ah.seq), (FrameKind::Ack, FLAG_BROADCAST_SEQ, 1));
+        assert_eq!(
+            (ah.kind, ah.flags, ah.seq),
+            (FrameKind::Ack, FLAG_BROADCAST_SEQ, 1)
+        );
         assert_eq!((ah.source.system, ah.destination.system), (s, A));
         a.handle_frame(later, 0, &ack);
     }
@@ -167,9 +173,18 @@ fn only_the_missing_receiver_gets_a_retransmission_and_nobody_gets_it_twice() {
     a.handle_frame(due, 0, &ack_c);
     a.handle_frame(due, 0, &ack_d);
     let got = outcomes(&mut a);
-    assert!(matches!(got[0], (B, Outcome::Delivered { attempts: 1, .. })));
-    assert!(matches!(got[1], (C, Outcome::Delivered { attempts: 2, .. })));
-    assert!(matches!(got[2], (D, Outcome::Delivered { attempts: 2, .. })));
+    assert!(matches!(
+        got[0],
+        (B, Outcome::Delivered { attempts: 1, .. })
+    ));
+    assert!(matches!(
+        got[1],
+        (C, Outcome::Delivered { attempts: 2, .. })
+    ));
+    assert!(matches!(
+        got[2],
+        (D, Outcome::Delivered { attempts: 2, .. })
+    ));
     let s = a.stats();
     assert_eq!((s.transmissions, s.retransmissions), (3, 2));
 }
@@ -195,7 +210,10 @@ fn a_destination_that_never_answers_ends_unconfirmed_alone() {
     }
     assert_eq!(copies, 2, "attempts = 3: the frame and two copies");
     let got = outcomes(&mut a);
-    assert!(matches!(got[0], (B, Outcome::Delivered { attempts: 1, .. })));
+    assert!(matches!(
+        got[0],
+        (B, Outcome::Delivered { attempts: 1, .. })
+    ));
     assert_eq!(
         got[1],
         (
@@ -254,7 +272,10 @@ fn a_refused_frame_is_retried_as_copies_and_fails_when_none_left() {
     }
     assert_eq!(refused, 1 + 2 * 2, "the frame, then two copies each");
     for (_, outcome) in outcomes(&mut a) {
-        assert!(matches!(outcome, Outcome::Failed { attempts: 3, .. }), "{outcome:?}");
+        assert!(
+            matches!(outcome, Outcome::Failed { attempts: 3, .. }),
+            "{outcome:?}"
+        );
     }
 }
 
@@ -291,8 +312,12 @@ fn broadcast_and_point_to_point_numbers_do_not_collide() {
         system: B,
         module: ModuleId(2),
     };
-    a.send(now, SendRequest::new(ModuleId(1), to, MessageType(9), b"all hands"), B)
-        .unwrap();
+    a.send(
+        now,
+        SendRequest::new(ModuleId(1), to, MessageType(9), b"all hands"),
+        B,
+    )
+    .unwrap();
     let mut seqs = Vec::new();
     while let Some(tx) = a.poll_transmit(now) {
         seqs.push(wire::decode(&tx.frame).unwrap().header.seq);
@@ -320,8 +345,12 @@ fn a_full_window_refuses_the_whole_broadcast_before_numbering() {
         module: ModuleId(2),
     };
     for _ in 0..4 {
-        a.send(now, SendRequest::new(ModuleId(1), to, MessageType(9), b"x"), C)
-            .unwrap();
+        a.send(
+            now,
+            SendRequest::new(ModuleId(1), to, MessageType(9), b"x"),
+            C,
+        )
+        .unwrap();
     }
     let err = a
         .send_broadcast(now, request(b"all hands"), &[B, C, D], |s| s)

@@ -376,6 +376,6 @@ impl<T> Router<T> {
 }
 
 #[cfg(test)]
-mod tests;
-#[cfg(test)]
 mod broadcast_tests;
+#[cfg(test)]
+mod tests;

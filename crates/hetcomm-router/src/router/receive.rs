@@ -95,8 +95,8 @@ impl<T> Router<T> {
         if h.to_all() || h.broadcast_seq() {
             // A frame of a native broadcast: for every system when FLAG_TO_ALL, which only a
             // broadcast's data frame carries, in the broadcast space.
-            let valid = !h.to_all()
-                || (h.kind == FrameKind::Data && h.broadcast_seq() && h.is_broadcast());
+            let valid =
+                !h.to_all() || (h.kind == FrameKind::Data && h.broadcast_seq() && h.is_broadcast());
             if !valid {
                 self.stats.malformed += 1;
                 return;
@@ -323,11 +323,10 @@ impl<T> Router<T> {
         };
         if status != AckStatus::Delivered {
             match d.seq & BROADCAST_SEND != 0 {
-                true => self.broadcast_dedup.remove(
-                    d.origin,
-                    d.incarnation,
-                    d.seq & !BROADCAST_SEND,
-                ),
+                true => {
+                    self.broadcast_dedup
+                        .remove(d.origin, d.incarnation, d.seq & !BROADCAST_SEND)
+                }
                 false => self.dedup.remove(d.origin, d.incarnation, d.seq),
             }
             self.stats.received -= 1;
