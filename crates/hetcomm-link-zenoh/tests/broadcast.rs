@@ -6,7 +6,11 @@
 
 mod common;
 
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+
+use hetcomm::observe::{Observer, OutcomeRecord, SendRecord};
+use hetcomm::SendId;
 
 use hetcomm::{Comm, LocalFleet, MessageType, Outcome, SendOptions};
 use hetcomm_link_zenoh::router::ZenohRouter;
@@ -144,10 +148,28 @@ fn g_dropped(local: &LocalFleet, rounds: u64) {
         .is_err());
 }
 
+/// The ids of the sends and outcomes an observer of A sees.
+#[derive(Default)]
+struct Ids {
+    sends: Mutex<Vec<SendId>>,
+    outcomes: Mutex<Vec<SendId>>,
+}
+
+impl Observer for Ids {
+    fn on_send(&self, r: &SendRecord<'_>) {
+        self.sends.lock().unwrap().push(r.id());
+    }
+    fn on_outcome(&self, r: &OutcomeRecord<'_>) {
+        self.outcomes.lock().unwrap().push(r.id);
+    }
+}
+
 #[test]
 fn one_put_reaches_every_system_and_each_destination_is_delivered() {
     let (local, _router) = open("security = \"none\"");
     warm_up(&local);
+    let ids = Arc::new(Ids::default());
+    let _observing = local.system("A").unwrap().observe(ids.clone());
     let rounds = 20;
     let puts = broadcast_rounds(&local, rounds, |o| matches!(o, Outcome::Delivered { .. }));
     // One put per broadcast for the four zenoh destinations (a copy each would be 80).
@@ -155,6 +177,16 @@ fn one_put_reaches_every_system_and_each_destination_is_delivered() {
     g_dropped(&local, rounds as u64);
     let s = local.system("B").unwrap().stats().router;
     assert_eq!((s.malformed, s.misrouted), (0, 0), "{s:?}");
+    // Observers see the one frame as a send per destination, each matching its outcome.
+    let (mut sends, mut outcomes) = (
+        ids.sends.lock().unwrap().clone(),
+        ids.outcomes.lock().unwrap().clone(),
+    );
+    sends.sort();
+    outcomes.sort();
+    assert_eq!(sends.len(), 5 * rounds as usize);
+    assert_eq!(sends, outcomes);
+    assert_eq!(sends.iter().filter(|id| id.is_broadcast()).count(), 80);
 }
 
 #[test]

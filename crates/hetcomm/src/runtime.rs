@@ -11,7 +11,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hetcomm_config::InboxConfig;
-use hetcomm_core::wire::AckStatus;
+use hetcomm_core::wire::{AckStatus, TO_ALL_SYSTEM};
 use hetcomm_core::{
     FrameBuf, Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry,
 };
@@ -825,6 +825,8 @@ impl SystemCore {
             SmallVec::new();
         // Per transmit, while observed: which attempt of its send it is (0 for an ack).
         let mut attempts: SmallVec<[u32; 4]> = SmallVec::new();
+        // While observed: the destinations of each native broadcast's frame among them.
+        let mut broadcast_dests: SmallVec<[Vec<SystemId>; 1]> = SmallVec::new();
         let mut now = first_now;
         let mut first = true;
         loop {
@@ -837,6 +839,10 @@ impl SystemCore {
             while let Some(t) = router.poll_transmit(now) {
                 if observed {
                     attempts.push(t.send.and_then(|id| router.attempts(id)).unwrap_or(0));
+                    if t.to == TO_ALL_SYSTEM {
+                        let b = t.send.map_or(0, |id| id.wire_seq());
+                        broadcast_dests.push(router.broadcast_destinations(b));
+                    }
                 }
                 transmits.push(t);
             }
@@ -869,7 +875,11 @@ impl SystemCore {
                     Some(_) => Traffic::Data,
                     None => Traffic::Ack,
                 };
-                if let Some(&attempt) = attempts.get(i).filter(|&&a| a > 0) {
+                if tx.to == TO_ALL_SYSTEM && !broadcast_dests.is_empty() {
+                    let dests = broadcast_dests.remove(0);
+                    self.observers
+                        .send_broadcast_frame(&tx.frame, &dests, now, tx.link);
+                } else if let Some(&attempt) = attempts.get(i).filter(|&&a| a > 0) {
                     self.observers.send_frame(
                         &tx.frame,
                         &[],
@@ -885,6 +895,7 @@ impl SystemCore {
                 }
             }
             attempts.clear();
+            broadcast_dests.clear();
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
                 return;

@@ -174,6 +174,24 @@ impl<T> Router<T> {
         Ok(ids)
     }
 
+    /// The destinations of native broadcast `b` (the `wire_seq` of its frame's
+    /// [`Transmit::send`]) whose share has not ended, ascending; empty once all have.
+    pub fn broadcast_destinations(&self, b: u64) -> Vec<SystemId> {
+        let Some(put) = self.broadcasts.get(&b) else {
+            return Vec::new();
+        };
+        put.dests
+            .iter()
+            .copied()
+            .filter(|&to| {
+                self.pending.contains_key(&SendId {
+                    to,
+                    seq: BROADCAST_SEND | b,
+                })
+            })
+            .collect()
+    }
+
     /// The one frame of broadcast `b`, counted as an attempt of each share still open.
     pub(super) fn poll_broadcast(&mut self, now: Time, b: u64) -> Option<Transmit> {
         let put = self.broadcasts.get_mut(&b)?;
