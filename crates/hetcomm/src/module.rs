@@ -360,6 +360,9 @@ impl Module {
     /// "All"). Systems whose pair is `X` are skipped. One outcome per destination; a
     /// destination whose window is full gets one that failed with
     /// [`FailReason::Backpressure`](crate::FailReason::Backpressure), and the others are sent.
+    /// On a transport that reaches every system with one send (an unsecured `zenoh`
+    /// transport: docs/zenoh.md, "Broadcasts"), the destinations it carries get one frame for
+    /// all of them, with the same outcomes; every other destination gets a copy of its own.
     pub fn broadcast<M: Message>(
         &self,
         module: &str,
