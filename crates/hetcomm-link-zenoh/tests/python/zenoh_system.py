@@ -10,7 +10,8 @@ format). It speaks for system NAME (id ID) of a fleet on a `zenoh` transport:
   (native broadcasts: one frame for every system, taken from the systems of --names, for
   which this program's table row is the zenoh transport);
 * --receive N: waits for N data frames for it, prints each as one JSON line
-  ({"from": .., "module": .., "type": .., "payload_hex": ..}) and answers each that asks
+  ({"from": .., "module": .., "type": .., "payload_hex": .., "to_all": ..}, to_all: it came
+  as a native broadcast's one frame) and answers each that asks
   for an acknowledgement with a `delivered` ACK;
 * --send-to: waits for the destination's token, puts one data frame (MessagePack string
   payload --text, acknowledgement requested) on P/sys/DEST, retransmits every 200 ms until
@@ -94,7 +95,8 @@ def main() -> int:
         if h["flags"] & docport.FLAG_TO_ALL and h["source"]["system"] not in names:
             return  # a broadcast the table does not let its sender send here
         print(json.dumps({"from": h["source"]["system"], "module": h["destination"]["module"],
-                          "type": h["message_type"], "payload_hex": payload.hex()}), flush=True)
+                          "type": h["message_type"], "payload_hex": payload.hex(),
+                          "to_all": bool(h["flags"] & docport.FLAG_TO_ALL)}), flush=True)
         if h["flags"] & docport.FLAG_ACK_REQUESTED:
             session.put(f"{a.prefix}/sys/{names.get(h['source']['system'], '')}",
                         docport.ack_for(h, 0, me=a.id))
