@@ -21,8 +21,8 @@
 //! in the frame's header. A broadcast is one put on the `all` key ([`LinkCaps::broadcast`]:
 //! a send to [`TO_ALL_SYSTEM`]); every system on the Zenoh network under that prefix receives
 //! it, and its router takes it only if the communication table lets the sender send to it on
-//! this transport. `docs/zenoh.md` describes the layout for programs that are not hetcomm ([`data_key`],
-//! [`live_key`]).
+//! this transport. `docs/zenoh.md` describes the layout for programs that are not hetcomm
+//! ([`data_key`], [`live_key`], [`all_key`]).
 //!
 //! ## What the link guarantees
 //!
