@@ -329,6 +329,10 @@ impl BridgeKind for Ros1BridgeKind {
         settings::parse(s)
     }
 
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
+    }
+
     fn open(
         fleet: &Fleet,
         local: SystemId,

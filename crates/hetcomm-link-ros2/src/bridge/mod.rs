@@ -319,6 +319,10 @@ impl BridgeKind for Ros2BridgeKind {
         settings::parse(s)
     }
 
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
+    }
+
     fn open(
         fleet: &Fleet,
         local: SystemId,
