@@ -153,3 +153,61 @@ pub fn targets(rows: &[Row]) -> Vec<Target> {
     ));
     t
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn oneway(path: &str, size: usize, bytes_per_s: u64) -> Row {
+        let t = crate::stats::Throughput {
+            sent: 1,
+            received: 1,
+            bytes: bytes_per_s,
+            seconds: 1.0,
+            outcomes: None,
+            kernel_drops: None,
+        };
+        Row::throughput(path, size, &t)
+    }
+
+    fn target<'a>(t: &'a [Target], name: &str) -> &'a Target {
+        t.iter().find(|t| t.name.starts_with(name)).unwrap()
+    }
+
+    #[test]
+    fn the_64k_targets_compare_same_run_rows_and_show_the_acknowledged_ratio() {
+        let k = 64 * 1024;
+        let mut rows = vec![
+            oneway("hetcomm-tcp-unack", k, 100),
+            oneway("hetcomm-tcp-secured-unack", k, 84),
+            oneway("hetcomm-udp-unack", k, 100),
+            oneway("hetcomm-udp-secured-unack", k, 90),
+        ];
+        let t = targets(&rows);
+        let tcp = target(&t, "secured tcp one-way 64 KiB");
+        assert_eq!(tcp.status, "missed");
+        assert!(
+            tcp.figure.contains("= 84%; misses by 1 points"),
+            "{}",
+            tcp.figure
+        );
+        assert!(!tcp.figure.contains("acknowledged"), "{}", tcp.figure);
+        let udp = target(&t, "secured udp one-way 64 KiB");
+        assert_eq!(udp.status, "met");
+        rows.push(oneway("hetcomm-tcp-ack", k, 50));
+        rows.push(oneway("hetcomm-tcp-secured-ack", k, 45));
+        let t = targets(&rows);
+        let tcp = target(&t, "secured tcp one-way 64 KiB");
+        assert!(
+            tcp.figure.ends_with("(acknowledged: 90%)"),
+            "{}",
+            tcp.figure
+        );
+        // A missing unsecured row leaves the target unmeasured rather than met.
+        let t = targets(&rows[1..2]);
+        assert_eq!(
+            target(&t, "secured tcp one-way 64 KiB").status,
+            "not measured"
+        );
+    }
+}
