@@ -21,10 +21,13 @@ use std::time::{Duration, Instant};
 use hetcomm::sim::{SimFleet, SimOptions};
 use hetcomm::{Comm, LocalFleet, Message, Module, Time};
 use hetcomm_sim::report::{self, CommandKind, CommandRecord};
-use hetcomm_sim::{Pose, PoseSample, Scenario, VirtualEnvironment};
+use hetcomm_sim::{DiffDrive, Pose, PoseSample, Scenario, VirtualEnvironment};
 use serde::{Deserialize, Serialize};
 
+pub mod bridged;
 pub mod scenario;
+
+use bridged::{Odometer, Odometry, Relay};
 
 /// What the leader tells a follower to do (the thesis's Command message).
 #[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq, Eq)]
@@ -106,6 +109,9 @@ VirtualEnv3 = ["X", "X", "R", "X", "X", "X"]
 /// The single-VE variant's fleet (also in `fleet-single-ve.toml`).
 pub const EMBEDDED_SINGLE_VE_FLEET: &str = include_str!("fleet-single-ve.toml");
 
+/// How long the demonstration waits for a bridged robot's first odometry.
+pub const BRIDGED_WAIT: Duration = Duration::from_secs(30);
+
 /// How often rovers act and report their wheels, and VEs step (10 Hz).
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(100);
 
@@ -176,7 +182,7 @@ pub struct Follower {
     plan: Module,
     act: Module,
     name: String,
-    next: Option<String>,
+    next: Option<Relay>,
     environment: String,
     start: Time,
     wheels: Wheels,
@@ -197,12 +203,39 @@ impl Follower {
             plan: comm.module("Plan")?,
             act: comm.module("Act")?,
             name: comm.name().to_string(),
-            next: next.map(str::to_string),
+            next: next.map(|name| Relay {
+                name: name.to_string(),
+                bridged: None,
+            }),
             environment: environment.to_string(),
             start,
             wheels: wheels_for(0), // every rover starts driving straight
             received: Vec::new(),
         })
+    }
+
+    /// The next rover is a bridged robot (it runs ROS, not hetcomm, [`bridged`]): forward each
+    /// command as a [`bridged::Twist`] by `drive`, and repeat the current one at every step,
+    /// starting with command `initial`.
+    pub fn bridge_next(&mut self, drive: DiffDrive, initial: u8) {
+        if let Some(next) = &mut self.next {
+            next.bridged = Some((drive, initial));
+        }
+    }
+
+    /// Tells a bridged next rover to stop (the run is over; a ROS base keeps its last
+    /// velocity).
+    pub fn stop_bridged(&mut self) -> Result<(), hetcomm::SendError> {
+        if let Some(Relay {
+            name,
+            bridged: Some((drive, code)),
+        }) = &mut self.next
+        {
+            *code = 2;
+            self.plan
+                .send(name, "Plan", &bridged::twist_for(drive, 2))?;
+        }
+        Ok(())
     }
 
     /// One control step.
@@ -215,10 +248,26 @@ impl Follower {
                 r.message.code.into(),
                 CommandKind::Received,
             ));
-            if let Some(next) = &self.next {
-                self.plan.send(next, "Plan", &r.message)?;
+            match &mut self.next {
+                Some(Relay {
+                    bridged: Some((_, code)),
+                    ..
+                }) => *code = r.message.code,
+                Some(next) => {
+                    self.plan.send(&next.name, "Plan", &r.message)?;
+                }
+                None => {}
             }
             self.wheels = wheels_for(r.message.code);
+        }
+        // A ROS base expects its velocity command as a stream.
+        if let Some(Relay {
+            name,
+            bridged: Some((drive, code)),
+        }) = &self.next
+        {
+            self.plan
+                .send(name, "Plan", &bridged::twist_for(drive, *code))?;
         }
         // No new command: keep the previous motion.
         self.act.send(&self.environment, "World", &self.wheels)?;
@@ -226,31 +275,63 @@ impl Follower {
     }
 }
 
-/// A virtual environment: integrates the poses of the rovers that report to it.
+/// A virtual environment: integrates the poses of the rovers that report to it, and takes the
+/// poses of bridged rovers from their odometry.
 pub struct Environment {
     world: Module,
     start: Time,
     env: Arc<Mutex<VirtualEnvironment>>,
+    odometers: Arc<Mutex<Odometers>>,
     callbacks: bool,
 }
 
+/// The bridged rovers of one environment, what their odometry showed them do, and their log.
+#[derive(Default)]
+struct Odometers {
+    rovers: Vec<Odometer>,
+    /// Commands a rover's odometry showed it start executing.
+    observed: Vec<CommandRecord>,
+    log: Vec<PoseSample>,
+    /// Log instants taken so far.
+    logged: u64,
+}
+
+impl Odometers {
+    fn apply(&mut self, rover: &str, t_s: f64, odom: &Odometry) {
+        if let Some(o) = self.rovers.iter_mut().find(|o| o.name == rover) {
+            self.observed.extend(o.update(odom, t_s));
+        }
+    }
+}
+
 impl Environment {
-    /// A VE for `rovers` (name, starting pose). With `callbacks`, Wheels are applied the
+    /// A VE for `rovers` (name, starting pose), of which those in `bridged` are robots that
+    /// run ROS behind a bridge ([`bridged`]). With `callbacks`, messages are applied the
     /// moment they arrive; otherwise [`Environment::step`] polls for them.
     pub fn new(
         comm: &Comm,
         scenario: &Scenario,
         rovers: &[(String, Pose)],
+        bridged: &[String],
         start: Time,
         callbacks: bool,
     ) -> Result<Environment, Box<dyn std::error::Error>> {
         let mut env = VirtualEnvironment::with_config(scenario.drive, scenario.ve_config)?;
+        let mut odometers = Odometers::default();
+        let initial = scenario.schedule.initial().code() as u8;
         for (name, pose) in rovers {
+            if bridged.contains(name) {
+                odometers
+                    .rovers
+                    .push(Odometer::new(name, *pose, scenario.drive, initial));
+                continue;
+            }
             env.add_rover(name, *pose)?;
             let (l, r) = hetcomm_sim::Command::Straight.wheels();
             env.set_wheels(name, l, r)?;
         }
         let env = Arc::new(Mutex::new(env));
+        let odometers = Arc::new(Mutex::new(odometers));
         let world = comm.module("World")?;
         if callbacks {
             let env = env.clone();
@@ -258,48 +339,140 @@ impl Environment {
                 let t = seconds_since(start, r.envelope.received_at);
                 apply(&env, r.envelope.source_system, t, r.message);
             })?;
+            let odometers = odometers.clone();
+            world.on::<Odometry>(move |r| {
+                let t = seconds_since(start, r.envelope.received_at);
+                if let Ok(mut o) = odometers.lock() {
+                    o.apply(r.envelope.source_system, t, &r.message);
+                }
+            })?;
         }
         Ok(Environment {
             world,
             start,
             env,
+            odometers,
             callbacks,
         })
     }
 
-    /// Applies waiting Wheels (when polling), then integrates up to `t_s`.
+    /// Applies waiting messages (when polling), then integrates up to `t_s`.
     pub fn step(&self, t_s: f64) -> Result<(), Box<dyn std::error::Error>> {
+        let mut odometers = self.odometers.lock().map_err(|_| "odometers poisoned")?;
         if !self.callbacks {
-            while let Some(r) = self.world.try_recv::<Wheels>()? {
-                let t = seconds_since(self.start, r.envelope.received_at);
-                apply(&self.env, r.envelope.source_system, t, r.message);
+            while let Some(raw) = self.world.try_recv_raw() {
+                let t = seconds_since(self.start, raw.envelope.received_at);
+                let from = raw.envelope.source_system;
+                match raw.envelope.message_type() {
+                    Wheels::TYPE => {
+                        let w = hetcomm::payload::decode::<Wheels>(&raw.payload)?;
+                        apply(&self.env, from, t, w);
+                    }
+                    Odometry::TYPE => {
+                        let odom = hetcomm::payload::decode::<Odometry>(&raw.payload)?;
+                        odometers.apply(from, t, &odom);
+                    }
+                    other => {
+                        return Err(format!(
+                            "the virtual environment got message type {} from {from}, \
+                             expected Wheels ({}) or Odometry ({})",
+                            other.0,
+                            Wheels::TYPE.0,
+                            Odometry::TYPE.0
+                        )
+                        .into())
+                    }
+                }
             }
         }
-        self.env
-            .lock()
-            .map_err(|_| "environment poisoned")?
-            .advance(t_s)?;
+        let mut env = self.env.lock().map_err(|_| "environment poisoned")?;
+        env.advance(t_s)?;
+        // Bridged rovers are logged on the environment's log grid, at their latest odometry.
+        let log_hz = f64::from(env.config().log_hz);
+        let o = &mut *odometers;
+        while !o.rovers.is_empty() && (o.logged as f64) <= t_s * log_hz + 1e-6 {
+            let at = o.logged as f64 / log_hz;
+            o.log.extend(o.rovers.iter().map(|r| PoseSample {
+                t_s: at,
+                rover: r.name.clone(),
+                pose: r.pose,
+            }));
+            o.logged += 1;
+        }
         Ok(())
     }
 
     /// Current positions (rover name, x, y).
     pub fn positions(&self) -> Vec<(String, f64, f64)> {
-        self.env
+        let mut all: Vec<(String, f64, f64)> = self
+            .env
             .lock()
             .map(|e| {
                 e.positions()
                     .map(|(n, x, y)| (n.to_string(), x, y))
                     .collect()
             })
-            .unwrap_or_default()
+            .unwrap_or_default();
+        if let Ok(o) = self.odometers.lock() {
+            all.extend(
+                o.rovers
+                    .iter()
+                    .map(|r| (r.name.clone(), r.pose.x, r.pose.y)),
+            );
+        }
+        all
     }
 
     /// Hands over the pose log.
     pub fn take_log(&self) -> Vec<PoseSample> {
-        self.env
+        let mut log = self
+            .env
             .lock()
             .map(|mut e| e.take_log())
+            .unwrap_or_default();
+        if let Ok(mut o) = self.odometers.lock() {
+            log.append(&mut o.log);
+        }
+        log
+    }
+
+    /// Hands over the commands bridged rovers were seen to start executing (their odometry's
+    /// velocity became that command's): the tables' "received" rows for robots that run no
+    /// code of ours.
+    pub fn take_observed(&self) -> Vec<CommandRecord> {
+        self.odometers
+            .lock()
+            .map(|mut o| std::mem::take(&mut o.observed))
             .unwrap_or_default()
+    }
+
+    /// Waits up to `timeout` for the first odometry from bridged `rover`: it is on the
+    /// bridge's network and publishing.
+    pub fn wait_for_odometry(
+        comm: &Comm,
+        rover: &str,
+        timeout: Duration,
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let world = comm.module("World")?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match world.recv_timeout::<Odometry>(left) {
+                Ok(r) if r.envelope.source_system == rover => return Ok(()),
+                Ok(_) => {}
+                Err(hetcomm::RecvError::Timeout(_)) => {
+                    return Err(format!(
+                        "no odometry from {rover} reached {}'s World module in {} s: is the \
+                         robot running, on the bridge's network (domain, topics of the fleet \
+                         file)?",
+                        comm.name(),
+                        timeout.as_secs()
+                    )
+                    .into())
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
     }
 }
 
@@ -412,6 +585,9 @@ pub struct DemoReport {
     /// What the scenario (if any) did: its schedule, each system's harness counters, and the
     /// injections' outcomes, one line each.
     pub scenario: Vec<String>,
+    /// Robots that ran ROS behind a bridge transport ([`bridged`]): their poses come from
+    /// their odometry, their "received" commands from when their odometry showed them.
+    pub bridged: Vec<String>,
 }
 
 /// Runs the demonstration.
@@ -440,7 +616,27 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if !options.external.is_empty() && !options.realtime {
         return Err("a follower running in another process needs real time: add --realtime".into());
     }
-    let external = |name: &str| options.external.iter().any(|e| e == name);
+    // Robots behind bridge transports run ROS, not hetcomm: not opened here, commanded with
+    // Twist, seen through their odometry (module `bridged`).
+    let bridged = hetcomm::registry().bridged_robots(&fleet);
+    let chain = [("Charlie", Some("Tango")), ("Tango", None)];
+    for name in &bridged {
+        if !chain.iter().any(|(n, next)| n == name && next.is_none()) {
+            return Err(format!(
+                "`{name}` is a bridged robot (it runs ROS, not hetcomm): only the last follower, \
+                 Tango, can be one, since a bridged robot forwards no commands"
+            )
+            .into());
+        }
+        if !options.realtime {
+            return Err(format!(
+                "`{name}` is a bridged robot (it runs ROS, not hetcomm): it needs real time, add \
+                 --realtime"
+            )
+            .into());
+        }
+    }
+    let external = |name: &str| options.external.iter().chain(&bridged).any(|e| e == name);
     let (sim, local) = if options.realtime {
         let names: Vec<&str> = fleet
             .systems
@@ -463,6 +659,18 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             _ => unreachable!("one of the two is always open"),
         }
     };
+    let single = options.layout == Layout::SingleVe;
+    let ve_of = |rover: &str| -> &'static str {
+        match (single, rover) {
+            (true, _) | (false, "Alpha") => "VirtualEnv",
+            (false, "Charlie") => "VirtualEnv2",
+            _ => "VirtualEnv3",
+        }
+    };
+    // A bridged robot must be there before the scenario starts: its odometry is its pose.
+    for name in &bridged {
+        Environment::wait_for_odometry(&system(ve_of(name))?, name, BRIDGED_WAIT)?;
+    }
     let start = match &sim {
         Some(s) => s.now(),
         None => Time::now_wall(),
@@ -486,14 +694,6 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         (Some(sc), _, Some(l)) => Some(l.apply_scenario(sc, options.seed)?),
         _ => None,
     };
-    let single = options.layout == Layout::SingleVe;
-    let ve_of = |rover: &str| -> &'static str {
-        match (single, rover) {
-            (true, _) | (false, "Alpha") => "VirtualEnv",
-            (false, "Charlie") => "VirtualEnv2",
-            _ => "VirtualEnv3",
-        }
-    };
     let mut leader = match is_replaced(&leader_name) {
         true => None,
         false => Some(Leader::new(
@@ -505,11 +705,14 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     };
     // Every follower in order, None where the hooks stand in for it.
     let mut followers = Vec::new();
-    for (name, next) in [("Charlie", Some("Tango")), ("Tango", None)] {
+    for (name, next) in chain {
         if is_replaced(name) {
             followers.push((name, None));
         } else if !external(name) {
-            let f = Follower::new(&system(name)?, next, ve_of(name), start)?;
+            let mut f = Follower::new(&system(name)?, next, ve_of(name), start)?;
+            if next.is_some_and(|n| bridged.iter().any(|b| b == n)) {
+                f.bridge_next(scenario.drive, scenario.schedule.initial().code() as u8);
+            }
             followers.push((name, Some(f)));
         }
     }
@@ -519,6 +722,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             &system("VirtualEnv")?,
             &scenario,
             &scenario.start,
+            &bridged,
             start,
             true,
         )?);
@@ -529,6 +733,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
                 &ve,
                 &scenario,
                 &[(rover.clone(), *pose)],
+                &bridged,
                 start,
                 false,
             )?);
@@ -596,6 +801,11 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if let Some(s) = &sim {
         s.run_idle(start + Duration::from_secs_f64(end_s + 60.0));
     }
+    for (_, follower) in &mut followers {
+        if let Some(f) = follower {
+            f.stop_bridged()?;
+        }
+    }
     if options.progress {
         eprintln!();
     }
@@ -636,6 +846,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             None => take(name),
         });
     }
+    commands.extend(environments.iter().flat_map(|e| e.take_observed()));
     commands.extend(hooked);
     let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
     samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
@@ -645,6 +856,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         wall: wall.elapsed(),
         simulated_s: end_s,
         scenario,
+        bridged,
     })
 }
 

@@ -28,7 +28,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
@@ -177,9 +177,19 @@ impl Ros2Bridge {
         let subscriber = dp
             .create_subscriber(&qos)
             .map_err(dds_err("a subscriber".into()))?;
+        // A system that does not host a subscribed module does not read its topic: the
+        // messages would have nowhere to go (e.g. the rover that only publishes commands).
+        let hosted = fleet
+            .systems
+            .iter()
+            .find(|s| s.id == local)
+            .and_then(|s| s.modules.clone());
         let mut inbound = Vec::new();
         for m in &settings.subscribe {
             let module = module_id(fleet, &m.module, &m.topic)?;
+            if hosted.as_ref().is_some_and(|h| !h.contains(&module)) {
+                continue;
+            }
             let reader = subscriber
                 .create_datareader_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the reader of {}", m.topic)))?;
@@ -470,6 +480,13 @@ impl TransportFactory for Ros2BridgeFactory {
 
     fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
         Some(self)
+    }
+
+    fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
+        let TransportSettings::Registered(s) = &transport.settings else {
+            return None;
+        };
+        s.downcast_ref::<BridgeSettings>().map(|b| b.robot.clone())
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
