@@ -248,7 +248,7 @@ mod tests {
         let turned = odom(
             ahead.pose.pose.position.x,
             ahead.pose.pose.position.y,
-            0.5 + 1.5707963267948966,
+            0.5 + std::f64::consts::FRAC_PI_2,
             left,
         );
         let rec = o.update(&turned, 2.5).expect("a receipt");

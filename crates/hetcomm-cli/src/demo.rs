@@ -182,8 +182,12 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     } else {
         Layout::ThreeVe
     };
+    let links = match args.fleet {
+        Some(path) => format!("fleet {}", path.display()),
+        None => format!("R = {}, B = {}", args.r, args.b),
+    };
     eprintln!(
-        "leader–follower demonstration: Alpha → Charlie → Tango, {} ({}), R = {}, B = {}, seed {}",
+        "leader–follower demonstration: Alpha → Charlie → Tango, {} ({}), {links}, seed {}",
         if args.single_ve {
             "one VE with callbacks"
         } else {
@@ -194,8 +198,6 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         } else {
             "virtual time"
         },
-        args.r,
-        args.b,
         args.seed
     );
     let terminal = std::io::IsTerminal::is_terminal(&std::io::stderr());
