@@ -112,6 +112,24 @@ impl End {
     }
 }
 
+/// The wall clock in ns: one clock for both processes of this host (the round trip's few
+/// seconds leave no room for it to be adjusted noticeably).
+fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+fn stamp(data: &mut [u8], at: usize) {
+    data[at..at + 8].copy_from_slice(&now_ns().to_le_bytes());
+}
+
+fn read_stamp(data: &[u8], at: usize) -> u64 {
+    data.get(at..at + 8)
+        .and_then(|b| b.try_into().ok())
+        .map_or(0, u64::from_le_bytes)
+}
+
 fn arg(name: &str) -> Option<String> {
     let args: Vec<String> = std::env::args().collect();
     args.iter()
@@ -130,10 +148,13 @@ fn main() -> Res<()> {
         println!("ready");
         std::io::stdout().flush()?;
         loop {
-            let data = end.recv()?;
+            let mut data = end.recv()?;
             if data.is_empty() {
                 return Ok(());
             }
+            // When the sample was taken, then when the reply is written.
+            stamp(&mut data, 8);
+            stamp(&mut data, 16);
             end.send(data)?;
         }
     }
@@ -151,20 +172,29 @@ fn main() -> Res<()> {
     let warmup = iters / 10;
     let mut rtts = Vec::with_capacity(iters);
     let mut writes = Vec::with_capacity(iters);
+    let (mut there, mut turn, mut back) = (Vec::new(), Vec::new(), Vec::new());
     for i in 0..warmup + iters {
         let t0 = Instant::now();
-        end.send(vec![7u8; size])?;
+        let mut data = vec![7u8; size.max(24)];
+        stamp(&mut data, 0);
+        end.send(data)?;
         let t1 = Instant::now();
-        end.recv()?;
+        let reply = end.recv()?;
+        let got = now_ns();
         if i >= warmup {
             rtts.push(t0.elapsed());
             writes.push(t1 - t0);
+            let [sent, taken, replied] = [0, 8, 16].map(|at| read_stamp(&reply, at));
+            there.push(Duration::from_nanos(taken.saturating_sub(sent)));
+            turn.push(Duration::from_nanos(replied.saturating_sub(taken)));
+            back.push(Duration::from_nanos(got.saturating_sub(replied)));
         }
     }
     end.send(Vec::new())?;
     let _ = child.wait();
-    rtts.sort();
-    writes.sort();
+    for v in [&mut rtts, &mut writes, &mut there, &mut turn, &mut back] {
+        v.sort();
+    }
     let pct = |v: &[Duration], p: f64| v[((v.len() - 1) as f64 * p) as usize].as_secs_f64() * 1e6;
     println!(
         "rustdds ping-pong {size} B{}{}: p50 {:.1} µs, p90 {:.1} µs, p99 {:.1} µs; write() on the caller's thread p50 {:.1} µs",
@@ -174,6 +204,12 @@ fn main() -> Res<()> {
         pct(&rtts, 0.9),
         pct(&rtts, 0.99),
         pct(&writes, 0.5)
+    );
+    println!(
+        "  one way, p50: there (write → taken by the echo) {:.1} µs, echo's turnaround {:.1} µs, back {:.1} µs",
+        pct(&there, 0.5),
+        pct(&turn, 0.5),
+        pct(&back, 0.5)
     );
     Ok(())
 }
