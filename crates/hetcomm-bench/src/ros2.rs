@@ -51,14 +51,19 @@ A = ["X", "t"]
 B = ["t", "X"]
 "#,
         std::process::id(),
-        if best_effort { "best_effort" } else { "reliable" }
+        if best_effort {
+            "best_effort"
+        } else {
+            "reliable"
+        }
     )
 }
 
 fn open(role: &str, best_effort: bool) -> Result<(TempDir, Peer, Comm), String> {
     let dir = TempDir::new()?;
     let path = dir.0.join("fleet.toml");
-    std::fs::write(&path, fleet_text(best_effort)).map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::write(&path, fleet_text(best_effort))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let peer = Peer::spawn(None, &[format!("hc-{role}"), path.display().to_string()])?;
     peer.expect("ready", Duration::from_secs(20))?;
     let comm = Comm::open(&path, "A").map_err(|e| e.to_string())?;
