@@ -293,3 +293,43 @@ fn garbage_and_wrong_types_on_a_mapped_topic_are_counted_not_delivered() {
         .try_recv_raw()
         .is_none_or(|m| m.envelope.message_type().0 == 41));
 }
+
+#[test]
+fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
+    let (p, domain) = (prefix("hosts"), 73);
+    // Alpha only commands (it has no World module); Bravo watches the odometry.
+    let text = fleet_text(&p, domain, "")
+        .replace("Alpha = 0\n", "Alpha = { id = 0, modules = [\"Drive\"] }\nBravo = 1\n")
+        .replace(
+            "columns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]",
+            "columns = [\"Alpha\", \"Bravo\", \"Tango\"]\nAlpha = [\"X\", \"X\", \"tango_ros\"]\n\
+             Bravo = [\"X\", \"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"tango_ros\", \"X\"]",
+        );
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let bravo = Comm::open_fleet(&fleet, "Bravo").expect("open Bravo");
+    let world = bravo.module("World").unwrap();
+    let _rover = rover(&p, domain, &[]);
+    for _ in 0..5 {
+        world
+            .recv_timeout::<Odom>(Duration::from_secs(20))
+            .expect("odometry reaches Bravo");
+    }
+    let received = |c: &Comm| c.stats().links[0].1.frames_received;
+    assert!(received(&bravo) >= 5);
+    assert_eq!(
+        received(&alpha),
+        0,
+        "Alpha hosts no World: it must not read /odom"
+    );
+    // Alpha still publishes.
+    let stop = Drive {
+        linear: Vector3::default(),
+        angular: Vector3::default(),
+    };
+    let outcome = alpha.module("Drive").unwrap().send("Tango", "Drive", &stop);
+    assert!(matches!(
+        outcome.expect("send").wait(),
+        Outcome::Sent { .. }
+    ));
+}
