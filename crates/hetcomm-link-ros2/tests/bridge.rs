@@ -333,3 +333,19 @@ fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
         Outcome::Sent { .. }
     ));
 }
+
+#[test]
+fn the_registry_names_the_bridged_robot() {
+    let fleet = hetcomm::parse_fleet(&fleet_text("/t", 0, ""), "b.toml", None).expect("valid");
+    assert_eq!(hetcomm::registry().bridged_robots(&fleet), ["Tango"]);
+    // A `ros2` transport links hetcomm systems: nobody is bridged.
+    let plain = fleet_text("/t", 0, "")
+        .replace("kind = \"ros2_bridge\"\nrobot = \"Tango\"", "kind = \"ros2\"")
+        .split("[transports.tango_ros.publish]")
+        .next()
+        .unwrap()
+        .to_string()
+        + "[table]\ncolumns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]\n";
+    let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
+    assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
+}
