@@ -13,8 +13,11 @@
 #    and their errors, delivery through the facade (secured and `security = "none"`), and the
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
 #    Odometry and String back, mismatches, garbage and wrong-type publishers;
-# 4. the demo: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
-#    printing a table; it fails if Tango ends more than 1 m from its target.
+# 4. the demos: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
+#    printing a table; it fails if Tango ends more than 1 m from its target. Then the thesis's
+#    demonstration, `hetcomm demo --fleet examples/ros2/leader-follower-ros2.toml`, with the
+#    rover as Tango: Tango must receive the leader's four commands in order and keep within
+#    a bound of where the simulated run (virtual time, every rover ours) puts it.
 #
 # rustdds is compiled once (debug) and shared by both workspaces' builds in the same target
 # directory: the crate's Cargo.lock pins the versions the main Cargo.lock has.
@@ -55,3 +58,55 @@ trap 'kill $ROVER 2>/dev/null || true' EXIT
 kill $ROVER 2>/dev/null || true
 wait $ROVER 2>/dev/null || true
 trap - EXIT
+
+step "ros2: hetcomm demo with Tango as an external ROS 2 robot (examples/ros2/leader-follower-ros2.toml)"
+OUT=$(mktemp -d)
+PREFIX=/hc_lf_$$
+# The shipped fleet on its own domain and topics, so that parallel runs do not meet.
+sed -e "s#\"/tango/#\"$PREFIX/#" -e 's/^domain_id = 0 /domain_id = 7 /' \
+    examples/ros2/leader-follower-ros2.toml > "$OUT/fleet.toml"
+grep -q "^domain_id = 7 " "$OUT/fleet.toml" && grep -q "\"$PREFIX/odom\"" "$OUT/fleet.toml"
+"$HETCOMM_ROS2_PYTHON" examples/ros2/tango_rover.py --prefix "$PREFIX" --domain 7 --seconds 60 \
+    > "$OUT/rover.log" &
+ROVER=$!
+trap 'kill $ROVER 2>/dev/null || true' EXIT
+"$CARGO_TARGET_DIR/debug/hetcomm" demo --fleet "$OUT/fleet.toml" --out "$OUT/ros2" > "$OUT/ros2.txt"
+kill $ROVER 2>/dev/null || true
+wait $ROVER 2>/dev/null || true
+trap - EXIT
+sed -n '/Table 11/,/^$/p;/Table 15/,/^$/p' "$OUT/ros2.txt"
+"$CARGO_TARGET_DIR/debug/hetcomm" demo --out "$OUT/sim" > /dev/null 2> "$OUT/sim.err" \
+    || { cat "$OUT/sim.err"; exit 1; }
+"$HETCOMM_ROS2_PYTHON" - "$OUT/ros2" "$OUT/sim" <<'PY'
+"""Tango (the ROS 2 rover) follows: the four commands reach it in order, and each second its
+pose is within 10 units (1 s of driving) and 15 degrees of the simulated run's."""
+import csv, math, sys
+
+def load(d, name):
+    with open(f"{d}/{name}") as f:
+        return list(csv.DictReader(f))
+
+ros, sim = sys.argv[1], sys.argv[2]
+codes = [int(r["code"]) for r in load(ros, "commands.csv") if r["rover"] == "Tango"]
+assert codes == [1, 0, 1, 0], f"Tango's commands, seen in its odometry: {codes}"
+
+def tango(d):
+    return {round(float(r["t_s"]), 3): r for r in load(d, "poses.csv") if r["rover"] == "Tango"}
+
+a, b = tango(ros), tango(sim)
+assert len(a) >= 140, f"only {len(a)} poses of Tango"
+worst = (0.0, 0.0, None)
+for t in sorted(b):
+    if t not in a or abs(t - round(t)) > 1e-9:
+        continue
+    p, q = a[t], b[t]
+    d = math.hypot(float(p["x"]) - float(q["x"]), float(p["y"]) - float(q["y"]))
+    h = abs((float(p["theta_deg"]) - float(q["theta_deg"]) + 180) % 360 - 180)
+    assert d <= 10.0 and h <= 15.0, f"t={t}: Tango {d:.2f} units / {h:.1f} deg off the simulated run"
+    worst = max(worst, (d, h, t), key=lambda w: w[0])
+end = max(a)
+print(f"Tango followed: {len(codes)} commands in order; at most {worst[0]:.2f} units from the "
+      f"simulated run (t={worst[2]}); ends at ({float(a[end]['x']):.2f}, {float(a[end]['y']):.2f}), "
+      f"simulated ({float(b[end]['x']):.2f}, {float(b[end]['y']):.2f})")
+PY
+rm -rf "$OUT"

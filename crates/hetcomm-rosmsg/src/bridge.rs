@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
@@ -474,6 +474,8 @@ pub trait BridgeKind: Send + Sync + 'static {
     const KEYS: &'static [&'static str];
     /// Reads its table; problems are reported through `s`.
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
+    /// The external robot its settings name (`robot = "Tango"`).
+    fn robot(settings: &Self::Settings) -> &str;
     /// Opens the bridge on system `local` of `fleet`: the link and its local address.
     fn open(
         fleet: &Fleet,
@@ -513,6 +515,14 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
 
     fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
         Some(self)
+    }
+
+    fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
+        let TransportSettings::Registered(s) = &transport.settings else {
+            return None;
+        };
+        s.downcast_ref::<K::Settings>()
+            .map(|b| K::robot(b).to_string())
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {

@@ -329,6 +329,10 @@ impl BridgeKind for Ros1BridgeKind {
         settings::parse(s)
     }
 
+    fn robot(settings: &BridgeSettings) -> &str {
+        &settings.robot
+    }
+
     fn open(
         fleet: &Fleet,
         local: SystemId,

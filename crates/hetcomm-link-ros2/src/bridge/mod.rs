@@ -109,9 +109,19 @@ impl Ros2Bridge {
         let subscriber = dp
             .create_subscriber(&qos)
             .map_err(dds_err("a subscriber".into()))?;
+        // A system that does not host a subscribed module does not read its topic: the
+        // messages would have nowhere to go (e.g. the rover that only publishes commands).
+        let hosted = fleet
+            .systems
+            .iter()
+            .find(|s| s.id == local)
+            .and_then(|s| s.modules.clone());
         let mut inbound = Vec::new();
         for m in &settings.subscribe {
             let module = module_id(fleet, &m.module, &m.topic)?;
+            if hosted.as_ref().is_some_and(|h| !h.contains(&module)) {
+                continue;
+            }
             let reader = subscriber
                 .create_datareader_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the reader of {}", m.topic)))?;
@@ -317,6 +327,10 @@ impl BridgeKind for Ros2BridgeKind {
 
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
+    }
+
+    fn robot(settings: &BridgeSettings) -> &str {
+        &settings.robot
     }
 
     fn open(
