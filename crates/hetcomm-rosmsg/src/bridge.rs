@@ -242,6 +242,19 @@ pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, Str
         })
 }
 
+/// Whether system `local` hosts `module`: true unless its `[systems]` entry lists its
+/// modules and leaves this one out. A bridge reads a subscribed topic only where its module
+/// is hosted: elsewhere the messages would have nowhere to go (e.g. a system that only
+/// publishes the robot's commands).
+pub fn hosts(fleet: &Fleet, local: SystemId, module: ModuleId) -> bool {
+    fleet
+        .systems
+        .iter()
+        .find(|s| s.id == local)
+        .and_then(|s| s.modules.as_ref())
+        .is_none_or(|hosted| hosted.contains(&module))
+}
+
 /// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
 /// distinct problem once, in order; shared by its send side and its receive tasks.
 pub struct Tally {

@@ -11,7 +11,8 @@
 //!   both types and the field.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot (the frame's source module is the
-//!   same module id).
+//!   same module id). A system whose `[systems]` entry lists its modules without `MODULE`
+//!   does not read that topic.
 //!
 //! Bad input never reaches a module: a sample that does not decode as the mapped type, and a
 //! publisher on a mapped topic whose type is not the mapped one, are counted (dropped frames
@@ -30,7 +31,7 @@ use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
 use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{caps, hosts, module_id, robot_id, FrameMaker, Outbound, Tally};
 use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
@@ -109,17 +110,10 @@ impl Ros2Bridge {
         let subscriber = dp
             .create_subscriber(&qos)
             .map_err(dds_err("a subscriber".into()))?;
-        // A system that does not host a subscribed module does not read its topic: the
-        // messages would have nowhere to go (e.g. the rover that only publishes commands).
-        let hosted = fleet
-            .systems
-            .iter()
-            .find(|s| s.id == local)
-            .and_then(|s| s.modules.clone());
         let mut inbound = Vec::new();
         for m in &settings.subscribe {
             let module = module_id(fleet, &m.module, &m.topic)?;
-            if hosted.as_ref().is_some_and(|h| !h.contains(&module)) {
+            if !hosts(fleet, local, module) {
                 continue;
             }
             let reader = subscriber
