@@ -157,6 +157,16 @@ fn opening_names_an_unknown_module_and_an_absent_master() {
     );
 }
 
+#[test]
+fn declared_types_that_do_not_fit_refuse_to_open() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let fleet =
+        hetcomm::parse_fleet(&fleet_text("/t", &master.uri()), "b.toml", None).expect("valid");
+    tango::declared_types_are_checked_when_the_bridge_opens(&fleet);
+}
+
 /// A child process, killed when dropped.
 struct Proc(Child);
 

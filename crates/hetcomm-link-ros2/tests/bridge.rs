@@ -103,6 +103,12 @@ fn opening_names_an_unknown_module() {
     );
 }
 
+#[test]
+fn declared_types_that_do_not_fit_refuse_to_open() {
+    let fleet = hetcomm::parse_fleet(&fleet_text("/t", 0, ""), "b.toml", None).expect("valid");
+    tango::declared_types_are_checked_when_the_bridge_opens(&fleet);
+}
+
 /// The rover process, killed when dropped.
 struct Rover(Child);
 

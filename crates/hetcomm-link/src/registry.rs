@@ -32,6 +32,7 @@ use std::sync::Arc;
 use hetcomm_config::{Fleet, KindSpec, Kinds, TransportDef, TransportKind};
 use hetcomm_core::SystemId;
 
+use crate::shape::MessageShapes;
 use crate::{FrameSink, Link};
 
 /// The fleet model, for factories in crates that depend on this one only.
@@ -48,6 +49,10 @@ pub struct OpenRequest<'a> {
     pub local: SystemId,
     /// Where the link delivers the frames it receives.
     pub sink: Arc<dyn FrameSink>,
+    /// The shapes of the message types the program declared, for a kind that converts
+    /// payloads and checks its mappings when it opens ([`NO_SHAPES`](crate::shape::NO_SHAPES)
+    /// when there are none).
+    pub shapes: &'a MessageShapes,
 }
 
 /// An opened link and where it listens.

@@ -17,9 +17,11 @@ use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::shape::MessageShapes;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
 use rmpv::Value;
 
+use crate::check::{self, Direction};
 use crate::codec::{self, Wire};
 use crate::schema::{Flavour, RosType};
 
@@ -489,6 +491,9 @@ pub trait BridgeKind: Send + Sync + 'static {
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
     /// The external robot its settings name (`robot = "Tango"`).
     fn robot(settings: &Self::Settings) -> &str;
+    /// Its `publish` and `subscribe` mappings, checked against the program's declared
+    /// message types before [`BridgeKind::open`].
+    fn mappings(settings: &Self::Settings) -> (&[Mapping], &[Mapping]);
     /// Opens the bridge on system `local` of `fleet`: the link and its local address.
     fn open(
         fleet: &Fleet,
@@ -546,10 +551,48 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
         let settings: &K::Settings = s
             .downcast_ref()
             .ok_or_else(|| format!("the transport's settings are not {name} settings"))?;
+        let (publish, subscribe) = K::mappings(settings);
+        check_declared(publish, subscribe, request.shapes)?;
         let (link, address) = K::open(request.fleet, request.local, settings, request.sink)?;
         Ok(Opened {
             link,
             local_address: Some(address),
         })
     }
+}
+
+/// Checks every mapping of a message type the program declared (its shape is known) against
+/// the mapping's ROS type: the first mismatch, with both types, the topic and the field.
+pub fn check_declared(
+    publish: &[Mapping],
+    subscribe: &[Mapping],
+    shapes: &MessageShapes,
+) -> Result<(), String> {
+    for m in publish {
+        if let Some(declared) = shapes.get(m.message) {
+            check::check(&declared.shape, m.schema, Direction::ToRos).map_err(|why| {
+                format!(
+                    "message type {} ({}) does not convert to {} for topic {}: {why}",
+                    m.message,
+                    declared.name,
+                    m.ros_type(),
+                    m.topic
+                )
+            })?;
+        }
+    }
+    for m in subscribe {
+        if let Some(declared) = shapes.get(m.message) {
+            check::check(&declared.shape, m.schema, Direction::FromRos).map_err(|why| {
+                format!(
+                    "{} from topic {} does not convert to message type {} ({}): {why}",
+                    m.ros_type(),
+                    m.topic,
+                    m.message,
+                    declared.name
+                )
+            })?;
+        }
+    }
+    Ok(())
 }

@@ -340,6 +340,10 @@ impl BridgeKind for Ros1BridgeKind {
         &settings.robot
     }
 
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
+    }
+
     fn open(
         fleet: &Fleet,
         local: SystemId,

@@ -327,6 +327,10 @@ impl BridgeKind for Ros2BridgeKind {
         &settings.robot
     }
 
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
+    }
+
     fn open(
         fleet: &Fleet,
         local: SystemId,
