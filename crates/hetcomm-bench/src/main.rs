@@ -378,8 +378,18 @@ fn run(o: &Options) -> Vec<Row> {
                     "rtt",
                     ros2::PATH,
                     size,
-                    ros2::rtt(size, warmup, iters),
+                    ros2::rtt(size, warmup, iters, false, false),
                 ));
+            }
+            // Where rustdds's time goes (docs/ros2.md, "Speed"): best-effort QoS, spinning
+            // waiters.
+            #[cfg(feature = "ros2")]
+            for (path, best_effort, spin) in ros2::VARIANTS {
+                if size == 64 && o.path_wanted(path) {
+                    log(o.quick, &format!("rtt {path} {size} B"));
+                    let r = ros2::rtt(size, warmup, iters, best_effort, spin);
+                    rows.push(lat_row("rtt", path, size, r));
+                }
             }
             if dds && o.path_wanted("cyclone-ddsperf") {
                 log(o.quick, &format!("rtt cyclone-ddsperf {size} B"));

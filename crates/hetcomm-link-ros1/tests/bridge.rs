@@ -443,3 +443,65 @@ fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivere
         "{problems}"
     );
 }
+
+#[test]
+fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("hosts");
+    // Alpha only commands (it has no World module); Bravo watches the odometry.
+    let text = fleet_text(&p, &master.uri())
+        .replace("Alpha = 0\n", "Alpha = { id = 0, modules = [\"Drive\"] }\nBravo = 1\n")
+        .replace(
+            "columns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]",
+            "columns = [\"Alpha\", \"Bravo\", \"Tango\"]\nAlpha = [\"X\", \"X\", \"tango_ros\"]\n\
+             Bravo = [\"X\", \"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"tango_ros\", \"X\"]",
+        );
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let bravo = Comm::open_fleet(&fleet, "Bravo").expect("open Bravo");
+    let world = bravo.module("World").unwrap();
+    let _rover = rover(&master, &p, &[]);
+    for _ in 0..5 {
+        world
+            .recv_timeout::<Odom>(Duration::from_secs(30))
+            .expect("odometry reaches Bravo");
+    }
+    let received = |c: &Comm| c.stats().links[0].1.frames_received;
+    assert!(received(&bravo) >= 5);
+    assert_eq!(
+        received(&alpha),
+        0,
+        "Alpha hosts no World: it must not read /odom"
+    );
+    // Alpha still publishes.
+    let stop = Drive {
+        linear: Vector3::default(),
+        angular: Vector3::default(),
+    };
+    let outcome = alpha
+        .module("Drive")
+        .unwrap()
+        .send("Tango", "Drive", &stop)
+        .expect("send")
+        .wait();
+    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
+}
+
+#[test]
+fn the_registry_names_the_bridged_robot() {
+    let text = fleet_text("/t", "http://127.0.0.1:11311");
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    assert_eq!(hetcomm::registry().bridged_robots(&fleet), ["Tango"]);
+    // A `ros1` transport links hetcomm systems: nobody is bridged.
+    let plain = text
+        .replace("kind = \"ros1_bridge\"\nrobot = \"Tango\"", "kind = \"ros1\"")
+        .split("[transports.tango_ros.publish]")
+        .next()
+        .unwrap()
+        .to_string()
+        + "[table]\ncolumns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]\n";
+    let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
+    assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
+}

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
@@ -242,6 +242,19 @@ pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, Str
         .ok_or_else(|| {
             format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
         })
+}
+
+/// Whether system `local` hosts `module`: true unless its `[systems]` entry lists its
+/// modules and leaves this one out. A bridge reads a subscribed topic only where its module
+/// is hosted: elsewhere the messages would have nowhere to go (e.g. a system that only
+/// publishes the robot's commands).
+pub fn hosts(fleet: &Fleet, local: SystemId, module: ModuleId) -> bool {
+    fleet
+        .systems
+        .iter()
+        .find(|s| s.id == local)
+        .and_then(|s| s.modules.as_ref())
+        .is_none_or(|hosted| hosted.contains(&module))
 }
 
 /// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
@@ -476,6 +489,8 @@ pub trait BridgeKind: Send + Sync + 'static {
     const KEYS: &'static [&'static str];
     /// Reads its table; problems are reported through `s`.
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
+    /// The external robot its settings name (`robot = "Tango"`).
+    fn robot(settings: &Self::Settings) -> &str;
     /// Its `publish` and `subscribe` mappings, checked against the program's declared
     /// message types before [`BridgeKind::open`].
     fn mappings(settings: &Self::Settings) -> (&[Mapping], &[Mapping]);
@@ -518,6 +533,14 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
 
     fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
         Some(self)
+    }
+
+    fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
+        let TransportSettings::Registered(s) = &transport.settings else {
+            return None;
+        };
+        s.downcast_ref::<K::Settings>()
+            .map(|b| K::robot(b).to_string())
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
