@@ -438,7 +438,19 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             .map(|s| s.name.as_str())
             .filter(|n| !external(n))
             .collect();
-        (None, Some(LocalFleet::open_systems(fleet.clone(), &names)?))
+        // The bridges' message types are declared, so a bridge refuses to open if one does
+        // not fit its ROS type (instead of failing at the first command).
+        let declared = hetcomm::OpenOptions::new()
+            .message::<bridged::Twist>()
+            .message::<bridged::Odometry>();
+        (
+            None,
+            Some(LocalFleet::open_systems_with(
+                fleet.clone(),
+                &names,
+                declared,
+            )?),
+        )
     } else {
         let opts = SimOptions {
             seed: options.seed,
