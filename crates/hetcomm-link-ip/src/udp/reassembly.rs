@@ -119,7 +119,7 @@ pub enum Reassembly {
 /// is tested without sockets.
 ///
 /// Memory follows what arrived, not what a header announces: a message's buffer grows as its
-/// pieces arrive (the first reservation is at most [`FIRST_RESERVE_PIECES`] pieces, later ones
+/// pieces arrive (the first reservation is at most `FIRST_RESERVE_PIECES` (4) pieces, later ones
 /// at most double it), and pieces that arrive ahead of their turn are kept apart until the
 /// gap before them fills. Everything held, bookkeeping included, is charged against the limit.
 /// When a new piece takes the total over the limit, the oldest message of the source address
