@@ -29,6 +29,7 @@ pub mod emulation;
 pub mod inproc;
 pub mod layer;
 pub mod registry;
+pub mod shape;
 
 use std::sync::Arc;
 
