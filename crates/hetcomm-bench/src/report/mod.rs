@@ -7,6 +7,7 @@ use crate::config_scale::ValidateResult;
 use crate::scale::ScaleResult;
 use crate::stats::{Latency, Outcomes, Throughput};
 
+mod peers;
 mod targets;
 pub use targets::{targets, Target, CPP_PATH};
 

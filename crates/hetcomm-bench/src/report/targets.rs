@@ -15,7 +15,7 @@ pub struct Target {
     pub why: &'static str,
 }
 
-fn verdict(ok: bool) -> &'static str {
+pub(super) fn verdict(ok: bool) -> &'static str {
     if ok {
         "met"
     } else {
@@ -387,6 +387,9 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
     });
     t.extend(crate::secured::targets(rows));
     t.extend(crate::harness_cost::targets(rows));
+    t.extend(super::peers::record(rows));
+    t.extend(super::peers::zenoh(rows));
+    t.extend(super::peers::ros2(rows));
     t
 }
 
