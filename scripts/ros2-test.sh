@@ -18,8 +18,11 @@
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
 #    Odometry and String back, mismatches, garbage and wrong-type publishers; then, without
 #    the feature, the fleet-key test (`dds = "cyclone"` refused, naming the feature);
-# 4. the demo: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
-#    printing a table; it fails if Tango ends more than 1 m from its target.
+# 4. the demos: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
+#    printing a table; it fails if Tango ends more than 1 m from its target. Then the thesis's
+#    demonstration, `hetcomm demo --fleet examples/ros2/leader-follower-ros2.toml`, with the
+#    rover as Tango: Tango must receive the leader's four commands in order and keep within
+#    a bound of where the simulated run (virtual time, every rover ours) puts it.
 #
 # rustdds is compiled once (debug) and shared by both workspaces' builds in the same target
 # directory: the crate's Cargo.lock pins the versions the main Cargo.lock has.
@@ -65,3 +68,24 @@ trap 'kill $ROVER 2>/dev/null || true' EXIT
 kill $ROVER 2>/dev/null || true
 wait $ROVER 2>/dev/null || true
 trap - EXIT
+
+step "ros2: hetcomm demo with Tango as an external ROS 2 robot (examples/ros2/leader-follower-ros2.toml)"
+OUT=$(mktemp -d)
+PREFIX=/hc_lf_$$
+# The shipped fleet on its own domain and topics, so that parallel runs do not meet.
+sed -e "s#\"/tango/#\"$PREFIX/#" -e 's/^domain_id = 0 /domain_id = 7 /' \
+    examples/ros2/leader-follower-ros2.toml > "$OUT/fleet.toml"
+grep -q "^domain_id = 7 " "$OUT/fleet.toml" && grep -q "\"$PREFIX/odom\"" "$OUT/fleet.toml"
+"$HETCOMM_ROS2_PYTHON" examples/ros2/tango_rover.py --prefix "$PREFIX" --domain 7 --seconds 60 \
+    > "$OUT/rover.log" &
+ROVER=$!
+trap 'kill $ROVER 2>/dev/null || true' EXIT
+"$CARGO_TARGET_DIR/debug/hetcomm" demo --fleet "$OUT/fleet.toml" --out "$OUT/ros2" > "$OUT/ros2.txt"
+kill $ROVER 2>/dev/null || true
+wait $ROVER 2>/dev/null || true
+trap - EXIT
+sed -n '/Table 11/,/^$/p;/Table 15/,/^$/p' "$OUT/ros2.txt"
+"$CARGO_TARGET_DIR/debug/hetcomm" demo --out "$OUT/sim" > /dev/null 2> "$OUT/sim.err" \
+    || { cat "$OUT/sim.err"; exit 1; }
+"$HETCOMM_ROS2_PYTHON" scripts/tango-follows.py "$OUT/ros2" "$OUT/sim"
+rm -rf "$OUT"

@@ -6,7 +6,10 @@
 use std::path::PathBuf;
 
 fn main() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg");
+    // Read at run time, not baked in with env!: a build script compiled for one checkout and
+    // reused from a shared target directory must look in the checkout being built.
+    let manifest = std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
+    let dir = PathBuf::from(manifest).join("msg");
     let (source, paths) =
         roslibrust_codegen::find_and_generate_ros_messages_without_ros_package_path(vec![
             dir.clone()

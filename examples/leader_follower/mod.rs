@@ -21,10 +21,15 @@ use std::time::{Duration, Instant};
 use hetcomm::sim::{SimFleet, SimOptions};
 use hetcomm::{Comm, LocalFleet, Message, Module, Time};
 use hetcomm_sim::report::{self, CommandKind, CommandRecord};
-use hetcomm_sim::{Pose, PoseSample, Scenario, VirtualEnvironment};
+use hetcomm_sim::{DiffDrive, PoseSample, Scenario};
 use serde::{Deserialize, Serialize};
 
+pub mod bridged;
+mod environment;
 pub mod scenario;
+
+use bridged::Relay;
+pub use environment::Environment;
 
 /// What the leader tells a follower to do (the thesis's Command message).
 #[derive(Serialize, Deserialize, Message, Debug, Clone, Copy, PartialEq, Eq)]
@@ -106,6 +111,9 @@ VirtualEnv3 = ["X", "X", "R", "X", "X", "X"]
 /// The single-VE variant's fleet (also in `fleet-single-ve.toml`).
 pub const EMBEDDED_SINGLE_VE_FLEET: &str = include_str!("fleet-single-ve.toml");
 
+/// How long the demonstration waits for a bridged robot's first odometry.
+pub const BRIDGED_WAIT: Duration = Duration::from_secs(30);
+
 /// How often rovers act and report their wheels, and VEs step (10 Hz).
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(100);
 
@@ -176,7 +184,7 @@ pub struct Follower {
     plan: Module,
     act: Module,
     name: String,
-    next: Option<String>,
+    next: Option<Relay>,
     environment: String,
     start: Time,
     wheels: Wheels,
@@ -197,12 +205,39 @@ impl Follower {
             plan: comm.module("Plan")?,
             act: comm.module("Act")?,
             name: comm.name().to_string(),
-            next: next.map(str::to_string),
+            next: next.map(|name| Relay {
+                name: name.to_string(),
+                bridged: None,
+            }),
             environment: environment.to_string(),
             start,
             wheels: wheels_for(0), // every rover starts driving straight
             received: Vec::new(),
         })
+    }
+
+    /// The next rover is a bridged robot (it runs ROS, not hetcomm, [`bridged`]): forward each
+    /// command as a [`bridged::Twist`] by `drive`, and repeat the current one at every step,
+    /// starting with command `initial`.
+    pub fn bridge_next(&mut self, drive: DiffDrive, initial: u8) {
+        if let Some(next) = &mut self.next {
+            next.bridged = Some((drive, initial));
+        }
+    }
+
+    /// Tells a bridged next rover to stop (the run is over; a ROS base keeps its last
+    /// velocity).
+    pub fn stop_bridged(&mut self) -> Result<(), hetcomm::SendError> {
+        if let Some(Relay {
+            name,
+            bridged: Some((drive, code)),
+        }) = &mut self.next
+        {
+            *code = 2;
+            self.plan
+                .send(name, "Plan", &bridged::twist_for(drive, 2))?;
+        }
+        Ok(())
     }
 
     /// One control step.
@@ -215,100 +250,30 @@ impl Follower {
                 r.message.code.into(),
                 CommandKind::Received,
             ));
-            if let Some(next) = &self.next {
-                self.plan.send(next, "Plan", &r.message)?;
+            match &mut self.next {
+                Some(Relay {
+                    bridged: Some((_, code)),
+                    ..
+                }) => *code = r.message.code,
+                Some(next) => {
+                    self.plan.send(&next.name, "Plan", &r.message)?;
+                }
+                None => {}
             }
             self.wheels = wheels_for(r.message.code);
+        }
+        // A ROS base expects its velocity command as a stream.
+        if let Some(Relay {
+            name,
+            bridged: Some((drive, code)),
+        }) = &self.next
+        {
+            self.plan
+                .send(name, "Plan", &bridged::twist_for(drive, *code))?;
         }
         // No new command: keep the previous motion.
         self.act.send(&self.environment, "World", &self.wheels)?;
         Ok(())
-    }
-}
-
-/// A virtual environment: integrates the poses of the rovers that report to it.
-pub struct Environment {
-    world: Module,
-    start: Time,
-    env: Arc<Mutex<VirtualEnvironment>>,
-    callbacks: bool,
-}
-
-impl Environment {
-    /// A VE for `rovers` (name, starting pose). With `callbacks`, Wheels are applied the
-    /// moment they arrive; otherwise [`Environment::step`] polls for them.
-    pub fn new(
-        comm: &Comm,
-        scenario: &Scenario,
-        rovers: &[(String, Pose)],
-        start: Time,
-        callbacks: bool,
-    ) -> Result<Environment, Box<dyn std::error::Error>> {
-        let mut env = VirtualEnvironment::with_config(scenario.drive, scenario.ve_config)?;
-        for (name, pose) in rovers {
-            env.add_rover(name, *pose)?;
-            let (l, r) = hetcomm_sim::Command::Straight.wheels();
-            env.set_wheels(name, l, r)?;
-        }
-        let env = Arc::new(Mutex::new(env));
-        let world = comm.module("World")?;
-        if callbacks {
-            let env = env.clone();
-            world.on::<Wheels>(move |r| {
-                let t = seconds_since(start, r.envelope.received_at);
-                apply(&env, r.envelope.source_system, t, r.message);
-            })?;
-        }
-        Ok(Environment {
-            world,
-            start,
-            env,
-            callbacks,
-        })
-    }
-
-    /// Applies waiting Wheels (when polling), then integrates up to `t_s`.
-    pub fn step(&self, t_s: f64) -> Result<(), Box<dyn std::error::Error>> {
-        if !self.callbacks {
-            while let Some(r) = self.world.try_recv::<Wheels>()? {
-                let t = seconds_since(self.start, r.envelope.received_at);
-                apply(&self.env, r.envelope.source_system, t, r.message);
-            }
-        }
-        self.env
-            .lock()
-            .map_err(|_| "environment poisoned")?
-            .advance(t_s)?;
-        Ok(())
-    }
-
-    /// Current positions (rover name, x, y).
-    pub fn positions(&self) -> Vec<(String, f64, f64)> {
-        self.env
-            .lock()
-            .map(|e| {
-                e.positions()
-                    .map(|(n, x, y)| (n.to_string(), x, y))
-                    .collect()
-            })
-            .unwrap_or_default()
-    }
-
-    /// Hands over the pose log.
-    pub fn take_log(&self) -> Vec<PoseSample> {
-        self.env
-            .lock()
-            .map(|mut e| e.take_log())
-            .unwrap_or_default()
-    }
-}
-
-/// Wheels take effect at the time they arrived.
-fn apply(env: &Mutex<VirtualEnvironment>, rover: &str, t_s: f64, w: Wheels) {
-    if let Ok(mut env) = env.lock() {
-        // Both can only fail on non-finite input, which the model then ignores.
-        let _ = env.advance(t_s);
-        let _ = env.set_wheels(rover, w.left, w.right);
     }
 }
 
@@ -414,6 +379,9 @@ pub struct DemoReport {
     pub scenario: Vec<String>,
     /// When the scenario cut systems off (partitions, silences), shaded in the plots.
     pub bands: Vec<report::plot::Band>,
+    /// Robots that ran ROS behind a bridge transport ([`bridged`]): their poses come from
+    /// their odometry, their "received" commands from when their odometry showed them.
+    pub bridged: Vec<String>,
 }
 
 /// Runs the demonstration.
@@ -442,7 +410,27 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if !options.external.is_empty() && !options.realtime {
         return Err("a follower running in another process needs real time: add --realtime".into());
     }
-    let external = |name: &str| options.external.iter().any(|e| e == name);
+    // Robots behind bridge transports run ROS, not hetcomm: not opened here, commanded with
+    // Twist, seen through their odometry (module `bridged`).
+    let bridged = hetcomm::registry().bridged_robots(&fleet);
+    let chain = [("Charlie", Some("Tango")), ("Tango", None)];
+    for name in &bridged {
+        if !chain.iter().any(|(n, next)| n == name && next.is_none()) {
+            return Err(format!(
+                "`{name}` is a bridged robot (it runs ROS, not hetcomm): only the last follower, \
+                 Tango, can be one, since a bridged robot forwards no commands"
+            )
+            .into());
+        }
+        if !options.realtime {
+            return Err(format!(
+                "`{name}` is a bridged robot (it runs ROS, not hetcomm): it needs real time, add \
+                 --realtime"
+            )
+            .into());
+        }
+    }
+    let external = |name: &str| options.external.iter().chain(&bridged).any(|e| e == name);
     let (sim, local) = if options.realtime {
         let names: Vec<&str> = fleet
             .systems
@@ -450,7 +438,19 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             .map(|s| s.name.as_str())
             .filter(|n| !external(n))
             .collect();
-        (None, Some(LocalFleet::open_systems(fleet.clone(), &names)?))
+        // The bridges' message types are declared, so a bridge refuses to open if one does
+        // not fit its ROS type (instead of failing at the first command).
+        let declared = hetcomm::OpenOptions::new()
+            .message::<bridged::Twist>()
+            .message::<bridged::Odometry>();
+        (
+            None,
+            Some(LocalFleet::open_systems_with(
+                fleet.clone(),
+                &names,
+                declared,
+            )?),
+        )
     } else {
         let opts = SimOptions {
             seed: options.seed,
@@ -465,6 +465,18 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             _ => unreachable!("one of the two is always open"),
         }
     };
+    let single = options.layout == Layout::SingleVe;
+    let ve_of = |rover: &str| -> &'static str {
+        match (single, rover) {
+            (true, _) | (false, "Alpha") => "VirtualEnv",
+            (false, "Charlie") => "VirtualEnv2",
+            _ => "VirtualEnv3",
+        }
+    };
+    // A bridged robot must be there before the scenario starts: its odometry is its pose.
+    for name in &bridged {
+        Environment::wait_for_odometry(&system(ve_of(name))?, name, BRIDGED_WAIT)?;
+    }
     let start = match &sim {
         Some(s) => s.now(),
         None => Time::now_wall(),
@@ -488,14 +500,6 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         (Some(sc), _, Some(l)) => Some(l.apply_scenario(sc, options.seed)?),
         _ => None,
     };
-    let single = options.layout == Layout::SingleVe;
-    let ve_of = |rover: &str| -> &'static str {
-        match (single, rover) {
-            (true, _) | (false, "Alpha") => "VirtualEnv",
-            (false, "Charlie") => "VirtualEnv2",
-            _ => "VirtualEnv3",
-        }
-    };
     let mut leader = match is_replaced(&leader_name) {
         true => None,
         false => Some(Leader::new(
@@ -507,11 +511,14 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     };
     // Every follower in order, None where the hooks stand in for it.
     let mut followers = Vec::new();
-    for (name, next) in [("Charlie", Some("Tango")), ("Tango", None)] {
+    for (name, next) in chain {
         if is_replaced(name) {
             followers.push((name, None));
         } else if !external(name) {
-            let f = Follower::new(&system(name)?, next, ve_of(name), start)?;
+            let mut f = Follower::new(&system(name)?, next, ve_of(name), start)?;
+            if next.is_some_and(|n| bridged.iter().any(|b| b == n)) {
+                f.bridge_next(scenario.drive, scenario.schedule.initial().code() as u8);
+            }
             followers.push((name, Some(f)));
         }
     }
@@ -521,6 +528,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             &system("VirtualEnv")?,
             &scenario,
             &scenario.start,
+            &bridged,
             start,
             true,
         )?);
@@ -531,6 +539,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
                 &ve,
                 &scenario,
                 &[(rover.clone(), *pose)],
+                &bridged,
                 start,
                 false,
             )?);
@@ -598,6 +607,11 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     if let Some(s) = &sim {
         s.run_idle(start + Duration::from_secs_f64(end_s + 60.0));
     }
+    for (_, follower) in &mut followers {
+        if let Some(f) = follower {
+            f.stop_bridged()?;
+        }
+    }
     if options.progress {
         eprintln!();
     }
@@ -644,6 +658,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
             None => take(name),
         });
     }
+    commands.extend(environments.iter().flat_map(|e| e.take_observed()));
     commands.extend(hooked);
     let mut samples: Vec<PoseSample> = environments.iter().flat_map(|e| e.take_log()).collect();
     samples.sort_by(|a, b| a.t_s.total_cmp(&b.t_s).then_with(|| a.rover.cmp(&b.rover)));
@@ -654,6 +669,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
         simulated_s: end_s,
         scenario,
         bands,
+        bridged,
     })
 }
 

@@ -13,9 +13,20 @@ use crate::stats::{parse_sink_line, Latency, Throughput};
 /// The row name.
 pub const PATH: &str = "hetcomm-ros2-unack";
 
+/// The 64 B variants measured beside [`PATH`]: (row, best-effort QoS, spinning waiters).
+/// rustdds answers the heartbeat it sends with every reliable sample by an ACKNACK
+/// datagram, so reliable QoS costs two datagrams more per round trip than best effort;
+/// spinning waiters take the reply without a wake-up of the module's thread (docs/ros2.md,
+/// "Speed").
+pub const VARIANTS: [(&str, bool, bool); 3] = [
+    ("hetcomm-ros2-unack-spin", false, true),
+    ("hetcomm-ros2-be-unack", true, false),
+    ("hetcomm-ros2-be-unack-spin", true, true),
+];
+
 /// Systems A and B on one unacknowledged `ros2` transport, on a domain and namespace of
-/// their own (so concurrent runs do not meet).
-fn fleet_text() -> String {
+/// their own (so concurrent runs do not meet); reliable QoS unless `best_effort`.
+fn fleet_text(best_effort: bool) -> String {
     let domain = 100 + std::process::id() % 100;
     format!(
         r#"[systems]
@@ -33,29 +44,48 @@ delivery = "unacknowledged"
 security = "none"
 domain_id = {domain}
 namespace = "/bench_{}"
+reliability = "{}"
 [table]
 columns = ["A", "B"]
 A = ["X", "t"]
 B = ["t", "X"]
 "#,
-        std::process::id()
+        std::process::id(),
+        if best_effort {
+            "best_effort"
+        } else {
+            "reliable"
+        }
     )
 }
 
-fn open(role: &str) -> Result<(TempDir, Peer, Comm), String> {
+fn open(role: &str, best_effort: bool) -> Result<(TempDir, Peer, Comm), String> {
     let dir = TempDir::new()?;
     let path = dir.0.join("fleet.toml");
-    std::fs::write(&path, fleet_text()).map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::write(&path, fleet_text(best_effort))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let peer = Peer::spawn(None, &[format!("hc-{role}"), path.display().to_string()])?;
     peer.expect("ready", Duration::from_secs(20))?;
     let comm = Comm::open(&path, "A").map_err(|e| e.to_string())?;
     Ok((dir, peer, comm))
 }
 
-/// Ping-pong round trips through a peer process that echoes.
-pub fn rtt(size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
-    let (_dir, peer, comm) = open("echo")?;
+/// Ping-pong round trips through a peer process that echoes; best-effort QoS with
+/// `best_effort`. With `spin`, both ends' waiting modules spin [`crate::hc::WAIT_SPIN`] before
+/// they sleep ([`hetcomm::Module::set_wait_spin`]), reading the DDS reader meanwhile: the
+/// reply is taken without a wake-up of the module's thread (rustdds's own threads still wake).
+pub fn rtt(
+    size: usize,
+    warmup: u64,
+    iters: u64,
+    best_effort: bool,
+    spin: bool,
+) -> Result<Latency, String> {
+    let (_dir, peer, comm) = open(if spin { "echo-spin" } else { "echo" }, best_effort)?;
     let m = comm.module("M").map_err(|e| e.to_string())?;
+    if spin {
+        m.set_wait_spin(crate::hc::WAIT_SPIN);
+    }
     let result = crate::hc::round_trips(&m, size, warmup, iters);
     drop(m);
     drop(comm);
@@ -65,7 +95,7 @@ pub fn rtt(size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
 
 /// One-way: A sends as fast as `send_raw` returns for `duration`; the peer counts.
 pub fn oneway(size: usize, duration: Duration) -> Result<Throughput, String> {
-    let (_dir, mut peer, comm) = open("sink")?;
+    let (_dir, mut peer, comm) = open("sink", false)?;
     let m = comm.module("M").map_err(|e| e.to_string())?;
     let msg = vec![7u8; size];
     // The first send waits for B's reader to be matched.

@@ -8,7 +8,8 @@
 //!
 //! For each N it measures: the time to open the N systems (one after the other), the memory
 //! they add (resident set growth over the N sessions, per system), the time one broadcast
-//! from S0 takes to reach the N-1 others (median of 5; every copy acknowledged), and a
+//! from S0 takes to reach the N-1 others (median of 5; one put on `<prefix>/all` that the
+//! router fans out, acknowledged by every receiver: docs/zenoh.md, "Broadcasts"), and a
 //! sustained point-to-point load of 1 000 messages per second across the fleet for 5 s (each
 //! millisecond, the next system sends one 64-byte message to the one after it), with every
 //! outcome and arrival counted. Prints one Markdown table row per N (header first).

@@ -153,7 +153,16 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     // would never reach the ROS master (nor `zenoh` a Zenoh router): a real transport forces
     // real time.
     let realtime = args.realtime || (args.fleet.is_none() && args.r == "ros1") || wants_zenoh;
-    if realtime && !args.realtime {
+    // A robot behind a bridge transport (it runs ROS, not hetcomm) moves in real time.
+    let bridged = hetcomm::registry().bridged_robots(&fleet);
+    if !bridged.is_empty() && !args.realtime {
+        eprintln!(
+            "{} runs ROS behind a bridge: running in real time (as with --realtime)",
+            bridged.join(", ")
+        );
+    }
+    let realtime = realtime || !bridged.is_empty();
+    if realtime && !args.realtime && bridged.is_empty() {
         eprintln!(
             "--{} uses a real {}: running in real time (as with --realtime)",
             if args.r == "ros1" || args.r == "zenoh" {
@@ -173,8 +182,12 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     } else {
         Layout::ThreeVe
     };
+    let links = match args.fleet {
+        Some(path) => format!("fleet {}", path.display()),
+        None => format!("R = {}, B = {}", args.r, args.b),
+    };
     eprintln!(
-        "leader–follower demonstration: Alpha → Charlie → Tango, {} ({}), R = {}, B = {}, seed {}",
+        "leader–follower demonstration: Alpha → Charlie → Tango, {} ({}), {links}, seed {}",
         if args.single_ve {
             "one VE with callbacks"
         } else {
@@ -185,8 +198,6 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
         } else {
             "virtual time"
         },
-        args.r,
-        args.b,
         args.seed
     );
     let terminal = std::io::IsTerminal::is_terminal(&std::io::stderr());
@@ -212,6 +223,13 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     };
     let report = leader_follower::run(&options).map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
+    for robot in &report.bridged {
+        println!(
+            "{robot} ran ROS behind a bridge: its commands went out as velocity (Twist) at the \
+             control rate, its poses are its odometry placed at its starting pose, and its \
+             \"received\" times are when its odometry first showed each command's velocity.\n"
+        );
+    }
     let mut scenario_text = String::new();
     if options.scenario.is_some() {
         scenario_text = report.scenario.join("\n") + "\n";

@@ -88,7 +88,9 @@ enum Command {
         #[arg(long, default_value = "hetcomm-out/demo")]
         out: PathBuf,
         /// Fleet file to use instead of the embedded Tables 6–8 fleet (needs Alpha, Charlie,
-        /// Tango, their VEs, and modules Plan, Act, World).
+        /// Tango, their VEs, and modules Plan, Act, World). Tango may be the robot of a bridge
+        /// transport (e.g. examples/ros2/leader-follower-ros2.toml or
+        /// examples/ros1/leader-follower-ros1.toml, docs/ros-bridges.md).
         #[arg(long, conflicts_with_all = ["r", "b"])]
         fleet: Option<PathBuf>,
         /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated

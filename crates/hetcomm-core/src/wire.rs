@@ -81,8 +81,25 @@ pub const FLAG_BROADCAST: u8 = 0b0000_0010;
 /// CRC, the magic, the version and the lengths. Receivers should accept such frames only from
 /// links that protect the payload themselves (the router does so).
 pub const FLAG_HEADER_CRC: u8 = 0b0000_0100;
+/// Flag bit: the sequence number counts in the sender's *broadcast* sequence space (one
+/// counter per sender incarnation for its native broadcasts) instead of the space of the
+/// sender and the destination system. Set on every frame of a native broadcast: the one frame
+/// for every system ([`FLAG_TO_ALL`]), the copies the sender retransmits to the systems that
+/// did not acknowledge it, and the acknowledgements of either. Receivers suppress duplicates
+/// per (sender, incarnation, space).
+pub const FLAG_BROADCAST_SEQ: u8 = 0b0000_1000;
+/// Flag bit: this one data frame is for every system that receives it (a native broadcast,
+/// one put on a transport that reaches every system at once); `destination.system` carries no
+/// meaning and is written as [`TO_ALL_SYSTEM`]. Only with [`FLAG_BROADCAST`] and
+/// [`FLAG_BROADCAST_SEQ`] on a data frame; receivers drop other combinations as malformed,
+/// and accept the frame only when the communication table allows its sender to send them
+/// on the transport it came by.
+pub const FLAG_TO_ALL: u8 = 0b0001_0000;
+/// What a native broadcast frame ([`FLAG_TO_ALL`]) writes as its destination system.
+pub const TO_ALL_SYSTEM: SystemId = SystemId(u16::MAX);
 /// Flags this version defines; a frame with other bits set is rejected.
-pub const KNOWN_FLAGS: u8 = FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_HEADER_CRC;
+pub const KNOWN_FLAGS: u8 =
+    FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_HEADER_CRC | FLAG_BROADCAST_SEQ | FLAG_TO_ALL;
 
 /// The envelope header: the thesis's Fig. 9 fields plus version, kind, flags, priority,
 /// incarnation, timestamp and an integrity check.
@@ -90,7 +107,8 @@ pub const KNOWN_FLAGS: u8 = FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_HEADER_CR
 pub struct Header {
     /// Data or acknowledgement.
     pub kind: FrameKind,
-    /// [`FLAG_ACK_REQUESTED`], [`FLAG_BROADCAST`], [`FLAG_HEADER_CRC`].
+    /// [`FLAG_ACK_REQUESTED`], [`FLAG_BROADCAST`], [`FLAG_HEADER_CRC`],
+    /// [`FLAG_BROADCAST_SEQ`], [`FLAG_TO_ALL`].
     pub flags: u8,
     /// Receive priority at the destination inbox.
     pub priority: Priority,
@@ -155,6 +173,17 @@ impl Header {
     /// only the transport vouches for the payload's bytes.
     pub fn payload_checked(&self) -> bool {
         self.flags & FLAG_HEADER_CRC == 0
+    }
+
+    /// Whether the sequence number counts in the sender's broadcast space
+    /// ([`FLAG_BROADCAST_SEQ`]).
+    pub fn broadcast_seq(&self) -> bool {
+        self.flags & FLAG_BROADCAST_SEQ != 0
+    }
+
+    /// Whether this one frame is for every system that receives it ([`FLAG_TO_ALL`]).
+    pub fn to_all(&self) -> bool {
+        self.flags & FLAG_TO_ALL != 0
     }
 }
 

@@ -14,7 +14,8 @@
 use std::path::PathBuf;
 
 use hetcomm_core::wire::{
-    self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN, MAX_PAYLOAD,
+    self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC, FLAG_TO_ALL,
+    HEADER_LEN, MAX_PAYLOAD, TO_ALL_SYSTEM,
 };
 use hetcomm_core::{
     payload, AckStatus, Address, DecodeError, FrameKind, Header, MessageType, ModuleId, Priority,
@@ -358,6 +359,27 @@ fn generate() -> VectorFile {
         message_type: MessageType(20),
         timestamp: Time(123_456_789),
     };
+    // A native broadcast: one frame for every system, numbered in the sender's broadcast space.
+    let to_all_h = Header {
+        flags: FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_BROADCAST_SEQ | FLAG_TO_ALL,
+        transport: b'Z',
+        destination: Address {
+            system: TO_ALL_SYSTEM,
+            module: ModuleId(3),
+        },
+        seq: 1,
+        ..broadcast_h
+    };
+    // Its retransmission to system 5 alone, and system 5's acknowledgement.
+    let to_all_copy_h = Header {
+        flags: FLAG_ACK_REQUESTED | FLAG_BROADCAST | FLAG_BROADCAST_SEQ,
+        destination: addr(5, 3),
+        ..to_all_h
+    };
+    let to_all_ack_h = Header {
+        flags: FLAG_BROADCAST_SEQ,
+        ..ack_of(&to_all_copy_h)
+    };
     let empty_h = Header {
         kind: FrameKind::Data,
         flags: 0,
@@ -446,6 +468,34 @@ fn generate() -> VectorFile {
             "ack_of_broadcast",
             "An acknowledgement (delivered) of data_broadcast_ack_requested's copy.",
             ack_of(&broadcast_h),
+            &[AckStatus::Delivered as u8],
+        ),
+        valid(
+            "data_broadcast_to_all",
+            "A native broadcast: one frame that every system on the transport receives (one \
+             Zenoh put on `<prefix>/all`). Flags 0x1b: acknowledgement requested, broadcast, \
+             FLAG_BROADCAST_SEQ (seq 1 counts in system 2's broadcast space) and FLAG_TO_ALL \
+             (destination.system is written 65535 and means every system; the module is \
+             used). The payload is the string \"hello\".",
+            to_all_h,
+            &payload::encode("hello").expect("encodes"),
+        ),
+        valid(
+            "data_broadcast_copy",
+            "The retransmission of data_broadcast_to_all to system 5 alone, which did not \
+             acknowledge it: FLAG_TO_ALL cleared and destination.system 5; still \
+             FLAG_BROADCAST_SEQ and seq 1, so a receiver that had the original after all \
+             suppresses it as a duplicate (flags 0x0b).",
+            to_all_copy_h,
+            &payload::encode("hello").expect("encodes"),
+        ),
+        valid(
+            "ack_of_broadcast_to_all",
+            "System 5's acknowledgement (delivered) of data_broadcast_to_all or of its copy: \
+             flags 0x08 (FLAG_BROADCAST_SEQ: the seq is in the sender's broadcast space), \
+             source the acknowledging system (never 65535), destination the broadcast's \
+             sender.",
+            to_all_ack_h,
             &[AckStatus::Delivered as u8],
         ),
         valid(
@@ -553,9 +603,9 @@ fn generate() -> VectorFile {
         ("bad_kind_high", "Frame kind 255.", 3, 0xff, "BadKind"),
         (
             "unknown_flag_bit",
-            "Flags 0x09: bit 3 is not defined.",
+            "Flags 0x21: bit 5 is not defined.",
             4,
-            0x09,
+            0x21,
             "BadFlags",
         ),
         ("unknown_flag_high_bit", "Flags 0x80.", 4, 0x80, "BadFlags"),

@@ -157,6 +157,16 @@ fn opening_names_an_unknown_module_and_an_absent_master() {
     );
 }
 
+#[test]
+fn declared_types_that_do_not_fit_refuse_to_open() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let fleet =
+        hetcomm::parse_fleet(&fleet_text("/t", &master.uri()), "b.toml", None).expect("valid");
+    tango::declared_types_are_checked_when_the_bridge_opens(&fleet);
+}
+
 /// A child process, killed when dropped.
 struct Proc(Child);
 
@@ -432,4 +442,35 @@ fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivere
             ),
         "{problems}"
     );
+}
+
+#[test]
+fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("hosts");
+    let text = tango::with_bravo_watching(&fleet_text(&p, &master.uri()));
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let bravo = Comm::open_fleet(&fleet, "Bravo").expect("open Bravo");
+    let _rover = rover(&master, &p, &[]);
+    tango::only_the_hosting_system_reads_the_topic(&alpha, &bravo, Duration::from_secs(30));
+}
+
+#[test]
+fn the_registry_names_the_bridged_robot() {
+    let text = fleet_text("/t", "http://127.0.0.1:11311");
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    assert_eq!(hetcomm::registry().bridged_robots(&fleet), ["Tango"]);
+    // A `ros1` transport links hetcomm systems: nobody is bridged.
+    let plain = text
+        .replace("kind = \"ros1_bridge\"\nrobot = \"Tango\"", "kind = \"ros1\"")
+        .split("[transports.tango_ros.publish]")
+        .next()
+        .unwrap()
+        .to_string()
+        + "[table]\ncolumns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]\n";
+    let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
+    assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
 }

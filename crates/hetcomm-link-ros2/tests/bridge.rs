@@ -103,6 +103,12 @@ fn opening_names_an_unknown_module() {
     );
 }
 
+#[test]
+fn declared_types_that_do_not_fit_refuse_to_open() {
+    let fleet = hetcomm::parse_fleet(&fleet_text("/t", 0, ""), "b.toml", None).expect("valid");
+    tango::declared_types_are_checked_when_the_bridge_opens(&fleet);
+}
+
 /// The rover process, killed when dropped.
 struct Rover(Child);
 
@@ -193,4 +199,31 @@ fn garbage_and_wrong_types_on_a_mapped_topic_are_counted_not_delivered() {
     assert!(world
         .try_recv_raw()
         .is_none_or(|m| m.envelope.message_type().0 == 41));
+}
+
+#[test]
+fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
+    let (p, domain) = (prefix("hosts"), 73);
+    let text = tango::with_bravo_watching(&fleet_text(&p, domain, ""));
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let bravo = Comm::open_fleet(&fleet, "Bravo").expect("open Bravo");
+    let _rover = rover(&p, domain, &[]);
+    tango::only_the_hosting_system_reads_the_topic(&alpha, &bravo, Duration::from_secs(20));
+}
+
+#[test]
+fn the_registry_names_the_bridged_robot() {
+    let fleet = hetcomm::parse_fleet(&fleet_text("/t", 0, ""), "b.toml", None).expect("valid");
+    assert_eq!(hetcomm::registry().bridged_robots(&fleet), ["Tango"]);
+    // A `ros2` transport links hetcomm systems: nobody is bridged.
+    let plain = fleet_text("/t", 0, "")
+        .replace("kind = \"ros2_bridge\"\nrobot = \"Tango\"", "kind = \"ros2\"")
+        .split("[transports.tango_ros.publish]")
+        .next()
+        .unwrap()
+        .to_string()
+        + "[table]\ncolumns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]\n";
+    let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
+    assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
 }

@@ -15,10 +15,14 @@
 //! |---|---|
 //! | `<prefix>/sys/Bravo` | frames for Bravo: a put's payload is one frame byte for byte (`docs/wire-format.md`), or several held frames as a batch in the UDP batch layout (`"HB"` header, length-prefixed records) |
 //! | `<prefix>/live/Bravo` | Bravo's liveliness token, declared while its link is open |
+//! | `<prefix>/all` | native broadcasts: one put of one frame (`FLAG_TO_ALL`) that every system receives |
 //!
-//! A system subscribes once, to its own `sys` key; the module a frame is for is in the frame's
-//! header. `docs/zenoh.md` describes the layout for programs that are not hetcomm ([`data_key`],
-//! [`live_key`]).
+//! A system subscribes to its own `sys` key and to the `all` key; the module a frame is for is
+//! in the frame's header. A broadcast is one put on the `all` key ([`LinkCaps::broadcast`]:
+//! a send to [`TO_ALL_SYSTEM`]); every system on the Zenoh network under that prefix receives
+//! it, and its router takes it only if the communication table lets the sender send to it on
+//! this transport. `docs/zenoh.md` describes the layout for programs that are not hetcomm
+//! ([`data_key`], [`live_key`], [`all_key`]).
 //!
 //! ## What the link guarantees
 //!
@@ -71,11 +75,13 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
+use hetcomm_core::wire::TO_ALL_SYSTEM;
 use hetcomm_core::{BufferPool, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use hetcomm_link_ip::udp::{batch_records, BATCH_MAGIC, BATCH_VERSION};
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
+use zenoh::sample::Locality;
 use zenoh::Wait;
 
 pub use config::{validate_prefix, Mode, ZenohSettings};
@@ -94,6 +100,11 @@ pub const MAX_FRAME: usize = hetcomm_core::wire::HEADER_LEN + hetcomm_core::wire
 /// The key expression frames for system `name` are put on: `<prefix>/sys/<name>`.
 pub fn data_key(prefix: &str, name: &str) -> String {
     format!("{prefix}/sys/{name}")
+}
+
+/// The key expression native broadcasts are put on: `<prefix>/all`.
+pub fn all_key(prefix: &str) -> String {
+    format!("{prefix}/all")
 }
 
 /// The key expression of system `name`'s liveliness token: `<prefix>/live/<name>`.
@@ -150,6 +161,8 @@ pub enum OpenError {
 /// the last frame was put to it.
 struct Dest {
     name: String,
+    /// The key its frames are put on.
+    key: String,
     publishers: RwLock<Option<Arc<Publishers>>>,
     /// [`micros`] at the last put to this destination.
     last_put_us: AtomicU64,
@@ -240,6 +253,43 @@ fn deliver(sink: &dyn FrameSink, counters: &Counters, put: &[u8]) {
     sink.on_frames(&mut records.clone(), Peer::Unknown);
 }
 
+/// What a subscription does with each put: hands its frames to `sink` on Zenoh's receiving
+/// thread, with no hand-off to another thread (a wake-up that crosses CPUs costs tens of
+/// microseconds a frame).
+fn receiver(
+    sink: Arc<dyn FrameSink>,
+    counters: Arc<Counters>,
+) -> Arc<dyn Fn(zenoh::sample::Sample) + Send + Sync> {
+    let takes_frames = sink.takes_frames();
+    let pool = BufferPool::new(RECEIVE_POOL_BYTES);
+    Arc::new(move |sample| {
+        let payload = sample.payload();
+        if payload.is_empty() {
+            counters.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        IN_CALLBACK.with(|c| c.set(true));
+        let contiguous = payload.slices().nth(1).is_none();
+        if !contiguous && takes_frames {
+            // A frame Zenoh carried in fragments: joined into a buffer of the link's pool
+            // that the sink keeps (as the message's payload) rather than copies once more;
+            // it comes back to the pool when the message is dropped (a fresh allocation per
+            // large frame costs page faults).
+            let mut buf = pool.take(payload.len());
+            payload.slices().for_each(|s| buf.extend_from_slice(s));
+            if buf.starts_with(&BATCH_MAGIC) {
+                deliver(&*sink, &counters, &buf);
+            } else {
+                counters.received.fetch_add(1, Ordering::Relaxed);
+                sink.on_frame_owned(pool.wrap(buf), Peer::Unknown);
+            }
+        } else {
+            deliver(&*sink, &counters, &payload.to_bytes());
+        }
+        IN_CALLBACK.with(|c| c.set(false));
+    })
+}
+
 /// Microseconds since the first call in this process.
 fn micros() -> u64 {
     static EPOCH: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
@@ -262,13 +312,17 @@ pub struct ZenohLink {
     session: zenoh::Session,
     local: SystemId,
     prefix: String,
+    /// Per destination system, and the broadcast key under [`TO_ALL_SYSTEM`].
     dests: HashMap<SystemId, Dest>,
+    /// Whether sends to [`TO_ALL_SYSTEM`] are broadcasts ([`LinkCaps::broadcast`]).
+    broadcast: bool,
     presence: Arc<Presence>,
     presence_timeout: Duration,
     counters: Arc<Counters>,
     _token: zenoh::liveliness::LivelinessToken,
     _live: zenoh::pubsub::Subscriber<()>,
     _sub: zenoh::pubsub::Subscriber<()>,
+    _all: zenoh::pubsub::Subscriber<()>,
 }
 
 thread_local! {
@@ -324,76 +378,61 @@ impl ZenohLink {
             .wait()
             .map_err(zerr("liveliness subscriber"))?;
 
-        // The subscription before the token: whoever sees the token can put to us. Frames go
-        // to the sink on Zenoh's receiving thread, with no hand-off to another thread (a
-        // wake-up that crosses CPUs costs tens of microseconds a frame).
+        // The subscriptions before the token: whoever sees the token can put to us.
         let counters = Arc::new(Counters::default());
-        let rx_counters = counters.clone();
-        let takes_frames = sink.takes_frames();
-        let pool = BufferPool::new(RECEIVE_POOL_BYTES);
+        let on_sample = receiver(sink, counters.clone());
         let sub = session
             .declare_subscriber(data_key(&s.prefix, &local_name))
-            .callback(move |sample| {
-                let payload = sample.payload();
-                if payload.is_empty() {
-                    rx_counters.dropped.fetch_add(1, Ordering::Relaxed);
-                    return;
-                }
-                IN_CALLBACK.with(|c| c.set(true));
-                let contiguous = payload.slices().nth(1).is_none();
-                if !contiguous && takes_frames {
-                    // A frame Zenoh carried in fragments: joined into a buffer of the link's
-                    // pool that the sink keeps (as the message's payload) rather than copies
-                    // once more; it comes back to the pool when the message is dropped (a
-                    // fresh allocation per large frame costs page faults).
-                    let mut buf = pool.take(payload.len());
-                    payload.slices().for_each(|s| buf.extend_from_slice(s));
-                    if buf.starts_with(&BATCH_MAGIC) {
-                        deliver(&*sink, &rx_counters, &buf);
-                    } else {
-                        rx_counters.received.fetch_add(1, Ordering::Relaxed);
-                        sink.on_frame_owned(pool.wrap(buf), Peer::Unknown);
-                    }
-                } else {
-                    deliver(&*sink, &rx_counters, &payload.to_bytes());
-                }
-                IN_CALLBACK.with(|c| c.set(false));
+            .callback({
+                let on_sample = on_sample.clone();
+                move |sample| on_sample(sample)
             })
             .wait()
             .map_err(zerr("subscriber"))?;
+        // Native broadcasts: put once on the `all` key, received by every system.
+        let all = session
+            .declare_subscriber(all_key(&s.prefix))
+            .callback(move |sample| on_sample(sample))
+            .wait()
+            .map_err(zerr("broadcast subscriber"))?;
         let token = session
             .liveliness()
             .declare_token(live_key(&s.prefix, &local_name))
             .wait()
             .map_err(zerr("liveliness token"))?;
 
-        let dests = config
+        let dest = |name: &str, key: String| Dest {
+            name: name.to_string(),
+            key,
+            publishers: RwLock::new(None),
+            last_put_us: AtomicU64::new(0),
+            held: Mutex::new(Held::default()),
+        };
+        let mut dests: HashMap<SystemId, Dest> = config
             .systems
             .iter()
             .filter(|(id, _)| **id != config.local)
-            .map(|(id, name)| {
-                (
-                    *id,
-                    Dest {
-                        name: name.clone(),
-                        publishers: RwLock::new(None),
-                        last_put_us: AtomicU64::new(0),
-                        held: Mutex::new(Held::default()),
-                    },
-                )
-            })
+            .map(|(id, name)| (*id, dest(name, data_key(&s.prefix, name))))
             .collect();
+        // Sends to TO_ALL_SYSTEM are broadcasts, unless a system of the fleet has that id
+        // (then the link does not offer broadcasts, and that id names the system).
+        let broadcast = !config.systems.contains_key(&TO_ALL_SYSTEM);
+        if broadcast {
+            dests.insert(TO_ALL_SYSTEM, dest("every system", all_key(&s.prefix)));
+        }
         Ok(ZenohLink {
             session,
             local: config.local,
             prefix: s.prefix.clone(),
             dests,
+            broadcast,
             presence,
             presence_timeout: Duration::from_millis(s.presence_timeout_ms as u64),
             counters,
             _token: token,
             _live: live,
             _sub: sub,
+            _all: all,
         })
     }
 
@@ -432,6 +471,10 @@ impl ZenohLink {
                 reason: "not a system of this zenoh transport".into(),
             });
         };
+        if to == TO_ALL_SYSTEM && self.broadcast {
+            // Every system present receives it; the router follows up on those that miss it.
+            return Ok(dest);
+        }
         // On Zenoh's receiving thread (a sink answering a frame): never wait; a system never
         // seen gets the frame anyway (it has just sent us one, so it is probably there).
         let seen = match IN_CALLBACK.with(|c| c.get()) {
@@ -514,10 +557,16 @@ impl ZenohLink {
         if let Some(p) = &*slot {
             return Ok(p.clone());
         }
+        let locality = match to == TO_ALL_SYSTEM && self.broadcast {
+            // A broadcast is for the other systems: this session does not hear its own.
+            true => Locality::Remote,
+            false => Locality::Any,
+        };
         let declare = |express: bool| {
             self.session
-                .declare_publisher(data_key(&self.prefix, &dest.name))
+                .declare_publisher(dest.key.clone())
                 .congestion_control(CongestionControl::Block)
+                .allowed_destination(locality)
                 .express(express)
                 .wait()
                 .map_err(|e| LinkError::Unreachable {
@@ -541,7 +590,7 @@ impl Link for ZenohLink {
             mtu: MAX_FRAME,
             reliable: false,
             ordered: false,
-            broadcast: false,
+            broadcast: self.broadcast,
         }
     }
 

@@ -29,6 +29,7 @@ pub mod emulation;
 pub mod inproc;
 pub mod layer;
 pub mod registry;
+pub mod shape;
 
 use std::sync::Arc;
 
@@ -46,7 +47,12 @@ pub struct LinkCaps {
     pub reliable: bool,
     /// Frames from one sender to one receiver arrive in the order they were sent.
     pub ordered: bool,
-    /// The link can reach every peer with one send (the router does not use this yet).
+    /// The link can reach every peer with one send: a send to
+    /// [`TO_ALL_SYSTEM`](hetcomm_core::wire::TO_ALL_SYSTEM) carries one frame to every system
+    /// on the link (each receiver's router decides whether the table lets it take it). The
+    /// router then sends a broadcast as one frame (`docs/wire-format.md`, native broadcasts)
+    /// instead of a copy per destination. Layers that act per pair of systems (security,
+    /// emulation) clear it.
     pub broadcast: bool,
 }
 

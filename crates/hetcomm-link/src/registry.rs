@@ -32,6 +32,7 @@ use std::sync::Arc;
 use hetcomm_config::{Fleet, KindSpec, Kinds, TransportDef, TransportKind};
 use hetcomm_core::SystemId;
 
+use crate::shape::MessageShapes;
 use crate::{FrameSink, Link};
 
 /// The fleet model, for factories in crates that depend on this one only.
@@ -48,6 +49,10 @@ pub struct OpenRequest<'a> {
     pub local: SystemId,
     /// Where the link delivers the frames it receives.
     pub sink: Arc<dyn FrameSink>,
+    /// The shapes of the message types the program declared, for a kind that converts
+    /// payloads and checks its mappings when it opens ([`NO_SHAPES`](crate::shape::NO_SHAPES)
+    /// when there are none).
+    pub shapes: &'a MessageShapes,
 }
 
 /// An opened link and where it listens.
@@ -76,6 +81,16 @@ pub trait TransportFactory: Send + Sync {
     /// (the caller adds which transport and system it was) and keeps its cause as its
     /// `source()`: a link's own error converts with `?`, a sentence with `.into()`.
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure>;
+
+    /// For a bridge kind (a transport to a robot that runs something else than hetcomm, e.g.
+    /// ROS, through typed topics): the name of that robot in `transport`'s settings. No
+    /// hetcomm process may open that system; tools such as the demonstration ask this to
+    /// leave it out and to talk to it through the bridge's mapped types. The default, None,
+    /// is for every transport between hetcomm systems.
+    fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
+        let _ = transport;
+        None
+    }
 }
 
 /// Why a factory could not open a link: any error, its cause chain kept.
@@ -133,6 +148,19 @@ impl Registry {
     /// `parse_str_with`.
     pub fn kinds(&self) -> &Kinds {
         &self.kinds
+    }
+
+    /// The robots of `fleet` that bridge transports stand for ([`TransportFactory::bridged_robot`]),
+    /// each once, in transport order: systems that run no hetcomm.
+    pub fn bridged_robots(&self, fleet: &Fleet) -> Vec<String> {
+        let mut robots: Vec<String> = Vec::new();
+        for t in &fleet.transports {
+            let robot = self.factory(t.kind).and_then(|f| f.bridged_robot(t));
+            if let Some(robot) = robot.filter(|r| !robots.contains(r)) {
+                robots.push(robot);
+            }
+        }
+        robots
     }
 
     /// Opens `request.transport`'s link through its kind's factory; None when the kind is not

@@ -154,6 +154,7 @@ fn a_registered_kind_parses_reports_located_errors_and_opens() {
                 transport: t,
                 local: SystemId(local),
                 sink,
+                shapes: &hetcomm_link::shape::NO_SHAPES,
             })
             .expect("loopback is registered")
             .expect("opens")
@@ -194,6 +195,7 @@ Bravo = ["z", "X"]
         transport: &fleet.transports[0],
         local: SystemId(0),
         sink: CollectSink::new(),
+        shapes: &hetcomm_link::shape::NO_SHAPES,
     });
     assert!(opened.is_none());
 }
@@ -219,6 +221,7 @@ fn a_kind_not_built_stays_known_by_name_and_names_its_feature() {
         transport: t,
         local: SystemId(0),
         sink: CollectSink::new(),
+        shapes: &hetcomm_link::shape::NO_SHAPES,
     });
     assert!(opened.is_none());
 }

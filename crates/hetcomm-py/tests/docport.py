@@ -19,6 +19,9 @@ MAX_PAYLOAD = 16 * 1024 * 1024
 FLAG_ACK_REQUESTED = 0x01
 FLAG_BROADCAST = 0x02
 FLAG_HEADER_CRC = 0x04
+FLAG_BROADCAST_SEQ = 0x08
+FLAG_TO_ALL = 0x10
+TO_ALL_SYSTEM = 0xFFFF
 KIND_DATA, KIND_ACK = 0, 1
 ACK_STATUS = {0: "delivered", 1: "inbox_full", 2: "unknown_module"}
 
@@ -39,7 +42,7 @@ def decode_frame(frame: bytes) -> Tuple[dict, bytes]:
         raise ValueError("LengthMismatch")
     if kind not in (KIND_DATA, KIND_ACK):
         raise ValueError("BadKind")
-    if flags & ~0x07:
+    if flags & ~0x1F:
         raise ValueError("BadFlags")
     covered = b"" if flags & FLAG_HEADER_CRC else frame[HEADER_LEN:]
     if zlib.crc32(frame[:44] + b"\0\0\0\0" + covered) != crc:
@@ -63,10 +66,17 @@ def encode_frame(h: dict, payload: bytes) -> bytes:
     return head[:44] + struct.pack("<I", crc) + payload
 
 
-def ack_for(data_header: dict, status: int = 0) -> bytes:
-    """The ACK frame of a data frame ("The ACK frame")."""
-    h = dict(data_header, kind=KIND_ACK, flags=0,
-             source=data_header["destination"], destination=data_header["source"])
+def ack_for(data_header: dict, status: int = 0, me: Optional[int] = None) -> bytes:
+    """The ACK frame of a data frame ("The ACK frame"): flags keep only FLAG_BROADCAST_SEQ;
+    the source of the ACK of a native broadcast (FLAG_TO_ALL) is `me`, the acknowledging
+    system, not 65535."""
+    source = dict(data_header["destination"])
+    if data_header["flags"] & FLAG_TO_ALL:
+        if me is None:
+            raise ValueError("the ACK of a native broadcast names the acknowledging system")
+        source["system"] = me
+    h = dict(data_header, kind=KIND_ACK, flags=data_header["flags"] & FLAG_BROADCAST_SEQ,
+             source=source, destination=data_header["source"])
     return encode_frame(h, bytes([status]))
 
 

@@ -13,13 +13,15 @@ use std::sync::{Arc, Mutex};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportKind, TransportSettings};
+use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::shape::MessageShapes;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
 use rmpv::Value;
 
+use crate::check::{self, Direction};
 use crate::codec::{self, Wire};
 use crate::schema::{Flavour, RosType};
 
@@ -240,6 +242,19 @@ pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, Str
         .ok_or_else(|| {
             format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
         })
+}
+
+/// Whether system `local` hosts `module`: true unless its `[systems]` entry lists its
+/// modules and leaves this one out. A bridge reads a subscribed topic only where its module
+/// is hosted: elsewhere the messages would have nowhere to go (e.g. a system that only
+/// publishes the robot's commands).
+pub fn hosts(fleet: &Fleet, local: SystemId, module: ModuleId) -> bool {
+    fleet
+        .systems
+        .iter()
+        .find(|s| s.id == local)
+        .and_then(|s| s.modules.as_ref())
+        .is_none_or(|hosted| hosted.contains(&module))
 }
 
 /// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
@@ -474,6 +489,11 @@ pub trait BridgeKind: Send + Sync + 'static {
     const KEYS: &'static [&'static str];
     /// Reads its table; problems are reported through `s`.
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<Self::Settings>;
+    /// The external robot its settings name (`robot = "Tango"`).
+    fn robot(settings: &Self::Settings) -> &str;
+    /// Its `publish` and `subscribe` mappings, checked against the program's declared
+    /// message types before [`BridgeKind::open`].
+    fn mappings(settings: &Self::Settings) -> (&[Mapping], &[Mapping]);
     /// Opens the bridge on system `local` of `fleet`: the link and its local address.
     fn open(
         fleet: &Fleet,
@@ -515,6 +535,14 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
         Some(self)
     }
 
+    fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
+        let TransportSettings::Registered(s) = &transport.settings else {
+            return None;
+        };
+        s.downcast_ref::<K::Settings>()
+            .map(|b| K::robot(b).to_string())
+    }
+
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let name = K::NAME;
         let TransportSettings::Registered(s) = &request.transport.settings else {
@@ -523,10 +551,48 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
         let settings: &K::Settings = s
             .downcast_ref()
             .ok_or_else(|| format!("the transport's settings are not {name} settings"))?;
+        let (publish, subscribe) = K::mappings(settings);
+        check_declared(publish, subscribe, request.shapes)?;
         let (link, address) = K::open(request.fleet, request.local, settings, request.sink)?;
         Ok(Opened {
             link,
             local_address: Some(address),
         })
     }
+}
+
+/// Checks every mapping of a message type the program declared (its shape is known) against
+/// the mapping's ROS type: the first mismatch, with both types, the topic and the field.
+pub fn check_declared(
+    publish: &[Mapping],
+    subscribe: &[Mapping],
+    shapes: &MessageShapes,
+) -> Result<(), String> {
+    for m in publish {
+        if let Some(declared) = shapes.get(m.message) {
+            check::check(&declared.shape, m.schema, Direction::ToRos).map_err(|why| {
+                format!(
+                    "message type {} ({}) does not convert to {} for topic {}: {why}",
+                    m.message,
+                    declared.name,
+                    m.ros_type(),
+                    m.topic
+                )
+            })?;
+        }
+    }
+    for m in subscribe {
+        if let Some(declared) = shapes.get(m.message) {
+            check::check(&declared.shape, m.schema, Direction::FromRos).map_err(|why| {
+                format!(
+                    "{} from topic {} does not convert to message type {} ({}): {why}",
+                    m.ros_type(),
+                    m.topic,
+                    m.message,
+                    declared.name
+                )
+            })?;
+        }
+    }
+    Ok(())
 }

@@ -10,9 +10,12 @@
 //! * [`codec`]: conversion between a hetcomm payload and a ROS message body, by serde field
 //!   name, in ROS 1's serialization or ROS 2's CDR;
 //! * [`msgs`]: Rust types of those messages whose serde names are the ROS names;
+//! * [`check`]: whether a declared message type's shape converts to or from a ROS type,
+//!   checked when the bridge opens;
 //! * [`bridge`]: reading a bridge's fleet-file table, and the receive and report helpers.
 
 pub mod bridge;
+pub mod check;
 pub mod codec;
 pub mod msgs;
 pub mod schema;

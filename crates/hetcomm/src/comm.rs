@@ -37,6 +37,8 @@ pub(crate) struct OpenEnv {
     pub timing: Option<hetcomm_router::Timing>,
     /// Where secured transports get their keys.
     pub keys: KeySource,
+    /// The message types the program declared ([`OpenOptions::message`]).
+    pub shapes: hetcomm_link::shape::MessageShapes,
 }
 
 impl OpenEnv {
@@ -50,6 +52,7 @@ impl OpenEnv {
             epoch: std::time::Instant::now(),
             timing: None,
             keys: KeySource::Fleet { private_key: None },
+            shapes: Default::default(),
         }
     }
 }
@@ -139,6 +142,7 @@ impl Comm {
         env.keys = KeySource::Fleet {
             private_key: options.private_key,
         };
+        env.shapes = options.shapes;
         Self::open_fleet_with(Arc::new(fleet), system, &env)
     }
 
@@ -163,6 +167,7 @@ impl Comm {
         env.keys = KeySource::Fleet {
             private_key: options.private_key,
         };
+        env.shapes = options.shapes;
         Self::open_fleet_with(Arc::new(fleet.clone()), system, &env)
     }
 
@@ -242,6 +247,14 @@ impl Comm {
             .collect();
         let mut config = RouterConfig::new(me, incarnation, routes);
         config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        // Who may send here, on which link: a frame every system of a transport receives
+        // (a native broadcast) is taken only where the table allows it.
+        config.inbound = fleet
+            .table
+            .iter()
+            .filter(|((_, d), _)| *d == me)
+            .filter_map(|(&(s, _), t)| link_index.get(t).map(|&l| (s, l)))
+            .collect();
         config.ordered_sources = fleet
             .table
             .iter()
@@ -494,6 +507,18 @@ impl LocalFleet {
     /// Opens only the named systems of `fleet` in this process; the others run elsewhere
     /// (their traffic must then use network transports). Unknown names are an error.
     pub fn open_systems(fleet: Fleet, names: &[&str]) -> Result<LocalFleet, OpenError> {
+        Self::open_systems_with(fleet, names, OpenOptions::new())
+    }
+
+    /// [`LocalFleet::open_systems`] with options: the message types declared with
+    /// [`OpenOptions::message`] are checked by every system's transports. A private key is
+    /// one system's: it is used when `names` is that one system; with several, each system's
+    /// key comes from the fleet file or the environment, as for `open_systems`.
+    pub fn open_systems_with(
+        fleet: Fleet,
+        names: &[&str],
+        options: OpenOptions,
+    ) -> Result<LocalFleet, OpenError> {
         for name in names {
             if fleet.system_by_name(name).is_none() {
                 return Err(unknown_system(
@@ -503,7 +528,13 @@ impl LocalFleet {
             }
         }
         let fleet = Arc::new(fleet);
-        let env = OpenEnv::real(Hubs::default());
+        let mut env = OpenEnv::real(Hubs::default());
+        if names.len() == 1 {
+            env.keys = KeySource::Fleet {
+                private_key: options.private_key,
+            };
+        }
+        env.shapes = options.shapes;
         let systems = names
             .iter()
             .map(|name| Comm::open_fleet_with(fleet.clone(), name, &env))

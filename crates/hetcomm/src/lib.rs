@@ -53,6 +53,7 @@ mod reactor;
 mod received;
 mod runtime;
 pub mod security;
+mod shape;
 pub mod sim;
 mod ticket;
 mod transports;

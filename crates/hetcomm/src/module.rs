@@ -360,6 +360,9 @@ impl Module {
     /// "All"). Systems whose pair is `X` are skipped. One outcome per destination; a
     /// destination whose window is full gets one that failed with
     /// [`FailReason::Backpressure`](crate::FailReason::Backpressure), and the others are sent.
+    /// On a transport that reaches every system with one send (an unsecured `zenoh`
+    /// transport: docs/zenoh.md, "Broadcasts"), the destinations it carries get one frame for
+    /// all of them, with the same outcomes; every other destination gets a copy of its own.
     pub fn broadcast<M: Message>(
         &self,
         module: &str,
@@ -396,8 +399,13 @@ impl Module {
             .get(module)
             .ok_or_else(|| SendError::UnknownModule(module.to_string()))?;
         let destinations = self.sys.core.router().destinations();
+        let mut native = self.broadcast_native(module_id, message_type, payload, opts);
         let mut tickets = Vec::with_capacity(destinations.len());
         for system in destinations {
+            if let Some(ticket) = native.remove(&system) {
+                tickets.push(ticket);
+                continue;
+            }
             let to = Address {
                 system,
                 module: module_id,
@@ -424,6 +432,67 @@ impl Module {
             tickets.push(ticket);
         }
         Ok(BroadcastTicket { tickets })
+    }
+
+    /// The native part of a broadcast: on each link that reaches every system with one send
+    /// (`LinkCaps::broadcast`), one frame for the destinations whose route takes that link
+    /// (at least two of them). Returns their tickets; every other destination (and every
+    /// destination of a group the router refused whole, e.g. one destination's window is
+    /// full) is left to a send of its own.
+    fn broadcast_native(
+        &self,
+        module: hetcomm_core::ModuleId,
+        message_type: MessageType,
+        payload: &[u8],
+        opts: SendOptions,
+    ) -> std::collections::BTreeMap<hetcomm_core::SystemId, Ticket> {
+        let mut tickets = std::collections::BTreeMap::new();
+        let core = &self.sys.core;
+        let capable: Vec<usize> = (core.links().iter().enumerate())
+            .filter(|(_, l)| l.caps().broadcast)
+            .map(|(i, _)| i)
+            .collect();
+        if capable.is_empty() || core.is_closed() {
+            return tickets;
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        let req = SendRequest {
+            from: self.core.id,
+            to: Address {
+                system: hetcomm_core::wire::TO_ALL_SYSTEM,
+                module,
+            },
+            message_type,
+            priority: opts.priority,
+            payload,
+            broadcast: true,
+        };
+        for link in capable {
+            let group = router.broadcast_group(link);
+            if group.len() < 2 {
+                continue;
+            }
+            let mut slots = Vec::with_capacity(group.len());
+            let sent = router.send_broadcast(now, req, &group, |to| {
+                let slot = Arc::new(OutcomeSlot::default());
+                slots.push((to, slot.clone()));
+                slot
+            });
+            if sent.is_ok() {
+                for (to, slot) in slots {
+                    let ticket = Ticket {
+                        slot: TicketSlot::Pending(slot),
+                        destination: core.directory.system_name(to),
+                    };
+                    tickets.insert(to, ticket);
+                }
+            }
+        }
+        if !tickets.is_empty() {
+            core.pump_at(router, now);
+        }
+        tickets
     }
 
     /// Whether a message is waiting (the thesis's `CheckForMessage`).

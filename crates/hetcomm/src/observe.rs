@@ -83,11 +83,16 @@ pub struct SendRecord<'a> {
 }
 
 impl SendRecord<'_> {
-    /// The send this attempt belongs to: the same id its [`OutcomeRecord`] carries.
+    /// The send this attempt belongs to: the same id its [`OutcomeRecord`] carries (for a
+    /// native broadcast, one destination's share: see `SendId::is_broadcast`).
     pub fn id(&self) -> SendId {
+        let seq = match self.header.broadcast_seq() {
+            true => hetcomm_router::BROADCAST_SEND | self.header.seq,
+            false => self.header.seq,
+        };
         SendId {
             to: self.header.destination.system,
-            seq: self.header.seq,
+            seq,
         }
     }
 }
@@ -250,6 +255,32 @@ impl Observers {
             link: Some(link),
             attempt,
         });
+    }
+
+    /// Reports the one frame of a native broadcast as one attempt of each destination's
+    /// share, each record naming its destination (as the copies of a broadcast did).
+    pub(crate) fn send_broadcast_frame(
+        &self,
+        frame: &[u8],
+        dests: &[SystemId],
+        time: Time,
+        link: usize,
+    ) {
+        let Some(header) = frame_header(frame) else {
+            return;
+        };
+        for &system in dests {
+            let mut header = header;
+            header.destination.system = system;
+            self.send(&SendRecord {
+                header,
+                payload: &frame[HEADER_LEN..],
+                time,
+                route: RouteKind::Routed,
+                link: Some(link),
+                attempt: 1,
+            });
+        }
     }
 
     /// Reports a message handed to an inbox.

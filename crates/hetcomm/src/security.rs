@@ -292,6 +292,7 @@ fn private_key_for(
 #[derive(Clone, Debug, Default)]
 pub struct OpenOptions {
     pub(crate) private_key: Option<PrivateKey>,
+    pub(crate) shapes: hetcomm_link::shape::MessageShapes,
 }
 
 impl OpenOptions {
@@ -313,6 +314,16 @@ impl OpenOptions {
     /// This system's private key, given directly.
     pub fn private_key(mut self, key: PrivateKey) -> Self {
         self.private_key = Some(key);
+        self
+    }
+
+    /// Declares message type `M` (its id, name and fields, read off its `Deserialize`), so a
+    /// transport that converts payloads checks its mappings of `M` when it opens: a ROS
+    /// bridge refuses to open if `M` does not convert to the ROS type a mapping names, with
+    /// both types and the field in the error. Types not declared are checked per message.
+    pub fn message<M: hetcomm_core::Message>(mut self) -> Self {
+        self.shapes
+            .insert(M::TYPE.0, M::NAME, crate::shape::trace::<M>());
         self
     }
 }

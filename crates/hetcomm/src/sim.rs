@@ -409,6 +409,7 @@ impl SimFleet {
             epoch: std::time::Instant::now(),
             timing: options.timing,
             keys: crate::security::KeySource::for_simulation(&fleet, options.seed),
+            shapes: Default::default(),
         };
         let fleet = LocalFleet::open_in(Arc::new(fleet), env)?;
         let cores = fleet

@@ -257,6 +257,7 @@ fn open_bare(
                 transport: t,
                 local,
                 sink,
+                shapes: &env.shapes,
             };
             match registry().open(request) {
                 Some(opened) => {

@@ -22,7 +22,7 @@ use hetcomm_link_ip::stream::{
     StreamListener, StreamSocket, StreamTransport, HELLO_LEN, RECORD_HEADER_LEN,
 };
 
-/// The reader's buffer for small records (`READ_BUF_LEN` in stream.rs, private).
+/// The reader's buffer for small records (`READ_BUF_LEN` in stream/mod.rs, private).
 const READ_BUF_LEN: usize = 64 * 1024;
 /// Pooled buffers are allocated in multiples of this (`POOLED_BUF_STEP`, private).
 const POOL_STEP: usize = 4096;

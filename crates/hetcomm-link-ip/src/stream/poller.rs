@@ -21,10 +21,10 @@ use std::time::{Duration, Instant};
 use hetcomm_core::SystemId;
 use hetcomm_link::Peer;
 
-use super::{
-    bump, decode_hello, lock, new_reader, spawn_reader, Connection, Shared, StreamEnd,
-    StreamListener, StreamSocket, StreamTransport, HELLO_LEN,
-};
+use super::connection::{identify, new_reader, spawn_conn_reader, spawn_reader, Connection};
+use super::framing::decode_hello;
+use super::reader::StreamEnd;
+use super::{bump, lock, Shared, StreamListener, StreamSocket, StreamTransport, HELLO_LEN};
 
 /// Records read per connection per turn of the poller thread, so that one busy connection
 /// does not starve the others.
@@ -397,7 +397,7 @@ impl<T: StreamTransport> Poller<T> {
         let _ = shared.transport.configure(&socket);
         if shared.transport.identity_mode() != super::IdentityMode::Hello {
             // Known from the address (or not at all): nothing to wait for.
-            match super::identify(shared, &mut socket, &addr) {
+            match identify(shared, &mut socket, &addr) {
                 Some(from) => self.identified(socket, from, permit),
                 None => reject(shared, socket),
             }
@@ -492,7 +492,7 @@ impl<T: StreamTransport> Poller<T> {
             },
             None => conn,
         };
-        super::spawn_conn_reader(&self.shared, conn);
+        spawn_conn_reader(&self.shared, conn);
     }
 
     /// Closes connections whose hello is overdue and resumes accepting after a pause.

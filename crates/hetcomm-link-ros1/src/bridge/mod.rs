@@ -12,7 +12,8 @@
 //!   confirmation). A message that does not convert fails its send, naming both types and the
 //!   field.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
-//!   `MODULE` as a message of type `TYPE_ID` from the robot.
+//!   `MODULE` as a message of type `TYPE_ID` from the robot. A system whose `[systems]` entry
+//!   lists its modules without `MODULE` does not subscribe to that topic.
 //!
 //! Bad input never reaches a module: a message that does not deserialize as the mapped type,
 //! and a publisher on a mapped topic whose type is another (ROS 1 refuses its connection at
@@ -33,7 +34,7 @@ use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
 use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{caps, hosts, module_id, robot_id, FrameMaker, Outbound, Tally};
 use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
@@ -90,8 +91,14 @@ impl Ros1Bridge {
     ) -> Result<Ros1Bridge, OpenFailure> {
         let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros1)?;
         let mut inbound = Vec::new();
+        // The subscribed topics this system reads: those whose module it hosts.
+        let mut read = Vec::new();
         for m in &settings.subscribe {
             let module = module_id(fleet, &m.module, &m.topic)?;
+            if !hosts(fleet, local, module) {
+                continue;
+            }
+            read.push(m.clone());
             inbound.push(Inbound {
                 mapping: m.clone(),
                 module,
@@ -177,7 +184,7 @@ impl Ros1Bridge {
         runtime.spawn(check_publisher_types(
             settings.master_uri.clone(),
             node_name,
-            settings.subscribe.clone(),
+            read,
             tally.clone(),
         ));
         Ok(Ros1Bridge {
@@ -327,6 +334,14 @@ impl BridgeKind for Ros1BridgeKind {
 
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
+    }
+
+    fn robot(settings: &BridgeSettings) -> &str {
+        &settings.robot
+    }
+
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
     }
 
     fn open(

@@ -11,7 +11,8 @@
 //!   both types and the field.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot (the frame's source module is the
-//!   same module id).
+//!   same module id). A system whose `[systems]` entry lists its modules without `MODULE`
+//!   does not read that topic.
 //!
 //! Bad input never reaches a module: a sample that does not decode as the mapped type, and a
 //! publisher on a mapped topic whose type is not the mapped one, are counted (dropped frames
@@ -30,7 +31,7 @@ use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
 use hetcomm_link::registry::OpenFailure;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_rosmsg::bridge::{caps, module_id, robot_id, FrameMaker, Outbound, Tally};
+use hetcomm_rosmsg::bridge::{caps, hosts, module_id, robot_id, FrameMaker, Outbound, Tally};
 use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
@@ -112,6 +113,9 @@ impl Ros2Bridge {
         let mut inbound = Vec::new();
         for m in &settings.subscribe {
             let module = module_id(fleet, &m.module, &m.topic)?;
+            if !hosts(fleet, local, module) {
+                continue;
+            }
             let reader = subscriber
                 .create_datareader_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the reader of {}", m.topic)))?;
@@ -317,6 +321,14 @@ impl BridgeKind for Ros2BridgeKind {
 
     fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         settings::parse(s)
+    }
+
+    fn robot(settings: &BridgeSettings) -> &str {
+        &settings.robot
+    }
+
+    fn mappings(settings: &BridgeSettings) -> (&[Mapping], &[Mapping]) {
+        (&settings.publish, &settings.subscribe)
     }
 
     fn open(

@@ -6,9 +6,12 @@ format). It speaks for system NAME (id ID) of a fleet on a `zenoh` transport:
       --names Alpha=0,Py=2 [--send-to Alpha --to-id 0 --module 0 --type 1 --text hello]
       [--receive N] [--timeout S]
 
-* declares its liveliness token on P/live/NAME and subscribes to P/sys/NAME;
+* declares its liveliness token on P/live/NAME and subscribes to P/sys/NAME and to P/all
+  (native broadcasts: one frame for every system, taken from the systems of --names, for
+  which this program's table row is the zenoh transport);
 * --receive N: waits for N data frames for it, prints each as one JSON line
-  ({"from": .., "module": .., "type": .., "payload_hex": ..}) and answers each that asks
+  ({"from": .., "module": .., "type": .., "payload_hex": .., "to_all": ..}, to_all: it came
+  as a native broadcast's one frame) and answers each that asks
   for an acknowledgement with a `delivered` ACK;
 * --send-to: waits for the destination's token, puts one data frame (MessagePack string
   payload --text, acknowledgement requested) on P/sys/DEST, retransmits every 200 ms until
@@ -70,6 +73,8 @@ def main() -> int:
             rest = rest[4 + n:]
 
     sub = session.declare_subscriber(me, lambda s: frames(bytes(s.payload.to_bytes())))
+    every = session.declare_subscriber(f"{a.prefix}/all",
+                                       lambda s: frames(bytes(s.payload.to_bytes())))
     token = session.liveliness().declare_token(f"{a.prefix}/live/{a.name}")
     present = set()
     live = session.liveliness().declare_subscriber(
@@ -87,11 +92,14 @@ def main() -> int:
         h, payload = docport.decode_frame(frame)
         if h["kind"] != docport.KIND_DATA:
             return
+        if h["flags"] & docport.FLAG_TO_ALL and h["source"]["system"] not in names:
+            return  # a broadcast the table does not let its sender send here
         print(json.dumps({"from": h["source"]["system"], "module": h["destination"]["module"],
-                          "type": h["message_type"], "payload_hex": payload.hex()}), flush=True)
+                          "type": h["message_type"], "payload_hex": payload.hex(),
+                          "to_all": bool(h["flags"] & docport.FLAG_TO_ALL)}), flush=True)
         if h["flags"] & docport.FLAG_ACK_REQUESTED:
             session.put(f"{a.prefix}/sys/{names.get(h['source']['system'], '')}",
-                        docport.ack_for(h, 0))
+                        docport.ack_for(h, 0, me=a.id))
 
     names = {int(i): n for n, i in (p.split("=") for p in a.names.split(",") if p)}
     received = 0
@@ -140,6 +148,7 @@ def main() -> int:
     live.undeclare()
     token.undeclare()
     sub.undeclare()
+    every.undeclare()
     session.close()
     return 0
 

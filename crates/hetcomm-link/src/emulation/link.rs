@@ -351,7 +351,8 @@ crate::forward_link! {
     [impl<L: Link + 'static>] EmulatedLink<L> => shared.inner;
 
     /// The inner link's capabilities, limited by the model: unreliable if the model can lose
-    /// frames, unordered if it can reorder them, `mtu`/`max_frame` capped at `mtu_bytes`.
+    /// frames, unordered if it can reorder them, `mtu`/`max_frame` capped at `mtu_bytes`,
+    /// and no broadcast.
     fn caps(&self) -> LinkCaps {
         let inner = self.shared.inner.caps();
         let cap = |v: usize| self.params.mtu_bytes.map_or(v, |m| v.min(m));
@@ -360,7 +361,9 @@ crate::forward_link! {
             mtu: cap(inner.mtu),
             reliable: inner.reliable && !self.params.is_lossy(),
             ordered: inner.ordered && !self.params.may_reorder(),
-            broadcast: inner.broadcast,
+            // The model acts per pair of systems (positions, loss): one frame for every
+            // system would escape it, so the router sends a copy per destination.
+            broadcast: false,
         }
     }
 

@@ -7,7 +7,7 @@
 
 use std::time::{Duration, Instant};
 
-use hetcomm::{Message, Module, Outcome};
+use hetcomm::{Comm, LocalFleet, Message, Module, OpenOptions, Outcome};
 use serde::{Deserialize, Serialize};
 
 /// `geometry_msgs/Vector3` by field name.
@@ -67,6 +67,51 @@ pub struct Text {
 pub struct BadDrive {
     pub speed: f64,
     pub angular: Vector3,
+}
+
+/// A view of `nav_msgs/Odometry` whose field has the wrong type (`child_frame_id` is a
+/// string there).
+#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
+#[message(id = 41)]
+pub struct BadOdom {
+    pub child_frame_id: f64,
+}
+
+/// Opening system `Alpha` of `fleet` (a bridge with [`mappings_and_table`]'s mappings under
+/// `/t`) with the message types declared: the rover's types open; a declared type that does
+/// not fit its mapping's ROS type (either way) refuses to open, naming both types, the topic
+/// and the field, before the bridge touches the ROS network.
+pub fn declared_types_are_checked_when_the_bridge_opens(fleet: &hetcomm::config::Fleet) {
+    let open = |options: OpenOptions| {
+        LocalFleet::open_systems_with(fleet.clone(), &["Alpha"], options).map(drop)
+    };
+    let fitting = || {
+        OpenOptions::new()
+            .message::<Drive>()
+            .message::<Odom>()
+            .message::<Text>()
+    };
+    open(fitting()).expect("the rover's own types fit their mappings");
+    let e = open(fitting().message::<BadDrive>())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            "message type 44 (BadDrive) does not convert to geometry_msgs/Twist for topic \
+             /t/cmd_vel_bad: field `speed` has no counterpart in geometry_msgs/Twist"
+        ),
+        "{e}"
+    );
+    let e = open(fitting().message::<BadOdom>())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            "nav_msgs/Odometry from topic /t/odom does not convert to message type 41 \
+             (BadOdom): field `child_frame_id` is a float, the ROS field is string"
+        ),
+        "{e}"
+    );
 }
 
 /// The end of a fleet file for the rover under `prefix` (after the bridge transport
@@ -138,4 +183,45 @@ pub fn drive_and_talk(drive: &Module, world: &Module) {
         text.contains("message type 44 for Drive does not convert to geometry_msgs/Twist: field `speed` has no counterpart in geometry_msgs/Twist"),
         "{text}"
     );
+}
+
+/// `text` (a fleet with [`mappings_and_table`]) with a second hetcomm system, Bravo, that hosts
+/// the `World` module, while Alpha hosts only `Drive`: both use the bridge.
+pub fn with_bravo_watching(text: &str) -> String {
+    text.replace("Alpha = 0\n", "Alpha = { id = 0, modules = [\"Drive\"] }\nBravo = 1\n")
+        .replace(
+            "columns = [\"Alpha\", \"Tango\"]\nAlpha = [\"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"X\"]",
+            "columns = [\"Alpha\", \"Bravo\", \"Tango\"]\nAlpha = [\"X\", \"X\", \"tango_ros\"]\n\
+             Bravo = [\"X\", \"X\", \"tango_ros\"]\nTango = [\"tango_ros\", \"tango_ros\", \"X\"]",
+        )
+}
+
+/// With the rover running: Bravo (hosting `World`) gets its odometry, Alpha (hosting only
+/// `Drive`) reads none of it, and Alpha's commands still go out.
+pub fn only_the_hosting_system_reads_the_topic(alpha: &Comm, bravo: &Comm, wait: Duration) {
+    let world = bravo.module("World").unwrap();
+    for _ in 0..5 {
+        world
+            .recv_timeout::<Odom>(wait)
+            .expect("odometry reaches Bravo");
+    }
+    let received = |c: &Comm| c.stats().links[0].1.frames_received;
+    assert!(received(bravo) >= 5);
+    assert_eq!(
+        received(alpha),
+        0,
+        "Alpha hosts no World: it must not read /odom"
+    );
+    // Alpha still publishes.
+    let stop = Drive {
+        linear: Vector3::default(),
+        angular: Vector3::default(),
+    };
+    let outcome = alpha
+        .module("Drive")
+        .unwrap()
+        .send("Tango", "Drive", &stop)
+        .expect("send")
+        .wait();
+    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome:?}");
 }

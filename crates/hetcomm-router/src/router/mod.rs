@@ -6,6 +6,7 @@
 //! | `mod.rs` | the router's state and accessors |
 //! | `send.rs` | admitting a send: the window, numbering, framing, direct lanes |
 //! | `retransmit.rs` | transmitting, link results, retransmission and giving up |
+//! | `broadcast.rs` | native broadcasts: one frame for every destination on a link that reaches them all |
 //! | `paths.rs` | paths to each destination: health, link events, failover |
 //! | `receive.rs` | frames in: acknowledgements, duplicates, ordering, deliveries |
 //! | `timers.rs` | the timer table, outcomes out, shutdown |
@@ -19,7 +20,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::wire::{
-    self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_HEADER_CRC, HEADER_LEN,
+    self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC,
+    FLAG_TO_ALL, HEADER_LEN, TO_ALL_SYSTEM,
 };
 use hetcomm_core::{
     Address, FrameBuf, FrameKind, Header, PayloadBuf, PayloadSource, SystemId, Time,
@@ -29,6 +31,7 @@ use crate::dedup::Dedup;
 use crate::lane::DirectLane;
 use crate::rtt::RttEstimator;
 
+mod broadcast;
 mod paths;
 mod receive;
 mod retransmit;
@@ -53,6 +56,12 @@ struct Pending<T> {
     first_sent: Option<Time>,
     /// When to retransmit (acknowledged sends that are on the wire).
     deadline: Option<Time>,
+    /// For one destination's share of a native broadcast: the broadcast's sequence number.
+    broadcast: Option<u64>,
+    /// A broadcast share whose own frame (a copy for this destination alone, for a
+    /// retransmission) is not written yet: `frame` is None because there is none, not
+    /// because the driver holds it.
+    unbuilt: bool,
 }
 
 impl<T> Pending<T> {
@@ -89,6 +98,8 @@ struct Held {
 struct PendingDelivery {
     origin: SystemId,
     incarnation: u32,
+    /// The frame's sequence number, with [`BROADCAST_SEND`] set when it counts in the
+    /// sender's broadcast space.
     seq: u64,
     link: usize,
     ack_header: Header,
@@ -203,6 +214,12 @@ pub struct Router<T> {
     next_token: u64,
     events: VecDeque<Event<T>>,
     dedup: Dedup,
+    /// Duplicate filter of the senders' broadcast sequence spaces.
+    broadcast_dedup: Dedup,
+    /// The last sequence number given in this system's broadcast space.
+    broadcast_seq: u64,
+    /// Native broadcasts with a destination still awaiting its outcome.
+    broadcasts: HashMap<u64, broadcast::BroadcastPut>,
     order: BTreeMap<(SystemId, u32), OrderState>,
     stats: RouterStats,
     /// Per link index: whether the link guarantees the payload's integrity itself (see
@@ -226,6 +243,8 @@ pub const SPLIT_PAYLOAD_MIN: usize = 16 * 1024;
 
 enum TransmitItem {
     Send(SendId),
+    /// The one frame of a native broadcast.
+    Broadcast(u64),
     Ack {
         link: usize,
         to: SystemId,
@@ -249,6 +268,7 @@ impl<T> Router<T> {
             }
         }
         let dedup = Dedup::new(config.dedup_window);
+        let broadcast_dedup = Dedup::new(config.dedup_window);
         Router {
             config,
             routes,
@@ -263,6 +283,9 @@ impl<T> Router<T> {
             next_token: 0,
             events: VecDeque::new(),
             dedup,
+            broadcast_dedup,
+            broadcast_seq: 0,
+            broadcasts: HashMap::default(),
             order: BTreeMap::new(),
             stats: RouterStats::default(),
             link_checks_payload: Vec::new(),
@@ -338,6 +361,10 @@ impl<T> Router<T> {
     /// Transmissions handed out so far for the unresolved send `id` (the one just polled
     /// from [`Router::poll_transmit`] included); None once it ended.
     pub fn attempts(&self, id: SendId) -> Option<u32> {
+        if id.to == TO_ALL_SYSTEM {
+            // A broadcast's one frame goes once (retransmissions are copies to one system).
+            return self.broadcasts.contains_key(&id.wire_seq()).then_some(1);
+        }
         self.pending.get(&id).map(|p| p.attempts)
     }
 
@@ -348,5 +375,7 @@ impl<T> Router<T> {
     }
 }
 
+#[cfg(test)]
+mod broadcast_tests;
 #[cfg(test)]
 mod tests;

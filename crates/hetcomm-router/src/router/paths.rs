@@ -104,7 +104,9 @@ impl<T> Router<T> {
         let waiting: Vec<(SendId, Time)> = self
             .pending
             .iter()
-            .filter(|(id, p)| id.to == to && p.frame.is_some() && p.attempts < p.route.attempts)
+            .filter(|(id, p)| {
+                id.to == to && (p.frame.is_some() || p.unbuilt) && p.attempts < p.route.attempts
+            })
             .filter_map(|(id, p)| p.deadline.map(|d| (*id, d)))
             .collect();
         for (id, deadline) in waiting {

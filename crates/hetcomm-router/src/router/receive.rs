@@ -91,7 +91,26 @@ impl<T> Router<T> {
             self.stats.unknown_origin += 1;
             return;
         }
-        if h.destination.system != self.config.local {
+        let mut h = h;
+        if h.to_all() || h.broadcast_seq() {
+            // A frame of a native broadcast: for every system when FLAG_TO_ALL, which only a
+            // broadcast's data frame carries, in the broadcast space.
+            let valid =
+                !h.to_all() || (h.kind == FrameKind::Data && h.broadcast_seq() && h.is_broadcast());
+            if !valid {
+                self.stats.malformed += 1;
+                return;
+            }
+        }
+        if h.to_all() {
+            // Every system on the transport receives it: take it only where the table
+            // allows this sender to send here on this link.
+            if !self.config.inbound.contains(&(h.source.system, link)) {
+                self.stats.misrouted += 1;
+                return;
+            }
+            h.destination.system = self.config.local;
+        } else if h.destination.system != self.config.local {
             self.stats.misrouted += 1;
             return;
         }
@@ -116,7 +135,7 @@ impl<T> Router<T> {
         };
         let id = SendId {
             to: h.source.system,
-            seq: h.seq,
+            seq: space_seq(h),
         };
         let matches = h.incarnation == self.config.incarnation
             && self.pending.get(&id).is_some_and(|p| p.attempts > 0);
@@ -144,9 +163,10 @@ impl<T> Router<T> {
         payload: PayloadSource<'_>,
     ) {
         let origin = h.source.system;
+        // The acknowledgement of a broadcast's frame says which space its number is in.
         let ack_header = Header {
             kind: FrameKind::Ack,
-            flags: 0,
+            flags: h.flags & FLAG_BROADCAST_SEQ,
             priority: h.priority,
             transport: h.transport,
             source: h.destination,
@@ -157,23 +177,32 @@ impl<T> Router<T> {
             timestamp: h.timestamp,
         };
         let key = (origin, h.incarnation);
-        if !self.dedup.insert_new(origin, h.incarnation, h.seq) {
+        let seq = space_seq(h);
+        let dedup = match h.broadcast_seq() {
+            true => &mut self.broadcast_dedup,
+            false => &mut self.dedup,
+        };
+        if !dedup.insert_new(origin, h.incarnation, h.seq) {
             self.stats.duplicates += 1;
             // The earlier acknowledgement may have been lost: say it again, unless the first
             // copy is still waiting for its inbox or its turn (its ack comes then).
-            let waiting =
-                self.awaiting.values().any(|d| {
-                    d.origin == origin && d.incarnation == h.incarnation && d.seq == h.seq
-                }) || self
-                    .order
-                    .get(&key)
-                    .is_some_and(|o| o.held.contains_key(&h.seq));
+            let waiting = self
+                .awaiting
+                .values()
+                .any(|d| d.origin == origin && d.incarnation == h.incarnation && d.seq == seq)
+                || (!h.broadcast_seq()
+                    && self
+                        .order
+                        .get(&key)
+                        .is_some_and(|o| o.held.contains_key(&h.seq)));
             if h.ack_requested() && !waiting {
                 self.queue_ack(link, ack_header, AckStatus::Delivered);
             }
             return;
         }
-        if !self.config.ordered_sources.contains(&origin) {
+        // In-order delivery follows a sender's space towards this system; its broadcasts,
+        // numbered in a space of their own, are delivered as they come.
+        if h.broadcast_seq() || !self.config.ordered_sources.contains(&origin) {
             self.accept(link, *h, payload.into_buf(), ack_header);
             return;
         }
@@ -253,7 +282,7 @@ impl<T> Router<T> {
                 PendingDelivery {
                     origin: header.source.system,
                     incarnation: header.incarnation,
-                    seq: header.seq,
+                    seq: space_seq(&header),
                     link,
                     ack_header,
                 },
@@ -293,9 +322,24 @@ impl<T> Router<T> {
             return;
         };
         if status != AckStatus::Delivered {
-            self.dedup.remove(d.origin, d.incarnation, d.seq);
+            match d.seq & BROADCAST_SEND != 0 {
+                true => {
+                    self.broadcast_dedup
+                        .remove(d.origin, d.incarnation, d.seq & !BROADCAST_SEND)
+                }
+                false => self.dedup.remove(d.origin, d.incarnation, d.seq),
+            }
             self.stats.received -= 1;
         }
         self.queue_ack(d.link, d.ack_header, status);
+    }
+}
+
+/// A frame's sequence number as the router keys it: with [`BROADCAST_SEND`] set when it
+/// counts in the sender's broadcast space.
+fn space_seq(h: &Header) -> u64 {
+    match h.broadcast_seq() {
+        true => BROADCAST_SEND | h.seq,
+        false => h.seq,
     }
 }

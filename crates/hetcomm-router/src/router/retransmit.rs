@@ -17,15 +17,27 @@ impl<T> Router<T> {
                         send: None,
                     })
                 }
+                TransmitItem::Broadcast(b) => match self.poll_broadcast(now, b) {
+                    Some(tx) => return Some(tx),
+                    None => continue,
+                },
                 TransmitItem::Send(id) => {
                     // A send may have ended (acknowledged) while queued for retransmission.
                     let Some(p) = self.pending.get_mut(&id) else {
                         continue;
                     };
-                    let Some(mut frame) = p.frame.take() else {
+                    let (taken, unbuilt) = (p.frame.take(), p.unbuilt);
+                    let taken = match taken {
+                        // A broadcast share's first retransmission: a copy for it alone.
+                        None if unbuilt => self.broadcast_copy(now, id),
+                        taken => taken,
+                    };
+                    let Some(mut frame) = taken else {
                         continue;
                     };
-                    let written_for = p.route.link;
+                    let Some(written_for) = self.pending.get(&id).map(|p| p.route.link) else {
+                        continue;
+                    };
                     // After a failover the frame leaves on another path than it was written
                     // for: rewrite it for the path it takes now.
                     let current = self.routes.get(&id.to).map(RouteState::current);
@@ -61,20 +73,38 @@ impl<T> Router<T> {
     /// Reports what the link did with a frame from [`Router::poll_transmit`], handing the
     /// frame back (the router keeps it for retransmission).
     pub fn transmit_result(&mut self, now: Time, tx: Transmit, result: Result<(), TransmitError>) {
+        if tx.to == TO_ALL_SYSTEM {
+            return self.broadcast_result(now, tx, result);
+        }
         self.path_result(now, tx.to, tx.link, &result);
         let Some(id) = tx.send else { return };
-        let Some(attempts) = self.pending.get(&id).map(|p| p.attempts) else {
+        let Some(p) = self.pending.get_mut(&id) else {
             return; // already ended (an ack overtook the result)
         };
-        let rto = self.rto_for(id.to, tx.link, attempts);
+        p.frame = Some(tx.frame);
+        self.settle(now, id, tx.link, result);
+    }
+
+    /// What the link did with an attempt of send `id` on `link`: arms its retransmission,
+    /// retries after a refusal, or ends it.
+    pub(super) fn settle(
+        &mut self,
+        now: Time,
+        id: SendId,
+        link: usize,
+        result: Result<(), TransmitError>,
+    ) {
+        let Some(attempts) = self.pending.get(&id).map(|p| p.attempts) else {
+            return;
+        };
+        let rto = self.rto_for(id.to, link, attempts);
         // A refusal may just have taken the path down and moved the route: then the retry goes
         // on the new path at once rather than after the link's back-off. (Looked up only on a
         // refusal: a frame the link took needs nothing of the route.)
-        let moved = result.is_err() && self.route_link(id.to).is_some_and(|l| l != tx.link);
+        let moved = result.is_err() && self.route_link(id.to).is_some_and(|l| l != link);
         let Some(p) = self.pending.get_mut(&id) else {
             return;
         };
-        p.frame = Some(tx.frame);
         if result.is_ok() {
             p.transmitted = true;
         }
@@ -123,6 +153,9 @@ impl<T> Router<T> {
             }
             if let Some(frame) = p.frame {
                 self.recycle(frame);
+            }
+            if let Some(b) = p.broadcast {
+                self.broadcast_share_ended(b);
             }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,

@@ -73,6 +73,8 @@ impl<T> Router<T> {
                 transmitted: false,
                 first_sent: None,
                 deadline: None,
+                broadcast: None,
+                unbuilt: false,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -185,6 +187,8 @@ impl<T> Router<T> {
                 transmitted: false,
                 first_sent: Some(now),
                 deadline: Some(deadline),
+                broadcast: None,
+                unbuilt: false,
             },
         );
         self.timers.insert((deadline, Timer::Retransmit(id)));

@@ -163,6 +163,12 @@ pub struct RouterConfig {
     /// sends fail over to the first that is up when the paths before it are down. The
     /// route's delivery settings (acknowledgement, attempts, sizes) hold on every path.
     pub fallbacks: Vec<(SystemId, Path)>,
+    /// (sender, link) pairs the communication table allows to send to this system: a native
+    /// broadcast (one frame every system on a transport receives, `FLAG_TO_ALL`) is taken
+    /// only from a sender on the link the table names for that pair; others are dropped and
+    /// counted ([`RouterStats::misrouted`]). [`RouterConfig::new`] assumes the table is
+    /// symmetric (a route's own link carries both ways).
+    pub inbound: BTreeSet<(SystemId, usize)>,
 }
 
 impl RouterConfig {
@@ -171,7 +177,9 @@ impl RouterConfig {
     pub fn new(local: SystemId, incarnation: u32, routes: Vec<(SystemId, Route)>) -> Self {
         let mut known: BTreeSet<SystemId> = routes.iter().map(|(s, _)| *s).collect();
         known.insert(local);
+        let inbound = routes.iter().map(|(s, r)| (*s, r.link)).collect();
         RouterConfig {
+            inbound,
             local,
             incarnation,
             routes,
@@ -259,8 +267,27 @@ pub enum SendError {
 pub struct SendId {
     /// Destination system.
     pub to: SystemId,
-    /// Sequence number within (this incarnation, destination).
+    /// Sequence number within (this incarnation, destination); for one destination's share
+    /// of a native broadcast ([`Router::send_broadcast`]), [`BROADCAST_SEND`] plus the
+    /// broadcast's number in this system's broadcast space.
     pub seq: u64,
+}
+
+/// Set in [`SendId::seq`] when the send is one destination's share of a native broadcast:
+/// the rest of the number counts in the sender's broadcast space, not in the space towards
+/// that destination (`FLAG_BROADCAST_SEQ` in `docs/wire-format.md`).
+pub const BROADCAST_SEND: u64 = 1 << 63;
+
+impl SendId {
+    /// Whether this is one destination's share of a native broadcast.
+    pub fn is_broadcast(&self) -> bool {
+        self.seq & BROADCAST_SEND != 0
+    }
+
+    /// The sequence number the send's frames carry.
+    pub fn wire_seq(&self) -> u64 {
+        self.seq & !BROADCAST_SEND
+    }
 }
 
 /// Why a send failed ([`Outcome::Failed`]) or why the sender stopped waiting for its
@@ -559,7 +586,9 @@ pub struct RouterStats {
     pub malformed: u64,
     /// Frames from a system not in the fleet.
     pub unknown_origin: u64,
-    /// Frames addressed to another system.
+    /// Frames addressed to another system, and native broadcasts the communication table does
+    /// not allow from their sender to this system on the link they came by (an `X` pair, or
+    /// a pair on another transport; see [`RouterConfig::inbound`]).
     pub misrouted: u64,
     /// Messages that arrived early and waited for an earlier one (in-order delivery).
     pub held: u64,

@@ -8,7 +8,7 @@
 //! authenticated sender and the communication table. Only then does the router see it.
 
 use std::collections::{HashMap, HashSet, VecDeque};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
@@ -274,6 +274,15 @@ impl Secured {
 struct SecureLink {
     below: Arc<dyn Link>,
     secured: Arc<Secured>,
+    /// The upkeep thread (handshakes over the link only), stopped and joined on drop so that
+    /// no thread outlives its link.
+    upkeep: Option<Upkeep>,
+}
+
+/// A running upkeep thread and its stop flag.
+struct Upkeep {
+    thread: std::thread::JoinHandle<()>,
+    stop: Arc<AtomicBool>,
 }
 
 forward_link! {
@@ -282,6 +291,10 @@ forward_link! {
         let mut caps = self.below.caps();
         caps.max_frame = caps.max_frame.saturating_sub(OVERHEAD);
         caps.mtu = caps.mtu.saturating_sub(OVERHEAD);
+        // Frames are sealed per pair session: one frame cannot be sealed for every receiver,
+        // and a frame under a key shared by all would not tell a receiver which member sent
+        // it. So no native broadcasts: the router sends a copy per destination.
+        caps.broadcast = false;
         caps
     }
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
@@ -339,6 +352,11 @@ impl Drop for SecureLink {
             }
         }
         let _ = self.below.flush();
+        if let Some(upkeep) = self.upkeep.take() {
+            upkeep.stop.store(true, Ordering::Relaxed);
+            upkeep.thread.thread().unpark();
+            let _ = upkeep.thread.join();
+        }
     }
 }
 
@@ -418,12 +436,19 @@ impl LinkLayer for SecurityLayer {
                 source: "the security layer wraps a link's sink before the link".into(),
             })?;
         let _ = secured.below.set(Arc::downgrade(&link));
+        let mut upkeep = None;
         if matches!(secured.handshakes, Handshakes::OverTheLink) {
             let weak = Arc::downgrade(&secured);
-            std::thread::Builder::new()
+            let stop = Arc::new(AtomicBool::new(false));
+            let stopped = stop.clone();
+            let thread = std::thread::Builder::new()
                 .name("hc-security".into())
                 .spawn(move || loop {
-                    std::thread::sleep(Duration::from_millis(100));
+                    // Parked, not slept: the link's drop wakes it to stop at once.
+                    std::thread::park_timeout(Duration::from_millis(100));
+                    if stopped.load(Ordering::Relaxed) {
+                        return;
+                    }
                     match weak.upgrade() {
                         Some(s) if s.below().is_some() => s.upkeep(),
                         _ => return,
@@ -433,10 +458,12 @@ impl LinkLayer for SecurityLayer {
                     layer: "security".into(),
                     source: Box::new(e),
                 })?;
+            upkeep = Some(Upkeep { thread, stop });
         }
         Ok(Arc::new(SecureLink {
             below: link,
             secured,
+            upkeep,
         }))
     }
 }

@@ -1,0 +1,383 @@
+//! UDP: one socket per system, bound to its endpoint; sends go out with `send_to` on the
+//! caller's thread, and a receive thread hands frames to the sink — or, with
+//! [`UdpConfig::driven`], a waiting thread reads the socket itself through
+//! [`Link::readable`]. Unreliable and unordered, as declared in its [`LinkCaps`].
+//!
+//! # Datagram format
+//!
+//! Every datagram is one of three kinds, told apart by its first two bytes alone (the link never
+//! reads a frame's own header: frames may be any bytes, sealed ones included):
+//!
+//! - **A whole frame**: a frame no longer than the datagram payload size
+//!   ([`UdpConfig::datagram_payload`], the link's `mtu`) travels as one datagram holding
+//!   exactly the frame, with nothing added. Anything that starts neither with `"HF"` nor with
+//!   `"HB"` is handed up whole.
+//! - **A batch** (starts with `"HB"`): frames held back by [`Link::send_held`] travel together
+//!   as one datagram: a 4-byte batch header (magic `"HB"`, version 1, a reserved 0 byte), then
+//!   one record per frame — its length as a u32 (little-endian) and the frame — at most `mtu`
+//!   bytes in all. It is the stream links' record header split in two: magic and version once
+//!   per datagram, the length once per frame. Any frame whose record fits is batched. A
+//!   receiver hands every complete record's frame up in order, with one
+//!   [`FrameSink::on_frames`] call labelled with the datagram's source; a record running past
+//!   the end drops the rest of the datagram, and a batch header it does not read drops all of
+//!   it, counted in [`UdpStats::bad_datagrams`]. A batch of one frame is sent as the frame
+//!   alone.
+//! - **A fragment** of a frame larger than `mtu`: a datagram that starts with this 20-byte
+//!   fragment header (integers little-endian):
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 2 | magic `"HF"` |
+//! | 2 | 1 | version, 1 |
+//! | 3 | 1 | reserved, 0 |
+//! | 4 | 2 | sending system's [`SystemId`] |
+//! | 6 | 2 | fragment index, `0..count` |
+//! | 8 | 2 | fragment count, ≥ 1 |
+//! | 10 | 2 | reserved, 0 |
+//! | 12 | 4 | fragmented-message id (u32, per sender, wraps) |
+//! | 16 | 4 | total frame length in bytes (u32) |
+//!
+//! followed by that fragment's piece of the frame. Pieces are cut evenly: with
+//! `chunk = ceil(total / count)`, fragment `i` holds bytes `i*chunk .. min((i+1)*chunk, total)`.
+//! The receiver derives every piece's position and exact length from `total` and `count`
+//! alone, so a fragment whose length is not the expected one is rejected, and fragments can
+//! never overlap or leave gaps. A reassembled frame is handed up whole, never split as a batch.
+//!
+//! A frame that fits one datagram but would be mistaken for something else — it starts with
+//! `"HF"` or `"HB"` — is sent as a one-fragment message, so any byte string round-trips
+//! unambiguously.
+//!
+//! # Reassembly
+//!
+//! Fragments are collected per (source address, sender, message id). A message completes when
+//! every fragment arrived; a message still incomplete [`UdpConfig::reassembly_timeout`] after
+//! its first fragment is dropped and counted (a single lost piece loses the whole message —
+//! the router retries).
+//!
+//! Memory follows the bytes that arrived, never the total a header announces (see
+//! [`Reassembler`]): a message's buffer grows as its pieces arrive, pieces ahead of a gap are
+//! kept apart until it fills. Everything held counts against
+//! [`UdpConfig::reassembly_limit_bytes`]; over it, the oldest incomplete message of the source
+//! address holding the most is dropped (and counted) first, so a flooding source evicts its own
+//! messages before anyone else's, and one source holds at most [`MAX_PARTIALS_PER_SOURCE`]
+//! messages. [`LinkStats::buffered_bytes`] reports the bytes held.
+//!
+//! # Bad input
+//!
+//! A datagram starting with `"HF"` whose header is malformed (truncated, wrong version,
+//! non-zero reserved bytes, index ≥ count, total of 0 or above `max_frame`, count larger than
+//! the total or inconsistent with it, a piece of the wrong length, or disagreeing with earlier
+//! fragments of the same message) is dropped and counted, and so is the malformed tail of a
+//! batch. Beyond that the link does not look inside frames (the router's decoder checks them).
+//!
+//! # Batching
+//!
+//! [`Link::send_held`] appends a frame's record to its peer's batch (one buffer per peer, of
+//! `mtu` bytes, allocated at its first use) instead of sending it. The batch goes
+//! out as one datagram when the next frame would not fit (or no further frame could), at the
+//! next plain [`Link::send`] to that peer (which joins the batch when it can, so both leave in
+//! one datagram), before a frame that cannot be batched, at [`Link::flush`], and when the link
+//! is dropped. Frames to one peer thus leave in the order they were given. An error returned by
+//! `send` or `send_held` concerns the frame passed in; held frames lost because their batch
+//! could not be sent are counted in [`UdpStats::held_frames_dropped`] (and `flush` returns the
+//! first such error).
+//!
+//! # Driven receive
+//!
+//! With [`UdpConfig::driven`] the link starts no receive thread; [`Link::readable`] returns
+//! its receive side, whose [`Readable::read_ready`] reads without blocking (`MSG_DONTWAIT`,
+//! while the socket itself stays blocking so that sends still wait for buffer space), hands
+//! the frames to the sink on the caller's thread and expires incomplete messages. The
+//! receive state sits behind a mutex that `read_ready` only tries: a second, concurrent
+//! caller reads nothing rather than waiting.
+//!
+//! # Identity
+//!
+//! The source address names the sender: a datagram from a fleet endpoint is labelled
+//! [`Peer::System`]. A datagram from any other address is still handed up, labelled
+//! [`Peer::Unknown`], and counted in [`UdpStats::from_unknown_address`]: a fleet system bound
+//! to `0.0.0.0` on a multi-homed robot may send from an address other than the one in the fleet
+//! file, and the router checks the frame header's source anyway. A fragment whose sender field
+//! disagrees with the fleet system at its source address is dropped, and so is one from an
+//! unknown address whose sender field names no fleet system ([`FragmentError::UnknownSender`]).
+//!
+//! # Datagram size
+//!
+//! The default payload of 1472 bytes fits an Ethernet MTU of 1500 minus the IPv4 (20) and UDP
+//! (8) headers, so no fragment relies on IP fragmentation. On loopback (or a network known to
+//! carry jumbo datagrams) [`UdpConfig::loopback`] uses 65000, close to the IPv4 limit of 65507,
+//! which cuts a 1 MiB message into 17 datagrams instead of 723. The socket buffers are raised
+//! to [`UdpConfig::socket_buffer_bytes`] (the kernel may cap it, e.g. at `net.core.rmem_max`) so
+//! a burst of fragments is not dropped by the receiving socket.
+//!
+//! # Kernel drops
+//!
+//! Datagrams the kernel drops before the link reads them (the socket's receive buffer was
+//! full, a checksum was bad) never reach the link; where the OS reports them they are counted
+//! in [`UdpStats::kernel_drops`] and [`LinkStats::kernel_drops`]. On Linux the count is the
+//! socket's own drop counter, read with `getsockopt(SO_MEMINFO)` when the stats are asked for,
+//! so receiving costs nothing extra. Elsewhere it stays 0. It counts datagrams, not frames (a
+//! dropped datagram may have held a batch of frames or one fragment of a frame), and is not
+//! part of `frames_dropped`. The kernel's counter is 32 bits wide: a wrap between two reads of
+//! the stats is accounted for, as long as fewer than 2³² datagrams are dropped in between.
+
+mod batch;
+mod fragment;
+mod link;
+mod reassembly;
+mod receive;
+#[cfg(test)]
+mod tests;
+
+use std::collections::BTreeMap;
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
+use hetcomm_core::SystemId;
+
+use crate::common::{add, lock};
+use crate::OpenError;
+
+pub use batch::{batch_records, BatchFrames};
+pub use fragment::{parse_fragment, FragmentError, FragmentHeader};
+pub use reassembly::{
+    Reassembler, Reassembly, MAX_PARTIALS_PER_SOURCE, MAX_REMEMBERED_COMPLETIONS,
+};
+use receive::DrivenReceiver;
+
+// Named only by doc links.
+#[cfg(doc)]
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkStats, Peer, Readable};
+
+/// Magic of a fragment header: `"HF"`.
+pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
+/// Version of the fragment header.
+pub const FRAGMENT_VERSION: u8 = 1;
+/// Size of the fragment header.
+pub const FRAGMENT_HEADER_LEN: usize = 20;
+/// Magic of a batch datagram: `"HB"`.
+pub const BATCH_MAGIC: [u8; 2] = *b"HB";
+/// Version of the batch header.
+pub const BATCH_VERSION: u8 = 1;
+/// Size of the batch header: magic, version, a reserved byte.
+pub const BATCH_HEADER_LEN: usize = 4;
+/// Size of the length (u32, little-endian) in front of each frame of a batch.
+pub const BATCH_LENGTH_LEN: usize = 4;
+/// The largest UDP payload over IPv4.
+pub const MAX_DATAGRAM_PAYLOAD: usize = 65_507;
+/// The default datagram payload: an Ethernet MTU of 1500 minus IPv4 and UDP headers.
+pub const DEFAULT_DATAGRAM_PAYLOAD: usize = 1472;
+/// The datagram payload [`UdpConfig::loopback`] uses.
+pub const LOOPBACK_DATAGRAM_PAYLOAD: usize = 65_000;
+
+/// Tunables of a [`UdpLink`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct UdpConfig {
+    /// Largest datagram payload sent, bytes: the link's `mtu` (default
+    /// [`DEFAULT_DATAGRAM_PAYLOAD`]; from `FRAGMENT_HEADER_LEN + 1` up to
+    /// [`MAX_DATAGRAM_PAYLOAD`]).
+    pub datagram_payload: usize,
+    /// Largest message payload accepted, bytes; `None`: the codec's limit. Frames may be this
+    /// plus the 48-byte header.
+    pub max_message_bytes: Option<usize>,
+    /// Most bytes held for incomplete messages at once (default 32 MiB).
+    pub reassembly_limit_bytes: usize,
+    /// How long after its first fragment an incomplete message is dropped (default 2 s).
+    pub reassembly_timeout: Duration,
+    /// Send and receive socket buffer size requested from the kernel (default 4 MiB).
+    pub socket_buffer_bytes: usize,
+    /// Start no receive thread: a thread waiting for messages reads the socket itself through
+    /// [`Link::readable`] (see the module docs, "Driven receive"). Nothing is received until
+    /// someone calls [`Readable::read_ready`]. Default `false`: the link's own thread receives.
+    pub driven: bool,
+}
+
+impl Default for UdpConfig {
+    fn default() -> Self {
+        UdpConfig {
+            datagram_payload: DEFAULT_DATAGRAM_PAYLOAD,
+            max_message_bytes: None,
+            reassembly_limit_bytes: 32 * 1024 * 1024,
+            reassembly_timeout: Duration::from_secs(2),
+            socket_buffer_bytes: 4 * 1024 * 1024,
+            driven: false,
+        }
+    }
+}
+
+impl UdpConfig {
+    /// The defaults with [`LOOPBACK_DATAGRAM_PAYLOAD`]-byte datagrams, for systems on one host.
+    pub fn loopback() -> Self {
+        UdpConfig {
+            datagram_payload: LOOPBACK_DATAGRAM_PAYLOAD,
+            ..UdpConfig::default()
+        }
+    }
+
+    /// The largest frame accepted: header plus `max_message_bytes` (capped by the codec's
+    /// limit, by what the reassembly buffer can hold and by 65535 fragments).
+    pub fn max_frame(&self) -> usize {
+        let by_message = HEADER_LEN
+            + self
+                .max_message_bytes
+                .unwrap_or(MAX_PAYLOAD)
+                .min(MAX_PAYLOAD);
+        let by_fragments =
+            usize::from(u16::MAX) * self.datagram_payload.saturating_sub(FRAGMENT_HEADER_LEN);
+        by_message
+            .min(self.reassembly_limit_bytes)
+            .min(by_fragments)
+            .max(self.datagram_payload.min(by_message))
+    }
+
+    fn check(&self) -> Result<(), OpenError> {
+        if !(FRAGMENT_HEADER_LEN + 1..=MAX_DATAGRAM_PAYLOAD).contains(&self.datagram_payload) {
+            return Err(OpenError::BadConfig {
+                field: "datagram_payload",
+                reason: format!(
+                    "{} is outside {}..={MAX_DATAGRAM_PAYLOAD}",
+                    self.datagram_payload,
+                    FRAGMENT_HEADER_LEN + 1
+                ),
+            });
+        }
+        if self.reassembly_timeout.is_zero() {
+            return Err(OpenError::BadConfig {
+                field: "reassembly_timeout",
+                reason: "must be longer than zero".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Counters of a [`UdpLink`]; [`Link::stats`] reports the subset [`LinkStats`] has.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct UdpStats {
+    /// Frames fully handed to the socket, alone, in fragments or in a batch.
+    pub frames_sent: u64,
+    /// Datagrams handed to the socket: whole frames, batches and fragments.
+    pub datagrams_sent: u64,
+    /// Batch datagrams sent (each carries one or more held frames).
+    pub batches_sent: u64,
+    /// Fragment datagrams sent (0 while every frame fits one datagram).
+    pub fragments_sent: u64,
+    /// Held frames dropped because their batch could not be sent.
+    pub held_frames_dropped: u64,
+    /// Frames handed to the sink.
+    pub frames_received: u64,
+    /// Batch datagrams (`"HB"`) received with at least one frame.
+    pub batches_received: u64,
+    /// Everything dropped: bad datagrams, incomplete messages given up, and held frames whose
+    /// batch could not be sent.
+    pub frames_dropped: u64,
+    /// Malformed fragment datagrams, batch datagrams with a header not read, no record or an
+    /// incomplete last record, dropped (in part).
+    pub bad_datagrams: u64,
+    /// Incomplete messages dropped because their time ran out.
+    pub reassembly_timeouts: u64,
+    /// Incomplete messages dropped to make room (or refused for being over the limit).
+    pub reassembly_evictions: u64,
+    /// Fragments dropped as duplicates: of a message still incomplete, or arriving late, after
+    /// their message was completed and handed up. Not part of `frames_dropped` (the frame
+    /// was delivered, or will be).
+    pub duplicate_fragments: u64,
+    /// Well-formed fragments of frames larger than this link's `max_frame` (the sender's
+    /// `max_message_bytes` is larger than ours), dropped. Each is also one of `bad_datagrams`;
+    /// the first is also logged to standard error.
+    pub oversize_fragments: u64,
+    /// Frames received from an address that is no fleet endpoint (handed up as
+    /// [`Peer::Unknown`]).
+    pub from_unknown_address: u64,
+    /// Bytes held for incomplete messages now.
+    pub buffered_bytes: u64,
+    /// Datagrams the kernel dropped at this link's socket before the link could read them
+    /// (see the module docs, "Kernel drops"); 0 where the OS does not report them.
+    pub kernel_drops: u64,
+}
+
+#[derive(Default)]
+struct UdpCounters {
+    frames_sent: AtomicU64,
+    datagrams_sent: AtomicU64,
+    batches_sent: AtomicU64,
+    fragments_sent: AtomicU64,
+    held_frames_dropped: AtomicU64,
+    frames_received: AtomicU64,
+    batches_received: AtomicU64,
+    bad_datagrams: AtomicU64,
+    reassembly_timeouts: AtomicU64,
+    reassembly_evictions: AtomicU64,
+    duplicate_fragments: AtomicU64,
+    oversize_fragments: AtomicU64,
+    /// The first oversize fragment has been logged.
+    oversize_logged: AtomicBool,
+    from_unknown_address: AtomicU64,
+    buffered_bytes: AtomicU64,
+}
+
+struct Shared {
+    closing: AtomicBool,
+    counters: UdpCounters,
+}
+
+/// Frames held for one peer, to go out as one datagram.
+#[derive(Default)]
+struct Batch {
+    /// The batch header, then one record (length, frame) per held frame, at most `mtu` bytes;
+    /// empty while nothing is held.
+    buf: Vec<u8>,
+    /// How many frames `buf` holds.
+    frames: u64,
+}
+
+/// A peer's address and its batch of held frames.
+struct UdpPeer {
+    addr: SocketAddr,
+    batch: Mutex<Batch>,
+}
+
+/// Who reads the socket.
+enum RxSide {
+    /// The link's own receive thread (joined on drop).
+    Thread(Option<JoinHandle<()>>),
+    /// Whichever thread calls [`Readable::read_ready`].
+    Driven(Box<DrivenReceiver>),
+}
+
+/// A system's UDP endpoint; see the module docs.
+pub struct UdpLink {
+    local: SystemId,
+    socket: Arc<UdpSocket>,
+    local_addr: SocketAddr,
+    peers: BTreeMap<SystemId, UdpPeer>,
+    config: UdpConfig,
+    max_frame: usize,
+    next_message_id: AtomicU32,
+    shared: Arc<Shared>,
+    rx: RxSide,
+    /// The kernel's drop counter as last read (see "Kernel drops").
+    kernel_drops: Mutex<KernelDrops>,
+}
+
+/// The kernel's 32-bit drop counter, read now and then, turned into a 64-bit total.
+#[derive(Default)]
+struct KernelDrops {
+    /// The counter as last read.
+    last: u32,
+    /// Every drop seen.
+    total: u64,
+}
+
+impl KernelDrops {
+    /// Takes the counter's value now (read after the previous one); adds what is new,
+    /// wrapping at 2³².
+    fn update(&mut self, now: u32) {
+        self.total += u64::from(now.wrapping_sub(self.last));
+        self.last = now;
+    }
+}

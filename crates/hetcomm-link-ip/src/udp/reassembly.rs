@@ -1,0 +1,351 @@
+//! [`Reassembler`]: putting fragmented frames back together with bounded memory, eviction of
+//! the largest holder, a timeout, and recognition of late duplicates.
+
+use std::collections::{BTreeMap, HashMap};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use hetcomm_core::SystemId;
+
+use super::fragment::{parse_fragment, FragmentError};
+// Named only by doc links.
+#[cfg(doc)]
+use super::UdpConfig;
+
+type MessageKey = (SocketAddr, SystemId, u32);
+
+/// Bytes a partial message is charged for beyond its pieces (its bookkeeping).
+pub(super) const PARTIAL_OVERHEAD: usize = 128;
+/// Bytes charged per piece that arrived ahead of its turn (its map entry).
+pub(super) const PIECE_OVERHEAD: usize = 32;
+/// The first contiguous buffer of a message holds at most this many pieces: a fragment's
+/// header never makes the receiver reserve much more than the bytes it has received.
+const FIRST_RESERVE_PIECES: usize = 4;
+/// Most incomplete messages from one source address at once; a further one evicts that
+/// source's oldest.
+pub const MAX_PARTIALS_PER_SOURCE: usize = 64;
+/// Most recently completed messages remembered (for [`UdpConfig::reassembly_timeout`]) so
+/// that their late duplicate fragments are recognised.
+pub const MAX_REMEMBERED_COMPLETIONS: usize = 4096;
+
+struct Partial {
+    total: u32,
+    count: u16,
+    started: Instant,
+    /// Pieces `0..next`, in order: the start of the frame. Grows as pieces arrive.
+    head: Vec<u8>,
+    /// The next piece `head` takes.
+    next: u16,
+    /// Pieces that arrived ahead of their turn, by index.
+    ahead: BTreeMap<u16, Vec<u8>>,
+    /// Bytes in `ahead`.
+    ahead_bytes: usize,
+    /// Bytes this message is charged for in [`Reassembler::held_bytes`].
+    charged: usize,
+}
+
+impl Partial {
+    fn has(&self, index: u16) -> bool {
+        index < self.next || self.ahead.contains_key(&index)
+    }
+
+    /// What the message costs now: its buffers (by capacity) and bookkeeping.
+    fn cost(&self) -> usize {
+        PARTIAL_OVERHEAD
+            + self.head.capacity()
+            + self.ahead_bytes
+            + self.ahead.len() * PIECE_OVERHEAD
+    }
+
+    /// Takes piece `index` (not held yet).
+    fn insert(&mut self, index: u16, piece: &[u8]) {
+        if index != self.next {
+            self.ahead_bytes += piece.len();
+            self.ahead.insert(index, piece.to_vec());
+            return;
+        }
+        self.append(piece);
+        while let Some(p) = self.ahead.remove(&self.next) {
+            self.ahead_bytes -= p.len();
+            self.append(&p);
+        }
+    }
+
+    /// Appends the next piece to `head`, growing it by at most doubling (and at first by a few
+    /// pieces), never past `total`.
+    fn append(&mut self, piece: &[u8]) {
+        let total = self.total as usize;
+        let need = self.head.len() + piece.len();
+        if need > self.head.capacity() {
+            let chunk = total.div_ceil(usize::from(self.count));
+            let target = need
+                .max(self.head.capacity() * 2)
+                .max(FIRST_RESERVE_PIECES * chunk)
+                .min(total);
+            self.head.reserve_exact(target - self.head.len());
+        }
+        self.head.extend_from_slice(piece);
+        self.next += 1;
+    }
+}
+
+/// What one source address holds.
+#[derive(Default)]
+struct SourceUse {
+    bytes: usize,
+    partials: usize,
+}
+
+/// What [`Reassembler::on_fragment`] made of a fragment.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Reassembly {
+    /// The message is complete: here is the frame.
+    Complete(Vec<u8>),
+    /// More fragments are needed.
+    Pending,
+    /// A fragment already taken: of a message still incomplete, or of one completed within
+    /// the reassembly timeout (a late duplicate). Dropped; nothing is held for it.
+    Duplicate,
+    /// The fragment could not be used; `dropped` incomplete messages were given up with it.
+    Rejected {
+        /// Why.
+        error: FragmentError,
+        /// Incomplete messages dropped as a consequence (an inconsistent message).
+        dropped: usize,
+    },
+}
+
+/// Bounded, time-limited reassembly of fragmented messages; sans-IO (time is passed in), so it
+/// is tested without sockets.
+///
+/// Memory follows what arrived, not what a header announces: a message's buffer grows as its
+/// pieces arrive (the first reservation is at most `FIRST_RESERVE_PIECES` (4) pieces, later ones
+/// at most double it), and pieces that arrive ahead of their turn are kept apart until the
+/// gap before them fills. Everything held, bookkeeping included, is charged against the limit.
+/// When a new piece takes the total over the limit, the oldest message of the source address
+/// holding the most is dropped, until it fits: a source flooding the receiver loses its own
+/// messages first. One source holds at most [`MAX_PARTIALS_PER_SOURCE`] messages.
+pub struct Reassembler {
+    limit_bytes: usize,
+    timeout: Duration,
+    max_frame: usize,
+    /// Fleet systems a sender field may name (empty: any).
+    fleet: Vec<SystemId>,
+    partials: HashMap<MessageKey, Partial>,
+    sources: HashMap<SocketAddr, SourceUse>,
+    held: usize,
+    evictions: u64,
+    /// Recently completed messages, oldest first, and the same as a set.
+    completed: std::collections::VecDeque<(MessageKey, Instant)>,
+    completed_set: std::collections::HashSet<MessageKey>,
+}
+
+impl Reassembler {
+    /// A reassembler holding at most `limit_bytes` for incomplete messages, giving each
+    /// `timeout` from its first fragment, accepting frames up to `max_frame`.
+    pub fn new(limit_bytes: usize, timeout: Duration, max_frame: usize) -> Reassembler {
+        Reassembler {
+            limit_bytes,
+            timeout,
+            max_frame,
+            fleet: Vec::new(),
+            partials: HashMap::new(),
+            sources: HashMap::new(),
+            held: 0,
+            evictions: 0,
+            completed: std::collections::VecDeque::new(),
+            completed_set: std::collections::HashSet::new(),
+        }
+    }
+
+    /// Accepts fragments only from senders named in `fleet` (when it is not empty); others are
+    /// rejected with [`FragmentError::UnknownSender`] before anything is held.
+    pub fn with_fleet(mut self, fleet: impl IntoIterator<Item = SystemId>) -> Reassembler {
+        self.fleet = fleet.into_iter().collect();
+        self.fleet.sort_unstable();
+        self
+    }
+
+    /// Bytes held for incomplete messages (their buffers by capacity, and bookkeeping).
+    pub fn held_bytes(&self) -> usize {
+        self.held
+    }
+
+    /// Incomplete messages held.
+    pub fn pending(&self) -> usize {
+        self.partials.len()
+    }
+
+    /// Incomplete messages dropped (or refused) for lack of room so far.
+    pub fn evictions(&self) -> u64 {
+        self.evictions
+    }
+
+    /// Takes one fragment datagram from `src`, whose fleet system (if known) is `src_system`.
+    pub fn on_fragment(
+        &mut self,
+        datagram: &[u8],
+        src: SocketAddr,
+        src_system: Option<SystemId>,
+        now: Instant,
+    ) -> Reassembly {
+        let reject = |error| Reassembly::Rejected { error, dropped: 0 };
+        let (h, piece) = match parse_fragment(datagram, self.max_frame) {
+            Ok(x) => x,
+            Err(e) => return reject(e),
+        };
+        if let Some(actual) = src_system {
+            if actual != h.sender {
+                return reject(FragmentError::WrongSender {
+                    claimed: h.sender,
+                    actual,
+                });
+            }
+        } else if !self.fleet.is_empty() && self.fleet.binary_search(&h.sender).is_err() {
+            return reject(FragmentError::UnknownSender { claimed: h.sender });
+        }
+        if h.count == 1 {
+            return Reassembly::Complete(piece.to_vec());
+        }
+        let key = (src, h.sender, h.message_id);
+        if let Some(p) = self.partials.get(&key) {
+            if p.total != h.total || p.count != h.count {
+                self.remove(&key);
+                return Reassembly::Rejected {
+                    error: FragmentError::Inconsistent {
+                        message_id: h.message_id,
+                    },
+                    dropped: 1,
+                };
+            }
+        } else {
+            if self.completed_set.contains(&key) {
+                return Reassembly::Duplicate;
+            }
+            if h.total as usize > self.limit_bytes {
+                self.evictions += 1;
+                return Reassembly::Pending;
+            }
+            if self.sources.get(&src).map_or(0, |s| s.partials) >= MAX_PARTIALS_PER_SOURCE {
+                if let Some(k) = self.oldest_of(src) {
+                    self.remove(&k);
+                    self.evictions += 1;
+                }
+            }
+            let p = Partial {
+                total: h.total,
+                count: h.count,
+                started: now,
+                head: Vec::new(),
+                next: 0,
+                ahead: BTreeMap::new(),
+                ahead_bytes: 0,
+                charged: PARTIAL_OVERHEAD,
+            };
+            self.held += p.charged;
+            let s = self.sources.entry(src).or_default();
+            s.bytes += p.charged;
+            s.partials += 1;
+            self.partials.insert(key, p);
+        }
+        let Some(p) = self.partials.get_mut(&key) else {
+            return Reassembly::Pending;
+        };
+        if p.has(h.index) {
+            return Reassembly::Duplicate;
+        }
+        p.insert(h.index, piece);
+        if p.next == p.count {
+            let frame = match self.remove(&key) {
+                Some(p) => p.head,
+                None => return Reassembly::Pending,
+            };
+            self.remember(key, now);
+            return Reassembly::Complete(frame);
+        }
+        let (before, after) = (p.charged, p.cost());
+        p.charged = after;
+        self.held = self.held - before + after;
+        if let Some(s) = self.sources.get_mut(&src) {
+            s.bytes = s.bytes - before + after;
+        }
+        while self.held > self.limit_bytes {
+            let Some(k) = self.eviction_victim() else {
+                break;
+            };
+            self.remove(&k);
+            self.evictions += 1;
+        }
+        Reassembly::Pending
+    }
+
+    /// Drops incomplete messages whose time ran out (returns how many) and forgets completed
+    /// messages older than the timeout.
+    pub fn expire(&mut self, now: Instant) -> usize {
+        let timeout = self.timeout;
+        while let Some(&(key, at)) = self.completed.front() {
+            if now.saturating_duration_since(at) < timeout {
+                break;
+            }
+            self.completed.pop_front();
+            self.completed_set.remove(&key);
+        }
+        if self.partials.is_empty() {
+            return 0;
+        }
+        let expired: Vec<MessageKey> = self
+            .partials
+            .iter()
+            .filter(|(_, p)| now.saturating_duration_since(p.started) >= timeout)
+            .map(|(k, _)| *k)
+            .collect();
+        for k in &expired {
+            self.remove(k);
+        }
+        expired.len()
+    }
+
+    /// Whether [`expire`](Reassembler::expire) has anything to look at.
+    pub(super) fn needs_upkeep(&self) -> bool {
+        !self.partials.is_empty() || !self.completed.is_empty()
+    }
+
+    fn remember(&mut self, key: MessageKey, now: Instant) {
+        if self.completed.len() >= MAX_REMEMBERED_COMPLETIONS {
+            if let Some((old, _)) = self.completed.pop_front() {
+                self.completed_set.remove(&old);
+            }
+        }
+        if self.completed_set.insert(key) {
+            self.completed.push_back((key, now));
+        }
+    }
+
+    /// The oldest incomplete message from `src`.
+    fn oldest_of(&self, src: SocketAddr) -> Option<MessageKey> {
+        self.partials
+            .iter()
+            .filter(|(k, _)| k.0 == src)
+            .min_by_key(|(_, p)| p.started)
+            .map(|(k, _)| *k)
+    }
+
+    /// The message to drop for room: the oldest of the source holding the most bytes.
+    fn eviction_victim(&self) -> Option<MessageKey> {
+        let (&src, _) = self.sources.iter().max_by_key(|(_, s)| s.bytes)?;
+        self.oldest_of(src)
+    }
+
+    fn remove(&mut self, key: &MessageKey) -> Option<Partial> {
+        let p = self.partials.remove(key)?;
+        self.held -= p.charged;
+        if let Some(s) = self.sources.get_mut(&key.0) {
+            s.bytes -= p.charged;
+            s.partials -= 1;
+            if s.partials == 0 {
+                self.sources.remove(&key.0);
+            }
+        }
+        Some(p)
+    }
+}

@@ -1,0 +1,591 @@
+//! The real-time driver: one [`SystemCore`] per opened system drives its sans-IO router with
+//! the wall clock. Sends run on the caller's thread up to the link's send call; frames run on
+//! the link's receive thread (or the sender's thread for in-process links); a timer thread per
+//! system handles retransmission deadlines; callbacks run on a thread per module.
+
+use rustc_hash::FxHashMap as HashMap;
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, RwLock, Weak};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hetcomm_config::InboxConfig;
+use hetcomm_core::wire::AckStatus;
+use hetcomm_core::{
+    FrameBuf, Header, MessageType, ModuleId, PayloadBuf, SystemId, Time, TypeRegistry,
+};
+use hetcomm_link::{FrameSink, Link, LinkError, Peer};
+use hetcomm_router::{
+    Delivery, DeliveryToken, Event, Outcome, Router, SendId, Transmit, TransmitError,
+};
+use smallvec::SmallVec;
+
+use crate::inbox::{Entry, Inbox, PushError};
+use crate::observe::{Observers, OutcomeRecord, ReceiptRecord, RouteKind, Via};
+use crate::reactor::{leading_here, Reactor};
+use crate::received::{Envelope, RawMessage};
+use crate::ticket::{OutcomeSlot, TicketSlot};
+use crate::transports::Hubs;
+use crossbeam_utils::CachePadded;
+
+mod deliver;
+mod direct;
+mod sink;
+mod transmit;
+
+pub(crate) use deliver::Source;
+use sink::SystemSink;
+pub(crate) use transmit::Batching;
+
+/// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
+/// clock under the simulator.
+pub trait Clock: Send + Sync + 'static {
+    /// The current time.
+    fn now(&self) -> Time;
+}
+
+/// The wall clock: microseconds since the UNIX epoch.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WallClock;
+
+impl Clock for WallClock {
+    fn now(&self) -> Time {
+        Time::now_wall()
+    }
+}
+
+/// The one process-wide copy of a system or module name.
+///
+/// Every received message and every ticket names a system; with names shared as `Arc<str>`,
+/// each would bump a reference count that the sending and receiving threads both touch (a
+/// cache line moving between cores per message). Names are few and live as long as the
+/// fleets using them, so they are kept once for the life of the process instead: the memory
+/// is bounded by the number of distinct names ever opened.
+pub(crate) fn intern(name: &str) -> &'static str {
+    static NAMES: OnceLock<Mutex<rustc_hash::FxHashSet<&'static str>>> = OnceLock::new();
+    let mut names = NAMES
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some(known) = names.get(name) {
+        return known;
+    }
+    let leaked: &'static str = Box::leak(name.to_owned().into_boxed_str());
+    names.insert(leaked);
+    leaked
+}
+
+/// Friendly names of the fleet's systems and modules, shared by every system of a process.
+#[derive(Debug)]
+pub(crate) struct Directory {
+    pub systems: IdNames,
+    pub system_ids: HashMap<String, SystemId>,
+    pub modules: IdNames,
+    pub module_ids: HashMap<String, ModuleId>,
+}
+
+impl Directory {
+    pub(crate) fn system_name(&self, id: SystemId) -> &'static str {
+        self.systems.get(id.0)
+    }
+    pub(crate) fn module_name(&self, id: ModuleId) -> &'static str {
+        self.modules.get(id.0)
+    }
+}
+
+/// Names by numeric id: a table indexed by the id for the small ids fleets use (every
+/// received message looks up two names), a map for the rest.
+#[derive(Debug, Default)]
+pub(crate) struct IdNames {
+    dense: Vec<Option<&'static str>>,
+    sparse: HashMap<u16, &'static str>,
+}
+
+/// Ids below this are looked up in [`IdNames`]' table (8 KiB on 64-bit machines at most).
+const DENSE_IDS: usize = 512;
+
+impl IdNames {
+    fn get(&self, id: u16) -> &'static str {
+        match self.dense.get(usize::from(id)) {
+            Some(Some(name)) => name,
+            _ => self
+                .sparse
+                .get(&id)
+                .copied()
+                .unwrap_or_else(|| intern(&format!("#{id}"))),
+        }
+    }
+}
+
+impl FromIterator<(u16, &'static str)> for IdNames {
+    fn from_iter<I: IntoIterator<Item = (u16, &'static str)>>(iter: I) -> Self {
+        let mut names = IdNames::default();
+        for (id, name) in iter {
+            let i = usize::from(id);
+            if i < DENSE_IDS {
+                if names.dense.len() <= i {
+                    names.dense.resize(i + 1, None);
+                }
+                names.dense[i] = Some(name);
+            } else {
+                names.sparse.insert(id, name);
+            }
+        }
+        names
+    }
+}
+
+pub(crate) type Callback = Arc<dyn Fn(RawMessage) + Send + Sync>;
+
+/// One module of one system: its inbox, its callbacks and their thread.
+pub(crate) struct ModuleCore {
+    pub id: ModuleId,
+    pub name: &'static str,
+    pub inbox: Inbox,
+    callback_inbox: Inbox,
+    callbacks: RwLock<HashMap<MessageType, Callback>>,
+    callback_any: RwLock<Option<Callback>>,
+    has_callbacks: AtomicBool,
+    /// Under simulation callbacks run on the simulator's thread, at the delivery, so runs are
+    /// repeatable; otherwise on the module's callback thread.
+    inline_callbacks: bool,
+    dispatcher: Mutex<Option<JoinHandle<()>>>,
+    /// Callback invocations that panicked or failed to decode.
+    pub callback_failures: AtomicU64,
+    /// This module's thread is blocked reading links as the reactor's leader: a message put
+    /// into its inbox by another thread must interrupt it.
+    leading: AtomicBool,
+}
+
+impl ModuleCore {
+    fn new(id: ModuleId, name: &'static str, inbox: InboxConfig) -> Self {
+        ModuleCore {
+            id,
+            name,
+            inbox: Inbox::new(inbox),
+            callback_inbox: Inbox::new(inbox),
+            callbacks: RwLock::new(HashMap::default()),
+            callback_any: RwLock::new(None),
+            has_callbacks: AtomicBool::new(false),
+            inline_callbacks: false,
+            dispatcher: Mutex::new(None),
+            callback_failures: AtomicU64::new(0),
+            leading: AtomicBool::new(false),
+        }
+    }
+
+    fn wants_callback(&self, ty: MessageType) -> bool {
+        self.has_callbacks.load(Ordering::Acquire)
+            && (self
+                .callbacks
+                .read()
+                .unwrap_or_else(|e| e.into_inner())
+                .contains_key(&ty)
+                || self
+                    .callback_any
+                    .read()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .is_some())
+    }
+
+    /// Registers a callback for one type (or every type when `ty` is None) and starts the
+    /// module's callback thread on first use.
+    pub(crate) fn set_callback(
+        self: &Arc<Self>,
+        ty: Option<MessageType>,
+        cb: Callback,
+        directory: Arc<Directory>,
+    ) {
+        match ty {
+            Some(ty) => {
+                self.callbacks
+                    .write()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .insert(ty, cb);
+            }
+            None => *self.callback_any.write().unwrap_or_else(|e| e.into_inner()) = Some(cb),
+        }
+        self.has_callbacks.store(true, Ordering::Release);
+        if self.inline_callbacks {
+            return;
+        }
+        let mut dispatcher = self.dispatcher.lock().unwrap_or_else(|e| e.into_inner());
+        if dispatcher.is_none() {
+            let module = Arc::downgrade(self);
+            let name = format!("hetcomm-cb-{}", self.name);
+            let spawned = std::thread::Builder::new()
+                .name(name)
+                .spawn(move || dispatch_callbacks(module, directory));
+            // Spawning only fails when the OS is out of threads; then callbacks stay queued
+            // and counted as failures rather than the process aborting.
+            match spawned {
+                Ok(handle) => *dispatcher = Some(handle),
+                Err(_) => {
+                    self.callback_failures.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+
+    fn close(&self) {
+        self.inbox.close();
+        self.callback_inbox.close();
+        join_unless_current(&self.dispatcher);
+    }
+}
+
+impl ModuleCore {
+    /// Runs the callback registered for this entry's type (or the catch-all).
+    fn run_callback(&self, directory: &Directory, entry: Entry) {
+        let ty = entry.header.message_type;
+        let cb = self
+            .callbacks
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&ty)
+            .cloned()
+            .or_else(|| {
+                self.callback_any
+                    .read()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .clone()
+            });
+        let Some(cb) = cb else { return };
+        let raw = raw_message(directory, entry);
+        // A panicking callback must not take the dispatcher (and every later message) down.
+        if std::panic::catch_unwind(AssertUnwindSafe(|| cb(raw))).is_err() {
+            self.callback_failures.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Joins a helper thread taken out of its slot, unless that thread is the caller (a system
+/// closed from its own callback or timer thread cannot wait for itself).
+fn join_unless_current(slot: &Mutex<Option<JoinHandle<()>>>) {
+    let handle = slot.lock().unwrap_or_else(|e| e.into_inner()).take();
+    if let Some(h) = handle {
+        if h.thread().id() != std::thread::current().id() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn dispatch_callbacks(module: Weak<ModuleCore>, directory: Arc<Directory>) {
+    loop {
+        let Some(m) = module.upgrade() else { return };
+        let entry = match m.callback_inbox.take_timeout(|_| true, None) {
+            Ok(Some(e)) => e,
+            _ => return, // closed and drained
+        };
+        m.run_callback(&directory, entry);
+    }
+}
+
+pub(crate) fn raw_message(directory: &Directory, e: Entry) -> RawMessage {
+    RawMessage {
+        envelope: Envelope {
+            header: e.header,
+            source_system: directory.system_name(e.header.source.system),
+            source_module: directory.module_name(e.header.source.module),
+            received_at: e.received_at,
+        },
+        payload: e.payload,
+    }
+}
+
+/// Which idle test a frame takes ([`SystemCore::transmit`]). Acknowledgements keep their
+/// own: a stream's acknowledgements share datagrams, while the one acknowledgement of a
+/// request goes at once and does not make the answer after it count as busy traffic (which
+/// would hold the answer and wake the batching timer).
+#[derive(Clone, Copy)]
+pub(crate) enum Traffic {
+    /// Messages (first transmissions and retransmissions).
+    Data,
+    /// Acknowledgements.
+    Ack,
+}
+
+#[derive(Default)]
+struct TimerState {
+    deadline: Option<Time>,
+    shutdown: bool,
+}
+
+#[derive(Default)]
+struct Timer {
+    state: Mutex<TimerState>,
+    wake: Condvar,
+}
+
+impl Timer {
+    fn arm(&self, next: Option<Time>) {
+        let Some(next) = next else { return };
+        let mut s = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if s.deadline.is_none_or(|d| next < d) {
+            s.deadline = Some(next);
+            self.wake.notify_one();
+        }
+    }
+}
+
+/// One opened system.
+pub(crate) struct SystemCore {
+    pub id: SystemId,
+    pub name: &'static str,
+    pub directory: Arc<Directory>,
+    pub registry: Arc<RwLock<TypeRegistry>>,
+    /// [`TypeRegistry::id`] of `registry`, readable without its lock.
+    pub registry_id: u64,
+    pub modules: HashMap<ModuleId, Arc<ModuleCore>>,
+    pub clock: Arc<dyn Clock>,
+    router: Mutex<Router<Arc<OutcomeSlot>>>,
+    links: OnceLock<Vec<Arc<dyn Link>>>,
+    /// Per link: when small frames are held back to share a write (see [`Batching`]).
+    batching: OnceLock<Vec<Batching>>,
+    timer: Timer,
+    timer_thread: Mutex<Option<JoinHandle<()>>>,
+    closed: AtomicBool,
+    /// Frames being handled right now: shutdown lets them finish (their acknowledgements go
+    /// out) before it closes the links.
+    in_progress: std::sync::atomic::AtomicUsize,
+    /// Destinations reached over in-process links, handed messages directly.
+    direct: OnceLock<DirectRoutes>,
+    /// Reads the links that a waiting thread can drive (see [`crate::reactor`]).
+    reactor: OnceLock<Arc<Reactor>>,
+    reactor_thread: Mutex<Option<JoinHandle<()>>>,
+    /// Messages other systems of this process put straight into this one's inboxes.
+    /// Bumped by other systems' threads for every message they hand over: on lines of its
+    /// own, away from what this system's threads read.
+    pub direct_received: CachePadded<AtomicU64>,
+    /// Messages for a module id this system's fleet file does not have (the sender's fleet
+    /// file differs), dropped (and refused, when an acknowledgement was asked for).
+    pub unknown_module: AtomicU64,
+    /// Who sees every send, receipt and outcome ([`crate::observe`]).
+    pub(crate) observers: Observers,
+    /// Taps, scheduled faults and topics ([`crate::harness`], [`crate::node`]).
+    pub(crate) harness: crate::harness::SystemHarness,
+}
+
+/// The in-process links of a system, through which a message skips framing, checksums and
+/// the destination's router: both ends are in this process, the link is reliable, ordered
+/// and synchronous, so the sender's thread can put the message into the destination inbox
+/// itself and know the outcome at once.
+pub(crate) struct DirectRoutes {
+    hubs: Hubs,
+    /// Per link index: the in-process transport's name, or None for other links.
+    names: Vec<Option<String>>,
+    /// Destinations resolved so far (re-resolved when one closes and reopens).
+    cache: Mutex<HashMap<SystemId, Weak<SystemCore>>>,
+}
+
+impl SystemCore {
+    pub(crate) fn new(
+        id: SystemId,
+        directory: Arc<Directory>,
+        registry: Arc<RwLock<TypeRegistry>>,
+        modules: Vec<(ModuleId, InboxConfig)>,
+        router: Router<Arc<OutcomeSlot>>,
+        clock: Arc<dyn Clock>,
+        inline_callbacks: bool,
+    ) -> Arc<Self> {
+        let modules = modules
+            .into_iter()
+            .map(|(mid, inbox)| {
+                let name = directory.module_name(mid);
+                let mut module = ModuleCore::new(mid, name, inbox);
+                module.inline_callbacks = inline_callbacks;
+                (mid, Arc::new(module))
+            })
+            .collect();
+        let registry_id = registry.read().unwrap_or_else(|e| e.into_inner()).id();
+        Arc::new(SystemCore {
+            id,
+            name: directory.system_name(id),
+            directory,
+            registry_id,
+            registry,
+            modules,
+            clock,
+            router: Mutex::new(router),
+            links: OnceLock::new(),
+            batching: OnceLock::new(),
+            timer: Timer::default(),
+            timer_thread: Mutex::new(None),
+            closed: AtomicBool::new(false),
+            in_progress: std::sync::atomic::AtomicUsize::new(0),
+            direct: OnceLock::new(),
+            direct_received: CachePadded::default(),
+            unknown_module: AtomicU64::new(0),
+            reactor: OnceLock::new(),
+            reactor_thread: Mutex::new(None),
+            observers: Observers::default(),
+            harness: Default::default(),
+        })
+    }
+
+    /// Installs the links (once) and, unless a simulator drives time, starts the timer
+    /// thread.
+    pub(crate) fn start(
+        self: &Arc<Self>,
+        links: Vec<Arc<dyn Link>>,
+        linger_us: Vec<u32>,
+        timer_thread: bool,
+    ) -> std::io::Result<()> {
+        self.harness.attach(Arc::downgrade(self), timer_thread);
+        let reactor = Reactor::new(&links)?;
+        let batching = links
+            .iter()
+            .zip(linger_us.iter().chain(std::iter::repeat(&0)))
+            .map(|(l, &us)| Batching::new(if l.batches() { us } else { 0 }))
+            .collect();
+        let _ = self.batching.set(batching);
+        {
+            // Frames on links that vouch for their bytes need a CRC of the header only.
+            let mut router = self.router();
+            for (i, l) in links.iter().enumerate() {
+                router.set_link_checksums_payload(i, l.checksums_payload());
+            }
+        }
+        let _ = self.links.set(links);
+        if !timer_thread {
+            return Ok(());
+        }
+        if let Some(reactor) = reactor {
+            let _ = self.reactor.set(reactor.clone());
+            let weak = Arc::downgrade(self);
+            let handle = std::thread::Builder::new()
+                .name(format!("hetcomm-rx-{}", self.name))
+                .spawn(move || reactor.run_background(weak))?;
+            *self
+                .reactor_thread
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()) = Some(handle);
+        }
+        let weak = Arc::downgrade(self);
+        let handle = std::thread::Builder::new()
+            .name(format!("hetcomm-timer-{}", self.name))
+            .spawn(move || run_timer(weak))?;
+        *self.timer_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
+        Ok(())
+    }
+
+    /// The router's next retransmission deadline.
+    pub(crate) fn next_deadline(&self) -> Option<Time> {
+        self.router().poll_timeout()
+    }
+
+    /// Runs due retransmission timers (the simulator's timer thread).
+    pub(crate) fn fire_timers(&self) {
+        let now = self.clock.now();
+        self.flush_held(Some(now));
+        // A batch held after this timer was armed (for an earlier deadline) is due later: the
+        // timer keeps one deadline, so arm it again.
+        self.timer.arm(self.next_flush());
+        let mut router = self.router();
+        router.handle_timeout(now);
+        self.pump(router);
+    }
+
+    pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
+        self.router.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub(crate) fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
+    }
+
+    pub(crate) fn links(&self) -> &[Arc<dyn Link>] {
+        self.links.get().map(|v| v.as_slice()).unwrap_or(&[])
+    }
+
+    /// A sink for link `index`: frames it receives enter this system's router.
+    pub(crate) fn sink(self: &Arc<Self>, index: usize) -> Arc<dyn FrameSink> {
+        Arc::new(SystemSink {
+            core: Arc::downgrade(self),
+            link: index,
+        })
+    }
+
+    /// Stops the timer, fails unresolved sends, closes inboxes and drops the links.
+    pub(crate) fn shutdown(&self) {
+        if self.closed.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        self.harness.close();
+        // Let frames already inside the router finish, so that a message just delivered is
+        // also acknowledged; bounded, since a frame's handling may be stuck on a full inbox.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
+        while self.in_progress.load(Ordering::Acquire) > 0 && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        {
+            let mut s = self.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+            s.shutdown = true;
+            self.timer.wake.notify_all();
+        }
+        join_unless_current(&self.timer_thread);
+        if let Some(r) = self.reactor.get() {
+            r.shutdown();
+        }
+        join_unless_current(&self.reactor_thread);
+        let mut router = self.router();
+        router.shutdown();
+        let mut ended = Vec::new();
+        while let Some(Event::Outcome { id, token, outcome }) = router.poll_event() {
+            ended.push((id, token, outcome));
+        }
+        drop(router);
+        let now = self.clock.now();
+        for (id, token, outcome) in ended {
+            self.end_send(id, outcome, Some(token), now);
+        }
+        for m in self.modules.values() {
+            m.close();
+        }
+    }
+}
+
+/// A leading module set to spin ([`crate::Module::set_wait_spin`]) looks at its links
+/// without sleeping, up to its spin time (and `left`), until a message is queued (true).
+/// A reply that comes meanwhile is read at once instead of after a wake-up, which costs
+/// several microseconds when it crosses CPUs. Each look yields the CPU, so a peer sharing
+/// this CPU still runs.
+fn spin_on_links(reactor: &Reactor, module: &ModuleCore, left: Duration) -> bool {
+    let spin = module.inbox.spin().min(left);
+    if spin.is_zero() {
+        return false;
+    }
+    let start = Instant::now();
+    loop {
+        reactor.poll_now();
+        if !module.inbox.is_empty() {
+            return true;
+        }
+        if start.elapsed() >= spin {
+            return false;
+        }
+        std::thread::yield_now();
+    }
+}
+
+/// The timer thread: sleeps until the router's next deadline (or until [`Timer::arm`] brings
+/// it forward), then fires it. Shutdown sets the flag and wakes it.
+fn run_timer(core: Weak<SystemCore>) {
+    while let Some(c) = core.upgrade() {
+        let mut s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+        if s.shutdown {
+            return;
+        }
+        let now = c.clock.now();
+        match s.deadline {
+            Some(d) if d <= now => {
+                s.deadline = None;
+                drop(s);
+                c.fire_timers();
+            }
+            Some(d) => drop(c.timer.wake.wait_timeout(s, d.saturating_since(now))),
+            None => drop(c.timer.wake.wait(s)),
+        }
+    }
+}
