@@ -81,6 +81,10 @@ fn spawn_thread<T: StreamTransport>(
     handle: T::Socket,
     run: impl FnOnce(&Shared<T>) + Send + 'static,
 ) {
+    // Threads that finished their connections are ending (or have ended): join them.
+    for h in std::mem::take(&mut *lock(&shared.finished_readers)) {
+        let _ = h.join();
+    }
     let id = shared.next_reader.fetch_add(1, Ordering::Relaxed);
     let thread_shared = shared.clone();
     // Locked until the entry is in: a thread that ends at once waits to remove it.
@@ -89,7 +93,10 @@ fn spawn_thread<T: StreamTransport>(
         .name(format!("hetcomm-{}-rx-{id}", T::NAME))
         .spawn(move || {
             run(&thread_shared);
-            lock(&thread_shared.readers).remove(&id);
+            // Its handle goes where the next reader's start or the link's drop joins it.
+            if let Some(done) = lock(&thread_shared.readers).remove(&id) {
+                lock(&thread_shared.finished_readers).push(done.handle);
+            }
         });
     match spawned {
         Ok(thread) => {

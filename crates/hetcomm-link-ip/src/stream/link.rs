@@ -64,6 +64,7 @@ impl<T: StreamTransport> StreamLink<T> {
             counters: StreamCounters::default(),
             open: Arc::new(AtomicUsize::new(0)),
             readers: Mutex::new(HashMap::new()),
+            finished_readers: Mutex::new(Vec::new()),
             next_reader: AtomicU64::new(1),
         });
         let listener = Arc::new(listener);
@@ -538,6 +539,9 @@ impl<T: StreamTransport> Drop for StreamLink<T> {
         }
         for r in readers.into_values() {
             let _ = r.handle.join();
+        }
+        for h in std::mem::take(&mut *lock(&self.shared.finished_readers)) {
+            let _ = h.join();
         }
         if let Some(conns) = &self.shared.conns {
             conns.shutdown();

@@ -558,6 +558,9 @@ struct Shared<T: StreamTransport> {
     /// Connections read by a thread of their own, by reader number; a reader removes its
     /// entry (and so closes the second handle) when its connection ends.
     readers: Mutex<HashMap<u64, Reader<T::Socket>>>,
+    /// Reader threads that have finished their connection and are ending: joined at the
+    /// next reader's start and when the link drops, so no thread outlives the link.
+    finished_readers: Mutex<Vec<std::thread::JoinHandle<()>>>,
     next_reader: AtomicU64,
     /// Identified connections read without a thread each: by the driving thread with
     /// [`StreamConfig::driven`], otherwise by the poller thread. `None` when neither reads
