@@ -237,8 +237,12 @@ fn tiny_messages_stay_within_a_small_multiple_of_the_limit() {
         r.pending(),
         r.held_bytes(),
     );
+    // The counting allocator is process-wide: while this test measures, the test harness's
+    // own thread may store another test's result and captured output (seen: 183 KB alone,
+    // 316–366 KB with that). The bound catches bookkeeping that grows with the messages
+    // (32 768 tiny ones here), not a few hundred kilobytes either way.
     assert!(
-        kept <= 4 * limit as isize,
+        kept <= 8 * limit as isize,
         "{kept} heap bytes for a {limit}-byte limit"
     );
     assert!(
