@@ -59,11 +59,12 @@ B = ["t", "X"]
     )
 }
 
-fn open(role: &str, best_effort: bool) -> Result<(TempDir, Peer, Comm), String> {
+/// Writes `fleet` (systems A and B, module M) to a scratch folder, starts B as a peer process
+/// in `role` (`echo`, `echo-spin`, `sink`) and opens A.
+fn open(role: &str, fleet: &str) -> Result<(TempDir, Peer, Comm), String> {
     let dir = TempDir::new()?;
     let path = dir.0.join("fleet.toml");
-    std::fs::write(&path, fleet_text(best_effort))
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::write(&path, fleet).map_err(|e| format!("{}: {e}", path.display()))?;
     let peer = Peer::spawn(None, &[format!("hc-{role}"), path.display().to_string()])?;
     peer.expect("ready", Duration::from_secs(20))?;
     let comm = Comm::open(&path, "A").map_err(|e| e.to_string())?;
@@ -81,7 +82,18 @@ pub fn rtt(
     best_effort: bool,
     spin: bool,
 ) -> Result<Latency, String> {
-    let (_dir, peer, comm) = open(if spin { "echo-spin" } else { "echo" }, best_effort)?;
+    rtt_on(&fleet_text(best_effort), size, warmup, iters, spin)
+}
+
+/// [`rtt`] over the `ros2` transport `fleet` describes (the Cyclone DDS rows use it too).
+pub(crate) fn rtt_on(
+    fleet: &str,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+    spin: bool,
+) -> Result<Latency, String> {
+    let (_dir, peer, comm) = open(if spin { "echo-spin" } else { "echo" }, fleet)?;
     let m = comm.module("M").map_err(|e| e.to_string())?;
     if spin {
         m.set_wait_spin(crate::hc::WAIT_SPIN);
@@ -95,7 +107,16 @@ pub fn rtt(
 
 /// One-way: A sends as fast as `send_raw` returns for `duration`; the peer counts.
 pub fn oneway(size: usize, duration: Duration) -> Result<Throughput, String> {
-    let (_dir, mut peer, comm) = open("sink", false)?;
+    oneway_on(&fleet_text(false), size, duration)
+}
+
+/// [`oneway`] over the `ros2` transport `fleet` describes (the Cyclone DDS rows use it too).
+pub(crate) fn oneway_on(
+    fleet: &str,
+    size: usize,
+    duration: Duration,
+) -> Result<Throughput, String> {
+    let (_dir, mut peer, comm) = open("sink", fleet)?;
     let m = comm.module("M").map_err(|e| e.to_string())?;
     let msg = vec![7u8; size];
     // The first send waits for B's reader to be matched.
