@@ -54,6 +54,13 @@ pub struct Ros2Settings {
     pub connect_timeout_ms: u64,
     /// The DDS implementation (`dds = "rustdds" | "cyclone"`, default rustdds).
     pub dds: Backend,
+    /// Cyclone DDS only (`deliver_on_receive_thread`, default false): frames are handed to the
+    /// router on Cyclone's receive thread, inside the reader's listener, instead of waking
+    /// the thread that drives the link. A module with inline callbacks
+    /// (`Module::set_inline_callbacks`) then answers without a thread hand-off, as
+    /// `ddsperf`'s listener mode does; writes made on that thread never wait for a writer's
+    /// history to drain (docs/ros2.md, "Delivering on the receive thread").
+    pub deliver_on_receive_thread: bool,
 }
 
 impl Default for Ros2Settings {
@@ -67,12 +74,13 @@ impl Default for Ros2Settings {
             same_host: true,
             connect_timeout_ms: 2000,
             dds: Backend::RustDds,
+            deliver_on_receive_thread: false,
         }
     }
 }
 
 /// The keys of a `ros2` transport table, besides the ones every transport shares.
-pub const KEYS: [&str; 8] = [
+pub const KEYS: [&str; 9] = [
     "domain_id",
     "namespace",
     "reliability",
@@ -81,6 +89,7 @@ pub const KEYS: [&str; 8] = [
     "same_host",
     "connect_timeout_ms",
     "dds",
+    "deliver_on_receive_thread",
 ];
 
 /// Reads a `ros2` transport's table; every problem is reported through `s` (located).
@@ -179,6 +188,21 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
                 );
                 ok = false;
             }
+            None => ok = false,
+        }
+    }
+    if s.has("deliver_on_receive_thread") {
+        match s.boolean("deliver_on_receive_thread", "true or false") {
+            Some(true) if out.dds != Backend::Cyclone => {
+                s.error(
+                    "deliver_on_receive_thread",
+                    "`deliver_on_receive_thread` needs `dds = \"cyclone\"` (rustdds has no \
+                     receive thread that could deliver)",
+                    "add `dds = \"cyclone\"` to this transport, or remove the key",
+                );
+                ok = false;
+            }
+            Some(b) => out.deliver_on_receive_thread = b,
             None => ok = false,
         }
     }

@@ -76,3 +76,14 @@ macro_rules! conformance_tests {
 conformance_tests!(rustdds, Backend::RustDds, [61, 62, 67, 68]);
 #[cfg(feature = "cyclone")]
 conformance_tests!(cyclone, Backend::Cyclone, [71, 72, 73, 74]);
+
+/// Cyclone DDS links whose listeners deliver (`deliver_on_receive_thread`), driven as the
+/// runtime opens them: frames a listener could not deliver (nested in another listener) are
+/// read through `Link::readable`.
+#[cfg(feature = "cyclone")]
+#[test]
+fn cyclone_links_delivering_on_the_receive_thread_pass_conformance() {
+    let mut h = Ros2Harness::new(Backend::Cyclone, 83, true);
+    h.settings.deliver_on_receive_thread = true;
+    conformance::run_all(&mut h);
+}

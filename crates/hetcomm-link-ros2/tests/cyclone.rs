@@ -2,7 +2,8 @@
 //! answer every frame from inside their sinks. Cyclone delivers to readers of the same process
 //! on the writing thread, so the link must not take and deliver samples from inside the
 //! listener (an answer would re-enter the listener it came from, which Cyclone waits for: a
-//! deadlock); the ping-pong must run to the end.
+//! deadlock); the ping-pong must run to the end, also when the listener delivers
+//! (`deliver_on_receive_thread`).
 #![cfg(feature = "cyclone")]
 
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -40,12 +41,28 @@ impl FrameSink for Echo {
 
 #[test]
 fn links_answering_from_inside_their_sinks_do_not_deadlock() {
-    let settings = Ros2Settings {
+    ping_pong(Ros2Settings {
         domain_id: 82,
         namespace: format!("/answer_{}", std::process::id()),
         dds: Backend::Cyclone,
         ..Ros2Settings::default()
-    };
+    });
+}
+
+/// The same when the listener delivers (`deliver_on_receive_thread`): a listener reached
+/// from inside another listener on the same thread must only signal.
+#[test]
+fn links_delivering_in_their_listeners_and_answering_there_do_not_deadlock() {
+    ping_pong(Ros2Settings {
+        domain_id: 82,
+        namespace: format!("/answer_listener_{}", std::process::id()),
+        dds: Backend::Cyclone,
+        deliver_on_receive_thread: true,
+        ..Ros2Settings::default()
+    });
+}
+
+fn ping_pong(settings: Ros2Settings) {
     let names = vec![(SystemId(1), "A".into()), (SystemId(2), "B".into())];
     let last = 400;
     let echo = |to| {

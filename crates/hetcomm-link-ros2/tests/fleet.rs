@@ -60,6 +60,7 @@ fn the_keys_parse_into_settings_and_their_mistakes_are_located() {
             same_host: false,
             connect_timeout_ms: 300,
             dds: Backend::RustDds,
+            deliver_on_receive_thread: false,
         })
     );
     let defaults = hetcomm::parse_fleet(&fleet_text(""), "r.toml", None).expect("valid");
@@ -100,16 +101,27 @@ fn the_keys_parse_into_settings_and_their_mistakes_are_located() {
         e.starts_with("r.toml:8:7: unknown DDS implementation `fastdds`"),
         "{e}"
     );
+    assert_eq!(
+        errors("deliver_on_receive_thread = true"),
+        "r.toml:8:29: `deliver_on_receive_thread` needs `dds = \"cyclone\"` (rustdds has no \
+         receive thread that could deliver)\n  help: add `dds = \"cyclone\"` to this transport, \
+         or remove the key"
+    );
     if cfg!(feature = "cyclone") {
-        let fleet = hetcomm::parse_fleet(&fleet_text("dds = \"cyclone\""), "r.toml", None);
+        let fleet = hetcomm::parse_fleet(
+            &fleet_text("dds = \"cyclone\"\ndeliver_on_receive_thread = true"),
+            "r.toml",
+            None,
+        );
         let hetcomm::config::TransportSettings::Registered(s) =
             &fleet.expect("valid").transports[0].settings
         else {
             panic!("registered settings expected");
         };
+        let s = s.downcast_ref::<Ros2Settings>().unwrap();
         assert_eq!(
-            s.downcast_ref::<Ros2Settings>().unwrap().dds,
-            Backend::Cyclone
+            (s.dds, s.deliver_on_receive_thread),
+            (Backend::Cyclone, true)
         );
     } else {
         assert_eq!(

@@ -512,6 +512,31 @@ impl Module {
         self.core.inbox.set_spin(spin);
     }
 
+    /// Runs this module's callbacks ([`Module::on`], [`Module::on_any`], [`Module::on_raw`])
+    /// at the delivery, on the thread that delivers the message, instead of on the module's
+    /// callback thread: a reply sent from the callback then leaves without any thread
+    /// hand-off — the structure of DDS listeners and of `ddsperf`'s ping–pong. The delivering
+    /// thread is the link's: a UDP or TCP link's reader (the module or background thread
+    /// reading the sockets, or a connection's reader thread), Cyclone DDS's receive thread on
+    /// a `ros2` transport with `deliver_on_receive_thread = true` (docs/ros2.md), the
+    /// sender's own thread for an in-process sender.
+    ///
+    /// What an inline callback must respect: it delays every frame behind it on that link,
+    /// so it must be short and must not wait (for a message, a lock another callback holds,
+    /// a full inbox); callbacks of one module may run at the same time on different
+    /// delivering threads (no arrival order across links). Sends from it are fine; a message
+    /// a send delivers on the same thread (an in-process destination) to a module with inline
+    /// callbacks goes to that module's callback thread instead of nesting a second callback.
+    /// A panicking callback is caught and counted in [`crate::SystemStats::callback_failures`],
+    /// as on the callback thread. Set it before messages for the callbacks arrive: messages
+    /// already queued for the callback thread are still run there. Under simulation
+    /// callbacks are always inline.
+    pub fn set_inline_callbacks(&self, inline: bool) {
+        self.core
+            .inline_requested
+            .store(inline, std::sync::atomic::Ordering::Release);
+    }
+
     /// Messages waiting.
     pub fn pending(&self) -> usize {
         self.core.inbox.len()

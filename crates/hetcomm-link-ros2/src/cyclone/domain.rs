@@ -160,11 +160,19 @@ impl Qos {
     /// as congested) while its unacknowledged bytes are over its high watermark, where a
     /// KeepLast writer would drop the oldest unacknowledged samples without telling anyone.
     /// History is not matched between writers and readers, so peers see no difference.
+    ///
+    /// With `deliver_on_receive_thread` the writers never block (`max_blocking_time` 0): a
+    /// write on Cyclone's receive thread must not wait for acknowledgements only that thread
+    /// reads; the link waits itself on other threads (see the module docs of `cyclone`).
     pub fn writer(settings: &Ros2Settings) -> Qos {
         Self::new(settings, settings.reliability == Reliability::Reliable)
     }
 
     fn new(settings: &Ros2Settings, keep_all: bool) -> Qos {
+        let max_blocking_ns = match keep_all && settings.deliver_on_receive_thread {
+            true => 0,
+            false => 100_000_000,
+        };
         // SAFETY: plain QoS calls on a fresh QoS object.
         unsafe {
             let q = dds_create_qos();
@@ -172,7 +180,7 @@ impl Qos {
                 Reliability::Reliable => dds_qset_reliability(
                     q,
                     dds_reliability_kind_DDS_RELIABILITY_RELIABLE,
-                    100_000_000,
+                    max_blocking_ns,
                 ),
                 Reliability::BestEffort => {
                     dds_qset_reliability(q, dds_reliability_kind_DDS_RELIABILITY_BEST_EFFORT, 0)

@@ -10,18 +10,26 @@
 //!   the reader is next drained). Whoever drives the link ([`Link::readable`], on a link
 //!   opened with [`open_driven`](CycloneLink::open_driven) as the runtime opens it) or, with
 //!   [`open`](CycloneLink::open), a thread of the link's own then takes every sample and
-//!   hands the frames to the sink. Frames are not delivered on the receive thread itself,
-//!   although that saves a few microseconds: the router answers from inside a delivery
-//!   (acknowledgements), and a reliable write that Cyclone throttles waits for
-//!   acknowledgements that only the receive thread can read — from the receive thread, such
-//!   a write timed out; nor could an answer to a reader of the same process be written there
-//!   (Cyclone delivers to it on the writing thread, re-entering a listener it waits for).
+//!   hands the frames to the sink.
+//! * **Delivering on the receive thread** (`deliver_on_receive_thread = true`): the listener
+//!   takes the samples and hands the frames to the sink itself, on Cyclone's receive thread,
+//!   so a module with inline callbacks answers there without any thread hand-off (as
+//!   `ddsperf`'s listener mode does). Two things make that safe. A write made on that thread
+//!   never waits: the writers' `max_blocking_time` is 0, so a write Cyclone would throttle
+//!   (unacknowledged bytes over its high watermark) fails at once as congested instead of
+//!   waiting for acknowledgements that only this very thread could read (writes from other
+//!   threads still wait, up to 100 ms, by waiting for the acknowledgements and trying
+//!   again). And a listener reached from inside another listener on the same thread (a
+//!   write to a reader of this process, which Cyclone delivers on the writing thread) only
+//!   signals, as the default mode does: delivering there could answer back into the first
+//!   listener, which Cyclone would wait for forever.
 //! * **Losses**: what Cyclone DDS reports as lost or rejected on the reader (sample lost /
 //!   sample rejected statuses) is counted in [`LinkStats::frames_dropped`], with samples that
 //!   are not frames. A KeepLast reader history that overflows before it is read drops its
 //!   oldest samples without any status (DDS has none for it): keep `history_depth` above
 //!   what a reader can fall behind, or use acknowledged delivery.
 
+mod backlog;
 mod domain;
 mod notify;
 
@@ -42,12 +50,21 @@ use crate::msg::FRAME_TYPE;
 use crate::names;
 use crate::settings::Ros2Settings;
 use domain::{blob_topic, dds_err, Participant, Qos};
+use backlog::Backlog;
 use notify::Notifier;
 
 pub use domain::config;
 
 /// Samples taken from the reader per call.
 const BATCH: usize = 32;
+
+/// How long a write from a thread other than a listener's waits for a throttled writer.
+const WRITE_BLOCKING: Duration = Duration::from_millis(100);
+
+thread_local! {
+    /// Set while this thread runs one of our listeners (see the module docs).
+    static IN_LISTENER: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
 
 /// One destination: its topic and writer.
 struct Dest {
@@ -74,6 +91,8 @@ struct Shared {
     sink: Arc<dyn FrameSink>,
     /// One reader at a time: samples are taken and delivered in order.
     reading: Mutex<()>,
+    /// The listener delivers (`deliver_on_receive_thread`).
+    deliver_in_listener: bool,
 }
 
 /// A `ros2` link on Cyclone DDS: frames as `std_msgs/msg/UInt8MultiArray` on
@@ -83,12 +102,19 @@ pub struct CycloneLink {
     // which use `shared`.
     _participant: Participant,
     topic: String,
-    dests: HashMap<SystemId, Dest>,
+    dests: Arc<HashMap<SystemId, Dest>>,
     connect_timeout: Duration,
     shared: Arc<Shared>,
     /// Takes what the listener left, on a link opened with [`open`](CycloneLink::open).
     receiver: Option<JoinHandle<()>>,
     driven: bool,
+    /// The writers' `max_blocking_time` is 0 (`deliver_on_receive_thread`): a throttled
+    /// write returns at once, and [`CycloneLink::write`] does the waiting off listeners.
+    nonblocking_writers: bool,
+    /// Frames a listener's thread could not write at once (`deliver_on_receive_thread`).
+    backlog: Option<Arc<Backlog>>,
+    /// Writes the backlog's frames, waiting as long as a blocking writer would.
+    backlog_writer: Option<JoinHandle<()>>,
 }
 
 impl CycloneLink {
@@ -160,6 +186,7 @@ impl CycloneLink {
             closed: AtomicBool::new(false),
             sink,
             reading: Mutex::new(()),
+            deliver_in_listener: settings.deliver_on_receive_thread,
         });
         // SAFETY: the listener's argument is `shared`, which outlives the reader (the
         // participant, deleted first when the link drops, takes the reader with it and waits
@@ -193,6 +220,19 @@ impl CycloneLink {
                 Some(thread)
             }
         };
+        let dests = Arc::new(dests);
+        let (backlog, backlog_writer) = match settings.deliver_on_receive_thread {
+            false => (None, None),
+            true => {
+                let backlog = Arc::new(Backlog::default());
+                let (queue, dests, shared) = (backlog.clone(), dests.clone(), shared.clone());
+                let thread = std::thread::Builder::new()
+                    .name(format!("hetcomm-cyclone-backlog-{}", own.1))
+                    .spawn(move || write_backlog(&queue, &dests, &shared))
+                    .map_err(io_err)?;
+                (Some(backlog), Some(thread))
+            }
+        };
         Ok(CycloneLink {
             _participant: participant,
             topic: own_topic,
@@ -201,6 +241,9 @@ impl CycloneLink {
             shared,
             receiver,
             driven,
+            nonblocking_writers: settings.deliver_on_receive_thread,
+            backlog,
+            backlog_writer,
         })
     }
 
@@ -279,34 +322,19 @@ impl CycloneLink {
         if Self::matched(dest) == 0 {
             self.wait_matched(to, dest)?;
         }
-        let (header, pad) = frame_cdr::header(len);
-        let iov = |b: &[u8]| ddsrt_iovec_t {
-            iov_base: b.as_ptr() as *mut _,
-            iov_len: b.len(),
-        };
-        let mut iovs = Vec::with_capacity(parts.len() + 2);
-        iovs.push(iov(&header));
-        iovs.extend(parts.iter().filter(|p| !p.is_empty()).map(|p| iov(p)));
-        iovs.push(iov(&frame_cdr::PADDING[..pad]));
-        let size = header.len() + len + pad;
-        // SAFETY: the writer is live; its sertype is the blob type, whose from_ser_iov copies
-        // the vectors (which outlive the call) into a sample of `size` bytes; dds_writecdr
-        // takes over the sample's reference.
-        let rc = unsafe {
-            let mut sertype: *const ddsi_sertype = std::ptr::null();
-            let rc = dds_get_entity_sertype(dest.writer, &mut sertype);
-            if rc < 0 {
-                rc
-            } else {
-                let sample = ddsi_serdata_from_ser_iov(
-                    sertype,
-                    ddsi_serdata_kind_SDK_DATA,
-                    iovs.len(),
-                    iovs.as_ptr(),
-                    size,
-                );
-                dds_writecdr(dest.writer, sample)
-            }
+        let rc = match IN_LISTENER.with(|c| c.get()) {
+            false if self.nonblocking_writers => write_waiting(dest, parts, WRITE_BLOCKING),
+            false => write_sample(dest, parts),
+            // On a listener's thread: never wait; what cannot go now (or must stay behind
+            // frames that could not) goes to the backlog thread.
+            true => match &self.backlog {
+                Some(backlog) if !backlog.is_empty() => backlog_push(backlog, to, parts),
+                Some(backlog) => match write_sample(dest, parts) {
+                    DDS_RETCODE_TIMEOUT => backlog_push(backlog, to, parts),
+                    rc => rc,
+                },
+                None => write_sample(dest, parts),
+            },
         };
         match rc {
             rc if rc >= 0 => {
@@ -331,6 +359,78 @@ impl CycloneLink {
     }
 }
 
+/// Writes one sample made of `parts` (a frame's pieces, with the CDR header in front) on
+/// `dest`'s writer; Cyclone's return code.
+fn write_sample(dest: &Dest, parts: &[&[u8]]) -> dds_return_t {
+    let len: usize = parts.iter().map(|p| p.len()).sum();
+    let (header, pad) = frame_cdr::header(len);
+    let iov = |b: &[u8]| ddsrt_iovec_t {
+        iov_base: b.as_ptr() as *mut _,
+        iov_len: b.len(),
+    };
+    let mut iovs = Vec::with_capacity(parts.len() + 2);
+    iovs.push(iov(&header));
+    iovs.extend(parts.iter().filter(|p| !p.is_empty()).map(|p| iov(p)));
+    iovs.push(iov(&frame_cdr::PADDING[..pad]));
+    let size = header.len() + len + pad;
+    // SAFETY: the writer is live; its sertype is the blob type, whose from_ser_iov copies
+    // the vectors (which outlive the call) into a sample of `size` bytes; dds_writecdr
+    // takes over the sample's reference (also when the write fails).
+    unsafe {
+        let mut sertype: *const ddsi_sertype = std::ptr::null();
+        let rc = dds_get_entity_sertype(dest.writer, &mut sertype);
+        if rc < 0 {
+            return rc;
+        }
+        let sample = ddsi_serdata_from_ser_iov(
+            sertype,
+            ddsi_serdata_kind_SDK_DATA,
+            iovs.len(),
+            iovs.as_ptr(),
+            size,
+        );
+        dds_writecdr(dest.writer, sample)
+    }
+}
+
+/// [`write_sample`] on a writer that never blocks, waiting up to `limit` as a blocking one
+/// would: while Cyclone throttles the writer, for its acknowledgements (read by Cyclone's
+/// receive thread), then again. Not for a listener's thread.
+fn write_waiting(dest: &Dest, parts: &[&[u8]], limit: Duration) -> dds_return_t {
+    let mut rc = write_sample(dest, parts);
+    let deadline = Instant::now() + limit;
+    while rc == DDS_RETCODE_TIMEOUT && Instant::now() < deadline {
+        // SAFETY: a live writer; waits at most 1 ms.
+        unsafe { dds_wait_for_acks(dest.writer, 1_000_000) };
+        rc = write_sample(dest, parts);
+    }
+    rc
+}
+
+/// Queues a frame a listener's thread could not write: OK, or TIMEOUT (reported as
+/// congested) when the backlog is full.
+fn backlog_push(backlog: &Backlog, to: SystemId, parts: &[&[u8]]) -> dds_return_t {
+    match backlog.push(to, parts) {
+        true => DDS_RETCODE_OK as dds_return_t,
+        false => DDS_RETCODE_TIMEOUT,
+    }
+}
+
+/// The backlog thread: writes queued frames in order, each waiting up to a second for a
+/// throttled writer; a frame that still cannot go is counted as dropped (the router
+/// retransmits an acknowledged send's frame).
+fn write_backlog(backlog: &Backlog, dests: &HashMap<SystemId, Dest>, shared: &Shared) {
+    while let Some((to, frame)) = backlog.pop() {
+        let rc = match dests.get(&to) {
+            Some(dest) => write_waiting(dest, &[&frame], Duration::from_secs(1)),
+            None => DDS_RETCODE_BAD_PARAMETER as dds_return_t,
+        };
+        if rc < 0 {
+            shared.counters.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
 impl Shared {
     /// Takes every sample in the reader and hands the frames to the sink; returns how many.
     /// Another thread taking already: returns 0 (it re-armed the notifier before it took, so
@@ -339,7 +439,12 @@ impl Shared {
         let _reading = match self.reading.try_lock() {
             Ok(guard) => guard,
             Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return 0,
+            Err(std::sync::TryLockError::WouldBlock) => {
+                // The other reader may have made its last take already: make sure whoever
+                // drives the link looks again.
+                self.notifier.signal();
+                return 0;
+            }
         };
         // Re-armed before taking: a sample stored after this signals again.
         self.notifier.rearm();
@@ -410,7 +515,14 @@ impl Shared {
 unsafe extern "C" fn on_data_available(_reader: dds_entity_t, arg: *mut std::ffi::c_void) {
     // SAFETY: `arg` is the link's `Shared`, alive as long as the reader.
     let shared = unsafe { &*(arg as *const Shared) };
-    shared.notifier.signal();
+    if !shared.deliver_in_listener || IN_LISTENER.with(|c| c.get()) {
+        shared.notifier.signal();
+        return;
+    }
+    IN_LISTENER.with(|c| c.set(true));
+    // A panic must not unwind into C; a sink that panicked loses only that call's frames.
+    let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| shared.read()));
+    IN_LISTENER.with(|c| c.set(false));
 }
 
 impl Readable for Shared {
@@ -453,6 +565,7 @@ impl Link for CycloneLink {
             frames_sent: c.sent.load(Ordering::Relaxed),
             frames_received: c.received.load(Ordering::Relaxed),
             frames_dropped: c.dropped.load(Ordering::Relaxed) + self.lost(),
+            buffered_bytes: self.backlog.as_ref().map_or(0, |b| b.bytes() as u64),
             ..LinkStats::default()
         }
     }
@@ -461,6 +574,16 @@ impl Link for CycloneLink {
 impl Drop for CycloneLink {
     fn drop(&mut self) {
         self.shared.closed.store(true, Ordering::Relaxed);
+        if let Some(backlog) = &self.backlog {
+            let unsent = backlog.close() as u64;
+            self.shared
+                .counters
+                .dropped
+                .fetch_add(unsent, Ordering::Relaxed);
+        }
+        if let Some(t) = self.backlog_writer.take() {
+            let _ = t.join();
+        }
         if let Some(t) = self.receiver.take() {
             let _ = t.join();
         }

@@ -292,10 +292,13 @@ impl SystemCore {
             received_at: now,
         };
         let wants_callback = module.wants_callback(header.message_type);
-        if wants_callback && module.inline_callbacks {
-            module.run_callback(&self.directory, entry);
-            return AckStatus::Delivered;
-        }
+        let entry = match wants_callback {
+            true => match module.run_inline(&self.directory, entry) {
+                None => return AckStatus::Delivered,
+                Some(entry) => entry,
+            },
+            false => entry,
+        };
         let inbox = if wants_callback {
             &module.callback_inbox
         } else {

@@ -150,6 +150,10 @@ pub(crate) struct ModuleCore {
     /// Under simulation callbacks run on the simulator's thread, at the delivery, so runs are
     /// repeatable; otherwise on the module's callback thread.
     inline_callbacks: bool,
+    /// The module asked for its callbacks at the delivery ([`crate::Module::set_inline_callbacks`]);
+    /// one delivered while this thread already runs an inline callback still goes to the
+    /// callback thread (an in-process ping–pong would otherwise recurse without end).
+    pub(crate) inline_requested: AtomicBool,
     dispatcher: Mutex<Option<JoinHandle<()>>>,
     /// Callback invocations that panicked or failed to decode.
     pub callback_failures: AtomicU64,
@@ -169,6 +173,7 @@ impl ModuleCore {
             callback_any: RwLock::new(None),
             has_callbacks: AtomicBool::new(false),
             inline_callbacks: false,
+            inline_requested: AtomicBool::new(false),
             dispatcher: Mutex::new(None),
             callback_failures: AtomicU64::new(0),
             leading: AtomicBool::new(false),
@@ -228,6 +233,22 @@ impl ModuleCore {
         }
     }
 
+    /// Runs the callback for `entry` here and now if this module's callbacks are inline;
+    /// gives the entry back otherwise (for the callback thread).
+    pub(crate) fn run_inline(&self, directory: &Directory, entry: Entry) -> Option<Entry> {
+        if self.inline_callbacks {
+            self.run_callback(directory, entry);
+            return None;
+        }
+        if !self.inline_requested.load(Ordering::Acquire) || IN_INLINE_CALLBACK.with(std::cell::Cell::get) {
+            return Some(entry);
+        }
+        IN_INLINE_CALLBACK.with(|c| c.set(true));
+        self.run_callback(directory, entry);
+        IN_INLINE_CALLBACK.with(|c| c.set(false));
+        None
+    }
+
     fn close(&self) {
         self.inbox.close();
         self.callback_inbox.close();
@@ -269,6 +290,11 @@ fn join_unless_current(slot: &Mutex<Option<JoinHandle<()>>>) {
             let _ = h.join();
         }
     }
+}
+
+thread_local! {
+    /// Set while this thread runs a callback inline ([`ModuleCore::run_inline`]).
+    static IN_INLINE_CALLBACK: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
 fn dispatch_callbacks(module: Weak<ModuleCore>, directory: Arc<Directory>) {
