@@ -192,6 +192,22 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
             let _ = stream.set_nodelay(true);
             tcp_role(stream, role.ends_with("echo"))
         }
+        "hc-echo-inline" => {
+            // Echoes from inline callbacks, on the thread that delivers each message.
+            let fleet: PathBuf = arg(args, 1, "fleet file")?;
+            let comm = hetcomm::Comm::open(&fleet, "B").map_err(|e| e.to_string())?;
+            let m = comm.module("M").map_err(|e| e.to_string())?;
+            let sender = comm.module("M").map_err(|e| e.to_string())?;
+            m.set_inline_callbacks(true);
+            m.on_any(move |msg| {
+                let _ = sender.send_raw("A", "M", DATA, &msg.payload, Default::default());
+            });
+            say("ready");
+            while !closed.load(Ordering::SeqCst) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Ok(())
+        }
         "hc-echo" | "hc-echo-spin" | "hc-sink" => {
             let fleet: PathBuf = arg(args, 1, "fleet file")?;
             let comm = hetcomm::Comm::open(&fleet, "B").map_err(|e| e.to_string())?;

@@ -198,19 +198,7 @@ pub(crate) fn round_trips(
 ) -> Result<Latency, String> {
     let msg = vec![7u8; size];
     let mut rec = Recorder::new();
-    // Probe until the echo comes back (links may still be connecting).
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        m.send_raw("B", "M", DATA, &msg, Default::default())
-            .map_err(|e| e.to_string())?;
-        if m.recv_raw_timeout(Some(Duration::from_millis(200))).is_ok() {
-            break;
-        }
-        if Instant::now() > deadline {
-            return Err("no echo within 20 s".into());
-        }
-    }
-    while m.try_recv_raw().is_some() {}
+    probe_echo(m, &msg)?;
     for i in 0..warmup + iters {
         let t = Instant::now();
         m.send_raw("B", "M", DATA, &msg, Default::default())
@@ -228,6 +216,93 @@ pub(crate) fn round_trips(
         }
     }
     Ok(rec.summary())
+}
+
+/// [`round_trips`] the way `ddsperf` measures in its listener mode: once the echo answers,
+/// `m`'s callbacks run inline ([`Module::set_inline_callbacks`]) and each reply's callback,
+/// on the thread that delivered it, records the round trip and sends the next ping; this
+/// thread only waits for the end. The peer must echo from inline callbacks too.
+pub(crate) fn round_trips_inline(
+    comm: &Comm,
+    m: &Module,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+) -> Result<Latency, String> {
+    let msg = vec![7u8; size];
+    probe_echo(m, &msg)?;
+    struct Run {
+        rec: Recorder,
+        sent_at: Instant,
+        done: u64,
+        /// Taken when the run ends: the callback holds the system open while it has one.
+        sender: Option<Module>,
+    }
+    let total = warmup + iters;
+    let run = Arc::new((
+        std::sync::Mutex::new(Run {
+            rec: Recorder::new(),
+            sent_at: Instant::now(),
+            done: 0,
+            sender: Some(comm.module("M").map_err(|e| e.to_string())?),
+        }),
+        std::sync::Condvar::new(),
+    ));
+    m.set_inline_callbacks(true);
+    let cb = run.clone();
+    m.on_any(move |_reply| {
+        let now = Instant::now();
+        let (lock, ended) = &*cb;
+        let mut r = lock.lock().unwrap_or_else(|e| e.into_inner());
+        if r.done >= warmup {
+            let rtt = now - r.sent_at;
+            r.rec.record(rtt);
+        }
+        r.done += 1;
+        if r.done >= total {
+            r.sender = None;
+            ended.notify_all();
+            return;
+        }
+        r.sent_at = Instant::now();
+        if let Some(sender) = &r.sender {
+            let _ = sender.send_raw("B", "M", DATA, &msg, Default::default());
+        }
+    });
+    let (lock, ended) = &*run;
+    let mut r = lock.lock().unwrap_or_else(|e| e.into_inner());
+    r.sent_at = Instant::now();
+    m.send_raw("B", "M", DATA, &vec![7u8; size], Default::default())
+        .map_err(|e| e.to_string())?;
+    // No retries here (unlike `round_trips`): a lost ping or pong ends the chain.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while r.done < total {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            let done = r.done;
+            r.sender = None;
+            return Err(format!("the ping–pong chain stopped after {done} of {total}"));
+        }
+        r = ended.wait_timeout(r, left).unwrap_or_else(|e| e.into_inner()).0;
+    }
+    Ok(r.rec.summary())
+}
+
+/// Sends `msg` until the echo comes back (links may still be connecting), then drains.
+fn probe_echo(m: &Module, msg: &[u8]) -> Result<(), String> {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        m.send_raw("B", "M", DATA, msg, Default::default())
+            .map_err(|e| e.to_string())?;
+        if m.recv_raw_timeout(Some(Duration::from_millis(200))).is_ok() {
+            break;
+        }
+        if Instant::now() > deadline {
+            return Err("no echo within 20 s".into());
+        }
+    }
+    while m.try_recv_raw().is_some() {}
+    Ok(())
 }
 
 /// Ping-pong round trips between two processes (udp, tcp) or two threads (inproc).

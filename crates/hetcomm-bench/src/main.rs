@@ -393,23 +393,38 @@ fn run(o: &Options) -> Vec<Row> {
                     rows.push(lat_row("rtt", path, size, r));
                 }
             }
+            // ddsperf and the Cyclone DDS rows interleaved, several rounds, each row the
+            // round with the median p50: the VM's wake-up cost changes by 4× from one minute
+            // to the next, and a ratio must compare rows measured in the same stretch.
+            let mut dds_paths: Vec<(String, Run<stats::Latency>)> = Vec::new();
             if dds && o.path_wanted("cyclone-ddsperf") {
-                log(o.quick, &format!("rtt cyclone-ddsperf {size} B"));
-                rows.push(lat_row(
-                    "rtt",
-                    "cyclone-ddsperf",
-                    size,
-                    ext::ddsperf_rtt(size, p.dds_seconds),
-                ));
+                let secs = p.dds_seconds;
+                let run: Run<stats::Latency> = Box::new(move || ext::ddsperf_rtt(size, secs));
+                dds_paths.push(("cyclone-ddsperf".to_string(), run));
             }
             #[cfg(feature = "ros2-cyclone")]
             for (path, acked, spin) in ros2cyclone::PATHS {
                 // The spinning row at 64 B only.
                 if o.path_wanted(path) && (!spin || size == 64) {
-                    log(o.quick, &format!("rtt {path} {size} B"));
-                    let r = ros2cyclone::rtt(acked, spin, size, warmup, iters);
-                    rows.push(lat_row("rtt", path, size, r));
+                    let run: Run<stats::Latency> =
+                        Box::new(move || ros2cyclone::rtt(acked, spin, size, warmup, iters));
+                    dds_paths.push((path.to_string(), run));
                 }
+            }
+            #[cfg(feature = "ros2-cyclone")]
+            if o.path_wanted(ros2cyclone::INLINE_PATH) {
+                let run: Run<stats::Latency> =
+                    Box::new(move || ros2cyclone::rtt_inline(size, warmup, iters));
+                dds_paths.push((ros2cyclone::INLINE_PATH.to_string(), run));
+            }
+            for (name, r) in interleaved(
+                o.quick,
+                &format!("rtt {size} B"),
+                dds_paths,
+                rounds,
+                |l| l.p50,
+            ) {
+                rows.push(lat_row("rtt", &name, size, r));
             }
         }
     }

@@ -105,6 +105,22 @@ pub(crate) fn rtt_on(
     result
 }
 
+/// [`rtt_on`] with inline callbacks at both ends ([`crate::hc::round_trips_inline`]).
+pub(crate) fn rtt_inline_on(
+    fleet: &str,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+) -> Result<Latency, String> {
+    let (_dir, peer, comm) = open("echo-inline", fleet)?;
+    let m = comm.module("M").map_err(|e| e.to_string())?;
+    let result = crate::hc::round_trips_inline(&comm, &m, size, warmup, iters);
+    drop(m);
+    drop(comm);
+    peer.finish(Duration::from_secs(3));
+    result
+}
+
 /// One-way: A sends as fast as `send_raw` returns for `duration`; the peer counts.
 pub fn oneway(size: usize, duration: Duration) -> Result<Throughput, String> {
     oneway_on(&fleet_text(false), size, duration)

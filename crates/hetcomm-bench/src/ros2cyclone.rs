@@ -17,9 +17,16 @@ pub const PATHS: [(&str, bool, bool); 3] = [
     ("hetcomm-ros2cyclone-unack-spin", false, true),
 ];
 
+/// The round-trip row measured the way `ddsperf` measures: frames delivered on Cyclone
+/// DDS's receive thread (`deliver_on_receive_thread = true`) to modules whose callbacks run
+/// inline ([`hetcomm::Module::set_inline_callbacks`]), which answer there — as ddsperf's
+/// ping and pong answer inside their listeners.
+pub const INLINE_PATH: &str = "hetcomm-ros2cyclone-unack-inline";
+
 /// Systems A and B on one `ros2` transport on Cyclone DDS, on a domain and namespace of
-/// their own (so concurrent runs, and the rustdds rows, do not meet).
-fn fleet_text(acked: bool) -> String {
+/// their own (so concurrent runs, and the rustdds rows, do not meet); with `listener`,
+/// delivering on Cyclone's receive thread.
+fn fleet_text(acked: bool, listener: bool) -> String {
     let domain = 100 + (std::process::id() + 50) % 100;
     format!(
         r#"[systems]
@@ -34,6 +41,7 @@ block_timeout_ms = 1000
 [transports.t]
 kind = "ros2"
 dds = "cyclone"
+deliver_on_receive_thread = {listener}
 delivery = "{}"
 security = "none"
 domain_id = {domain}
@@ -61,11 +69,16 @@ pub fn rtt(
     warmup: u64,
     iters: u64,
 ) -> Result<Latency, String> {
-    crate::ros2::rtt_on(&fleet_text(acked), size, warmup, iters, spin)
+    crate::ros2::rtt_on(&fleet_text(acked, false), size, warmup, iters, spin)
+}
+
+/// Ping-pong round trips of [`INLINE_PATH`], unacknowledged.
+pub fn rtt_inline(size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    crate::ros2::rtt_inline_on(&fleet_text(false, true), size, warmup, iters)
 }
 
 /// One-way, unacknowledged: A sends as fast as `send_raw` returns for `duration`; the peer
 /// counts what arrives.
 pub fn oneway(size: usize, duration: Duration) -> Result<Throughput, String> {
-    crate::ros2::oneway_on(&fleet_text(false), size, duration)
+    crate::ros2::oneway_on(&fleet_text(false, false), size, duration)
 }
