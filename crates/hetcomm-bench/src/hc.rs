@@ -281,9 +281,14 @@ pub(crate) fn round_trips_inline(
         if left.is_zero() {
             let done = r.done;
             r.sender = None;
-            return Err(format!("the ping–pong chain stopped after {done} of {total}"));
+            return Err(format!(
+                "the ping–pong chain stopped after {done} of {total}"
+            ));
         }
-        r = ended.wait_timeout(r, left).unwrap_or_else(|e| e.into_inner()).0;
+        r = ended
+            .wait_timeout(r, left)
+            .unwrap_or_else(|e| e.into_inner())
+            .0;
     }
     Ok(r.rec.summary())
 }

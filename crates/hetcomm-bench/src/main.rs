@@ -417,13 +417,11 @@ fn run(o: &Options) -> Vec<Row> {
                     Box::new(move || ros2cyclone::rtt_inline(size, warmup, iters));
                 dds_paths.push((ros2cyclone::INLINE_PATH.to_string(), run));
             }
-            for (name, r) in interleaved(
-                o.quick,
-                &format!("rtt {size} B"),
-                dds_paths,
-                rounds,
-                |l| l.p50,
-            ) {
+            for (name, r) in
+                interleaved(o.quick, &format!("rtt {size} B"), dds_paths, rounds, |l| {
+                    l.p50
+                })
+            {
                 rows.push(lat_row("rtt", &name, size, r));
             }
         }

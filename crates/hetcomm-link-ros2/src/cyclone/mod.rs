@@ -49,8 +49,8 @@ use crate::link::{OpenError, MAX_FRAME};
 use crate::msg::FRAME_TYPE;
 use crate::names;
 use crate::settings::Ros2Settings;
-use domain::{blob_topic, dds_err, Participant, Qos};
 use backlog::Backlog;
+use domain::{blob_topic, dds_err, Participant, Qos};
 use notify::Notifier;
 
 pub use domain::config;

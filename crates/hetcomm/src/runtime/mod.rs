@@ -240,7 +240,9 @@ impl ModuleCore {
             self.run_callback(directory, entry);
             return None;
         }
-        if !self.inline_requested.load(Ordering::Acquire) || IN_INLINE_CALLBACK.with(std::cell::Cell::get) {
+        if !self.inline_requested.load(Ordering::Acquire)
+            || IN_INLINE_CALLBACK.with(std::cell::Cell::get)
+        {
             return Some(entry);
         }
         IN_INLINE_CALLBACK.with(|c| c.set(true));
