@@ -37,7 +37,7 @@ dds = "cyclone"
 deliver_on_receive_thread = true
 delivery = "acknowledged"
 security = "none"
-domain_id = 79
+domain_id = 84
 namespace = "/rx_thread_{}"
 [table]
 columns = ["A", "B"]
