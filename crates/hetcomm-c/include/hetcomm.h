@@ -475,6 +475,18 @@ enum hetcomm_status hetcomm_module_on_any(const struct hetcomm_module *module,
 enum hetcomm_status hetcomm_module_set_wait_spin(const struct hetcomm_module *module,
                                                  uint64_t spin_us);
 
+// With `inline` true, this module's callbacks run at the delivery, on the thread that
+// delivers the message (the sender's thread for an in-process link, a link's reader thread,
+// Cyclone DDS's receive thread with `deliver_on_receive_thread`), instead of the module's
+// callback thread (the Rust `Module::set_inline_callbacks`): a reply sent from the callback
+// leaves without a thread hand-off. Such a callback must be short and must not wait, and
+// callbacks may then run on several threads at once.
+//
+// # Safety
+// `module` is NULL or a live handle.
+enum hetcomm_status hetcomm_module_set_inline_callbacks(const struct hetcomm_module *module,
+                                                        bool inline_);
+
 // Fills `*out` with this module's inbox counters.
 //
 // # Safety

@@ -458,6 +458,12 @@ public:
     void set_wait_spin(std::chrono::microseconds spin) const {
         detail::check(hetcomm_module_set_wait_spin(h(), static_cast<std::uint64_t>(spin.count())));
     }
+    /// Runs this module's callbacks on the thread that delivers each message (a link's
+    /// reader, the sender's thread in process) instead of its callback thread: short
+    /// callbacks that must not wait, possibly on several threads at once.
+    void set_inline_callbacks(bool inline_callbacks) const {
+        detail::check(hetcomm_module_set_inline_callbacks(h(), inline_callbacks));
+    }
     /// This module's inbox counters.
     hetcomm_inbox_stats inbox_stats() const {
         hetcomm_inbox_stats s;

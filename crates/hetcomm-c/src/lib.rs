@@ -59,7 +59,8 @@ pub use module::{
     hetcomm_module_free, hetcomm_module_has_message, hetcomm_module_inbox_stats,
     hetcomm_module_name, hetcomm_module_next_type, hetcomm_module_on, hetcomm_module_on_any,
     hetcomm_module_pending, hetcomm_module_recv, hetcomm_module_recv_alloc,
-    hetcomm_module_recv_alloc_type, hetcomm_module_send, hetcomm_module_set_wait_spin,
+    hetcomm_module_recv_alloc_type, hetcomm_module_send, hetcomm_module_set_inline_callbacks,
+    hetcomm_module_set_wait_spin,
     HETCOMM_PRIORITY_NORMAL,
 };
 pub use ticket::{

@@ -602,6 +602,28 @@ pub unsafe extern "C" fn hetcomm_module_set_wait_spin(
     })
 }
 
+/// With `inline` true, this module's callbacks run at the delivery, on the thread that
+/// delivers the message (the sender's thread for an in-process link, a link's reader thread,
+/// Cyclone DDS's receive thread with `deliver_on_receive_thread`), instead of the module's
+/// callback thread (the Rust `Module::set_inline_callbacks`): a reply sent from the callback
+/// leaves without a thread hand-off. Such a callback must be short and must not wait, and
+/// callbacks may then run on several threads at once.
+///
+/// # Safety
+/// `module` is NULL or a live handle.
+#[no_mangle]
+pub unsafe extern "C" fn hetcomm_module_set_inline_callbacks(
+    module: *const hetcomm_module,
+    inline: bool,
+) -> hetcomm_status {
+    guard(|| {
+        // SAFETY: the caller's contract.
+        let m = unsafe { handle(module, "module")? };
+        m.module.set_inline_callbacks(inline);
+        Ok(())
+    })
+}
+
 /// Fills `*out` with this module's inbox counters.
 ///
 /// # Safety

@@ -346,6 +346,33 @@ static void test_callbacks(void) {
     close_fleet(&f); /* returns after the callback thread stopped: `seen` may go now */
 }
 
+static void on_inline(void *user, const hetcomm_envelope *env, const uint8_t *data, size_t len) {
+    Seen *s = user;
+    (void)env;
+    (void)data;
+    (void)len;
+    pthread_mutex_lock(&s->lock);
+    if (!pthread_equal(pthread_self(), s->main_thread)) s->same_thread = 0;
+    s->count++;
+    pthread_mutex_unlock(&s->lock);
+}
+
+static void test_inline_callbacks(void) {
+    /* In process, an inline callback runs on the sender's thread, before the send returns. */
+    Fleet f = open_inproc();
+    Seen seen = {.lock = PTHREAD_MUTEX_INITIALIZER, .same_thread = 1};
+    seen.main_thread = pthread_self();
+    EXPECT_ERR(hetcomm_module_set_inline_callbacks(NULL, true), HETCOMM_STATUS_INVALID_ARGUMENT, "`module` is NULL");
+    OK(hetcomm_module_set_inline_callbacks(f.act, true));
+    OK(hetcomm_module_on(f.act, 5, on_inline, &seen));
+    for (uint8_t i = 1; i <= 5; i++) OK(hetcomm_module_send(f.plan, "Charlie", "Act", 5, &i, 1, 100, NULL));
+    pthread_mutex_lock(&seen.lock);
+    CHECK(seen.count == 5);   /* already run: no callback thread in between */
+    CHECK(seen.same_thread);  /* on the caller's thread */
+    pthread_mutex_unlock(&seen.lock);
+    close_fleet(&f);
+}
+
 static void test_udp_outcomes(void) {
     /* Both systems of the UDP fleet in this process: acknowledged, delivered. */
     char *fleet = udp_fleet(free_udp_port(), free_udp_port(), "");
@@ -419,6 +446,7 @@ int main(int argc, char **argv) {
     test_open_errors();
     test_send_and_receive();
     test_callbacks();
+    test_inline_callbacks();
     test_udp_outcomes();
     free(template_text);
     printf("test_c_api: %d checks passed\n", checks);
