@@ -60,8 +60,7 @@ pub use module::{
     hetcomm_module_name, hetcomm_module_next_type, hetcomm_module_on, hetcomm_module_on_any,
     hetcomm_module_pending, hetcomm_module_recv, hetcomm_module_recv_alloc,
     hetcomm_module_recv_alloc_type, hetcomm_module_send, hetcomm_module_set_inline_callbacks,
-    hetcomm_module_set_wait_spin,
-    HETCOMM_PRIORITY_NORMAL,
+    hetcomm_module_set_wait_spin, HETCOMM_PRIORITY_NORMAL,
 };
 pub use ticket::{
     hetcomm_broadcast, hetcomm_broadcast_count, hetcomm_broadcast_free, hetcomm_broadcast_ticket,
