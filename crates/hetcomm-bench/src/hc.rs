@@ -222,6 +222,7 @@ pub(crate) fn round_trips(
 /// `m`'s callbacks run inline ([`Module::set_inline_callbacks`]) and each reply's callback,
 /// on the thread that delivered it, records the round trip and sends the next ping; this
 /// thread only waits for the end. The peer must echo from inline callbacks too.
+#[cfg(feature = "ros2-cyclone")]
 pub(crate) fn round_trips_inline(
     comm: &Comm,
     m: &Module,

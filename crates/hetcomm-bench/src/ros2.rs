@@ -106,6 +106,7 @@ pub(crate) fn rtt_on(
 }
 
 /// [`rtt_on`] with inline callbacks at both ends ([`crate::hc::round_trips_inline`]).
+#[cfg(feature = "ros2-cyclone")]
 pub(crate) fn rtt_inline_on(
     fleet: &str,
     size: usize,
