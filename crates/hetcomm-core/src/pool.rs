@@ -271,17 +271,17 @@ mod tests {
     #[test]
     fn a_bounded_take_leaves_larger_buffers_in_the_pool() {
         let pool = BufferPool::new(1 << 20);
-        drop(pool.wrap(Vec::with_capacity(100_000)));
         drop(pool.wrap(Vec::with_capacity(5000)));
+        drop(pool.wrap(Vec::with_capacity(100_000)));
         // The 100 000-byte buffer is too large for the bound: a new one, and both stay.
         let v = pool.take_within(20_000, 24_000);
         assert_eq!(v.capacity(), 20_000);
         assert_eq!(pool.kept_bytes(), 105_000);
-        // The 5000-byte one is the most recent and too small: freed.
-        drop(pool.take_within(20_000, 24_000));
-        assert_eq!(pool.kept_bytes(), 100_000);
         // The large one serves a request it fits.
         assert_eq!(pool.take_within(90_000, 120_000).capacity(), 100_000);
+        assert_eq!(pool.kept_bytes(), 5000);
+        // The 5000-byte one is now the most recent, and too small: freed.
+        assert_eq!(pool.take_within(20_000, 24_000).capacity(), 20_000);
         assert_eq!(pool.kept_bytes(), 0);
         drop(pool.wrap(v));
         assert_eq!(pool.take_within(19_000, 20_000).capacity(), 20_000);
