@@ -205,9 +205,9 @@ impl Reassembler {
 
     /// Takes the buffers of large messages (16 KiB and more) from `pool`, and gives those of
     /// messages dropped incomplete back to it: a completed frame's buffer goes back when
-    /// whoever it is handed to drops it (see [`BufferPool::wrap`]). The growth of a message's
-    /// buffer and what it is charged for are as without a pool (a pooled buffer is at most a
-    /// quarter larger than asked for, and charged for its capacity).
+    /// whoever it is handed to drops it (see [`BufferPool::wrap`]). A message's buffer grows
+    /// in the same steps as without a pool, each rounded up to 4 KiB; a pooled buffer may have
+    /// up to a quarter more room than that, and is charged for all of it.
     pub fn with_pool(mut self, pool: Arc<BufferPool>) -> Reassembler {
         self.pool = Some(pool);
         self
