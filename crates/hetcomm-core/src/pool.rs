@@ -59,6 +59,33 @@ impl BufferPool {
         Vec::with_capacity(len)
     }
 
+    /// Like [`take`](BufferPool::take), but never a buffer of more than `max_capacity`
+    /// bytes: for a caller that is charged for the capacity it holds (a reassembly buffer
+    /// counted against its limit), a much larger kept buffer would cost more than it asked
+    /// for. Kept buffers outside the range stay in the pool, except that the most recent is
+    /// freed when it is too small (as with `take`). A new buffer has room for exactly `len`.
+    pub fn take_within(&self, len: usize, max_capacity: usize) -> Vec<u8> {
+        let mut free = self.lock();
+        let fits = |b: &Vec<u8>| (len..=max_capacity).contains(&b.capacity());
+        let misfit = match free.bufs.iter().rposition(fits) {
+            Some(i) => {
+                let mut buf = free.bufs.swap_remove(i);
+                free.bytes -= buf.capacity();
+                drop(free);
+                buf.clear();
+                return buf;
+            }
+            None if free.bufs.last().is_some_and(|b| b.capacity() < len) => free.bufs.pop(),
+            None => None,
+        };
+        if let Some(small) = &misfit {
+            free.bytes -= small.capacity();
+        }
+        drop(free);
+        drop(misfit);
+        Vec::with_capacity(len)
+    }
+
     /// Wraps `buf` so that it comes back to this pool when dropped.
     pub fn wrap(self: &Arc<Self>, buf: Vec<u8>) -> FrameBuf {
         FrameBuf {
@@ -239,6 +266,25 @@ mod tests {
         // Larger ones serve smaller requests.
         drop(pool.wrap(big));
         assert!(pool.take(100).capacity() >= 5000);
+    }
+
+    #[test]
+    fn a_bounded_take_leaves_larger_buffers_in_the_pool() {
+        let pool = BufferPool::new(1 << 20);
+        drop(pool.wrap(Vec::with_capacity(5000)));
+        drop(pool.wrap(Vec::with_capacity(100_000)));
+        // The 100 000-byte buffer is too large for the bound: a new one, and both stay.
+        let v = pool.take_within(20_000, 24_000);
+        assert_eq!(v.capacity(), 20_000);
+        assert_eq!(pool.kept_bytes(), 105_000);
+        // The large one serves a request it fits.
+        assert_eq!(pool.take_within(90_000, 120_000).capacity(), 100_000);
+        assert_eq!(pool.kept_bytes(), 5000);
+        // The 5000-byte one is now the most recent, and too small: freed.
+        assert_eq!(pool.take_within(20_000, 24_000).capacity(), 20_000);
+        assert_eq!(pool.kept_bytes(), 0);
+        drop(pool.wrap(v));
+        assert_eq!(pool.take_within(19_000, 20_000).capacity(), 20_000);
     }
 
     #[test]

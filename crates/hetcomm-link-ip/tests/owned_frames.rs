@@ -117,3 +117,77 @@ fn sinks_that_do_not_keep_frames_borrow_them() {
     assert_eq!(sink.wait_for(1, DEADLINE), 1);
     assert!(sink.frames()[0].bytes == big);
 }
+
+/// What a [`DroppingSink`] saw of one frame.
+struct Seen {
+    bytes: Vec<u8>,
+    /// Handed over (`on_frame_owned`) rather than lent.
+    owned: bool,
+    /// Its buffer belongs to the link's pool.
+    pooled: bool,
+    /// Where its bytes lay.
+    at: usize,
+}
+
+/// Keeps a copy of each frame and drops the buffer of a handed-over one at once, as a module
+/// done with the message would: a pooled buffer is then back in the link's pool before the
+/// next frame arrives.
+#[derive(Default)]
+struct DroppingSink {
+    seen: Mutex<Vec<Seen>>,
+}
+
+impl FrameSink for DroppingSink {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.seen.lock().unwrap().push(Seen {
+            bytes: frame.to_vec(),
+            owned: false,
+            pooled: false,
+            at: frame.as_ptr() as usize,
+        });
+    }
+    fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
+        self.seen.lock().unwrap().push(Seen {
+            bytes: frame.to_vec(),
+            owned: true,
+            pooled: frame.is_pooled(),
+            at: frame.as_ptr() as usize,
+        });
+    }
+    fn takes_frames(&self) -> bool {
+        true
+    }
+}
+
+/// Over UDP a frame reassembled from fragments, or a large one that came in one datagram, is
+/// handed over intact in a buffer of the link's pool; once the sink drops it, the next frame
+/// of that size arrives in the same buffer (no allocation per frame). Small frames are lent.
+#[test]
+fn udp_hands_over_large_frames_in_buffers_that_come_back() {
+    let mut h = UdpHarness::new(UdpConfig::loopback());
+    let sink = Arc::new(DroppingSink::default());
+    let _b = h.open(B, sink.clone());
+    let a = h.open(A, CollectSink::new());
+    // 65 584 bytes: two fragments of a 65 000-byte datagram; 30 000: one datagram.
+    let lens = [65_584, 65_584, 30_000, 30_000, 100, 1 << 20, 65_584, 10];
+    let sent: Vec<Vec<u8>> = lens
+        .iter()
+        .enumerate()
+        .map(|(i, &len)| frame(i as u8, len))
+        .collect();
+    // One at a time: each is dropped by the sink before the next is sent.
+    for (i, f) in sent.iter().enumerate() {
+        a.send(B, f).expect("send");
+        wait_until("the frame", DEADLINE, || {
+            sink.seen.lock().unwrap().len() == i + 1
+        });
+    }
+    let seen = sink.seen.lock().unwrap();
+    for (i, (s, f)) in seen.iter().zip(&sent).enumerate() {
+        assert!(s.bytes == *f, "frame {i} differs");
+        let large = f.len() >= 16 * 1024;
+        assert_eq!((s.owned, s.pooled), (large, large), "frame {i}");
+    }
+    assert_eq!(seen[1].at, seen[0].at, "the second 65 584-byte frame");
+    assert_eq!(seen[3].at, seen[2].at, "the second 30 000-byte frame");
+}

@@ -73,9 +73,10 @@ pub trait FrameSink: Send + Sync + 'static {
 
     /// One complete frame, as sent, handed over: the sink may keep the buffer (e.g. as the
     /// message's payload, without copying it). Links call it only when
-    /// [`takes_frames`](FrameSink::takes_frames) says so, and only for frames they had to put
-    /// in a buffer of their own anyway (a large frame read straight from a stream); the
-    /// buffer may belong to the link's pool, and goes back to it when dropped. The default
+    /// [`takes_frames`](FrameSink::takes_frames) says so, and only for frames in a buffer of
+    /// their own (a large frame read straight from a stream, reassembled from datagrams, or
+    /// copied out of a large datagram); the buffer may belong to the link's pool, and goes back
+    /// to it when dropped. The default
     /// lends the bytes to [`on_frame`](FrameSink::on_frame).
     fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
         self.on_frame(&frame, from)

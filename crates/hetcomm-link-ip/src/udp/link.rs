@@ -16,7 +16,7 @@ use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 use super::batch::{batchable, misread_alone, push_record};
 use super::fragment::FragmentHeader;
 use super::reassembly::Reassembler;
-use super::receive::{DrivenReceiver, Receiver, RxState, RECV_BUF_LEN};
+use super::receive::{receive_pool, DrivenReceiver, Receiver, RxState, RECV_BUF_LEN};
 use super::{
     add, lock, Batch, KernelDrops, RxSide, Shared, UdpConfig, UdpCounters, UdpLink, UdpPeer,
     UdpStats, BATCH_HEADER_LEN, BATCH_LENGTH_LEN, FRAGMENT_HEADER_LEN,
@@ -76,19 +76,24 @@ impl UdpLink {
             counters: UdpCounters::default(),
         });
         let max_frame = config.max_frame();
+        let takes_frames = sink.takes_frames();
+        let pool = receive_pool(takes_frames);
         let receiver = Receiver {
             socket: socket.clone(),
             buf: vec![0; RECV_BUF_LEN],
             state: RxState {
                 shared: shared.clone(),
                 sink,
+                takes_frames,
+                pool: pool.clone(),
                 senders: peer_addrs.iter().map(|(id, addr)| (*addr, *id)).collect(),
                 reassembler: Reassembler::new(
                     config.reassembly_limit_bytes,
                     config.reassembly_timeout,
                     max_frame,
                 )
-                .with_fleet(peer_addrs.keys().copied()),
+                .with_fleet(peer_addrs.keys().copied())
+                .with_pool(pool),
             },
         };
         let rx = if config.driven {

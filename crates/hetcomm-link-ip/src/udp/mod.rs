@@ -62,6 +62,20 @@
 //! messages before anyone else's, and one source holds at most [`MAX_PARTIALS_PER_SOURCE`]
 //! messages. [`LinkStats::buffered_bytes`] reports the bytes held.
 //!
+//! # Handing frames over
+//!
+//! To a sink that keeps frames ([`FrameSink::takes_frames`], as the runtime's does), a
+//! reassembled frame, and a frame of 16 KiB or more that came in one datagram (copied out of
+//! the reused receive buffer), is handed over with [`FrameSink::on_frame_owned`]: it becomes
+//! the message's payload without another copy. Buffers of 16 KiB and more, for reassembly and
+//! for handing over, come from a pool of the link's ([`BufferPool`], up to 8 MiB kept; 1 MiB
+//! when the sink does not keep frames) and go back to it when the message is dropped, or when
+//! an incomplete message is: a receiver of large frames allocates and frees no memory per
+//! frame (fresh 64 KiB buffers per frame cost the allocator's trims of the heap and the page
+//! faults that follow: about half the receiver's CPU time at 64 KiB, secured or not). Buffers are only taken
+//! for fragments that passed the checks below, in the sizes that [`Reassembler`] would
+//! allocate, and charged against the reassembly limit for their capacity.
+//!
 //! # Bad input
 //!
 //! A datagram starting with `"HF"` whose header is malformed (truncated, wrong version,
@@ -150,6 +164,8 @@ pub use reassembly::{
 use receive::DrivenReceiver;
 
 // Named only by doc links.
+#[cfg(doc)]
+use hetcomm_core::BufferPool;
 #[cfg(doc)]
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkStats, Peer, Readable};
 

@@ -3,9 +3,10 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{BufferPool, SystemId};
 
 use super::fragment::{parse_fragment, FragmentError};
 // Named only by doc links.
@@ -27,6 +28,28 @@ pub const MAX_PARTIALS_PER_SOURCE: usize = 64;
 /// Most recently completed messages remembered (for [`UdpConfig::reassembly_timeout`]) so
 /// that their late duplicate fragments are recognised.
 pub const MAX_REMEMBERED_COMPLETIONS: usize = 4096;
+/// Buffers of at least this many bytes come from the pool (when there is one) and go back to
+/// it; smaller ones are left to the allocator, which serves them cheaply.
+pub(super) const POOLED_MIN: usize = 16 * 1024;
+/// Pooled buffers are asked for in multiples of this many bytes, so that frames of similar
+/// sizes reuse each other's buffers.
+const POOLED_STEP: usize = 4096;
+
+/// An empty buffer from `pool` with room for `len` bytes (rounded up to [`POOLED_STEP`]), and
+/// never more than a quarter beyond that: whoever holds it is charged (or holds memory) for its
+/// capacity.
+pub(super) fn pooled(pool: &BufferPool, len: usize) -> Vec<u8> {
+    let len = len.next_multiple_of(POOLED_STEP);
+    pool.take_within(len, len + len / 4)
+}
+
+/// Gives `buf` back to `pool` (if any) when it is large enough to be worth keeping; frees it
+/// otherwise.
+pub(super) fn recycle(pool: Option<&Arc<BufferPool>>, buf: Vec<u8>) {
+    if let Some(pool) = pool.filter(|_| buf.capacity() >= POOLED_MIN) {
+        drop(pool.wrap(buf));
+    }
+}
 
 struct Partial {
     total: u32,
@@ -58,22 +81,22 @@ impl Partial {
     }
 
     /// Takes piece `index` (not held yet).
-    fn insert(&mut self, index: u16, piece: &[u8]) {
+    fn insert(&mut self, index: u16, piece: &[u8], pool: Option<&Arc<BufferPool>>) {
         if index != self.next {
             self.ahead_bytes += piece.len();
             self.ahead.insert(index, piece.to_vec());
             return;
         }
-        self.append(piece);
+        self.append(piece, pool);
         while let Some(p) = self.ahead.remove(&self.next) {
             self.ahead_bytes -= p.len();
-            self.append(&p);
+            self.append(&p, pool);
         }
     }
 
     /// Appends the next piece to `head`, growing it by at most doubling (and at first by a few
-    /// pieces), never past `total`.
-    fn append(&mut self, piece: &[u8]) {
+    /// pieces), never past `total` (but for the rounding of a pooled buffer, under 4 KiB).
+    fn append(&mut self, piece: &[u8], pool: Option<&Arc<BufferPool>>) {
         let total = self.total as usize;
         let need = self.head.len() + piece.len();
         if need > self.head.capacity() {
@@ -82,7 +105,17 @@ impl Partial {
                 .max(self.head.capacity() * 2)
                 .max(FIRST_RESERVE_PIECES * chunk)
                 .min(total);
-            self.head.reserve_exact(target - self.head.len());
+            match pool.filter(|_| target >= POOLED_MIN) {
+                // A buffer that comes back to the pool when the frame is dropped: large frames
+                // arriving one after another then reuse the same memory instead of a fresh
+                // allocation each, which the allocator faults in page by page.
+                Some(pool) => {
+                    let mut grown = pooled(pool, target);
+                    grown.extend_from_slice(&self.head);
+                    recycle(Some(pool), std::mem::replace(&mut self.head, grown));
+                }
+                None => self.head.reserve_exact(target - self.head.len()),
+            }
         }
         self.head.extend_from_slice(piece);
         self.next += 1;
@@ -129,6 +162,9 @@ pub struct Reassembler {
     limit_bytes: usize,
     timeout: Duration,
     max_frame: usize,
+    /// Where large reassembly buffers come from and go back to (see
+    /// [`with_pool`](Reassembler::with_pool)).
+    pool: Option<Arc<BufferPool>>,
     /// Fleet systems a sender field may name (empty: any).
     fleet: Vec<SystemId>,
     partials: HashMap<MessageKey, Partial>,
@@ -148,6 +184,7 @@ impl Reassembler {
             limit_bytes,
             timeout,
             max_frame,
+            pool: None,
             fleet: Vec::new(),
             partials: HashMap::new(),
             sources: HashMap::new(),
@@ -163,6 +200,16 @@ impl Reassembler {
     pub fn with_fleet(mut self, fleet: impl IntoIterator<Item = SystemId>) -> Reassembler {
         self.fleet = fleet.into_iter().collect();
         self.fleet.sort_unstable();
+        self
+    }
+
+    /// Takes the buffers of large messages (16 KiB and more) from `pool`, and gives those of
+    /// messages dropped incomplete back to it: a completed frame's buffer goes back when
+    /// whoever it is handed to drops it (see [`BufferPool::wrap`]). A message's buffer grows
+    /// in the same steps as without a pool, each rounded up to 4 KiB; a pooled buffer may have
+    /// up to a quarter more room than that, and is charged for all of it.
+    pub fn with_pool(mut self, pool: Arc<BufferPool>) -> Reassembler {
+        self.pool = Some(pool);
         self
     }
 
@@ -205,12 +252,20 @@ impl Reassembler {
             return reject(FragmentError::UnknownSender { claimed: h.sender });
         }
         if h.count == 1 {
-            return Reassembly::Complete(piece.to_vec());
+            let frame = match self.pool.as_ref().filter(|_| piece.len() >= POOLED_MIN) {
+                Some(pool) => {
+                    let mut buf = pooled(pool, piece.len());
+                    buf.extend_from_slice(piece);
+                    buf
+                }
+                None => piece.to_vec(),
+            };
+            return Reassembly::Complete(frame);
         }
         let key = (src, h.sender, h.message_id);
         if let Some(p) = self.partials.get(&key) {
             if p.total != h.total || p.count != h.count {
-                self.remove(&key);
+                self.discard(&key);
                 return Reassembly::Rejected {
                     error: FragmentError::Inconsistent {
                         message_id: h.message_id,
@@ -228,7 +283,7 @@ impl Reassembler {
             }
             if self.sources.get(&src).map_or(0, |s| s.partials) >= MAX_PARTIALS_PER_SOURCE {
                 if let Some(k) = self.oldest_of(src) {
-                    self.remove(&k);
+                    self.discard(&k);
                     self.evictions += 1;
                 }
             }
@@ -254,7 +309,7 @@ impl Reassembler {
         if p.has(h.index) {
             return Reassembly::Duplicate;
         }
-        p.insert(h.index, piece);
+        p.insert(h.index, piece, self.pool.as_ref());
         if p.next == p.count {
             let frame = match self.remove(&key) {
                 Some(p) => p.head,
@@ -273,7 +328,7 @@ impl Reassembler {
             let Some(k) = self.eviction_victim() else {
                 break;
             };
-            self.remove(&k);
+            self.discard(&k);
             self.evictions += 1;
         }
         Reassembly::Pending
@@ -300,7 +355,7 @@ impl Reassembler {
             .map(|(k, _)| *k)
             .collect();
         for k in &expired {
-            self.remove(k);
+            self.discard(k);
         }
         expired.len()
     }
@@ -334,6 +389,13 @@ impl Reassembler {
     fn eviction_victim(&self) -> Option<MessageKey> {
         let (&src, _) = self.sources.iter().max_by_key(|(_, s)| s.bytes)?;
         self.oldest_of(src)
+    }
+
+    /// Drops an incomplete message; its buffer goes back to the pool.
+    fn discard(&mut self, key: &MessageKey) {
+        if let Some(p) = self.remove(key) {
+            recycle(self.pool.as_ref(), p.head);
+        }
     }
 
     fn remove(&mut self, key: &MessageKey) -> Option<Partial> {

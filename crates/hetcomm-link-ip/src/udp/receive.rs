@@ -11,16 +11,30 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, TryLockError};
 use std::time::{Duration, Instant};
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Peer, Readable};
 
 use super::batch::batch_records;
 use super::fragment::FragmentError;
-use super::reassembly::{Reassembler, Reassembly};
+use super::reassembly::{pooled, recycle, Reassembler, Reassembly, POOLED_MIN};
 use super::{add, Shared, BATCH_MAGIC, FRAGMENT_MAGIC};
 
 /// Large enough for any UDP datagram, so nothing is silently truncated.
 pub(super) const RECV_BUF_LEN: usize = 65_536;
+/// Most bytes of large-frame buffers a link keeps for reuse when its sink keeps frames (they
+/// come back as the modules drop the messages), and when it does not (they come back as soon
+/// as the sink returns, or as an incomplete message is dropped).
+pub(super) const RECEIVE_POOL_BYTES: usize = 8 << 20;
+pub(super) const REASSEMBLY_POOL_BYTES: usize = 1 << 20;
+
+/// The pool of a link whose sink keeps frames ([`FrameSink::takes_frames`]) or not.
+pub(super) fn receive_pool(takes_frames: bool) -> Arc<BufferPool> {
+    BufferPool::new(if takes_frames {
+        RECEIVE_POOL_BYTES
+    } else {
+        REASSEMBLY_POOL_BYTES
+    })
+}
 
 /// The receive side: the socket, one receive buffer reused for every datagram, and what the
 /// datagrams are made into.
@@ -113,6 +127,11 @@ impl Receiver {
 pub(super) struct RxState {
     pub(super) shared: Arc<Shared>,
     pub(super) sink: Arc<dyn FrameSink>,
+    /// The sink keeps frames handed over to it: reassembled frames, and large frames that
+    /// came whole, are handed over in a buffer of the pool.
+    pub(super) takes_frames: bool,
+    /// The buffers of large frames (shared with the reassembler).
+    pub(super) pool: Arc<BufferPool>,
     pub(super) senders: HashMap<SocketAddr, SystemId>,
     pub(super) reassembler: Reassembler,
 }
@@ -130,7 +149,15 @@ impl RxState {
             return self.deliver_batch(d, from);
         }
         if !d.starts_with(&FRAGMENT_MAGIC) {
-            self.deliver(d, from);
+            if self.takes_frames && d.len() >= POOLED_MIN {
+                // One copy into a buffer the sink keeps (as the message's payload), instead of
+                // one into a fresh allocation per frame made by the sink.
+                let mut buf = pooled(&self.pool, d.len());
+                buf.extend_from_slice(d);
+                self.deliver_owned(buf, from);
+            } else {
+                self.deliver(d, from);
+            }
             return 1;
         }
         let evictions_before = self.reassembler.evictions();
@@ -141,7 +168,12 @@ impl RxState {
         );
         match outcome {
             Reassembly::Complete(frame) => {
-                self.deliver(&frame, from);
+                if self.takes_frames {
+                    self.deliver_owned(frame, from);
+                } else {
+                    self.deliver(&frame, from);
+                    recycle(Some(&self.pool), frame);
+                }
                 1
             }
             Reassembly::Pending => 0,
@@ -177,14 +209,31 @@ impl RxState {
         }
     }
 
-    fn deliver(&self, frame: &[u8], from: Peer) {
+    /// Counts a frame about to be handed to the sink: first, so that whoever the sink wakes
+    /// sees the counters already updated.
+    fn count_frame(&self, from: Peer) {
         let c = &self.shared.counters;
         if from == Peer::Unknown {
             add(&c.from_unknown_address, 1);
         }
-        // Counted first so that whoever the sink wakes sees the counter already updated.
         add(&c.frames_received, 1);
+    }
+
+    fn deliver(&self, frame: &[u8], from: Peer) {
+        self.count_frame(from);
         self.sink.on_frame(frame, from);
+    }
+
+    /// Hands `frame` over to a sink that keeps frames; a large buffer comes back to the pool
+    /// when the sink drops it.
+    fn deliver_owned(&self, frame: Vec<u8>, from: Peer) {
+        self.count_frame(from);
+        let frame = if frame.capacity() >= POOLED_MIN {
+            self.pool.wrap(frame)
+        } else {
+            FrameBuf::from(frame)
+        };
+        self.sink.on_frame_owned(frame, from);
     }
 
     /// Hands up the complete frames of batch datagram `d`; returns how many.

@@ -343,3 +343,34 @@ fn inconsistent_and_misattributed_fragments_are_rejected() {
         }
     ));
 }
+
+#[test]
+fn a_pooled_reassembler_reuses_its_buffers_and_is_charged_for_them() {
+    let pool = hetcomm_core::BufferPool::new(1 << 20);
+    let mut r = Reassembler::new(1 << 20, Duration::from_secs(2), 1 << 20).with_pool(pool.clone());
+    let t0 = Instant::now();
+    let frame: Vec<u8> = (0..40_000u32).map(|i| i as u8).collect();
+    let frags = fragments(&frame, 20_000, 1);
+    assert_eq!(r.on_fragment(&frags[0], SRC, None, t0), Reassembly::Pending);
+    // A pooled buffer for the whole frame (4 KiB steps), charged for its capacity.
+    let charged = r.held_bytes() - PARTIAL_OVERHEAD;
+    assert!((40_000..40_000 + 4096).contains(&charged), "{charged}");
+    // Given up at the timeout: the buffer goes back to the pool.
+    assert_eq!(r.expire(t0 + Duration::from_secs(2)), 1);
+    assert_eq!((r.held_bytes(), pool.kept_bytes()), (0, charged));
+    // The next message of that size is reassembled in it, and the frame's buffer returns to
+    // the pool when whoever it was handed to drops it.
+    let again = fragments(&frame, 20_000, 2);
+    assert_eq!(r.on_fragment(&again[0], SRC, None, t0), Reassembly::Pending);
+    assert_eq!(pool.kept_bytes(), 0);
+    let Reassembly::Complete(got) = r.on_fragment(&again[1], SRC, None, t0) else {
+        panic!("not complete");
+    };
+    assert_eq!(got, frame);
+    drop(pool.wrap(got));
+    assert_eq!(pool.kept_bytes(), charged);
+    // Small messages are left to the allocator.
+    let small = fragments(&frame[..3000], 1000, 3);
+    r.on_fragment(&small[0], SRC, None, t0);
+    assert_eq!(pool.kept_bytes(), charged);
+}
