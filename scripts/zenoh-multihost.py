@@ -318,8 +318,13 @@ def main() -> int:
 
         # --- 3: heal ------------------------------------------------------------------------
         ip("-n", BR_NS, "link", "set", f"zb{PID}x3", "up")
+        def unseen() -> str:
+            # Which systems still miss whom (to tell a slow heal from a stuck one).
+            miss = {s: sorted(others(s) - nodes[s].joined) for s in live}
+            return "; still unseen: " + ", ".join(
+                f"{s} misses {' '.join(m)}" for s, m in miss.items() if m)
         wait_until("every system sees every other again", lambda: all(
-            others(s) <= nodes[s].joined for s in live), 90)
+            others(s) <= nodes[s].joined for s in live), 90, unseen)
         log("3 heal: link up; every system sees every other again (nothing restarted)")
         want = ring_round(nodes, live, "p3")
         check_arrivals(nodes, "p3", want)
