@@ -93,16 +93,13 @@ pub(crate) fn rtt_on(
     iters: u64,
     spin: bool,
 ) -> Result<Latency, String> {
-    let (_dir, peer, comm) = open(if spin { "echo-spin" } else { "echo" }, fleet)?;
-    let m = comm.module("M").map_err(|e| e.to_string())?;
-    if spin {
-        m.set_wait_spin(crate::hc::WAIT_SPIN);
-    }
-    let result = crate::hc::round_trips(&m, size, warmup, iters);
-    drop(m);
-    drop(comm);
-    peer.finish(Duration::from_secs(3));
-    result
+    let role = if spin { "echo-spin" } else { "echo" };
+    with_echo(fleet, role, |_, m| {
+        if spin {
+            m.set_wait_spin(crate::hc::WAIT_SPIN);
+        }
+        crate::hc::round_trips(m, size, warmup, iters)
+    })
 }
 
 /// [`rtt_on`] with inline callbacks at both ends ([`crate::hc::round_trips_inline`]).
@@ -113,9 +110,20 @@ pub(crate) fn rtt_inline_on(
     warmup: u64,
     iters: u64,
 ) -> Result<Latency, String> {
-    let (_dir, peer, comm) = open("echo-inline", fleet)?;
+    with_echo(fleet, "echo-inline", |comm, m| {
+        crate::hc::round_trips_inline(comm, m, size, warmup, iters)
+    })
+}
+
+/// Runs `measure` on A's module M against a peer process echoing in `role`, then closes both.
+fn with_echo(
+    fleet: &str,
+    role: &str,
+    measure: impl FnOnce(&Comm, &hetcomm::Module) -> Result<Latency, String>,
+) -> Result<Latency, String> {
+    let (_dir, peer, comm) = open(role, fleet)?;
     let m = comm.module("M").map_err(|e| e.to_string())?;
-    let result = crate::hc::round_trips_inline(&comm, &m, size, warmup, iters);
+    let result = measure(&comm, &m);
     drop(m);
     drop(comm);
     peer.finish(Duration::from_secs(3));

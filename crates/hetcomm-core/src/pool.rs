@@ -40,23 +40,8 @@ impl BufferPool {
     /// is large enough, the most recent one is freed, so that buffers too small for the
     /// frames now arriving do not fill the pool for good.
     pub fn take(&self, len: usize) -> Vec<u8> {
-        let mut free = self.lock();
-        let misfit = match free.bufs.iter().rposition(|b| b.capacity() >= len) {
-            Some(i) => {
-                let mut buf = free.bufs.swap_remove(i);
-                free.bytes -= buf.capacity();
-                drop(free);
-                buf.clear();
-                return buf;
-            }
-            None => free.bufs.pop(),
-        };
-        if let Some(small) = &misfit {
-            free.bytes -= small.capacity();
-        }
-        drop(free);
-        drop(misfit);
-        Vec::with_capacity(len)
+        // With no upper bound, "none fits" means every kept buffer is too small.
+        self.take_within(len, usize::MAX)
     }
 
     /// Like [`take`](BufferPool::take), but never a buffer of more than `max_capacity`
@@ -100,8 +85,10 @@ impl BufferPool {
         self.lock().bytes
     }
 
-    /// Takes `buf` back if there is room; frees it (outside the lock) otherwise.
-    fn give(&self, buf: Vec<u8>) {
+    /// Takes `buf` back if there is room; frees it (outside the lock) otherwise. What a
+    /// [`FrameBuf`] from [`wrap`](BufferPool::wrap) does when dropped, for a buffer its owner
+    /// never handed out.
+    pub fn give(&self, buf: Vec<u8>) {
         let cap = buf.capacity();
         if cap == 0 || cap > self.max_bytes {
             return;

@@ -47,7 +47,7 @@ pub(super) fn pooled(pool: &BufferPool, len: usize) -> Vec<u8> {
 /// otherwise.
 pub(super) fn recycle(pool: Option<&Arc<BufferPool>>, buf: Vec<u8>) {
     if let Some(pool) = pool.filter(|_| buf.capacity() >= POOLED_MIN) {
-        drop(pool.wrap(buf));
+        pool.give(buf);
     }
 }
 

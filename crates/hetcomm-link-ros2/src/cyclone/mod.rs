@@ -61,6 +61,9 @@ const BATCH: usize = 32;
 /// How long a write from a thread other than a listener's waits for a throttled writer.
 const WRITE_BLOCKING: Duration = Duration::from_millis(100);
 
+/// How long the backlog thread waits for a throttled writer before it counts a frame dropped.
+const BACKLOG_BLOCKING: Duration = Duration::from_secs(1);
+
 thread_local! {
     /// Set while this thread runs one of our listeners (see the module docs).
     static IN_LISTENER: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
@@ -108,10 +111,9 @@ pub struct CycloneLink {
     /// Takes what the listener left, on a link opened with [`open`](CycloneLink::open).
     receiver: Option<JoinHandle<()>>,
     driven: bool,
-    /// The writers' `max_blocking_time` is 0 (`deliver_on_receive_thread`): a throttled
-    /// write returns at once, and [`CycloneLink::write`] does the waiting off listeners.
-    nonblocking_writers: bool,
     /// Frames a listener's thread could not write at once (`deliver_on_receive_thread`).
+    /// Present exactly when the writers' `max_blocking_time` is 0: a throttled write then
+    /// returns at once, and [`CycloneLink::write`] does the waiting off listeners.
     backlog: Option<Arc<Backlog>>,
     /// Writes the backlog's frames, waiting as long as a blocking writer would.
     backlog_writer: Option<JoinHandle<()>>,
@@ -241,7 +243,6 @@ impl CycloneLink {
             shared,
             receiver,
             driven,
-            nonblocking_writers: settings.deliver_on_receive_thread,
             backlog,
             backlog_writer,
         })
@@ -323,7 +324,7 @@ impl CycloneLink {
             self.wait_matched(to, dest)?;
         }
         let rc = match IN_LISTENER.with(|c| c.get()) {
-            false if self.nonblocking_writers => write_waiting(dest, parts, WRITE_BLOCKING),
+            false if self.backlog.is_some() => write_waiting(dest, parts, WRITE_BLOCKING),
             false => write_sample(dest, parts),
             // On a listener's thread: never wait; what cannot go now (or must stay behind
             // frames that could not) goes to the backlog thread.
@@ -422,7 +423,7 @@ fn backlog_push(backlog: &Backlog, to: SystemId, parts: &[&[u8]]) -> dds_return_
 fn write_backlog(backlog: &Backlog, dests: &HashMap<SystemId, Dest>, shared: &Shared) {
     while let Some((to, frame)) = backlog.pop() {
         let rc = match dests.get(&to) {
-            Some(dest) => write_waiting(dest, &[&frame], Duration::from_secs(1)),
+            Some(dest) => write_waiting(dest, &[&frame], BACKLOG_BLOCKING),
             None => DDS_RETCODE_BAD_PARAMETER as dds_return_t,
         };
         if rc < 0 {
