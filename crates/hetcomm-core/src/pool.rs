@@ -50,14 +50,26 @@ impl BufferPool {
     /// for. Kept buffers outside the range stay in the pool, except that the most recent is
     /// freed when it is too small (as with `take`). A new buffer has room for exactly `len`.
     pub fn take_within(&self, len: usize, max_capacity: usize) -> Vec<u8> {
+        let mut buf = self.take_kept(len, max_capacity);
+        buf.clear();
+        buf
+    }
+
+    /// Like [`take`](BufferPool::take), but a kept buffer still holds its old bytes (its
+    /// length is what it was when it came back): for a caller that overwrites a whole frame,
+    /// `resize` then zeroes only what lies beyond the old length, not the bytes it is about
+    /// to write anyway.
+    pub fn take_reused(&self, len: usize) -> Vec<u8> {
+        self.take_kept(len, usize::MAX)
+    }
+
+    fn take_kept(&self, len: usize, max_capacity: usize) -> Vec<u8> {
         let mut free = self.lock();
         let fits = |b: &Vec<u8>| (len..=max_capacity).contains(&b.capacity());
         let misfit = match free.bufs.iter().rposition(fits) {
             Some(i) => {
-                let mut buf = free.bufs.swap_remove(i);
+                let buf = free.bufs.swap_remove(i);
                 free.bytes -= buf.capacity();
-                drop(free);
-                buf.clear();
                 return buf;
             }
             None if free.bufs.last().is_some_and(|b| b.capacity() < len) => free.bufs.pop(),
@@ -301,6 +313,20 @@ mod tests {
         assert_eq!(pool.kept_bytes(), 0);
         let plain = FrameBuf::from(vec![9; 10]);
         assert!(!plain.is_pooled());
+    }
+
+    #[test]
+    fn take_reused_keeps_the_old_bytes_and_take_clears_them() {
+        let pool = BufferPool::new(1 << 20);
+        pool.give(vec![7u8; 100]);
+        let buf = pool.take_reused(50);
+        assert_eq!(
+            buf,
+            vec![7u8; 100],
+            "the old bytes, so resize need not zero them"
+        );
+        pool.give(buf);
+        assert!(pool.take(50).is_empty());
     }
 
     #[test]

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 
 use crate::stream::{
@@ -184,6 +184,12 @@ impl Link for UnixLink {
             .as_ref()
             .ok_or(LinkError::Closed)?
             .send_parts(to, head, body)
+    }
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        self.inner
+            .as_ref()
+            .ok_or(LinkError::Closed)?
+            .send_owned(to, frame)
     }
     fn stats(&self) -> LinkStats {
         self.inner.as_ref().map(Link::stats).unwrap_or_default()

@@ -16,7 +16,8 @@
 //! a duplicate or an invented frame); an unknown destination and an oversize frame are errors;
 //! traffic resumes after a peer restart; a driven link's frames arrive when read through its
 //! `Readable` side; frames held for batching go out at `flush` and before a later plain send;
-//! `send_parts` delivers head and body as one frame; frames handed to a sink that takes them
+//! `send_parts` delivers head and body as one frame; frames given away (`send_owned`) keep
+//! their place among the others and their buffers come back; frames handed to a sink that takes them
 //! ([`FrameSink::on_frame_owned`]) arrive intact; and a layer stack over the link (a tap on
 //! both sides) sees and passes on every frame, whichever way it was sent or received.
 
@@ -277,6 +278,7 @@ pub fn run_all(h: &mut dyn Harness) {
     driven_receive_is_read_through_readable(h);
     held_frames_are_flushed(h);
     send_parts_arrive_as_one_frame(h);
+    given_frames_keep_their_place(h);
     owned_frames_arrive_intact(h);
     layers_see_and_pass_every_frame(h);
 }
@@ -604,6 +606,47 @@ impl FrameSink for TakingSink {
     fn takes_frames(&self) -> bool {
         true
     }
+}
+
+/// Frames given away ([`Link::send_owned`]) in a fast stream, which a link may write behind
+/// the sender, keep their place among frames sent with `send`, `send_parts` and `send_held`
+/// and a `flush`: every one arrives once, intact, in order on an ordered link. Their buffers
+/// go back to their pool once the link is done with them.
+pub fn given_frames_keep_their_place(h: &mut dyn Harness) {
+    let sb = CollectSink::new();
+    let a = open(h, A, CollectSink::new());
+    let _b = open(h, B, sb.clone());
+    let caps = a.caps();
+    let pool = hetcomm_core::BufferPool::new(16 << 20);
+    let large = (40 << 10).min(caps.max_frame);
+    let sent: Vec<Vec<u8>> = (0..240)
+        .map(|i| frame(12, i, if i % 8 == 7 { 100 } else { large }))
+        .collect();
+    for (i, f) in sent.iter().enumerate() {
+        let result = match i % 40 {
+            7 => a.send(B, f),
+            15 => a.send_parts(B, &f[..48], &f[48..]),
+            23 | 31 => a.send_held(B, f),
+            39 => a.send_held(B, f).and_then(|()| a.flush()),
+            _ => {
+                let mut buf = pool.take(f.len());
+                buf.extend_from_slice(f);
+                a.send_owned(B, pool.wrap(buf))
+            }
+        };
+        result.unwrap_or_else(|e| panic!("frame {i} of {} bytes: {e}", f.len()));
+    }
+    a.flush().expect("flush");
+    wait_reliably(&sb, sent.len(), caps.reliable, "given frames");
+    check_against(&sb.frames(), &sent, A, caps.ordered, "given frames");
+    let deadline = std::time::Instant::now() + WAIT;
+    while pool.kept_bytes() == 0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(
+        pool.kept_bytes() > 0,
+        "given frames: no buffer came back to its pool"
+    );
 }
 
 /// With a sink that takes frames ([`FrameSink::on_frame_owned`]), small and large frames

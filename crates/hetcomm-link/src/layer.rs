@@ -358,6 +358,10 @@ crate::forward_link! {
         self.tap.on_send(to, frame, &[]);
         self.inner.send_held(to, frame)
     }
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        self.tap.on_send(to, &frame, &[]);
+        self.inner.send_owned(to, frame)
+    }
 }
 
 /// The receive side of a [`TapLayer`].

@@ -159,6 +159,17 @@ pub trait Link: Send + Sync {
         self.send(to, &frame)
     }
 
+    /// Like [`send`](Link::send), for a frame the caller gives away (a layer that built it,
+    /// such as the security layer's sealed frames). A link that writes on a thread of its own
+    /// may keep the buffer and write it after this returns, while the caller prepares the next
+    /// frame (the stream links do for a sender that streams; see their "Write-behind" docs).
+    /// `Ok` means the same as for `send`: the link took the frame, in order with every other
+    /// frame to `to`, and counts it in [`LinkStats::frames_dropped`] if it cannot write it
+    /// later. The default sends it at once and drops the buffer (back to its pool, if any).
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        self.send(to, &frame)
+    }
+
     /// Counters kept by the link (frames, drops, reconnects, …), for tools and tests.
     fn stats(&self) -> LinkStats {
         LinkStats::default()
@@ -315,10 +326,10 @@ pub use hetcomm_core as __core;
 ///
 /// - `caps`, `stats`, `flush`, `readable`, `checksums_payload`: forwarded.
 /// - `send`: forwarded.
-/// - `send_parts`, `send_held`: forwarded if the wrapper does not write `send`; if it does,
-///   they go through the wrapper's `send` (the parts joined, the frame sent at once), so a
-///   wrapper that changes `send` sees every frame. A wrapper that wants vectored writes or
-///   batching kept writes these too.
+/// - `send_parts`, `send_held`, `send_owned`: forwarded if the wrapper does not write `send`;
+///   if it does, they go through the wrapper's `send` (the parts joined, the frame sent at
+///   once, an owned frame lent), so a wrapper that changes `send` sees every frame. A
+///   wrapper that wants vectored writes, batching or write-behind kept writes these too.
 /// - `batches`: forwarded if the wrapper writes `send_held` or leaves `send` alone; false
 ///   otherwise (its `send_held` sends at once).
 #[macro_export]
@@ -377,6 +388,25 @@ macro_rules! forward_link {
                     body: &[u8],
                 ) -> ::std::result::Result<(), $crate::LinkError> {
                     $crate::Link::send_parts(&self.$($field).+, to, head, body)
+                }
+            });
+        });
+        $crate::__if_named!(send_owned [$($n)*] {} {
+            $crate::__if_named!(send [$($n)*] {
+                fn send_owned(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    frame: $crate::__core::FrameBuf,
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    $crate::Link::send(self, to, &frame)
+                }
+            } {
+                fn send_owned(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    frame: $crate::__core::FrameBuf,
+                ) -> ::std::result::Result<(), $crate::LinkError> {
+                    $crate::Link::send_owned(&self.$($field).+, to, frame)
                 }
             });
         });
@@ -449,6 +479,7 @@ macro_rules! __if_named {
     (caps [caps $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (send [send $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (send_parts [send_parts $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (send_owned [send_owned $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (stats [stats $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (send_held [send_held $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (flush [flush $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
@@ -474,6 +505,9 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
         (**self).send_parts(to, head, body)
+    }
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        (**self).send_owned(to, frame)
     }
     fn stats(&self) -> LinkStats {
         (**self).stats()

@@ -51,43 +51,47 @@ impl<'a> FrameParts<'a> {
     }
 }
 
-/// Writes all of `parts`, in order, with as few vectored writes as the socket allows, bounded
-/// by `timeout` in total (the socket's own timeout bounds each call; it is shortened after a
-/// partial write so that the sum stays within `timeout`, and restored at the end).
+/// Writes all of `parts`, in order (see [`write_slices`]).
 pub(super) fn write_parts<S: StreamSocket, const N: usize>(
     socket: &mut S,
     parts: &[&[u8]; N],
     timeout: Duration,
 ) -> io::Result<()> {
-    let total: usize = parts.iter().map(|p| p.len()).sum();
+    let mut slices = [IoSlice::new(&[]); N];
+    let mut n = 0;
+    for part in parts.iter().filter(|p| !p.is_empty()) {
+        slices[n] = IoSlice::new(part);
+        n += 1;
+    }
+    write_slices(socket, &mut slices[..n], timeout)
+}
+
+/// The most slices one vectored write is given (Linux's `IOV_MAX` is 1024).
+const MAX_SLICES_PER_WRITE: usize = 1024;
+
+/// Writes all of `slices`, in order, with as few vectored writes as the socket allows,
+/// bounded by `timeout` in total (the socket's own timeout bounds each call; it is shortened
+/// after a partial write so that the sum stays within `timeout`, and restored at the end).
+pub(super) fn write_slices<S: StreamSocket>(
+    socket: &mut S,
+    mut slices: &mut [IoSlice<'_>],
+    timeout: Duration,
+) -> io::Result<()> {
     let deadline = Instant::now() + timeout;
-    let mut done = 0;
     let mut shortened = false;
-    while done < total {
-        // The slices of what is left: skip `done` bytes, then every empty part.
-        let mut slices = [IoSlice::new(&[]); N];
-        let mut n = 0;
-        let mut skip = done;
-        for part in parts {
-            if skip >= part.len() {
-                skip -= part.len();
-                continue;
-            }
-            slices[n] = IoSlice::new(&part[skip..]);
-            skip = 0;
-            n += 1;
-        }
-        let result = match &slices[..n] {
+    IoSlice::advance_slices(&mut slices, 0);
+    while !slices.is_empty() {
+        let result = match &slices[..slices.len().min(MAX_SLICES_PER_WRITE)] {
             [one] => socket.write(one),
             many => socket.write_vectored(many),
         };
         match result {
             Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
-            Ok(n) => done += n,
+            Ok(n) => IoSlice::advance_slices(&mut slices, n),
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         }
-        if done < total {
+        if !slices.is_empty() {
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Err(io::ErrorKind::TimedOut.into());

@@ -7,10 +7,10 @@ use std::fmt;
 use std::io::{self, Write};
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
-use hetcomm_core::SystemId;
+use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 
 use super::connection::accept_loop;
@@ -42,6 +42,7 @@ impl<T: StreamTransport> StreamLink<T> {
                     addr,
                     slot: Mutex::new(PeerSlot::new()),
                     held: AtomicBool::new(false),
+                    room: Condvar::new(),
                 };
                 (id, entry)
             })
@@ -97,6 +98,7 @@ impl<T: StreamTransport> StreamLink<T> {
             held_any: AtomicBool::new(false),
             accept_thread: Some(accept_thread),
             waker,
+            writer: Arc::default(),
         })
     }
 
@@ -131,6 +133,7 @@ impl<T: StreamTransport> StreamLink<T> {
             rejected_connections: get(&c.rejected_connections),
             refused_connections: get(&c.refused_connections),
             open_connections: self.shared.open.load(Ordering::Relaxed) as u64,
+            frames_written_behind: get(&c.frames_written_behind),
             write_failures: get(&c.write_failures),
             frames_lost_connecting: get(&c.frames_lost_connecting),
             held_frames_dropped: get(&c.held_frames_dropped),
@@ -138,9 +141,16 @@ impl<T: StreamTransport> StreamLink<T> {
         }
     }
 
-    /// Bytes of frames queued for connections or held in batches, over all peers.
+    /// Bytes of frames queued for connections, held in batches or written behind, over all
+    /// peers.
     pub fn pending_bytes(&self) -> usize {
-        self.peers.values().map(|p| lock(&p.slot).out.len()).sum()
+        self.peers
+            .values()
+            .map(|p| {
+                let slot = lock(&p.slot);
+                slot.out.len() + slot.behind.bytes()
+            })
+            .sum()
     }
 
     /// Starts a connector thread for `to` (its slot is already marked `connecting`).
@@ -159,7 +169,7 @@ impl<T: StreamTransport> StreamLink<T> {
     }
 
     /// The peer entry of `to`, after checking the size of a frame of `len` bytes.
-    fn entry_for(&self, to: SystemId, len: usize) -> Result<&PeerEntry<T>, LinkError> {
+    pub(super) fn entry_for(&self, to: SystemId, len: usize) -> Result<&PeerEntry<T>, LinkError> {
         let max = self.shared.config.max_frame();
         if len > max {
             return Err(LinkError::TooLarge { len, max });
@@ -178,6 +188,9 @@ impl<T: StreamTransport> StreamLink<T> {
     fn send_frame(&self, to: SystemId, frame: FrameParts<'_>) -> Result<(), LinkError> {
         let entry = self.entry_for(to, frame.len())?;
         let mut slot = lock(&entry.slot);
+        if slot.behind.active() {
+            return self.copy_behind(to, entry, slot, Some(frame));
+        }
         if slot.conn.is_none() {
             return self.queue_for_connection(to, entry, &mut slot, frame, true);
         }
@@ -193,7 +206,7 @@ impl<T: StreamTransport> StreamLink<T> {
     /// Queues `frame` for `to`'s connection, which is not up, starting a connector if none
     /// runs. `release`: the frame (and everything held before it) goes out as soon as the
     /// connection is up; otherwise it is held like the batch of a live connection.
-    fn queue_for_connection(
+    pub(super) fn queue_for_connection(
         &self,
         to: SystemId,
         entry: &PeerEntry<T>,
@@ -249,7 +262,7 @@ impl<T: StreamTransport> StreamLink<T> {
     /// Writes `slot`'s held records followed by `frame`, if any, on its live connection in one
     /// vectored write. On failure the connection is dropped and the held frames are counted
     /// as dropped (the caller learns about `frame` from the error).
-    fn write_batch(
+    pub(super) fn write_batch(
         &self,
         to: SystemId,
         entry: &PeerEntry<T>,
@@ -290,6 +303,7 @@ impl<T: StreamTransport> StreamLink<T> {
                 if let Some(s) = conn.take() {
                     let _ = s.shutdown_both();
                 }
+                slot.behind.connection_dropped();
                 bump(&counters.write_failures);
                 add(&counters.held_frames_dropped, held);
                 Err(write_error(to, &entry.addr, &e, cfg.write_timeout))
@@ -351,6 +365,9 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
     let mut slot = lock(&entry.slot);
     slot.connecting = false;
     if shared.closing.load(Ordering::SeqCst) {
+        // The link closed while connecting: what waited for the connection is lost, counted.
+        let lost = slot.clear_pending(shared.config.batch_bytes);
+        add(&shared.counters.frames_lost_connecting, lost);
         return;
     }
     let cfg = &shared.config;
@@ -420,6 +437,12 @@ impl<T: StreamTransport> Link for StreamLink<T> {
         self.send_frame(to, FrameParts { head, body })
     }
 
+    /// Written behind a streaming sender by the link's writer thread (see "Write-behind" in
+    /// the module docs), on the caller's thread otherwise.
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        self.send_given(to, frame)
+    }
+
     fn readable(&self) -> Option<&dyn Readable> {
         self.driven().map(|_| self as &dyn Readable)
     }
@@ -429,6 +452,10 @@ impl<T: StreamTransport> Link for StreamLink<T> {
         let frame = FrameParts::whole(frame);
         let cap = self.shared.config.batch_bytes;
         let mut slot = lock(&entry.slot);
+        if slot.behind.active() {
+            // The writer is busy with this peer: the frame leaves with its next write.
+            return self.copy_behind(to, entry, slot, Some(frame));
+        }
         if slot.conn.is_none() {
             return self.queue_for_connection(to, entry, &mut slot, frame, false);
         }
@@ -463,6 +490,10 @@ impl<T: StreamTransport> Link for StreamLink<T> {
             }
             let mut slot = lock(&entry.slot);
             if slot.held_frames == 0 {
+                continue;
+            }
+            if slot.behind.active() {
+                let _ = self.copy_behind(to, entry, slot, None);
                 continue;
             }
             if slot.conn.is_none() {
@@ -524,6 +555,8 @@ impl<T: StreamTransport> Drop for StreamLink<T> {
         // Best effort: held frames would otherwise be lost without a trace (a peer that does
         // not read makes this wait up to the write timeout).
         let _ = self.flush();
+        // Frames written behind go out (each write bounded by the write timeout).
+        self.writer.stop();
         self.shared.closing.store(true, Ordering::SeqCst);
         match &self.waker {
             Some(w) => w.wake(),

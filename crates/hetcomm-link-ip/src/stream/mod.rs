@@ -174,6 +174,7 @@
 //!   (TCP reports the reset on a later write). The link does not retry: acknowledgements and
 //!   retries are the router's.
 
+mod behind;
 mod connection;
 mod framing;
 mod link;
@@ -186,7 +187,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -195,6 +196,7 @@ use hetcomm_core::SystemId;
 use hetcomm_link::FrameSink;
 
 pub(crate) use crate::common::{add, bump, lock};
+use behind::{Behind, Writer};
 pub use framing::{decode_hello, decode_record_header, encode_hello};
 use poller::{ConnSet, Waker};
 
@@ -435,6 +437,9 @@ pub struct StreamStats {
     pub refused_connections: u64,
     /// Accepted connections open now (a gauge, not a counter).
     pub open_connections: u64,
+    /// Frames the link's writer thread wrote behind a streaming sender (see "Write-behind" in
+    /// the module docs); also counted in `frames_sent`.
+    pub frames_written_behind: u64,
     /// Writes that failed after a connection was up (write errors and write timeouts).
     pub write_failures: u64,
     /// Frames queued or held while connecting whose connection then failed (never sent).
@@ -457,6 +462,7 @@ struct StreamCounters {
     accepted: AtomicU64,
     rejected_connections: AtomicU64,
     refused_connections: AtomicU64,
+    frames_written_behind: AtomicU64,
     write_failures: AtomicU64,
     frames_lost_connecting: AtomicU64,
     held_frames_dropped: AtomicU64,
@@ -480,6 +486,9 @@ struct PeerEntry<T: StreamTransport> {
     /// Set (under the slot's lock) when a frame is held; cleared by `flush` before it looks.
     /// May be set with nothing held, never clear with something held that `flush` must write.
     held: AtomicBool,
+    /// Signalled when the writer takes this peer's queued records or finishes with them
+    /// (see "Write-behind" in the module docs).
+    room: Condvar,
 }
 
 /// What the link remembers about one peer's outgoing connection.
@@ -499,6 +508,8 @@ struct PeerSlot<S> {
     released_frames: usize,
     /// Frames in `out[released..]`.
     held_frames: usize,
+    /// Frames the writer thread writes (see "Write-behind" in the module docs).
+    behind: Behind<S>,
 }
 
 impl<S> PeerSlot<S> {
@@ -511,6 +522,7 @@ impl<S> PeerSlot<S> {
             released: 0,
             released_frames: 0,
             held_frames: 0,
+            behind: Behind::new(),
         }
     }
 
@@ -586,4 +598,6 @@ pub struct StreamLink<T: StreamTransport> {
     accept_thread: Option<JoinHandle<()>>,
     /// Wakes the poller thread (`None`: the accept thread, woken through the listener).
     waker: Option<Arc<Waker>>,
+    /// The thread that writes behind streaming senders, once one has.
+    writer: Arc<Writer>,
 }

@@ -144,9 +144,21 @@ impl Secured {
         body: &[u8],
         held: bool,
     ) -> Result<(), LinkError> {
-        let mut buf = take_scratch(&TX);
         let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
         self.take_sim_session(to, &mut st);
+        if !held && head.len() + body.len() >= GIVE_AWAY_FROM {
+            if let Some(session) = st.current.as_ref().filter(|_| !st.flushing) {
+                // Sealed into a buffer of its own that the link may keep and write while the
+                // caller seals the next frame (a stream link writes behind a streaming sender).
+                let mut buf = self
+                    .sealed_pool
+                    .take_reused(OVERHEAD + head.len() + body.len());
+                session.seal(&mut buf, self.policy.local, to, head, body);
+                drop(st);
+                return below.send_owned(to, self.sealed_pool.wrap(buf));
+            }
+        }
+        let mut buf = take_scratch(&TX);
         match &st.current {
             // Sealed under the lock (it orders nothing: the counter is atomic), which spares
             // taking a reference to the session for every frame.
@@ -611,6 +623,11 @@ impl Batch {
         self.arena.clear();
     }
 }
+
+/// Frames from this size on are sealed into a buffer that is given to the link below
+/// ([`Link::send_owned`]) rather than lent from a scratch buffer: for them, overlapping the
+/// cipher with the link's write is worth a pooled buffer.
+const GIVE_AWAY_FROM: usize = 16 << 10;
 
 /// The largest data batch (before sealing), on links whose datagrams (`mtu`) are larger.
 const BATCH_BYTES: usize = 64 << 10;

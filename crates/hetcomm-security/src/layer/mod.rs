@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
-use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
 use hetcomm_link::{forward_link, forward_sink, FrameSink, Link, LinkError, Peer, SecurityStats};
 use rustc_hash::FxHashMap;
@@ -181,6 +181,9 @@ struct Secured {
     last_timestamp: AtomicU64,
     /// Held frames the link refused when their batch left (counted in `frames_dropped`).
     held_dropped: AtomicU64,
+    /// Buffers of large sealed frames given to the link below ([`Link::send_owned`]), back
+    /// once the link has written them.
+    sealed_pool: Arc<BufferPool>,
 }
 
 impl Secured {
@@ -325,6 +328,10 @@ forward_link! {
     }
 }
 
+/// What a secured link keeps of the buffers its large sealed frames were written from: enough
+/// for a stream of 64 KiB frames that a link writes behind its sender, and a few 1 MiB ones.
+const SEALED_POOL_BYTES: usize = 8 << 20;
+
 /// How long closing a secured link waits for frames that wait for a handshake.
 const CLOSE_WAIT: Duration = Duration::from_secs(2);
 
@@ -417,6 +424,7 @@ impl LinkLayer for SecurityLayer {
             counters: Counters::default(),
             last_timestamp: AtomicU64::new(0),
             held_dropped: AtomicU64::new(0),
+            sealed_pool: BufferPool::new(SEALED_POOL_BYTES),
         });
         let _ = self.secured.set(secured.clone());
         Arc::new(SecureSink { secured })

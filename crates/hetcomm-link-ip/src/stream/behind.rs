@@ -1,0 +1,527 @@
+//! Write-behind: frames a sender gives away ([`Link::send_owned`]) and sends in a stream are
+//! written by the link's writer thread, so that the sender prepares the next frame (the
+//! security layer seals it) while the socket takes this one. See "Write-behind" in the
+//! [module docs](super).
+
+use std::collections::VecDeque;
+use std::io::{self, IoSlice};
+use std::sync::{Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::LinkError;
+// Named only by doc links.
+#[cfg(doc)]
+use hetcomm_link::Link;
+
+use super::framing::{record_header, write_slices, FrameParts};
+use super::{
+    add, bump, lock, PeerEntry, PeerSlot, Shared, StreamLink, StreamSocket, StreamTransport,
+    RECORD_HEADER_LEN,
+};
+
+/// A sender that comes back to the same peer within this long after its previous given-away
+/// frame is streaming: its frames are written behind it. A sender that waits for answers
+/// (a round trip takes longer) keeps writing on its own thread, without a hand-off.
+pub(super) const STREAMING_GAP: Duration = Duration::from_micros(20);
+
+/// Bytes queued for the writer, per peer, before a sender waits for room (one frame larger
+/// than this is still taken when the queue is empty).
+pub(super) const BEHIND_MAX_BYTES: usize = 1 << 20;
+
+/// One record waiting for the writer: the record header (empty for a moved batch of held
+/// records, which carries its own) and the bytes.
+struct Record {
+    head: Option<[u8; RECORD_HEADER_LEN]>,
+    bytes: FrameBuf,
+    /// Frames it carries (one, or a batch's count).
+    frames: usize,
+}
+
+/// What a peer's slot keeps for write-behind.
+pub(super) struct Behind<S> {
+    records: VecDeque<Record>,
+    /// Bytes in `records`.
+    queued_bytes: usize,
+    /// Bytes the writer is writing now, outside the slot's lock (0: none).
+    writing_bytes: usize,
+    /// The writer holds records outside the lock: every other write to this peer waits.
+    writing: bool,
+    /// The writer's handle of the peer's connection (a clone of `conn`), while it is up.
+    socket: Option<S>,
+    /// When the last given-away frame to this peer was taken.
+    last_given: Option<Instant>,
+}
+
+impl<S> Behind<S> {
+    pub(super) fn new() -> Self {
+        Behind {
+            records: VecDeque::new(),
+            queued_bytes: 0,
+            writing_bytes: 0,
+            writing: false,
+            socket: None,
+            last_given: None,
+        }
+    }
+
+    /// The writer has this peer's frames: any write of the caller would overtake them.
+    pub(super) fn active(&self) -> bool {
+        self.writing || !self.records.is_empty()
+    }
+
+    /// Bytes waiting for or being written by the writer.
+    pub(super) fn bytes(&self) -> usize {
+        self.queued_bytes + self.writing_bytes
+    }
+
+    /// Whether a frame given away now belongs to a stream (see [`STREAMING_GAP`]).
+    fn streaming(&self) -> bool {
+        self.last_given.is_some_and(|t| t.elapsed() < STREAMING_GAP)
+    }
+
+    /// Forgets the queued records (their connection is gone) and returns how many frames
+    /// they carried.
+    fn clear(&mut self) -> usize {
+        let frames = self.records.iter().map(|r| r.frames).sum();
+        self.records.clear();
+        self.queued_bytes = 0;
+        frames
+    }
+
+    /// The connection is gone: the writer's handle with it.
+    pub(super) fn connection_dropped(&mut self) {
+        self.socket = None;
+    }
+}
+
+/// The link's writer thread, started by the first frame written behind.
+#[derive(Default)]
+pub(super) struct Writer {
+    state: Mutex<WriterState>,
+    wake: Condvar,
+}
+
+#[derive(Default)]
+struct WriterState {
+    /// Peers whose records the writer should write, in the order they became ready.
+    ready: VecDeque<SystemId>,
+    closing: bool,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Writer {
+    /// Waits for a peer with records; `None` once the link closes and nothing is ready.
+    fn next(&self) -> Option<SystemId> {
+        let mut st = lock(&self.state);
+        loop {
+            if let Some(to) = st.ready.pop_front() {
+                return Some(to);
+            }
+            if st.closing {
+                return None;
+            }
+            st = self.wake.wait(st).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Gives the writer `to`'s records (the slot is marked `writing`).
+    fn ready(&self, to: SystemId) {
+        lock(&self.state).ready.push_back(to);
+        self.wake.notify_one();
+    }
+
+    /// Lets the writer finish what is queued, then stops it (closing the link).
+    pub(super) fn stop(&self) {
+        let thread = {
+            let mut st = lock(&self.state);
+            st.closing = true;
+            st.thread.take()
+        };
+        self.wake.notify_all();
+        if let Some(t) = thread {
+            let _ = t.join();
+        }
+    }
+}
+
+impl<T: StreamTransport> StreamLink<T> {
+    /// [`Link::send_owned`]: written behind a streaming sender, on the caller's thread
+    /// otherwise.
+    pub(super) fn send_given(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        let entry = self.entry_for(to, frame.len())?;
+        let mut slot = lock(&entry.slot);
+        let behind = slot.behind.active()
+            || (slot.conn.is_some() && slot.behind.streaming() && self.start_writer());
+        let result = if behind {
+            let head = Some(record_header(frame.len()));
+            let result;
+            (slot, result) = self.enqueue(to, entry, slot, head, frame, 1);
+            result
+        } else if slot.conn.is_none() {
+            self.queue_for_connection(to, entry, &mut slot, whole(&frame), true)
+        } else {
+            self.write_batch(to, entry, &mut slot, Some(whole(&frame)))
+        };
+        // From the return, not the call: a write on this thread is not part of the gap.
+        slot.behind.last_given = Some(Instant::now());
+        result
+    }
+
+    /// A write of the caller's to a peer whose frames the writer has (the slot is
+    /// [`Behind::active`]): the frame is copied behind them, after the held batch, so that
+    /// nothing overtakes what was sent first. Without a frame, only the held batch moves.
+    pub(super) fn copy_behind(
+        &self,
+        to: SystemId,
+        entry: &PeerEntry<T>,
+        mut slot: MutexGuard<'_, PeerSlot<T::Socket>>,
+        frame: Option<FrameParts<'_>>,
+    ) -> Result<(), LinkError> {
+        let Some(frame) = frame else {
+            move_held_behind(&mut slot);
+            return Ok(());
+        };
+        let mut bytes = Vec::with_capacity(frame.len());
+        bytes.extend_from_slice(frame.head);
+        bytes.extend_from_slice(frame.body);
+        let head = Some(record_header(bytes.len()));
+        self.enqueue(to, entry, slot, head, bytes.into(), 1).1
+    }
+
+    /// Queues `bytes` for the writer behind the held batch, waiting (up to the write timeout)
+    /// while the queue is full, and hands the peer to the writer if it had nothing of it.
+    /// The writer thread runs ([`start_writer`](Self::start_writer)).
+    fn enqueue<'a>(
+        &self,
+        to: SystemId,
+        entry: &'a PeerEntry<T>,
+        mut slot: MutexGuard<'a, PeerSlot<T::Socket>>,
+        head: Option<[u8; RECORD_HEADER_LEN]>,
+        bytes: FrameBuf,
+        frames: usize,
+    ) -> (MutexGuard<'a, PeerSlot<T::Socket>>, Result<(), LinkError>) {
+        let deadline = Instant::now() + self.shared.config.write_timeout;
+        while !slot.behind.records.is_empty()
+            && slot.behind.queued_bytes + bytes.len() > BEHIND_MAX_BYTES
+        {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                let e = LinkError::Congested {
+                    peer: to,
+                    reason: format!(
+                        "{} bytes have waited for {} for the {} ms write timeout",
+                        slot.behind.bytes(),
+                        entry.addr,
+                        self.shared.config.write_timeout.as_millis()
+                    ),
+                };
+                return (slot, Err(e));
+            }
+            slot = entry
+                .room
+                .wait_timeout(slot, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+        let was_active = slot.behind.active();
+        if !was_active && slot.conn.is_none() {
+            // The writer dropped the connection while we waited (its frames are counted).
+            let e = LinkError::Unreachable {
+                peer: to,
+                reason: format!(
+                    "the connection to {} failed; the next send reconnects",
+                    entry.addr
+                ),
+            };
+            return (slot, Err(e));
+        }
+        move_held_behind(&mut slot);
+        slot.behind.queued_bytes += bytes.len() + head.map_or(0, |h| h.len());
+        slot.behind.records.push_back(Record {
+            head,
+            bytes,
+            frames,
+        });
+        if !was_active {
+            // The writer takes it from here: nothing else writes to this peer until it is done.
+            slot.behind.writing = true;
+            self.writer.ready(to);
+        }
+        (slot, Ok(()))
+    }
+
+    /// Starts the writer thread unless it runs; false if it cannot (the caller then writes).
+    fn start_writer(&self) -> bool {
+        let mut st = lock(&self.writer.state);
+        if st.closing {
+            return false;
+        }
+        if st.thread.is_some() {
+            return true;
+        }
+        let shared = self.shared.clone();
+        let peers = self.peers.clone();
+        let writer = self.writer.clone();
+        let spawned = std::thread::Builder::new()
+            .name(format!("hetcomm-{}-tx-{}", T::NAME, self.local()))
+            .spawn(move || {
+                while let Some(to) = writer.next() {
+                    if let Some(entry) = peers.get(&to) {
+                        if write_behind(&shared, entry) {
+                            writer.ready(to);
+                        }
+                    }
+                }
+            });
+        match spawned {
+            Ok(t) => {
+                st.thread = Some(t);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+}
+
+/// Moves the held batch, if any, behind the writer's records (it was sent before anything
+/// queued after it).
+fn move_held_behind<S>(slot: &mut PeerSlot<S>) {
+    if slot.held_frames == 0 {
+        return;
+    }
+    let batch = std::mem::take(&mut slot.out);
+    slot.behind.queued_bytes += batch.len();
+    slot.behind.records.push_back(Record {
+        head: None,
+        bytes: batch.into(),
+        frames: std::mem::take(&mut slot.held_frames),
+    });
+}
+
+fn whole(frame: &FrameBuf) -> FrameParts<'_> {
+    FrameParts::whole(frame)
+}
+
+/// The writer's turn at one peer: writes every record queued now in one vectored write (or
+/// as few as the socket allows). True if more were queued meanwhile: the peer goes to the
+/// back of the line, so that one streaming peer does not starve the others. A failed write
+/// drops the connection (the next send reconnects) and counts every frame it had as dropped.
+fn write_behind<T: StreamTransport>(shared: &Shared<T>, entry: &PeerEntry<T>) -> bool {
+    let mut slot = lock(&entry.slot);
+    let records: Vec<Record> = slot.behind.records.drain(..).collect();
+    let frames: usize = records.iter().map(|r| r.frames).sum();
+    slot.behind.writing_bytes = std::mem::take(&mut slot.behind.queued_bytes);
+    let socket = match slot.behind.socket.take() {
+        Some(s) => Some(s),
+        None => slot.conn.as_ref().and_then(|c| c.try_clone().ok()),
+    };
+    drop(slot);
+    // The queue is empty again: room for senders waiting on it.
+    entry.room.notify_all();
+    let result = match socket {
+        Some(mut s) => write_records(&mut s, &records, shared.config.write_timeout).map(|()| s),
+        None => Err(io::Error::other(
+            "no handle of the connection for the writer",
+        )),
+    };
+    // Back to the sender's pool before the lock is taken again.
+    drop(records);
+    let mut slot = lock(&entry.slot);
+    slot.behind.writing_bytes = 0;
+    match result {
+        Ok(s) => {
+            add(&shared.counters.frames_sent, frames);
+            add(&shared.counters.frames_written_behind, frames);
+            slot.behind.socket = Some(s);
+        }
+        Err(_) => {
+            bump(&shared.counters.write_failures);
+            let queued = slot.behind.clear();
+            add(&shared.counters.held_frames_dropped, frames + queued);
+            if let Some(c) = slot.conn.take() {
+                let _ = c.shutdown_both();
+            }
+            slot.behind.connection_dropped();
+        }
+    }
+    let more = !slot.behind.records.is_empty();
+    if !more {
+        slot.behind.writing = false;
+        drop(slot);
+        // Senders waiting for the writer to finish go on.
+        entry.room.notify_all();
+    }
+    more
+}
+
+fn write_records<S: StreamSocket>(
+    socket: &mut S,
+    records: &[Record],
+    timeout: Duration,
+) -> io::Result<()> {
+    let mut slices = Vec::with_capacity(records.len() * 2);
+    for r in records {
+        if let Some(h) = &r.head {
+            slices.push(IoSlice::new(h));
+        }
+        slices.push(IoSlice::new(&r.bytes));
+    }
+    write_slices(socket, &mut slices, timeout)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::io::Read;
+    use std::os::unix::net::UnixListener;
+    use std::path::PathBuf;
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+
+    use hetcomm_core::{BufferPool, SystemId};
+    use hetcomm_link::{FrameSink, Link, Peer};
+
+    use super::super::framing::{encode_hello, record_header};
+    use super::super::{StreamConfig, StreamLink};
+    use crate::unix::{UnixAddr, UnixTransport};
+
+    struct Nobody;
+    impl FrameSink for Nobody {
+        fn on_frame(&self, _: &[u8], _: Peer) {}
+    }
+
+    const A: SystemId = SystemId(1);
+    const B: SystemId = SystemId(2);
+
+    /// A link of A whose peer B is a raw listener, so that the test reads what A writes.
+    fn link_to_raw_listener(name: &str) -> (StreamLink<UnixTransport>, UnixListener, PathBuf) {
+        let dir =
+            std::env::temp_dir().join(format!("hetcomm-behind-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let raw_b = UnixListener::bind(dir.join("b.sock")).unwrap();
+        let a = StreamLink::new(
+            UnixTransport,
+            A,
+            UnixListener::bind(dir.join("a.sock")).unwrap(),
+            BTreeMap::from([(B, UnixAddr(dir.join("b.sock")))]),
+            Arc::new(Nobody),
+            StreamConfig::default(),
+        )
+        .unwrap();
+        (a, raw_b, dir)
+    }
+
+    /// Sends `first` and waits until the connector has written it: the connection is up.
+    fn connect_with(a: &StreamLink<UnixTransport>, first: &[u8]) {
+        a.send(B, first).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while a.stream_stats().frames_sent == 0 && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(
+            a.stream_stats().frames_sent,
+            1,
+            "the connection did not come up"
+        );
+    }
+
+    fn frame(i: usize, len: usize) -> Vec<u8> {
+        (0..len).map(|j| (i * 7 + j) as u8).collect()
+    }
+
+    fn given(pool: &Arc<BufferPool>, bytes: &[u8]) -> hetcomm_core::FrameBuf {
+        let mut buf = pool.take(bytes.len());
+        buf.extend_from_slice(bytes);
+        pool.wrap(buf)
+    }
+
+    /// A stream of given-away frames, with plain, held and flushed frames among them, leaves
+    /// in send order; most of it through the writer thread, while the reader is slow enough
+    /// that senders wait for room. Dropping the link writes what is still queued.
+    #[test]
+    fn a_streaming_senders_frames_are_written_behind_it_in_order() {
+        let (a, raw_b, dir) = link_to_raw_listener("order");
+        let pool = BufferPool::new(64 << 20);
+        let frames: Vec<Vec<u8>> = (0..120)
+            .map(|i| frame(i, if i % 10 == 5 { 300 } else { 64 << 10 }))
+            .collect();
+        let mut expected = encode_hello(A).to_vec();
+        let first = frame(999, 10);
+        for f in std::iter::once(&first).chain(&frames) {
+            expected.extend_from_slice(&record_header(f.len()));
+            expected.extend_from_slice(f);
+        }
+        let want = expected.len();
+        let reader = std::thread::spawn(move || {
+            let (mut conn, _) = raw_b.accept().unwrap();
+            // Slow at first: the socket fills and the writer's queue with it.
+            std::thread::sleep(Duration::from_millis(200));
+            let mut got = vec![0; want];
+            conn.read_exact(&mut got).unwrap();
+            got
+        });
+        connect_with(&a, &first);
+        for (i, f) in frames.iter().enumerate() {
+            let result = match i % 30 {
+                5 => a.send(B, f),
+                15 => a.send_held(B, f),
+                25 => a.send_held(B, f).and_then(|()| a.flush()),
+                _ => a.send_owned(B, given(&pool, f)),
+            };
+            result.unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        }
+        let behind = a.stream_stats().frames_written_behind;
+        drop(a);
+        let got = reader.join().unwrap();
+        assert!(
+            got == expected,
+            "the bytes on the connection are the frames in send order"
+        );
+        assert!(behind > 0, "no frame was written behind the sender");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// When the connection fails under the writer, every frame it had is counted as dropped
+    /// (never lost silently), later sends get errors or reconnect, and nothing hangs.
+    #[test]
+    fn frames_lost_behind_the_sender_are_counted() {
+        let (a, raw_b, dir) = link_to_raw_listener("fail");
+        let pool = BufferPool::new(64 << 20);
+        let closer = std::thread::spawn(move || {
+            let (mut conn, _) = raw_b.accept().unwrap();
+            // The hello, the first frame and some of the stream.
+            let mut some = vec![0; 256 << 10];
+            conn.read_exact(&mut some).unwrap();
+            drop(conn);
+            raw_b
+        });
+        connect_with(&a, &frame(0, 10));
+        let f = frame(1, 64 << 10);
+        let mut taken = 1u64;
+        for _ in 0..400 {
+            if a.send_owned(B, given(&pool, &f)).is_ok() {
+                taken += 1;
+            }
+        }
+        let _listener = closer.join().unwrap();
+        // Whatever is still queued or being written is settled within the write timeout.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while a.pending_bytes() > 0 && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let s = a.stream_stats();
+        drop(a);
+        assert!(s.write_failures >= 1, "{s:?}");
+        assert!(s.held_frames_dropped >= 1, "{s:?}");
+        // Every frame the link took was written to the socket or counted as dropped.
+        assert_eq!(
+            s.frames_sent + s.held_frames_dropped + s.frames_lost_connecting,
+            taken,
+            "{s:?}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
