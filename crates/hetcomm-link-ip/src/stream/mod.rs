@@ -75,6 +75,31 @@
 //! it (below), in send order: the connector writes the frames that were sent or flushed as soon
 //! as the connection is up, and leaves the ones still held in the batch.
 //!
+//! # Write-behind
+//!
+//! A frame given away with [`Link::send_owned`] (the security layer's sealed frames of 16 KiB
+//! and more) is written on the caller's thread, like a `send`, unless the caller streams: it
+//! comes back to the same peer within 20 µs of the return of its previous given-away frame.
+//! Then the frame goes to the peer's write-behind queue and the link's writer thread (one per
+//! link, started by the first such frame) writes it. It writes everything queued for the peer
+//! in one vectored write, while the caller prepares its next frame. For a secured sender that
+//! is the next seal. Senders that wait for an answer between frames never hand off, so their
+//! latency does not change.
+//! - Order: while the writer has a peer's frames, every other frame to that peer goes behind
+//!   them. A `send`, `send_parts` or `send_held` frame is copied into the queue, and `flush`
+//!   moves the held batch there. Nothing overtakes what was sent first.
+//! - Room: a peer's queue holds at most 1 MiB (one larger frame when it is empty). A sender
+//!   waits for room up to [`StreamConfig::write_timeout`], then gets [`LinkError::Congested`]
+//!   and the frame is not taken. Peers take turns: one write each.
+//! - Failures: a write that fails behind the sender drops the connection, as a failed `send`
+//!   does. Every frame it had, and every frame still queued, is counted in
+//!   [`StreamStats::held_frames_dropped`] (part of [`LinkStats::frames_dropped`]), and
+//!   [`StreamStats::write_failures`] counts the write. The next send reconnects.
+//! - Counting: [`StreamStats::frames_written_behind`] counts the frames the writer wrote.
+//!   [`Link::stats`]' `buffered_bytes` includes queued bytes and bytes being written.
+//! - Closing: dropping the link lets the writer finish its queue (each write bounded by the
+//!   write timeout) before the connections are shut.
+//!
 //! # Receiving
 //!
 //! A listener that can be polled ([`StreamListener::raw_fd`]: TCP and Unix sockets) is served
