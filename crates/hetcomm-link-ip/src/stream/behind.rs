@@ -153,7 +153,7 @@ impl<T: StreamTransport> StreamLink<T> {
         let entry = self.entry_for(to, frame.len())?;
         let mut slot = lock(&entry.slot);
         let behind = slot.behind.active()
-            || (slot.conn.is_some() && slot.behind.streaming() && self.start_writer());
+            || (slot.behind.streaming() && writer_handle(&mut slot) && self.start_writer());
         let result = if behind {
             let head = Some(record_header(frame.len()));
             let result;
@@ -300,6 +300,15 @@ fn move_held_behind<S>(slot: &mut PeerSlot<S>) {
     });
 }
 
+/// Makes sure the writer has its own handle of the peer's connection; false without a
+/// connection or if the socket cannot be cloned (the caller then writes itself).
+fn writer_handle<S: StreamSocket>(slot: &mut PeerSlot<S>) -> bool {
+    if slot.behind.socket.is_none() {
+        slot.behind.socket = slot.conn.as_ref().and_then(|c| c.try_clone().ok());
+    }
+    slot.behind.socket.is_some()
+}
+
 fn whole(frame: &FrameBuf) -> FrameParts<'_> {
     FrameParts::whole(frame)
 }
@@ -313,10 +322,8 @@ fn write_behind<T: StreamTransport>(shared: &Shared<T>, entry: &PeerEntry<T>) ->
     let records: Vec<Record> = slot.behind.records.drain(..).collect();
     let frames: usize = records.iter().map(|r| r.frames).sum();
     slot.behind.writing_bytes = std::mem::take(&mut slot.behind.queued_bytes);
-    let socket = match slot.behind.socket.take() {
-        Some(s) => Some(s),
-        None => slot.conn.as_ref().and_then(|c| c.try_clone().ok()),
-    };
+    // Made before the first record was queued (`writer_handle`), kept between turns.
+    let socket = slot.behind.socket.take();
     drop(slot);
     // The queue is empty again: room for senders waiting on it.
     entry.room.notify_all();
