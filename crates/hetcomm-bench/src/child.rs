@@ -28,6 +28,13 @@ pub const STOP: hetcomm::MessageType = hetcomm::MessageType(2);
 /// receiver's window starts with the timed messages.
 pub const PROBE: hetcomm::MessageType = hetcomm::MessageType(3);
 
+/// How long a sink that is still receiving keeps counting once its parent has closed its
+/// input; well within [`EXIT_AFTER_CLOSE`].
+const SINK_GRACE: Duration = Duration::from_secs(1);
+
+/// How long a peer lives after its parent closed its input (or went away).
+const EXIT_AFTER_CLOSE: Duration = Duration::from_secs(3);
+
 /// A running peer process.
 pub struct Peer {
     child: Child,
@@ -76,9 +83,16 @@ impl Peer {
 
     /// The next line the peer prints, waiting at most `timeout`.
     pub fn line(&self, timeout: Duration) -> Result<String, String> {
-        self.lines
-            .recv_timeout(timeout)
-            .map_err(|_| format!("peer printed nothing within {timeout:?}"))
+        match self.lines.recv_timeout(timeout) {
+            Ok(l) => Ok(l),
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                Err(format!("peer printed nothing within {timeout:?}"))
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => Err(format!(
+                "peer {} exited (or closed its output) without printing the expected line",
+                self.child.id()
+            )),
+        }
     }
 
     /// Waits for a line starting with `prefix` and returns the rest.
@@ -161,7 +175,7 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
         let closed = closed.clone();
         std::thread::spawn(move || loop {
             if closed.load(Ordering::SeqCst) {
-                std::thread::sleep(Duration::from_secs(3));
+                std::thread::sleep(EXIT_AFTER_CLOSE);
                 std::process::exit(0);
             }
             std::thread::sleep(Duration::from_millis(20));
@@ -219,13 +233,16 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
             if role.starts_with("hc-echo") {
                 while !closed.load(Ordering::SeqCst) {
                     if let Ok(msg) = m.recv_raw_timeout(Some(Duration::from_millis(50))) {
-                        let _ = m.send_raw("A", "M", DATA, &msg.payload, Default::default());
+                        // The echo is acknowledged as the ping is: it waits for room too.
+                        let by = Instant::now() + crate::hc::ROOM_WAIT;
+                        let _ = crate::hc::send_with_room(&m, "A", DATA, &msg.payload, by);
                     }
                 }
                 Ok(())
             } else {
                 let mut c = SinkCounter::default();
                 let mut last = Instant::now();
+                let mut closed_at: Option<Instant> = None;
                 // Taken in batches, as a consumer of a fast stream would (`recv_raw_many`);
                 // the clock is read once per batch, not per message.
                 let mut batch = Vec::with_capacity(crate::hc::RECV_BATCH);
@@ -250,6 +267,14 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                                 break 'recv;
                             }
                             last = Instant::now();
+                            // The parent has gone on (its STOP lost or stuck behind a backlog
+                            // this sink cannot drain): report before the exit watchdog fires.
+                            if closed.load(Ordering::SeqCst) {
+                                let since = *closed_at.get_or_insert(last);
+                                if last - since > SINK_GRACE {
+                                    break 'recv;
+                                }
+                            }
                         }
                         Err(_) => {
                             let idle = last.elapsed();
