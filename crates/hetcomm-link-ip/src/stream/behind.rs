@@ -30,7 +30,7 @@ pub(super) const STREAMING_GAP: Duration = Duration::from_micros(20);
 /// than this is still taken when the queue is empty).
 pub(super) const BEHIND_MAX_BYTES: usize = 1 << 20;
 
-/// One record waiting for the writer: the record header (empty for a moved batch of held
+/// One record waiting for the writer: the record header (`None` for a moved batch of held
 /// records, which carries its own) and the bytes.
 struct Record {
     head: Option<[u8; RECORD_HEADER_LEN]>,
@@ -46,11 +46,12 @@ pub(super) struct Behind<S> {
     queued_bytes: usize,
     /// Bytes the writer is writing now, outside the slot's lock (0: none).
     writing_bytes: usize,
-    /// The writer holds records outside the lock: every other write to this peer waits.
+    /// The writer has this peer (records outside the lock, or its turn in line): every other
+    /// frame to this peer goes behind its records.
     writing: bool,
     /// The writer's handle of the peer's connection (a clone of `conn`), while it is up.
     socket: Option<S>,
-    /// When the last given-away frame to this peer was taken.
+    /// When the caller's last given-away frame to this peer returned.
     last_given: Option<Instant>,
 }
 
