@@ -51,6 +51,13 @@ T0 = time.monotonic()
 # Zenoh's lease for every session (the systems' and the router's): a cut-off host's systems are
 # seen leaving this long after the cut at the earliest (Zenoh's default is 10 s).
 LEASE_MS = 3000
+# Zenoh's runtime for the router process: hetcomm_link_zenoh::router::ROUTER_RUNTIME (docs/zenoh.md,
+# "Routers and vanished clients"). Zenoh closes a dead session's TCP socket on one of its `rx`
+# threads, and the close blocks that thread up to 10 s (Zenoh sets SO_LINGER to 10 s) while data
+# for the dead client is unacknowledged. With Zenoh's default of 2 `rx` threads, the 20 sessions
+# cut here stalled the router's receiving for up to 100 s, during which healthy sessions' leases
+# expired too. HCZ_ROUTER_RUNTIME overrides it ("" for Zenoh's default: the old behaviour).
+ROUTER_RUNTIME = os.environ.get("HCZ_ROUTER_RUNTIME", "(rx: (worker_threads: 32))")
 
 
 def log(msg: str) -> None:
@@ -256,7 +263,11 @@ def main() -> int:
                 cmd = [NODE, "--router", ENDPOINT, str(LEASE_MS)]
             else:
                 cmd = [HETCOMM, "zenoh-router", "--listen", ENDPOINT, "--lease-ms", str(LEASE_MS)]
-            r = subprocess.Popen(["ip", "netns", "exec", NS[0], *cmd], stdout=subprocess.PIPE, text=True)
+            env = dict(os.environ)
+            if ROUTER_RUNTIME:
+                env["ZENOH_RUNTIME"] = ROUTER_RUNTIME
+            r = subprocess.Popen(["ip", "netns", "exec", NS[0], *cmd], stdout=subprocess.PIPE, text=True,
+                                 env=env)
             procs.append(r)
             if log_dir:
                 out = open(os.path.join(log_dir, "router.log"), "a")

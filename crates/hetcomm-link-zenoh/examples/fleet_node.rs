@@ -120,16 +120,19 @@ struct Received {
 }
 
 fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if let [flag, endpoint, lease_ms] = args.as_slice() {
+        if flag == "--router" {
+            // As a router process should (before any thread and anything of Zenoh's).
+            hetcomm_link_zenoh::router::use_router_runtime();
+            zenoh::try_init_log_from_env();
+            router(endpoint, lease_ms);
+        }
+    }
     // Zenoh's own log when RUST_LOG asks for it: on stdout, between the JSON lines (Zenoh's
     // formatter writes there; scripts/zenoh-multihost.py keeps the lines that are not JSON in
     // a file with HCZ_LOG_DIR). How reconnections are looked into.
     zenoh::try_init_log_from_env();
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    if let [flag, endpoint, lease_ms] = args.as_slice() {
-        if flag == "--router" {
-            router(endpoint, lease_ms);
-        }
-    }
     let [fleet, system] = args.as_slice() else {
         eprintln!("usage: fleet_node FLEET.toml SYSTEM");
         std::process::exit(2);
