@@ -352,10 +352,10 @@ def main() -> int:
         log(f"   meanwhile the other hosts' systems deliver to each other "
             f"({time.monotonic() - t:.2f} s for a round)")
         # Zenoh's lease: the router drops the cut-off sessions (and their tokens) once it has
-        # heard nothing from them for LEASE_MS, then tells the others. How long that takes
-        # beyond the lease varies with Zenoh's router (it drains what it queued for each dead
-        # session first: 13-85 s seen here with a 3 s lease), so it is measured and reported,
-        # and only the fail-fast send below requires it.
+        # heard nothing from them for LEASE_MS, then tells the others: 2.3-3.0 s after the cut
+        # with ROUTER_RUNTIME, 12-84 s (and not always all) with Zenoh's default 2 rx threads
+        # (HCZ_ROUTER_RUNTIME=""). It is measured and reported; only the fail-fast send below
+        # requires it.
         def leaves():
             return [(s, c) for s in kept for c in cut if c in nodes[s].left]
         wait_until("a kept system sees a cut-off system leave", lambda: leaves(), 120)
