@@ -16,7 +16,12 @@ Phases, every outcome checked:
   4. router restart: the router process is killed and started again; the fleet recovers;
   5. join and leave: S30, in the fleet file from the start but started only now, joins
      (the others see it and deliver to it); when it exits they see it leave;
-and at the end no message was delivered twice anywhere.
+and at the end no message was delivered twice anywhere. HCZ_STOP_AFTER_HEAL=1 stops after phase 3
+(to loop on the partition and heal); HCZ_PAUSE_ON_FAILURE=SECONDS keeps everything up that long
+after a failed wait, for a look; HCZ_LOG_DIR=DIR keeps each node's lines that are not JSON (Zenoh's
+log, with RUST_LOG=zenoh=debug) in DIR/SYSTEM.log, and runs the router as `fleet_node --router` (the
+same router) to keep its log in DIR/router.log. A failed wait prints the TCP connections to the router's
+port in every namespace.
 
     sudo python3 scripts/zenoh-multihost.py HETCOMM_BINARY FLEET_NODE_BINARY
 
@@ -46,6 +51,13 @@ T0 = time.monotonic()
 # Zenoh's lease for every session (the systems' and the router's): a cut-off host's systems are
 # seen leaving this long after the cut at the earliest (Zenoh's default is 10 s).
 LEASE_MS = 3000
+# Zenoh's runtime for the router process: hetcomm_link_zenoh::router::ROUTER_RUNTIME (docs/zenoh.md,
+# "Routers and vanished clients"). Zenoh closes a dead session's TCP socket on one of its `rx`
+# threads, and the close blocks that thread up to 10 s (Zenoh sets SO_LINGER to 10 s) while data
+# for the dead client is unacknowledged. With Zenoh's default of 2 `rx` threads, the 20 sessions
+# cut here stalled the router's receiving for up to 100 s, during which healthy sessions' leases
+# expired too. HCZ_ROUTER_RUNTIME overrides it ("" for Zenoh's default: the old behaviour).
+ROUTER_RUNTIME = os.environ.get("HCZ_ROUTER_RUNTIME", "(rx: (worker_threads: 32))")
 
 
 def log(msg: str) -> None:
@@ -72,6 +84,10 @@ class Node:
         # Systems no link of this node sees any more, having seen them, and when (time).
         self.left: dict[str, float] = {}
         self.lock = threading.Lock()
+        # HCZ_LOG_DIR: the node's lines that are not JSON (Zenoh's log, with RUST_LOG), in
+        # DIR/SYSTEM.log.
+        log_dir = os.environ.get("HCZ_LOG_DIR")
+        self.log = open(os.path.join(log_dir, f"{system}.log"), "a") if log_dir else None
         self.p = subprocess.Popen(
             ["ip", "netns", "exec", NS[HOST_OF[system]], NODE, fleet, system],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
@@ -82,6 +98,9 @@ class Node:
             try:
                 e = json.loads(line)
             except ValueError:
+                if self.log:
+                    self.log.write(line)
+                    self.log.flush()
                 continue
             with self.lock:
                 if e["event"] == "outcome":
@@ -116,10 +135,25 @@ class Node:
         return self.wait_event("received")
 
 
+def sockets() -> str:
+    """The TCP connections to and from the router's port in every host's namespace."""
+    out = []
+    for ns in NS:
+        r = subprocess.run(["ip", "netns", "exec", ns, "ss", "-tnaH", "( sport = :7447 or dport = :7447 )"],
+                           capture_output=True, text=True)
+        states: dict[str, int] = {}
+        for line in r.stdout.splitlines():
+            state = line.split()[0]
+            states[state] = states.get(state, 0) + 1
+        out.append(f"{ns}: {states}")
+    return "; sockets: " + ", ".join(out)
+
+
 def wait_until(what: str, cond, timeout: float, detail=lambda: "") -> None:
     deadline = time.monotonic() + timeout
     while not cond():
         if time.monotonic() > deadline:
+            log(f"timed out: {what}{sockets()}")
             if os.environ.get("HCZ_PAUSE_ON_FAILURE"):
                 log(f"FAILED: {what}; paused (HCZ_PAUSE_ON_FAILURE) {detail()}")
                 time.sleep(float(os.environ["HCZ_PAUSE_ON_FAILURE"]))
@@ -222,10 +256,33 @@ def main() -> int:
         subprocess.run([HETCOMM, "validate", fleet], check=True)
 
         def start_router() -> subprocess.Popen:
-            r = subprocess.Popen(["ip", "netns", "exec", NS[0], HETCOMM, "zenoh-router",
-                                  "--listen", ENDPOINT, "--lease-ms", str(LEASE_MS)], stdout=subprocess.PIPE, text=True)
+            log_dir = os.environ.get("HCZ_LOG_DIR")
+            if log_dir:
+                # The same router (ZenohRouter) run by fleet_node, whose stdout carries Zenoh's
+                # log (RUST_LOG): kept in DIR/router.log by a thread.
+                cmd = [NODE, "--router", ENDPOINT, str(LEASE_MS)]
+            else:
+                cmd = [HETCOMM, "zenoh-router", "--listen", ENDPOINT, "--lease-ms", str(LEASE_MS)]
+            env = dict(os.environ)
+            if ROUTER_RUNTIME:
+                env["ZENOH_RUNTIME"] = ROUTER_RUNTIME
+            r = subprocess.Popen(["ip", "netns", "exec", NS[0], *cmd], stdout=subprocess.PIPE, text=True,
+                                 env=env)
             procs.append(r)
-            if r.stdout.readline().strip() != "ready":
+            if log_dir:
+                out = open(os.path.join(log_dir, "router.log"), "a")
+                for line in r.stdout:
+                    if line.strip() == "ready":
+                        break
+                    out.write(line)
+                def drain() -> None:
+                    for line in r.stdout:
+                        out.write(line)
+                        out.flush()
+                threading.Thread(target=drain, daemon=True).start()
+            elif r.stdout.readline().strip() != "ready":
+                raise SystemExit("FAILED: the router did not start")
+            if r.poll() is not None:
                 raise SystemExit("FAILED: the router did not start")
             return r
 
@@ -295,10 +352,10 @@ def main() -> int:
         log(f"   meanwhile the other hosts' systems deliver to each other "
             f"({time.monotonic() - t:.2f} s for a round)")
         # Zenoh's lease: the router drops the cut-off sessions (and their tokens) once it has
-        # heard nothing from them for LEASE_MS, then tells the others. How long that takes
-        # beyond the lease varies with Zenoh's router (it drains what it queued for each dead
-        # session first: 13-85 s seen here with a 3 s lease), so it is measured and reported,
-        # and only the fail-fast send below requires it.
+        # heard nothing from them for LEASE_MS, then tells the others: 2.3-3.0 s after the cut
+        # with ROUTER_RUNTIME, 12-84 s (and not always all) with Zenoh's default 2 rx threads
+        # (HCZ_ROUTER_RUNTIME=""). It is measured and reported; only the fail-fast send below
+        # requires it.
         def leaves():
             return [(s, c) for s in kept for c in cut if c in nodes[s].left]
         wait_until("a kept system sees a cut-off system leave", lambda: leaves(), 120)
@@ -329,6 +386,10 @@ def main() -> int:
         want = ring_round(nodes, live, "p3")
         check_arrivals(nodes, "p3", want)
         log("   traffic delivered again")
+        if os.environ.get("HCZ_STOP_AFTER_HEAL"):
+            # For looping on the partition and heal alone (a flaky heal is hunted this way).
+            print("zenoh multi-host: ok (stopped after the heal, HCZ_STOP_AFTER_HEAL)")
+            return 0
 
         # --- 4: router restart ----------------------------------------------------------------
         router.kill()

@@ -3,6 +3,7 @@
 //!
 //! ```text
 //! fleet_node FLEET.toml SYSTEM
+//! fleet_node --router ENDPOINT LEASE_MS
 //! ```
 //!
 //! It opens SYSTEM (its `zenoh` links find the others through Zenoh), prints
@@ -18,6 +19,8 @@
 //! Every join and leave its Zenoh links see is printed as
 //! `{"event":"joined"|"left","system":..,"links":N}`, N the number of its links that see that
 //! system now (a system on two `zenoh` transports has joined fully at 2, left fully at 0).
+//!
+//! With `RUST_LOG` set (e.g. `zenoh=debug`), Zenoh's log lines (not JSON) go to stdout too.
 
 use std::collections::HashMap;
 use std::io::{BufRead, Write};
@@ -25,6 +28,32 @@ use std::sync::{Arc, Mutex};
 
 use hetcomm::{Comm, MessageType, Outcome, SendOptions, Ticket};
 use hetcomm_link_zenoh::PresenceEvent;
+
+/// `fleet_node --router ENDPOINT LEASE_MS`: what `hetcomm zenoh-router --listen ENDPOINT
+/// --lease-ms LEASE_MS` runs (the same [`hetcomm_link_zenoh::router::ZenohRouter`]), with
+/// Zenoh's log on stdout after `ready` when `RUST_LOG` asks for it.
+fn router(endpoint: &str, lease_ms: &str) -> ! {
+    let Ok(lease_ms) = lease_ms.parse() else {
+        eprintln!("--router: LEASE_MS must be a number of milliseconds");
+        std::process::exit(2);
+    };
+    // Kept open (closed at exit).
+    let _router = match hetcomm_link_zenoh::router::ZenohRouter::start_with_lease(
+        &[endpoint.into()],
+        false,
+        lease_ms,
+    ) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("router: {e}");
+            std::process::exit(1);
+        }
+    };
+    emit("ready".into());
+    loop {
+        std::thread::park();
+    }
+}
 
 /// One JSON line on stdout, whole (lines from several threads do not interleave).
 fn emit(line: String) {
@@ -92,6 +121,18 @@ struct Received {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if let [flag, endpoint, lease_ms] = args.as_slice() {
+        if flag == "--router" {
+            // As a router process should (before any thread and anything of Zenoh's).
+            hetcomm_link_zenoh::router::use_router_runtime();
+            zenoh::try_init_log_from_env();
+            router(endpoint, lease_ms);
+        }
+    }
+    // Zenoh's own log when RUST_LOG asks for it: on stdout, between the JSON lines (Zenoh's
+    // formatter writes there; scripts/zenoh-multihost.py keeps the lines that are not JSON in
+    // a file with HCZ_LOG_DIR). How reconnections are looked into.
+    zenoh::try_init_log_from_env();
     let [fleet, system] = args.as_slice() else {
         eprintln!("usage: fleet_node FLEET.toml SYSTEM");
         std::process::exit(2);

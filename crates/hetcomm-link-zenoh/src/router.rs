@@ -8,6 +8,28 @@ use zenoh::Wait;
 use crate::config::check_endpoint;
 use crate::OpenError;
 
+/// Zenoh's runtime settings for a router process, in the syntax of Zenoh's `ZENOH_RUNTIME`
+/// environment variable: 32 `rx` threads instead of Zenoh's 2.
+///
+/// Why: when a client vanishes (its host cut off), the router drops its session once the lease
+/// expires, and closing the session's TCP socket blocks the `rx` thread that does it for up to
+/// 10 s (Zenoh's TCP link sets `SO_LINGER` to 10 s, and data for the dead client is never
+/// acknowledged). With 2 `rx` threads, 20 clients cut at once stall all of the router's
+/// receiving for about 100 s: it routes nothing, healthy clients' leases expire in turn, and
+/// the clients that come back are dropped again (`docs/zenoh.md`, "Routers and vanished
+/// clients"). Each `rx` thread is idle otherwise.
+pub const ROUTER_RUNTIME: &str = "(rx: (worker_threads: 32))";
+
+/// Sets `ZENOH_RUNTIME` to [`ROUTER_RUNTIME`] unless it is set already. For the start of a
+/// router process's `main`: Zenoh reads the variable once, when it first starts its threads,
+/// and changing the environment while other threads may read it is unsound, so call it before
+/// any other thread runs and before anything of Zenoh's.
+pub fn use_router_runtime() {
+    if std::env::var_os("ZENOH_RUNTIME").is_none() {
+        std::env::set_var("ZENOH_RUNTIME", ROUTER_RUNTIME);
+    }
+}
+
 /// A running Zenoh router session; closed when dropped.
 pub struct ZenohRouter {
     session: Option<zenoh::Session>,
@@ -23,6 +45,9 @@ impl ZenohRouter {
 
     /// [`ZenohRouter::start`] with Zenoh's lease for the router's sessions (how long the
     /// others wait before they consider the router gone; Zenoh's default is 10 000 ms).
+    ///
+    /// A router that serves clients which may vanish together (a host cut off) needs more of
+    /// Zenoh's `rx` threads than Zenoh's default: see [`use_router_runtime`].
     pub fn start_with_lease(
         listen: &[String],
         multicast_scouting: bool,
