@@ -620,6 +620,10 @@ fn zenoh_router(
     lease_ms: u32,
 ) -> anyhow::Result<ExitCode> {
     use std::io::Write;
+    // Enough of Zenoh's receive threads that clients vanishing together do not stall the
+    // router (docs/zenoh.md, "Routers and vanished clients"). Set while this process has one
+    // thread, before Zenoh reads it.
+    hetcomm_link_zenoh::router::use_router_runtime();
     let router = hetcomm_link_zenoh::router::ZenohRouter::start_with_lease(
         listen,
         multicast_scouting,
