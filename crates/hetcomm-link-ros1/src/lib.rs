@@ -67,7 +67,7 @@
 //!   answers again without our registration (it was restarted), the link re-registers: it
 //!   creates a new ROS node with a fresh subscriber and publishers and drops the old one, so
 //!   traffic resumes through the new master. [`LinkStats::connects`] counts registrations.
-//! * The link also re-registers when sends to a destination keep waiting in vain (2 s) while
+//! * The link also re-registers when sends to a destination keep waiting in vain (3 s) while
 //!   its hetcomm subscriber is listed by the master and its node answers `getPid`: roslibrust
 //!   takes a publisher's subscribers one at a time and waits for each one's TCPROS header
 //!   (and a subscriber for a publisher's `requestTopic` answer) without a time limit, so one

@@ -142,7 +142,7 @@ pub(super) const FOREIGN_FLUSH_GRACE: Duration = Duration::from_millis(50);
 /// listening ports and a subscriber that gets the current publishers from the master's answer,
 /// so the connection is made afresh. Repeated re-registrations back off (doubling up to
 /// [`HEAL_BACKOFF_MAX`]) while the destination keeps not answering.
-pub(super) const HEAL_AFTER: Duration = Duration::from_secs(2);
+pub(super) const HEAL_AFTER: Duration = Duration::from_secs(3);
 
 /// Longest pause between re-registrations for a destination that keeps not answering.
 pub(super) const HEAL_BACKOFF_MAX: Duration = Duration::from_secs(60);
