@@ -158,10 +158,15 @@ pub(super) async fn wait_connected(
                 (None, Some(p)) => format!("the ROS master did not answer: {p}"),
                 (None, None) => "the ROS master did not answer in time".to_string(),
                 (Some(s), _) if s.is_empty() => format!("no node subscribes to {topic}"),
-                (Some(s), _) if ours => format!(
-                    "subscribed by {}; no answer to the connection probe",
-                    s.join(", ")
-                ),
+                (Some(s), _) if ours => {
+                    if let Some(dest) = shared.wiring.dests.get(&to) {
+                        dest.mark_unanswered();
+                    }
+                    format!(
+                        "subscribed by {}; no answer to the connection probe",
+                        s.join(", ")
+                    )
+                }
                 (Some(s), _) => format!(
                     "subscribed by {}; no getBusInfo lists a connection from this node",
                     s.join(", ")

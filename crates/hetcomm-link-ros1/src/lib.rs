@@ -67,6 +67,13 @@
 //!   answers again without our registration (it was restarted), the link re-registers: it
 //!   creates a new ROS node with a fresh subscriber and publishers and drops the old one, so
 //!   traffic resumes through the new master. [`LinkStats::connects`] counts registrations.
+//! * The link also re-registers when sends to a destination keep waiting in vain (3 s) while
+//!   its hetcomm subscriber is listed by the master and its node answers `getPid`: roslibrust
+//!   takes a publisher's subscribers one at a time and waits for each one's TCPROS header
+//!   (and a subscriber for a publisher's `requestTopic` answer) without a time limit, so one
+//!   stalled connection can keep two live nodes apart for good; new registrations have new
+//!   ports. Repeated re-registrations for a destination that keeps not answering back off
+//!   (doubling, at most one a minute).
 //!
 //! ## Threads
 //!
@@ -297,6 +304,34 @@ struct Dest {
     /// Frames queued for it since the last probe it answered: closing the link waits until
     /// a probe behind them is answered, so that they are not lost in the publisher's queue.
     unflushed: AtomicU64,
+    /// Since when its hetcomm subscriber, listed by the master, has answered none of our
+    /// probes, and when a wait for it last ended so (None: it answered, or nobody waited for
+    /// it since the last registration). The supervision task re-registers when this lasts
+    /// while sends still wait (see [`tasks::HEAL_AFTER`]).
+    unanswered: Mutex<Option<(Instant, Instant)>>,
+}
+
+impl Dest {
+    /// Records that a wait for its subscriber ended without an answer to the probes.
+    fn mark_unanswered(&self) {
+        let now = Instant::now();
+        let mut unanswered = self.unanswered.lock().unwrap_or_else(|e| e.into_inner());
+        let since = unanswered.map_or(now, |(since, _)| since);
+        *unanswered = Some((since, now));
+    }
+
+    /// Forgets that its subscriber did not answer.
+    fn clear_unanswered(&self) {
+        *self.unanswered.lock().unwrap_or_else(|e| e.into_inner()) = None;
+    }
+
+    /// How long its subscriber has answered none of our probes, if it has not and a wait for
+    /// it failed within `recent` (a destination nobody sends to any more is left alone).
+    fn unanswered_for(&self, recent: Duration) -> Option<Duration> {
+        let unanswered = self.unanswered.lock().unwrap_or_else(|e| e.into_inner());
+        let (since, last) = (*unanswered)?;
+        (last.elapsed() <= recent).then(|| since.elapsed())
+    }
 }
 
 /// The subscribers of a destination's topic that its connection depends on: its hetcomm

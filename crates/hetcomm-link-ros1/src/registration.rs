@@ -10,13 +10,16 @@ impl Wiring {
             *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) =
                 Some(relevant(subscribers));
             dest.connected.store(true, Ordering::Release);
+            dest.clear_unanswered();
         }
     }
 
-    /// Forgets every connection (a new registration has new publishers).
+    /// Forgets every connection (a new registration has new publishers), and that any
+    /// destination did not answer (the new registration has not asked yet).
     pub(super) fn forget_all(&self) {
         for d in self.dests.values() {
             d.connected.store(false, Ordering::Release);
+            d.clear_unanswered();
         }
     }
 }

@@ -44,6 +44,7 @@ pub(super) async fn receive_loop(
                     if let Some(dest) = wiring.dests.get(&from) {
                         *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) = None;
                         dest.connected.store(true, Ordering::Release);
+                        dest.clear_unanswered();
                     }
                 }
                 // Other empty messages (e.g. `rostopic pub` with no data) are ignored.
@@ -130,13 +131,32 @@ pub(super) async fn publish_loop(
 /// answers no probes.
 pub(super) const FOREIGN_FLUSH_GRACE: Duration = Duration::from_millis(50);
 
-/// Checks the master periodically; re-registers when it lost our registration, and forgets
-/// the connection of destinations whose subscribers changed.
+/// How long a destination's hetcomm subscriber, listed by the master and alive (its node
+/// answers `getPid`), may leave our probes unanswered before the link re-registers.
+///
+/// roslibrust's publishers take subscribers one at a time, reading each one's TCPROS header
+/// without a time limit, and its subscribers ask a publisher for its TCP endpoint without one
+/// either: one connection that never sends its header (or a stale `publisherUpdate` that
+/// reaches a node that reused a dead node's port) leaves a pair of live nodes unconnected for
+/// good, and sends to that destination would fail forever. A new registration has new
+/// listening ports and a subscriber that gets the current publishers from the master's answer,
+/// so the connection is made afresh. Repeated re-registrations back off (doubling up to
+/// [`HEAL_BACKOFF_MAX`]) while the destination keeps not answering.
+pub(super) const HEAL_AFTER: Duration = Duration::from_secs(3);
+
+/// Longest pause between re-registrations for a destination that keeps not answering.
+pub(super) const HEAL_BACKOFF_MAX: Duration = Duration::from_secs(60);
+
+/// Checks the master periodically; re-registers when it lost our registration, or when a live
+/// destination has answered no probe for [`HEAL_AFTER`], and forgets the connection of
+/// destinations whose subscribers changed.
 pub(super) async fn supervise_loop(shared: Arc<Shared>) {
     let plan = &shared.plan;
     let mut tick = tokio::time::interval(plan.config.supervise_interval);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tick.tick().await;
+    let mut heal_backoff = HEAL_AFTER;
+    let mut heal_not_before = Instant::now();
     loop {
         tick.tick().await;
         let node_name = shared.identity().node_name;
@@ -157,44 +177,110 @@ pub(super) async fn supervise_loop(shared: Arc<Shared>) {
                         Some(_) => {}
                     }
                 }
-                MasterState::Registered
-            }
-            Ok(_) => {
-                // The master answers but does not know us: it was restarted. Register anew.
-                match tokio::time::timeout(
-                    plan.config.open_timeout,
-                    register(plan, shared.wiring.clone(), shared.counters.clone()),
-                )
-                .await
+                let stuck: Vec<SystemId> = shared
+                    .wiring
+                    .dests
+                    .iter()
+                    .filter(|(_, d)| {
+                        d.unanswered_for(HEAL_AFTER)
+                            .is_some_and(|t| t >= HEAL_AFTER)
+                    })
+                    .map(|(&to, _)| to)
+                    .collect();
+                if stuck.is_empty() {
+                    heal_backoff = HEAL_AFTER;
+                    MasterState::Registered
+                } else if Instant::now() >= heal_not_before
+                    && any_alive(&shared, &graph, &stuck).await
                 {
-                    Ok(Ok(registration)) => {
-                        let identity = Identity {
-                            node_name: registration.node_name.clone(),
-                            uri: registration.client.client_uri().to_string(),
-                        };
-                        if shared
-                            .wiring
-                            .commands
-                            .send(Command::Swap(registration))
-                            .await
-                            .is_err()
-                        {
-                            return;
-                        }
-                        shared.wiring.forget_all();
-                        *shared.identity.lock().unwrap_or_else(|e| e.into_inner()) = identity;
-                        MasterState::Registered
+                    heal_not_before = Instant::now() + heal_backoff;
+                    heal_backoff = (heal_backoff * 2).min(HEAL_BACKOFF_MAX);
+                    match reregister(&shared).await {
+                        Some(state) => state,
+                        None => return,
                     }
-                    Ok(Err(e)) => MasterState::Reregistering(e.to_string()),
-                    Err(_) => MasterState::Reregistering(format!(
-                        "no answer within {:?}",
-                        plan.config.open_timeout
-                    )),
+                } else {
+                    MasterState::Registered
                 }
             }
+            // The master answers but does not know us: it was restarted. Register anew.
+            Ok(_) => match reregister(&shared).await {
+                Some(state) => state,
+                None => return,
+            },
         };
         *shared.master.lock().unwrap_or_else(|e| e.into_inner()) = new_state;
     }
+}
+
+/// Whether a hetcomm subscriber of one of `systems`' topics is a running node (its XML-RPC
+/// server answers `getPid`): a stale registration of a node that died needs no new
+/// registration of ours.
+async fn any_alive(shared: &Shared, graph: &xmlrpc::Graph, systems: &[SystemId]) -> bool {
+    let plan = &shared.plan;
+    let timeout = plan.config.master_call_timeout;
+    let me = shared.identity().node_name;
+    for to in systems {
+        let topic = &plan.peer_topics[to];
+        let name = topic.rsplit('/').next().unwrap_or_default();
+        let prefix = format!("{NODE_PREFIX}{name}_");
+        for node in graph.subscribers(topic) {
+            if !node.starts_with(&prefix) {
+                continue;
+            }
+            let http = &shared.wiring.http;
+            let args = vec![me.clone().into(), node.clone().into()];
+            let Ok(serde_xmlrpc::Value::String(uri)) =
+                xmlrpc::call(http, &plan.master_uri, "lookupNode", args, timeout).await
+            else {
+                continue;
+            };
+            let args = vec![me.clone().into()];
+            if xmlrpc::call(http, &uri, "getPid", args, timeout)
+                .await
+                .is_ok()
+            {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// Registers a new node and has the publishing task swap it in (the old one is retired);
+/// the resulting state, or None if the link is closing.
+async fn reregister(shared: &Shared) -> Option<MasterState> {
+    let plan = &shared.plan;
+    let state = match tokio::time::timeout(
+        plan.config.open_timeout,
+        register(plan, shared.wiring.clone(), shared.counters.clone()),
+    )
+    .await
+    {
+        Ok(Ok(registration)) => {
+            let identity = Identity {
+                node_name: registration.node_name.clone(),
+                uri: registration.client.client_uri().to_string(),
+            };
+            if shared
+                .wiring
+                .commands
+                .send(Command::Swap(registration))
+                .await
+                .is_err()
+            {
+                return None;
+            }
+            shared.wiring.forget_all();
+            *shared.identity.lock().unwrap_or_else(|e| e.into_inner()) = identity;
+            MasterState::Registered
+        }
+        Ok(Err(e)) => MasterState::Reregistering(e.to_string()),
+        Err(_) => {
+            MasterState::Reregistering(format!("no answer within {:?}", plan.config.open_timeout))
+        }
+    };
+    Some(state)
 }
 
 /// Waits, all at once and at most the connect timeout, for the subscribers of the peers that

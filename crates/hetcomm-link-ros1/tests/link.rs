@@ -386,6 +386,46 @@ fn the_first_frame_to_a_new_peer_arrives() {
     }
 }
 
+/// roslibrust's publisher takes subscribers one at a time and waits for each one's TCPROS
+/// header without a time limit: one connection that never sends it (here a bare TCP
+/// connection, held open) keeps every later subscriber out for good. The link sees that the
+/// destination, alive and listed by the master, answers no probe, and registers anew (new
+/// publishers on new ports): frames reach it within a few seconds all the same.
+#[test]
+fn a_publisher_stalled_by_a_silent_connection_is_replaced() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let systems = names(&[(1, "A"), (2, "B")]);
+    let open = |id: u16, sink: Arc<CollectSink>| {
+        Ros1Link::open(
+            SystemId(id),
+            &systems,
+            &settings(&master, "stall"),
+            sink,
+            Ros1Config::default(),
+        )
+        .expect("open")
+    };
+    let a = open(1, CollectSink::new());
+    let port = master.tcpros_port(&a.node_name(), "/stall/B");
+    let silent = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connecting");
+    let sb = CollectSink::new();
+    let _b = open(2, sb.clone());
+    let started = Instant::now();
+    let mut last = Ok(());
+    while sb.wait_for(1, Duration::from_millis(100)) == 0 {
+        assert!(
+            started.elapsed() < WAIT,
+            "A never reached B past a stalled publisher: {last:?}"
+        );
+        last = a.send(SystemId(2), b"past the stall");
+    }
+    assert_eq!(sb.frames()[0].bytes, b"past the stall".to_vec());
+    assert!(a.stats().connects >= 2, "A did not register anew");
+    drop(silent);
+}
+
 #[test]
 fn rostopic_sees_our_topics_and_frames() {
     let Some(master) = Master::start() else {
