@@ -125,6 +125,18 @@ impl Harness for RosHarness {
     }
 }
 
+/// System `id` of the fleet A (1), B (2), with the default configuration, in `namespace`.
+fn open_ab(master: &Master, namespace: &str, id: u16, sink: Arc<CollectSink>) -> Ros1Link {
+    Ros1Link::open(
+        SystemId(id),
+        &names(&[(1, "A"), (2, "B")]),
+        &settings(master, namespace),
+        sink,
+        Ros1Config::default(),
+    )
+    .expect("open")
+}
+
 /// A harness for systems A (1) and B (2) on a fresh master, or None without ROS.
 fn two_systems() -> Option<RosHarness> {
     Some(RosHarness {
@@ -346,17 +358,7 @@ fn the_first_frame_to_a_new_peer_arrives() {
     let Some(master) = Master::start() else {
         return;
     };
-    let systems = names(&[(1, "A"), (2, "B")]);
-    let open = |id: u16, sink: Arc<CollectSink>| {
-        Ros1Link::open(
-            SystemId(id),
-            &systems,
-            &settings(&master, "first"),
-            sink,
-            Ros1Config::default(),
-        )
-        .expect("open")
-    };
+    let open = |id: u16, sink: Arc<CollectSink>| open_ab(&master, "first", id, sink);
     let sa = CollectSink::new();
     let a = open(1, sa.clone());
     for round in 0..10u8 {
@@ -396,17 +398,7 @@ fn a_publisher_stalled_by_a_silent_connection_is_replaced() {
     let Some(master) = Master::start() else {
         return;
     };
-    let systems = names(&[(1, "A"), (2, "B")]);
-    let open = |id: u16, sink: Arc<CollectSink>| {
-        Ros1Link::open(
-            SystemId(id),
-            &systems,
-            &settings(&master, "stall"),
-            sink,
-            Ros1Config::default(),
-        )
-        .expect("open")
-    };
+    let open = |id: u16, sink: Arc<CollectSink>| open_ab(&master, "stall", id, sink);
     let a = open(1, CollectSink::new());
     let port = master.tcpros_port(&a.node_name(), "/stall/B");
     let silent = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connecting");

@@ -348,10 +348,7 @@ fn write_behind<T: StreamTransport>(shared: &Shared<T>, entry: &PeerEntry<T>) ->
             bump(&shared.counters.write_failures);
             let queued = slot.behind.clear();
             add(&shared.counters.held_frames_dropped, frames + queued);
-            if let Some(c) = slot.conn.take() {
-                let _ = c.shutdown_both();
-            }
-            slot.behind.connection_dropped();
+            slot.drop_connection();
         }
     }
     let more = !slot.behind.records.is_empty();

@@ -299,11 +299,7 @@ impl<T: StreamTransport> StreamLink<T> {
                 Ok(())
             }
             Err(e) => {
-                // Something may be half written: this connection can no longer be framed.
-                if let Some(s) = conn.take() {
-                    let _ = s.shutdown_both();
-                }
-                slot.behind.connection_dropped();
+                slot.drop_connection();
                 bump(&counters.write_failures);
                 add(&counters.held_frames_dropped, held);
                 Err(write_error(to, &entry.addr, &e, cfg.write_timeout))

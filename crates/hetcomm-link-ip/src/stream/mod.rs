@@ -567,6 +567,18 @@ impl<S> PeerSlot<S> {
         n
     }
 
+    /// Shuts the connection down and forgets it, the write-behind handle with it: after a
+    /// failed (perhaps half-done) write it can no longer be framed. The next send reconnects.
+    fn drop_connection(&mut self)
+    where
+        S: StreamSocket,
+    {
+        if let Some(s) = self.conn.take() {
+            let _ = s.shutdown_both();
+        }
+        self.behind.connection_dropped();
+    }
+
     /// Marks everything pending as released (written as soon as the connection is up).
     fn release_all(&mut self) {
         self.released = self.out.len();

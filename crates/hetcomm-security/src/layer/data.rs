@@ -146,23 +146,22 @@ impl Secured {
     ) -> Result<(), LinkError> {
         let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
         self.take_sim_session(to, &mut st);
-        if !held && head.len() + body.len() >= GIVE_AWAY_FROM {
-            if let Some(session) = st.current.as_ref().filter(|_| !st.flushing) {
-                // Sealed into a buffer of its own that the link may keep and write while the
-                // caller seals the next frame (a stream link writes behind a streaming sender).
-                let mut buf = self
-                    .sealed_pool
-                    .take_reused(OVERHEAD + head.len() + body.len());
-                session.seal(&mut buf, self.policy.local, to, head, body);
-                drop(st);
-                return below.send_owned(to, self.sealed_pool.wrap(buf));
-            }
-        }
-        let mut buf = take_scratch(&TX);
         match &st.current {
             // Sealed under the lock (it orders nothing: the counter is atomic), which spares
             // taking a reference to the session for every frame.
             Some(session) if !st.flushing => {
+                if !held && head.len() + body.len() >= GIVE_AWAY_FROM {
+                    // Sealed into a buffer of its own that the link may keep and write while
+                    // the caller seals the next frame (a stream link writes behind a
+                    // streaming sender).
+                    let mut buf = self
+                        .sealed_pool
+                        .take_reused(OVERHEAD + head.len() + body.len());
+                    session.seal(&mut buf, self.policy.local, to, head, body);
+                    drop(st);
+                    return below.send_owned(to, self.sealed_pool.wrap(buf));
+                }
+                let mut buf = take_scratch(&TX);
                 session.seal(&mut buf, self.policy.local, to, head, body);
                 drop(st);
                 let sent = if held {
@@ -173,10 +172,7 @@ impl Secured {
                 give_scratch(&TX, buf);
                 sent
             }
-            _ => {
-                give_scratch(&TX, buf);
-                self.hold(below, to, slot, st, head, body)
-            }
+            _ => self.hold(below, to, slot, st, head, body),
         }
     }
 
