@@ -394,6 +394,7 @@ pub fn oneway(
     let before = pair.comm.stats().router;
     let mut sent = 0;
     let cpu_before = crate::child::cpu_us(libc::RUSAGE_THREAD);
+    let process_before = crate::child::cpu_us(libc::RUSAGE_SELF);
     let end = Instant::now() + duration;
     while Instant::now() < end {
         for _ in 0..16 {
@@ -403,11 +404,20 @@ pub fn oneway(
         }
     }
     if crate::child::cpu_report_wanted() && sent > 0 {
-        // The sending thread's own CPU time: a sender's cost, as the sink's line gives the
-        // receiver's.
+        // The sending thread's own CPU time: what limits how fast one thread sends. Then the
+        // whole process's (the link's writer and receive threads too), as the sink's line
+        // gives the receiver's.
         let after = crate::child::cpu_us(libc::RUSAGE_THREAD);
-        let who = format!("sender {} {size} B", path_name(kind, acked));
+        let process_after = crate::child::cpu_us(libc::RUSAGE_SELF);
+        let path = path_name(kind, acked);
+        let who = format!("sender {path} {size} B, sending thread");
         crate::child::print_cpu(&who, sent, (after.0 - cpu_before.0, after.1 - cpu_before.1));
+        let who = format!("sender {path} {size} B, whole process");
+        let process = (
+            process_after.0 - process_before.0,
+            process_after.1 - process_before.1,
+        );
+        crate::child::print_cpu(&who, sent, process);
     }
     // Counted before STOP is sent: the outcomes are those of the measured messages.
     let outcomes = acked.then(|| wait_for_outcomes(&pair.comm, &before, OUTCOME_WAIT));

@@ -251,6 +251,25 @@ fn interleaved<T>(
     rounds: usize,
     key: impl Fn(&T) -> f64 + Copy,
 ) -> Vec<(String, Result<T, String>)> {
+    interleaved_rounds(quick, what, paths, rounds, key)
+        .into_iter()
+        .map(|(name, median, _)| (name, median))
+        .collect()
+}
+
+/// A path's name, its run with the median key, and its key per round (`None`: that round
+/// failed).
+type Measured<T> = (String, Result<T, String>, Vec<Option<f64>>);
+
+/// As [`interleaved`], with each path's `key` per round too (`None` where that round failed),
+/// so that two paths run one after the other can be compared round by round.
+fn interleaved_rounds<T>(
+    quick: bool,
+    what: &str,
+    paths: Vec<(String, Run<T>)>,
+    rounds: usize,
+    key: impl Fn(&T) -> f64 + Copy,
+) -> Vec<Measured<T>> {
     let mut results: Vec<Vec<Result<T, String>>> = paths.iter().map(|_| Vec::new()).collect();
     for round in 0..rounds {
         for ((name, run), out) in paths.iter().zip(results.iter_mut()) {
@@ -261,8 +280,43 @@ fn interleaved<T>(
     paths
         .into_iter()
         .zip(results)
-        .map(|((name, _), runs)| (name, median_by(runs, key)))
+        .map(|((name, _), runs)| {
+            let per_round = runs.iter().map(|r| r.as_ref().ok().map(key)).collect();
+            (name, median_by(runs, key), per_round)
+        })
         .collect()
+}
+
+/// For every secured path among `measured` whose unsecured twin was measured too (run just
+/// before it in every round), a `paired` row: the secured rate over the twin's, round by
+/// round, and their median. On a machine whose speed drifts between rounds, comparing each
+/// round's two runs, made seconds apart, is steadier than comparing the two medians.
+fn paired_rows(section_size: usize, measured: &[(String, Vec<Option<f64>>)]) -> Vec<Row> {
+    let mut rows = Vec::new();
+    for (name, secured) in measured {
+        let Some(twin) = name
+            .strip_prefix("hetcomm-")
+            .and_then(|rest| rest.split_once("-secured-"))
+            .map(|(transport, mode)| format!("hetcomm-{transport}-{mode}"))
+        else {
+            continue;
+        };
+        let Some((_, plain)) = measured.iter().find(|(n, _)| *n == twin) else {
+            continue;
+        };
+        let ratios: Vec<f64> = secured
+            .iter()
+            .zip(plain)
+            .filter_map(|(s, p)| match (s, p) {
+                (Some(s), Some(p)) if *p > 0.0 => Some(s / p),
+                _ => None,
+            })
+            .collect();
+        if let Some(row) = Row::paired(name, &twin, section_size, &ratios) {
+            rows.push(row);
+        }
+    }
+    rows
 }
 
 /// Rounds of each small round-trip measurement (see `run`).
@@ -270,6 +324,11 @@ const RTT_ROUNDS: usize = 3;
 
 /// Rounds of each one-way measurement (see `run`).
 const ONEWAY_ROUNDS: usize = 3;
+
+/// Rounds of each one-way measurement of 16 KiB and more: the secured ones' targets compare
+/// each round's secured and unsecured runs (see [`paired_rows`]), and five pairs give a
+/// median that one odd round does not move.
+const ONEWAY_ROUNDS_LARGE: usize = 5;
 
 /// The run with the median p50 among those that succeeded (the first error if none did).
 fn median_run(runs: Vec<Result<stats::Latency, String>>) -> Result<stats::Latency, String> {
@@ -316,17 +375,19 @@ fn run(o: &Options) -> Vec<Row> {
     };
     let dds = !o.no_ddsperf && ext::ddsperf_available();
     let mut rows = Vec::new();
+    // Each secured path runs right after its unsecured twin, so that within a round the two
+    // are measured seconds apart (see `paired_rows`).
     let mut hc_paths = vec![
         (hc::Kind::Udp, false),
+        (hc::Kind::UdpSecured, false),
         (hc::Kind::Udp, true),
+        (hc::Kind::UdpSecured, true),
         (hc::Kind::Tcp, false),
+        (hc::Kind::TcpSecured, false),
         (hc::Kind::Tcp, true),
+        (hc::Kind::TcpSecured, true),
         (hc::Kind::Inproc, false),
         (hc::Kind::Inproc, true),
-        (hc::Kind::UdpSecured, false),
-        (hc::Kind::UdpSecured, true),
-        (hc::Kind::TcpSecured, false),
-        (hc::Kind::TcpSecured, true),
     ];
     if cfg!(feature = "hetcomm-zenoh") {
         hc_paths.extend([(hc::Kind::Zenoh, false), (hc::Kind::Zenoh, true)]);
@@ -431,7 +492,11 @@ fn run(o: &Options) -> Vec<Row> {
             // This VM's speed drifts (raw TCP at 8 or 19 GB/s minutes apart): run the raw and
             // hetcomm paths interleaved, several rounds, and keep each path's median rate, so
             // a ratio compares paths measured in the same stretch of time.
-            let rounds = o.rounds.unwrap_or(if o.quick { 1 } else { ONEWAY_ROUNDS });
+            let rounds = o.rounds.unwrap_or(match (o.quick, size >= 16 * 1024) {
+                (true, _) => 1,
+                (false, true) => ONEWAY_ROUNDS_LARGE,
+                (false, false) => ONEWAY_ROUNDS,
+            });
             let duration = p.oneway;
             let paths = bench_paths(
                 o,
@@ -441,10 +506,13 @@ fn run(o: &Options) -> Vec<Row> {
                 |k, acked| Box::new(move || hc::oneway(k, acked, size, duration)),
             );
             let rate = |t: &stats::Throughput| t.msgs_per_s();
-            for (name, r) in interleaved(o.quick, &format!("oneway {size} B"), paths, rounds, rate)
-            {
+            let what = format!("oneway {size} B");
+            let mut per_round = Vec::new();
+            for (name, r, rates) in interleaved_rounds(o.quick, &what, paths, rounds, rate) {
                 rows.push(tp_row(&name, size, r));
+                per_round.push((name, rates));
             }
+            rows.extend(paired_rows(size, &per_round));
             if let Some(bin) = zenoh.as_ref().filter(|_| o.path_wanted("zenoh-tcp")) {
                 log(o.quick, &format!("oneway zenoh-tcp {size} B"));
                 rows.push(tp_row(
@@ -704,5 +772,38 @@ mod tests {
         assert_eq!(parse(&args(&["--rounds", "5"])).unwrap().rounds, Some(5));
         assert!(parse(&args(&["--rounds", "0"])).is_err());
         assert!(parse(&args(&["--rounds", "x"])).is_err());
+    }
+}
+
+#[cfg(test)]
+mod paired_tests {
+    use super::*;
+
+    /// Each secured path is paired with its unsecured twin round by round; a round where
+    /// either failed is left out, and a path without a twin gets no row.
+    #[test]
+    fn secured_paths_are_paired_with_their_twins_round_by_round() {
+        let measured = vec![
+            (
+                "hetcomm-udp-unack".to_string(),
+                vec![Some(100.0), Some(100.0), None],
+            ),
+            (
+                "hetcomm-udp-secured-unack".to_string(),
+                vec![Some(90.0), Some(80.0), Some(70.0)],
+            ),
+            ("hetcomm-tcp-secured-ack".to_string(), vec![Some(1.0)]),
+            ("raw-udp".to_string(), vec![Some(5.0)]),
+        ];
+        let rows = paired_rows(65536, &measured);
+        assert_eq!(rows.len(), 1);
+        let r = &rows[0];
+        assert_eq!(
+            (r.section, r.path.as_str(), r.size),
+            ("paired", "hetcomm-udp-secured-unack", 65536)
+        );
+        assert_eq!(r.get("rounds"), Some(2.0));
+        assert_eq!(r.get("ratio_median"), Some(0.9));
+        assert_eq!(r.note, "over hetcomm-udp-unack, round by round: 90%, 80%");
     }
 }

@@ -1,11 +1,110 @@
-//! Helpers every link of this crate shares: lock handling and atomic counters.
+//! Helpers every link of this crate shares: lock handling, atomic counters and the writer
+//! thread that writes frames behind a streaming sender.
 //!
 //! Each link keeps its own counter struct (`UdpCounters`, `StreamCounters`) and its own
 //! per-peer state (`UdpPeer`, `PeerSlot` of the stream layer): their fields differ, only these
 //! operations on them are common.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use hetcomm_core::SystemId;
+
+/// A sender that comes back to the same peer within this long after its previous given-away
+/// frame is streaming: its frames are written behind it. A sender that waits for answers
+/// (a round trip takes longer) keeps writing on its own thread, without a hand-off.
+pub(crate) const STREAMING_GAP: Duration = Duration::from_micros(20);
+
+/// Bytes queued for the writer, per peer, before a sender waits for room (one frame larger
+/// than this is still taken when the queue is empty).
+pub(crate) const BEHIND_MAX_BYTES: usize = 1 << 20;
+
+/// A link's writer thread, started by the first frame written behind: it takes peers whose
+/// frames are queued, in the order they became ready, and gives each a turn.
+#[derive(Default)]
+pub(crate) struct Writer {
+    state: Mutex<WriterState>,
+    wake: Condvar,
+}
+
+#[derive(Default)]
+struct WriterState {
+    /// Peers whose frames the writer should write, in the order they became ready.
+    ready: VecDeque<SystemId>,
+    closing: bool,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Writer {
+    /// Waits for a peer with frames; `None` once the link closes and nothing is ready.
+    fn next(&self) -> Option<SystemId> {
+        let mut st = lock(&self.state);
+        loop {
+            if let Some(to) = st.ready.pop_front() {
+                return Some(to);
+            }
+            if st.closing {
+                return None;
+            }
+            st = self.wake.wait(st).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Gives the writer `to`'s frames (the caller has marked the peer as the writer's).
+    pub(crate) fn ready(&self, to: SystemId) {
+        lock(&self.state).ready.push_back(to);
+        self.wake.notify_one();
+    }
+
+    /// Starts the thread, named `name`, unless it runs; false if it cannot (the caller then
+    /// writes itself) or the link is closing. `turn` writes what one peer has queued and says
+    /// whether more came meanwhile: that peer then goes to the back of the line, so that one
+    /// streaming peer does not starve the others.
+    pub(crate) fn start(
+        self: &Arc<Self>,
+        name: String,
+        turn: impl Fn(SystemId) -> bool + Send + 'static,
+    ) -> bool {
+        let mut st = lock(&self.state);
+        if st.closing {
+            return false;
+        }
+        if st.thread.is_some() {
+            return true;
+        }
+        let writer = self.clone();
+        let spawned = std::thread::Builder::new().name(name).spawn(move || {
+            while let Some(to) = writer.next() {
+                if turn(to) {
+                    writer.ready(to);
+                }
+            }
+        });
+        match spawned {
+            Ok(t) => {
+                st.thread = Some(t);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// Lets the writer finish what is queued, then stops it (closing the link).
+    pub(crate) fn stop(&self) {
+        let thread = {
+            let mut st = lock(&self.state);
+            st.closing = true;
+            st.thread.take()
+        };
+        self.wake.notify_all();
+        if let Some(t) = thread {
+            let _ = t.join();
+        }
+    }
+}
 
 /// Locks `m`, taking a poisoned lock over: a panic in a sink (or elsewhere) must not wedge the
 /// whole link, and the data under every lock of this crate stays consistent between

@@ -14,7 +14,8 @@ pub use targets::{targets, Target, CPP_PATH};
 /// One measurement.
 #[derive(Clone, Debug)]
 pub struct Row {
-    /// `rtt`, `oneway`, `inproc`, `pinning`, `scale`, `sim`, `config`, `record` or `harness`.
+    /// `rtt`, `oneway`, `paired` (a secured path against its unsecured twin, round by round),
+    /// `inproc`, `pinning`, `scale`, `sim`, `config`, `record` or `harness`.
     pub section: &'static str,
     /// What was measured (`raw-udp`, `hetcomm-udp-unack`, …).
     pub path: String,
@@ -85,6 +86,22 @@ impl Row {
             r.metrics.push(("rx_kernel_drops", k as f64));
         }
         r
+    }
+
+    /// A secured path's rate over its unsecured twin's, round by round (`ratios`, in round
+    /// order) and their median; `None` without a single round where both were measured.
+    pub fn paired(secured: &str, twin: &str, size: usize, ratios: &[f64]) -> Option<Row> {
+        let mut sorted = ratios.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        let median = *sorted.get(sorted.len() / 2)?;
+        let mut r = Row::new("paired", secured, size);
+        r.metrics = vec![("ratio_median", median), ("rounds", ratios.len() as f64)];
+        let rounds: Vec<String> = ratios
+            .iter()
+            .map(|x| format!("{:.0}%", x * 100.0))
+            .collect();
+        r.note = format!("over {twin}, round by round: {}", rounds.join(", "));
+        Some(r)
     }
 
     /// The outcome counts of an acknowledged row, as a table cell (`-` when not counted).

@@ -5,8 +5,7 @@
 
 use std::collections::VecDeque;
 use std::io::{self, IoSlice};
-use std::sync::{Condvar, Mutex, MutexGuard};
-use std::thread::JoinHandle;
+use std::sync::MutexGuard;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{FrameBuf, SystemId};
@@ -20,15 +19,7 @@ use super::{
     add, bump, lock, PeerEntry, PeerSlot, Shared, StreamLink, StreamSocket, StreamTransport,
     RECORD_HEADER_LEN,
 };
-
-/// A sender that comes back to the same peer within this long after its previous given-away
-/// frame is streaming: its frames are written behind it. A sender that waits for answers
-/// (a round trip takes longer) keeps writing on its own thread, without a hand-off.
-pub(super) const STREAMING_GAP: Duration = Duration::from_micros(20);
-
-/// Bytes queued for the writer, per peer, before a sender waits for room (one frame larger
-/// than this is still taken when the queue is empty).
-pub(super) const BEHIND_MAX_BYTES: usize = 1 << 20;
+use crate::common::{BEHIND_MAX_BYTES, STREAMING_GAP};
 
 /// One record waiting for the writer: the record header (`None` for a moved batch of held
 /// records, which carries its own) and the bytes.
@@ -94,56 +85,6 @@ impl<S> Behind<S> {
     /// The connection is gone: the writer's handle with it.
     pub(super) fn connection_dropped(&mut self) {
         self.socket = None;
-    }
-}
-
-/// The link's writer thread, started by the first frame written behind.
-#[derive(Default)]
-pub(super) struct Writer {
-    state: Mutex<WriterState>,
-    wake: Condvar,
-}
-
-#[derive(Default)]
-struct WriterState {
-    /// Peers whose records the writer should write, in the order they became ready.
-    ready: VecDeque<SystemId>,
-    closing: bool,
-    thread: Option<JoinHandle<()>>,
-}
-
-impl Writer {
-    /// Waits for a peer with records; `None` once the link closes and nothing is ready.
-    fn next(&self) -> Option<SystemId> {
-        let mut st = lock(&self.state);
-        loop {
-            if let Some(to) = st.ready.pop_front() {
-                return Some(to);
-            }
-            if st.closing {
-                return None;
-            }
-            st = self.wake.wait(st).unwrap_or_else(|e| e.into_inner());
-        }
-    }
-
-    /// Gives the writer `to`'s records (the slot is marked `writing`).
-    fn ready(&self, to: SystemId) {
-        lock(&self.state).ready.push_back(to);
-        self.wake.notify_one();
-    }
-
-    /// Lets the writer finish what is queued, then stops it (closing the link).
-    pub(super) fn stop(&self) {
-        let thread = {
-            let mut st = lock(&self.state);
-            st.closing = true;
-            st.thread.take()
-        };
-        self.wake.notify_all();
-        if let Some(t) = thread {
-            let _ = t.join();
-        }
     }
 }
 
@@ -255,34 +196,12 @@ impl<T: StreamTransport> StreamLink<T> {
 
     /// Starts the writer thread unless it runs; false if it cannot (the caller then writes).
     fn start_writer(&self) -> bool {
-        let mut st = lock(&self.writer.state);
-        if st.closing {
-            return false;
-        }
-        if st.thread.is_some() {
-            return true;
-        }
         let shared = self.shared.clone();
         let peers = self.peers.clone();
-        let writer = self.writer.clone();
-        let spawned = std::thread::Builder::new()
-            .name(format!("hetcomm-{}-tx-{}", T::NAME, self.local()))
-            .spawn(move || {
-                while let Some(to) = writer.next() {
-                    if let Some(entry) = peers.get(&to) {
-                        if write_behind(&shared, entry) {
-                            writer.ready(to);
-                        }
-                    }
-                }
-            });
-        match spawned {
-            Ok(t) => {
-                st.thread = Some(t);
-                true
-            }
-            Err(_) => false,
-        }
+        self.writer.start(
+            format!("hetcomm-{}-tx-{}", T::NAME, self.local()),
+            move |to| peers.get(&to).is_some_and(|e| write_behind(&shared, e)),
+        )
     }
 }
 

@@ -220,8 +220,9 @@ use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 use hetcomm_link::FrameSink;
 
+use crate::common::Writer;
 pub(crate) use crate::common::{add, bump, lock};
-use behind::{Behind, Writer};
+use behind::Behind;
 pub use framing::{decode_hello, decode_record_header, encode_hello};
 use poller::{ConnSet, Waker};
 

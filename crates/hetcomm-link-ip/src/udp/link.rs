@@ -6,20 +6,21 @@ use std::io::{self, IoSlice};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 
 use hetcomm_core::wire::HEADER_LEN;
-use hetcomm_core::SystemId;
+use hetcomm_core::{FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 
 use super::batch::{batchable, misread_alone, push_record};
+use super::behind::Behind;
 use super::fragment::FragmentHeader;
 use super::reassembly::Reassembler;
 use super::receive::{receive_pool, DrivenReceiver, Receiver, RxState, RECV_BUF_LEN};
 use super::{
-    add, lock, Batch, KernelDrops, RxSide, Shared, UdpConfig, UdpCounters, UdpLink, UdpPeer,
-    UdpStats, BATCH_HEADER_LEN, BATCH_LENGTH_LEN, FRAGMENT_HEADER_LEN,
+    add, lock, Batch, KernelDrops, RxSide, SendSide, Shared, UdpConfig, UdpCounters, UdpLink,
+    UdpPeer, UdpStats, BATCH_HEADER_LEN, BATCH_LENGTH_LEN, FRAGMENT_HEADER_LEN,
 };
 use crate::OpenError;
 
@@ -110,21 +111,31 @@ impl UdpLink {
         let peers = peer_addrs
             .into_iter()
             .map(|(id, addr)| {
-                let batch = Mutex::new(Batch::default());
-                (id, UdpPeer { addr, batch })
+                let peer = UdpPeer {
+                    addr,
+                    batch: Mutex::new(Batch::default()),
+                    behind: Mutex::new(Behind::default()),
+                    room: Condvar::new(),
+                };
+                (id, peer)
             })
             .collect();
-        Ok(UdpLink {
+        let tx = SendSide {
             local,
             socket,
-            local_addr,
             peers,
-            config,
+            mtu: config.datagram_payload,
             max_frame,
             // Start from a value tied to the clock so that a restarted sender is unlikely to
             // reuse the ids of its previous incarnation's half-delivered messages.
             next_message_id: AtomicU32::new(clock_seed()),
             shared,
+            writer: Arc::default(),
+        };
+        Ok(UdpLink {
+            tx: Arc::new(tx),
+            local_addr,
+            config,
             rx,
             kernel_drops: Mutex::new(KernelDrops::default()),
         })
@@ -137,7 +148,7 @@ impl UdpLink {
 
     /// All counters, including those [`LinkStats`] has no field for.
     pub fn udp_stats(&self) -> UdpStats {
-        let c = &self.shared.counters;
+        let c = &self.tx.shared.counters;
         let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
         let bad = get(&c.bad_datagrams);
         let timeouts = get(&c.reassembly_timeouts);
@@ -149,6 +160,7 @@ impl UdpLink {
             batches_sent: get(&c.batches_sent),
             fragments_sent: get(&c.fragments_sent),
             held_frames_dropped: held_dropped,
+            frames_written_behind: get(&c.frames_written_behind),
             frames_received: get(&c.frames_received),
             batches_received: get(&c.batches_received),
             frames_dropped: bad + timeouts + evictions + held_dropped,
@@ -158,7 +170,7 @@ impl UdpLink {
             duplicate_fragments: get(&c.duplicate_fragments),
             oversize_fragments: get(&c.oversize_fragments),
             from_unknown_address: get(&c.from_unknown_address),
-            buffered_bytes: get(&c.buffered_bytes),
+            buffered_bytes: get(&c.buffered_bytes) + self.tx.behind_bytes(),
             kernel_drops: self.kernel_drops(),
         }
     }
@@ -167,13 +179,15 @@ impl UdpLink {
     fn kernel_drops(&self) -> u64 {
         // Read under the lock, so that the reads are in order and each adds what is new.
         let mut drops = lock(&self.kernel_drops);
-        if let Some(now) = socket_drops(&self.socket) {
+        if let Some(now) = socket_drops(&self.tx.socket) {
             drops.update(now);
         }
         drops.total
     }
+}
 
-    fn check_size(&self, frame: &[u8]) -> Result<(), LinkError> {
+impl SendSide {
+    pub(super) fn check_size(&self, frame: &[u8]) -> Result<(), LinkError> {
         if frame.len() > self.max_frame {
             return Err(LinkError::TooLarge {
                 len: frame.len(),
@@ -183,7 +197,7 @@ impl UdpLink {
         Ok(())
     }
 
-    fn peer(&self, to: SystemId) -> Result<&UdpPeer, LinkError> {
+    pub(super) fn peer(&self, to: SystemId) -> Result<&UdpPeer, LinkError> {
         self.peers.get(&to).ok_or_else(|| {
             let reason = if to == self.local {
                 "it is this system itself".to_string()
@@ -195,9 +209,14 @@ impl UdpLink {
     }
 
     /// Sends `frame` on its own: as one datagram, or as fragments.
-    fn send_now(&self, to: SystemId, addr: SocketAddr, frame: &[u8]) -> Result<(), LinkError> {
+    pub(super) fn send_now(
+        &self,
+        to: SystemId,
+        addr: SocketAddr,
+        frame: &[u8],
+    ) -> Result<(), LinkError> {
         let counters = &self.shared.counters;
-        let mtu = self.config.datagram_payload;
+        let mtu = self.mtu;
         if frame.len() <= mtu && !misread_alone(frame) {
             self.socket
                 .send_to(frame, addr)
@@ -239,7 +258,7 @@ impl UdpLink {
     /// Sends the held frames `b` towards `to` as one datagram and empties the batch. `own` of
     /// them (0 or 1, the last) are the caller's, who gets the error; should the send fail, the
     /// others are counted as dropped.
-    fn send_batch(
+    pub(super) fn send_batch(
         &self,
         to: SystemId,
         addr: SocketAddr,
@@ -356,25 +375,16 @@ fn resolve(id: SystemId, endpoint: &str, prefer_v4: bool) -> Result<SocketAddr, 
         .ok_or_else(|| bad("resolves to no address".into()))
 }
 
-impl Link for UdpLink {
-    fn caps(&self) -> LinkCaps {
-        LinkCaps {
-            max_frame: self.max_frame,
-            mtu: self.config.datagram_payload,
-            reliable: false,
-            ordered: false,
-            broadcast: false,
-        }
-    }
-
+impl SendSide {
+    /// [`Link::send`].
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         self.check_size(frame)?;
         let peer = self.peer(to)?;
-        let mtu = self.config.datagram_payload;
+        self.wait_for_writer(to, peer)?;
         {
             let mut b = lock(&peer.batch);
             if b.frames > 0 {
-                if b.buf.len() + BATCH_LENGTH_LEN + frame.len() <= mtu {
+                if b.buf.len() + BATCH_LENGTH_LEN + frame.len() <= self.mtu {
                     // Joins the held frames: one datagram for all of them.
                     push_record(&mut b, frame);
                     return self.send_batch(to, peer.addr, &mut b, 1);
@@ -384,6 +394,76 @@ impl Link for UdpLink {
             }
         }
         self.send_now(to, peer.addr, frame)
+    }
+
+    /// [`Link::send_held`].
+    fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.check_size(frame)?;
+        let peer = self.peer(to)?;
+        let mtu = self.mtu;
+        let mut b = lock(&peer.batch);
+        if !batchable(frame, mtu) {
+            self.wait_for_writer(to, peer)?;
+            // Held frames go first. Their failure is counted; the result is this frame's.
+            let _ = self.send_batch(to, peer.addr, &mut b, 0);
+            drop(b);
+            return self.send_now(to, peer.addr, frame);
+        }
+        if b.buf.len() + BATCH_LENGTH_LEN + frame.len() > mtu {
+            self.wait_for_writer(to, peer)?;
+            let _ = self.send_batch(to, peer.addr, &mut b, 0);
+        }
+        if b.buf.capacity() < mtu {
+            // Once per peer: afterwards holding a frame never allocates.
+            b.buf.reserve_exact(mtu);
+        }
+        push_record(&mut b, frame);
+        if mtu - b.buf.len() < BATCH_LENGTH_LEN + HEADER_LEN {
+            // No further frame can fit: holding these longer would only add latency. Should
+            // the writer not finish in time, the frame stays held for the next send.
+            self.wait_for_writer(to, peer)?;
+            return self.send_batch(to, peer.addr, &mut b, 1);
+        }
+        Ok(())
+    }
+
+    /// [`Link::flush`].
+    fn flush(&self) -> Result<(), LinkError> {
+        let mut first = Ok(());
+        for (&to, peer) in &self.peers {
+            let mut b = lock(&peer.batch);
+            let sent = self
+                .wait_for_writer(to, peer)
+                .and_then(|()| self.send_batch(to, peer.addr, &mut b, 0));
+            if let Err(e) = sent {
+                if first.is_ok() {
+                    first = Err(e);
+                }
+            }
+        }
+        first
+    }
+}
+
+impl Link for UdpLink {
+    fn caps(&self) -> LinkCaps {
+        LinkCaps {
+            max_frame: self.tx.max_frame,
+            mtu: self.config.datagram_payload,
+            reliable: false,
+            ordered: false,
+            broadcast: false,
+        }
+    }
+
+    fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.tx.send(to, frame)
+    }
+
+    /// Sent behind a streaming sender by the link's writer thread (see "Write-behind" in the
+    /// module docs), on the caller's thread otherwise.
+    fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
+        self.tx.send_given(to, frame)
     }
 
     fn stats(&self) -> LinkStats {
@@ -400,42 +480,11 @@ impl Link for UdpLink {
     }
 
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.check_size(frame)?;
-        let peer = self.peer(to)?;
-        let mtu = self.config.datagram_payload;
-        let mut b = lock(&peer.batch);
-        if !batchable(frame, mtu) {
-            // Held frames go first. Their failure is counted; the result is this frame's.
-            let _ = self.send_batch(to, peer.addr, &mut b, 0);
-            drop(b);
-            return self.send_now(to, peer.addr, frame);
-        }
-        if b.buf.len() + BATCH_LENGTH_LEN + frame.len() > mtu {
-            let _ = self.send_batch(to, peer.addr, &mut b, 0);
-        }
-        if b.buf.capacity() < mtu {
-            // Once per peer: afterwards holding a frame never allocates.
-            b.buf.reserve_exact(mtu);
-        }
-        push_record(&mut b, frame);
-        if mtu - b.buf.len() < BATCH_LENGTH_LEN + HEADER_LEN {
-            // No further frame can fit: holding these longer would only add latency.
-            return self.send_batch(to, peer.addr, &mut b, 1);
-        }
-        Ok(())
+        self.tx.send_held(to, frame)
     }
 
     fn flush(&self) -> Result<(), LinkError> {
-        let mut first = Ok(());
-        for (&to, peer) in &self.peers {
-            let mut b = lock(&peer.batch);
-            if let Err(e) = self.send_batch(to, peer.addr, &mut b, 0) {
-                if first.is_ok() {
-                    first = Err(e);
-                }
-            }
-        }
-        first
+        self.tx.flush()
     }
 
     fn batches(&self) -> bool {
@@ -452,9 +501,11 @@ impl Link for UdpLink {
 
 impl Drop for UdpLink {
     fn drop(&mut self) {
-        // Best effort: held frames would otherwise be lost without a trace.
-        let _ = self.flush();
-        self.shared.closing.store(true, Ordering::SeqCst);
+        // Best effort: held frames would otherwise be lost without a trace. The writer sends
+        // what it has queued before it stops.
+        let _ = self.tx.flush();
+        self.tx.writer.stop();
+        self.tx.shared.closing.store(true, Ordering::SeqCst);
         let RxSide::Thread(thread) = &mut self.rx else {
             return; // driven: no thread to stop
         };
@@ -467,7 +518,7 @@ impl Drop for UdpLink {
                 IpAddr::V6(_) => Ipv6Addr::LOCALHOST.into(),
             });
         }
-        let _ = self.socket.send_to(&[], me);
+        let _ = self.tx.socket.send_to(&[], me);
         if let Some(t) = thread.take() {
             let _ = t.join();
         }

@@ -1,5 +1,6 @@
 //! UDP: one socket per system, bound to its endpoint; sends go out with `send_to` on the
-//! caller's thread, and a receive thread hands frames to the sink — or, with
+//! caller's thread (a streaming sender's given-away frames on the link's writer thread, see
+//! "Write-behind"), and a receive thread hands frames to the sink — or, with
 //! [`UdpConfig::driven`], a waiting thread reads the socket itself through
 //! [`Link::readable`]. Unreliable and unordered, as declared in its [`LinkCaps`].
 //!
@@ -96,6 +97,32 @@
 //! could not be sent are counted in [`UdpStats::held_frames_dropped`] (and `flush` returns the
 //! first such error).
 //!
+//! # Write-behind
+//!
+//! A frame given away with [`Link::send_owned`] (the security layer's sealed frames of 16 KiB
+//! and more) is sent on the caller's thread, like a `send`, unless the caller streams: it
+//! comes back to the same peer within 20 µs of the return of its previous given-away frame.
+//! Then the frame goes to the peer's queue and the link's writer thread (one per link, started
+//! by the first such frame) sends it, whole or in fragments, while the caller prepares its
+//! next frame: for a secured sender, the next seal. Senders that wait for an answer between
+//! frames never hand off, so their latency does not change.
+//! - Order: while the writer has a peer's frames, a `send`, a `send_held` that sends its batch,
+//!   and `flush` wait for it to be done with them before they send, so that nothing overtakes
+//!   what was sent first (UDP itself does not promise order; on one host it keeps it).
+//! - Room: a peer's queue holds at most 1 MiB (one larger frame when it is empty). A sender
+//!   waits up to 2 s for room, or for the writer, then gets [`LinkError::Congested`] and its
+//!   frame is not taken.
+//! - Failures: a frame the writer cannot send is counted in [`UdpStats::held_frames_dropped`]
+//!   (part of [`LinkStats::frames_dropped`]); the caller was told it was taken, as for any
+//!   unconfirmed datagram. The frames after it are still sent.
+//! - Counting: [`UdpStats::frames_written_behind`] counts the frames the writer sent.
+//!   [`Link::stats`]' `buffered_bytes` includes queued bytes and bytes being sent.
+//! - Closing: dropping the link lets the writer send its queue first.
+//! - What it buys: a sender's thread seals while another thread sends, so with a core to
+//!   spare a secured stream of large frames leaves at the unsecured rate. On a machine whose
+//!   cores are all busy (the benchmark VM's two, shared with the receiver) it changes nothing:
+//!   the same work is done, on two threads instead of one.
+//!
 //! # Driven receive
 //!
 //! With [`UdpConfig::driven`] the link starts no receive thread; [`Link::readable`] returns
@@ -136,6 +163,7 @@
 //! the stats is accounted for, as long as fewer than 2³² datagrams are dropped in between.
 
 mod batch;
+mod behind;
 mod fragment;
 mod link;
 mod reassembly;
@@ -146,17 +174,18 @@ mod tests;
 use std::collections::BTreeMap;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 
-use crate::common::{add, lock};
+use crate::common::{add, lock, Writer};
 use crate::OpenError;
 
 pub use batch::{batch_records, BatchFrames};
+use behind::Behind;
 pub use fragment::{parse_fragment, FragmentError, FragmentHeader};
 pub use reassembly::{
     Reassembler, Reassembly, MAX_PARTIALS_PER_SOURCE, MAX_REMEMBERED_COMPLETIONS,
@@ -167,7 +196,7 @@ use receive::DrivenReceiver;
 #[cfg(doc)]
 use hetcomm_core::BufferPool;
 #[cfg(doc)]
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkStats, Peer, Readable};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
 /// Magic of a fragment header: `"HF"`.
 pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
@@ -282,14 +311,18 @@ pub struct UdpStats {
     pub batches_sent: u64,
     /// Fragment datagrams sent (0 while every frame fits one datagram).
     pub fragments_sent: u64,
-    /// Held frames dropped because their batch could not be sent.
+    /// Held frames dropped because their batch could not be sent, and frames the writer
+    /// thread could not send (see "Write-behind" in the module docs).
     pub held_frames_dropped: u64,
+    /// Frames the link's writer thread sent behind a streaming sender (see "Write-behind" in
+    /// the module docs).
+    pub frames_written_behind: u64,
     /// Frames handed to the sink.
     pub frames_received: u64,
     /// Batch datagrams (`"HB"`) received with at least one frame.
     pub batches_received: u64,
-    /// Everything dropped: bad datagrams, incomplete messages given up, and held frames whose
-    /// batch could not be sent.
+    /// Everything dropped: bad datagrams, incomplete messages given up, held frames whose
+    /// batch could not be sent and frames the writer could not send.
     pub frames_dropped: u64,
     /// Malformed fragment datagrams, batch datagrams with a header not read, no record or an
     /// incomplete last record, dropped (in part).
@@ -309,7 +342,7 @@ pub struct UdpStats {
     /// Frames received from an address that is no fleet endpoint (handed up as
     /// [`Peer::Unknown`]).
     pub from_unknown_address: u64,
-    /// Bytes held for incomplete messages now.
+    /// Bytes held for incomplete messages now, and bytes of frames queued for the writer.
     pub buffered_bytes: u64,
     /// Datagrams the kernel dropped at this link's socket before the link could read them
     /// (see the module docs, "Kernel drops"); 0 where the OS does not report them.
@@ -323,6 +356,7 @@ struct UdpCounters {
     batches_sent: AtomicU64,
     fragments_sent: AtomicU64,
     held_frames_dropped: AtomicU64,
+    frames_written_behind: AtomicU64,
     frames_received: AtomicU64,
     batches_received: AtomicU64,
     bad_datagrams: AtomicU64,
@@ -351,10 +385,14 @@ struct Batch {
     frames: u64,
 }
 
-/// A peer's address and its batch of held frames.
+/// A peer's address, its batch of held frames and its frames queued for the writer.
 struct UdpPeer {
     addr: SocketAddr,
     batch: Mutex<Batch>,
+    behind: Mutex<Behind>,
+    /// Signalled when the writer takes this peer's queued frames or finishes with them
+    /// (senders wait on it for room, or for the writer to be done before they send).
+    room: Condvar,
 }
 
 /// Who reads the socket.
@@ -367,17 +405,26 @@ enum RxSide {
 
 /// A system's UDP endpoint; see the module docs.
 pub struct UdpLink {
-    local: SystemId,
-    socket: Arc<UdpSocket>,
+    tx: Arc<SendSide>,
     local_addr: SocketAddr,
-    peers: BTreeMap<SystemId, UdpPeer>,
     config: UdpConfig,
-    max_frame: usize,
-    next_message_id: AtomicU32,
-    shared: Arc<Shared>,
     rx: RxSide,
     /// The kernel's drop counter as last read (see "Kernel drops").
     kernel_drops: Mutex<KernelDrops>,
+}
+
+/// The sending side of a [`UdpLink`], shared with its writer thread.
+struct SendSide {
+    local: SystemId,
+    socket: Arc<UdpSocket>,
+    peers: BTreeMap<SystemId, UdpPeer>,
+    /// The datagram payload size.
+    mtu: usize,
+    max_frame: usize,
+    next_message_id: AtomicU32,
+    shared: Arc<Shared>,
+    /// Sends frames behind a streaming sender (see "Write-behind" in the module docs).
+    writer: Arc<Writer>,
 }
 
 /// The kernel's 32-bit drop counter, read now and then, turned into a 64-bit total.
