@@ -71,9 +71,8 @@ fn config(c: &mut Cursor) -> UdpConfig {
         max_message_bytes: Some(usize::from(c.u16()) << shift),
         // At least 4 MiB, more than an input's fragments can fill, so that the link never
         // evicts for room: the victim is the oldest message of the source holding the most,
-        // and between sources holding equally much the choice follows hash-map order, which
-        // differs between the link's reassembler and the model's. (`udp_reassembly` covers
-        // eviction; the per-source cap still evicts here, deterministically.)
+        // which this harness's model does not follow (`udp_reassembly` covers eviction; the
+        // per-source cap still evicts here, deterministically).
         reassembly_limit_bytes: (usize::from(c.u16()) << shift).max(4 << 20),
         reassembly_timeout,
         socket_buffer_bytes: 1 << 20,

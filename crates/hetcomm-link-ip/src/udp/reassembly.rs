@@ -1,7 +1,7 @@
 //! [`Reassembler`]: putting fragmented frames back together with bounded memory, eviction of
 //! the largest holder, a timeout, and recognition of late duplicates.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -14,6 +14,10 @@ use super::fragment::{parse_fragment, FragmentError};
 use super::UdpConfig;
 
 type MessageKey = (SocketAddr, SystemId, u32);
+
+/// When an incomplete message began (its first fragment's time), then the order in which
+/// messages began: ties go to the earlier, never to a hash map's order.
+type Age = (Instant, u64);
 
 /// Bytes a partial message is charged for beyond its pieces (its bookkeeping).
 pub(super) const PARTIAL_OVERHEAD: usize = 128;
@@ -54,7 +58,7 @@ pub(super) fn recycle(pool: Option<&Arc<BufferPool>>, buf: Vec<u8>) {
 struct Partial {
     total: u32,
     count: u16,
-    started: Instant,
+    age: Age,
     /// Pieces `0..next`, in order: the start of the frame. Grows as pieces arrive.
     head: Vec<u8>,
     /// The next piece `head` takes.
@@ -158,6 +162,11 @@ pub enum Reassembly {
 /// When a new piece takes the total over the limit, the oldest message of the source address
 /// holding the most is dropped, until it fits: a source flooding the receiver loses its own
 /// messages first. One source holds at most [`MAX_PARTIALS_PER_SOURCE`] messages.
+///
+/// Each datagram costs the same however many messages are pending: the victim of an eviction
+/// and the messages whose time ran out are found through ordered indexes (sources by bytes
+/// held, messages by age), never by a scan of everything held, so a flood of forged sources
+/// filling the limit does not slow the receiver down.
 pub struct Reassembler {
     limit_bytes: usize,
     timeout: Duration,
@@ -169,11 +178,21 @@ pub struct Reassembler {
     fleet: Vec<SystemId>,
     partials: HashMap<MessageKey, Partial>,
     sources: HashMap<SocketAddr, SourceUse>,
+    /// Every source in `sources` by the bytes it holds: the last holds the most.
+    by_bytes: BTreeSet<(usize, SocketAddr)>,
+    /// Every incomplete message by age, oldest first: expiry looks at the front only.
+    by_age: BTreeMap<Age, MessageKey>,
+    /// Every incomplete message by source address, then in the order they began: a source's
+    /// oldest is the first of its range. (One map for all sources: a map per source would
+    /// cost a node's worth of memory for each forged address.)
+    by_source: BTreeMap<(SocketAddr, u64), (SystemId, u32)>,
+    /// The order number the next message to begin gets (see [`Age`]).
+    next_order: u64,
     held: usize,
     evictions: u64,
     /// Recently completed messages, oldest first, and the same as a set.
-    completed: std::collections::VecDeque<(MessageKey, Instant)>,
-    completed_set: std::collections::HashSet<MessageKey>,
+    completed: VecDeque<(MessageKey, Instant)>,
+    completed_set: HashSet<MessageKey>,
 }
 
 impl Reassembler {
@@ -188,10 +207,14 @@ impl Reassembler {
             fleet: Vec::new(),
             partials: HashMap::new(),
             sources: HashMap::new(),
+            by_bytes: BTreeSet::new(),
+            by_age: BTreeMap::new(),
+            by_source: BTreeMap::new(),
+            next_order: 0,
             held: 0,
             evictions: 0,
-            completed: std::collections::VecDeque::new(),
-            completed_set: std::collections::HashSet::new(),
+            completed: VecDeque::new(),
+            completed_set: HashSet::new(),
         }
     }
 
@@ -287,10 +310,12 @@ impl Reassembler {
                     self.evictions += 1;
                 }
             }
+            let age = (now, self.next_order);
+            self.next_order += 1;
             let p = Partial {
                 total: h.total,
                 count: h.count,
-                started: now,
+                age,
                 head: Vec::new(),
                 next: 0,
                 ahead: BTreeMap::new(),
@@ -298,9 +323,13 @@ impl Reassembler {
                 charged: PARTIAL_OVERHEAD,
             };
             self.held += p.charged;
-            let s = self.sources.entry(src).or_default();
-            s.bytes += p.charged;
-            s.partials += 1;
+            self.recharge(src, |s| {
+                s.bytes += PARTIAL_OVERHEAD;
+                s.partials += 1;
+            });
+            self.by_age.insert(age, key);
+            self.by_source
+                .insert((src, age.1), (h.sender, h.message_id));
             self.partials.insert(key, p);
         }
         let Some(p) = self.partials.get_mut(&key) else {
@@ -321,9 +350,7 @@ impl Reassembler {
         let (before, after) = (p.charged, p.cost());
         p.charged = after;
         self.held = self.held - before + after;
-        if let Some(s) = self.sources.get_mut(&src) {
-            s.bytes = s.bytes - before + after;
-        }
+        self.recharge(src, |s| s.bytes = s.bytes - before + after);
         while self.held > self.limit_bytes {
             let Some(k) = self.eviction_victim() else {
                 break;
@@ -345,19 +372,16 @@ impl Reassembler {
             self.completed.pop_front();
             self.completed_set.remove(&key);
         }
-        if self.partials.is_empty() {
-            return 0;
+        // Oldest first: the first message whose time has not run out ends the look.
+        let mut expired = 0;
+        while let Some((&(started, _), &key)) = self.by_age.first_key_value() {
+            if now.saturating_duration_since(started) < timeout {
+                break;
+            }
+            self.discard(&key);
+            expired += 1;
         }
-        let expired: Vec<MessageKey> = self
-            .partials
-            .iter()
-            .filter(|(_, p)| now.saturating_duration_since(p.started) >= timeout)
-            .map(|(k, _)| *k)
-            .collect();
-        for k in &expired {
-            self.discard(k);
-        }
-        expired.len()
+        expired
     }
 
     /// Whether [`expire`](Reassembler::expire) has anything to look at.
@@ -378,17 +402,28 @@ impl Reassembler {
 
     /// The oldest incomplete message from `src`.
     fn oldest_of(&self, src: SocketAddr) -> Option<MessageKey> {
-        self.partials
-            .iter()
-            .filter(|(k, _)| k.0 == src)
-            .min_by_key(|(_, p)| p.started)
-            .map(|(k, _)| *k)
+        let (&(addr, _), &(sender, message_id)) = self.by_source.range((src, 0)..).next()?;
+        (addr == src).then_some((src, sender, message_id))
     }
 
-    /// The message to drop for room: the oldest of the source holding the most bytes.
+    /// The message to drop for room: the oldest of the source holding the most bytes (of two
+    /// holding as much, the one with the higher address).
     fn eviction_victim(&self) -> Option<MessageKey> {
-        let (&src, _) = self.sources.iter().max_by_key(|(_, s)| s.bytes)?;
+        let &(_, src) = self.by_bytes.last()?;
         self.oldest_of(src)
+    }
+
+    /// Changes what `src` holds with `change` (creating its entry if need be), keeping
+    /// `by_bytes` in step, and forgets the source once it holds no message.
+    fn recharge(&mut self, src: SocketAddr, change: impl FnOnce(&mut SourceUse)) {
+        let s = self.sources.entry(src).or_default();
+        self.by_bytes.remove(&(s.bytes, src));
+        change(s);
+        if s.partials == 0 {
+            self.sources.remove(&src);
+        } else {
+            self.by_bytes.insert((s.bytes, src));
+        }
     }
 
     /// Drops an incomplete message; its buffer goes back to the pool.
@@ -401,13 +436,12 @@ impl Reassembler {
     fn remove(&mut self, key: &MessageKey) -> Option<Partial> {
         let p = self.partials.remove(key)?;
         self.held -= p.charged;
-        if let Some(s) = self.sources.get_mut(&key.0) {
+        self.by_age.remove(&p.age);
+        self.by_source.remove(&(key.0, p.age.1));
+        self.recharge(key.0, |s| {
             s.bytes -= p.charged;
             s.partials -= 1;
-            if s.partials == 0 {
-                self.sources.remove(&key.0);
-            }
-        }
+        });
         Some(p)
     }
 }

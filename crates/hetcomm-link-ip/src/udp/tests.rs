@@ -292,6 +292,18 @@ fn limit_refuses_messages_larger_than_itself_and_bounds_messages_per_source() {
     }
     assert_eq!(r.pending(), MAX_PARTIALS_PER_SOURCE);
     assert_eq!(r.evictions(), 5);
+    // All began at the same instant: the first five to begin were the ones evicted, whatever
+    // a hash map's order, and every later one completes without evicting another.
+    for id in 5..MAX_PARTIALS_PER_SOURCE as u32 + 5 {
+        let f = fragments(&[4u8; 300], 100, id);
+        assert_eq!(r.on_fragment(&f[1], SRC, None, t0), Reassembly::Pending);
+        assert_eq!(
+            r.on_fragment(&f[2], SRC, None, t0),
+            Reassembly::Complete(vec![4u8; 300]),
+            "message {id}"
+        );
+    }
+    assert_eq!((r.evictions(), r.pending(), r.held_bytes()), (5, 0, 0));
 }
 
 #[test]
