@@ -77,6 +77,7 @@ fn config(c: &mut Cursor) -> UdpConfig {
         reassembly_timeout,
         socket_buffer_bytes: 1 << 20,
         driven: true,
+        write_behind: Default::default(),
     };
     c.u8();
     config

@@ -9,7 +9,7 @@ use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
 
@@ -17,6 +17,37 @@ use hetcomm_core::SystemId;
 /// frame is streaming: its frames are written behind it. A sender that waits for answers
 /// (a round trip takes longer) keeps writing on its own thread, without a hand-off.
 pub(crate) const STREAMING_GAP: Duration = Duration::from_micros(20);
+
+/// Which frames given away with `Link::send_owned` (the security layer's sealed frames of
+/// 16 KiB and more) a link's writer thread writes while the caller prepares its next frame
+/// ("Write-behind" in the [`udp`](crate::udp) and [`stream`](crate::stream) module docs);
+/// the others are written on the caller's thread.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum WriteBehind {
+    /// Those of a sender that streams: it came back to the same peer within 20 µs of its
+    /// previous given-away frame's return. A sender that waits for answers between frames
+    /// keeps writing on its own thread, so its latency has no hand-off in it. Where preparing
+    /// a frame takes longer than 20 µs (a slow CPU's seal of a large frame, a debug build),
+    /// a streaming sender is not recognised and writes on its own thread. The default.
+    #[default]
+    Streaming,
+    /// Every one: for a sender known to stream whatever its pace, with a core to spare.
+    Always,
+    /// None: every frame is written on the caller's thread.
+    Never,
+}
+
+impl WriteBehind {
+    /// Whether a frame given away now goes behind the sender, whose previous given-away frame
+    /// to the same peer returned at `last_given`.
+    pub(crate) fn applies(self, last_given: Option<Instant>) -> bool {
+        match self {
+            WriteBehind::Streaming => last_given.is_some_and(|t| t.elapsed() < STREAMING_GAP),
+            WriteBehind::Always => true,
+            WriteBehind::Never => false,
+        }
+    }
+}
 
 /// Bytes queued for the writer, per peer, before a sender waits for room (one frame larger
 /// than this is still taken when the queue is empty).

@@ -47,6 +47,7 @@ pub mod udp;
 #[cfg(unix)]
 pub mod unix;
 
+pub use common::WriteBehind;
 pub use tcp::TcpLink;
 pub use udp::{UdpConfig, UdpLink};
 #[cfg(unix)]

@@ -84,7 +84,10 @@
 //! link, started by the first such frame) writes it. It writes everything queued for the peer
 //! in one vectored write, while the caller prepares its next frame. For a secured sender that
 //! is the next seal. Senders that wait for an answer between frames never hand off, so their
-//! latency does not change.
+//! latency does not change. That is [`StreamConfig::write_behind`]'s default,
+//! [`WriteBehind::Streaming`]; `Always` hands every given-away frame to the writer (a sender
+//! known to stream whose frames take longer than 20 µs to prepare, as a slow CPU's seal of
+//! a 64 KiB frame does), `Never` none.
 //! - Order: while the writer has a peer's frames, every other frame to that peer goes behind
 //!   them. A `send`, `send_parts` or `send_held` frame is copied into the queue, and `flush`
 //!   moves the held batch there. Nothing overtakes what was sent first.
@@ -220,8 +223,8 @@ use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 use hetcomm_link::FrameSink;
 
-use crate::common::Writer;
 pub(crate) use crate::common::{add, bump, lock};
+use crate::common::{WriteBehind, Writer};
 use behind::Behind;
 pub use framing::{decode_hello, decode_record_header, encode_hello};
 use poller::{ConnSet, Waker};
@@ -410,6 +413,9 @@ pub struct StreamConfig {
     /// (see "Connection limits" in the module docs). Default [`DEFAULT_MAX_CONNECTIONS`]; 0
     /// refuses every connection.
     pub max_connections: usize,
+    /// Which given-away frames the link's writer thread writes behind the sender (see
+    /// "Write-behind" above). Default [`WriteBehind::Streaming`].
+    pub write_behind: WriteBehind,
 }
 
 impl Default for StreamConfig {
@@ -425,6 +431,7 @@ impl Default for StreamConfig {
             batch_bytes: DEFAULT_BATCH_BYTES,
             driven: false,
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            write_behind: WriteBehind::default(),
         }
     }
 }

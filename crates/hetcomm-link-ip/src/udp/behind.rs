@@ -14,7 +14,7 @@ use hetcomm_link::LinkError;
 use hetcomm_link::Link;
 
 use super::{add, lock, SendSide, UdpPeer};
-use crate::common::{BEHIND_MAX_BYTES, STREAMING_GAP};
+use crate::common::BEHIND_MAX_BYTES;
 
 /// How long a sender waits for room in the writer's queue, or for the writer to be done with
 /// a peer before it sends itself, before it gets [`LinkError::Congested`]. Sending a full
@@ -44,11 +44,6 @@ impl Behind {
     fn active(&self) -> bool {
         self.writing || !self.queued.is_empty()
     }
-
-    /// Whether a frame given away now belongs to a stream (see [`STREAMING_GAP`]).
-    fn streaming(&self) -> bool {
-        self.last_given.is_some_and(|t| t.elapsed() < STREAMING_GAP)
-    }
 }
 
 impl SendSide {
@@ -69,7 +64,9 @@ impl SendSide {
             }
         }
         let mut behind = lock(&peer.behind);
-        let result = if behind.active() || (behind.streaming() && self.start_writer()) {
+        let result = if behind.active()
+            || (self.write_behind.applies(behind.last_given) && self.start_writer())
+        {
             let deadline = Instant::now() + WRITER_WAIT;
             while !behind.queued.is_empty() && behind.queued_bytes + frame.len() > BEHIND_MAX_BYTES
             {
@@ -208,6 +205,7 @@ mod tests {
     use hetcomm_link::{FrameSink, Link, Peer};
 
     use super::super::{UdpConfig, UdpLink};
+    use crate::WriteBehind;
 
     struct Nobody;
     impl FrameSink for Nobody {
@@ -218,17 +216,14 @@ mod tests {
     const B: SystemId = SystemId(2);
 
     /// A's link, whose peer B is at `b_endpoint`.
-    fn link_a(b_endpoint: String) -> UdpLink {
+    fn link_a(b_endpoint: String, write_behind: WriteBehind) -> UdpLink {
         let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
         let endpoints = BTreeMap::from([(B, b_endpoint)]);
-        UdpLink::with_socket(
-            A,
-            socket,
-            &endpoints,
-            Arc::new(Nobody),
-            UdpConfig::loopback(),
-        )
-        .unwrap()
+        let config = UdpConfig {
+            write_behind,
+            ..UdpConfig::loopback()
+        };
+        UdpLink::with_socket(A, socket, &endpoints, Arc::new(Nobody), config).unwrap()
     }
 
     fn frame(i: usize, len: usize) -> Vec<u8> {
@@ -243,15 +238,15 @@ mod tests {
     }
 
     /// Bursts of given-away frames, with a plain and a held-and-flushed frame in each, all
-    /// reach the peer intact, most of them sent by the writer thread. Each burst is read
-    /// before the next, so that a small receive buffer drops nothing.
+    /// reach the peer intact, the given-away ones sent by the writer thread. Each burst is
+    /// read before the next, so that a small receive buffer drops nothing.
     #[test]
-    fn a_streaming_senders_frames_are_sent_behind_it_and_all_arrive() {
+    fn given_frames_are_sent_behind_the_sender_and_all_arrive() {
         let raw_b = UdpSocket::bind("127.0.0.1:0").unwrap();
         raw_b
             .set_read_timeout(Some(Duration::from_secs(10)))
             .unwrap();
-        let a = link_a(raw_b.local_addr().unwrap().to_string());
+        let a = link_a(raw_b.local_addr().unwrap().to_string(), WriteBehind::Always);
         let pool = BufferPool::new(16 << 20);
         let mut buf = vec![0; 65_536];
         let mut sent = 0;
@@ -279,10 +274,7 @@ mod tests {
         }
         let s = a.udp_stats();
         assert_eq!(s.frames_sent, sent, "{s:?}");
-        assert!(
-            s.frames_written_behind > 0,
-            "nothing was sent behind: {s:?}"
-        );
+        assert_eq!(s.frames_written_behind, 30 * 4, "{s:?}");
         assert_eq!(s.held_frames_dropped, 0, "{s:?}");
         assert_eq!(s.buffered_bytes, 0, "{s:?}");
         drop(a);
@@ -294,7 +286,7 @@ mod tests {
     #[test]
     fn frames_the_writer_cannot_send_are_counted() {
         // An IPv6 peer of an IPv4 socket: every send fails.
-        let a = link_a("[::1]:9".into());
+        let a = link_a("[::1]:9".into(), WriteBehind::Always);
         let pool = BufferPool::new(16 << 20);
         let f = frame(1, 20 << 10);
         let (mut taken, mut refused) = (0u64, 0u64);
@@ -307,10 +299,39 @@ mod tests {
         // Waits for the writer to be done with B, then has nothing held to send.
         a.flush().unwrap();
         let s = a.udp_stats();
-        assert!(refused >= 1, "the first frame fails on the caller's thread");
-        assert!(taken >= 1, "no frame was given to the writer: {s:?}");
+        assert_eq!(refused, 0, "the writer fails, not the caller");
+        assert_eq!(taken, 2000, "{s:?}");
         assert_eq!(s.frames_sent, 0, "{s:?}");
         assert_eq!(s.held_frames_dropped, taken, "{s:?}");
         assert_eq!(s.frames_dropped, taken, "{s:?}");
+    }
+
+    /// Which given-away frames go behind the sender follows the link's [`WriteBehind`]: none
+    /// with `Never`, even from a sender in a tight loop; none by default from a sender that
+    /// pauses between frames, as one waiting for answers does; all with `Always`.
+    #[test]
+    fn the_write_behind_policy_decides_which_frames_go_behind() {
+        let raw_b = UdpSocket::bind("127.0.0.1:0").unwrap();
+        raw_b
+            .set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        let pool = BufferPool::new(16 << 20);
+        let f = frame(3, 20 << 10);
+        let mut buf = vec![0; 65_536];
+        for (policy, pause, behind) in [
+            (WriteBehind::Never, Duration::ZERO, 0),
+            (WriteBehind::Streaming, Duration::from_millis(2), 0),
+            (WriteBehind::Always, Duration::from_millis(2), 20),
+        ] {
+            let a = link_a(raw_b.local_addr().unwrap().to_string(), policy);
+            for _ in 0..20 {
+                a.send_owned(B, given(&pool, &f)).unwrap();
+                assert_eq!(raw_b.recv(&mut buf).unwrap(), f.len());
+                std::thread::sleep(pause);
+            }
+            let s = a.udp_stats();
+            assert_eq!(s.frames_sent, 20, "{policy:?}: {s:?}");
+            assert_eq!(s.frames_written_behind, behind, "{policy:?}: {s:?}");
+        }
     }
 }

@@ -131,6 +131,7 @@ impl UdpLink {
             next_message_id: AtomicU32::new(clock_seed()),
             shared,
             writer: Arc::default(),
+            write_behind: config.write_behind,
         };
         Ok(UdpLink {
             tx: Arc::new(tx),

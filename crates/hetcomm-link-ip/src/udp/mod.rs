@@ -105,7 +105,9 @@
 //! Then the frame goes to the peer's queue and the link's writer thread (one per link, started
 //! by the first such frame) sends it, whole or in fragments, while the caller prepares its
 //! next frame: for a secured sender, the next seal. Senders that wait for an answer between
-//! frames never hand off, so their latency does not change.
+//! frames never hand off, so their latency does not change. That is
+//! [`UdpConfig::write_behind`]'s default, [`WriteBehind::Streaming`]; `Always` hands every
+//! given-away frame to the writer, `Never` none.
 //! - Order: while the writer has a peer's frames, a `send`, a `send_held` that sends its batch,
 //!   and `flush` wait for it to be done with them before they send, so that nothing overtakes
 //!   what was sent first (UDP itself does not promise order; on one host it keeps it).
@@ -181,7 +183,7 @@ use std::time::Duration;
 use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 
-use crate::common::{add, lock, Writer};
+use crate::common::{add, lock, WriteBehind, Writer};
 use crate::OpenError;
 
 pub use batch::{batch_records, BatchFrames};
@@ -239,6 +241,9 @@ pub struct UdpConfig {
     /// [`Link::readable`] (see the module docs, "Driven receive"). Nothing is received until
     /// someone calls [`Readable::read_ready`]. Default `false`: the link's own thread receives.
     pub driven: bool,
+    /// Which given-away frames the link's writer thread sends behind the sender (see
+    /// "Write-behind" above). Default [`WriteBehind::Streaming`].
+    pub write_behind: WriteBehind,
 }
 
 impl Default for UdpConfig {
@@ -250,6 +255,7 @@ impl Default for UdpConfig {
             reassembly_timeout: Duration::from_secs(2),
             socket_buffer_bytes: 4 * 1024 * 1024,
             driven: false,
+            write_behind: WriteBehind::default(),
         }
     }
 }
@@ -425,6 +431,8 @@ struct SendSide {
     shared: Arc<Shared>,
     /// Sends frames behind a streaming sender (see "Write-behind" in the module docs).
     writer: Arc<Writer>,
+    /// Which given-away frames go to the writer.
+    write_behind: WriteBehind,
 }
 
 /// The kernel's 32-bit drop counter, read now and then, turned into a 64-bit total.
