@@ -488,6 +488,11 @@ fn run(o: &Options) -> Vec<Row> {
         }
     }
     if want("oneway") {
+        if p.sizes.contains(&(64 * 1024)) {
+            log(o.quick, "cipher: 64 KiB seal and open in process");
+            let each = Duration::from_millis(if o.quick { 20 } else { 300 });
+            rows.push(secured::cipher_row(each));
+        }
         for &size in &p.sizes {
             // This VM's speed drifts (raw TCP at 8 or 19 GB/s minutes apart): run the raw and
             // hetcomm paths interleaved, several rounds, and keep each path's median rate, so

@@ -1,7 +1,14 @@
 //! The security issue's targets: what sealing every frame costs, secured rows against the
 //! unsecured ones of the same run (`docs/security.md`).
 
+use std::time::{Duration, Instant};
+
+use hetcomm::SystemId;
+use hetcomm_security::envelope::{inner_len, DirectionKey};
+
 use crate::report::{find, Row, Target};
+
+const K64: usize = 64 * 1024;
 
 const WHY: &str = "a secured frame costs an AES-256-GCM seal on the sender and an open on the receiver (aws-lc-rs, with the CPU's vector AES instructions) and 36 bytes on the wire; frames the router lets wait to leave together (a fast stream of small messages) are sealed and opened once per batch (a data batch), and large frames are sealed from the caller's buffer and opened where the link received them, without copies; over TCP a streaming sender's large frames are written by the link's writer thread while the caller seals the next (write-behind), so on a machine with a spare core the seal is hidden behind the write. The session's handshake happens once, before the first frame, and is outside the measurement (a probe message waits for it). Large frames pay for the cipher's pass over every byte on both sides, which the unsecured path does not make at all (over TCP it does not even checksum payloads): run with HETCOMM_BENCH_SINK_CPU=1 to see each side's CPU time per message, which a busy machine's throughput hides. With a core per process a 64 KiB ratio is bounded by the slower side's unsecured CPU per message over the same plus its cipher pass (docs/security.md, \"What it costs\").";
 
@@ -66,7 +73,6 @@ fn ratio_target_beside(
 /// the round-by-round ratios (the `paired` row) where measured, else the ratio of the two rows'
 /// medians; the acknowledged rows' ratio beside.
 fn large_target(rows: &[Row], transport: &str) -> Target {
-    const K64: usize = 64 * 1024;
     let name: &'static str = match transport {
         "udp" => "secured udp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
         _ => "secured tcp one-way 64 KiB: ≥ 85% of unsecured bytes/s",
@@ -90,7 +96,87 @@ fn large_target(rows: &[Row], transport: &str) -> Target {
             target.figure
         );
     }
+    if let Some(c) = find(rows, "cipher", CIPHER, K64) {
+        let (seal, open) = (c.get("seal_us"), c.get("open_us"));
+        if let (Some(seal), Some(open)) = (seal, open) {
+            target.figure = format!(
+                "{}; the cipher on this CPU: seal {seal:.1} µs, open {open:.1} µs per 64 KiB frame",
+                target.figure
+            );
+        }
+    }
     target
+}
+
+/// The `cipher` row's path.
+const CIPHER: &str = "aes-256-gcm";
+
+/// The cipher's speed on this CPU, in this process: a 64 KiB frame sealed, and opened,
+/// over and over for `each` (a `cipher` row). It is the part of a secured large frame's cost
+/// that no layer can take away, so it is printed beside the 64 KiB targets.
+pub fn cipher_row(each: Duration) -> Row {
+    let key = DirectionKey::new(&[7; 32]);
+    let ids = (SystemId(1), SystemId(2));
+    let body = vec![5u8; K64];
+    let mut sealed = Vec::new();
+    let mut counter = 0;
+    let seal = time_per_call(each, || {
+        counter += 1;
+        key.seal(&mut sealed, ids, 1, counter, &[], &body);
+    });
+    let mut plain = vec![0; inner_len(sealed.len())];
+    let mut opened = true;
+    let open = time_per_call(each, || opened &= key.open_into(&sealed, &mut plain));
+    if !opened {
+        return Row::failed("cipher", CIPHER, K64, "a sealed frame did not open");
+    }
+    let us = |d: Duration| d.as_secs_f64() * 1e6;
+    let mut r = Row::new("cipher", CIPHER, K64);
+    r.metrics = vec![
+        ("seal_us", us(seal)),
+        ("open_us", us(open)),
+        ("seal_bytes_per_s", K64 as f64 / seal.as_secs_f64()),
+        ("open_bytes_per_s", K64 as f64 / open.as_secs_f64()),
+    ];
+    r
+}
+
+/// How long one call of `f` takes, calling it for about `each`.
+fn time_per_call(each: Duration, mut f: impl FnMut()) -> Duration {
+    let started = Instant::now();
+    let mut calls = 0u32;
+    while calls == 0 || started.elapsed() < each {
+        f();
+        calls += 1;
+    }
+    started.elapsed() / calls
+}
+
+/// The `cipher` table.
+pub fn tables(rows: &[Row]) -> Vec<crate::report::Table> {
+    let body = rows
+        .iter()
+        .filter(|r| r.section == "cipher")
+        .map(|r| {
+            if let Some(e) = &r.error {
+                return vec![r.path.clone(), format!("failed: {e}")];
+            }
+            let f =
+                |k: &str, scale: f64| r.get(k).map_or("-".into(), |v| format!("{:.2}", v / scale));
+            vec![
+                r.path.clone(),
+                f("seal_us", 1.0),
+                f("seal_bytes_per_s", 1e9),
+                f("open_us", 1.0),
+                f("open_bytes_per_s", 1e9),
+            ]
+        })
+        .collect();
+    vec![(
+        "The cipher on this CPU (one 64 KiB frame sealed, and opened, over and over in this process: what securing a large frame costs at least, on each side)".into(),
+        vec!["cipher", "seal µs", "seal GB/s", "open µs", "open GB/s"],
+        body,
+    )]
 }
 
 /// Secured 64 B round trip adds ≤ 3 µs at p50; one-way 64 B ≥ 70% and 64 KiB ≥ 85% of the
@@ -164,6 +250,33 @@ mod tests {
 
     fn target<'a>(t: &'a [Target], name: &str) -> &'a Target {
         t.iter().find(|t| t.name.starts_with(name)).unwrap()
+    }
+
+    /// The cipher row measures a real seal and open (their speeds are plausible for AES-GCM
+    /// in software or hardware), its table shows them, and the 64 KiB targets name them.
+    #[test]
+    fn the_cipher_row_is_measured_and_shown_beside_the_64k_targets() {
+        let c = cipher_row(Duration::from_millis(5));
+        assert!(c.error.is_none(), "{:?}", c.error);
+        for k in ["seal_us", "open_us"] {
+            let us = c.get(k).unwrap();
+            assert!(us > 0.5 && us < 10_000.0, "{k} {us} µs");
+        }
+        let table = &tables(std::slice::from_ref(&c))[0];
+        assert_eq!(table.2.len(), 1);
+        assert_eq!(table.2[0][0], "aes-256-gcm");
+        let rows = vec![
+            oneway("hetcomm-tcp-unack", K64, 100),
+            oneway("hetcomm-tcp-secured-unack", K64, 50),
+            c,
+        ];
+        let t = targets(&rows);
+        let tcp = target(&t, "secured tcp one-way 64 KiB");
+        assert!(
+            tcp.figure.contains("; the cipher on this CPU: seal "),
+            "{}",
+            tcp.figure
+        );
     }
 
     #[test]

@@ -30,7 +30,8 @@ pub struct Row {
 }
 
 impl Row {
-    fn new(section: &'static str, path: &str, size: usize) -> Row {
+    /// An empty row of `section`.
+    pub fn new(section: &'static str, path: &str, size: usize) -> Row {
         Row {
             section,
             path: path.to_string(),
@@ -242,9 +243,8 @@ fn ratio(a: Option<f64>, b: Option<f64>) -> String {
     }
 }
 
-/// The tables, as (title, header, rows of cells).
 /// A rendered table: title, header, rows of cells.
-type Table = (String, Vec<&'static str>, Vec<Vec<String>>);
+pub type Table = (String, Vec<&'static str>, Vec<Vec<String>>);
 
 fn tables(rows: &[Row]) -> Vec<Table> {
     let mut out = Vec::new();
@@ -432,6 +432,7 @@ fn tables(rows: &[Row]) -> Vec<Table> {
         vec!["fleet", "table cells", "file MB", "seconds", "peak RSS MB"],
         cfg,
     ));
+    out.extend(crate::secured::tables(rows));
     out.extend(crate::record_bench::tables(rows));
     out.extend(crate::harness_cost::tables(rows));
     out.retain(|(_, _, r)| !r.is_empty());
