@@ -28,7 +28,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::Cursor;
-use hetcomm_core::SystemId;
+use hetcomm_core::{BufferPool, SystemId};
 use hetcomm_link::{FrameSink, Link, Peer};
 use hetcomm_link_ip::udp::{
     FragmentError, FragmentHeader, Reassembler, Reassembly, UdpConfig, UdpStats,
@@ -96,8 +96,18 @@ struct Expect {
 
 struct Model {
     reassembler: Reassembler,
+    /// A pool like the link's: its reassembler takes large messages' buffers from it,
+    /// rounded up to 4 KiB and charged by capacity, so `buffered_bytes` agrees only if the
+    /// model's buffers come and go as the link's do.
+    pool: Arc<BufferPool>,
     now: Instant,
 }
+
+/// Bytes the link's pool keeps when its sink does not keep frames (the udp module's
+/// `REASSEMBLY_POOL_BYTES`).
+const LINK_POOL_BYTES: usize = 1 << 20;
+/// Buffers of at least this many bytes go back to the pool (the reassembler's `POOLED_MIN`).
+const POOLED_MIN: usize = 16 * 1024;
 
 impl Model {
     fn datagram(&mut self, d: &[u8], src: SocketAddr, system: Option<SystemId>) -> Expect {
@@ -131,7 +141,13 @@ impl Model {
         self.now += Duration::from_micros(1);
         let before = self.reassembler.evictions();
         match self.reassembler.on_fragment(d, src, system, self.now) {
-            Reassembly::Complete(f) => e.frames.push(f),
+            Reassembly::Complete(f) => {
+                e.frames.push(f.clone());
+                // As the link does once its sink (which keeps no frames) has returned.
+                if f.capacity() >= POOLED_MIN {
+                    self.pool.give(f);
+                }
+            }
             Reassembly::Pending => {}
             Reassembly::Duplicate => e.duplicates = 1,
             Reassembly::Rejected { dropped, error } => {
@@ -168,13 +184,16 @@ impl Rig {
             (FLEET_SYSTEM, fleet.local_addr().unwrap().to_string()),
         ]);
         let sink = Arc::new(Sink::default());
+        let pool = BufferPool::new(LINK_POOL_BYTES);
         let model = Model {
             reassembler: Reassembler::new(
                 config.reassembly_limit_bytes,
                 config.reassembly_timeout,
                 config.max_frame(),
             )
-            .with_fleet([FLEET_SYSTEM]),
+            .with_fleet([FLEET_SYSTEM])
+            .with_pool(pool.clone()),
+            pool,
             now: Instant::now(),
         };
         let link = UdpLink::with_socket(LOCAL, local, &endpoints, sink.clone(), config)
