@@ -96,14 +96,13 @@ fn large_target(rows: &[Row], transport: &str) -> Target {
             target.figure
         );
     }
-    if let Some(c) = find(rows, "cipher", CIPHER, K64) {
-        let (seal, open) = (c.get("seal_us"), c.get("open_us"));
-        if let (Some(seal), Some(open)) = (seal, open) {
-            target.figure = format!(
-                "{}; the cipher on this CPU: seal {seal:.1} µs, open {open:.1} µs per 64 KiB frame",
-                target.figure
-            );
-        }
+    let cipher = find(rows, "cipher", CIPHER, K64);
+    let us = |k| cipher.and_then(|c| c.get(k));
+    if let (Some(seal), Some(open)) = (us("seal_us"), us("open_us")) {
+        target.figure = format!(
+            "{}; the cipher on this CPU: seal {seal:.1} µs, open {open:.1} µs per 64 KiB frame",
+            target.figure
+        );
     }
     target
 }

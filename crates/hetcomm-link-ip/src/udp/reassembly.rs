@@ -348,9 +348,12 @@ impl Reassembler {
             return Reassembly::Complete(frame);
         }
         let (before, after) = (p.charged, p.cost());
-        p.charged = after;
-        self.held = self.held - before + after;
-        self.recharge(src, |s| s.bytes = s.bytes - before + after);
+        if after != before {
+            // Most pieces land in room the head already has: no index to move then.
+            p.charged = after;
+            self.held = self.held - before + after;
+            self.recharge(src, |s| s.bytes = s.bytes - before + after);
+        }
         while self.held > self.limit_bytes {
             let Some(k) = self.eviction_victim() else {
                 break;
