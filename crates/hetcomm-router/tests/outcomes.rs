@@ -286,3 +286,95 @@ fn the_byte_window_refuses_before_numbering_and_lets_one_large_message_through()
         Err(SendError::Backpressure { .. })
     ));
 }
+
+/// Carries every frame `from` has to `to` (none lost); acknowledgements need no result.
+fn carry(now: Time, from: &mut Router<u32>, to: &mut Router<u32>) {
+    while let Some(tx) = from.poll_transmit(now) {
+        to.handle_frame(now, tx.link, &tx.frame);
+        if tx.send.is_some() {
+            from.transmit_result(now, tx, Ok(()));
+        }
+    }
+}
+
+#[test]
+fn a_refusal_whose_acknowledgement_was_lost_is_refused_again_not_delivered() {
+    // Issue 34, item 1: the message arrived in order (under the duplicate filter's floor),
+    // the inbox refused it, the refusal was lost; the retransmission used to be taken as a
+    // duplicate of a delivery and acknowledged Delivered with nothing in the inbox.
+    let (mut a, mut b) = pair(3);
+    let mut now = Time::from_micros(10);
+    a.send(now, request(b"x"), 0).unwrap();
+    carry(now, &mut a, &mut b);
+    let d = b.poll_delivery().unwrap();
+    b.delivery_result(now, d.token.unwrap(), AckStatus::InboxFull);
+    let refusal = b.poll_transmit(now).expect("the refusal");
+    drop(refusal); // lost
+    now = a.poll_timeout().expect("a retransmission is due");
+    a.handle_timeout(now);
+    carry(now, &mut a, &mut b);
+    assert!(b.poll_delivery().is_none(), "refused once, refused again");
+    carry(now, &mut b, &mut a);
+    let Some(Event::Outcome { outcome, .. }) = a.poll_event() else {
+        panic!("no outcome");
+    };
+    assert_eq!(
+        outcome,
+        Outcome::Failed {
+            reason: FailReason::InboxFull,
+            attempts: 2
+        }
+    );
+    assert_eq!((b.stats().received, b.stats().duplicates), (0, 1));
+}
+
+#[test]
+fn a_message_the_duplicate_window_moved_past_is_delivered_when_it_comes() {
+    // Issue 34, item 2: more than the window (4096) of later messages arrive above a gap; the
+    // gap's late retransmission used to be acknowledged Delivered and never delivered.
+    let (mut a, mut b) = pair(3);
+    let mut now = Time::from_micros(10);
+    let sends = 5_000u32;
+    let mut delivered_to_b = Vec::new();
+    let mut lost_one = false;
+    for i in 0..sends {
+        a.send(now, request(&i.to_le_bytes()), i).unwrap();
+        while let Some(tx) = a.poll_transmit(now) {
+            if lost_one {
+                b.handle_frame(now, tx.link, &tx.frame);
+            }
+            lost_one = true; // message 0's first frame is the one lost
+            a.transmit_result(now, tx, Ok(()));
+        }
+        while let Some(d) = b.poll_delivery() {
+            delivered_to_b.push(u32::from_le_bytes(d.payload[..].try_into().unwrap()));
+            b.delivery_result(now, d.token.unwrap(), AckStatus::Delivered);
+        }
+        carry(now, &mut b, &mut a);
+    }
+    // Message 0's first frame was the only one lost; its retransmission comes now.
+    while let Some(t) = a.poll_timeout() {
+        now = t;
+        a.handle_timeout(now);
+        carry(now, &mut a, &mut b);
+        while let Some(d) = b.poll_delivery() {
+            delivered_to_b.push(u32::from_le_bytes(d.payload[..].try_into().unwrap()));
+            b.delivery_result(now, d.token.unwrap(), AckStatus::Delivered);
+        }
+        carry(now, &mut b, &mut a);
+    }
+    let mut outcomes = Vec::new();
+    while let Some(Event::Outcome { token, outcome, .. }) = a.poll_event() {
+        outcomes.push((token, outcome));
+    }
+    assert_eq!(outcomes.len(), sends as usize);
+    let zero = outcomes.iter().find(|(t, _)| *t == 0).unwrap();
+    assert!(
+        matches!(zero.1, Outcome::Delivered { attempts: 2, .. }),
+        "{:?}",
+        zero.1
+    );
+    assert!(delivered_to_b.contains(&0), "delivered means in the inbox");
+    delivered_to_b.sort_unstable();
+    assert_eq!(delivered_to_b, (0..sends).collect::<Vec<_>>());
+}

@@ -27,7 +27,7 @@ use hetcomm_core::{
     Address, FrameBuf, FrameKind, Header, PayloadBuf, PayloadSource, SystemId, Time,
 };
 
-use crate::dedup::Dedup;
+use crate::dedup::{Dedup, Verdict};
 use crate::lane::DirectLane;
 use crate::rtt::RttEstimator;
 

@@ -182,7 +182,19 @@ impl<T> Router<T> {
             true => &mut self.broadcast_dedup,
             false => &mut self.dedup,
         };
-        if !dedup.insert_new(origin, h.incarnation, h.seq) {
+        let answer = match dedup.check_and_insert(origin, h.incarnation, h.seq) {
+            Verdict::New => None,
+            Verdict::Duplicate => Some(AckStatus::Delivered),
+            Verdict::Refused(status) => Some(status),
+            Verdict::TooOld => {
+                // Whether an earlier copy entered the inbox is forgotten: delivering it could
+                // deliver it twice, acknowledging it could claim a delivery that never was.
+                // Silence leaves the sender's outcome unconfirmed, which is true.
+                self.stats.too_old += 1;
+                return;
+            }
+        };
+        if let Some(status) = answer {
             self.stats.duplicates += 1;
             // The earlier acknowledgement may have been lost: say it again, unless the first
             // copy is still waiting for its inbox or its turn (its ack comes then).
@@ -196,7 +208,7 @@ impl<T> Router<T> {
                         .get(&key)
                         .is_some_and(|o| o.held.contains_key(&h.seq)));
             if h.ack_requested() && !waiting {
-                self.queue_ack(link, ack_header, AckStatus::Delivered);
+                self.queue_ack(link, ack_header, status);
             }
             return;
         }
@@ -315,19 +327,22 @@ impl<T> Router<T> {
     }
 
     /// Reports what the destination inbox did with a delivery that carried a token; the
-    /// router acknowledges accordingly. A refused message is forgotten by the duplicate filter,
-    /// so a retransmission may try again.
+    /// router acknowledges accordingly. A refused message stays refused: a retransmission
+    /// (its sender did not hear the refusal) is answered with the same status, so that every
+    /// acknowledgement of one message says the same thing whatever order they arrive in.
     pub fn delivery_result(&mut self, _now: Time, token: DeliveryToken, status: AckStatus) {
         let Some(d) = self.awaiting.remove(&token) else {
             return;
         };
         if status != AckStatus::Delivered {
             match d.seq & BROADCAST_SEND != 0 {
-                true => {
-                    self.broadcast_dedup
-                        .remove(d.origin, d.incarnation, d.seq & !BROADCAST_SEND)
-                }
-                false => self.dedup.remove(d.origin, d.incarnation, d.seq),
+                true => self.broadcast_dedup.refuse(
+                    d.origin,
+                    d.incarnation,
+                    d.seq & !BROADCAST_SEND,
+                    status,
+                ),
+                false => self.dedup.refuse(d.origin, d.incarnation, d.seq, status),
             }
             self.stats.received -= 1;
         }

@@ -155,7 +155,9 @@ pub struct RouterConfig {
     pub known_systems: BTreeSet<SystemId>,
     /// Retransmission timing.
     pub timing: Timing,
-    /// Sequence numbers remembered per sender beyond the contiguous prefix.
+    /// Sequence numbers remembered per sender incarnation beyond the contiguous prefix (and,
+    /// as many again, gaps skipped and refusals): a data frame older than that memory is
+    /// neither delivered nor acknowledged ([`RouterStats::too_old`]).
     pub dedup_window: usize,
     /// Senders whose messages are delivered in the order sent (see [`Timing::hold_timeout`]).
     pub ordered_sources: BTreeSet<SystemId>,
@@ -580,8 +582,12 @@ pub struct RouterStats {
     pub acks_received: u64,
     /// Acknowledgements for nothing pending (late duplicates): ignored.
     pub stale_acks: u64,
-    /// Duplicate data frames suppressed.
+    /// Duplicate data frames suppressed (acknowledged again, with the first copy's status).
     pub duplicates: u64,
+    /// Data frames older than the duplicate filter remembers ([`RouterConfig::dedup_window`]):
+    /// whether an earlier copy was delivered is not known, so they are neither delivered
+    /// nor acknowledged (their sender's outcome stays unconfirmed).
+    pub too_old: u64,
     /// Frames that failed to decode (truncated, bad version, bad checksum, …).
     pub malformed: u64,
     /// Frames from a system not in the fleet.
