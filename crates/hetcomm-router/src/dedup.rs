@@ -141,13 +141,25 @@ impl Seen {
 #[derive(Debug)]
 pub(crate) struct Dedup {
     window: usize,
-    /// Per origin: the incarnations tracked, newest last (at most `INCARNATIONS`).
-    by_origin: HashMap<SystemId, VecDeque<(u32, Seen)>>,
+    by_origin: HashMap<SystemId, Incarnations>,
+}
+
+/// What the filter keeps of one origin's incarnations.
+#[derive(Debug, Default)]
+struct Incarnations {
+    /// Tracked, newest last (at most [`INCARNATIONS`]).
+    live: VecDeque<(u32, Seen)>,
+    /// Incarnations whose state was dropped to make room, newest last (at most
+    /// [`RETIRED`]): a late frame of one is too old to tell, not new (taking it as new would
+    /// deliver again what its first copy delivered).
+    retired: VecDeque<u32>,
 }
 
 /// Incarnations remembered per origin: a restarted sender's late frames from its previous life
 /// are still recognised.
 const INCARNATIONS: usize = 4;
+/// Dropped incarnations remembered per origin by number alone (4 bytes each).
+const RETIRED: usize = 64;
 
 impl Dedup {
     pub(crate) fn new(window: usize) -> Self {
@@ -157,19 +169,27 @@ impl Dedup {
         }
     }
 
-    fn seen_mut(&mut self, origin: SystemId, incarnation: u32) -> &mut Seen {
-        let list = self.by_origin.entry(origin).or_default();
-        let pos = match list.iter().position(|(i, _)| *i == incarnation) {
+    /// The state of (origin, incarnation), made for an incarnation never heard; None for
+    /// one whose state was dropped.
+    fn seen_mut(&mut self, origin: SystemId, incarnation: u32) -> Option<&mut Seen> {
+        let o = self.by_origin.entry(origin).or_default();
+        let pos = match o.live.iter().position(|(i, _)| *i == incarnation) {
             Some(pos) => pos,
+            None if o.retired.contains(&incarnation) => return None,
             None => {
-                if list.len() == INCARNATIONS {
-                    list.pop_front();
+                if o.live.len() == INCARNATIONS {
+                    if let Some((old, _)) = o.live.pop_front() {
+                        if o.retired.len() == RETIRED {
+                            o.retired.pop_front();
+                        }
+                        o.retired.push_back(old);
+                    }
                 }
-                list.push_back((incarnation, Seen::default()));
-                list.len() - 1
+                o.live.push_back((incarnation, Seen::default()));
+                o.live.len() - 1
             }
         };
-        &mut list[pos].1
+        Some(&mut o.live[pos].1)
     }
 
     /// What the filter knows of (origin, incarnation, seq).
@@ -177,7 +197,7 @@ impl Dedup {
     pub(crate) fn verdict(&self, origin: SystemId, incarnation: u32, seq: u64) -> Verdict {
         self.by_origin
             .get(&origin)
-            .and_then(|l| l.iter().find(|(i, _)| *i == incarnation))
+            .and_then(|o| o.live.iter().find(|(i, _)| *i == incarnation))
             .map_or(Verdict::New, |(_, s)| s.verdict(seq))
     }
 
@@ -190,7 +210,9 @@ impl Dedup {
         seq: u64,
     ) -> Verdict {
         let window = self.window;
-        let seen = self.seen_mut(origin, incarnation);
+        let Some(seen) = self.seen_mut(origin, incarnation) else {
+            return Verdict::TooOld;
+        };
         let verdict = seen.verdict(seq);
         if verdict == Verdict::New {
             seen.insert(seq, window);
@@ -209,8 +231,9 @@ impl Dedup {
         status: AckStatus,
     ) {
         let window = self.window;
-        self.seen_mut(origin, incarnation)
-            .refuse(seq, status, window);
+        if let Some(seen) = self.seen_mut(origin, incarnation) {
+            seen.refuse(seq, status, window);
+        }
     }
 }
 
@@ -297,13 +320,25 @@ mod tests {
     }
 
     #[test]
+    fn late_frames_of_a_dropped_incarnation_are_too_old_not_new() {
+        // A sender restarted more often than the filter keeps incarnations, while frames of
+        // its first life were still on the way: taking one as new would deliver it twice.
+        let mut d = Dedup::new(16);
+        assert_eq!(d.check_and_insert(O, 1, 23), Verdict::New);
+        for incarnation in 2..=INCARNATIONS as u32 + 1 {
+            assert_eq!(d.check_and_insert(O, incarnation, 1), Verdict::New);
+        }
+        assert_eq!(d.check_and_insert(O, 1, 23), Verdict::TooOld);
+    }
+
+    #[test]
     fn window_bounds_memory() {
         let mut d = Dedup::new(8);
         for s in (2..100_000).step_by(2) {
             d.check_and_insert(O, 1, s);
             d.refuse(O, 1, s, AckStatus::InboxFull);
         }
-        let seen = &d.by_origin[&O][0].1;
+        let seen = &d.by_origin[&O].live[0].1;
         assert!(seen.above.len() <= 8 && seen.holes.len() <= 8 && seen.refused.len() <= 8);
         // What fell out of memory is too old to tell, never a duplicate of a delivery.
         assert_eq!(d.verdict(O, 1, 3), Verdict::TooOld);
