@@ -206,6 +206,7 @@ impl Comm {
             ("acks_received", r.acks_received),
             ("stale_acks", r.stale_acks),
             ("duplicates", r.duplicates),
+            ("too_old", r.too_old),
             ("malformed", r.malformed),
             ("unknown_origin", r.unknown_origin),
             ("misrouted", r.misrouted),

@@ -105,8 +105,8 @@ struct SendRecord {
     life: u32,
     /// Whether a data frame of this send was taken by the link.
     data_left: bool,
-    /// The destination's life when the send began, and when its outcome came.
-    dest_lives: (u32, u32),
+    /// The destination's life when the send began.
+    dest_life: u32,
     outcomes: Vec<Outcome>,
 }
 
@@ -330,7 +330,7 @@ impl World {
                     acknowledged,
                     life,
                     data_left: false,
-                    dest_lives: (0, 0),
+                    dest_life: 0,
                     outcomes: Vec::new(),
                 });
                 records.len() - 1
@@ -339,7 +339,7 @@ impl World {
                 records.truncate(start); // refused as a whole: nothing was numbered
             }
             for r in &mut records[start..] {
-                r.dest_lives.0 = self.systems[usize::from(r.to)].life;
+                r.dest_life = self.systems[usize::from(r.to)].life;
             }
         } else {
             let mut to = self.rng.gen_range(0..p.systems - 1);
@@ -365,7 +365,7 @@ impl World {
                     acknowledged,
                     life,
                     data_left: false,
-                    dest_lives: (dest_life, 0),
+                    dest_life,
                     outcomes: Vec::new(),
                 });
             }
@@ -401,9 +401,7 @@ impl World {
             while let Some(Event::Outcome { token, outcome, .. }) =
                 self.systems[usize::from(s)].router.poll_event()
             {
-                let r = &mut self.records[token];
-                r.outcomes.push(outcome);
-                r.dest_lives.1 = self.systems[usize::from(r.to)].life;
+                self.records[token].outcomes.push(outcome);
             }
             if !progressed {
                 return;
@@ -527,9 +525,10 @@ impl World {
                 wrong.push(format!("{what}: {} outcomes, not one", r.outcomes.len()));
                 continue;
             };
-            // A receiver that restarted forgot what its previous process took: outcomes are
-            // then true of the process that answered, which the world cannot single out.
-            let one_receiver = r.dest_lives.0 == r.dest_lives.1;
+            // A receiver that restarted forgot what its previous process took or refused (a late
+            // copy may enter the new one's inbox): outcomes are then true of the process that
+            // answered, which the world does not single out.
+            let one_receiver = r.dest_life == self.systems[usize::from(r.to)].life;
             let lie = match outcome {
                 Outcome::Delivered { .. } if !r.acknowledged => Some("delivered without an ack"),
                 Outcome::Delivered { .. } if arrived == 0 => {
