@@ -401,6 +401,12 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                     if !fleet.taps.is_empty() {
                         println!("  {} tap(s) placed for the whole run", fleet.taps.len());
                     }
+                    for name in fleet.isolated_systems() {
+                        println!(
+                            "  warning: `{name}` is in [systems] but every pair with it is X: \
+                             it can talk to nobody (add it to the table's columns and rows)"
+                        );
+                    }
                     if let Some(path) = scenario {
                         match hetcomm::config::scenario::load_scenario(&path, &fleet) {
                             Ok(sc) => println!(

@@ -48,6 +48,27 @@ pub fn check_system(
     )
 }
 
+/// Fails unless `name` is a system `sender` may name as a destination (`--to`): another
+/// system of `fleet`, or `All`. The suggestion never names the sender itself.
+pub fn check_destination(
+    fleet: &Fleet,
+    path: &Path,
+    name: &str,
+    sender: &str,
+) -> anyhow::Result<()> {
+    let mut known: Vec<&str> = fleet.systems.iter().map(|s| s.name.as_str()).collect();
+    if known.contains(&name) || name == "All" {
+        return Ok(());
+    }
+    known.retain(|s| *s != sender);
+    known.push("All");
+    anyhow::bail!(
+        "`--to {name}`: {} has no such system; {}",
+        path.display(),
+        help(name, &known, "destinations")
+    )
+}
+
 /// Fails unless `name` is a module of `fleet` (see [`check_system`]).
 pub fn check_module(fleet: &Fleet, path: &Path, flag: &str, name: &str) -> anyhow::Result<()> {
     let known: Vec<&str> = fleet.modules.iter().map(|m| m.name.as_str()).collect();
@@ -88,5 +109,24 @@ mod tests {
             help("Alpah", &names, "systems"),
             "did you mean `Alpha`? (systems: Alpha, Bravo, Charlie, All)"
         );
+    }
+
+    #[test]
+    fn a_destination_suggestion_never_names_the_sender() {
+        let fleet = hetcomm::config::parse_str(
+            "[systems]\nRover1 = 0\nRover2 = 1\nBase = 2\n[modules]\nPlan = 0\n\
+             [transports.R]\nkind = \"inproc\"\n[table]\ncolumns = [\"Rover1\", \"Rover2\", \"Base\"]\n\
+             Rover1 = [\"X\", \"R\", \"R\"]\nRover2 = [\"R\", \"X\", \"R\"]\nBase = [\"R\", \"R\", \"X\"]\n",
+            "f.toml",
+            None,
+        )
+        .unwrap();
+        let e = check_destination(&fleet, Path::new("f.toml"), "Rover3", "Rover2").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "`--to Rover3`: f.toml has no such system; did you mean `Rover1`? \
+             (destinations: Rover1, Base, All)"
+        );
+        assert!(check_destination(&fleet, Path::new("f.toml"), "All", "Rover2").is_ok());
     }
 }

@@ -58,7 +58,7 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     let payload = hetcomm::payload::from_json(&value)?;
     let fleet = names::load_fleet(args.fleet, args.security)?;
     names::check_system(&fleet, args.fleet, "--as", args.system, &[])?;
-    names::check_system(&fleet, args.fleet, "--to", args.to, &["All"])?;
+    names::check_destination(&fleet, args.fleet, args.to, args.system)?;
     names::check_module(&fleet, args.fleet, "--module", args.module)?;
     if let Some(m) = args.from_module {
         names::check_module(&fleet, args.fleet, "--from-module", m)?;

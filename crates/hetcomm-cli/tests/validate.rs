@@ -210,3 +210,27 @@ fn a_fleet_file_tap_on_a_path_that_does_not_exist_is_a_located_error() {
         "{stderr}"
     );
 }
+
+#[test]
+fn a_system_the_table_connects_to_nobody_is_warned_of() {
+    let dir = temp_dir("isolated");
+    let file = dir.join("fleet.toml");
+    std::fs::write(
+        &file,
+        "[systems]\nAlpha = 0\nBravo = 1\nEcho = 2\n[modules]\nPlan = 0\n\
+         [transports.R]\nkind = \"inproc\"\n\
+         [table]\ncolumns = [\"Alpha\", \"Bravo\"]\nAlpha = [\"X\", \"R\"]\nBravo = [\"R\", \"X\"]\n",
+    )
+    .unwrap();
+    let (code, stdout, stderr) = hetcomm(&["validate", file.to_str().unwrap()]);
+    assert_eq!(code, 0, "valid all the same: {stderr}");
+    let warnings: Vec<&str> = stdout.lines().filter(|l| l.contains("warning")).collect();
+    assert_eq!(
+        warnings,
+        [
+            "  warning: `Echo` is in [systems] but every pair with it is X: it can talk to nobody \
+          (add it to the table's columns and rows)"
+        ],
+        "{stdout}"
+    );
+}

@@ -134,6 +134,9 @@ pub(crate) struct Parts {
     pub secure_in_process: bool,
     /// Where to report "B needs addresses" when no cell location is better.
     pub fallback: Loc,
+    /// How to give those addresses, in the loader's own terms (a fleet-file key, or the
+    /// command line's flag).
+    pub b_help: &'static str,
 }
 
 /// The fleet's systems after duplicate checks, with name and id lookups.
@@ -510,6 +513,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         keys_dir,
         secure_in_process,
         fallback,
+        b_help,
     } = p;
 
     // Letters: from transports' own `letter` first (file order), then [letters]. A letter may
@@ -572,6 +576,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             &mut transports,
             &mut tag_of,
             legacy_bt.as_ref(),
+            b_help,
             &mut diag,
         );
     }

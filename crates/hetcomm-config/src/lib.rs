@@ -230,6 +230,8 @@ pub fn load_legacy(
             keys_dir: None,
             secure_in_process: false,
             fallback: Loc::start(&table_name),
+            b_help: "give the Bluetooth addresses in a third file (the Table 3 format): \
+                     `hetcomm validate --ids … --table … --bluetooth bt.txt`",
         },
         diag,
     )

@@ -419,6 +419,21 @@ impl Fleet {
         self.transports.iter().find(|t| t.name == name)
     }
 
+    /// Systems the table connects to nobody, in either direction (every pair `X`): valid, but
+    /// usually a name left out of the table by mistake. `hetcomm validate` warns of them.
+    pub fn isolated_systems(&self) -> Vec<&str> {
+        let mut connected = std::collections::BTreeSet::new();
+        for (from, to) in self.table.keys() {
+            connected.insert(*from);
+            connected.insert(*to);
+        }
+        self.systems
+            .iter()
+            .filter(|s| !connected.contains(&s.id))
+            .map(|s| s.name.as_str())
+            .collect()
+    }
+
     /// One line: systems, modules, and pairs per transport — what `hetcomm validate` prints.
     pub fn summary(&self) -> String {
         // One pass over the pairs, however many transports: a big fleet has millions.

@@ -121,6 +121,7 @@ pub(crate) fn table_pairs(
     transports: &mut Vec<TransportSpec>,
     tag_of: &mut Vec<Option<u8>>,
     legacy_bt: Option<&LegacyBt>,
+    b_help: &'static str,
     diag: &mut Diag,
 ) -> Vec<((SystemId, SystemId), usize)> {
     let cols: Vec<Option<SystemId>> = table
@@ -187,7 +188,10 @@ pub(crate) fn table_pairs(
     let mut unresolved: Vec<(usize, usize, Option<RawCell>)> =
         vec![(0, 0, None); table.texts.len()];
     let mut implicit: HashMap<&'static str, usize> = HashMap::new();
-    let mut b_reported = false;
+    let mut b_missing = BMissing {
+        reported: false,
+        help: b_help,
+    };
     let mut addresses = AddressCheck::default();
     let mut pairs = Vec::with_capacity(table.cells.len());
     // Positions in `systems.list`, looked up once rather than per cell.
@@ -255,7 +259,7 @@ pub(crate) fn table_pairs(
                         tag_of,
                         &mut implicit,
                         legacy_bt,
-                        &mut b_reported,
+                        &mut b_missing,
                         diag,
                     );
                     let Some(i) = resolved_now else {
@@ -417,6 +421,12 @@ fn has_address(t: &TransportSpec, sys: SystemId) -> Option<bool> {
 /// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
 /// None when it names nothing usable (already reported).
 #[allow(clippy::too_many_arguments)]
+/// "Letter B needs Bluetooth addresses", said once per table, with the loader's help.
+struct BMissing {
+    reported: bool,
+    help: &'static str,
+}
+
 fn resolve_cell(
     text: &str,
     loc: &Loc,
@@ -425,7 +435,7 @@ fn resolve_cell(
     tag_of: &mut Vec<Option<u8>>,
     implicit: &mut HashMap<&'static str, usize>,
     legacy_bt: Option<&LegacyBt>,
-    b_reported: &mut bool,
+    b_missing: &mut BMissing,
     diag: &mut Diag,
 ) -> Option<usize> {
     if let [b] = text.as_bytes() {
@@ -479,12 +489,12 @@ fn resolve_cell(
         })
     } else {
         let Some(bt) = legacy_bt else {
-            if !*b_reported {
-                *b_reported = true;
+            if !b_missing.reported {
+                b_missing.reported = true;
                 diag.err_help(
                     loc,
                     "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
-                    "add `bluetooth = \"bt.txt\"` (the Table 3 format) under [legacy], or map B to a transport in [letters]",
+                    b_missing.help,
                 );
             }
             return None;

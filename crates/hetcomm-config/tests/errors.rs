@@ -17,7 +17,7 @@ capacity = 0
 
 [transports.lan]
 kind = \"udp\"
-endpoints = { Alpha = \"nowhere\", Bravo = \"127.0.0.1:1\" }
+endpoints = { Alpha = \"nowhere\", Bravo = \"127.0.0.1:74000\" }
 atempts = 2
 ";
     let e = parse_str(text, "multi.toml", None).unwrap_err();
@@ -31,6 +31,7 @@ atempts = 2
             "3:9: duplicate system id 0: `Alpha` and `Bravo` both use it",
             "6:12: `inbox.capacity` must be at least 1, found 0",
             "10:23: malformed endpoint `nowhere` for `Alpha`",
+            "10:42: port 74000 of endpoint `127.0.0.1:74000` for `Bravo` is out of range",
             "11:1: unknown key `atempts` in `transports.lan`",
         ]
     );
@@ -119,8 +120,8 @@ fn legacy_b_without_addresses_is_reported_at_the_cell() {
     assert_eq!(
         e.to_string(),
         "tests/fixtures/table17-table.txt:2:7: letter `B` means a Bluetooth transport, which needs \
-         Bluetooth addresses, but none are given\n  help: add `bluetooth = \"bt.txt\"` (the Table 3 \
-         format) under [legacy], or map B to a transport in [letters]"
+         Bluetooth addresses, but none are given\n  help: give the Bluetooth addresses in a third \
+         file (the Table 3 format): `hetcomm validate --ids … --table … --bluetooth bt.txt`"
     );
 }
 

@@ -530,6 +530,8 @@ impl P<'_> {
             keys_dir,
             secure_in_process,
             fallback: top,
+            b_help: "add `bluetooth = \"bt.txt\"` (the Table 3 format) under [legacy], or map B \
+                     to a transport in [letters]",
         }
     }
 

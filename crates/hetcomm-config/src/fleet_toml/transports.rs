@@ -432,14 +432,20 @@ impl P<'_> {
             let Some(s) = self.string(v, &format!("{path}.{}", key_part(k)), &vl, help) else {
                 continue;
             };
-            let parsed = s.rsplit_once(':').and_then(|(h, p)| {
-                let ok = !h.is_empty() && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit());
-                ok.then(|| p.parse::<u16>().ok().map(|port| (h, port)))
-                    .flatten()
+            let split = s.rsplit_once(':').filter(|(h, p)| {
+                !h.is_empty() && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit())
             });
-            let Some((host, port)) = parsed else {
+            let Some((host, digits)) = split else {
                 self.diag
                     .err_help(&vl, format!("malformed endpoint `{s}` for `{k}`"), help);
+                continue;
+            };
+            let Ok(port) = digits.parse::<u16>() else {
+                self.diag.err_help(
+                    &vl,
+                    format!("port {digits} of endpoint `{s}` for `{k}` is out of range"),
+                    "a port is 0 to 65535 (0 picks a free port)",
+                );
                 continue;
             };
             // One socket per protocol, address and port: a second system there (on this
