@@ -575,8 +575,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             &letter_map,
             &mut transports,
             &mut tag_of,
-            legacy_bt.as_ref(),
-            b_help,
+            (legacy_bt.as_ref(), b_help),
             &mut diag,
         );
     }

@@ -120,8 +120,8 @@ pub(crate) fn table_pairs(
     letter_map: &BTreeMap<u8, (usize, Loc)>,
     transports: &mut Vec<TransportSpec>,
     tag_of: &mut Vec<Option<u8>>,
-    legacy_bt: Option<&LegacyBt>,
-    b_help: &'static str,
+    // The legacy Bluetooth file's addresses for the implicit `B`, and how to give them.
+    (legacy_bt, b_help): (Option<&LegacyBt>, &'static str),
     diag: &mut Diag,
 ) -> Vec<((SystemId, SystemId), usize)> {
     let cols: Vec<Option<SystemId>> = table
@@ -418,15 +418,15 @@ fn has_address(t: &TransportSpec, sys: SystemId) -> Option<bool> {
     }
 }
 
-/// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
-/// None when it names nothing usable (already reported).
-#[allow(clippy::too_many_arguments)]
 /// "Letter B needs Bluetooth addresses", said once per table, with the loader's help.
 struct BMissing {
     reported: bool,
     help: &'static str,
 }
 
+/// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
+/// None when it names nothing usable (already reported).
+#[allow(clippy::too_many_arguments)]
 fn resolve_cell(
     text: &str,
     loc: &Loc,
