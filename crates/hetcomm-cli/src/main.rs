@@ -262,7 +262,7 @@ enum Command {
     /// (docs/record-replay.md).
     ///
     /// Processes publish their systems' statistics to the monitor's UDP address when
-    /// HETCOMM_MONITOR=host:port is set in their environment (hetcomm demo, listen, record,
+    /// HETCOMM_MONITOR=host:port is set in their environment (hetcomm demo, listen, send, record,
     /// replay, and programs using hetcomm_record::stats::Publisher).
     Monitor {
         /// The fleet file (names the pairs and transports).

@@ -64,6 +64,10 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
         names::check_module(&fleet, args.fleet, "--from-module", m)?;
     }
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
+    // HETCOMM_MONITOR=host:port: its statistics for `hetcomm monitor`, reported once more as
+    // it exits (docs/record-replay.md).
+    let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
+        .map_err(anyhow::Error::msg)?;
     let from = match args.from_module {
         Some(m) => m.to_string(),
         None => comm

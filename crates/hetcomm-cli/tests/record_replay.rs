@@ -454,3 +454,45 @@ fn record_captures_what_a_live_udp_fleet_sends_to_a_system_and_replay_sends_it_a
         .collect();
     assert_eq!(payloads, (0..100).collect::<Vec<u64>>());
 }
+
+#[test]
+fn a_one_shot_send_reports_its_statistics_to_the_monitor_as_it_exits() {
+    // `hetcomm send` lives for a fraction of the monitor's period: without a last report at
+    // exit the monitor never heard of it (issue 41, item 5).
+    let deadline = Deadline::after(30);
+    let monitor = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let sink = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let dir = TempDir::new("send-monitor");
+    let fleet = dir.write(
+        "fleet.toml",
+        &unsecured(&fleet_text(
+            "udp",
+            &[
+                ("Alpha", 0, format!("127.0.0.1:{}", free_udp_port())),
+                ("Bravo", 1, sink.local_addr().unwrap().to_string()),
+            ],
+        )),
+    );
+    let mut cmd = send_cmd(&fleet, "Alpha", "Bravo", r#"{"code": 1}"#);
+    cmd.env("HETCOMM_MONITOR", monitor.local_addr().unwrap().to_string());
+    let sent = run("send with a monitor", cmd, deadline);
+    assert_eq!(sent.status.code(), Some(3), "nobody acknowledges: {sent:?}");
+    monitor.set_nonblocking(true).unwrap();
+    let mut buf = vec![0u8; 65_536];
+    let mut reports = Vec::new();
+    while let Ok((n, _)) = monitor.recv_from(&mut buf) {
+        reports.push(serde_json::from_slice::<serde_json::Value>(&buf[..n]).unwrap());
+    }
+    let last = reports.last().expect("at least the report at exit");
+    assert_eq!(last["system"], "Alpha", "{last}");
+    let pair = &last["pairs"][0];
+    assert_eq!(
+        (&pair["destination"], &pair["sends"], &pair["unconfirmed"]),
+        (
+            &serde_json::json!("Bravo"),
+            &serde_json::json!(1),
+            &serde_json::json!(1)
+        ),
+        "{last}"
+    );
+}

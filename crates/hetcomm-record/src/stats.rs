@@ -223,7 +223,7 @@ impl Observer for PairStats {
     }
 }
 
-/// Sends a [`StatsReport`] per system to a monitor once a period, until dropped.
+/// Sends a [`StatsReport`] per system to a monitor once a period, and once more when dropped.
 pub struct Publisher {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -255,6 +255,17 @@ impl Publisher {
         let thread = std::thread::Builder::new()
             .name("hetcomm-stats".into())
             .spawn(move || {
+                let publish = || {
+                    for (comm, stats) in &watched {
+                        if let Ok(bytes) = serde_json::to_vec(&stats.report(comm)) {
+                            // A monitor that is not running is not an error: reports are
+                            // best-effort (a lost one only delays a refresh).
+                            for monitor in &monitors {
+                                let _ = socket.send_to(&bytes, monitor);
+                            }
+                        }
+                    }
+                };
                 let mut next = Instant::now() + period;
                 while !stop2.load(Ordering::Relaxed) {
                     std::thread::sleep(
@@ -265,16 +276,11 @@ impl Publisher {
                         continue;
                     }
                     next += period;
-                    for (comm, stats) in &watched {
-                        if let Ok(bytes) = serde_json::to_vec(&stats.report(comm)) {
-                            // A monitor that is not running is not an error: reports are
-                            // best-effort (a lost one only delays a refresh).
-                            for monitor in &monitors {
-                                let _ = socket.send_to(&bytes, monitor);
-                            }
-                        }
-                    }
+                    publish();
                 }
+                // A last report when stopped: a process shorter than a period (`hetcomm
+                // send`) is seen at all, and a longer one's last moments are not lost.
+                publish();
             })?;
         Ok(Publisher {
             stop,
