@@ -149,6 +149,28 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
             fleet
         }
     };
+    // A bridge stands for a robot that runs ROS, not hetcomm: without its kind compiled in,
+    // the simulator would quietly play that robot itself.
+    if let Some((t, feature)) = hetcomm::registry().unbuilt_bridges(&fleet).first() {
+        anyhow::bail!(
+            "transport `{}` is a {} (its robot runs ROS, not hetcomm), which this hetcomm is \
+             built without: rebuild with `--features {feature}`",
+            t.name,
+            t.kind
+        );
+    }
+    // A real transport the demo would switch to real time for must be compiled in, or the
+    // run would announce real time and then fail.
+    for kind in [args.r, args.b] {
+        let Some(kind) = hetcomm::config::TransportKind::parse(kind) else {
+            continue; // an emulated profile (wired, wifi, …)
+        };
+        if let (None, Some(feature)) = (args.fleet, hetcomm::registry().feature_for(kind)) {
+            anyhow::bail!(
+                "`{kind}` is not built into this hetcomm: rebuild with `--features {feature}`"
+            );
+        }
+    }
     // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`
     // would never reach the ROS master (nor `zenoh` a Zenoh router): a real transport forces
     // real time.

@@ -351,15 +351,20 @@ fn main() -> ExitCode {
 /// The library tells a program depending on it to "rebuild with `--features ros1`"; for this
 /// command that means rebuilding the `hetcomm-cli` package with its feature of that name.
 fn for_this_command(message: &str) -> String {
-    let mut out = message.to_string();
-    for feature in ["ros1", "bluetooth", "zenoh"] {
-        out = out.replace(
-            &format!("rebuild with `--features {feature}`"),
-            &format!(
-                "rebuild this command with `cargo build --release -p hetcomm-cli --features {feature}`"
-            ),
-        );
+    const LIBRARY: &str = "rebuild with `--features ";
+    let mut out = String::with_capacity(message.len());
+    let mut rest = message;
+    while let Some(at) = rest.find(LIBRARY) {
+        let after = &rest[at + LIBRARY.len()..];
+        let Some(end) = after.find('`') else { break };
+        let feature = &after[..end];
+        out.push_str(&rest[..at]);
+        out.push_str(&format!(
+            "rebuild this command with `cargo build --release -p hetcomm-cli --features {feature}`"
+        ));
+        rest = &after[end + 1..];
     }
+    out.push_str(rest);
     out
 }
 

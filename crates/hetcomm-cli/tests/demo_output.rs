@@ -199,3 +199,50 @@ fn a_secured_demo_prints_the_same_tables() {
         "only Tango's rows of Tables 11 and 12 may move: {moved} lines"
     );
 }
+
+/// `hetcomm demo` with `args`, from the workspace root: (exit code, stdout, stderr).
+fn demo_with(args: &[&str]) -> (Option<i32>, String, String) {
+    let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("demo-refused");
+    let output = Command::new(env!("CARGO_BIN_EXE_hetcomm"))
+        .current_dir(root())
+        .arg("demo")
+        .arg("--out")
+        .arg(&out)
+        .args(args)
+        .output()
+        .expect("hetcomm runs");
+    (
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+/// Without the bridge compiled in, the demo used to simulate the ROS 2 robot in-process and
+/// print full tables, exit 0 (issue 41, item 1).
+#[cfg(not(feature = "ros2"))]
+#[test]
+fn a_bridged_robot_is_never_simulated_in_its_place() {
+    let (code, stdout, stderr) = demo_with(&["--fleet", "examples/ros2/leader-follower-ros2.toml"]);
+    assert_eq!(code, Some(1), "{stdout}{stderr}");
+    assert!(stdout.is_empty(), "no table: {stdout}");
+    assert_eq!(
+        stderr.trim(),
+        "error: transport `tango_ros` is a ros2_bridge (its robot runs ROS, not hetcomm), which \
+         this hetcomm is built without: rebuild this command with `cargo build --release -p \
+         hetcomm-cli --features ros2`"
+    );
+}
+
+/// `--r ros1` without ROS 1 compiled in used to announce a real-time run, then fail.
+#[cfg(not(feature = "ros1"))]
+#[test]
+fn a_real_transport_not_built_in_is_refused_before_the_run_starts() {
+    let (code, stdout, stderr) = demo_with(&["--r", "ros1"]);
+    assert_eq!(code, Some(1), "{stdout}{stderr}");
+    assert_eq!(
+        stderr.trim(),
+        "error: `ros1` is not built into this hetcomm: rebuild this command with `cargo build \
+         --release -p hetcomm-cli --features ros1`"
+    );
+}

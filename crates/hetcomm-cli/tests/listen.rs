@@ -297,15 +297,15 @@ fn misspelt_names_get_did_you_mean_and_the_list_once() {
         ),
         (
             send_args("Alpha", "Bravoo", "Act"),
-            format!("error: `--to Bravoo`: {path} has no such system; did you mean `Bravo`? (systems: Alpha, Bravo, All)"),
+            format!("error: `--to Bravoo`: {path} has no such system; did you mean `Bravo`? (destinations: Bravo, All)"),
         ),
         (
             send_args("Alpha", "all", "Act"),
-            format!("error: `--to all`: {path} has no such system; did you mean `All`? (systems: Alpha, Bravo, All)"),
+            format!("error: `--to all`: {path} has no such system; did you mean `All`? (destinations: Bravo, All)"),
         ),
         (
             send_args("Alpha", "Zulu", "Act"),
-            format!("error: `--to Zulu`: {path} has no such system; systems: Alpha, Bravo, All"),
+            format!("error: `--to Zulu`: {path} has no such system; destinations: Bravo, All"),
         ),
         (
             send_args("Alpha", "Bravo", "Actt"),

@@ -26,7 +26,7 @@
 //!
 //! Opening only: nothing here is on the path of a frame.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use hetcomm_config::{Fleet, KindSpec, Kinds, TransportDef, TransportKind};
@@ -103,6 +103,9 @@ pub struct Registry {
     kinds: Kinds,
     /// Kinds known by name whose crate is not compiled in, with the feature that adds it.
     unbuilt: BTreeMap<TransportKind, &'static str>,
+    /// Those of them that are bridges: each transport of one stands for a robot that runs no
+    /// hetcomm, which nothing in this program can stand in for.
+    unbuilt_bridges: BTreeSet<TransportKind>,
 }
 
 impl Registry {
@@ -127,6 +130,25 @@ impl Registry {
     pub fn not_built(&mut self, kind: TransportKind, feature: &'static str) {
         self.kinds.add_unbuilt(kind);
         self.unbuilt.insert(kind, feature);
+    }
+
+    /// Like [`Registry::not_built`], for a bridge kind (see [`TransportFactory::bridged_robot`]):
+    /// [`Registry::unbuilt_bridges`] names fleets' transports of it.
+    pub fn not_built_bridge(&mut self, kind: TransportKind, feature: &'static str) {
+        self.not_built(kind, feature);
+        self.unbuilt_bridges.insert(kind);
+    }
+
+    /// The transports of `fleet` of a bridge kind not compiled in, with the feature that adds
+    /// it, in transport order. A program that would simulate the robot such a transport stands
+    /// for (in virtual time) should refuse instead: the robot is not simulated, it runs ROS.
+    pub fn unbuilt_bridges<'f>(&self, fleet: &'f Fleet) -> Vec<(&'f TransportDef, &'static str)> {
+        fleet
+            .transports
+            .iter()
+            .filter(|t| self.unbuilt_bridges.contains(&t.kind))
+            .filter_map(|t| Some((t, self.feature_for(t.kind)?)))
+            .collect()
     }
 
     /// The feature that compiles `kind` in, for a kind recorded with [`Registry::not_built`].

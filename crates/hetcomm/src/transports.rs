@@ -28,12 +28,13 @@ use crate::runtime::SystemCore;
 /// with it off, the kinds stay known by name (a fleet file may name them, keys kept raw) and
 /// opening one says to rebuild with the feature.
 macro_rules! link_crate {
-    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+]) => {
+    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+] $(, bridges [$($bridge:literal),+])?) => {
         #[cfg(feature = $feature)]
         $krate::register_transports(&mut $registry);
         #[cfg(not(feature = $feature))]
         {
             $($registry.not_built(TransportKind::new($kind), $feature);)+
+            $($($registry.not_built_bridge(TransportKind::new($bridge), $feature);)+)?
         }
     };
 }
@@ -46,8 +47,20 @@ pub fn registry() -> &'static Registry {
         let mut registry = Registry::new();
         hetcomm_link_ip::register_transports(&mut registry);
         link_crate!(registry, "bluetooth", hetcomm_link_bluetooth, ["bluetooth"]);
-        link_crate!(registry, "ros1", hetcomm_link_ros1, ["ros1", "ros1_bridge"]);
-        link_crate!(registry, "ros2", hetcomm_link_ros2, ["ros2", "ros2_bridge"]);
+        link_crate!(
+            registry,
+            "ros1",
+            hetcomm_link_ros1,
+            ["ros1"],
+            bridges["ros1_bridge"]
+        );
+        link_crate!(
+            registry,
+            "ros2",
+            hetcomm_link_ros2,
+            ["ros2"],
+            bridges["ros2_bridge"]
+        );
         link_crate!(registry, "zenoh", hetcomm_link_zenoh, ["zenoh"]);
         registry
     })
