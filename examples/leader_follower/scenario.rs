@@ -101,8 +101,10 @@ pub fn compare(with: &DemoReport, without: &DemoReport) -> String {
             match b.get(j) {
                 Some(y) if y.1 == x.1 => {
                     j += 1;
+                    // In milliseconds: the tables' resolution (at two decimals of a second a
+                    // 1 ms shift printed as "-0.00 s").
                     let late = if (y.0 - x.0).abs() >= 0.0005 {
-                        format!("  ({:+.2} s)", y.0 - x.0)
+                        format!("  ({:+.0} ms)", (y.0 - x.0) * 1000.0)
                     } else {
                         String::new()
                     };

@@ -89,4 +89,27 @@ fn demo_reports_what_the_example_scenario_changed() {
     }
     let written = std::fs::read_to_string(out_dir.join("scenario.txt")).unwrap();
     assert!(written.contains("frames cut"), "{written}");
+    // The lost command is lost everywhere: Table 12 pairs Tango's receipts with the commands
+    // they relay (not by row, which put 8.103 under the 5.000 command with a `[1]` nobody
+    // explained), and the note's delay range leaves it out (it said 0.102–3.103 s).
+    let table: Vec<&str> = stdout
+        .lines()
+        .skip_while(|l| !l.starts_with("Table 12"))
+        .take(5)
+        .collect();
+    assert_eq!(
+        table[4],
+        "Tango                2.102                 -              8.103            10.104",
+        "{}",
+        table.join("\n")
+    );
+    assert!(
+        stdout.contains(
+            "From Alpha's send to a follower's receipt: Charlie 0.000 s, Tango 0.102–0.104 s"
+        ),
+        "{stdout}"
+    );
+    // A shift of a millisecond reads as one, not as "-0.00 s".
+    assert!(stdout.contains("code 1 at   8.10 s  (-1 ms)"), "{stdout}");
+    assert!(!stdout.contains("0.00 s)"), "{stdout}");
 }

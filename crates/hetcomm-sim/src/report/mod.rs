@@ -256,25 +256,47 @@ pub fn command_tables(records: &[CommandRecord]) -> String {
     parts.join("\n")
 }
 
+/// Pairs a follower's receipts with the leader's commands, by command rather than by row: each
+/// receipt goes to the latest command with its code that was sent at or before it and comes
+/// after the command the previous receipt went to. Returns, per command, the receipt paired
+/// with it (None: it never arrived), and the receipts that pair with no command.
+///
+/// Receipts carry only a code (a relaying rover sends a message of its own), so a command is
+/// told from an earlier one of the same code by time alone: the latest fits a follower that
+/// gets each command once, soon after it was sent.
+pub(crate) fn pair_receipts<'a>(
+    sent: &[&'a CommandRecord],
+    got: &[&'a CommandRecord],
+) -> (Vec<Option<&'a CommandRecord>>, Vec<&'a CommandRecord>) {
+    let mut paired = vec![None; sent.len()];
+    let mut unpaired = Vec::new();
+    let mut next = 0;
+    for &g in got {
+        let found = (next..sent.len())
+            .rev()
+            .find(|&j| sent[j].code == g.code && sent[j].t_s <= g.t_s + 1e-9);
+        match found {
+            Some(j) => {
+                paired[j] = Some(g);
+                next = j + 1;
+            }
+            None => unpaired.push(g),
+        }
+    }
+    (paired, unpaired)
+}
+
 /// The command timing matrix in the shape of Table 12.
 ///
-/// Rows are rovers in order of first appearance; a rover's row uses its Received records
-/// if it has any (a follower), else its Sent records (the leader). Columns are the n-th
-/// command, named after the reference sequence: the first rover with Sent records (the
-/// leader), else the first rover. A cell holds the time of that rover's n-th command;
-/// if its code differs from the column's it is followed by `[code]`, and `-` marks a
-/// command the rover never got. The title is numbered [`THESIS_TIMING_TABLE`] when the
-/// reference rover is Alpha.
+/// Rows are rovers in order of first appearance. Columns are the commands of the reference
+/// rover (the first with Sent records: the leader; else the first rover), named after their
+/// codes; its row holds when it sent each. A follower's receipts are paired with those
+/// commands ([`pair_receipts`]): a cell holds when the rover received that command, `-` that
+/// it never did. A receipt that pairs with no command (a code the leader had not sent by
+/// then) goes in a column of its own after the commands, as `time [code]`, with a key under
+/// the table.
 pub fn command_timing_matrix(records: &[CommandRecord]) -> String {
     let rovers = rovers_in_order(records.iter().map(|r| r.rover.as_str()));
-    let row_records = |rover: &str| {
-        let received = records_of(records, rover, CommandKind::Received);
-        if received.is_empty() {
-            records_of(records, rover, CommandKind::Sent)
-        } else {
-            received
-        }
-    };
     let reference_rover = rovers
         .iter()
         .copied()
@@ -284,41 +306,66 @@ pub fn command_timing_matrix(records: &[CommandRecord]) -> String {
                 .any(|c| c.rover == *r && c.kind == CommandKind::Sent)
         })
         .or_else(|| rovers.first().copied());
-    let reference: Vec<i64> = reference_rover
-        .map(|r| row_records(r).iter().map(|c| c.code).collect())
+    let reference: Vec<&CommandRecord> = reference_rover
+        .map(|r| {
+            let sent = records_of(records, r, CommandKind::Sent);
+            if sent.is_empty() {
+                records_of(records, r, CommandKind::Received)
+            } else {
+                sent
+            }
+        })
         .unwrap_or_default();
-    let ncols = rovers
+    // Per rover: a cell per command, then its unpaired receipts.
+    let cells: Vec<(Vec<Option<&CommandRecord>>, Vec<&CommandRecord>)> = rovers
         .iter()
-        .map(|r| row_records(r).len())
-        .max()
-        .unwrap_or(0);
+        .map(|rover| {
+            if Some(*rover) == reference_rover {
+                return (reference.iter().map(|&c| Some(c)).collect(), Vec::new());
+            }
+            let got = records_of(records, rover, CommandKind::Received);
+            if got.is_empty() {
+                // A second sender: its own commands, by row.
+                let sent = records_of(records, rover, CommandKind::Sent);
+                return (
+                    (0..reference.len()).map(|i| sent.get(i).copied()).collect(),
+                    sent.get(reference.len()..).unwrap_or_default().to_vec(),
+                );
+            }
+            pair_receipts(&reference, &got)
+        })
+        .collect();
+    let extra = cells.iter().map(|(_, u)| u.len()).max().unwrap_or(0);
     let mut header = vec![String::new()];
-    for i in 0..ncols {
-        header.push(match reference.get(i) {
-            Some(&code) => command_column_name(code),
-            None => format!("Command {}", i + 1),
-        });
+    for c in &reference {
+        header.push(command_column_name(c.code));
+    }
+    for i in 0..extra {
+        header.push(format!("Command {}", reference.len() + i + 1));
     }
     let mut rows = vec![header];
-    for rover in &rovers {
-        let recs = row_records(rover);
+    for (rover, (paired, unpaired)) in rovers.iter().zip(&cells) {
         let mut row = vec![rover.to_string()];
-        for i in 0..ncols {
-            row.push(match recs.get(i) {
+        for c in paired {
+            row.push(c.map_or_else(|| "-".to_string(), |c| fmt3(c.t_s)));
+        }
+        for i in 0..extra {
+            row.push(match unpaired.get(i) {
+                Some(c) => format!("{} [{}]", fmt3(c.t_s), c.code),
                 None => "-".to_string(),
-                Some(c) if reference.get(i).is_some_and(|&code| code != c.code) => {
-                    format!("{} [{}]", fmt3(c.t_s), c.code)
-                }
-                Some(c) => fmt3(c.t_s),
             });
         }
         rows.push(row);
     }
     let mut right = vec![false];
-    right.extend(std::iter::repeat(true).take(ncols));
+    right.extend(std::iter::repeat(true).take(reference.len() + extra));
     let number = (reference_rover == Some(ALPHA)).then_some(THESIS_TIMING_TABLE);
+    let key = match extra {
+        0 => String::new(),
+        _ => "[c]: received code c, matching no command sent before it\n".to_string(),
+    };
     format!(
-        "{}\n{}",
+        "{}\n{}{key}",
         numbered(number, "Command timing (s)"),
         layout(&rows, &right)
     )
@@ -550,10 +597,11 @@ Time (s)  Command (Received)
     fn timing_matrix_snapshot() {
         let expected = "\
 Table 12: Command timing (s)
-         Left Turn Command  Straight Command  Stop Command
-Alpha                2.000             5.000        10.000
-Charlie              2.000             5.000             -
-Tango                4.000         5.250 [2]             -
+         Left Turn Command  Straight Command  Stop Command  Command 4
+Alpha                2.000             5.000        10.000          -
+Charlie              2.000             5.000             -          -
+Tango                4.000                 -             -  5.250 [2]
+[c]: received code c, matching no command sent before it
 ";
         assert_eq!(command_timing_matrix(&records()), expected);
         assert_eq!(command_timing_matrix(&[]), "Command timing (s)\n\n");

@@ -7,7 +7,7 @@
 //! run's own figures (delays, rows, when each rover started turning), so the note stays true
 //! for any seed or transport.
 
-use super::{records_of, whole_second, CommandKind, CommandRecord};
+use super::{pair_receipts, records_of, whole_second, CommandKind, CommandRecord};
 use crate::kinematics::Pose;
 use crate::scenario::{Scenario, ALPHA, CHARLIE, TANGO};
 use crate::schedule::Command;
@@ -25,15 +25,17 @@ pub struct RunFacts {
     pub control_period_s: f64,
 }
 
-/// Seconds from the leader's n-th sent command to `rover`'s n-th received one: (min, max),
-/// or `None` if the rover received nothing.
+/// Seconds from each of the leader's commands to `rover`'s receipt of it (paired by command,
+/// [`pair_receipts`], so a command lost on the way is left out rather than pairing the next
+/// receipt with it): (min, max), or `None` if the rover received none of them.
 fn delay_range(records: &[CommandRecord], rover: &str) -> Option<(f64, f64)> {
     let sent = records_of(records, ALPHA, CommandKind::Sent);
     let got = records_of(records, rover, CommandKind::Received);
+    let (paired, _) = pair_receipts(&sent, &got);
     let delays: Vec<f64> = sent
         .iter()
-        .zip(&got)
-        .map(|(s, g)| g.t_s - s.t_s)
+        .zip(&paired)
+        .filter_map(|(s, g)| Some(g.as_ref()?.t_s - s.t_s))
         .filter(|d| d.is_finite())
         .collect();
     let lo = delays.iter().copied().reduce(f64::min)?;
