@@ -245,6 +245,11 @@ enum Command {
         /// Only the sends from these modules (comma-separated).
         #[arg(long, value_delimiter = ',')]
         modules: Vec<String>,
+        /// Replay what the recorded systems received (sent again from the recorded sources)
+        /// instead of what they sent. The default for a recording that holds receipts only
+        /// (`hetcomm record`).
+        #[arg(long)]
+        receipts: bool,
         /// Time scale: 2 replays twice as fast, 0.5 half as fast.
         #[arg(long, default_value_t = 1.0)]
         speed: f64,
@@ -541,6 +546,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             into,
             systems,
             modules,
+            receipts,
             speed,
             sim,
             seed,
@@ -549,7 +555,11 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             let clean = replay::run(replay::ReplayArgs {
                 file: &file,
                 into: &into,
-                filter: hetcomm_record::ReplayFilter { systems, modules },
+                filter: hetcomm_record::ReplayFilter {
+                    systems,
+                    modules,
+                    receipts,
+                },
                 speed,
                 sim,
                 seed,

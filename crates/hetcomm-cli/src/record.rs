@@ -48,6 +48,7 @@ impl DemoTools {
             let filter = ReplayFilter {
                 systems: self.replace.clone(),
                 modules: Vec::new(),
+                receipts: false,
             };
             let mut bad = 0u64;
             let report = hetcomm_record::reader::read_timed(path, |origin, e| {

@@ -1,4 +1,5 @@
-//! `hetcomm replay`: a recording's sends, sent again into a live fleet or a simulation.
+//! `hetcomm replay`: a recording's sends (or, for a recording of what a live system received,
+//! those messages) sent again into a live fleet or a simulation.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -36,6 +37,7 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
         anyhow::bail!("--speed {}: expected a positive number", args.speed);
     }
     let fleet = hetcomm::load_fleet(args.into)?;
+    let mut filter = args.filter;
     let report = if args.sim {
         let sim = SimFleet::open(
             fleet,
@@ -44,24 +46,59 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
                 ..SimOptions::default()
             },
         )?;
-        replay_sim(args.file, &sim, &args.filter, args.speed)?
+        if !filter.receipts {
+            let contents = Contents::of(args.file, &filter)?;
+            filter.receipts = contents.senders.is_empty() && !contents.receipt_sources.is_empty();
+        }
+        replay_sim(args.file, &sim, &filter, args.speed)?
     } else {
-        // Open the systems whose sends are replayed: the filter's, or every recorded sender.
-        let names: Vec<String> = if args.filter.systems.is_empty() {
-            let mut senders = BTreeSet::new();
-            hetcomm_record::read_with(args.file, |e| {
-                if let Event::Send(s) = e {
-                    if args.filter.accepts(&s.message.source) {
-                        senders.insert(s.message.source.system);
-                    }
-                }
-            })?;
-            senders.into_iter().collect()
-        } else {
-            args.filter.systems.clone()
+        // Open the systems whose sends are replayed: the filter's, or every recorded sender
+        // (of the receipts' messages, when those are replayed).
+        let contents = Contents::of(args.file, &filter)?;
+        if !filter.receipts && contents.senders.is_empty() && !contents.receipt_sources.is_empty() {
+            // A recording of what a live system received (`hetcomm record`): replay that.
+            eprintln!(
+                "{} holds no sends, only what {} received ({} messages): replaying those, \
+                 sent again from {}",
+                args.file.display(),
+                contents
+                    .receivers
+                    .iter()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                contents.receipts,
+                contents
+                    .receipt_sources
+                    .iter()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            filter.receipts = true;
+        }
+        let found = match filter.receipts {
+            false => &contents.senders,
+            true => &contents.receipt_sources,
+        };
+        let names: Vec<String> = match filter.systems.is_empty() {
+            true => found.iter().cloned().collect(),
+            false => filter.systems.clone(),
         };
         if names.is_empty() {
-            anyhow::bail!("{}: no recorded send to replay", args.file.display());
+            anyhow::bail!(
+                "{}: nothing to replay: it holds {} sends, {} receipts and {} outcomes{}; \
+                 record a run with `hetcomm demo --record FILE` (sends) or a live system with \
+                 `hetcomm record FLEET --as SYSTEM -o FILE` (receipts)",
+                args.file.display(),
+                contents.sends,
+                contents.receipts,
+                contents.outcomes,
+                match (filter.receipts, filter.systems.is_empty()) {
+                    (_, false) => " from the systems named",
+                    _ => "",
+                }
+            );
         }
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();
         let local = LocalFleet::open_systems(fleet, &refs)?;
@@ -73,17 +110,50 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
             args.into.display(),
             args.speed
         );
-        replay_realtime(
-            args.file,
-            local.systems(),
-            &args.filter,
-            args.speed,
-            args.settle,
-        )?
+        replay_realtime(args.file, local.systems(), &filter, args.speed, args.settle)?
     };
     print_report(&report, args.sim);
     let s = &report.stats;
     Ok(report.read.problem.is_none() && s.refused == 0 && s.unreadable == 0)
+}
+
+/// What a recording holds, as far as choosing what to replay goes.
+#[derive(Default)]
+struct Contents {
+    sends: u64,
+    receipts: u64,
+    outcomes: u64,
+    /// Systems with a recorded first attempt the filter's modules pass.
+    senders: BTreeSet<String>,
+    /// Sources of the delivered receipts the filter's modules pass.
+    receipt_sources: BTreeSet<String>,
+    /// The systems whose receipts they are.
+    receivers: BTreeSet<String>,
+}
+
+impl Contents {
+    fn of(file: &Path, filter: &ReplayFilter) -> anyhow::Result<Contents> {
+        let mut c = Contents::default();
+        let modules_pass =
+            |m: &str| filter.modules.is_empty() || filter.modules.iter().any(|f| f == m);
+        hetcomm_record::read_with(file, |e| match e {
+            Event::Send(s) => {
+                c.sends += 1;
+                if s.attempt == 1 && modules_pass(&s.message.source.module) {
+                    c.senders.insert(s.message.source.system);
+                }
+            }
+            Event::Receipt(r) => {
+                c.receipts += 1;
+                if r.status == "delivered" && modules_pass(&r.message.source.module) {
+                    c.receipt_sources.insert(r.message.source.system);
+                    c.receivers.insert(r.message.destination.system);
+                }
+            }
+            Event::Outcome(_) => c.outcomes += 1,
+        })?;
+        Ok(c)
+    }
 }
 
 fn print_report(r: &ReplayReport, sim: bool) {

@@ -453,6 +453,67 @@ fn record_captures_what_a_live_udp_fleet_sends_to_a_system_and_replay_sends_it_a
         })
         .collect();
     assert_eq!(payloads, (0..100).collect::<Vec<u64>>());
+
+    // That recording holds only what B received; replaying it sends those messages again
+    // from A, to a B recording again (issue 41, item 3: it failed "no recorded send").
+    let again = dir.path().join("again.mcap");
+    let mut rec = Command::new(HETCOMM);
+    rec.args(["record", fleet.to_str().unwrap(), "--as", "B", "-o"])
+        .arg(&again)
+        .args(["--duration", "15"]);
+    let mut rec = ChildGuard::spawn("record B again", rec);
+    rec.wait_stderr("recording B into", deadline);
+    let mut a = Command::new(HETCOMM);
+    a.args([
+        "replay",
+        out.to_str().unwrap(),
+        "--into",
+        fleet.to_str().unwrap(),
+    ]);
+    let replay = run("replay the receipts", a, deadline);
+    assert_eq!(replay.status.code(), Some(0), "{replay:?}");
+    assert!(
+        replay.stderr.iter().any(|l| l.contains(
+            "holds no sends, only what B received (100 messages): replaying those, sent again from A"
+        )),
+        "{replay:?}"
+    );
+    assert!(
+        replay.stdout.join("\n").contains("outcomes: 100 delivered"),
+        "{replay:?}"
+    );
+    assert_eq!(rec.wait_exit(deadline).code(), Some(0));
+    let (events, _) = hetcomm_record::read(&again).unwrap();
+    let received = events
+        .iter()
+        .filter(|e| matches!(e, Event::Receipt(r) if r.message.source.system == "A"))
+        .count();
+    assert_eq!(received, 100);
+
+    // A recording with nothing to replay says what it holds and what to do.
+    let empty = dir.path().join("empty.mcap");
+    let mut rec = Command::new(HETCOMM);
+    rec.args(["record", fleet.to_str().unwrap(), "--as", "B", "-o"])
+        .arg(&empty)
+        .args(["--duration", "1"]);
+    assert_eq!(run("record nothing", rec, deadline).status.code(), Some(0));
+    let mut a = Command::new(HETCOMM);
+    a.args([
+        "replay",
+        empty.to_str().unwrap(),
+        "--into",
+        fleet.to_str().unwrap(),
+    ]);
+    let nothing = run("replay nothing", a, deadline);
+    assert_eq!(nothing.status.code(), Some(1), "{nothing:?}");
+    assert!(
+        nothing.stderr.join("\n").contains(
+            "nothing to replay: it holds 0 sends, 0 receipts and 0 outcomes; record a run with \
+             `hetcomm demo --record FILE` (sends) or a live system with `hetcomm record FLEET \
+             --as SYSTEM -o FILE` (receipts)"
+        ),
+        "{nothing:?}"
+    );
 }
 
 #[test]

@@ -19,6 +19,11 @@ pub struct ReplayFilter {
     pub systems: Vec<String>,
     /// Only sends from these modules (empty: every module).
     pub modules: Vec<String>,
+    /// Replay the recorded *receipts* instead: every message a recorded system's inbox took,
+    /// sent again from its recorded source, with its recorded timing. A recording of a live
+    /// system (`hetcomm record`) holds only what it received; this replays that as the same
+    /// messages arriving again (`systems` and `modules` then name the sources).
+    pub receipts: bool,
 }
 
 impl ReplayFilter {
@@ -47,26 +52,33 @@ pub struct ReplayItem {
 }
 
 impl ReplayItem {
-    /// The item for a recorded event: a send's first attempt that passes `filter`. Err when
-    /// its payload cannot be rebuilt.
+    /// The item for a recorded event: a send's first attempt that passes `filter` (or, with
+    /// [`ReplayFilter::receipts`], a message an inbox took). Err when its payload cannot be
+    /// rebuilt.
     pub fn from_event(
         event: Event,
         origin_us: u64,
         filter: &ReplayFilter,
     ) -> Option<Result<ReplayItem, String>> {
-        let Event::Send(send) = event else {
-            return None;
+        let (time_us, message) = match event {
+            Event::Send(send) if !filter.receipts && send.attempt == 1 => {
+                (send.time_us, send.message)
+            }
+            Event::Receipt(r) if filter.receipts && r.status == "delivered" => {
+                (r.time_us, r.message)
+            }
+            _ => return None,
         };
-        if send.attempt != 1 || !filter.accepts(&send.message.source) {
+        if !filter.accepts(&message.source) {
             return None;
         }
-        Some(send.message.payload_bytes().map(|payload| ReplayItem {
-            offset_us: send.time_us.saturating_sub(origin_us),
+        Some(message.payload_bytes().map(|payload| ReplayItem {
+            offset_us: time_us.saturating_sub(origin_us),
             payload,
-            source: send.message.source,
-            destination: send.message.destination,
-            message_type: send.message.message_type,
-            priority: send.message.priority,
+            source: message.source,
+            destination: message.destination,
+            message_type: message.message_type,
+            priority: message.priority,
         }))
     }
 }

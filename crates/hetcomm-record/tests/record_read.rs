@@ -255,6 +255,7 @@ fn a_replay_into_a_simulation_sends_what_was_recorded_at_the_recorded_times() {
     let filter = ReplayFilter {
         systems: vec!["A".into()],
         modules: vec![],
+        receipts: false,
     };
     let report = replay_sim(&path, &sim2, &filter, 1.0).unwrap();
     assert_eq!(report.stats.sent, 20, "{report:?}");
