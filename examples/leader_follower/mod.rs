@@ -697,3 +697,9 @@ pub fn tables(report: &DemoReport) -> String {
         report::pose_tables(&report.samples)
     )
 }
+
+/// The thesis's Tables 9–15 as published, each beside this run's figures with how and why
+/// they differ.
+pub fn beside_thesis(report: &DemoReport) -> String {
+    report::thesis::beside(&report.commands, &report.samples)
+}

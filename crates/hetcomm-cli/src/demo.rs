@@ -245,6 +245,10 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     };
     let report = leader_follower::run(&options).map_err(|e| anyhow::anyhow!("{e}"))?;
     println!("{}", leader_follower::tables(&report));
+    println!(
+        "# The thesis's Tables 9–15 beside this run's\n\n{}",
+        leader_follower::beside_thesis(&report)
+    );
     for robot in &report.bridged {
         println!(
             "{robot} ran ROS behind a bridge: its commands went out as velocity (Twist) at the \

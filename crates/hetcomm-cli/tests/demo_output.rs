@@ -179,24 +179,47 @@ fn a_secured_demo_prints_the_same_tables() {
         if a == b {
             continue;
         }
-        // Only Tango's receive times (Tables 11 and 12) may differ, by at most 1 ms.
+        // Only Tango's receive times may differ, by at most 1 ms: its rows of Tables 11 and
+        // 12, the rows of Table 11 beside the thesis, and the sentences giving its delays.
+        let tango = [
+            "Tango ",
+            "1 – ",
+            "0 – ",
+            "Differences: each command reached Tango ",
+            "- **The followers' delay",
+        ];
+        let table_11_row = a
+            .trim_start()
+            .split_whitespace()
+            .next()
+            .is_some_and(|t| t.parse::<f64>().is_ok())
+            && a.contains(" – ");
+        assert!(
+            table_11_row || tango.iter().any(|p| a.starts_with(p)),
+            "not a line of Tango's: {a}\n{b}"
+        );
         let (fa, fb): (Vec<&str>, Vec<&str>) = (
             a.split_whitespace().collect(),
             b.split_whitespace().collect(),
         );
         assert_eq!(fa.len(), fb.len(), "{a}\n{b}");
+        let numbers = |w: &str| -> Vec<f64> {
+            w.split('–')
+                .map(|n| n.trim_end_matches([',', ')']).parse().unwrap_or(f64::NAN))
+                .collect()
+        };
         for (x, y) in fa.iter().zip(&fb) {
             if x != y {
-                let (x, y): (f64, f64) = (x.parse().unwrap(), y.parse().unwrap());
-                assert!((x - y).abs() <= 0.0011, "{a}\n{b}");
-                assert!(x > 2.0 && x < 11.0, "a receive time of Tango's: {a}");
+                for (x, y) in numbers(x).into_iter().zip(numbers(y)) {
+                    assert!((x - y).abs() <= 0.0011, "{a}\n{b}");
+                }
             }
         }
         moved += 1;
     }
     assert!(
-        moved <= 2,
-        "only Tango's rows of Tables 11 and 12 may move: {moved} lines"
+        moved <= 8,
+        "only Tango's receive times may move: {moved} lines"
     );
 }
 

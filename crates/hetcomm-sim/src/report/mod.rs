@@ -13,6 +13,7 @@
 
 pub mod notes;
 pub mod plot;
+pub mod thesis;
 
 use crate::scenario::{ALPHA, CHARLIE, TANGO};
 use crate::schedule::Command;
@@ -147,7 +148,7 @@ fn fmt_fixed(v: f64, decimals: usize) -> String {
 
 /// Formats a heading like [`fmt3`], but shows a value that rounds up to 360.000 as 0.000,
 /// since headings live in `[0, 360)`.
-fn fmt_theta(deg: f64) -> String {
+pub(crate) fn fmt_theta(deg: f64) -> String {
     let s = fmt3(deg);
     if s == "360.000" {
         "0.000".to_string()
@@ -169,7 +170,7 @@ fn rovers_in_order<'a>(names: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
 
 /// Lays out rows as aligned columns; `right[i]` right-aligns column i. Trailing spaces are
 /// trimmed so an empty last cell does not leave invisible characters behind.
-fn layout(rows: &[Vec<String>], right: &[bool]) -> String {
+pub(crate) fn layout(rows: &[Vec<String>], right: &[bool]) -> String {
     let ncol = rows.iter().map(Vec::len).max().unwrap_or(0);
     let mut widths = vec![0usize; ncol];
     for row in rows {
@@ -198,7 +199,7 @@ fn layout(rows: &[Vec<String>], right: &[bool]) -> String {
 }
 
 /// The records of one rover and kind, sorted by time (stable for equal times).
-fn records_of<'a>(
+pub(crate) fn records_of<'a>(
     records: &'a [CommandRecord],
     rover: &str,
     kind: CommandKind,
@@ -372,7 +373,7 @@ pub fn command_timing_matrix(records: &[CommandRecord]) -> String {
 }
 
 /// True when `t` is within a microsecond of a whole second.
-fn whole_second(t: f64) -> Option<i64> {
+pub(crate) fn whole_second(t: f64) -> Option<i64> {
     let r = t.round();
     ((t - r).abs() < 1e-6 && r.abs() < 1e15).then_some(r as i64)
 }
