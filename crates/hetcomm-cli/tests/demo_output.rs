@@ -189,7 +189,6 @@ fn a_secured_demo_prints_the_same_tables() {
             "- **The followers' delay",
         ];
         let table_11_row = a
-            .trim_start()
             .split_whitespace()
             .next()
             .is_some_and(|t| t.parse::<f64>().is_ok())
