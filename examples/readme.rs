@@ -15,7 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fleet = LocalFleet::open_file("examples/leader_follower/fleet.toml")?;
     let plan = fleet.system("Alpha")?.module("Plan")?;
     let outcome = plan.send("Charlie", "Act", &Command { code: 1 })?.wait();
-    println!("{outcome}"); // delivered: in Charlie's Act inbox (not necessarily read yet)
+    println!("{outcome}"); // "delivered to the inbox (attempts: 1, …)": not necessarily read
     let act = fleet.system("Charlie")?.module("Act")?;
     let got = act.recv::<Command>()?; // or try_recv, recv_timeout, on::<Command>(callback)
     println!("Charlie.Act got code {}", got.message.code);
