@@ -134,9 +134,20 @@ pub fn render_sweep(report: &SweepReport) -> Result<Vec<u8>, ExperimentError> {
                         + PathElement::new(vec![(0, 0), (a, 0)], c.stroke_width(3))
                         + PathElement::new(vec![(b, 0), (24, 0)], c.stroke_width(3))
                 });
-                chart
-                    .draw_series(xy.iter().map(|&p| Circle::new(p, 4, c.filled())))
-                    .map_err(draw_err)?;
+                // Where two series are equal (every message delivered) their lines lie on top
+                // of each other: a filled dot and an open triangle keep both visible.
+                if dashed {
+                    chart
+                        .draw_series(
+                            xy.iter()
+                                .map(|&p| TriangleMarker::new(p, 9, c.stroke_width(2))),
+                        )
+                        .map_err(draw_err)?;
+                } else {
+                    chart
+                        .draw_series(xy.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                        .map_err(draw_err)?;
+                }
             }
             chart
                 .configure_series_labels()
