@@ -11,8 +11,10 @@ use std::path::Path;
 use anyhow::Context;
 use hetcomm::config::Fleet;
 
-const SIZE: f64 = 900.0;
 const NODE_R: f64 = 50.0;
+/// Text sizes, in pixels: readable at the picture's own size.
+const TITLE_PX: u32 = 20;
+const TEXT_PX: u32 = 16;
 const PALETTE: [(u8, u8, u8); 8] = [
     (31, 119, 180),
     (214, 39, 40),
@@ -43,6 +45,9 @@ struct Edge {
 }
 
 struct Picture {
+    /// Width and height of the square picture without the title band: small fleets get a
+    /// small picture, so that a pair of systems is not a dot in a white page.
+    size: f64,
     title: String,
     nodes: Vec<Node>,
     edges: Vec<Edge>,
@@ -51,13 +56,21 @@ struct Picture {
 
 fn picture(fleet: &Fleet, show_x: bool) -> Picture {
     let n = fleet.systems.len().max(1);
-    let (cx, cy, r) = (SIZE / 2.0, SIZE / 2.0 + 20.0, SIZE / 2.0 - 130.0);
+    let size = match n {
+        0..=2 => 560.0,
+        3..=4 => 700.0,
+        _ => 900.0,
+    };
+    let (cx, cy, r) = (size / 2.0, size / 2.0 + 20.0, size / 2.0 - 130.0);
+    // Two systems side by side (the page is wider than it is tall once the legend is on
+    // top); more on a circle from the top.
+    let start = if n == 2 { -PI } else { -PI / 2.0 };
     let nodes: Vec<Node> = fleet
         .systems
         .iter()
         .enumerate()
         .map(|(i, s)| {
-            let a = -PI / 2.0 + 2.0 * PI * i as f64 / n as f64;
+            let a = start + 2.0 * PI * i as f64 / n as f64;
             Node {
                 name: s.name.clone(),
                 x: cx + r * a.cos(),
@@ -84,8 +97,16 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                     (to.x - ux * NODE_R + nx, to.y - uy * NODE_R + ny),
                 )
             };
-            let along = |(s, e): ((f64, f64), (f64, f64)), f: f64| {
-                (s.0 + (e.0 - s.0) * f, s.1 + (e.1 - s.1) * f)
+            // Where the label of a line goes: `f` of the way along, moved off the line to its
+            // left by enough that the label's box (about 9 px a character at TEXT_PX, 22 px
+            // high) does not touch it, so the arrow never runs through its own label.
+            let along = |(s, e): ((f64, f64), (f64, f64)), f: f64, label: &str| {
+                let (dx, dy) = (e.0 - s.0, e.1 - s.1);
+                let len = (dx * dx + dy * dy).sqrt().max(1.0);
+                let (nx, ny) = (dy / len, -dx / len);
+                let (hw, hh) = (4.5 * label.chars().count() as f64 + 3.0, 11.0);
+                let side = hw * nx.abs() + hh * ny.abs() + 3.0;
+                (s.0 + dx * f + nx * side, s.1 + dy * f + ny * side)
             };
             let name = |t: usize| fleet.transports[t].name.clone();
             match (ab, ba) {
@@ -98,9 +119,9 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                         dotted: false,
                         head_at_end: true,
                         head_at_start: true,
-                        label: name(x),
                         // Off the middle, where diagonals of a circle cross.
-                        label_at: along(l, 0.3),
+                        label_at: along(l, 0.3, &name(x)),
+                        label: name(x),
                     });
                 }
                 (None, None) => {
@@ -114,7 +135,7 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                             head_at_end: false,
                             head_at_start: false,
                             label: "X".into(),
-                            label_at: along(l, 0.4),
+                            label_at: along(l, 0.4, "X"),
                         });
                     }
                 }
@@ -129,8 +150,8 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
                             dotted: false,
                             head_at_end: true,
                             head_at_start: false,
+                            label_at: along(l, 0.3, &name(t)),
                             label: name(t),
-                            label_at: along(l, 0.3),
                         });
                     }
                 }
@@ -142,12 +163,13 @@ fn picture(fleet: &Fleet, show_x: bool) -> Picture {
         .iter()
         .enumerate()
         .filter(|(i, _)| fleet.table.values().any(|t| t == i))
-        .map(|(i, t)| (format!("{} ({:?})", t.name, t.kind), colour(i)))
+        .map(|(i, t)| (format!("{} ({})", t.name, t.kind), colour(i)))
         .collect();
     if show_x {
         legend.push(("X: no traffic".into(), GREY));
     }
     Picture {
+        size,
         title: format!(
             "fleet {}: {} systems, {} ordered pairs with a transport",
             fleet.name.as_deref().unwrap_or("(unnamed)"),
@@ -175,20 +197,21 @@ fn svg(p: &Picture) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{SIZE}" height="{h}" viewBox="0 0 {SIZE} {h}" font-family="DejaVu Sans, sans-serif">"#,
-        h = SIZE + 40.0
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="DejaVu Sans, sans-serif">"#,
+        w = p.size,
+        h = p.size + 40.0
     );
     let _ = writeln!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
     let _ = writeln!(
         s,
-        r#"<text x="20" y="30" font-size="18">{}</text>"#,
+        r#"<text x="20" y="30" font-size="{TITLE_PX}">{}</text>"#,
         escape(&p.title)
     );
     for (i, (label, c)) in p.legend.iter().enumerate() {
-        let y = 55.0 + 20.0 * i as f64;
+        let y = 58.0 + 22.0 * i as f64;
         let _ = writeln!(
             s,
-            r#"<line x1="20" y1="{y}" x2="50" y2="{y}" stroke="{}" stroke-width="3"/><text x="58" y="{}" font-size="13">{}</text>"#,
+            r#"<line x1="20" y1="{y}" x2="50" y2="{y}" stroke="{}" stroke-width="3"/><text x="58" y="{}" font-size="{TEXT_PX}">{}</text>"#,
             rgb(*c),
             y + 4.0,
             escape(label)
@@ -225,7 +248,7 @@ fn svg(p: &Picture) -> String {
         );
         let _ = writeln!(
             s,
-            r#"<text x="{:.1}" y="{:.1}" font-size="13" text-anchor="middle" fill="{c}" stroke="white" stroke-width="3" paint-order="stroke">{}</text>"#,
+            r#"<text x="{:.1}" y="{:.1}" font-size="{TEXT_PX}" text-anchor="middle" fill="{c}" stroke="white" stroke-width="4" paint-order="stroke">{}</text>"#,
             e.label_at.0,
             e.label_at.1 + 4.0,
             escape(&e.label)
@@ -234,7 +257,7 @@ fn svg(p: &Picture) -> String {
     for n in &p.nodes {
         let _ = writeln!(
             s,
-            r#"<circle class="system" cx="{:.1}" cy="{:.1}" r="{NODE_R}" fill="rgb(245,245,245)" stroke="black" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-size="13" text-anchor="middle">{}</text>"#,
+            r#"<circle class="system" cx="{:.1}" cy="{:.1}" r="{NODE_R}" fill="rgb(245,245,245)" stroke="black" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-size="{TEXT_PX}" text-anchor="middle">{}</text>"#,
             n.x,
             n.y,
             n.x,
@@ -248,11 +271,11 @@ fn svg(p: &Picture) -> String {
 
 fn png(p: &Picture, out: &Path) -> anyhow::Result<()> {
     hetcomm_sim::report::plot::ensure_font();
-    let h = (SIZE + 40.0) as u32;
+    let (w, h) = (p.size as u32, (p.size + 40.0) as u32);
     let mut img = hetcomm_sim::report::plot::RgbImage {
-        width: SIZE as u32,
+        width: w,
         height: h,
-        pixels: vec![255; SIZE as usize * h as usize * 3],
+        pixels: vec![255; w as usize * h as usize * 3],
     };
     draw_png(p, &mut img, out)?;
     img.save_png(out)
@@ -280,11 +303,11 @@ fn draw_png(
     root.draw(&Text::new(
         p.title.clone(),
         (20, 15),
-        ("sans-serif", 18).into_font(),
+        ("sans-serif", TITLE_PX).into_font(),
     ))
     .map_err(|e| err(&e))?;
     for (i, (label, c)) in p.legend.iter().enumerate() {
-        let y = 55 + 20 * i as i32;
+        let y = 58 + 22 * i as i32;
         root.draw(&PathElement::new(
             vec![(20, y), (50, y)],
             col(*c).stroke_width(3),
@@ -292,8 +315,8 @@ fn draw_png(
         .map_err(|e| err(&e))?;
         root.draw(&Text::new(
             label.clone(),
-            (58, y - 7),
-            ("sans-serif", 13).into_font(),
+            (58, y - 9),
+            ("sans-serif", TEXT_PX).into_font(),
         ))
         .map_err(|e| err(&e))?;
     }
@@ -339,7 +362,22 @@ fn draw_png(
             root.draw(&Polygon::new(tri, c.filled()))
                 .map_err(|x| err(&x))?;
         }
-        root.draw(&Text::new(e.label.clone(), at(e.label_at), centred(13, &c)))
+    }
+    // Labels after every line, each on a white box: no other pair's line runs through one.
+    for e in &p.edges {
+        let c = col(e.colour);
+        let style = centred(TEXT_PX, &c);
+        let (tw, th) = root
+            .estimate_text_size(&e.label, &style)
+            .map_err(|x| err(&x))?;
+        let (lx, ly) = at(e.label_at);
+        let (hw, hh) = (tw as i32 / 2 + 3, th as i32 / 2 + 2);
+        root.draw(&Rectangle::new(
+            [(lx - hw, ly - hh), (lx + hw, ly + hh)],
+            WHITE.filled(),
+        ))
+        .map_err(|x| err(&x))?;
+        root.draw(&Text::new(e.label.clone(), (lx, ly), style))
             .map_err(|x| err(&x))?;
     }
     for n in &p.nodes {
@@ -358,7 +396,7 @@ fn draw_png(
         root.draw(&Text::new(
             n.name.clone(),
             at((n.x, n.y)),
-            centred(13, &BLACK),
+            centred(TEXT_PX, &BLACK),
         ))
         .map_err(|e| err(&e))?;
     }
@@ -381,11 +419,13 @@ pub fn run(fleet_path: &Path, out: &Path, show_x: bool) -> anyhow::Result<()> {
         Some(e) if e == "png" => png(&p, out)?,
         _ => anyhow::bail!("-o {}: the picture must end in .svg or .png", out.display()),
     }
+    let plural =
+        |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
     eprintln!(
-        "wrote {}: {} systems, {} arrows",
+        "wrote {}: {}, {}",
         out.display(),
-        p.nodes.len(),
-        p.edges.len()
+        plural(p.nodes.len(), "system", "systems"),
+        plural(p.edges.len(), "arrow", "arrows")
     );
     Ok(())
 }
@@ -427,6 +467,22 @@ mod tests {
         assert_eq!(s.matches("class=\"pair\"").count(), 4);
         assert_eq!(s.matches("class=\"system\"").count(), 3);
         assert_eq!(picture(&fleet, false).edges.len(), 3);
+    }
+
+    #[test]
+    fn kinds_are_spelt_as_in_fleet_files_and_small_fleets_get_a_small_picture() {
+        let fleet = hetcomm::config::parse_str(FLEET, "t.toml", None).unwrap();
+        let p = picture(&fleet, false);
+        assert_eq!(p.legend[0].0, "wired (inproc)");
+        assert_eq!(p.size, 700.0);
+        // A label sits off its own line, by more than half its box.
+        for e in &p.edges {
+            let (dx, dy) = (e.to.0 - e.from.0, e.to.1 - e.from.1);
+            let len = (dx * dx + dy * dy).sqrt();
+            let (px, py) = (e.label_at.0 - e.from.0, e.label_at.1 - e.from.1);
+            let distance = (px * dy - py * dx).abs() / len;
+            assert!(distance > 11.0, "{} is {distance:.1} px from its line", e.label);
+        }
     }
 
     #[test]
