@@ -347,10 +347,27 @@ fn main() -> ExitCode {
     match run(cli.command) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", for_this_command(&format!("{e:#}")));
+            eprintln!("error: {}", for_this_command(&chain(&e)));
             ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes, each after a colon, as `{:#}` writes them, but a cause whose text
+/// the message already holds is not written again (an error that both quotes its source and
+/// returns it from `source()` printed every sentence twice).
+fn chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.is_empty() {
+            out = text;
+        } else if !out.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+    }
+    out
 }
 
 /// The library tells a program depending on it to "rebuild with `--features ros1`"; for this
@@ -671,4 +688,39 @@ fn zenoh_router(
     _lease_ms: u32,
 ) -> anyhow::Result<ExitCode> {
     anyhow::bail!("this build has no Zenoh: rebuild with `--features zenoh`")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cause_the_message_already_quotes_is_written_once() {
+        #[derive(Debug)]
+        struct Inner;
+        impl std::fmt::Display for Inner {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("cannot open a Zenoh client session: tcp/1.2.3.4:7447 did not answer")
+            }
+        }
+        impl std::error::Error for Inner {}
+        #[derive(Debug)]
+        struct Outer(Inner);
+        impl std::fmt::Display for Outer {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                write!(f, "cannot open transport `z`: {}", self.0)
+            }
+        }
+        impl std::error::Error for Outer {
+            fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+                Some(&self.0)
+            }
+        }
+        let e = anyhow::Error::new(Outer(Inner)).context("opening Alpha");
+        assert_eq!(
+            chain(&e),
+            "opening Alpha: cannot open transport `z`: cannot open a Zenoh client session: \
+             tcp/1.2.3.4:7447 did not answer"
+        );
+    }
 }

@@ -481,7 +481,11 @@ mod tests {
             let len = (dx * dx + dy * dy).sqrt();
             let (px, py) = (e.label_at.0 - e.from.0, e.label_at.1 - e.from.1);
             let distance = (px * dy - py * dx).abs() / len;
-            assert!(distance > 11.0, "{} is {distance:.1} px from its line", e.label);
+            assert!(
+                distance > 11.0,
+                "{} is {distance:.1} px from its line",
+                e.label
+            );
         }
     }
 
