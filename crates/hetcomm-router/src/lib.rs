@@ -6,7 +6,12 @@
 //! confirmation, or failed with the reason and the number of attempts.
 //!
 //! It reads no clock and touches no socket: every input carries `now`, and the driver (the real
-//! runtime in the `hetcomm` crate, or the virtual-time simulator) performs the outputs:
+//! runtime in the `hetcomm` crate, or the virtual-time simulator) performs the outputs.
+//! `now` must come from a monotonic clock (the real runtime's is `CLOCK_MONOTONIC`): every
+//! deadline and RTT sample is computed from it, so a clock that steps would fire every
+//! retransmission at once (a step forward) or stall them (a step back). The one wall-clock
+//! time the router handles is the header's timestamp, which the driver puts in the request
+//! ([`SendRequest::timestamp`]) and the router copies, never compares.
 //!
 //! | call | when |
 //! |---|---|
@@ -208,7 +213,7 @@ mod tests {
         }
         let lane = a.direct_lane(SystemId(1)).unwrap();
         for _ in 0..3 {
-            numbers.push(lane.send(now, &req(1, b"l")).unwrap().seq);
+            numbers.push(lane.send(&req(1, b"l")).unwrap().seq);
             a.send(now, req(1, b"r"), ()).unwrap();
             let t = a.poll_transmit(now).unwrap();
             numbers.push(wire::decode(&t.frame).unwrap().header.seq);
@@ -233,7 +238,7 @@ mod tests {
                 std::thread::spawn(move || {
                     (0..1000)
                         .map(|i| {
-                            let h = lane.send(Time::ZERO, &req(1, b"x")).unwrap();
+                            let h = lane.send(&req(1, b"x")).unwrap();
                             let status = if (i + t) % 3 == 0 {
                                 wire::AckStatus::InboxFull
                             } else {
