@@ -225,10 +225,7 @@ impl<T> Router<T> {
 
     /// Checks a send against the routing table and the size limit, gives it the next
     /// sequence number towards its destination and builds its header.
-    pub(super) fn admit(
-        &mut self,
-        req: &SendRequest<'_>,
-    ) -> Result<(Route, Header), SendError> {
+    pub(super) fn admit(&mut self, req: &SendRequest<'_>) -> Result<(Route, Header), SendError> {
         let to = req.to.system;
         let route = self.route(to).ok_or(SendError::NoRoute {
             from: self.config.local,

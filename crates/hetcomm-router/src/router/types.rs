@@ -4,9 +4,7 @@ use std::collections::BTreeSet;
 use std::time::Duration;
 
 use hetcomm_core::wire::AckStatus;
-use hetcomm_core::{
-    Address, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time,
-};
+use hetcomm_core::{Address, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time};
 
 #[cfg(doc)]
 use super::{Router, SPLIT_PAYLOAD_MIN};
