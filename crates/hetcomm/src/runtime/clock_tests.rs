@@ -1,10 +1,12 @@
 //! A stepped wall clock moves no timer (issue 34): two systems over UDP on 127.0.0.1 in one
-//! process, with a clock whose wall time the test steps by an hour forward and back while
-//! a stream of acknowledged, ordered sends runs. Every delivery is held back 20 ms by a
-//! delay tap, so that at each step some twenty sends await their acknowledgement and some
-//! twenty deliveries await the harness's timer: were timers on the wall clock, the step
-//! forward would retransmit all of them at once (and give up ordered delivery's holds), and
-//! the step back would leave them waiting for the hour.
+//! process, with a clock whose wall time the test steps by an hour forward and back while a
+//! stream of acknowledged, ordered sends runs. Every delivery is held back 20 ms by a delay
+//! tap (the acknowledgement is not), so that at each step some twenty messages await the
+//! harness's timer, beside the sends awaiting their acknowledgement. Were timers on the wall
+//! clock, the step forward would fire every retransmission timer at once, and the step back
+//! would leave the held messages (and any retransmission) waiting for the hour: with the
+//! clock's `now` made the stepped wall time, as the runtime had it before, about twenty
+//! messages never arrive at each step back.
 
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
