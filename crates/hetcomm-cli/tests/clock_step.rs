@@ -8,8 +8,9 @@
 //! counters every 100 ms. The receiver is a system opened in this process, on the real
 //! clock. Timers on the monotonic clock mean: no burst of retransmissions at a step (on
 //! loopback there is next to nothing to retransmit), no stall (the stream keeps its rate),
-//! every send delivered and every message received exactly once. The stamps, on the wall
-//! clock, do follow the steps.
+//! no send timed across a step (its latency an hour: how timers on the wall clock showed
+//! here), every send delivered and every message received exactly once. The stamps, on the
+//! wall clock, do follow the steps.
 //!
 //! `harness = false`: `main` is both the test and, when `HETCOMM_CLOCK_STEP_SENDER` names a
 //! fleet file, the sender. Without libfaketime the test fails and says to run
