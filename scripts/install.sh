@@ -22,6 +22,7 @@ APT_PACKAGES=(
     cyclonedds-tools          # ddsperf: the DDS baseline of the benchmarks
     cmake g++ pkg-config valgrind libmsgpack-cxx-dev                       # the C and C++ API
     libclang-dev              # bindgen, for Cyclone DDS under the ros2 transport (ros2-cyclone)
+    faketime                  # libfaketime: a live sender's wall clock stepped (hetcomm-cli clock_step)
 )
 
 # Installed into target/py-venv, the one venv every Python step uses.

@@ -477,9 +477,15 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     for name in &bridged {
         Environment::wait_for_odometry(&system(ve_of(name))?, name, BRIDGED_WAIT)?;
     }
-    let start = match &sim {
-        Some(s) => s.now(),
-        None => Time::now_wall(),
+    // Two origins in real time: `start` on the wall clock, which received messages'
+    // `received_at` is on, and `clock_start` on the systems' (monotonic) clock, which
+    // scenarios and recordings count on. Under simulation both are the virtual clock.
+    let (start, clock_start) = match &sim {
+        Some(s) => (s.now(), s.now()),
+        None => {
+            let now = Time::now_mono();
+            (Time::wall_at(now), now)
+        }
     };
     let replaced = match &options.hooks {
         Some(h) => {
@@ -489,7 +495,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
                 _ => unreachable!("one of the two is always open"),
             };
             let mut h = h.lock();
-            h.opened(systems, start)?;
+            h.opened(systems, clock_start)?;
             h.replaced()
         }
         None => Vec::new(),
@@ -617,7 +623,7 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
     }
     let bands = match (&options.scenario, &scenario_run) {
         (Some(sc), Some(run)) => {
-            scenario::bands(sc, run.start().saturating_since(start).as_secs_f64())
+            scenario::bands(sc, run.start().saturating_since(clock_start).as_secs_f64())
         }
         _ => Vec::new(),
     };

@@ -168,9 +168,10 @@ typedef struct hetcomm_envelope {
   const char *source_module_name;
   // The sender's sequence number: (source system, seq) is the message id.
   uint64_t seq;
-  // When the sender created it (sender's clock, microseconds since the UNIX epoch).
+  // When the sender created it (sender's wall clock, microseconds since the UNIX epoch).
   uint64_t timestamp_us;
-  // When this system put it into the inbox (this system's clock, microseconds).
+  // When this system put it into the inbox (this system's wall clock, microseconds since
+  // the UNIX epoch: minus `timestamp_us`, the one-way latency when the clocks agree).
   uint64_t received_at_us;
   // Receive priority (0 lowest, 100 normal, 255 highest).
   uint8_t priority;

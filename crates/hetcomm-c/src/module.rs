@@ -72,9 +72,10 @@ pub struct hetcomm_envelope {
     pub source_module_name: *const c_char,
     /// The sender's sequence number: (source system, seq) is the message id.
     pub seq: u64,
-    /// When the sender created it (sender's clock, microseconds since the UNIX epoch).
+    /// When the sender created it (sender's wall clock, microseconds since the UNIX epoch).
     pub timestamp_us: u64,
-    /// When this system put it into the inbox (this system's clock, microseconds).
+    /// When this system put it into the inbox (this system's wall clock, microseconds since
+    /// the UNIX epoch: minus `timestamp_us`, the one-way latency when the clocks agree).
     pub received_at_us: u64,
     /// Receive priority (0 lowest, 100 normal, 255 highest).
     pub priority: u8,

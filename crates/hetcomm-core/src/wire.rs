@@ -129,7 +129,9 @@ pub struct Header {
     pub seq: u64,
     /// The user message type.
     pub message_type: MessageType,
-    /// When the sender created the message, in microseconds on the sender's clock.
+    /// When the sender created the message, in microseconds on the sender's wall clock (since
+    /// the UNIX epoch; virtual time under simulation). Informational: no timer or deadline
+    /// is computed from it, so a sender whose clock is stepped only stamps differently.
     pub timestamp: Time,
 }
 

@@ -122,11 +122,16 @@ fn read_bytes_timed(bytes: &[u8], mut f: impl FnMut(u64, Event)) -> Result<ReadR
             return Ok(report);
         }
     };
-    for message in stream {
+    let mut stream = stream;
+    while let Some(message) = next_guarded(&mut stream) {
         let message = match message {
-            Ok(m) => m,
-            Err(e) => {
+            Ok(Ok(m)) => m,
+            Ok(Err(e)) => {
                 report.problem = Some(e.to_string());
+                break;
+            }
+            Err(panicked) => {
+                report.problem = Some(panicked);
                 break;
             }
         };
@@ -156,18 +161,30 @@ fn metadata(bytes: &[u8]) -> BTreeMap<String, String> {
     ) else {
         return BTreeMap::new();
     };
-    for record in reader {
+    let mut reader = reader;
+    while let Some(record) = next_guarded(&mut reader) {
         match record {
-            Ok(mcap::records::Record::Metadata(m)) if m.name == format::METADATA_NAME => {
+            Ok(Ok(mcap::records::Record::Metadata(m))) if m.name == format::METADATA_NAME => {
                 return m.metadata
             }
-            Ok(mcap::records::Record::Chunk { .. })
-            | Ok(mcap::records::Record::Message { .. })
+            Ok(Ok(mcap::records::Record::Chunk { .. }))
+            | Ok(Ok(mcap::records::Record::Message { .. }))
+            | Ok(Err(_))
             | Err(_) => break,
-            Ok(_) => {}
+            Ok(Ok(_)) => {}
         }
     }
     BTreeMap::new()
+}
+
+/// The reader's next item, or `Err` if the MCAP reader panicked: some damaged lengths make
+/// the `mcap` crate's arithmetic overflow (a panic in debug builds), and a damaged file must
+/// be reported as damaged, not bring the program down.
+fn next_guarded<I: Iterator>(it: &mut I) -> Option<Result<I::Item, String>> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| it.next())) {
+        Ok(item) => item.map(Ok),
+        Err(_) => Some(Err("the MCAP reader failed on damaged bytes".to_string())),
+    }
 }
 
 /// One MCAP message as an event.

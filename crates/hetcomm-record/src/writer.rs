@@ -44,7 +44,9 @@ impl Encoding {
 pub struct RecordOptions {
     /// Payload encoding.
     pub encoding: Encoding,
-    /// The recording's time origin (a replay's time 0), on the recorded systems' clock.
+    /// The recording's time origin (a replay's time 0), on the recorded systems' clock: the
+    /// monotonic clock in real time ([`Time::now_mono`], the default: now), the virtual
+    /// clock under simulation (set it to `sim.now()`).
     pub origin: Time,
     /// MCAP chunk size in bytes: a file cut short loses at most the chunk being written.
     pub chunk_size: u64,
@@ -54,7 +56,7 @@ impl Default for RecordOptions {
     fn default() -> Self {
         RecordOptions {
             encoding: Encoding::Json,
-            origin: Time::now_wall(),
+            origin: Time::now_mono(),
             chunk_size: 256 * 1024,
         }
     }

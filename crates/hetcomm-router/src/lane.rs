@@ -4,7 +4,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use hetcomm_core::wire::{self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, HEADER_LEN};
-use hetcomm_core::{Address, FrameKind, Header, SystemId, Time};
+use hetcomm_core::{Address, FrameKind, Header, SystemId};
 
 use crate::router::{Outcome, Route, RouterStats, SendError, SendRequest};
 
@@ -57,7 +57,7 @@ impl DirectLane {
     /// Accepts a send to this lane's destination: checks its size, numbers it and returns the
     /// header to deliver. An unacknowledged send ends `Sent` here, whatever the inbox will
     /// say, exactly as over a link; an acknowledged one ends with [`DirectLane::result`].
-    pub fn send(&self, now: Time, req: &SendRequest<'_>) -> Result<Header, SendError> {
+    pub fn send(&self, req: &SendRequest<'_>) -> Result<Header, SendError> {
         debug_assert_eq!(req.to.system, self.to, "a lane sends to one destination");
         let len = HEADER_LEN + req.payload.len();
         let max = self.route.max_frame.min(HEADER_LEN + wire::MAX_PAYLOAD);
@@ -91,7 +91,7 @@ impl DirectLane {
             incarnation: self.incarnation,
             seq,
             message_type: req.message_type,
-            timestamp: now,
+            timestamp: req.timestamp,
         })
     }
 

@@ -6,7 +6,12 @@
 //! confirmation, or failed with the reason and the number of attempts.
 //!
 //! It reads no clock and touches no socket: every input carries `now`, and the driver (the real
-//! runtime in the `hetcomm` crate, or the virtual-time simulator) performs the outputs:
+//! runtime in the `hetcomm` crate, or the virtual-time simulator) performs the outputs.
+//! `now` must come from a monotonic clock (the real runtime's is `CLOCK_MONOTONIC`): every
+//! deadline and RTT sample is computed from it, so a clock that steps would fire every
+//! retransmission at once (a step forward) or stall them (a step back). The one wall-clock
+//! time the router handles is the header's timestamp, which the driver puts in the request
+//! ([`SendRequest::timestamp`]) and the router copies, never compares.
 //!
 //! | call | when |
 //! |---|---|
@@ -116,6 +121,40 @@ mod tests {
         );
     }
 
+    /// The header carries the request's (wall-clock) stamp; every deadline counts from the
+    /// (monotonic) `now`, however far apart the two clocks are.
+    #[test]
+    fn the_header_is_stamped_with_the_request_and_timed_by_now() {
+        let route = direct_route(true);
+        let mut a = Router::<()>::new(RouterConfig::new(
+            SystemId(0),
+            1,
+            vec![(SystemId(1), route)],
+        ));
+        let (now, wall) = (
+            Time::from_micros(5_000),
+            Time::from_micros(1_700_000_000_000_000),
+        );
+        let to = Address {
+            system: SystemId(1),
+            module: ModuleId(0),
+        };
+        let req = SendRequest::new(ModuleId(0), to, MessageType(1), b"x").stamped(wall);
+        a.send(now, req, ()).unwrap();
+        let tx = a.poll_transmit(now).unwrap();
+        let header = wire::decode(&tx.frame).unwrap().header;
+        assert_eq!(header.timestamp, wall);
+        a.transmit_result(now, tx, Ok(()));
+        let deadline = a.poll_timeout().expect("armed while unacknowledged");
+        assert_eq!(deadline, now + Timing::default().initial_rto);
+        // A later `now` retransmits when due, whatever the stamp said.
+        a.handle_timeout(deadline);
+        let again = a
+            .poll_transmit(deadline)
+            .expect("retransmitted at its deadline");
+        assert_eq!(wire::decode(&again.frame).unwrap().header.timestamp, wall);
+    }
+
     fn direct_route(acknowledged: bool) -> Route {
         Route {
             link: 0,
@@ -152,8 +191,13 @@ mod tests {
         let now = Time::from_micros(5);
         let acked = a.direct_lane(SystemId(1)).unwrap();
         assert!(Arc::ptr_eq(&acked, &a.direct_lane(SystemId(1)).unwrap()));
-        let h1 = acked.send(now, &req(1, b"a")).unwrap();
-        let h2 = acked.send(now, &req(1, b"b")).unwrap();
+        let h1 = acked.send(&req(1, b"a").stamped(now)).unwrap();
+        let h2 = acked.send(&req(1, b"b")).unwrap();
+        assert_eq!(
+            (h1.timestamp, h2.timestamp),
+            (now, Time::ZERO),
+            "the request's stamp"
+        );
         assert_eq!((h1.seq, h2.seq), (1, 2), "numbered per destination");
         assert!(h1.ack_requested());
         assert_eq!((h1.source.system, h1.incarnation), (SystemId(0), 1));
@@ -163,7 +207,7 @@ mod tests {
             Err(SendError::NoRoute { .. })
         ));
         assert!(matches!(
-            acked.send(now, &req(1, &[0; 64])),
+            acked.send(&req(1, &[0; 64])),
             Err(SendError::TooLarge { .. })
         ));
         assert_eq!(a.stats().in_flight(), 2, "counted as sent before they end");
@@ -179,7 +223,7 @@ mod tests {
         ));
         // Unacknowledged: `Sent` whatever the inbox said, as over a link.
         let unacked = a.direct_lane(SystemId(2)).unwrap();
-        let h3 = unacked.send(now, &req(2, b"c")).unwrap();
+        let h3 = unacked.send(&req(2, b"c")).unwrap();
         let sent = unacked.result(&h3, wire::AckStatus::InboxFull);
         assert_eq!(sent, Outcome::Sent { attempts: 1 });
         let s = a.stats();
@@ -208,7 +252,7 @@ mod tests {
         }
         let lane = a.direct_lane(SystemId(1)).unwrap();
         for _ in 0..3 {
-            numbers.push(lane.send(now, &req(1, b"l")).unwrap().seq);
+            numbers.push(lane.send(&req(1, b"l")).unwrap().seq);
             a.send(now, req(1, b"r"), ()).unwrap();
             let t = a.poll_transmit(now).unwrap();
             numbers.push(wire::decode(&t.frame).unwrap().header.seq);
@@ -233,7 +277,7 @@ mod tests {
                 std::thread::spawn(move || {
                     (0..1000)
                         .map(|i| {
-                            let h = lane.send(Time::ZERO, &req(1, b"x")).unwrap();
+                            let h = lane.send(&req(1, b"x")).unwrap();
                             let status = if (i + t) % 3 == 0 {
                                 wire::AckStatus::InboxFull
                             } else {

@@ -15,12 +15,12 @@ use crate::error::OpenError;
 use crate::inbox::InboxStats;
 use crate::module::Module;
 use crate::observe::{Observer, ObserverHandle};
-use crate::runtime::{intern, Clock, Directory, SystemCore, WallClock};
+use crate::runtime::{intern, Clock, Directory, SystemClock, SystemCore};
 use crate::security::{KeySource, OpenOptions};
 use crate::sim::SimNet;
 use crate::transports::{open_link, Hubs};
 
-/// How systems are opened: with real links and the wall clock, or inside a simulation.
+/// How systems are opened: with real links and the system clock, or inside a simulation.
 #[derive(Clone)]
 pub(crate) struct OpenEnv {
     pub hubs: Hubs,
@@ -46,7 +46,7 @@ impl OpenEnv {
         OpenEnv {
             hubs,
             registry: Default::default(),
-            clock: Arc::new(WallClock),
+            clock: Arc::new(SystemClock),
             sim: None,
             positions: Default::default(),
             epoch: std::time::Instant::now(),

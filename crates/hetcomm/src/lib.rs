@@ -68,7 +68,7 @@ pub use module::{Module, RawSender, SendOptions, Sender};
 pub use node::{Node, Notification, Publisher, Subscription, TopicError};
 pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
-pub use runtime::{Clock, WallClock};
+pub use runtime::{Clock, SystemClock};
 pub use security::OpenOptions;
 pub use ticket::{BroadcastTicket, Ticket};
 pub use transports::{load_fleet, parse_fleet, registry};

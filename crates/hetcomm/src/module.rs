@@ -7,7 +7,7 @@ use std::marker::PhantomData;
 use std::sync::Arc;
 use std::time::Duration;
 
-use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority};
+use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority, Time};
 use hetcomm_router::{Admitted, DirectLane, SendId, SendRequest};
 
 use crate::comm::SystemHandle;
@@ -187,7 +187,7 @@ impl Module {
             };
             return self.hand_over(to, what, payload, now);
         }
-        let req = what.request(self.core.id, payload.as_slice());
+        let req = what.request(self.core.id, payload.as_slice(), core.clock.wall(now));
         // A slot for the outcome is shared with the runtime only when the outcome comes
         // later (an acknowledged send, or a refused frame that is retried).
         let mut slot = None;
@@ -258,10 +258,14 @@ impl Module {
             // all, and the unobserved path below stays what it was before observers existed.
             return self.hand_over_observed(to, what, payload, now);
         }
-        let req = what.request(self.core.id, payload.as_slice());
+        let req = what.request(
+            self.core.id,
+            payload.as_slice(),
+            self.sys.core.clock.wall(now),
+        );
         let header = to
             .lane
-            .send(now, &req)
+            .send(&req)
             .map_err(|e| send_error(&self.sys.core.directory, e))?;
         let status = to
             .peer
@@ -284,10 +288,14 @@ impl Module {
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
         let core = &self.sys.core;
-        let req = what.request(self.core.id, payload.as_slice());
+        let req = what.request(
+            self.core.id,
+            payload.as_slice(),
+            self.sys.core.clock.wall(now),
+        );
         let header = to
             .lane
-            .send(now, &req)
+            .send(&req)
             .map_err(|e| send_error(&core.directory, e))?;
         core.observers.send_direct(&header, payload.as_slice(), now);
         let status = to
@@ -467,6 +475,7 @@ impl Module {
             priority: opts.priority,
             payload,
             broadcast: true,
+            timestamp: core.clock.wall(now),
         };
         for link in capable {
             let group = router.broadcast_group(link);
@@ -740,7 +749,13 @@ struct Outgoing {
 }
 
 impl Outgoing {
-    fn request<'a>(&self, from: hetcomm_core::ModuleId, payload: &'a [u8]) -> SendRequest<'a> {
+    /// The router's request, stamped `timestamp` (the wall clock at the send's `now`).
+    fn request<'a>(
+        &self,
+        from: hetcomm_core::ModuleId,
+        payload: &'a [u8],
+        timestamp: Time,
+    ) -> SendRequest<'a> {
         SendRequest {
             from,
             to: self.to,
@@ -748,6 +763,7 @@ impl Outgoing {
             priority: self.opts.priority,
             payload,
             broadcast: self.broadcast,
+            timestamp,
         }
     }
 }

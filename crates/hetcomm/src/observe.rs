@@ -72,7 +72,9 @@ pub struct SendRecord<'a> {
     /// The encoded payload (its length is the message's size; the frame adds
     /// [`HEADER_LEN`] bytes on links).
     pub payload: &'a [u8],
-    /// When this attempt left, on the system's clock (virtual under simulation).
+    /// When this attempt left, on the system's clock: monotonic in real time
+    /// ([`Time::now_mono`]), virtual under simulation. (The header's timestamp is the
+    /// wall clock's.)
     pub time: Time,
     /// Which way it left.
     pub route: RouteKind,
@@ -105,7 +107,8 @@ pub struct ReceiptRecord<'a> {
     pub header: Header,
     /// The encoded payload.
     pub payload: &'a [u8],
-    /// When it was handed to the inbox, on the system's clock.
+    /// When it was handed to the inbox, on the system's (monotonic) clock, as
+    /// [`SendRecord::time`]. (The envelope's `received_at` is the wall clock's.)
     pub time: Time,
     /// Which link it came on, or a direct hand-over.
     pub via: Via,
@@ -121,7 +124,7 @@ pub struct OutcomeRecord<'a> {
     pub id: SendId,
     /// How it ended (what its ticket says).
     pub outcome: &'a Outcome,
-    /// When it ended, on the system's clock.
+    /// When it ended, on the system's (monotonic) clock, as [`SendRecord::time`].
     pub time: Time,
 }
 

@@ -11,7 +11,10 @@ pub struct Envelope {
     pub source_system: &'static str,
     /// The sending module's name.
     pub source_module: &'static str,
-    /// When this system's router put it into the inbox (receiver's clock, µs).
+    /// When this system's router put it into the inbox: the receiver's wall clock, µs since
+    /// the UNIX epoch (virtual time under simulation), so that `received_at - timestamp` is
+    /// the one-way latency when the two hosts' clocks agree. Not for timing on this host:
+    /// the wall clock may be stepped.
     pub received_at: Time,
 }
 
@@ -32,7 +35,8 @@ impl Envelope {
     pub fn priority(&self) -> Priority {
         self.header.priority
     }
-    /// When the sender created it (sender's clock, µs).
+    /// When the sender created it: the sender's wall clock, µs since the UNIX epoch (virtual
+    /// time under simulation).
     pub fn timestamp(&self) -> Time {
         self.header.timestamp
     }

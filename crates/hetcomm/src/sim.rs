@@ -52,9 +52,14 @@ impl VirtualClock {
     }
 }
 
+/// One clock for both times: virtual time is never stepped, and messages are stamped with
+/// it as well (the simulated hosts share it).
 impl Clock for VirtualClock {
     fn now(&self) -> Time {
         Time(self.0.load(Ordering::SeqCst))
+    }
+    fn wall(&self, now: Time) -> Time {
+        now
     }
 }
 

@@ -69,7 +69,7 @@ impl Env {
     }
     fn now(&self) -> Time {
         match self {
-            Env::Real(_) => Time::now_wall(),
+            Env::Real(_) => Time::now_mono(),
             Env::Sim(s) => s.now(),
         }
     }

@@ -49,8 +49,8 @@ impl Envelope {
         let id = self.inner.id();
         (id.origin.0, id.seq)
     }
-    /// When the sender created it: microseconds on the sender's clock (real runs: since the
-    /// UNIX epoch).
+    /// When the sender created it: microseconds on the sender's wall clock (real runs: since
+    /// the UNIX epoch).
     #[getter]
     fn timestamp_us(&self) -> u64 {
         self.inner.timestamp().as_micros()
@@ -60,7 +60,9 @@ impl Envelope {
     fn timestamp(&self) -> f64 {
         self.inner.timestamp().as_micros() as f64 / 1e6
     }
-    /// When this system put it in the inbox: microseconds on the receiver's clock.
+    /// When this system put it in the inbox: microseconds on the receiver's wall clock (real
+    /// runs: since the UNIX epoch), so `received_at_us - timestamp_us` is the one-way latency
+    /// when the two clocks agree.
     #[getter]
     fn received_at_us(&self) -> u64 {
         self.inner.received_at.as_micros()

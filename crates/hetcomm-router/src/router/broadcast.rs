@@ -64,7 +64,7 @@ impl<T> Router<T> {
     /// with the token `token(destination)` and an outcome as a single send has; they are
     /// returned in the order of `dests`. The frame comes out of [`Router::poll_transmit`]
     /// once, addressed to [`TO_ALL_SYSTEM`]; retransmissions go to each destination that did
-    /// not acknowledge it, alone.
+    /// not acknowledge it, alone. Stamped and timed as [`Router::send`].
     ///
     /// Refused as a whole, with nothing numbered or sent, when a destination has no route,
     /// when the message does not fit, or when a destination's window is full
@@ -73,7 +73,7 @@ impl<T> Router<T> {
     /// destination, so it cannot leave one of them out.)
     pub fn send_broadcast(
         &mut self,
-        now: Time,
+        _now: Time,
         req: SendRequest<'_>,
         dests: &[SystemId],
         mut token: impl FnMut(SystemId) -> T,
@@ -133,7 +133,7 @@ impl<T> Router<T> {
             incarnation: self.config.incarnation,
             seq: b,
             message_type: req.message_type,
-            timestamp: now,
+            timestamp: req.timestamp,
         };
         let frame = self.encode(&route, header, req.payload);
         let mut ids = Vec::with_capacity(dests.len());

@@ -4,9 +4,16 @@ use super::*;
 
 impl<T> Router<T> {
     /// Accepts a send: assigns its sequence number and queues its frame. Its outcome arrives
-    /// later through [`Router::poll_event`].
-    pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
-        let (route, header) = self.admit(now, &req)?;
+    /// later through [`Router::poll_event`]. The header is stamped with `req.timestamp`;
+    /// `now`, the driver's monotonic time as for every input, is not needed to admit a send
+    /// (its timers start when its frame is polled).
+    pub fn send(
+        &mut self,
+        _now: Time,
+        req: SendRequest<'_>,
+        token: T,
+    ) -> Result<SendId, SendError> {
+        let (route, header) = self.admit(&req)?;
         Ok(self.queue(route, header, req.payload, token))
     }
 
@@ -90,13 +97,14 @@ impl<T> Router<T> {
     /// queued as by [`Router::send`] ([`Admitted::Queued`]); `token` is only called then,
     /// or later by `unqueued_result` should a refused frame be retried, so a driver whose
     /// token is costly (a shared slot for the outcome) makes one only when it is needed.
+    /// Stamped and timed as [`Router::send`].
     pub fn send_unqueued<'a>(
         &mut self,
-        now: Time,
+        _now: Time,
         req: SendRequest<'a>,
         token: impl FnOnce() -> T,
     ) -> Result<Admitted<'a>, SendError> {
-        let (route, header) = self.admit(now, &req)?;
+        let (route, header) = self.admit(&req)?;
         if route.acknowledged {
             return Ok(Admitted::Queued(self.queue(
                 route,
@@ -217,11 +225,7 @@ impl<T> Router<T> {
 
     /// Checks a send against the routing table and the size limit, gives it the next
     /// sequence number towards its destination and builds its header.
-    pub(super) fn admit(
-        &mut self,
-        now: Time,
-        req: &SendRequest<'_>,
-    ) -> Result<(Route, Header), SendError> {
+    pub(super) fn admit(&mut self, req: &SendRequest<'_>) -> Result<(Route, Header), SendError> {
         let to = req.to.system;
         let route = self.route(to).ok_or(SendError::NoRoute {
             from: self.config.local,
@@ -273,7 +277,7 @@ impl<T> Router<T> {
             incarnation: self.config.incarnation,
             seq,
             message_type: req.message_type,
-            timestamp: now,
+            timestamp: req.timestamp,
         };
         Ok((route, header))
     }

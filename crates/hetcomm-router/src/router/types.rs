@@ -4,7 +4,7 @@ use std::collections::BTreeSet;
 use std::time::Duration;
 
 use hetcomm_core::wire::AckStatus;
-use hetcomm_core::{Address, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId};
+use hetcomm_core::{Address, Header, MessageType, ModuleId, PayloadBuf, Priority, SystemId, Time};
 
 #[cfg(doc)]
 use super::{Router, SPLIT_PAYLOAD_MIN};
@@ -215,10 +215,17 @@ pub struct SendRequest<'a> {
     pub payload: &'a [u8],
     /// Marks the frame as one copy of a broadcast.
     pub broadcast: bool,
+    /// What the header's `timestamp` says: when the message was created, on the clock that
+    /// crosses hosts (the wall clock, microseconds since the UNIX epoch, in real time; the
+    /// virtual clock under simulation). The driver reads it, since the router reads no
+    /// clock; the `now` the router is given with the request is the monotonic clock, which
+    /// times the send and must not be stamped (it means nothing on another host).
+    pub timestamp: Time,
 }
 
 impl<'a> SendRequest<'a> {
-    /// A point-to-point request with normal priority.
+    /// A point-to-point request with normal priority, stamped [`Time::ZERO`] (see
+    /// [`SendRequest::stamped`]).
     pub fn new(from: ModuleId, to: Address, message_type: MessageType, payload: &'a [u8]) -> Self {
         SendRequest {
             from,
@@ -227,7 +234,13 @@ impl<'a> SendRequest<'a> {
             priority: Priority::NORMAL,
             payload,
             broadcast: false,
+            timestamp: Time::ZERO,
         }
+    }
+
+    /// The request with the header timestamp `timestamp` (wall-clock time in real time).
+    pub fn stamped(self, timestamp: Time) -> Self {
+        SendRequest { timestamp, ..self }
     }
 }
 

@@ -506,7 +506,8 @@ impl Comm {
         self.tap_between(path, action, None)
     }
 
-    /// [`Comm::tap`] for a window of time only: from `start` to `end` on the system's clock.
+    /// [`Comm::tap`] for a window of time only: from `start` to `end` on the system's clock
+    /// (monotonic in real time, [`Time::now_mono`]; virtual under simulation).
     pub fn tap_between(
         &self,
         path: &TapPath,

@@ -381,7 +381,11 @@ impl LocalFleet {
     /// making [`crate::Sender`]s: a fault schedule makes in-process sends take their link
     /// (so that frames can be cut), which a sender made earlier has already skipped.
     pub fn apply_scenario(&self, sc: &Scenario, seed: u64) -> Result<ScenarioRun, ScenarioError> {
-        install(self.systems(), sc, Time::now_wall(), seed)
+        let now = match self.systems().first() {
+            Some(c) => c.handle.core.clock.now(),
+            None => Time::now_mono(),
+        };
+        install(self.systems(), sc, now, seed)
     }
 }
 

@@ -289,7 +289,7 @@ impl SystemCore {
         let entry = Entry {
             header,
             payload,
-            received_at: now,
+            received_at: self.clock.wall(now),
         };
         let wants_callback = module.wants_callback(header.message_type);
         let entry = match wants_callback {

@@ -100,7 +100,7 @@ impl SystemCore {
     }
 
     /// Puts a message handed over directly by another system of this process into its
-    /// module's inbox. `now` is the sender's clock reading: one process, one wall clock.
+    /// module's inbox. `now` is the sender's clock reading: one process, one clock.
     /// `module`: this system's module the message is for, looked up by the caller (None:
     /// there is no such module).
     pub(crate) fn deliver_direct(

@@ -1,5 +1,5 @@
 //! The real-time driver: one [`SystemCore`] per opened system drives its sans-IO router with
-//! the wall clock. Sends run on the caller's thread up to the link's send call; frames run on
+//! the monotonic clock (wall-clock time only stamps messages: see [`Clock`]). Sends run on the caller's thread up to the link's send call; frames run on
 //! the link's receive thread (or the sender's thread for in-process links); a timer thread per
 //! system handles retransmission deadlines; callbacks run on a thread per module.
 
@@ -29,6 +29,8 @@ use crate::ticket::{OutcomeSlot, TicketSlot};
 use crate::transports::Hubs;
 use crossbeam_utils::CachePadded;
 
+#[cfg(test)]
+mod clock_tests;
 mod deliver;
 mod direct;
 mod sink;
@@ -38,20 +40,35 @@ pub(crate) use deliver::Source;
 use sink::SystemSink;
 pub(crate) use transmit::Batching;
 
-/// Where a system's router gets `now` from: the wall clock in the real runtime, a virtual
+/// Where a system's driver gets the time: [`SystemClock`] in the real runtime, a virtual
 /// clock under the simulator.
+///
+/// Two times, never mixed. [`Clock::now`] is monotonic and times everything: it is the
+/// router's `now` (retransmission and in-order hold deadlines, RTT samples, delivery
+/// latencies), batching's linger, the harness's schedules and the time of observers'
+/// records. [`Clock::wall`] turns one reading of it into the time that crosses hosts: the
+/// header's timestamp of a send, and a received message's `received_at` (so that
+/// `received_at - timestamp` is a one-way latency). Each path reads `now` once and asks
+/// `wall` for the stamp, so a send costs one clock read.
 pub trait Clock: Send + Sync + 'static {
-    /// The current time.
+    /// The current monotonic time (never stepped).
     fn now(&self) -> Time;
+    /// The wall-clock time at `now`, a reading of [`Clock::now`] just taken on this thread.
+    fn wall(&self, now: Time) -> Time;
 }
 
-/// The wall clock: microseconds since the UNIX epoch.
+/// The real runtime's clock: `now` from the monotonic clock ([`Time::now_mono`]), stamps on
+/// the wall clock, microseconds since the UNIX epoch ([`Time::wall_at`]). A step of the
+/// system clock (NTP, chrony, an operator) shows in stamps within 100 ms and moves no timer.
 #[derive(Clone, Copy, Debug, Default)]
-pub struct WallClock;
+pub struct SystemClock;
 
-impl Clock for WallClock {
+impl Clock for SystemClock {
     fn now(&self) -> Time {
-        Time::now_wall()
+        Time::now_mono()
+    }
+    fn wall(&self, now: Time) -> Time {
+        Time::wall_at(now)
     }
 }
 
