@@ -1,7 +1,8 @@
 //! The outcome oracle: sans-IO routers driven through long random schedules — loss,
 //! duplication, reordering, delay, acknowledgement loss, link and inbox refusals, unknown
 //! modules, bursts past the duplicate window, restarts, ordered and unordered delivery,
-//! native broadcasts — while the world keeps the ground truth of what entered which inbox.
+//! native broadcasts, the senders' wall clocks stepped by ± hours — while the world keeps the
+//! ground truth of what entered which inbox.
 //! For every send it asserts: exactly one outcome; *delivered* ⇒ in the destination inbox;
 //! *failed* ⇒ never in it; *sent* only on unacknowledged routes; *unconfirmed* only where a
 //! data frame left; nothing enters one inbox twice; the counters balance.
@@ -47,7 +48,7 @@ fn shrink(mut failing: Params) -> Params {
                 ..failing.clone()
             });
         }
-        let off: [fn(&mut Params); 10] = [
+        let off: [fn(&mut Params); 11] = [
             |p| p.loss = 0.0,
             |p| p.duplicate = 0.0,
             |p| p.jitter_us = 0,
@@ -58,6 +59,7 @@ fn shrink(mut failing: Params) -> Params {
             |p| p.restart = 0.0,
             |p| p.burst = 0.0,
             |p| p.ordered = false,
+            |p| p.wall_steps = false,
         ];
         for f in off {
             let mut p = failing.clone();
@@ -131,6 +133,31 @@ fn bursts_past_a_tiny_duplicate_window_stay_true() {
             "seed {seed}: {params:?}\n{}",
             wrong.join("\n")
         );
+    }
+}
+
+#[test]
+fn stepping_the_wall_clock_changes_no_outcome_and_no_counter() {
+    // The routers run on a monotonic clock and take the wall clock only as the stamp: a run
+    // whose stamps jump by hours must tell its users exactly what the same run without
+    // jumps told them (a router timing anything by the stamp would retransmit, hold or
+    // give up differently).
+    for seed in 3_000..3_030 {
+        let steady = Params {
+            wall_steps: false,
+            ..Params::random(seed, 400)
+        };
+        let stepped = Params {
+            wall_steps: true,
+            ..steady.clone()
+        };
+        let run = |p: &Params| {
+            let mut w = World::new(p.clone());
+            w.run();
+            assert!(w.falsehoods().is_empty(), "seed {seed}: {p:?}");
+            w.told()
+        };
+        assert_eq!(run(&steady), run(&stepped), "seed {seed}: {stepped:?}");
     }
 }
 

@@ -55,6 +55,9 @@ pub struct Params {
     pub acknowledged_mask: u32,
     /// Whether receivers deliver each sender's messages in order.
     pub ordered: bool,
+    /// Whether the senders' wall clocks (which only stamp headers) are stepped by ± hours
+    /// during the run, as NTP or an operator would. The routers' own time never steps.
+    pub wall_steps: bool,
 }
 
 impl Params {
@@ -82,6 +85,7 @@ impl Params {
             max_in_flight: [4, 64, 1 << 16][rng.gen_range(0..3)],
             acknowledged_mask: rng.gen_range(0..32),
             ordered: rng.gen_bool(0.5),
+            wall_steps: rng.gen_bool(0.5),
         }
     }
 }
@@ -140,6 +144,8 @@ struct System {
 pub struct World {
     params: Params,
     rng: ChaCha8Rng,
+    /// Draws for wall-clock steps, apart from `rng` (see [`Params::wall_steps`]).
+    steps: ChaCha8Rng,
     now: u64,
     systems: Vec<System>,
     network: BinaryHeap<Reverse<InFlight>>,
@@ -153,6 +159,8 @@ pub struct World {
     refused_silently: Vec<u64>,
     /// Router calls made.
     pub events: u64,
+    /// The senders' wall clock minus the routers' clock, µs (stepped when `wall_steps`).
+    wall_offset: i64,
 }
 
 impl World {
@@ -162,6 +170,7 @@ impl World {
         let mut world = World {
             systems: Vec::new(),
             refused_silently: vec![0; usize::from(params.systems)],
+            steps: ChaCha8Rng::seed_from_u64(params.seed ^ 0x57e9),
             params,
             rng,
             now: 1_000,
@@ -171,6 +180,7 @@ impl World {
             records: Vec::new(),
             inbox: BTreeMap::new(),
             events: 0,
+            wall_offset: 1_700_000_000_000_000,
         };
         for s in 0..world.params.systems {
             let router = world.router(s, 1);
@@ -300,6 +310,17 @@ impl World {
         };
         let tag = self.records.len() as u64;
         let payload = tag.to_le_bytes();
+        // A step of the wall clock between sends: only the stamp may see it. Its draws come
+        // from a stream of their own, so that a run with steps is the same run as without.
+        if p.wall_steps && self.steps.gen_bool(0.01) {
+            let hour = 3_600_000_000i64;
+            self.wall_offset += if self.steps.gen_bool(0.5) {
+                hour
+            } else {
+                -hour
+            };
+        }
+        let stamp = Time::from_micros(self.now.saturating_add_signed(self.wall_offset));
         let acknowledged = p.acknowledged_mask & (1 << from) != 0;
         let life = self.systems[usize::from(from)].life;
         let now = self.time();
@@ -311,6 +332,7 @@ impl World {
             let dests = router.broadcast_group(LINK);
             let req = SendRequest {
                 broadcast: true,
+                timestamp: stamp,
                 ..SendRequest::new(
                     MODULE,
                     Address {
@@ -346,15 +368,18 @@ impl World {
             if to >= from {
                 to += 1;
             }
-            let req = SendRequest::new(
-                MODULE,
-                Address {
-                    system: SystemId(to),
-                    module,
-                },
-                MessageType(1),
-                &payload,
-            );
+            let req = SendRequest {
+                timestamp: stamp,
+                ..SendRequest::new(
+                    MODULE,
+                    Address {
+                        system: SystemId(to),
+                        module,
+                    },
+                    MessageType(1),
+                    &payload,
+                )
+            };
             let dest_life = self.systems[usize::from(to)].life;
             let router = &mut self.systems[usize::from(from)].router;
             if router.send(now, req, records.len()).is_ok() {
@@ -594,6 +619,21 @@ impl World {
             }
         }
         wrong
+    }
+
+    /// Every outcome, in send order, and every router's counters: what a run told its users.
+    pub fn told(&self) -> String {
+        let outcomes: Vec<String> = self
+            .records
+            .iter()
+            .map(|r| format!("{:?}", r.outcomes))
+            .collect();
+        let stats: Vec<String> = self
+            .systems
+            .iter()
+            .map(|s| format!("{:?}", s.router.stats()))
+            .collect();
+        format!("{}\n{}", outcomes.join("\n"), stats.join("\n"))
     }
 
     /// Sends whose outcome the world recorded.
