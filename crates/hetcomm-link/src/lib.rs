@@ -127,6 +127,16 @@ pub enum LinkError {
         /// What is full.
         reason: String,
     },
+    /// The frame was not sent, and will not be: the link needs a session with the peer
+    /// first (a security handshake) and has none yet. The handshake has been started; a
+    /// later attempt goes out once it completes. Nothing of the frame left this system.
+    #[error("no secure session with {peer}: {reason}")]
+    NoSession {
+        /// The destination system.
+        peer: SystemId,
+        /// Where the handshake stands, e.g. "the handshake has not been answered".
+        reason: String,
+    },
     /// The link was closed.
     #[error("link closed")]
     Closed,

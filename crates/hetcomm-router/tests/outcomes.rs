@@ -84,6 +84,55 @@ fn a_send_whose_every_attempt_the_link_refused_failed() {
 }
 
 #[test]
+fn a_send_that_never_had_a_session_failed_and_waited_a_round_trip_between_attempts() {
+    // A secured link with no session sends nothing of the frame (only its handshake): the
+    // message certainly did not arrive. The handshake takes a round trip, so the retries
+    // wait as for an acknowledgement, not the link's short back-off.
+    let (mut a, _) = pair(3);
+    a.send(Time::ZERO, request(b"x"), 0).unwrap();
+    let mut times = Vec::new();
+    let mut now = Time::from_micros(1);
+    let mut out = Vec::new();
+    loop {
+        while let Some(tx) = a.poll_transmit(now) {
+            times.push(now);
+            let err = TransmitError::NoSession("no secure session with B: handshake unanswered".into());
+            a.transmit_result(now, tx, Err(err));
+        }
+        while let Some(Event::Outcome { outcome, .. }) = a.poll_event() {
+            out.push(outcome);
+        }
+        match a.poll_timeout() {
+            Some(t) => {
+                now = t;
+                a.handle_timeout(now);
+            }
+            None => break,
+        }
+    }
+    assert_eq!(
+        out,
+        [Outcome::Failed {
+            reason: FailReason::NoSession("no secure session with B: handshake unanswered".into()),
+            attempts: 3
+        }]
+    );
+    assert_eq!(
+        out[0].to_string(),
+        "failed: no secure session with B: handshake unanswered (attempts: 3)"
+    );
+    let gaps: Vec<u64> = times
+        .windows(2)
+        .map(|w| w[1].as_micros() - w[0].as_micros())
+        .collect();
+    // The initial retransmission timeout (100 ms), backed off.
+    assert_eq!(gaps, [100_000, 200_000], "{times:?}");
+    // The path stays up: the handshake runs on it.
+    assert!(a.paths(SystemId(1)).iter().all(|p| p.up));
+    assert_eq!((a.stats().failed, a.stats().unconfirmed), (1, 0));
+}
+
+#[test]
 fn a_send_whose_frames_left_without_an_acknowledgement_is_unconfirmed() {
     let (mut a, _) = pair(2);
     a.send(Time::ZERO, request(b"x"), 0).unwrap();

@@ -58,7 +58,12 @@ impl<T> Router<T> {
                 self.set_path_health(now, peer, link, false, false)
             }
             Err(TransmitError::Congested(_)) => self.set_path_health(now, peer, link, true, true),
-            Err(TransmitError::TooLarge(_) | TransmitError::Other(_)) => {}
+            // A missing session says nothing about the path: the handshake runs on it.
+            Err(
+                TransmitError::TooLarge(_)
+                | TransmitError::Other(_)
+                | TransmitError::NoSession(_),
+            ) => {}
         }
     }
 

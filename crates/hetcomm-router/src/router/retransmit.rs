@@ -128,6 +128,10 @@ impl<T> Router<T> {
                     let factor = 1u32 << p.attempts.saturating_sub(1).min(16);
                     let deadline = if moved {
                         now
+                    } else if matches!(err, TransmitError::NoSession(_)) {
+                        // The link started a handshake, a round trip: wait as for an
+                        // acknowledgement.
+                        now + rto
                     } else {
                         now + self.config.timing.link_retry * factor
                     };

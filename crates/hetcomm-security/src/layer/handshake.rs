@@ -37,6 +37,7 @@ impl Secured {
             .pending
             .replace((pending, Instant::now()))
             .map(|(p, _)| p);
+        st.unanswered_since.get_or_insert_with(Instant::now);
         Some(init)
     }
 
@@ -61,6 +62,7 @@ impl Secured {
                 {
                     st.pending = None;
                     st.earlier = None;
+                    st.unanswered_since = None;
                 } else if at.elapsed() >= HANDSHAKE_RETRY {
                     if let Some(init) = self.start_handshake(peer, slot, &mut st) {
                         drop(st);
@@ -79,6 +81,7 @@ impl Secured {
                 st.waiting_since = None;
                 st.pending = None;
                 st.earlier = None;
+                st.unanswered_since = None;
                 self.counters.timeouts.fetch_add(n, Ordering::Relaxed);
                 continue;
             }

@@ -144,6 +144,9 @@ struct PeerState {
     flushing: bool,
     queued_bytes: usize,
     waiting_since: Option<Instant>,
+    /// Since when initiations to this peer go unanswered (the first of the series that is
+    /// still running), for the reason a frame refused for want of a session gives.
+    unanswered_since: Option<Instant>,
     /// The newest initiation timestamp accepted from this peer.
     last_init: Option<u64>,
     last_trigger: Option<Instant>,
@@ -161,6 +164,13 @@ impl PeerState {
 
     fn install(&mut self, session: Arc<Session>) {
         self.previous = self.current.replace(session);
+        self.unanswered_since = None;
+    }
+
+    /// Whether frames to this peer are sealed now (a session, and nothing that waited for it
+    /// still leaving), rather than waiting for a handshake.
+    fn sealing(&self) -> bool {
+        self.current.is_some() && !self.flushing
     }
 }
 
