@@ -277,7 +277,9 @@ pub struct SecurityStats {
     pub rejected_replay: u64,
     /// Authentic frames the communication table does not allow on this transport (an `X`
     /// pair or a pair on another transport), or whose inner header claims another origin or
-    /// destination than the authenticated ones.
+    /// destination than the authenticated ones; and any frame or handshake from a member of
+    /// the fleet that the table does not connect to this system on this transport (refused
+    /// before it is opened), or addressed to another system.
     pub rejected_table: u64,
     /// Frames or handshakes from a system that is not in the fleet or has no public key.
     pub rejected_unknown_sender: u64,

@@ -156,6 +156,10 @@ pub(crate) fn layer(
         .map(|((_, d), _)| *d)
         .collect();
     let talks_to: HashSet<SystemId> = data_from.union(&acks_from).copied().collect();
+    // The layer knows every member's key, not only those the table connects to this system:
+    // a member the table keeps away is then told from a stranger (`rejected_table`, not
+    // `rejected_unknown_sender`), and refused before any handshake work.
+    let members = || fleet.systems.iter().map(|s| s.id).filter(|&p| p != local);
     let name = |id: SystemId| {
         fleet
             .system(id)
@@ -168,9 +172,8 @@ pub(crate) fn layer(
                 problem: format!("no simulated key for system {}", name(local)),
                 fix: "report this as a bug".into(),
             })?;
-            let peers = talks_to
-                .iter()
-                .filter_map(|&p| sim.keypair(p).map(|k| (p, k.public)))
+            let peers = members()
+                .filter_map(|p| sim.keypair(p).map(|k| (p, k.public)))
                 .collect();
             (keypair, peers, Handshakes::InMemory(sim.clone()))
         }
@@ -186,7 +189,7 @@ pub(crate) fn layer(
                 }
             }
             let keypair = store[&local].clone();
-            let peers = talks_to.iter().map(|&p| (p, store[&p].public)).collect();
+            let peers = members().map(|p| (p, store[&p].public)).collect();
             (keypair, peers, Handshakes::OverTheLink)
         }
         KeySource::Fleet { private_key } => {
@@ -232,9 +235,8 @@ pub(crate) fn layer(
                     ),
                 });
             }
-            let peers = talks_to
-                .iter()
-                .filter_map(|&p| {
+            let peers = members()
+                .filter_map(|p| {
                     fleet
                         .system(p)
                         .and_then(|s| s.public_key)

@@ -338,6 +338,12 @@ impl Secured {
             bump(&self.counters.unknown);
             return None;
         };
+        if !(slot.sends_data || slot.sends_acks) {
+            // A member of the fleet the table does not connect to this system on this
+            // transport: nothing of it is looked at (no session, no handshake started).
+            bump(&self.counters.table);
+            return None;
+        }
         Some((prefix, slot))
     }
 

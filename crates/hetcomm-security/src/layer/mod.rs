@@ -37,7 +37,10 @@ pub struct Policy {
     pub local: SystemId,
     /// Its key pair.
     pub keypair: Keypair,
-    /// The public key of every system it may exchange frames with over this transport.
+    /// The public key of every member of the fleet that has one. Frames from a member that
+    /// is in neither `data_from` nor `acks_from` are refused as the table's
+    /// (`rejected_table`), frames from a system not here as unknown
+    /// (`rejected_unknown_sender`).
     pub peers: HashMap<SystemId, PublicKey>,
     /// Systems whose messages (data frames) to `local` the table puts on this transport.
     pub data_from: HashSet<SystemId>,
