@@ -342,10 +342,28 @@ fn main() -> ExitCode {
     match run(cli.command) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", for_this_command(&format!("{e:#}")));
+            eprintln!("error: {}", for_this_command(&chain(&e)));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes, each cause once: an error whose message already includes its
+/// source's (as `OpenError::Transport` does, to read well on its own) would otherwise print
+/// every sentence of the source twice.
+fn chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 /// The library tells a program depending on it to "rebuild with `--features ros1`"; for this

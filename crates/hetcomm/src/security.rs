@@ -266,27 +266,48 @@ fn private_key_for(
     if let Some(key) = given {
         return Ok(key.clone());
     }
-    let load = |path: PathBuf, from: &str| {
-        PrivateKey::load(&path).map_err(|e| SecurityError {
-            problem: format!("cannot read the private key ({from}): {e}"),
-            fix: "point it at the `.key` file `hetcomm keygen` wrote for this system".into(),
+    let system = fleet.system(local);
+    let name = system.map(|s| s.name.as_str()).unwrap_or("?");
+    let load = |path: PathBuf, from: String| {
+        PrivateKey::load(&path).map_err(|e| {
+            let fix = match &e {
+                KeyError::TooOpen { path, .. } => format!(
+                    "run `chmod 600 {}`: a private key must be readable by its owner only",
+                    path.display()
+                ),
+                _ => format!("point it at the `{name}.key` file `hetcomm keygen` wrote for {name}"),
+            };
+            SecurityError {
+                problem: format!("cannot read the private key of {name} ({from}): {e}"),
+                fix,
+            }
         })
     };
     if let Some(path) = std::env::var_os(PRIVATE_KEY_ENV) {
-        return load(PathBuf::from(path), PRIVATE_KEY_ENV);
+        return load(PathBuf::from(path), format!("from {PRIVATE_KEY_ENV}"));
     }
-    let system = fleet.system(local);
+    // Where a key from the keys directory would be: the fleet file's `[security] keys`, or
+    // `--keys` (either sets `keys_dir`).
+    let in_dir = fleet.keys_dir.as_ref().map(|d| d.join(format!("{name}.key")));
     match system.and_then(|s| s.private_key_file.clone()) {
-        Some(path) => load(path, "the fleet file's private_key_file"),
-        None => Err(SecurityError {
-            problem: format!(
-                "transport `{transport}` is secured but this process has no private key for system {}",
-                system.map(|s| s.name.as_str()).unwrap_or("?")
-            ),
-            fix: format!(
-                "put its `.key` file in the fleet's keys directory, set `private_key_file` for the system, set {PRIVATE_KEY_ENV}=<path>, or pass the key through the API (OpenOptions::private_key)"
-            ),
-        }),
+        Some(path) if in_dir.as_ref() == Some(&path) => {
+            load(path, "found in the fleet's keys directory".into())
+        }
+        Some(path) => load(path, format!("the fleet file's `private_key_file` for {name}")),
+        None => {
+            let looked = match &in_dir {
+                Some(p) => format!("there is no {}, ", p.display()),
+                None => "the fleet names no keys directory, ".into(),
+            };
+            Err(SecurityError {
+                problem: format!(
+                    "transport `{transport}` is secured but this process has no private key for system {name}: {looked}no `private_key_file` for {name}, and {PRIVATE_KEY_ENV} is not set"
+                ),
+                fix: format!(
+                    "put {name}'s `.key` file there (`hetcomm keygen` writes `{name}.key`), set `private_key_file` for {name}, set {PRIVATE_KEY_ENV}=<path>, or pass the key through the API (OpenOptions::private_key)"
+                ),
+            })
+        }
     }
 }
 
