@@ -288,12 +288,18 @@ fn private_key_for(
     }
     // Where a key from the keys directory would be: the fleet file's `[security] keys`, or
     // `--keys` (either sets `keys_dir`).
-    let in_dir = fleet.keys_dir.as_ref().map(|d| d.join(format!("{name}.key")));
+    let in_dir = fleet
+        .keys_dir
+        .as_ref()
+        .map(|d| d.join(format!("{name}.key")));
     match system.and_then(|s| s.private_key_file.clone()) {
         Some(path) if in_dir.as_ref() == Some(&path) => {
             load(path, "found in the fleet's keys directory".into())
         }
-        Some(path) => load(path, format!("the fleet file's `private_key_file` for {name}")),
+        Some(path) => load(
+            path,
+            format!("the fleet file's `private_key_file` for {name}"),
+        ),
         None => {
             let looked = match &in_dir {
                 Some(p) => format!("there is no {}, ", p.display()),
