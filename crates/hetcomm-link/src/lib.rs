@@ -97,6 +97,13 @@ pub trait FrameSink: Send + Sync + 'static {
     fn takes_frames(&self) -> bool {
         false
     }
+
+    /// The link can now carry frames to `peer` that it refused before for want of a session
+    /// ([`LinkError::NoSession`]: a security layer completed its handshake). The system's sink
+    /// sends what waited at once instead of at its retry deadline. The default ignores it.
+    fn on_peer_up(&self, peer: SystemId) {
+        let _ = peer;
+    }
 }
 
 /// Why a link could not take a frame.
@@ -553,5 +560,8 @@ impl<S: FrameSink + ?Sized> FrameSink for Arc<S> {
     }
     fn takes_frames(&self) -> bool {
         (**self).takes_frames()
+    }
+    fn on_peer_up(&self, peer: SystemId) {
+        (**self).on_peer_up(peer)
     }
 }

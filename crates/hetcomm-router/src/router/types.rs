@@ -59,7 +59,8 @@ pub struct Path {
 /// ([`Router::handle_link_event`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LinkEvent {
-    /// The link can reach `peer` (a connection came up, or frames from it arrived).
+    /// The link can reach `peer` (a connection came up, frames from it arrived, or a secure
+    /// session with it was made): sends waiting for a session with it go at once.
     PeerUp {
         /// Which link.
         link: usize,
@@ -473,8 +474,10 @@ pub enum TransmitError {
     /// The frame can never fit (not retried).
     TooLarge(String),
     /// The link has no secure session with the peer yet and did not send the frame; it has
-    /// started the handshake (retried after a round trip's wait, while attempts remain; the
-    /// path stays up). The text is the whole reason, naming the peer.
+    /// started the handshake. The frame goes again when the link reports the session up
+    /// ([`LinkEvent::PeerUp`]), else after a round trip's wait; such offers count as attempts
+    /// only if the send gives up. The path stays up. The text is the whole reason, naming the
+    /// peer.
     NoSession(String),
     /// Anything else (retried while attempts remain).
     Other(String),

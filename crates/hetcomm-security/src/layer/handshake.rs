@@ -114,6 +114,8 @@ impl Secured {
         st.flushing = true;
         drop(st);
         self.flush_queue(sender, slot, session);
+        // Frames refused for want of this session may go now.
+        self.sink.on_peer_up(sender);
     }
 
     pub(super) fn receive_init(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
@@ -200,16 +202,23 @@ impl Secured {
         st.pending = None;
         st.earlier = None;
         st.install(session.clone());
-        if st.queue.is_empty() {
-            // Nothing to send: an empty frame tells the responder the session is in use
-            // (receivers hand empty frames to nobody).
-            st.queue.push_back(Vec::new());
-        }
         st.waiting_since = None;
         st.flushing = true;
         drop(st);
         bump(&self.counters.handshakes);
         self.flush_queue(sender, slot, &session);
+        // Frames refused for want of this session go now (the router sends them on this
+        // thread, through this layer).
+        self.sink.on_peer_up(sender);
+        if session.sealed() == 0 {
+            // Nothing to send: an empty frame tells the responder the session is in use
+            // (receivers hand empty frames to nobody).
+            if let Some(below) = self.below() {
+                let mut buf = Vec::new();
+                session.seal(&mut buf, self.policy.local, sender, &[], &[]);
+                let _ = below.send(sender, &buf);
+            }
+        }
     }
 }
 
