@@ -370,6 +370,15 @@ fn x_pair_both_ways(kind: &Kind) {
         .expect("C's edited table allows the send")
         .wait_timeout(WAIT)
         .expect("an outcome");
+    // What A counted first: that is the point of this test.
+    let s = security(&a);
+    let (auth, replay, table, unknown, no_session) = minus(rejected(&s), before);
+    assert!(
+        table >= 1,
+        "C's handshakes are the table's to refuse: {s:?}"
+    );
+    assert_eq!((auth, replay, unknown, no_session), (0, 0, 0, 0), "{s:?}");
+    assert_eq!(s.handshakes, 0, "{s:?}");
     assert!(
         matches!(
             &outcome,
@@ -380,14 +389,6 @@ fn x_pair_both_ways(kind: &Kind) {
         ),
         "C's send: {outcome:?}"
     );
-    let s = security(&a);
-    let (auth, replay, table, unknown, no_session) = minus(rejected(&s), before);
-    assert!(
-        table >= 1,
-        "C's handshakes are the table's to refuse: {s:?}"
-    );
-    assert_eq!((auth, replay, unknown, no_session), (0, 0, 0, 0), "{s:?}");
-    assert_eq!(s.handshakes, 0, "{s:?}");
     assert!(a.module("Act").unwrap().try_recv_raw().is_none());
     assert_eq!(a.stats().router.received, 0);
 }
