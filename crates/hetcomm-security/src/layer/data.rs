@@ -338,7 +338,7 @@ impl Secured {
             bump(&self.counters.unknown);
             return None;
         };
-        if !(slot.sends_data || slot.sends_acks) {
+        if !slot.connected() {
             // A member of the fleet the table does not connect to this system on this
             // transport: nothing of it is looked at (no session, no handshake started).
             bump(&self.counters.table);

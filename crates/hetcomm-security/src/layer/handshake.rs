@@ -45,7 +45,7 @@ impl Secured {
     /// response. Called periodically (real time only).
     pub(super) fn upkeep(&self) {
         let Some(below) = self.below() else { return };
-        for (&peer, slot) in &self.peers {
+        for (&peer, slot) in self.connected() {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
             if st.flushing {
                 continue;
@@ -123,7 +123,7 @@ impl Secured {
             bump(&self.counters.auth);
             return;
         }
-        if !(slot.sends_data || slot.sends_acks) {
+        if !slot.connected() {
             bump(&self.counters.table);
             return;
         }

@@ -155,6 +155,13 @@ struct PeerState {
     last_trigger: Option<Instant>,
 }
 
+impl PeerSlot {
+    /// Whether the table connects this peer to us on this transport, either way.
+    fn connected(&self) -> bool {
+        self.sends_data || self.sends_acks
+    }
+}
+
 impl PeerState {
     fn session(&self, index: u32) -> Option<Arc<Session>> {
         [&self.current, &self.previous]
@@ -217,9 +224,8 @@ impl Secured {
 
     /// Frames waiting for a handshake (or leaving after one), over every peer.
     fn queued_frames(&self) -> usize {
-        self.peers
-            .values()
-            .map(|p| {
+        self.connected()
+            .map(|(_, p)| {
                 let st = p.state.lock().unwrap_or_else(|e| e.into_inner());
                 st.queue.len() + usize::from(st.flushing)
             })
@@ -227,9 +233,8 @@ impl Secured {
     }
 
     fn queued_bytes(&self) -> usize {
-        self.peers
-            .values()
-            .map(|p| {
+        self.connected()
+            .map(|(_, p)| {
                 let held = p
                     .held
                     .lock()
@@ -248,7 +253,7 @@ impl Secured {
     /// Sends every peer's held frames; the first error is returned.
     fn flush_held(&self, below: &dyn Link) -> Result<(), LinkError> {
         let mut first = Ok(());
-        for (&to, slot) in &self.peers {
+        for (&to, slot) in self.connected() {
             let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
             if let Err(e) = self.send_held_batch(below, to, slot, &mut h) {
                 if first.is_ok() {
@@ -257,6 +262,13 @@ impl Secured {
             }
         }
         first
+    }
+
+    /// The peers the table connects to this system on this transport: only they have
+    /// frames held, queued or in handshakes (the others' slots only tell members from
+    /// strangers).
+    fn connected(&self) -> impl Iterator<Item = (&SystemId, &PeerSlot)> {
+        self.peers.iter().filter(|(_, p)| p.connected())
     }
 
     fn below(&self) -> Option<Arc<dyn Link>> {
