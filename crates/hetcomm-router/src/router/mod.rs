@@ -378,6 +378,13 @@ impl<T> Router<T> {
         self.pending.get(&id).map(|p| p.attempts)
     }
 
+    /// Whether the frame of send `id` just polled repeats an offer the link refused for want
+    /// of a secure session ([`TransmitError::NoSession`]): the same attempt again, which an
+    /// observer has seen already.
+    pub fn repeats_refused_offer(&self, id: SendId) -> bool {
+        self.pending.get(&id).is_some_and(|p| p.session_waits > 0)
+    }
+
     /// The smoothed round-trip time to `to` on its active path, once measured.
     pub fn srtt(&self, to: SystemId) -> Option<Duration> {
         let r = self.routes.get(&to)?;
