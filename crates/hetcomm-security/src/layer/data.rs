@@ -209,7 +209,7 @@ impl Secured {
             st.queue.push_back(frame);
             return Ok(());
         }
-        if requests_ack(head) {
+        if requests_ack(head, body) {
             return self.refuse(below, to, slot, st);
         }
         // Wait for the handshake; start (or restart) it if needed.
@@ -561,13 +561,13 @@ impl Secured {
     }
 }
 
-/// Whether `frame` (a router frame, or its header) is a data frame that requests an
-/// acknowledgement.
-fn requests_ack(frame: &[u8]) -> bool {
-    frame.len() > 4
-        && frame[0..2] == hetcomm_core::wire::MAGIC
-        && frame[3] == 0
-        && frame[4] & hetcomm_core::wire::FLAG_ACK_REQUESTED != 0
+/// Whether the frame `head` + `body` is a data frame that requests an acknowledgement.
+fn requests_ack(head: &[u8], body: &[u8]) -> bool {
+    let at = |i: usize| head.get(i).or_else(|| body.get(i - head.len())).copied();
+    at(0) == Some(hetcomm_core::wire::MAGIC[0])
+        && at(1) == Some(hetcomm_core::wire::MAGIC[1])
+        && at(3) == Some(0)
+        && at(4).is_some_and(|f| f & hetcomm_core::wire::FLAG_ACK_REQUESTED != 0)
 }
 
 /// Where a handshake that started at `since` stands, for a frame refused meanwhile.
