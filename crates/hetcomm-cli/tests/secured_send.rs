@@ -280,6 +280,7 @@ fn key_errors_say_each_thing_once_and_where() {
         err.contains(&format!("chmod 600 {}", key.display())),
         "{err}"
     );
+    assert_eq!(err.matches("chmod 600").count(), 1, "{err}");
 
     std::fs::remove_file(&key).unwrap();
     let err = open_error(&fleet, deadline).join("\n");

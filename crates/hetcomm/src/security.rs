@@ -271,10 +271,10 @@ fn private_key_for(
     let load = |path: PathBuf, from: String| {
         PrivateKey::load(&path).map_err(|e| {
             let fix = match &e {
-                KeyError::TooOpen { path, .. } => format!(
-                    "run `chmod 600 {}`: a private key must be readable by its owner only",
-                    path.display()
-                ),
+                // The error already says which chmod to run.
+                KeyError::TooOpen { .. } => {
+                    "make it readable by its owner only, as `hetcomm keygen` wrote it".to_string()
+                }
                 _ => format!("point it at the `{name}.key` file `hetcomm keygen` wrote for {name}"),
             };
             SecurityError {
