@@ -14,7 +14,8 @@
 //! Checked after every step:
 //! - no panic;
 //! - every frame fed has exactly the outcome the model predicts from the document's order of
-//!   checks (prefix → receiver → known sender → session index → authentication → replay
+//!   checks (prefix → receiver → known sender → sender the table connects → session index →
+//!   authentication → replay
 //!   window → inner source / destination / table; a data batch, type 4, like a data message):
 //!   one refusal counter up by exactly one, or
 //!   the inner frame handed up once (labelled with the authenticated sender), or a handshake
@@ -352,6 +353,10 @@ impl Run {
         if !self.known.contains(&sender) {
             return Refused("rejected_unknown_sender");
         }
+        // A member the table does not connect is refused before anything is opened.
+        if !self.may_talk(sender) {
+            return Refused("rejected_table");
+        }
         match b[3] {
             // A data batch (type 4) is checked as a data message up to its authentication;
             // the target seals none, so none of them authenticates.
@@ -359,9 +364,6 @@ impl Run {
             1 => {
                 if self.in_memory {
                     return Refused("rejected_auth");
-                }
-                if !self.may_talk(sender) {
-                    return Refused("rejected_table");
                 }
                 let key = (sender, b.get(12..).unwrap_or_default().to_vec());
                 let Some(rec) = self.inits.get(&key).filter(|_| b.len() >= 12) else {
@@ -609,7 +611,12 @@ impl Run {
             pm.taken = true;
             self.stats.handshakes += 1;
         }
-        pm.out.push_back(inner.clone());
+        // Without a session, a frame that wants an acknowledgement is refused, not held (the
+        // layer starts the handshake).
+        let refused = pm.current.is_none() && !self.in_memory && requests_ack(&inner);
+        if !refused {
+            pm.out.push_back(inner.clone());
+        }
         let r = match how % 3 {
             0 => self.link.send(p, &inner),
             1 => {
@@ -623,11 +630,26 @@ impl Run {
                 .send_held(p, &inner)
                 .and_then(|()| self.link.flush()),
         };
-        r.expect("the layer takes the frame");
+        if refused {
+            assert!(
+                matches!(r, Err(LinkError::NoSession { peer, .. }) if peer == p),
+                "{r:?}"
+            );
+        } else {
+            r.expect("the layer takes the frame");
+        }
         assert_eq!(self.link.stats().security, self.stats);
         let sent = self.take_sent();
         self.check_sent(sent);
     }
+}
+
+/// Whether `frame` is a data frame that requests an acknowledgement (as the layer reads it).
+fn requests_ack(frame: &[u8]) -> bool {
+    frame.len() > 4
+        && frame[..2] == wire::MAGIC
+        && frame[3] == 0
+        && frame[4] & wire::FLAG_ACK_REQUESTED != 0
 }
 
 /// `HETCOMM_FUZZ_VERBOSE=1`: print each frame's expected outcome (to see what a corpus reaches).

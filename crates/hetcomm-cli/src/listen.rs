@@ -182,7 +182,21 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     if let Some(why) = stopped {
         eprintln!("{why}");
     }
-    eprintln!("{}", summary(seen, &comm.stats()));
+    let stats = comm.stats();
+    // What moved since the last look (up to a second ago) gets its status line too, so the
+    // last moments before the end read like the rest.
+    let drops = Drops::of(&stats);
+    if drops != shown {
+        let at = clock.format(Time::now_wall());
+        if args.verbose {
+            for line in drops.changes_since(&shown) {
+                eprintln!("{at}  {line}");
+            }
+        } else {
+            eprintln!("{at}  {}", drops.status(seen));
+        }
+    }
+    eprintln!("{}", summary(seen, &stats));
     Ok(())
 }
 
@@ -247,11 +261,31 @@ fn summary(seen: usize, s: &SystemStats) -> String {
     if let Some(k) = d.kernel {
         line.push_str(&format!("; kernel dropped {k}"));
     }
+    if d.security.enabled {
+        let counters: Vec<String> = security_counters(&d.security)
+            .iter()
+            .map(|(name, n)| format!("{name} {n}"))
+            .collect();
+        line.push_str(&format!("; security: {}", counters.join(", ")));
+    }
     line
 }
 
+/// The security layer's counters by name, as docs/security.md lists them.
+fn security_counters(sec: &hetcomm::SecurityStats) -> [(&'static str, u64); 7] {
+    [
+        ("rejected_auth", sec.rejected_auth),
+        ("rejected_replay", sec.rejected_replay),
+        ("rejected_table", sec.rejected_table),
+        ("rejected_unknown_sender", sec.rejected_unknown_sender),
+        ("rejected_no_session", sec.rejected_no_session),
+        ("handshake_timeouts", sec.handshake_timeouts),
+        ("handshakes", sec.handshakes),
+    ]
+}
+
 /// Everything this system threw away (or, for duplicates, did not deliver twice), from its
-/// counters.
+/// counters, and the sessions its security layers made.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct Drops {
     malformed: u64,
@@ -290,13 +324,17 @@ impl Drops {
                 sum.rejected_unknown_sender += x.rejected_unknown_sender;
                 sum.rejected_no_session += x.rejected_no_session;
                 sum.handshake_timeouts += x.handshake_timeouts;
+                sum.handshakes += x.handshakes;
+                sum.enabled |= x.enabled;
                 sum
             }),
         }
     }
 
-    /// Each counter with its label, in the order they are printed.
-    fn labelled(&self) -> [(&'static str, u64); 14] {
+    /// Each counter with its label, in the order they are printed. The security layer's are
+    /// labelled with their names (`LinkStats::security`, docs/security.md's table), so a
+    /// reader can look them up.
+    fn labelled(&self) -> [(&'static str, u64); 15] {
         let sec = &self.security;
         [
             ("malformed", self.malformed),
@@ -307,13 +345,12 @@ impl Drops {
             ("inbox full", self.inbox),
             ("dropped by links", self.links),
             ("dropped by the kernel", self.kernel.unwrap_or(0)),
-            ("failed authentication", sec.rejected_auth),
-            ("replayed", sec.rejected_replay),
-            ("refused by the table", sec.rejected_table),
-            ("from unknown systems", sec.rejected_unknown_sender),
-            ("for no session", sec.rejected_no_session),
-            ("handshake timed out", sec.handshake_timeouts),
         ]
+        .into_iter()
+        .chain(security_counters(sec))
+        .collect::<Vec<_>>()
+        .try_into()
+        .expect("8 drop counters and 7 security counters")
     }
 
     /// The status line: the messages printed so far and every counter that is not zero.

@@ -134,6 +134,16 @@ fn hint(
             "nothing acknowledged it: is `{destination}` running, e.g. `hetcomm listen {} --as {destination}`?",
             path.display()
         )),
+        // Only the handshake left. A receiver that refuses a key or a pair does not answer
+        // (an answer could not be authenticated), so the sender cannot tell it from one that
+        // is not running: name both.
+        Outcome::Failed {
+            reason: FailReason::NoSession(_),
+            ..
+        } => Some(format!(
+            "`{destination}` did not answer the security handshake, so the message was not sent: either it is not running (`hetcomm listen {} --as {destination}`), or it refuses `{from}`'s key or this pair (its listener counts them as rejected_auth, rejected_unknown_sender or rejected_table); check that both sides use the same fleet file and keys",
+            path.display()
+        )),
         Outcome::Failed {
             reason: FailReason::Unreachable(_),
             ..

@@ -90,7 +90,7 @@ fn delivered_across_processes(kind: &str) {
     assert!(
         counters.starts_with("received 1 message; router: 1 received, ")
             && counters.contains(" 0 malformed, 0 unknown origin, 0 misrouted")
-            && counters.ends_with("; links dropped 0"),
+            && counters.contains("; links dropped 0; security: rejected_auth 0, "),
         "{counters}"
     );
 }

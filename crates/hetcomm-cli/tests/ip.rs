@@ -41,7 +41,7 @@ fn delivery_across_processes(kind: &str) {
     assert_eq!(status.code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
-        "received 1 message; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0"
+        "received 1 message; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; security: rejected_auth 0, rejected_replay 0, rejected_table 0, rejected_unknown_sender 0, rejected_no_session 0, handshake_timeouts 0, handshakes 1"
     );
 }
 

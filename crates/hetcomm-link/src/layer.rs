@@ -275,6 +275,11 @@ macro_rules! forward_sink {
                 }
             });
         });
+        $crate::__if_named!(on_peer_up [$($n)*] {} {
+            fn on_peer_up(&self, peer: $crate::__core::SystemId) {
+                $crate::FrameSink::on_peer_up(&self.$($field).+, peer)
+            }
+        });
         $crate::__if_named!(takes_frames [$($n)*] {} {
             $crate::__if_named!(on_frame [$($n)*] {
                 fn takes_frames(&self) -> bool {

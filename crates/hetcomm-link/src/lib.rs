@@ -97,6 +97,13 @@ pub trait FrameSink: Send + Sync + 'static {
     fn takes_frames(&self) -> bool {
         false
     }
+
+    /// The link can now carry frames to `peer` that it refused before for want of a session
+    /// ([`LinkError::NoSession`]: a security layer completed its handshake). The system's sink
+    /// sends what waited at once instead of at its retry deadline. The default ignores it.
+    fn on_peer_up(&self, peer: SystemId) {
+        let _ = peer;
+    }
 }
 
 /// Why a link could not take a frame.
@@ -125,6 +132,16 @@ pub enum LinkError {
         /// The destination system.
         peer: SystemId,
         /// What is full.
+        reason: String,
+    },
+    /// The frame was not sent, and will not be: the link needs a session with the peer
+    /// first (a security handshake) and has none yet. The handshake has been started; a
+    /// later attempt goes out once it completes. Nothing of the frame left this system.
+    #[error("no secure session with {peer}: {reason}")]
+    NoSession {
+        /// The destination system.
+        peer: SystemId,
+        /// Where the handshake stands, e.g. "the handshake has not been answered".
         reason: String,
     },
     /// The link was closed.
@@ -267,7 +284,9 @@ pub struct SecurityStats {
     pub rejected_replay: u64,
     /// Authentic frames the communication table does not allow on this transport (an `X`
     /// pair or a pair on another transport), or whose inner header claims another origin or
-    /// destination than the authenticated ones.
+    /// destination than the authenticated ones; and any frame or handshake from a member of
+    /// the fleet that the table does not connect to this system on this transport (refused
+    /// before it is opened), or addressed to another system.
     pub rejected_table: u64,
     /// Frames or handshakes from a system that is not in the fleet or has no public key.
     pub rejected_unknown_sender: u64,
@@ -541,5 +560,8 @@ impl<S: FrameSink + ?Sized> FrameSink for Arc<S> {
     }
     fn takes_frames(&self) -> bool {
         (**self).takes_frames()
+    }
+    fn on_peer_up(&self, peer: SystemId) {
+        (**self).on_peer_up(peer)
     }
 }

@@ -84,6 +84,90 @@ fn a_send_whose_every_attempt_the_link_refused_failed() {
 }
 
 #[test]
+fn a_send_that_never_had_a_session_failed_and_waited_a_round_trip_between_attempts() {
+    // A secured link with no session sends nothing of the frame (only its handshake): the
+    // message certainly did not arrive. The handshake takes a round trip, so the retries
+    // wait as for an acknowledgement, not the link's short back-off.
+    let (mut a, _) = pair(3);
+    a.send(Time::ZERO, request(b"x"), 0).unwrap();
+    let mut times = Vec::new();
+    let mut now = Time::from_micros(1);
+    let mut out = Vec::new();
+    loop {
+        while let Some(tx) = a.poll_transmit(now) {
+            times.push(now);
+            let err =
+                TransmitError::NoSession("no secure session with B: handshake unanswered".into());
+            a.transmit_result(now, tx, Err(err));
+        }
+        while let Some(Event::Outcome { outcome, .. }) = a.poll_event() {
+            out.push(outcome);
+        }
+        match a.poll_timeout() {
+            Some(t) => {
+                now = t;
+                a.handle_timeout(now);
+            }
+            None => break,
+        }
+    }
+    assert_eq!(
+        out,
+        [Outcome::Failed {
+            reason: FailReason::NoSession("no secure session with B: handshake unanswered".into()),
+            attempts: 3
+        }]
+    );
+    assert_eq!(
+        out[0].to_string(),
+        "failed: no secure session with B: handshake unanswered (attempts: 3)"
+    );
+    let gaps: Vec<u64> = times
+        .windows(2)
+        .map(|w| w[1].as_micros() - w[0].as_micros())
+        .collect();
+    // The initial retransmission timeout (100 ms), backed off.
+    assert_eq!(gaps, [100_000, 200_000], "{times:?}");
+    // The path stays up: the handshake runs on it.
+    assert!(a.paths(B).iter().all(|p| p.up));
+    assert_eq!((a.stats().failed, a.stats().unconfirmed), (1, 0));
+}
+
+#[test]
+fn a_frame_that_waited_for_a_session_goes_when_it_is_up_and_is_not_counted_as_an_attempt() {
+    let (mut a, _) = pair(3);
+    let id = a.send(Time::ZERO, request(b"x"), 0).unwrap();
+    let t0 = Time::from_micros(1);
+    let tx = a.poll_transmit(t0).expect("the first offer");
+    a.transmit_result(
+        t0,
+        tx,
+        Err(TransmitError::NoSession("handshake just started".into())),
+    );
+    assert!(a.poll_transmit(t0).is_none(), "waits for the session");
+    // The handshake completes 300 µs later, long before the retry deadline.
+    let up = Time::from_micros(301);
+    a.handle_link_event(up, LinkEvent::PeerUp { link: 0, peer: B });
+    let tx = a
+        .poll_transmit(up)
+        .expect("sent as soon as the session is up");
+    assert_eq!(a.attempts(id), Some(1), "the wait is not an attempt");
+    a.transmit_result(up, tx, Ok(()));
+    // Nothing acknowledges it: three transmissions, then unconfirmed (a frame left).
+    let out = drive_alone(&mut a, |_| Ok(()));
+    assert!(
+        matches!(
+            out.as_slice(),
+            [Outcome::Unconfirmed {
+                reason: FailReason::NoAcknowledgement,
+                attempts: 3
+            }]
+        ),
+        "{out:?}"
+    );
+}
+
+#[test]
 fn a_send_whose_frames_left_without_an_acknowledgement_is_unconfirmed() {
     let (mut a, _) = pair(2);
     a.send(Time::ZERO, request(b"x"), 0).unwrap();

@@ -63,6 +63,11 @@ impl Session {
             .seal_batch(out, (local, peer), self.peer_index, counter, records);
     }
 
+    /// How many frames (data messages and batches) were sealed in this session so far.
+    pub fn sealed(&self) -> u64 {
+        self.counter.load(Ordering::Relaxed)
+    }
+
     /// Decrypts a data frame in place. False if it does not authenticate.
     pub fn open(&self, frame: &mut [u8]) -> bool {
         self.recv.open(frame)

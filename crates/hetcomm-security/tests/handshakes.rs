@@ -104,13 +104,16 @@ impl Link for Pipe {
     }
 }
 
-/// What a node's layer hands its router.
+/// What a node's layer hands its router, and the peers it said are up.
 #[derive(Default)]
-struct Router(Mutex<Vec<Vec<u8>>>);
+struct Router(Mutex<Vec<Vec<u8>>>, Mutex<Vec<SystemId>>);
 
 impl FrameSink for Router {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
         self.0.lock().unwrap().push(frame.to_vec());
+    }
+    fn on_peer_up(&self, peer: SystemId) {
+        self.1.lock().unwrap().push(peer);
     }
 }
 
@@ -151,12 +154,18 @@ impl Node {
 
     /// A data frame numbered `seq` to the peer.
     fn frame(&self, seq: u64) -> Vec<u8> {
+        self.frame_with(seq, 0)
+    }
+
+    /// A data frame numbered `seq` to the peer, with header `flags`.
+    fn frame_with(&self, seq: u64, flags: u8) -> Vec<u8> {
         let at = |system| Address {
             system,
             module: ModuleId(0),
         };
         let mut h = Header::data(at(self.local), at(self.peer), MessageType(1));
         h.seq = seq;
+        h.flags = flags;
         wire::encode(&h, b"x")
     }
 
@@ -305,4 +314,60 @@ fn held_frames_leave_as_one_data_batch() {
     net.run();
     assert_eq!(b.got(), [1, 2, 3, 4, 5, 6, 7, 8, 9]);
     assert_eq!(b.link.stats().security.rejected(), 1);
+}
+
+/// Without a session, a frame that wants an acknowledgement is refused (nothing of it leaves:
+/// only the initiation), however it is handed over, while an unacknowledged one waits for the
+/// handshake. When the session is up the layer says so (`on_peer_up`), and the refused frame,
+/// offered again, goes sealed. Nothing else is sent: the waiting frame confirmed the session.
+#[test]
+fn a_frame_that_wants_an_acknowledgement_is_refused_until_the_session_is_up() {
+    let (net, keys) = (Arc::new(Net::default()), keys());
+    let a = Node::open(&net, &keys, A);
+    let b = Node::open(&net, &keys, B);
+    let acked = a.frame_with(1, wire::FLAG_ACK_REQUESTED);
+    let err = a.link.send(B, &acked).unwrap_err();
+    assert!(
+        matches!(&err, LinkError::NoSession { peer, reason } if *peer == B && reason.starts_with("handshake just started")),
+        "{err:?}"
+    );
+    // Split anywhere, held for a batch: refused the same way.
+    assert!(matches!(
+        a.link.send_parts(B, &acked[..3], &acked[3..]),
+        Err(LinkError::NoSession { .. })
+    ));
+    assert!(matches!(
+        a.link.send_held(B, &acked),
+        Err(LinkError::NoSession { .. })
+    ));
+    a.send(2); // unacknowledged: waits
+    let kinds: Vec<u8> = net
+        .queue
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|(_, f)| f[3])
+        .collect();
+    assert_eq!(kinds, [1], "only A's initiation left");
+    assert!(a.router.1.lock().unwrap().is_empty());
+    net.run_until_kind(2);
+    let (_, response) = net.take(2).expect("B's response");
+    net.deliver(A, &response);
+    assert_eq!(
+        *a.router.1.lock().unwrap(),
+        [B],
+        "A's router told the session is up"
+    );
+    a.link.send(B, &acked).expect("sealed in the session now");
+    net.run();
+    assert_eq!(
+        b.got(),
+        [2, 1],
+        "the waiting frame, then the refused one offered again"
+    );
+    assert_eq!(
+        *b.router.1.lock().unwrap(),
+        [A],
+        "B's router told too, on confirmation"
+    );
 }

@@ -156,6 +156,10 @@ pub(crate) fn layer(
         .map(|((_, d), _)| *d)
         .collect();
     let talks_to: HashSet<SystemId> = data_from.union(&acks_from).copied().collect();
+    // The layer knows every member's key, not only those the table connects to this system:
+    // a member the table keeps away is then told from a stranger (`rejected_table`, not
+    // `rejected_unknown_sender`), and refused before any handshake work.
+    let members = || fleet.systems.iter().map(|s| s.id).filter(|&p| p != local);
     let name = |id: SystemId| {
         fleet
             .system(id)
@@ -168,9 +172,8 @@ pub(crate) fn layer(
                 problem: format!("no simulated key for system {}", name(local)),
                 fix: "report this as a bug".into(),
             })?;
-            let peers = talks_to
-                .iter()
-                .filter_map(|&p| sim.keypair(p).map(|k| (p, k.public)))
+            let peers = members()
+                .filter_map(|p| sim.keypair(p).map(|k| (p, k.public)))
                 .collect();
             (keypair, peers, Handshakes::InMemory(sim.clone()))
         }
@@ -186,7 +189,7 @@ pub(crate) fn layer(
                 }
             }
             let keypair = store[&local].clone();
-            let peers = talks_to.iter().map(|&p| (p, store[&p].public)).collect();
+            let peers = members().map(|p| (p, store[&p].public)).collect();
             (keypair, peers, Handshakes::OverTheLink)
         }
         KeySource::Fleet { private_key } => {
@@ -232,9 +235,8 @@ pub(crate) fn layer(
                     ),
                 });
             }
-            let peers = talks_to
-                .iter()
-                .filter_map(|&p| {
+            let peers = members()
+                .filter_map(|p| {
                     fleet
                         .system(p)
                         .and_then(|s| s.public_key)
@@ -264,27 +266,54 @@ fn private_key_for(
     if let Some(key) = given {
         return Ok(key.clone());
     }
-    let load = |path: PathBuf, from: &str| {
-        PrivateKey::load(&path).map_err(|e| SecurityError {
-            problem: format!("cannot read the private key ({from}): {e}"),
-            fix: "point it at the `.key` file `hetcomm keygen` wrote for this system".into(),
+    let system = fleet.system(local);
+    let name = system.map(|s| s.name.as_str()).unwrap_or("?");
+    let load = |path: PathBuf, from: String| {
+        PrivateKey::load(&path).map_err(|e| {
+            let fix = match &e {
+                // The error already says which chmod to run.
+                KeyError::TooOpen { .. } => {
+                    "make it readable by its owner only, as `hetcomm keygen` wrote it".to_string()
+                }
+                _ => format!("point it at the `{name}.key` file `hetcomm keygen` wrote for {name}"),
+            };
+            SecurityError {
+                problem: format!("cannot read the private key of {name} ({from}): {e}"),
+                fix,
+            }
         })
     };
     if let Some(path) = std::env::var_os(PRIVATE_KEY_ENV) {
-        return load(PathBuf::from(path), PRIVATE_KEY_ENV);
+        return load(PathBuf::from(path), format!("from {PRIVATE_KEY_ENV}"));
     }
-    let system = fleet.system(local);
+    // Where a key from the keys directory would be: the fleet file's `[security] keys`, or
+    // `--keys` (either sets `keys_dir`).
+    let in_dir = fleet
+        .keys_dir
+        .as_ref()
+        .map(|d| d.join(format!("{name}.key")));
     match system.and_then(|s| s.private_key_file.clone()) {
-        Some(path) => load(path, "the fleet file's private_key_file"),
-        None => Err(SecurityError {
-            problem: format!(
-                "transport `{transport}` is secured but this process has no private key for system {}",
-                system.map(|s| s.name.as_str()).unwrap_or("?")
-            ),
-            fix: format!(
-                "put its `.key` file in the fleet's keys directory, set `private_key_file` for the system, set {PRIVATE_KEY_ENV}=<path>, or pass the key through the API (OpenOptions::private_key)"
-            ),
-        }),
+        Some(path) if in_dir.as_ref() == Some(&path) => {
+            load(path, "found in the fleet's keys directory".into())
+        }
+        Some(path) => load(
+            path,
+            format!("the fleet file's `private_key_file` for {name}"),
+        ),
+        None => {
+            let looked = match &in_dir {
+                Some(p) => format!("there is no {}, ", p.display()),
+                None => "the fleet names no keys directory, ".into(),
+            };
+            Err(SecurityError {
+                problem: format!(
+                    "transport `{transport}` is secured but this process has no private key for system {name}: {looked}no `private_key_file` for {name}, and {PRIVATE_KEY_ENV} is not set"
+                ),
+                fix: format!(
+                    "put {name}'s `.key` file there (`hetcomm keygen` writes `{name}.key`), set `private_key_file` for {name}, set {PRIVATE_KEY_ENV}=<path>, or pass the key through the API (OpenOptions::private_key)"
+                ),
+            })
+        }
     }
 }
 

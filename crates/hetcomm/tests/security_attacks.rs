@@ -21,7 +21,7 @@ use common::attack::{
     TABLE,
 };
 use hetcomm::observe::{Observer, SendRecord};
-use hetcomm::{Comm, MessageType, Module, Outcome, SecurityStats, SendOptions};
+use hetcomm::{Comm, FailReason, MessageType, Module, Outcome, SecurityStats, SendOptions};
 
 #[cfg(feature = "ros1")]
 #[path = "../../hetcomm-link-ros1/tests/common/mod.rs"]
@@ -347,6 +347,52 @@ fn x_pair(kind: &Kind) {
     w.exchange(2);
 }
 
+/// A and C are `X` both ways, so A does not even answer C's handshake. C, holding its real
+/// key, with its own copy of the fleet file edited to allow C → A, is refused by A's table
+/// (C is a member with a valid key, not a stranger), and, since only its handshakes left, C
+/// is told its send failed, not that it may have arrived.
+fn x_pair_both_ways(kind: &Kind) {
+    let setup = Setup::new(kind.clone());
+    let a = setup.open("A", &[]);
+    let before = rejected(&security(&a));
+    let rows = [TABLE[0], TABLE[1], r#"C = ["t", "X", "X"]"#];
+    let c = open_retrying(&setup.fleet_for("C", &[], rows), "C");
+    let outcome = c
+        .module("Plan")
+        .unwrap()
+        .send_raw(
+            "A",
+            "Act",
+            MessageType(1),
+            b"from C",
+            SendOptions::default(),
+        )
+        .expect("C's edited table allows the send")
+        .wait_timeout(WAIT)
+        .expect("an outcome");
+    // What A counted first: that is the point of this test.
+    let s = security(&a);
+    let (auth, replay, table, unknown, no_session) = minus(rejected(&s), before);
+    assert!(
+        table >= 1,
+        "C's handshakes are the table's to refuse: {s:?}"
+    );
+    assert_eq!((auth, replay, unknown, no_session), (0, 0, 0, 0), "{s:?}");
+    assert_eq!(s.handshakes, 0, "{s:?}");
+    assert!(
+        matches!(
+            &outcome,
+            Outcome::Failed {
+                reason: FailReason::NoSession(why),
+                attempts: ATTEMPTS,
+            } if why.starts_with("no secure session with A: handshake ")
+        ),
+        "C's send: {outcome:?}"
+    );
+    assert!(a.module("Act").unwrap().try_recv_raw().is_none());
+    assert_eq!(a.stats().router.received, 0);
+}
+
 /// B is not running; an attacker in its place answers A's handshake with a forged response
 /// and A's message with a forged acknowledgement that carries the right incarnation and
 /// sequence number (leaked to it: the worst case). A never reports "delivered".
@@ -384,8 +430,16 @@ fn forged_ack(kind: &Kind) {
         ],
     );
     let outcome = ticket.wait_timeout(WAIT).expect("an outcome");
+    // Only A's handshakes left (the layer sends no data frame before a session exists), so
+    // the message certainly did not arrive.
     assert!(
-        matches!(outcome, Outcome::Unconfirmed { .. }),
+        matches!(
+            outcome,
+            Outcome::Failed {
+                reason: FailReason::NoSession(_),
+                ..
+            }
+        ),
         "A's send to a B that is not running: {outcome:?}"
     );
     let s = security(&a);
@@ -597,8 +651,15 @@ fn wrong_key(kind: &Kind) {
         .unwrap()
         .wait_timeout(WAIT)
         .expect("an outcome");
+    // No session, so no data frame left: certainly not delivered.
     assert!(
-        matches!(outcome, Outcome::Unconfirmed { .. }),
+        matches!(
+            outcome,
+            Outcome::Failed {
+                reason: FailReason::NoSession(_),
+                ..
+            }
+        ),
         "{outcome:?}"
     );
     let s = security(&b);
@@ -677,15 +738,15 @@ fn ros1() -> Option<(Kind, Guard)> {
 }
 
 suite!(udp, super::udp;
-    spoofed_source, spoofed_module_priority, x_pair, forged_ack, replay_within_run,
+    spoofed_source, spoofed_module_priority, x_pair, x_pair_both_ways, forged_ack, replay_within_run,
     replay_after_receiver_restart, replay_after_sender_restart, tampered_payload,
     tampered_header, window_poisoning, wrong_key, missing_key);
 suite!(tcp, super::tcp;
-    spoofed_source, spoofed_module_priority, x_pair, forged_ack, replay_within_run,
+    spoofed_source, spoofed_module_priority, x_pair, x_pair_both_ways, forged_ack, replay_within_run,
     replay_after_receiver_restart, replay_after_sender_restart, tampered_payload,
     tampered_header, window_poisoning, hello_impersonation, wrong_key, missing_key);
 #[cfg(feature = "ros1")]
 suite!(ros1, super::ros1;
-    spoofed_source, spoofed_module_priority, x_pair, forged_ack, replay_within_run,
+    spoofed_source, spoofed_module_priority, x_pair, x_pair_both_ways, forged_ack, replay_within_run,
     replay_after_receiver_restart, replay_after_sender_restart, tampered_payload,
     tampered_header, window_poisoning, wrong_key, missing_key);

@@ -591,6 +591,7 @@ fn reason_name(reason: &FailReason) -> String {
         FailReason::NoAcknowledgement => "no-acknowledgement".into(),
         FailReason::Unreachable(_) => "unreachable".into(),
         FailReason::Congested(_) => "congested".into(),
+        FailReason::NoSession(_) => "no-session".into(),
         FailReason::InboxFull => "inbox-full".into(),
         FailReason::UnknownModule => "unknown-module".into(),
         FailReason::Link(_) => "link".into(),

@@ -68,8 +68,8 @@ impl Outcome {
         self.inner.reason().map(|r| r.to_string())
     }
     /// Why it failed or went unconfirmed, as a short code: "no_acknowledgement",
-    /// "unreachable", "congested", "inbox_full", "unknown_module", "link", "backpressure",
-    /// "shutdown".
+    /// "unreachable", "congested", "no_session", "inbox_full", "unknown_module", "link",
+    /// "backpressure", "shutdown".
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
         self.inner.reason().map(|reason| match reason {
@@ -80,6 +80,7 @@ impl Outcome {
             FailReason::Link(_) => "link",
             FailReason::Backpressure => "backpressure",
             FailReason::Congested(_) => "congested",
+            FailReason::NoSession(_) => "no_session",
             FailReason::Shutdown => "shutdown",
             _ => "other",
         })

@@ -152,6 +152,8 @@ impl<T> Router<T> {
                     frame: None,
                     attempts: 0,
                     transmitted: false,
+                    session_waits: 0,
+                    offered: Time::ZERO,
                     first_sent: None,
                     deadline: None,
                     broadcast: Some(b),

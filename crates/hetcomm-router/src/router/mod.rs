@@ -53,7 +53,14 @@ struct Pending<T> {
     /// Whether any attempt left this system (the link took the frame): from then on, giving up
     /// is [`Outcome::Unconfirmed`], never [`Outcome::Failed`].
     transmitted: bool,
+    /// Offers of this send's frame that the link refused for want of a secure session, in a
+    /// row ([`TransmitError::NoSession`]). They are not counted in `attempts` (nothing was
+    /// put on the wire: the frame waited for a handshake), but bounded by the same budget;
+    /// while non-zero, the session coming up ([`LinkEvent::PeerUp`]) sends the frame at once.
+    session_waits: u32,
     first_sent: Option<Time>,
+    /// When its frame was last handed out for transmission.
+    offered: Time,
     /// When to retransmit (acknowledged sends that are on the wire).
     deadline: Option<Time>,
     /// For one destination's share of a native broadcast: the broadcast's sequence number.
@@ -227,6 +234,8 @@ pub struct Router<T> {
     link_checks_payload: Vec<bool>,
     /// Frame buffers of ended sends, reused by the next sends (see [`SPARE_FRAMES`]).
     spare_frames: Vec<Vec<u8>>,
+    /// When a link last reported a secure session with each peer up ([`LinkEvent::PeerUp`]).
+    session_up_at: HashMap<SystemId, Time>,
 }
 
 /// How many buffers of ended sends a router keeps for reuse: a sender that keeps sending
@@ -290,6 +299,7 @@ impl<T> Router<T> {
             stats: RouterStats::default(),
             link_checks_payload: Vec::new(),
             spare_frames: Vec::new(),
+            session_up_at: HashMap::default(),
         }
     }
 
@@ -366,6 +376,13 @@ impl<T> Router<T> {
             return self.broadcasts.contains_key(&id.wire_seq()).then_some(1);
         }
         self.pending.get(&id).map(|p| p.attempts)
+    }
+
+    /// Whether the frame of send `id` just polled repeats an offer the link refused for want
+    /// of a secure session ([`TransmitError::NoSession`]): the same attempt again, which an
+    /// observer has seen already.
+    pub fn repeats_refused_offer(&self, id: SendId) -> bool {
+        self.pending.get(&id).is_some_and(|p| p.session_waits > 0)
     }
 
     /// The smoothed round-trip time to `to` on its active path, once measured.

@@ -17,7 +17,10 @@ impl<T> Router<T> {
     /// comes first.
     pub fn handle_link_event(&mut self, now: Time, event: LinkEvent) {
         match event {
-            LinkEvent::PeerUp { link, peer } => self.set_path_health(now, peer, link, true, false),
+            LinkEvent::PeerUp { link, peer } => {
+                self.set_path_health(now, peer, link, true, false);
+                self.session_up(now, peer);
+            }
             LinkEvent::PeerDown { link, peer } => {
                 self.set_path_health(now, peer, link, false, false)
             }
@@ -58,7 +61,10 @@ impl<T> Router<T> {
                 self.set_path_health(now, peer, link, false, false)
             }
             Err(TransmitError::Congested(_)) => self.set_path_health(now, peer, link, true, true),
-            Err(TransmitError::TooLarge(_) | TransmitError::Other(_)) => {}
+            // A missing session says nothing about the path: the handshake runs on it.
+            Err(
+                TransmitError::TooLarge(_) | TransmitError::Other(_) | TransmitError::NoSession(_),
+            ) => {}
         }
     }
 

@@ -54,6 +54,7 @@ impl<T> Router<T> {
                     }
                     p.attempts += 1;
                     p.first_sent.get_or_insert(now);
+                    p.offered = now;
                     self.stats.transmissions += 1;
                     if p.attempts > 1 {
                         self.stats.retransmissions += 1;
@@ -108,6 +109,10 @@ impl<T> Router<T> {
         if result.is_ok() {
             p.transmitted = true;
         }
+        if let Err(err @ TransmitError::NoSession(_)) = result {
+            return self.wait_for_session(now, id, link, err);
+        }
+        p.session_waits = 0;
         match result {
             Ok(()) => {
                 if p.route.acknowledged {
@@ -137,6 +142,58 @@ impl<T> Router<T> {
                     let outcome = p.give_up(err.into());
                     self.finish(id, outcome);
                 }
+            }
+        }
+    }
+
+    /// The link refused an offer of send `id` for want of a secure session: nothing left, the
+    /// frame waits for the handshake. It goes when the session is up ([`Router::session_up`]),
+    /// else after a round trip's wait, while the budget lasts; then the send gives up with
+    /// every offer counted as an attempt.
+    fn wait_for_session(&mut self, now: Time, id: SendId, link: usize, err: TransmitError) {
+        let Some(p) = self.pending.get_mut(&id) else {
+            return;
+        };
+        p.attempts -= 1;
+        p.session_waits += 1;
+        let offers = p.attempts + p.session_waits;
+        if offers >= p.route.attempts {
+            p.attempts = offers;
+            let outcome = p.give_up(err.into());
+            return self.finish(id, outcome);
+        }
+        // The session may have come up between the link's refusal and this report of it (the
+        // handshake's answer is read on another thread): then the frame goes now.
+        let offered = p.offered;
+        let up_since = self
+            .session_up_at
+            .get(&id.to)
+            .is_some_and(|&t| t >= offered);
+        let deadline = if up_since {
+            now
+        } else {
+            now + self.rto_for(id.to, link, offers)
+        };
+        if let Some(p) = self.pending.get_mut(&id) {
+            p.deadline = Some(deadline);
+            self.timers.insert((deadline, Timer::Retransmit(id)));
+        }
+    }
+
+    /// A link now has a secure session with `peer`: sends whose frames waited for it go now
+    /// instead of at their deadlines.
+    pub(super) fn session_up(&mut self, now: Time, peer: SystemId) {
+        self.session_up_at.insert(peer, now);
+        let waiting: Vec<SendId> = self
+            .pending
+            .iter()
+            .filter(|(id, p)| id.to == peer && p.session_waits > 0 && p.deadline.is_some())
+            .map(|(id, _)| *id)
+            .collect();
+        for id in waiting {
+            if let Some(deadline) = self.pending.get_mut(&id).and_then(|p| p.deadline.take()) {
+                self.timers.remove(&(deadline, Timer::Retransmit(id)));
+                self.transmits.push_back(TransmitItem::Send(id));
             }
         }
     }

@@ -59,7 +59,8 @@ pub struct Path {
 /// ([`Router::handle_link_event`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LinkEvent {
-    /// The link can reach `peer` (a connection came up, or frames from it arrived).
+    /// The link can reach `peer` (a connection came up, frames from it arrived, or a secure
+    /// session with it was made): sends waiting for a session with it go at once.
     PeerUp {
         /// Which link.
         link: usize,
@@ -326,6 +327,11 @@ pub enum FailReason {
     /// The destination system does not host that module.
     #[error("destination system has no such module")]
     UnknownModule,
+    /// Nothing of the message left: on every attempt the link had no secure session with the
+    /// peer (its security handshake was not answered). The text names the peer and where the
+    /// handshake stood, e.g. "no secure session with B: handshake unanswered for 0.3 s; …".
+    #[error("{0}")]
+    NoSession(String),
     /// The link refused the frame for another reason.
     #[error("transport error: {0}")]
     Link(String),
@@ -482,6 +488,12 @@ pub enum TransmitError {
     Congested(String),
     /// The frame can never fit (not retried).
     TooLarge(String),
+    /// The link has no secure session with the peer yet and did not send the frame; it has
+    /// started the handshake. The frame goes again when the link reports the session up
+    /// ([`LinkEvent::PeerUp`]), else after a round trip's wait; such offers count as attempts
+    /// only if the send gives up. The path stays up. The text is the whole reason, naming the
+    /// peer.
+    NoSession(String),
     /// Anything else (retried while attempts remain).
     Other(String),
 }
@@ -492,6 +504,7 @@ impl From<TransmitError> for FailReason {
         match err {
             TransmitError::Unreachable(r) => FailReason::Unreachable(r),
             TransmitError::Congested(r) => FailReason::Congested(r),
+            TransmitError::NoSession(r) => FailReason::NoSession(r),
             TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
         }
     }

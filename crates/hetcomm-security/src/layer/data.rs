@@ -42,7 +42,10 @@ impl Secured {
         let limit = caps.mtu.min(BATCH_BYTES).saturating_sub(OVERHEAD);
         let record = RECORD_HEADER + head.len() + body.len();
         let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
-        if held && record <= limit {
+        // A batch starts only in a session (checked once per batch): without one, a frame
+        // that wants an acknowledgement must be refused now, not reported taken and refused
+        // later when its batch leaves.
+        if held && record <= limit && (h.frames > 0 || self.sealing_to(to, slot)) {
             if h.frames > 0 && h.records.len() + record > limit {
                 // Held frames go first. Their failure is counted; the result is this frame's.
                 let _ = self.send_held_batch(below, to, slot, &mut h);
@@ -122,6 +125,13 @@ impl Secured {
         result
     }
 
+    /// Whether frames to `to` are sealed now, rather than waiting for a handshake.
+    fn sealing_to(&self, to: SystemId, slot: &PeerSlot) -> bool {
+        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        self.take_sim_session(to, &mut st);
+        st.sealing()
+    }
+
     /// In a simulation, the session with `to` the first frame to it takes (made in memory).
     fn take_sim_session(&self, to: SystemId, st: &mut PeerState) {
         if st.current.is_none() {
@@ -177,7 +187,10 @@ impl Secured {
     }
 
     /// Queues `head` + `body` for `to` while there is no session (starting the handshake if
-    /// needed), or behind the frames that waited for it while they leave.
+    /// needed), or behind the frames that waited for it while they leave. A data frame that
+    /// requests an acknowledgement is refused instead ([`LinkError::NoSession`]): the router
+    /// keeps it and tries again, so its outcome can say truthfully whether anything left. (A
+    /// queued copy could leave after the router gave up and reported it failed.)
     fn hold(
         &self,
         below: &dyn Link,
@@ -195,6 +208,9 @@ impl Secured {
             st.queued_bytes += frame.len();
             st.queue.push_back(frame);
             return Ok(());
+        }
+        if requests_ack(head, body) {
+            return self.refuse(below, to, slot, st);
         }
         // Wait for the handshake; start (or restart) it if needed.
         if st.queue.len() >= QUEUE_FRAMES || st.queued_bytes + head.len() + body.len() > QUEUE_BYTES
@@ -237,6 +253,41 @@ impl Secured {
             }
         }
         Ok(())
+    }
+
+    /// Refuses a frame to `to` for want of a session: starts the handshake (or restarts one
+    /// that went unanswered) and says where it stands. Nothing of the frame is kept.
+    fn refuse(
+        &self,
+        below: &dyn Link,
+        to: SystemId,
+        slot: &PeerSlot,
+        mut st: std::sync::MutexGuard<'_, PeerState>,
+    ) -> Result<(), LinkError> {
+        // Upkeep retries a handshake nothing is queued for while it was wanted within the
+        // last TRIGGER_INTERVAL: the router's next attempt finds it complete, or still running.
+        st.last_trigger = Some(Instant::now());
+        let stale = st
+            .pending
+            .as_ref()
+            .is_none_or(|(_, at)| at.elapsed() >= HANDSHAKE_RETRY);
+        let init = if stale {
+            self.start_handshake(to, slot, &mut st)
+        } else {
+            None
+        };
+        let reason = unanswered(st.unanswered_since);
+        drop(st);
+        if let Some(init) = init {
+            if let Err(e) = try_send_handshake(below, to, &init) {
+                // The link cannot reach the peer: that is the better reason.
+                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                st.pending = None;
+                st.unanswered_since = None;
+                return Err(e);
+            }
+        }
+        Err(LinkError::NoSession { peer: to, reason })
     }
 
     /// Sends what waited for `peer`'s handshake, now that `session` exists, and what joins
@@ -287,6 +338,12 @@ impl Secured {
             bump(&self.counters.unknown);
             return None;
         };
+        if !slot.connected() {
+            // A member of the fleet the table does not connect to this system on this
+            // transport: nothing of it is looked at (no session, no handshake started).
+            bump(&self.counters.table);
+            return None;
+        }
         Some((prefix, slot))
     }
 
@@ -501,6 +558,28 @@ impl Secured {
         ) {
             inner.deliver(&*self.sink, Peer::System(sender));
         }
+    }
+}
+
+/// Whether the frame `head` + `body` is a data frame that requests an acknowledgement.
+fn requests_ack(head: &[u8], body: &[u8]) -> bool {
+    let at = |i: usize| head.get(i).or_else(|| body.get(i - head.len())).copied();
+    at(0) == Some(hetcomm_core::wire::MAGIC[0])
+        && at(1) == Some(hetcomm_core::wire::MAGIC[1])
+        && at(3) == Some(0)
+        && at(4).is_some_and(|f| f & hetcomm_core::wire::FLAG_ACK_REQUESTED != 0)
+}
+
+/// Where a handshake that started at `since` stands, for a frame refused meanwhile.
+fn unanswered(since: Option<Instant>) -> String {
+    let waited = since.map(|t| t.elapsed()).unwrap_or_default();
+    if waited < std::time::Duration::from_millis(1) {
+        "handshake just started; the frame was not sent".into()
+    } else {
+        format!(
+            "handshake unanswered for {:.1} s; the frame was not sent",
+            waited.as_secs_f64()
+        )
     }
 }
 

@@ -37,6 +37,7 @@ impl Secured {
             .pending
             .replace((pending, Instant::now()))
             .map(|(p, _)| p);
+        st.unanswered_since.get_or_insert_with(Instant::now);
         Some(init)
     }
 
@@ -44,7 +45,7 @@ impl Secured {
     /// response. Called periodically (real time only).
     pub(super) fn upkeep(&self) {
         let Some(below) = self.below() else { return };
-        for (&peer, slot) in &self.peers {
+        for (&peer, slot) in self.connected() {
             let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
             if st.flushing {
                 continue;
@@ -61,6 +62,7 @@ impl Secured {
                 {
                     st.pending = None;
                     st.earlier = None;
+                    st.unanswered_since = None;
                 } else if at.elapsed() >= HANDSHAKE_RETRY {
                     if let Some(init) = self.start_handshake(peer, slot, &mut st) {
                         drop(st);
@@ -79,6 +81,7 @@ impl Secured {
                 st.waiting_since = None;
                 st.pending = None;
                 st.earlier = None;
+                st.unanswered_since = None;
                 self.counters.timeouts.fetch_add(n, Ordering::Relaxed);
                 continue;
             }
@@ -111,6 +114,8 @@ impl Secured {
         st.flushing = true;
         drop(st);
         self.flush_queue(sender, slot, session);
+        // Frames refused for want of this session may go now.
+        self.sink.on_peer_up(sender);
     }
 
     pub(super) fn receive_init(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
@@ -118,7 +123,7 @@ impl Secured {
             bump(&self.counters.auth);
             return;
         }
-        if !(slot.sends_data || slot.sends_acks) {
+        if !slot.connected() {
             bump(&self.counters.table);
             return;
         }
@@ -197,16 +202,23 @@ impl Secured {
         st.pending = None;
         st.earlier = None;
         st.install(session.clone());
-        if st.queue.is_empty() {
-            // Nothing to send: an empty frame tells the responder the session is in use
-            // (receivers hand empty frames to nobody).
-            st.queue.push_back(Vec::new());
-        }
         st.waiting_since = None;
         st.flushing = true;
         drop(st);
         bump(&self.counters.handshakes);
         self.flush_queue(sender, slot, &session);
+        // Frames refused for want of this session go now (the router sends them on this
+        // thread, through this layer).
+        self.sink.on_peer_up(sender);
+        if session.sealed() == 0 {
+            // Nothing to send: an empty frame tells the responder the session is in use
+            // (receivers hand empty frames to nobody).
+            if let Some(below) = self.below() {
+                let mut buf = Vec::new();
+                session.seal(&mut buf, self.policy.local, sender, &[], &[]);
+                let _ = below.send(sender, &buf);
+            }
+        }
     }
 }
 

@@ -37,7 +37,10 @@ pub struct Policy {
     pub local: SystemId,
     /// Its key pair.
     pub keypair: Keypair,
-    /// The public key of every system it may exchange frames with over this transport.
+    /// The public key of every member of the fleet that has one. Frames from a member that
+    /// is in neither `data_from` nor `acks_from` are refused as the table's
+    /// (`rejected_table`), frames from a system not here as unknown
+    /// (`rejected_unknown_sender`).
     pub peers: HashMap<SystemId, PublicKey>,
     /// Systems whose messages (data frames) to `local` the table puts on this transport.
     pub data_from: HashSet<SystemId>,
@@ -144,9 +147,19 @@ struct PeerState {
     flushing: bool,
     queued_bytes: usize,
     waiting_since: Option<Instant>,
+    /// Since when initiations to this peer go unanswered (the first of the series that is
+    /// still running), for the reason a frame refused for want of a session gives.
+    unanswered_since: Option<Instant>,
     /// The newest initiation timestamp accepted from this peer.
     last_init: Option<u64>,
     last_trigger: Option<Instant>,
+}
+
+impl PeerSlot {
+    /// Whether the table connects this peer to us on this transport, either way.
+    fn connected(&self) -> bool {
+        self.sends_data || self.sends_acks
+    }
 }
 
 impl PeerState {
@@ -161,6 +174,13 @@ impl PeerState {
 
     fn install(&mut self, session: Arc<Session>) {
         self.previous = self.current.replace(session);
+        self.unanswered_since = None;
+    }
+
+    /// Whether frames to this peer are sealed now (a session, and nothing that waited for it
+    /// still leaving), rather than waiting for a handshake.
+    fn sealing(&self) -> bool {
+        self.current.is_some() && !self.flushing
     }
 }
 
@@ -204,9 +224,8 @@ impl Secured {
 
     /// Frames waiting for a handshake (or leaving after one), over every peer.
     fn queued_frames(&self) -> usize {
-        self.peers
-            .values()
-            .map(|p| {
+        self.connected()
+            .map(|(_, p)| {
                 let st = p.state.lock().unwrap_or_else(|e| e.into_inner());
                 st.queue.len() + usize::from(st.flushing)
             })
@@ -214,9 +233,8 @@ impl Secured {
     }
 
     fn queued_bytes(&self) -> usize {
-        self.peers
-            .values()
-            .map(|p| {
+        self.connected()
+            .map(|(_, p)| {
                 let held = p
                     .held
                     .lock()
@@ -235,7 +253,7 @@ impl Secured {
     /// Sends every peer's held frames; the first error is returned.
     fn flush_held(&self, below: &dyn Link) -> Result<(), LinkError> {
         let mut first = Ok(());
-        for (&to, slot) in &self.peers {
+        for (&to, slot) in self.connected() {
             let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
             if let Err(e) = self.send_held_batch(below, to, slot, &mut h) {
                 if first.is_ok() {
@@ -244,6 +262,13 @@ impl Secured {
             }
         }
         first
+    }
+
+    /// The peers the table connects to this system on this transport: only they have
+    /// frames held, queued or in handshakes (the others' slots only tell members from
+    /// strangers).
+    fn connected(&self) -> impl Iterator<Item = (&SystemId, &PeerSlot)> {
+        self.peers.iter().filter(|(_, p)| p.connected())
     }
 
     fn below(&self) -> Option<Arc<dyn Link>> {

@@ -58,7 +58,10 @@ impl SystemCore {
             let observed = self.observers.active();
             while let Some(t) = router.poll_transmit(now) {
                 if observed {
-                    attempts.push(t.send.and_then(|id| router.attempts(id)).unwrap_or(0));
+                    // A frame that waited for a secure session was seen when first offered.
+                    let seen = t.send.is_some_and(|id| router.repeats_refused_offer(id));
+                    let attempt = t.send.and_then(|id| router.attempts(id)).unwrap_or(0);
+                    attempts.push(if seen { 0 } else { attempt });
                     if t.to == TO_ALL_SYSTEM {
                         let b = t.send.map_or(0, |id| id.wire_seq());
                         broadcast_dests.push(router.broadcast_destinations(b));

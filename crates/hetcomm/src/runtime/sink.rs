@@ -58,4 +58,12 @@ impl FrameSink for SystemSink {
     fn takes_frames(&self) -> bool {
         true
     }
+
+    /// A security session with `peer` is up: sends that waited for it go now.
+    fn on_peer_up(&self, peer: SystemId) {
+        let link = self.link;
+        self.handle(|router, now| {
+            router.handle_link_event(now, hetcomm_router::LinkEvent::PeerUp { link, peer })
+        });
+    }
 }

@@ -193,6 +193,10 @@ pub(super) fn transmit_error(directory: &Directory, e: LinkError) -> TransmitErr
             "link to {} is congested: {reason}",
             directory.system_name(peer)
         )),
+        LinkError::NoSession { peer, reason } => TransmitError::NoSession(format!(
+            "no secure session with {}: {reason}",
+            directory.system_name(peer)
+        )),
         other => TransmitError::Other(other.to_string()),
     }
 }
