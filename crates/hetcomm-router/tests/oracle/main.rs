@@ -48,7 +48,7 @@ fn shrink(mut failing: Params) -> Params {
                 ..failing.clone()
             });
         }
-        let off: [fn(&mut Params); 11] = [
+        let off: [fn(&mut Params); 12] = [
             |p| p.loss = 0.0,
             |p| p.duplicate = 0.0,
             |p| p.jitter_us = 0,
@@ -60,6 +60,7 @@ fn shrink(mut failing: Params) -> Params {
             |p| p.burst = 0.0,
             |p| p.ordered = false,
             |p| p.wall_steps = false,
+            |p| p.sessions = false,
         ];
         for f in off {
             let mut p = failing.clone();
@@ -76,15 +77,19 @@ fn shrink(mut failing: Params) -> Params {
 }
 
 /// Runs `schedules` random schedules from `first_seed`; panics with the first failure, its
-/// seed and its shrunk form. Returns (schedules, sends, router calls).
-fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64) {
-    let (mut total_sends, mut total_events) = (0, 0);
+/// seed and its shrunk form. Returns (schedules, sends, router calls, outcomes by kind as
+/// [`World::tally`] counts them).
+fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64, [u64; 5]) {
+    let (mut total_sends, mut total_events, mut tally) = (0, 0, [0u64; 5]);
     for seed in first_seed..first_seed + schedules {
         let params = Params::random(seed, sends);
         let mut world = World::new(params.clone());
         world.run();
         total_events += world.events;
         total_sends += world.sends() as u64;
+        for (t, n) in tally.iter_mut().zip(world.tally()) {
+            *t += n;
+        }
         let wrong = world.falsehoods();
         if !wrong.is_empty() {
             let small = shrink(params.clone());
@@ -99,7 +104,7 @@ fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64) {
             );
         }
     }
-    (schedules, total_sends, total_events)
+    (schedules, total_sends, total_events, tally)
 }
 
 fn env(name: &str) -> Option<u64> {
@@ -109,11 +114,21 @@ fn env(name: &str) -> Option<u64> {
 #[test]
 fn every_outcome_is_true_on_random_schedules() {
     // Bounded for CI: a few seconds in a debug build.
-    let (schedules, sends, events) = check(0, 150, 300);
-    println!("{schedules} schedules, {sends} sends, {events} router calls: no false outcome");
+    let (schedules, sends, events, tally) = check(0, 150, 300);
+    let [delivered, sent, unconfirmed, failed, no_session] = tally;
+    println!(
+        "{schedules} schedules, {sends} sends, {events} router calls: {delivered} delivered, \
+         {sent} sent, {unconfirmed} unconfirmed, {failed} failed ({no_session} for want of a \
+         session), no false outcome"
+    );
     assert!(
         events > 100_000,
         "the schedules did too little: {events} calls"
+    );
+    // They must reach every kind of outcome, or they test less than they claim.
+    assert!(
+        delivered > 0 && sent > 0 && unconfirmed > 0 && failed > no_session && no_session > 0,
+        "{tally:?}"
     );
 }
 
@@ -188,10 +203,11 @@ fn soak() {
     let first = env("HETCOMM_ORACLE_FIRST_SEED").unwrap_or(10_000);
     let sends = env("HETCOMM_ORACLE_SENDS").unwrap_or(2_000) as u32;
     let started = std::time::Instant::now();
-    let (schedules, sends, events) = check(first, schedules, sends);
+    let (schedules, sends, events, tally) = check(first, schedules, sends);
     println!(
         "soak: seeds {first}..{}, {schedules} schedules, {sends} sends, {events} router calls, \
-         0 false outcomes, {:.0} s",
+         0 false outcomes (delivered, sent, unconfirmed, failed, of which no session: \
+         {tally:?}), {:.0} s",
         first + schedules,
         started.elapsed().as_secs_f64()
     );

@@ -58,6 +58,11 @@ pub struct Params {
     /// Whether the senders' wall clocks (which only stamp headers) are stepped by ± hours
     /// during the run, as NTP or an operator would. The routers' own time never steps.
     pub wall_steps: bool,
+    /// Whether links behave as secured ones do: a data frame that wants an acknowledgement
+    /// is refused (`TransmitError::NoSession`, nothing leaves) until a session with its
+    /// destination exists; the refusal starts a handshake, which completes after a while
+    /// (`LinkEvent::PeerUp`) or, for some pairs (a wrong key, a refusing receiver), never.
+    pub sessions: bool,
 }
 
 impl Params {
@@ -86,6 +91,7 @@ impl Params {
             acknowledged_mask: rng.gen_range(0..32),
             ordered: rng.gen_bool(0.5),
             wall_steps: rng.gen_bool(0.5),
+            sessions: rng.gen_bool(0.4),
         }
     }
 }
@@ -121,6 +127,17 @@ struct InFlight {
     order: u64,
     to: u16,
     frame: Vec<u8>,
+}
+
+/// A handshake on the way: a session from `from` to `to` comes up at `at`, if both are still
+/// the processes that began it.
+#[derive(Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Handshake {
+    at: u64,
+    order: u64,
+    from: u16,
+    to: u16,
+    lives: (u32, u32),
 }
 
 /// A message an inbox took or refused, whose verdict the router has not been told yet.
@@ -161,6 +178,11 @@ pub struct World {
     pub events: u64,
     /// The senders' wall clock minus the routers' clock, µs (stepped when `wall_steps`).
     wall_offset: i64,
+    /// Sessions up, (from, to), and handshakes under way (see [`Params::sessions`]).
+    sessions: BTreeSet<(u16, u16)>,
+    handshakes: BinaryHeap<Reverse<Handshake>>,
+    /// Pairs whose handshakes never complete.
+    refusing: BTreeSet<(u16, u16)>,
 }
 
 impl World {
@@ -181,7 +203,20 @@ impl World {
             inbox: BTreeMap::new(),
             events: 0,
             wall_offset: 1_700_000_000_000_000,
+            sessions: BTreeSet::new(),
+            handshakes: BinaryHeap::new(),
+            refusing: BTreeSet::new(),
         };
+        if world.params.sessions {
+            let mut pick = ChaCha8Rng::seed_from_u64(world.params.seed ^ 0x5e55);
+            for from in 0..world.params.systems {
+                for to in 0..world.params.systems {
+                    if from != to && pick.gen_bool(0.1) {
+                        world.refusing.insert((from, to));
+                    }
+                }
+            }
+        }
         for s in 0..world.params.systems {
             let router = world.router(s, 1);
             world.systems.push(System {
@@ -235,6 +270,7 @@ impl World {
         loop {
             let network = self.network.peek().map(|Reverse(f)| f.at);
             let verdict = self.verdicts.peek().map(|Reverse(v)| v.at);
+            let handshake = self.handshakes.peek().map(|Reverse(h)| h.at);
             let timer = self
                 .systems
                 .iter()
@@ -242,7 +278,8 @@ impl World {
                 .map(Time::as_micros)
                 .min();
             let send = (sent < self.params.sends).then_some(next_send);
-            let Some(at) = [network, verdict, timer, send].into_iter().flatten().min() else {
+            let candidates = [network, verdict, handshake, timer, send];
+            let Some(at) = candidates.into_iter().flatten().min() else {
                 return;
             };
             self.now = self.now.max(at);
@@ -273,6 +310,22 @@ impl World {
                     .router
                     .handle_frame(now, LINK, &f.frame);
                 self.pump(f.to);
+            } else if handshake == Some(at) {
+                let Reverse(h) = self.handshakes.pop().expect("peeked");
+                let lives = (
+                    self.systems[usize::from(h.from)].life,
+                    self.systems[usize::from(h.to)].life,
+                );
+                if lives == h.lives {
+                    self.sessions.insert((h.from, h.to));
+                    self.events += 1;
+                    let now = self.time();
+                    let peer = SystemId(h.to);
+                    self.systems[usize::from(h.from)]
+                        .router
+                        .handle_link_event(now, LinkEvent::PeerUp { link: LINK, peer });
+                    self.pump(h.from);
+                }
             } else if verdict == Some(at) {
                 let Reverse(v) = self.verdicts.pop().expect("peeked");
                 let now = self.time();
@@ -408,6 +461,8 @@ impl World {
         system.life = incarnation;
         system.tokens.clear();
         self.refused_silently[usize::from(s)] = 0;
+        // A new process has no sessions, and its peers' sessions with the old one are gone.
+        self.sessions.retain(|&(a, b)| a != s && b != s);
     }
 
     /// Performs everything router `s` asks for after an input.
@@ -436,9 +491,44 @@ impl World {
 
     fn transmit(&mut self, s: u16, tx: Transmit) {
         let p = &self.params;
-        let refused = self.rng.gen_bool(p.link_refusal);
         let decoded = wire::decode(&tx.frame).expect("routers write valid frames");
         let h = decoded.header;
+        // A secured link keeps nothing it cannot send yet that wants an acknowledgement: it
+        // refuses it and starts a handshake (unacknowledged frames and acknowledgements it
+        // would hold for the session; here they pass, as if the wait were nil).
+        let wants_session = p.sessions
+            && h.kind == FrameKind::Data
+            && h.ack_requested()
+            && !h.to_all()
+            && !self.sessions.contains(&(s, tx.to.0));
+        if wants_session {
+            let to = tx.to.0;
+            let begun = self
+                .handshakes
+                .iter()
+                .any(|Reverse(hs)| (hs.from, hs.to) == (s, to));
+            if !begun && !self.refusing.contains(&(s, to)) {
+                self.order += 1;
+                self.handshakes.push(Reverse(Handshake {
+                    at: self.now + self.rng.gen_range(200..=30_000),
+                    order: self.order,
+                    from: s,
+                    to,
+                    lives: (
+                        self.systems[usize::from(s)].life,
+                        self.systems[usize::from(to)].life,
+                    ),
+                }));
+            }
+            self.events += 1;
+            let now = self.time();
+            let refusal = TransmitError::NoSession(format!("no session with {to}"));
+            self.systems[usize::from(s)]
+                .router
+                .transmit_result(now, tx, Err(refusal));
+            return;
+        }
+        let refused = self.rng.gen_bool(p.link_refusal);
         if !refused && h.kind == FrameKind::Data {
             let tag = u64::from_le_bytes(decoded.payload.try_into().expect("8-byte payloads"));
             let life = self.systems[usize::from(s)].life;
@@ -634,6 +724,25 @@ impl World {
             .map(|s| format!("{:?}", s.router.stats()))
             .collect();
         format!("{}\n{}", outcomes.join("\n"), stats.join("\n"))
+    }
+
+    /// Outcomes by kind: delivered, sent, unconfirmed, failed, and of the failed those for
+    /// want of a session.
+    pub fn tally(&self) -> [u64; 5] {
+        let mut t = [0; 5];
+        for o in self.records.iter().filter_map(|r| r.outcomes.first()) {
+            let i = match o {
+                Outcome::Delivered { .. } => 0,
+                Outcome::Sent { .. } => 1,
+                Outcome::Unconfirmed { .. } => 2,
+                Outcome::Failed { .. } => 3,
+            };
+            t[i] += 1;
+            if matches!(o.reason(), Some(FailReason::NoSession(_))) {
+                t[4] += 1;
+            }
+        }
+        t
     }
 
     /// Sends whose outcome the world recorded.
