@@ -247,10 +247,11 @@ fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::
 fn summary(seen: usize, s: &SystemStats) -> String {
     let d = Drops::of(s);
     let mut line = format!(
-        "received {seen} message{}; router: {} received, {} duplicates, {} malformed, {} unknown origin, {} misrouted, {} unknown module; inboxes dropped {}; links dropped {}",
+        "received {seen} message{}; router: {} received, {} duplicates, {} too old, {} malformed, {} unknown origin, {} misrouted, {} unknown module; inboxes dropped {}; links dropped {}",
         if seen == 1 { "" } else { "s" },
         s.router.received,
         d.duplicates,
+        d.too_old,
         d.malformed,
         d.unknown_origin,
         d.misrouted,
@@ -293,6 +294,9 @@ struct Drops {
     misrouted: u64,
     unknown_module: u64,
     duplicates: u64,
+    /// Data frames older than the duplicate filter remembers: neither delivered nor
+    /// acknowledged (`RouterStats::too_old`).
+    too_old: u64,
     /// Lost to full inboxes, whatever the policy.
     inbox: u64,
     /// Dropped by the links (frames they could not make sense of, failed batch flushes).
@@ -313,6 +317,7 @@ impl Drops {
             misrouted: s.router.misrouted,
             unknown_module: s.unknown_module,
             duplicates: s.router.duplicates,
+            too_old: s.router.too_old,
             inbox: s.inboxes.iter().map(|(_, i)| i.dropped()).sum(),
             links: s.links.iter().map(|(_, l)| l.frames_dropped).sum(),
             kernel: kernel_drops(s),
@@ -334,7 +339,7 @@ impl Drops {
     /// Each counter with its label, in the order they are printed. The security layer's are
     /// labelled with their names (`LinkStats::security`, docs/security.md's table), so a
     /// reader can look them up.
-    fn labelled(&self) -> [(&'static str, u64); 15] {
+    fn labelled(&self) -> [(&'static str, u64); 16] {
         let sec = &self.security;
         [
             ("malformed", self.malformed),
@@ -342,6 +347,7 @@ impl Drops {
             ("misrouted", self.misrouted),
             ("unknown module", self.unknown_module),
             ("duplicates", self.duplicates),
+            ("too old", self.too_old),
             ("inbox full", self.inbox),
             ("dropped by links", self.links),
             ("dropped by the kernel", self.kernel.unwrap_or(0)),
@@ -350,7 +356,7 @@ impl Drops {
         .chain(security_counters(sec))
         .collect::<Vec<_>>()
         .try_into()
-        .expect("8 drop counters and 7 security counters")
+        .expect("9 drop counters and 7 security counters")
     }
 
     /// The status line: the messages printed so far and every counter that is not zero.

@@ -41,7 +41,7 @@ fn delivery_across_processes(kind: &str) {
     assert_eq!(status.code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
-        "received 1 message; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; security: rejected_auth 0, rejected_replay 0, rejected_table 0, rejected_unknown_sender 0, rejected_no_session 0, handshake_timeouts 0, handshakes 1"
+        "received 1 message; router: 1 received, 0 duplicates, 0 too old, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; security: rejected_auth 0, rejected_replay 0, rejected_table 0, rejected_unknown_sender 0, rejected_no_session 0, handshake_timeouts 0, handshakes 1"
     );
 }
 
@@ -176,7 +176,7 @@ fn udp_duplicates_are_suppressed_and_reacknowledged() {
     }
     assert_eq!(
         counters_line(&bravo),
-        "received 2 messages; router: 2 received, 2 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0"
+        "received 2 messages; router: 2 received, 2 duplicates, 0 too old, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0"
     );
     // Nothing else came back (e.g. a fourth acknowledgement for the first incarnation).
     raw.set_nonblocking(true).unwrap();
@@ -390,7 +390,7 @@ fn udp_bad_frames_are_counted_and_the_system_keeps_serving() {
     assert_eq!(
         counters_line(&bravo),
         format!(
-            "received 1 message; router: 1 received, 0 duplicates, {} malformed, 1 unknown origin, 1 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0",
+            "received 1 message; router: 1 received, 0 duplicates, 0 too old, {} malformed, 1 unknown origin, 1 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0",
             malformed.len()
         )
     );
@@ -460,6 +460,6 @@ fn tcp_garbage_is_dropped_and_the_system_keeps_serving() {
     assert_eq!(bravo.wait_exit(deadline).code(), Some(0));
     assert_eq!(
         counters_line(&bravo),
-        "received 1 message; router: 1 received, 0 duplicates, 1 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 2"
+        "received 1 message; router: 1 received, 0 duplicates, 0 too old, 1 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 2"
     );
 }

@@ -69,7 +69,7 @@ fn stopped_by_signal_prints_the_summary(sig: i32, name: &str) {
     );
     assert_eq!(
         counters_line(&bravo),
-        "received 1 message; router: 1 received, 0 duplicates, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; security: rejected_auth 0, rejected_replay 0, rejected_table 0, rejected_unknown_sender 0, rejected_no_session 0, handshake_timeouts 0, handshakes 1"
+        "received 1 message; router: 1 received, 0 duplicates, 0 too old, 0 malformed, 0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; security: rejected_auth 0, rejected_replay 0, rejected_table 0, rejected_unknown_sender 0, rejected_no_session 0, handshake_timeouts 0, handshakes 1"
     );
 }
 
@@ -135,7 +135,7 @@ fn drops_show_on_a_status_line_while_listening() {
     }
     assert_eq!(
         counters_line(&bravo),
-        "received 0 messages; router: 0 received, 0 duplicates, 3 malformed, 1 unknown origin, 0 misrouted, 1 unknown module; inboxes dropped 0; links dropped 0"
+        "received 0 messages; router: 0 received, 0 duplicates, 0 too old, 3 malformed, 1 unknown origin, 0 misrouted, 1 unknown module; inboxes dropped 0; links dropped 0"
     );
 }
 

@@ -110,7 +110,7 @@ fn fifty_fresh_acknowledged_sends_are_each_delivered_on_the_first_attempt() {
     // No duplicates: no send was transmitted twice.
     // Then the security layer's counters (one handshake per fresh sender).
     let expected = format!(
-        "received {SENDS} messages; router: {SENDS} received, 0 duplicates, 0 malformed, \
+        "received {SENDS} messages; router: {SENDS} received, 0 duplicates, 0 too old, 0 malformed, \
          0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; \
          security: rejected_auth 0, rejected_replay 0, rejected_table 0, \
          rejected_unknown_sender 0, "
@@ -133,7 +133,7 @@ fn fifty_fresh_unacknowledged_sends_each_arrive_from_the_first_attempt() {
     assert_eq!(codes(&received), (0..SENDS).collect::<Vec<_>>());
     // Then the security layer's counters (one handshake per fresh sender).
     let expected = format!(
-        "received {SENDS} messages; router: {SENDS} received, 0 duplicates, 0 malformed, \
+        "received {SENDS} messages; router: {SENDS} received, 0 duplicates, 0 too old, 0 malformed, \
          0 unknown origin, 0 misrouted, 0 unknown module; inboxes dropped 0; links dropped 0; \
          security: rejected_auth 0, rejected_replay 0, rejected_table 0, \
          rejected_unknown_sender 0, "
