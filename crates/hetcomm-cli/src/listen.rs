@@ -443,7 +443,14 @@ fn describe(module: &str, raw: &RawMessage, json: bool, clock: &Clock) -> String
             "to_module": module,
             "from_system": e.source_system,
             "from_module": e.source_module,
-            "id": { "origin": e.id().origin.0, "seq": e.id().seq },
+            // Unique per message: a restarted sender numbers from 1 again under a new
+            // incarnation, and its broadcasts count in a space of their own.
+            "id": {
+                "origin": e.id().origin.0,
+                "incarnation": e.header.incarnation,
+                "seq": e.id().seq,
+                "broadcast_space": e.header.broadcast_seq(),
+            },
             "type": e.message_type().0,
             "priority": e.priority().0,
             "timestamp_us": e.timestamp().as_micros(),

@@ -214,6 +214,35 @@ fn json_tells_an_undecodable_payload_from_nil() {
         trailing["payload_error"],
         "1 byte after the first MessagePack value"
     );
+    // Every field of a line, as README.md lists them; the id is unique per message (issue
+    // 41, item 11: two messages of one sender's two incarnations had the same id).
+    let keys: Vec<&str> = got[0]
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            "broadcast",
+            "from_module",
+            "from_system",
+            "id",
+            "payload_error",
+            "payload_hex",
+            "priority",
+            "received_us",
+            "size",
+            "timestamp_us",
+            "to_module",
+            "type"
+        ]
+    );
+    assert_eq!(
+        got[0]["id"],
+        serde_json::json!({"origin": 0, "incarnation": 0x5eed, "seq": 1, "broadcast_space": false})
+    );
 }
 
 #[test]
