@@ -230,3 +230,43 @@ impl FrameSink for SystemSink {
         true
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Holds `n` copied frames of `len` bytes on `link` while not ready.
+    fn hold_copies(opening: &Opening, link: usize, n: usize, len: usize) {
+        for _ in 0..n {
+            assert!(
+                opening.hold(link, None, Time::ZERO, |keep| keep(Held::Copied(vec![
+                    0;
+                    len
+                ])))
+            );
+        }
+    }
+
+    #[test]
+    fn the_backlog_holds_its_bound_and_counts_the_rest_per_link() {
+        let opening = Opening::default();
+        hold_copies(&opening, 1, OPENING_BACKLOG_FRAMES - 1, 10);
+        hold_copies(&opening, 0, 3, 10);
+        assert_eq!(opening.dropped(0), 2, "one fitted, two did not");
+        assert_eq!(opening.dropped(1), 0);
+        // Bytes bound: a frame past it is dropped however few frames are held.
+        let opening = Opening::default();
+        hold_copies(&opening, 0, 1, OPENING_BACKLOG_BYTES);
+        hold_copies(&opening, 0, 1, 1);
+        assert_eq!(opening.dropped(0), 1);
+    }
+
+    #[test]
+    fn once_ready_nothing_is_held() {
+        let opening = Opening::default();
+        opening.ready.store(true, Ordering::Release);
+        let mut made = false;
+        assert!(!opening.hold(0, None, Time::ZERO, |_| made = true));
+        assert!(!made, "frames for the router were taken by the backlog");
+    }
+}
