@@ -35,6 +35,12 @@ cargo clippy -p hetcomm --features ros1 --all-targets -- -D warnings
 step "tests"
 cargo test --workspace
 
+# Tests that need what only this script sets up, `#[ignore]`d so that a plain `cargo test`
+# reports them as not run: two network namespaces need root (CI runs as root) and iproute2
+# (scripts/install.sh).
+step "tests that need root: hetcomm listen/send between two network namespaces"
+cargo test -p hetcomm-cli --test netns -- --ignored
+
 step "ROS 1 against a real master (installs ros-core when missing)"
 bash scripts/ros1-test.sh
 

@@ -287,20 +287,28 @@ impl Link for Ros1Link {
         }
         self.ensure_connected(to)?;
         let counters = &self.shared.counters;
-        match self
+        // Counted before the frame is queued: the publishing task may take it and subtract its
+        // bytes before `try_send` returns, and the counter must not pass below zero meanwhile
+        // (it wrapped to nearly 2^64, and a layer adding to it panicked).
+        counters
+            .queued_bytes
+            .fetch_add(frame.len() as u64, Ordering::Relaxed);
+        let queued = self
             .shared
             .wiring
             .commands
-            .try_send(Command::Frame(to, frame.to_vec()))
-        {
+            .try_send(Command::Frame(to, frame.to_vec()));
+        if queued.is_err() {
+            counters
+                .queued_bytes
+                .fetch_sub(frame.len() as u64, Ordering::Relaxed);
+        }
+        match queued {
             Ok(()) => {
                 if let Some(dest) = self.shared.wiring.dests.get(&to) {
                     dest.unflushed.fetch_add(1, Ordering::Relaxed);
                 }
                 counters.sent.fetch_add(1, Ordering::Relaxed);
-                counters
-                    .queued_bytes
-                    .fetch_add(frame.len() as u64, Ordering::Relaxed);
                 Ok(())
             }
             Err(mpsc::error::TrySendError::Full(_)) => Err(LinkError::Congested {

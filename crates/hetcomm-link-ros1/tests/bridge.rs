@@ -72,9 +72,7 @@ fn settings(fleet: &hetcomm::config::Fleet) -> &BridgeSettings {
 
 #[test]
 fn the_md5_sums_are_those_rosmsg_computes() {
-    if !common::ros_available() {
-        return;
-    }
+    common::require_ros();
     for ty in Flavour::Ros1.known() {
         let out = Command::new("rosmsg")
             .args(["md5", ty.name])
@@ -159,9 +157,7 @@ fn opening_names_an_unknown_module_and_an_absent_master() {
 
 #[test]
 fn declared_types_that_do_not_fit_refuse_to_open() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let fleet =
         hetcomm::parse_fleet(&fleet_text("/t", &master.uri()), "b.toml", None).expect("valid");
     tango::declared_types_are_checked_when_the_bridge_opens(&fleet);
@@ -225,25 +221,23 @@ struct Scene {
 }
 
 impl Scene {
-    fn start(tag: &str) -> Option<Scene> {
-        let master = Master::start()?;
+    fn start(tag: &str) -> Scene {
+        let master = Master::start();
         let p = prefix(tag);
         let alpha = open(&master, &p);
-        Some(Scene {
+        Scene {
             _rover: rover(&master, &p, &[]),
             drive: alpha.module("Drive").unwrap(),
             world: alpha.module("World").unwrap(),
             _alpha: alpha,
             _master: master,
-        })
+        }
     }
 }
 
 #[test]
 fn rostopic_pub_reaches_a_module_as_a_typed_message() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let p = prefix("pub");
     let alpha = open(&master, &p);
     let world = alpha.module("World").unwrap();
@@ -264,9 +258,7 @@ fn rostopic_pub_reaches_a_module_as_a_typed_message() {
 
 #[test]
 fn rostopic_echo_prints_what_hetcomm_publishes() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let p = prefix("echo");
     let alpha = open(&master, &p);
     let drive = alpha.module("Drive").unwrap();
@@ -314,9 +306,7 @@ fn rostopic_echo_prints_what_hetcomm_publishes() {
 
 #[test]
 fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
-    let Some(scene) = Scene::start("drive") else {
-        return;
-    };
+    let scene = Scene::start("drive");
     let (drive, world) = (&scene.drive, &scene.world);
 
     // Odometry arrives as a typed message from Tango, ROS 1 header included.
@@ -338,9 +328,7 @@ fn a_rospy_rover_follows_twist_commands_and_reports_odometry() {
 
 #[test]
 fn tango_follows_a_hetcomm_leader_through_the_bridge() {
-    let Some(scene) = Scene::start("follow") else {
-        return;
-    };
+    let scene = Scene::start("follow");
     let (drive, world) = (&scene.drive, &scene.world);
     world
         .recv_timeout::<Odom>(Duration::from_secs(30))
@@ -395,9 +383,7 @@ impl FrameSink for Frames {
 
 #[test]
 fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivered() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let p = prefix("bad");
     let text = fleet_text(&p, &master.uri());
     let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
@@ -446,9 +432,7 @@ fn malformed_messages_and_wrong_types_on_a_mapped_topic_are_counted_not_delivere
 
 #[test]
 fn a_system_that_does_not_host_a_subscribed_module_does_not_read_its_topic() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let p = prefix("hosts");
     let text = tango::with_bravo_watching(&fleet_text(&p, &master.uri()));
     let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");

@@ -137,48 +137,40 @@ fn open_ab(master: &Master, namespace: &str, id: u16, sink: Arc<CollectSink>) ->
     .expect("open")
 }
 
-/// A harness for systems A (1) and B (2) on a fresh master, or None without ROS.
-fn two_systems() -> Option<RosHarness> {
-    Some(RosHarness {
-        master: Master::start()?,
+/// A harness for systems A (1) and B (2) on a fresh master.
+fn two_systems() -> RosHarness {
+    RosHarness {
+        master: Master::start(),
         systems: names(&[(1, "A"), (2, "B")]),
         live: Vec::new(),
-    })
+    }
 }
 
 #[test]
 fn conformance_on_a_real_master() {
-    if let Some(mut h) = two_systems() {
-        conformance::run_all(&mut h);
-    }
+    conformance::run_all(&mut two_systems());
 }
 
 /// The same, each link inside an emulation layer (a model that changes nothing), as an
 /// `emulated` transport over `ros1` opens it.
 #[test]
 fn conformance_on_a_real_master_wrapped_in_emulation() {
-    if let Some(h) = two_systems() {
-        conformance::run_all(&mut Layered::emulated(h));
-    }
+    conformance::run_all(&mut Layered::emulated(two_systems()));
 }
 
 /// The same, each link under the security layer (keys per system, Noise handshake over
 /// the topics, every frame sealed), as a secured `ros1` transport opens it.
 #[test]
 fn conformance_on_a_real_master_secured() {
-    if let Some(h) = two_systems() {
-        conformance::run_all(&mut hetcomm_security::conformance::secured(
-            h,
-            [SystemId(1), SystemId(2)],
-        ));
-    }
+    conformance::run_all(&mut hetcomm_security::conformance::secured(
+        two_systems(),
+        [SystemId(1), SystemId(2)],
+    ));
 }
 
 #[test]
 fn unreachable_master_fails_at_once_naming_the_uri() {
-    if !common::ros_available() {
-        return;
-    }
+    common::require_ros();
     let port = common::free_port(); // nothing listens there
     let uri = format!("http://127.0.0.1:{port}");
     let started = Instant::now();
@@ -247,9 +239,7 @@ fn wait_until(what: &str, mut cond: impl FnMut() -> bool) {
 
 #[test]
 fn master_restart_is_survived() {
-    let Some(mut master) = Master::start() else {
-        return;
-    };
+    let mut master = Master::start();
     let systems = names(&[(1, "A"), (2, "B"), (3, "C")]);
     let config = Ros1Config {
         supervise_interval: Duration::from_millis(200),
@@ -302,9 +292,7 @@ fn master_restart_is_survived() {
 
 #[test]
 fn unknown_and_own_destinations_are_unreachable() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let a = Ros1Link::open(
         SystemId(1),
         &names(&[(1, "A"), (2, "B")]),
@@ -355,9 +343,7 @@ fn unknown_and_own_destinations_are_unreachable() {
 /// reaches a running destination.
 #[test]
 fn the_first_frame_to_a_new_peer_arrives() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let open = |id: u16, sink: Arc<CollectSink>| open_ab(&master, "first", id, sink);
     let sa = CollectSink::new();
     let a = open(1, sa.clone());
@@ -395,9 +381,7 @@ fn the_first_frame_to_a_new_peer_arrives() {
 /// publishers on new ports): frames reach it within a few seconds all the same.
 #[test]
 fn a_publisher_stalled_by_a_silent_connection_is_replaced() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let open = |id: u16, sink: Arc<CollectSink>| open_ab(&master, "stall", id, sink);
     let a = open(1, CollectSink::new());
     let port = master.tcpros_port(&a.node_name(), "/stall/B");
@@ -420,9 +404,7 @@ fn a_publisher_stalled_by_a_silent_connection_is_replaced() {
 
 #[test]
 fn rostopic_sees_our_topics_and_frames() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let systems = names(&[(0, "Alpha"), (1, "Charlie")]);
     let alpha = Ros1Link::open(
         SystemId(0),
@@ -482,9 +464,7 @@ fn rostopic_sees_our_topics_and_frames() {
 /// with `501 Not Implemented` (roslibrust issue #202).
 #[test]
 fn rosnode_lists_pings_and_kills_a_link() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let a = Ros1Link::open(
         SystemId(1),
         &names(&[(1, "A"), (2, "B")]),

@@ -19,9 +19,7 @@ struct Text {
 
 #[test]
 fn rospy_sends_and_gets_a_reply_from_a_hetcomm_module() {
-    let Some(master) = Master::start() else {
-        return;
-    };
+    let master = Master::start();
     let dir = std::env::temp_dir().join(format!("hetcomm-rospy-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let fleet = dir.join("fleet.toml");

@@ -3,19 +3,25 @@
 //!
 //! A transport's tests implement [`Harness`] (how to open an endpoint for a system) and call
 //! [`run_all`], once on the bare link and once wrapped in emulation ([`Layered::emulated`]).
-//! Checks adapt to the link's declared [`LinkCaps`](crate::LinkCaps): an unreliable link is not
-//! required to deliver everything, but must never corrupt, invent or mislabel a frame.
+//! Checks adapt to the link's declared [`LinkCaps`](crate::LinkCaps): an unreliable link need
+//! not deliver everything, but every frame it does not deliver must be one the links counted
+//! as lost (`frames_dropped` of either end, the receiver's `kernel_drops`): on loopback a
+//! healthy unreliable link loses frames only where a buffer overflowed, and says so. Where the
+//! harness configures loss ([`Harness::configured_loss`], an emulation), what arrives must
+//! also be within a statistical bound of it. No link may corrupt, invent or mislabel a frame.
 //!
 //! **Driven links.** A link that offers a receive side ([`Link::readable`]) starts no receive
 //! thread: nothing arrives unless someone reads it. The suite reads such links itself, through
 //! `readable()` only, as the runtime's waiting threads do; so a wrapper that does not pass the
-//! receive side on fails every check that expects a frame.
+//! receive side on fails every check that expects a frame. Links without one deliver on their
+//! own (a receive thread, or the sender's thread for in-process links), and
+//! [`receive_side_delivers`] checks them that way, with nobody reading.
 //!
 //! What is checked: delivery both ways with the right sender; sizes from 1 byte to 1 MiB + 1;
 //! many frames against the declared caps (no loss if reliable, no reordering if ordered, never
 //! a duplicate or an invented frame); an unknown destination and an oversize frame are errors;
-//! traffic resumes after a peer restart; a driven link's frames arrive when read through its
-//! `Readable` side; frames held for batching go out at `flush` and before a later plain send;
+//! traffic resumes after a peer restart; frames arrive through the link's receive side (read
+//! through `Readable` on a driven link, by the link itself otherwise); frames held for batching go out at `flush` and before a later plain send;
 //! `send_parts` delivers head and body as one frame; frames given away (`send_owned`) keep
 //! their place among the others and their buffers come back; frames handed to a sink that takes them
 //! ([`FrameSink::on_frame_owned`]) arrive intact; and a layer stack over the link (a tap on
@@ -43,6 +49,14 @@ pub trait Harness {
     /// A link with a receive side ([`Link::readable`]) is returned as it is: the suite reads
     /// it (a harness must not start a thread of its own that reads it too).
     fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link>;
+
+    /// The fraction of frames (0 to 1) this harness's links lose by design, such as an
+    /// emulation with `loss_percent`: checks then require what arrives to be within a
+    /// statistical bound of it. 0 (the default) for links as they are: on loopback a healthy
+    /// link loses only frames it counts.
+    fn configured_loss(&self) -> f64 {
+        0.0
+    }
 }
 
 /// A harness whose links are wrapped in a [`LayerStack`], both sides, as the runtime wraps
@@ -89,11 +103,19 @@ impl<H: Harness, F: FnMut(SystemId) -> LayerStack> Harness for LayeredPerSystem<
         let stack = (self.make)(system);
         Layered::new(&mut self.inner, stack).open(system, sink)
     }
+
+    fn configured_loss(&self) -> f64 {
+        self.inner.configured_loss()
+    }
 }
 
 impl<H: Harness + ?Sized> Harness for &mut H {
     fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
         (**self).open(system, sink)
+    }
+
+    fn configured_loss(&self) -> f64 {
+        (**self).configured_loss()
     }
 }
 
@@ -107,6 +129,12 @@ impl<H: Harness> Harness for Layered<H> {
             .wrap_link(&ctx, link)
             .unwrap_or_else(|e| panic!("layers {:?}: {e}", self.stack.names()));
         Box::new(wrapped)
+    }
+
+    /// The inner harness's: the layers put over it are taken to lose nothing
+    /// ([`Layered::emulated`] uses a model that loses nothing).
+    fn configured_loss(&self) -> f64 {
+        self.inner.configured_loss()
     }
 }
 
@@ -213,6 +241,16 @@ impl CollectSink {
         Arc::new(CollectSink::default())
     }
 
+    /// How many frames were received so far.
+    pub fn len(&self) -> usize {
+        self.frames.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
+
+    /// Whether no frame was received yet.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Everything received so far.
     pub fn frames(&self) -> Vec<Received> {
         self.frames
@@ -275,7 +313,7 @@ pub fn run_all(h: &mut dyn Harness) {
     unknown_destination_is_an_error(h);
     oversize_frame_is_refused(h);
     traffic_resumes_after_peer_restart(h);
-    driven_receive_is_read_through_readable(h);
+    receive_side_delivers(h);
     held_frames_are_flushed(h);
     send_parts_arrive_as_one_frame(h);
     given_frames_keep_their_place(h);
@@ -305,11 +343,12 @@ pub fn delivers_both_ways(h: &mut dyn Harness) {
 }
 
 /// Frames from 1 byte up to the link's MTU and beyond it (up to 1 MiB + 1, or `max_frame`)
-/// arrive intact on a reliable link.
+/// arrive intact: every one on a reliable link, all but those counted as lost on an unreliable
+/// one.
 pub fn preserves_sizes(h: &mut dyn Harness) {
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sb.clone());
+    let b = open(h, B, sb.clone());
     let caps = a.caps();
     let mut sizes = vec![1, 48, 1000, caps.mtu.min(caps.max_frame)];
     sizes.push((1024 * 1024 + 1).min(caps.max_frame));
@@ -320,6 +359,7 @@ pub fn preserves_sizes(h: &mut dyn Harness) {
             assert_eq!(sb.wait_for(i + 1, WAIT), i + 1, "{len}-byte frame lost");
         }
     }
+    Delivery::of(h, &*a, &*b).wait(&sb, sizes.len(), "sizes");
     for r in sb.frames() {
         let index = u32::from_le_bytes([r.bytes[1], r.bytes[2], r.bytes[3], r.bytes[4]]) as usize;
         assert_eq!(
@@ -330,13 +370,14 @@ pub fn preserves_sizes(h: &mut dyn Harness) {
     }
 }
 
-/// 1000 frames: all arrive on a reliable link, in order on an ordered one, and none is
+/// 1000 frames: all arrive on a reliable link, all but those counted as lost (within the
+/// configured loss, if any) on an unreliable one, in order on an ordered one, and none is
 /// duplicated or invented on any link.
 pub fn many_frames_respect_caps(h: &mut dyn Harness) {
     const N: u32 = 1000;
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sb.clone());
+    let b = open(h, B, sb.clone());
     let caps = a.caps();
     for i in 0..N {
         loop {
@@ -348,15 +389,7 @@ pub fn many_frames_respect_caps(h: &mut dyn Harness) {
             }
         }
     }
-    if caps.reliable {
-        assert_eq!(
-            sb.wait_for(N as usize, WAIT),
-            N as usize,
-            "reliable link lost frames"
-        );
-    } else {
-        sb.wait_for(N as usize, Duration::from_millis(500));
-    }
+    Delivery::of(h, &*a, &*b).wait(&sb, N as usize, "many frames");
     let got: Vec<u32> = sb
         .frames()
         .iter()
@@ -439,13 +472,80 @@ fn index_of(bytes: &[u8]) -> u32 {
     u32::from_le_bytes([bytes[1], bytes[2], bytes[3], bytes[4]])
 }
 
-/// Waits for `n` frames on a reliable link (failing with `what` if they do not come), or a
-/// moment for whatever arrives on an unreliable one.
-fn wait_reliably(sink: &CollectSink, n: usize, reliable: bool, what: &str) {
-    if reliable {
-        assert_eq!(sink.wait_for(n, WAIT), n, "{what}: frames lost");
-    } else {
-        sink.wait_for(n, Duration::from_millis(500));
+/// What a check requires of the frames it sent from one link to another.
+struct Delivery<'a> {
+    reliable: bool,
+    /// [`Harness::configured_loss`].
+    loss: f64,
+    sender: &'a dyn Link,
+    receiver: &'a dyn Link,
+}
+
+impl<'a> Delivery<'a> {
+    fn of(h: &dyn Harness, sender: &'a dyn Link, receiver: &'a dyn Link) -> Self {
+        Delivery {
+            reliable: sender.caps().reliable,
+            loss: h.configured_loss(),
+            sender,
+            receiver,
+        }
+    }
+
+    /// Frames the two ends counted as lost: dropped by either (an emulation counts what it
+    /// loses at the sender), or by the receiver's operating system. Counted in datagrams
+    /// there, so a fragmented frame may count more than once: an upper bound.
+    fn counted_losses(&self) -> usize {
+        let (s, r) = (self.sender.stats(), self.receiver.stats());
+        (s.frames_dropped + r.frames_dropped + r.kernel_drops) as usize
+    }
+
+    /// Whether every one of `n` frames arrived in `sink` or was counted as lost.
+    fn settled(&self, sink: &CollectSink, n: usize) -> bool {
+        sink.len() >= n || (!self.reliable && sink.len() + self.counted_losses() >= n)
+    }
+
+    /// Waits (up to [`WAIT`]) until the `n` frames sent are in `sink` or counted as lost,
+    /// then checks them ([`Delivery::check`]).
+    fn wait(&self, sink: &CollectSink, n: usize, what: &str) {
+        let deadline = Instant::now() + WAIT;
+        while !self.settled(sink, n) && Instant::now() < deadline {
+            sink.wait_for(sink.len() + 1, Duration::from_millis(20));
+        }
+        self.check(sink, n, what);
+    }
+
+    /// A reliable link delivered all `n` frames. An unreliable one delivered all but frames
+    /// the links counted as lost; and, with loss configured, at least what the loss leaves
+    /// with five standard deviations to spare (a link losing far more than configured fails;
+    /// one run in millions of a healthy one would).
+    fn check(&self, sink: &CollectSink, n: usize, what: &str) {
+        let got = sink.len();
+        if self.reliable {
+            assert!(
+                got >= n,
+                "{what}: a reliable link delivered {got} of {n} frames"
+            );
+            return;
+        }
+        let counted = self.counted_losses();
+        assert!(
+            got + counted >= n,
+            "{what}: an unreliable link delivered {got} of {n} frames and counted {counted} \
+             lost; the other {} vanished",
+            n - got - counted
+        );
+        if self.loss > 0.0 {
+            let p = self.loss.min(1.0);
+            let expected = n as f64 * (1.0 - p);
+            let spread = 5.0 * (n as f64 * p * (1.0 - p)).sqrt();
+            let least = (expected - spread).floor().max(0.0) as usize;
+            assert!(
+                got >= least,
+                "{what}: {got} of {n} frames arrived with {:.1}% loss configured; at least \
+                 {least} should have",
+                p * 100.0
+            );
+        }
     }
 }
 
@@ -472,33 +572,47 @@ fn check_against(got: &[Received], sent: &[Vec<u8>], sender: SystemId, ordered: 
     }
 }
 
-/// A link with a receive side ([`Link::readable`]) starts no reader of its own: its frames
-/// arrive when, and because, someone polls its descriptor and calls `read_ready`. This check
-/// reads the receiver itself (no other reader), through `readable()` only; a frame larger than
-/// the link's MTU is among those read. Links without a receive side are skipped here (the
-/// other checks cover them).
-pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
+/// Frames arrive through the link's receive side, a frame larger than its MTU among them:
+///
+/// - a link with a receive side ([`Link::readable`]) starts no reader of its own: its frames
+///   arrive when, and because, someone polls its descriptor and calls `read_ready`. This check
+///   reads the receiver itself (no other reader), through `readable()` only;
+/// - a link without one delivers on its own (a receive thread, or the sender's thread for an
+///   in-process link): the frames arrive with nobody reading it.
+pub fn receive_side_delivers(h: &mut dyn Harness) {
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
     // Not an `Endpoint`: nobody but this check reads it.
     let b = h.open(B, sb.clone());
-    let Some(rx) = b.readable() else {
-        return;
-    };
-    assert!(rx.fd() >= 0, "a receive side needs a descriptor to poll");
     let caps = a.caps();
     let big = (caps.mtu + 1000).min(caps.max_frame).min(256 * 1024);
     let sent: Vec<Vec<u8>> = (0..10)
         .map(|i| frame(8, i, if i == 5 { big } else { 100 }))
         .collect();
-    let want = if caps.reliable { sent.len() } else { 1 };
+    let delivery = Delivery::of(h, &*a, &*b);
+    let Some(rx) = b.readable() else {
+        for f in &sent {
+            a.send(B, f)
+                .expect("send to a link that receives on its own");
+        }
+        delivery.wait(&sb, sent.len(), "receive on the link's own");
+        check_against(
+            &sb.frames(),
+            &sent,
+            A,
+            caps.ordered,
+            "receive on the link's own",
+        );
+        return;
+    };
+    assert!(rx.fd() >= 0, "a receive side needs a descriptor to poll");
     let deadline = Instant::now() + WAIT;
     // Read while sending: a large frame may not fit the socket buffers until the receiver
     // reads, and a driven link's receiver is whoever calls `read_ready`.
     let handed_on = std::thread::scope(|scope| {
         let reader = scope.spawn(|| {
             let mut handed_on = 0;
-            while sb.frames().len() < want && Instant::now() < deadline {
+            while !delivery.settled(&sb, sent.len()) && Instant::now() < deadline {
                 poll_readable(rx.fd(), 20);
                 handed_on += rx.read_ready(64).expect("read_ready");
             }
@@ -509,13 +623,8 @@ pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
         }
         reader.join().expect("the reader")
     });
+    delivery.check(&sb, sent.len(), "driven receive");
     let got = sb.frames();
-    assert!(
-        got.len() >= want,
-        "a driven link delivered {} of {} frames when read through its Readable side",
-        got.len(),
-        sent.len()
-    );
     // Not `==`: a link may read some connections with threads of its own even so (the stream
     // links do for sockets that cannot be polled).
     assert!(
@@ -531,20 +640,21 @@ pub fn driven_receive_is_read_through_readable(h: &mut dyn Harness) {
 pub fn held_frames_are_flushed(h: &mut dyn Harness) {
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sb.clone());
+    let b = open(h, B, sb.clone());
     let caps = a.caps();
+    let delivery = Delivery::of(h, &*a, &*b);
     let sent: Vec<Vec<u8>> = (0..24).map(|i| frame(9, i, 64 + i as usize)).collect();
     for f in &sent[..20] {
         a.send_held(B, f).expect("send_held");
     }
     a.flush().expect("flush");
-    wait_reliably(&sb, 20, caps.reliable, "held frames after flush");
+    delivery.wait(&sb, 20, "held frames after flush");
     // Held frames, then a plain send: the held ones go first.
     for f in &sent[20..23] {
         a.send_held(B, f).expect("send_held");
     }
     a.send(B, &sent[23]).expect("send after held frames");
-    wait_reliably(&sb, 24, caps.reliable, "held frames before a plain send");
+    delivery.wait(&sb, 24, "held frames before a plain send");
     a.flush().expect("flush with nothing held");
     check_against(&sb.frames(), &sent, A, caps.ordered, "held frames");
 }
@@ -554,8 +664,9 @@ pub fn held_frames_are_flushed(h: &mut dyn Harness) {
 pub fn send_parts_arrive_as_one_frame(h: &mut dyn Harness) {
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sb.clone());
+    let b = open(h, B, sb.clone());
     let caps = a.caps();
+    let delivery = Delivery::of(h, &*a, &*b);
     let head_len = 48;
     let lens = [
         head_len,
@@ -574,7 +685,7 @@ pub fn send_parts_arrive_as_one_frame(h: &mut dyn Harness) {
         let (head, body) = f.split_at(head_len.min(f.len()));
         a.send_parts(B, head, body)
             .unwrap_or_else(|e| panic!("send_parts of {} + {} bytes: {e}", head.len(), body.len()));
-        wait_reliably(&sb, i + 1, caps.reliable, "send_parts");
+        delivery.wait(&sb, i + 1, "send_parts");
     }
     check_against(&sb.frames(), &sent, A, caps.ordered, "send_parts");
     if caps.max_frame <= 64 * 1024 * 1024 {
@@ -615,8 +726,9 @@ impl FrameSink for TakingSink {
 pub fn given_frames_keep_their_place(h: &mut dyn Harness) {
     let sb = CollectSink::new();
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sb.clone());
+    let b = open(h, B, sb.clone());
     let caps = a.caps();
+    let delivery = Delivery::of(h, &*a, &*b);
     let pool = hetcomm_core::BufferPool::new(16 << 20);
     let large = (40 << 10).min(caps.max_frame);
     let sent: Vec<Vec<u8>> = (0..240)
@@ -637,7 +749,7 @@ pub fn given_frames_keep_their_place(h: &mut dyn Harness) {
         result.unwrap_or_else(|e| panic!("frame {i} of {} bytes: {e}", f.len()));
     }
     a.flush().expect("flush");
-    wait_reliably(&sb, sent.len(), caps.reliable, "given frames");
+    delivery.wait(&sb, sent.len(), "given frames");
     check_against(&sb.frames(), &sent, A, caps.ordered, "given frames");
     let deadline = std::time::Instant::now() + WAIT;
     while pool.kept_bytes() == 0 && std::time::Instant::now() < deadline {
@@ -654,8 +766,9 @@ pub fn given_frames_keep_their_place(h: &mut dyn Harness) {
 pub fn owned_frames_arrive_intact(h: &mut dyn Harness) {
     let sink = Arc::new(TakingSink::default());
     let a = open(h, A, CollectSink::new());
-    let _b = open(h, B, sink.clone());
+    let b = open(h, B, sink.clone());
     let caps = a.caps();
+    let delivery = Delivery::of(h, &*a, &*b);
     let lens = [10, 70_000, 100, 1024 * 1024 + 1, 3000, 70_000];
     let sent: Vec<Vec<u8>> = lens
         .iter()
@@ -665,12 +778,7 @@ pub fn owned_frames_arrive_intact(h: &mut dyn Harness) {
     for (i, f) in sent.iter().enumerate() {
         a.send(B, f)
             .unwrap_or_else(|e| panic!("send of {} bytes: {e}", f.len()));
-        wait_reliably(
-            &sink.collect,
-            i + 1,
-            caps.reliable,
-            "frames to a taking sink",
-        );
+        delivery.wait(&sink.collect, i + 1, "frames to a taking sink");
     }
     check_against(
         &sink.collect.frames(),
@@ -708,6 +816,7 @@ impl Tap for CountTap {
 /// and however received (lent, handed over or in a batch), passes through the layer and
 /// arrives intact.
 pub fn layers_see_and_pass_every_frame(h: &mut dyn Harness) {
+    let loss = h.configured_loss();
     let tap = Arc::new(CountTap::default());
     let stack = LayerStack::new().with(Arc::new(TapLayer::new(tap.clone())));
     let mut open_layered = |system: SystemId, sink: Arc<dyn FrameSink>| {
@@ -735,7 +844,7 @@ pub fn layers_see_and_pass_every_frame(h: &mut dyn Harness) {
     };
     let sink = Arc::new(TakingSink::default());
     let a = open_layered(A, CollectSink::new());
-    let _b = open_layered(B, sink.clone());
+    let b = open_layered(B, sink.clone());
     let caps = a.caps();
     let big = (1024 * 1024 + 1).min(caps.max_frame);
     let sent: Vec<Vec<u8>> = [100, 2000, 300, 400, big]
@@ -751,7 +860,13 @@ pub fn layers_see_and_pass_every_frame(h: &mut dyn Harness) {
     a.flush().expect("layered flush");
     a.send(B, &sent[4]).expect("layered large send");
     let n = sent.len();
-    wait_reliably(&sink.collect, n, caps.reliable, "layered link");
+    let delivery = Delivery {
+        reliable: caps.reliable,
+        loss,
+        sender: &*a,
+        receiver: &*b,
+    };
+    delivery.wait(&sink.collect, n, "layered link");
     check_against(
         &sink.collect.frames(),
         &sent,
@@ -771,4 +886,69 @@ pub fn layers_see_and_pass_every_frame(h: &mut dyn Harness) {
         sink.collect.frames().len() as u64,
         "the layer did not see every frame received"
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::inproc::{InprocHub, InprocLink};
+    use crate::LinkCaps;
+
+    /// An in-process link that says it is unreliable and silently loses 9 frames of 10.
+    struct Leaky {
+        inner: InprocLink,
+        sent: AtomicU64,
+    }
+
+    impl Link for Leaky {
+        fn caps(&self) -> LinkCaps {
+            LinkCaps {
+                reliable: false,
+                ..self.inner.caps()
+            }
+        }
+
+        fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+            if self.sent.fetch_add(1, Ordering::Relaxed).is_multiple_of(10) {
+                self.inner.send(to, frame)
+            } else {
+                Ok(())
+            }
+        }
+    }
+
+    struct LeakyHarness(InprocHub);
+
+    impl Harness for LeakyHarness {
+        fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+            Box::new(Leaky {
+                inner: self.0.open(system, sink),
+                sent: AtomicU64::new(0),
+            })
+        }
+    }
+
+    /// A conformance check.
+    type Check = fn(&mut dyn Harness);
+
+    /// Whether `check` fails on a link that loses 90% of its frames without a count.
+    fn fails_on_a_leaky_link(check: Check) -> bool {
+        let mut h = LeakyHarness(InprocHub::new());
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| check(&mut h))).is_err()
+    }
+
+    /// Each failing check waits [`WAIT`] for the frames that never come: two of them.
+    #[test]
+    fn a_link_that_loses_most_frames_uncounted_fails_the_checks() {
+        let checks: [(&str, Check); 2] = [
+            ("many_frames_respect_caps", many_frames_respect_caps),
+            ("receive_side_delivers", receive_side_delivers),
+        ];
+        for (name, check) in checks {
+            assert!(
+                fails_on_a_leaky_link(check),
+                "{name} passed a 90%-loss link"
+            );
+        }
+    }
 }

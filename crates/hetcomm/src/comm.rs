@@ -108,7 +108,10 @@ pub struct SystemStats {
     pub router: RouterStats,
     /// Per module: (name, inbox counters).
     pub inboxes: Vec<(String, InboxStats)>,
-    /// Per link: (transport name, counters).
+    /// Per link: (transport name, counters). A link's `frames_dropped` here also counts
+    /// the frames it delivered while the system was opening that did not fit what the system
+    /// holds for its router meanwhile (4096 frames, 16 MiB): frames that arrive before
+    /// [`Comm::open`] returns are otherwise handed to the router when it is ready.
     pub links: Vec<(String, LinkStats)>,
     /// Callback invocations that panicked or could not decode their message.
     pub callback_failures: u64,
@@ -196,7 +199,9 @@ impl Comm {
 
         let modules = fleet.modules.iter().map(|m| (m.id, m.inbox)).collect();
         // The router is built after the links (it needs their frame limits), so start with a
-        // placeholder that has no routes, and swap it in before any traffic can flow.
+        // placeholder that has no routes. No frame reaches it: links may deliver as soon as
+        // they are open, but the system holds what arrives until `start`, which hands it to
+        // the real router installed below (`runtime::Opening`).
         let incarnation = match &env.sim {
             // Deterministic under simulation: the same seed gives the same frames.
             Some(net) => net.incarnation(me),
@@ -419,7 +424,12 @@ impl Comm {
             .links()
             .iter()
             .zip(&self.handle.endpoints)
-            .map(|(l, (name, _))| (name.clone(), l.stats()))
+            .enumerate()
+            .map(|(i, (l, (name, _)))| {
+                let mut stats = l.stats();
+                stats.frames_dropped += core.opening.dropped(i);
+                (name.clone(), stats)
+            })
             .collect();
         let callback_failures = core
             .modules

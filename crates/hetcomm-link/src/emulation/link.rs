@@ -480,6 +480,10 @@ mod tests {
             let inner = self.hub.open(system, sink);
             Box::new(EmulatedLink::new(inner, system, model, PositionTable::new()).unwrap())
         }
+
+        fn configured_loss(&self) -> f64 {
+            self.params.loss_percent / 100.0
+        }
     }
 
     fn harness(params: ModelParams) -> EmulatedHarness {
@@ -525,6 +529,27 @@ mod tests {
         assert!(!probe.caps().reliable && !probe.caps().ordered);
         drop(probe);
         conformance::many_frames_respect_caps(&mut h);
+    }
+
+    #[test]
+    fn emulation_losing_far_more_than_configured_fails_conformance() {
+        // The emulation counts what it loses, so only the comparison with the configured
+        // loss can tell: the harness claims 20% and the model loses 60%.
+        struct Claims20(EmulatedHarness);
+        impl Harness for Claims20 {
+            fn open(&mut self, system: SystemId, sink: Arc<dyn FrameSink>) -> Box<dyn Link> {
+                self.0.open(system, sink)
+            }
+            fn configured_loss(&self) -> f64 {
+                0.2
+            }
+        }
+        let mut h = Claims20(harness(params(None, &[("loss_percent", 60.0)])));
+        let failed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            conformance::many_frames_respect_caps(&mut h)
+        }))
+        .is_err();
+        assert!(failed, "60% loss passed as 20%");
     }
 
     fn pair(

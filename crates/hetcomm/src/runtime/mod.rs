@@ -37,6 +37,7 @@ mod sink;
 mod transmit;
 
 pub(crate) use deliver::Source;
+pub(crate) use sink::Opening;
 use sink::SystemSink;
 pub(crate) use transmit::Batching;
 
@@ -385,6 +386,8 @@ pub(crate) struct SystemCore {
     pub modules: HashMap<ModuleId, Arc<ModuleCore>>,
     pub clock: Arc<dyn Clock>,
     router: Mutex<Router<Arc<OutcomeSlot>>>,
+    /// Frames that arrived before `start`, held for the router ([`Opening`]).
+    pub(crate) opening: Opening,
     links: OnceLock<Vec<Arc<dyn Link>>>,
     /// Per link: when small frames are held back to share a write (see [`Batching`]).
     batching: OnceLock<Vec<Batching>>,
@@ -453,6 +456,7 @@ impl SystemCore {
             modules,
             clock,
             router: Mutex::new(router),
+            opening: Opening::default(),
             links: OnceLock::new(),
             batching: OnceLock::new(),
             timer: Timer::default(),
@@ -469,8 +473,9 @@ impl SystemCore {
         })
     }
 
-    /// Installs the links (once) and, unless a simulator drives time, starts the timer
-    /// thread.
+    /// Installs the links (once), hands the router the frames that arrived while the system
+    /// opened ([`Opening`]) and, unless a simulator drives time, starts the timer thread.
+    /// The router must be the system's real one by now.
     pub(crate) fn start(
         self: &Arc<Self>,
         links: Vec<Arc<dyn Link>>,
@@ -493,6 +498,8 @@ impl SystemCore {
             }
         }
         let _ = self.links.set(links);
+        // After the links are in: what the held frames cause (acknowledgements) goes out.
+        self.release_opening_backlog();
         if !timer_thread {
             return Ok(());
         }
