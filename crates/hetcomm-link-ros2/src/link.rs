@@ -22,7 +22,7 @@ use crate::names;
 use crate::settings::{Reliability, Ros2Settings};
 
 /// Largest frame the link carries (DDS fragments it into RTPS DATA_FRAG submessages).
-pub const MAX_FRAME: usize = 16 * 1024 * 1024;
+pub const MAX_FRAME: usize = 4 * 1024 * 1024;
 
 /// Why a `ros2` link did not open.
 #[derive(Debug, thiserror::Error)]

@@ -232,10 +232,19 @@ impl FrameSink for SystemSink {
 
     /// A security session with `peer` is up: sends that waited for it go now.
     fn on_peer_up(&self, peer: SystemId) {
+        let Some(core) = self.core.upgrade() else {
+            return;
+        };
+        // Before the system starts nothing can wait for a session (no send was made yet),
+        // and every path starts up: the event has nothing to tell.
+        if core.is_closed() || !core.opening.is_ready() {
+            return;
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
         let link = self.link;
-        self.handle(|router, now| {
-            router.handle_link_event(now, hetcomm_router::LinkEvent::PeerUp { link, peer })
-        });
+        router.handle_link_event(now, hetcomm_router::LinkEvent::PeerUp { link, peer });
+        core.pump_at(router, now);
     }
 }
 
