@@ -168,10 +168,14 @@ fn udp_duplicates_are_suppressed_and_reacknowledged() {
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     assert_eq!(printed.len(), 2, "{printed:?}");
-    for (p, n) in printed.iter().zip([1, 2]) {
+    // Two messages, two ids: the restarted sender's incarnation tells them apart.
+    for (p, (n, incarnation)) in printed.iter().zip([(1, 0xAAAA_0001u32), (2, 0xBBBB_0002)]) {
         assert_eq!(p["from_system"], "Charlie");
         assert_eq!(p["to_module"], "Act");
-        assert_eq!(p["id"], json!({"origin": 2, "seq": 1}));
+        assert_eq!(
+            p["id"],
+            json!({"origin": 2, "incarnation": incarnation, "seq": 1, "broadcast_space": false})
+        );
         assert_eq!(p["payload"], json!({ "n": n }));
     }
     assert_eq!(

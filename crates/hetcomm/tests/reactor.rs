@@ -185,8 +185,14 @@ fn an_unacknowledged_udp_stream_ends_sent_at_once_and_counts_exactly() {
     let sb = f.system("B").unwrap().stats();
     assert_eq!(sb.router.received, N);
     let (_, udp) = sb.links.iter().find(|(n, _)| n == "u").unwrap();
-    // The link also carried the security handshake (this fleet's keys are made for the run).
-    assert!(udp.frames_received > N, "{udp:?}");
+    // The link carried the security handshake (this fleet's keys are made for the run) and
+    // the data as sealed records: back-to-back frames share a sealed batch, so there are at
+    // most N of them and, when the sender outpaced the socket, fewer (the count used to be
+    // asserted above N, which failed whenever batching engaged).
+    assert!(
+        udp.frames_received >= 2 && udp.frames_received <= N + 2,
+        "{udp:?}"
+    );
     assert_eq!(udp.security.rejected(), 0, "{udp:?}");
     assert!(udp.security.handshakes >= 1, "{udp:?}");
 }
