@@ -13,7 +13,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
-# Same target directory as the workspace: the crate's dependencies build once.
+# Same target directory as the workspace, and the crate's Cargo.lock pins the versions of the
+# main Cargo.lock: the dependencies build once for both.
 export CARGO_TARGET_DIR=$TARGET
 CRATE=crates/hetcomm-foxglove/Cargo.toml
 PY=${FOXGLOVE_PYTHON:-$ROOT/target/py-venv/bin/python}

@@ -259,7 +259,11 @@ mod foxglove {
         Ok(view)
     }
 
-    pub fn publish(view: &mut View, pairs: &[PairRow], systems: &[SystemRow]) -> anyhow::Result<()> {
+    pub fn publish(
+        view: &mut View,
+        pairs: &[PairRow],
+        systems: &[SystemRow],
+    ) -> anyhow::Result<()> {
         view.publish(pairs, systems)
     }
 }
@@ -275,7 +279,11 @@ mod foxglove {
         anyhow::bail!("this build has no Foxglove server: rebuild with `--features foxglove`")
     }
 
-    pub fn publish(view: &mut View, _pairs: &[PairRow], _systems: &[SystemRow]) -> anyhow::Result<()> {
+    pub fn publish(
+        view: &mut View,
+        _pairs: &[PairRow],
+        _systems: &[SystemRow],
+    ) -> anyhow::Result<()> {
         match *view {}
     }
 }

@@ -16,7 +16,9 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 
 use anyhow::Context as _;
-use foxglove::{ChannelBuilder, Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
+use foxglove::{
+    ChannelBuilder, Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle,
+};
 use hetcomm_record::stats::{PairRow, SystemRow};
 
 /// Topic carrying every pair's row.
@@ -122,15 +124,17 @@ impl FoxgloveView {
                 Some(ch) => ch.clone(),
                 None => {
                     let topic = pair_topic(&c.source, &c.destination, &c.transport);
-                    let ch = json_channel(&self.context, &topic, "hetcomm.PairRow", PAIR_ROW_SCHEMA)?;
+                    let ch =
+                        json_channel(&self.context, &topic, "hetcomm.PairRow", PAIR_ROW_SCHEMA)?;
                     self.per_pair.insert(key, ch.clone());
                     ch
                 }
             };
             channel.log(&serde_json::to_vec(row)?);
         }
-        self.systems
-            .log(&serde_json::to_vec(&serde_json::json!({ "systems": systems }))?);
+        self.systems.log(&serde_json::to_vec(
+            &serde_json::json!({ "systems": systems }),
+        )?);
         Ok(())
     }
 }
