@@ -32,6 +32,7 @@ PIP_PACKAGES=(
     "mcap>=1.1,<2"                 # reads the CLI's recordings back
     "cyclonedds==11.0.1"           # a foreign ROS 2 node (no ROS 2 install)
     "eclipse-zenoh==1.10.2"        # a plain Zenoh client written from docs/zenoh.md
+    "websockets>=12"               # a Foxglove WebSocket client written from the protocol docs
 )
 
 step() { printf '\n=== %s ===\n' "$*"; }

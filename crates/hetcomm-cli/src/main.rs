@@ -281,6 +281,10 @@ enum Command {
         /// Exit after this many seconds.
         #[arg(long)]
         duration: Option<f64>,
+        /// Also serve the statistics to Foxglove / Lichtblick over WebSocket on HOST:PORT
+        /// (docs/foxglove.md; needs a build with `--features foxglove`).
+        #[arg(long, value_name = "HOST:PORT")]
+        foxglove: Option<String>,
     },
     /// Draw a fleet's systems and, per ordered pair, the transport that carries it
     /// (docs/record-replay.md). SVG or PNG by the output's extension.
@@ -593,12 +597,14 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             listen,
             json,
             duration,
+            foxglove,
         } => {
             monitor::run(monitor::MonitorArgs {
                 fleet: &fleet,
                 listen: &listen,
                 json,
                 duration: duration.map(secs).transpose()?,
+                foxglove: foxglove.as_deref(),
             })?;
             Ok(ExitCode::SUCCESS)
         }
