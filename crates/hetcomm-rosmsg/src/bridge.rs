@@ -397,6 +397,11 @@ impl<T> Outbound<T> {
         self.by_key.insert(key, (mapping, publisher));
     }
 
+    /// Every mapping's publisher.
+    pub fn publishers(&self) -> impl Iterator<Item = &T> {
+        self.by_key.values().map(|(_, p)| p)
+    }
+
     /// The mapping, publisher and converted body of `frame`, sent to `to`; None for frames
     /// that are not data. A frame to another system, of an unmapped type, or whose payload
     /// does not convert is [`LinkError::Unconvertible`] (named by both types and the field:
