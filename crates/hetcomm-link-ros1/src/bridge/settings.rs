@@ -77,7 +77,7 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
     let connect_timeout_ms = match s.has("connect_timeout_ms") {
         true => s.int_in(
             "connect_timeout_ms",
-            0,
+            1,
             600_000,
             "write milliseconds, e.g. 2000",
         )? as u64,
