@@ -180,7 +180,7 @@ fn a_send_to_a_system_that_is_not_running_says_so() {
 /// message that does not convert fails once with its own reason.
 #[test]
 fn one_shot_sends_through_the_ros1_bridge_reach_a_running_subscriber() {
-    const BRIDGE_SENDS: usize = 5;
+    const BRIDGE_SENDS: usize = 20;
     let Some(master) = ros::Master::start() else {
         return;
     };
@@ -242,7 +242,9 @@ Tango = ["tango_ros", "X"]
         let mut cmd = std::process::Command::new(HETCOMM);
         cmd.arg("send")
             .arg(&fleet)
-            .args(["--as", "Alpha", "--to", "Tango", "--module", "Drive", "--type", "40"])
+            .args([
+                "--as", "Alpha", "--to", "Tango", "--module", "Drive", "--type", "40",
+            ])
             .args(["--json", json, "--timeout", "20"]);
         run("send through the bridge", cmd, deadline)
     };
