@@ -505,7 +505,7 @@ fn rospy_echo(master: &Master, topic: &str) -> (Proc, std::sync::mpsc::Receiver<
     });
     let echo = Proc(child);
     // Running means registered: `rostopic info` lists it among the subscribers.
-    let want = format!("Subscribers: \n * /hc_echo_");
+    let want = "Subscribers: \n * /hc_echo_";
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         assert!(
@@ -519,7 +519,7 @@ fn rospy_echo(master: &Master, topic: &str) -> (Proc, std::sync::mpsc::Receiver<
             .output()
             .expect("rostopic info");
         let text = String::from_utf8_lossy(&info.stdout);
-        if text.contains(&want) {
+        if text.contains(want) {
             return (echo, rx);
         }
         std::thread::sleep(Duration::from_millis(100));

@@ -457,7 +457,7 @@ impl Drop for Ros1Bridge {
             .name("hetcomm-ros1-bridge-close".into())
             .spawn(move || {
                 if let Some(task) = publishing {
-                    let _ = runtime.block_on(async {
+                    runtime.block_on(async {
                         let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
                         if grace {
                             tokio::time::sleep(CLOSE_GRACE).await;
