@@ -57,6 +57,9 @@ cargo test --manifest-path "$CRATE" --test fleet the_keys_parse
 
 step "ros2: hetcomm validate on the bridge example (CLI with --features ros2)"
 cargo build -q -p hetcomm-cli --features ros2
+
+step "ros2: fresh hetcomm send processes through the ros2_bridge reach a running reader"
+cargo test -p hetcomm-cli --features ros2 --test ros2_bridge_send
 "$CARGO_TARGET_DIR/debug/hetcomm" validate examples/ros2/tango-ros2.toml
 
 step "ros2: demo: Tango (Cyclone DDS rover) follows hetcomm's leader through typed topics"
