@@ -167,3 +167,108 @@ fn a_send_to_a_system_that_is_not_running_says_so() {
         assert!(took >= least, "{delivery} {extra}: took {took:?}");
     }
 }
+
+/// Fresh `hetcomm send` processes through a `ros1_bridge` (issue 40): each opens the bridge,
+/// publishes one Twist and exits. A rospy subscriber that was running before gets every one
+/// (before the bridge waited for its subscribers, each said "sent" and it got none), and a
+/// message that does not convert fails once with its own reason.
+#[test]
+fn one_shot_sends_through_the_ros1_bridge_reach_a_running_subscriber() {
+    const BRIDGE_SENDS: usize = 20;
+    let Some(master) = ros::Master::start() else {
+        return;
+    };
+    let deadline = Deadline::after(120);
+    let dir = TempDir::new("ros1-bridge-send");
+    let topic = format!("/cli_{}/cmd_vel", std::process::id());
+    let fleet = dir.write(
+        "fleet.toml",
+        &format!(
+            r#"
+[systems]
+Alpha = 0
+Tango = 4
+
+[modules]
+Drive = 1
+
+[transports.tango_ros]
+kind = "ros1_bridge"
+robot = "Tango"
+master_uri = "{}"
+delivery = "unacknowledged"
+security = "none"
+
+[transports.tango_ros.publish]
+"{topic}" = "Drive 40 geometry_msgs/Twist"
+
+[table]
+columns = ["Alpha", "Tango"]
+Alpha = ["X", "tango_ros"]
+Tango = ["tango_ros", "X"]
+"#,
+            master.uri()
+        ),
+    );
+    let script = format!(
+        "import rospy\nfrom geometry_msgs.msg import Twist\n\
+         rospy.init_node('hc_cli_echo', anonymous=True)\n\
+         rospy.Subscriber('{topic}', Twist, lambda m: print(int(m.linear.x), flush=True))\n\
+         rospy.spin()\n"
+    );
+    let mut echo = std::process::Command::new("/usr/bin/python3");
+    echo.args(["-c", &script]).envs(master.env());
+    let echo = ChildGuard::spawn("rospy subscriber", echo);
+    // Running means registered with the master.
+    loop {
+        assert!(!deadline.passed(), "the rospy subscriber did not register");
+        let info = std::process::Command::new("rostopic")
+            .args(["info", &topic])
+            .envs(master.env())
+            .output()
+            .expect("rostopic info");
+        if String::from_utf8_lossy(&info.stdout).contains("Subscribers: \n * /hc_cli_echo_") {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    let send = |json: &str| {
+        let mut cmd = std::process::Command::new(HETCOMM);
+        cmd.arg("send")
+            .arg(&fleet)
+            .args([
+                "--as", "Alpha", "--to", "Tango", "--module", "Drive", "--type", "40",
+            ])
+            .args(["--json", json, "--timeout", "20"]);
+        run("send through the bridge", cmd, deadline)
+    };
+    for i in 0..BRIDGE_SENDS {
+        let json = format!(
+            r#"{{"linear":{{"x":{i}.0,"y":0.0,"z":0.0}},"angular":{{"x":0.0,"y":0.0,"z":0.0}}}}"#
+        );
+        let sent = send(&json);
+        assert_eq!(
+            sent.stdout,
+            ["Tango: sent without confirmation (attempts: 1)"],
+            "send {i}: {sent:?}"
+        );
+        assert_eq!(sent.status.code(), Some(0), "send {i}: {sent:?}");
+    }
+    let want: Vec<String> = (0..BRIDGE_SENDS).map(|i| i.to_string()).collect();
+    while echo.stdout_lines().len() < BRIDGE_SENDS && !deadline.passed() {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert_eq!(echo.stdout_lines(), want, "what the subscriber got");
+
+    let bad = send(r#"{"speed":1.0}"#);
+    let [line] = &bad.stdout[..] else {
+        panic!("one line expected: {bad:?}");
+    };
+    assert!(
+        line.starts_with(
+            "Tango: failed: message type 40 for Drive does not convert to geometry_msgs/Twist: "
+        ) && line.ends_with(" (attempts: 1)"),
+        "{bad:?}"
+    );
+    assert_eq!(bad.status.code(), Some(1), "{bad:?}");
+}

@@ -458,3 +458,160 @@ fn the_registry_names_the_bridged_robot() {
     let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
     assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
 }
+
+/// A rospy subscriber of `topic` (`geometry_msgs/Twist`) that prints each message's
+/// `linear.x`, already registered with the master when this returns (`rostopic echo` would
+/// subscribe only once the topic has a publisher); its stdout lines come out of the receiver.
+fn rospy_echo(master: &Master, topic: &str) -> (Proc, std::sync::mpsc::Receiver<String>) {
+    use std::io::BufRead;
+    let script = format!(
+        "import rospy\nfrom geometry_msgs.msg import Twist\n\
+         rospy.init_node('hc_echo', anonymous=True)\n\
+         rospy.Subscriber('{topic}', Twist, lambda m: print(m.linear.x, flush=True))\n\
+         rospy.spin()\n"
+    );
+    let mut child = Command::new("/usr/bin/python3")
+        .args(["-c", &script])
+        .envs(master.env())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("rostopic echo");
+    let stdout = child.stdout.take().expect("piped");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let echo = Proc(child);
+    // Running means registered: `rostopic info` lists it among the subscribers.
+    let want = "Subscribers: \n * /hc_echo_";
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "the rospy subscriber did not register"
+        );
+        let info = Command::new("rostopic")
+            .args(["info", topic])
+            .envs(master.env())
+            .stderr(Stdio::null())
+            .output()
+            .expect("rostopic info");
+        let text = String::from_utf8_lossy(&info.stdout);
+        if text.contains(want) {
+            return (echo, rx);
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Issue 40: a hetcomm system that opens, sends one message through the bridge and closes at
+/// once (what `hetcomm send` does) must reach a subscriber that was already running. Before
+/// the bridge waited for its subscribers, each send said Sent and the subscriber got none:
+/// roslibrust drops what is published before a subscriber connected.
+#[test]
+fn a_one_shot_send_through_the_bridge_reaches_a_running_rospy_subscriber_20_of_20() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("oneshot");
+    let topic = format!("{p}/cmd_vel");
+    let (_echo, lines) = rospy_echo(&master, &topic);
+    const SENDS: usize = 20;
+    for i in 0..SENDS {
+        let alpha = open(&master, &p);
+        let drive = alpha.module("Drive").unwrap();
+        let cmd = Drive {
+            linear: Vector3 {
+                x: i as f64,
+                ..Default::default()
+            },
+            angular: Vector3::default(),
+        };
+        let outcome = drive.send("Tango", "Drive", &cmd).expect("send").wait();
+        assert!(
+            matches!(outcome, Outcome::Sent { attempts: 1 }),
+            "send {i}: {outcome:?}"
+        );
+        drop(drive);
+        drop(alpha);
+    }
+    // Every send's `linear.x`, in the order the subscriber printed them.
+    let mut got = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while got.len() < SENDS {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let Ok(line) = lines.recv_timeout(left) else {
+            break;
+        };
+        got.push(line.trim().parse::<f64>().expect("a number") as usize);
+    }
+    assert_eq!(
+        got,
+        (0..SENDS).collect::<Vec<_>>(),
+        "arrived at the subscriber"
+    );
+}
+
+/// A send on a topic nobody subscribes to fails, saying so, within its bound
+/// (`connect_timeout_ms` per attempt): Sent would claim what nobody could receive.
+#[test]
+fn a_send_with_no_subscriber_fails_saying_so_within_the_bound() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let p = prefix("nobody");
+    let text = fleet_text(&p, &master.uri()).replace(
+        "security = \"none\"\n",
+        "security = \"none\"\nconnect_timeout_ms = 300\n",
+    );
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let drive = alpha.module("Drive").unwrap();
+    let started = Instant::now();
+    let outcome = drive
+        .send(
+            "Tango",
+            "Drive",
+            &Drive {
+                linear: Vector3::default(),
+                angular: Vector3::default(),
+            },
+        )
+        .expect("send")
+        .wait();
+    let took = started.elapsed();
+    let Outcome::Failed {
+        reason: hetcomm::FailReason::Unreachable(why),
+        attempts,
+    } = &outcome
+    else {
+        panic!("expected failed, unreachable: {outcome:?}");
+    };
+    assert_eq!(why, &format!("no subscriber on {p}/cmd_vel within 300 ms"));
+    // Each attempt waited its 300 ms, and not much more.
+    let least = Duration::from_millis(300 * u64::from(*attempts));
+    assert!(took >= least, "took {took:?}");
+    assert!(took < least + Duration::from_secs(3), "took {took:?}");
+}
+
+/// A message that does not convert to its topic's type fails once, with the conversion as
+/// its reason (not "peer unreachable", and not retried: it never converts).
+#[test]
+fn a_conversion_error_fails_once_with_its_own_reason() {
+    let Some(master) = Master::start() else {
+        return;
+    };
+    let alpha = open(&master, &prefix("convert"));
+    let drive = alpha.module("Drive").unwrap();
+    let bad = tango::BadDrive {
+        speed: 1.0,
+        angular: Vector3::default(),
+    };
+    tango::conversion_fails_once(&drive, &bad);
+}

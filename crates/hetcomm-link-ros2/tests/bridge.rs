@@ -227,3 +227,137 @@ fn the_registry_names_the_bridged_robot() {
     let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
     assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
 }
+
+/// A Cyclone DDS (Python) reader of `topic`'s `geometry_msgs/Twist` on `domain`, with ROS 2's
+/// default QoS (the rover's types and QoS), printing each sample's `linear.x` (not the
+/// invalid samples that say a writer went away); running (its
+/// reader created) when this returns. Its stdout lines come out of the receiver.
+fn twist_reader(topic: &str, domain: u16) -> (Rover, std::sync::mpsc::Receiver<String>) {
+    use std::io::BufRead;
+    let python = std::env::var("HETCOMM_ROS2_PYTHON").expect(
+        "set HETCOMM_ROS2_PYTHON to a Python with the `cyclonedds` package \
+         (bash scripts/ros2-test.sh does)",
+    );
+    let examples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/ros2");
+    let script = format!(
+        "import sys, time\n\
+         sys.path.insert(0, {examples:?})\n\
+         from tango_rover import Twist, ros2_qos, DomainParticipant, Topic, DataReader\n\
+         dp = DomainParticipant({domain})\n\
+         qos = ros2_qos()\n\
+         reader = DataReader(dp, Topic(dp, 'rt{topic}', Twist, qos=qos), qos=qos)\n\
+         print('ready', flush=True)\n\
+         while True:\n    \
+             for s in reader.take(N=16):\n        \
+                 if hasattr(s, 'linear'):\n            \
+                     print(s.linear.x, flush=True)\n    \
+             time.sleep(0.005)\n"
+    );
+    let mut child = Command::new(python)
+        .args(["-c", &script])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start the Python reader");
+    let stdout = child.stdout.take().expect("piped");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let reader = Rover(child);
+    let first = rx.recv_timeout(Duration::from_secs(30));
+    assert_eq!(
+        first.as_deref(),
+        Ok("ready"),
+        "the Python reader did not start"
+    );
+    (reader, rx)
+}
+
+/// Issue 40: a hetcomm system that opens, sends one message through the bridge and closes at
+/// once (what `hetcomm send` does) must reach a reader that was already running. Before the
+/// bridge waited for matched readers (and for acknowledgements when closing), each send said
+/// Sent and the reader got none: the sample was written before discovery matched it.
+#[test]
+fn a_one_shot_send_through_the_bridge_reaches_a_running_cyclone_reader_20_of_20() {
+    let (p, domain) = (prefix("oneshot"), 75);
+    let (_reader, lines) = twist_reader(&format!("{p}/cmd_vel"), domain);
+    let fleet = hetcomm::parse_fleet(&fleet_text(&p, domain, ""), "b.toml", None).expect("valid");
+    const SENDS: usize = 20;
+    for i in 0..SENDS {
+        let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+        let drive = alpha.module("Drive").unwrap();
+        let cmd = tango::Drive {
+            linear: tango::Vector3 {
+                x: i as f64,
+                ..Default::default()
+            },
+            angular: tango::Vector3::default(),
+        };
+        let outcome = drive.send("Tango", "Drive", &cmd).expect("send").wait();
+        assert!(
+            matches!(outcome, hetcomm::Outcome::Sent { attempts: 1 }),
+            "send {i}: {outcome:?}"
+        );
+        drop(drive);
+        drop(alpha);
+    }
+    let mut got = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while got.len() < SENDS {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let Ok(line) = lines.recv_timeout(left) else {
+            break;
+        };
+        got.push(line.trim().parse::<f64>().expect("a number") as usize);
+    }
+    assert_eq!(got, (0..SENDS).collect::<Vec<_>>(), "arrived at the reader");
+}
+
+/// A send on a topic nobody reads fails, saying so, within its bound (`connect_timeout_ms`
+/// per attempt): Sent would claim what nobody could receive.
+#[test]
+fn a_send_with_no_subscriber_fails_saying_so_within_the_bound() {
+    let (p, domain) = (prefix("nobody"), 76);
+    let text = fleet_text(&p, domain, "connect_timeout_ms = 300");
+    let fleet = hetcomm::parse_fleet(&text, "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let drive = alpha.module("Drive").unwrap();
+    let cmd = tango::Drive {
+        linear: tango::Vector3::default(),
+        angular: tango::Vector3::default(),
+    };
+    let started = Instant::now();
+    let outcome = drive.send("Tango", "Drive", &cmd).expect("send").wait();
+    let took = started.elapsed();
+    let hetcomm::Outcome::Failed {
+        reason: hetcomm::FailReason::Unreachable(why),
+        attempts,
+    } = &outcome
+    else {
+        panic!("expected failed, unreachable: {outcome:?}");
+    };
+    assert_eq!(why, &format!("no subscriber on {p}/cmd_vel within 300 ms"));
+    let least = Duration::from_millis(300 * u64::from(*attempts));
+    assert!(took >= least, "took {took:?}");
+    assert!(took < least + Duration::from_secs(3), "took {took:?}");
+}
+
+/// A message that does not convert to its topic's type fails once, with the conversion as
+/// its reason (not "peer unreachable", and not retried: it never converts).
+#[test]
+fn a_conversion_error_fails_once_with_its_own_reason() {
+    let (p, domain) = (prefix("convert"), 77);
+    let fleet = hetcomm::parse_fleet(&fleet_text(&p, domain, ""), "b.toml", None).expect("valid");
+    let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
+    let drive = alpha.module("Drive").unwrap();
+    let bad = tango::BadDrive {
+        speed: 1.0,
+        angular: tango::Vector3::default(),
+    };
+    tango::conversion_fails_once(&drive, &bad);
+}

@@ -168,7 +168,8 @@ impl<T> Router<T> {
         self.path_result(now, id.to, tx_link, &Err(err.clone()));
         let route = self.route(id.to);
         let retry = match (&err, route) {
-            (TransmitError::TooLarge(_), _) | (_, None) => None,
+            // Neither gets better on a retry.
+            (TransmitError::TooLarge(_) | TransmitError::Unconvertible(_), _) | (_, None) => None,
             (_, Some(route)) => Some(route).filter(|r| r.attempts > 1),
         };
         // The frame stays written for the path it was refused on; a retry on another path
