@@ -175,7 +175,9 @@ fn a_send_to_a_system_that_is_not_running_says_so() {
 #[test]
 fn one_shot_sends_through_the_ros1_bridge_reach_a_running_subscriber() {
     const BRIDGE_SENDS: usize = 20;
-    let master = ros::Master::start();
+    let Some(master) = ros::Master::start() else {
+        return;
+    };
     let deadline = Deadline::after(120);
     let dir = TempDir::new("ros1-bridge-send");
     let topic = format!("/cli_{}/cmd_vel", std::process::id());
