@@ -5,16 +5,13 @@
 # python3-rostopic, the message packages; python3-msgpack for the rospy example), then
 # runs the transport crate's tests (conformance, master restart, first frame to a new peer,
 # rospy interop, rostopic; the `ros1_bridge` against rosmsg, rostopic pub/echo and the rospy
-# rover examples/ros1/tango_rover.py, Tango following included; 20 fresh systems each sending
-# once through the bridge to a running rospy subscriber, no subscriber, a conversion error),
-# `hetcomm validate` on the
+# rover examples/ros1/tango_rover.py, Tango following included), `hetcomm validate` on the
 # bridge's example fleets, the thesis's demonstration with the rospy rover as Tango
 # (`hetcomm demo --fleet examples/ros1/leader-follower-ros1.toml` on a master of its own:
 # Tango must receive the leader's four commands in order and keep within 10 units and 15
 # degrees of the simulated run each second, scripts/tango-follows.py), the facade's tests
 # (the security attack suite over ros1 included) and the CLI's `ros1_send` acceptance test
-# (50 fresh `hetcomm send` processes, each delivered on the first attempt; fresh `hetcomm
-# send` processes through the `ros1_bridge` to a running rospy subscriber) with
+# (50 fresh `hetcomm send` processes, each delivered on the first attempt) with
 # `--features ros1`.
 # Called by scripts/test.sh.
 set -euo pipefail

@@ -144,16 +144,6 @@ pub enum LinkError {
         /// Where the handshake stands, e.g. "the handshake has not been answered".
         reason: String,
     },
-    /// The frame's message cannot be put in the link's format (a ROS bridge: its fields do
-    /// not match the mapped ROS type). Nothing was sent, and a retry would fail the same way.
-    #[error("{reason}")]
-    Unconvertible {
-        /// The destination system.
-        peer: SystemId,
-        /// What does not convert, naming both types and the field, e.g. "message type 44 for
-        /// Drive does not convert to geometry_msgs/Twist: field `speed` has no counterpart …".
-        reason: String,
-    },
     /// The link was closed.
     #[error("link closed")]
     Closed,

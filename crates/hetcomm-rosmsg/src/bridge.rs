@@ -397,15 +397,9 @@ impl<T> Outbound<T> {
         self.by_key.insert(key, (mapping, publisher));
     }
 
-    /// Every mapping's publisher.
-    pub fn publishers(&self) -> impl Iterator<Item = &T> {
-        self.by_key.values().map(|(_, p)| p)
-    }
-
     /// The mapping, publisher and converted body of `frame`, sent to `to`; None for frames
     /// that are not data. A frame to another system, of an unmapped type, or whose payload
-    /// does not convert is [`LinkError::Unconvertible`] (named by both types and the field:
-    /// a retry cannot help); the others are [`LinkError::Unreachable`].
+    /// does not convert (named by both types and the field) is [`LinkError::Unreachable`].
     pub fn convert(
         &self,
         to: SystemId,
@@ -427,8 +421,7 @@ impl<T> Outbound<T> {
             )));
         };
         let what = format!("message type {} for {}", m.message, m.module);
-        let body = codec::encode(&value, m.schema, self.wire, &what)
-            .map_err(|reason| LinkError::Unconvertible { peer: to, reason })?;
+        let body = codec::encode(&value, m.schema, self.wire, &what).map_err(unreachable)?;
         Ok(Some(Converted {
             mapping: m,
             publisher,

@@ -592,7 +592,6 @@ fn reason_name(reason: &FailReason) -> String {
         FailReason::Unreachable(_) => "unreachable".into(),
         FailReason::Congested(_) => "congested".into(),
         FailReason::NoSession(_) => "no-session".into(),
-        FailReason::Unconvertible(_) => "unconvertible".into(),
         FailReason::InboxFull => "inbox-full".into(),
         FailReason::UnknownModule => "unknown-module".into(),
         FailReason::Link(_) => "link".into(),

@@ -9,13 +9,8 @@
 //!   converted by field name (`hetcomm_rosmsg::codec`, ROS 1 serialization) and published on
 //!   the topic, advertised with the ROS type's MD5 sum and definition. Nobody acknowledges it:
 //!   the transport must say `delivery = "unacknowledged"`, and the outcome is Sent (without
-//!   confirmation). As `rostopic pub` does, a send first waits (at most `connect_timeout_ms`)
-//!   until the topic's subscribers, as the master lists them, have connected (each one's
-//!   `getBusInfo` lists our connection): roslibrust drops a message published before any
-//!   subscriber connected. No subscriber within the bound fails the send, `peer unreachable:
-//!   no subscriber on TOPIC within N ms`. Closing gives queued messages a moment to be
-//!   written. A message that does not convert fails its send once
-//!   ([`LinkError::Unconvertible`]), naming both types and the field.
+//!   confirmation). A message that does not convert fails its send, naming both types and the
+//!   field.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot. A system whose `[systems]` entry
 //!   lists its modules without `MODULE` does not subscribe to that topic.
@@ -32,9 +27,8 @@ mod settings;
 mod types;
 
 use std::collections::BTreeSet;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
@@ -47,7 +41,7 @@ use hetcomm_rosmsg::schema::Flavour;
 use roslibrust::ros1::{NodeHandle, PublisherAny};
 use tokio::sync::mpsc;
 
-pub use settings::{check_topic, BridgeSettings, Mapping, DEFAULT_CONNECT_TIMEOUT_MS, KEYS};
+pub use settings::{check_topic, BridgeSettings, Mapping, KEYS};
 pub use types::description;
 
 use crate::xmlrpc;
@@ -67,23 +61,6 @@ const ROS_QUEUE: usize = 64;
 const SEND_QUEUE: usize = 1024;
 /// Longest time `open` waits for the master.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
-/// How often a send waiting for subscribers asks the master and the subscribers again.
-const SUBSCRIBER_POLL: Duration = Duration::from_millis(50);
-/// How long closing gives roslibrust's connection tasks to write what was published: they
-/// write from a queue of their own, which a dropped node loses.
-const CLOSE_GRACE: Duration = Duration::from_millis(200);
-
-/// What a send needs to wait for a topic's subscribers.
-struct Waiter {
-    /// Per publisher: its subscribers were seen connected (later sends do not wait).
-    ready: Vec<AtomicBool>,
-    master: String,
-    node_name: String,
-    /// Our node's XML-RPC URI, by which subscribers name their connection to us.
-    node_uri: String,
-    http: reqwest::Client,
-    timeout: Duration,
-}
 
 /// An inbound mapping, as its receive task sees it.
 struct Inbound {
@@ -95,13 +72,8 @@ struct Inbound {
 pub struct Ros1Bridge {
     /// Each publish mapping with the index of its publisher.
     outbound: Outbound<usize>,
-    /// To the publishing task: (index of the publisher, TCPROS-framed message); None once
-    /// closing.
-    publish: Option<mpsc::Sender<(usize, Vec<u8>)>>,
-    publishing: Option<tokio::task::JoinHandle<()>>,
-    waiter: Arc<Waiter>,
-    /// Whether anything was published (closing then gives it time to be written).
-    published: AtomicBool,
+    /// To the publishing task: (index of the publisher, TCPROS-framed message).
+    publish: mpsc::Sender<(usize, Vec<u8>)>,
     tally: Arc<Tally>,
     runtime: Option<tokio::runtime::Runtime>,
     node: Option<NodeHandle>,
@@ -163,11 +135,7 @@ impl Ros1Bridge {
                         .map_err(|e| format!("advertising {}: {e}", m.topic))?;
                     publishers.push(p);
                 }
-                let node_uri = node
-                    .get_client_uri()
-                    .await
-                    .map_err(|e| format!("the node's URI: {e}"))?;
-                Ok::<_, String>((node, publishers, node_uri))
+                Ok::<_, String>((node, publishers))
             })
             .await
             .unwrap_or_else(|_| {
@@ -177,7 +145,7 @@ impl Ros1Bridge {
                 ))
             })
         });
-        let (node, publishers, node_uri) = match opened {
+        let (node, publishers) = match opened {
             Ok(o) => o,
             Err(e) => {
                 runtime.shutdown_timeout(Duration::from_millis(500));
@@ -212,28 +180,16 @@ impl Ros1Bridge {
                 }
             })?;
         let (publish, publish_rx) = mpsc::channel(SEND_QUEUE);
-        let publishers = Arc::new(publishers);
-        let publishing = runtime.spawn(publish_loop(publishers.clone(), publish_rx));
+        runtime.spawn(publish_loop(publishers, publish_rx));
         runtime.spawn(check_publisher_types(
             settings.master_uri.clone(),
-            node_name.clone(),
+            node_name,
             read,
             tally.clone(),
         ));
-        let waiter = Arc::new(Waiter {
-            ready: publishers.iter().map(|_| AtomicBool::new(false)).collect(),
-            master: settings.master_uri.clone(),
-            node_name,
-            node_uri,
-            http: reqwest::Client::new(),
-            timeout: Duration::from_millis(settings.connect_timeout_ms),
-        });
         Ok(Ros1Bridge {
             outbound,
-            publish: Some(publish),
-            publishing: Some(publishing),
-            waiter,
-            published: AtomicBool::new(false),
+            publish,
             tally,
             runtime: Some(runtime),
             node: Some(node),
@@ -247,79 +203,7 @@ impl Ros1Bridge {
     }
 }
 
-/// Waits (at most `waiter.timeout`) until `topic` (of publisher `index`) has a subscriber and
-/// every subscriber the master lists lists our connection in its `getBusInfo` (nodes that
-/// cannot tell count as connected); why not if it does not happen. roslibrust's publisher
-/// cannot tell: it counts a receiver of its own as a connection, and hands a new connection
-/// only what is published after it.
-async fn wait_subscribers(waiter: Arc<Waiter>, index: usize, topic: String) -> Result<(), String> {
-    let w = &waiter;
-    let deadline = Instant::now() + w.timeout;
-    loop {
-        let left = deadline
-            .saturating_duration_since(Instant::now())
-            .max(Duration::from_millis(50));
-        let args = vec![w.node_name.clone().into()];
-        let subscribers = xmlrpc::call(&w.http, &w.master, "getSystemState", args, left)
-            .await
-            .ok()
-            .map(|state| xmlrpc::Graph::from_value(&state).subscribers(&topic));
-        if let Some(nodes) = subscribers.as_ref().filter(|n| !n.is_empty()) {
-            let mut all = true;
-            for node in nodes {
-                if bus_info_connected(w, node, &topic, left).await == Some(false) {
-                    all = false;
-                    break;
-                }
-            }
-            if all {
-                w.ready[index].store(true, Ordering::Release);
-                return Ok(());
-            }
-        }
-        if Instant::now() >= deadline {
-            let ms = w.timeout.as_millis();
-            return Err(match subscribers {
-                None => format!("the ROS master did not answer within {ms} ms"),
-                Some(s) if s.is_empty() => format!("no subscriber on {topic} within {ms} ms"),
-                Some(s) => format!(
-                    "the subscribers of {topic} ({}) did not all connect within {ms} ms",
-                    s.join(", ")
-                ),
-            });
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        tokio::time::sleep(SUBSCRIBER_POLL.min(left)).await;
-    }
-}
-
-/// Whether `node`'s `getBusInfo` lists a connection from our node on `topic`; None if it
-/// cannot tell (no such call, or the node did not answer).
-async fn bus_info_connected(
-    w: &Waiter,
-    node: &str,
-    topic: &str,
-    timeout: Duration,
-) -> Option<bool> {
-    let args = vec![w.node_name.clone().into(), node.to_string().into()];
-    let serde_xmlrpc::Value::String(uri) =
-        xmlrpc::call(&w.http, &w.master, "lookupNode", args, timeout)
-            .await
-            .ok()?
-    else {
-        return None;
-    };
-    let args = vec![w.node_name.clone().into()];
-    let info = xmlrpc::call(&w.http, &uri, "getBusInfo", args, timeout)
-        .await
-        .ok()?;
-    Some(xmlrpc::bus_info_has_inbound(&info, topic, &w.node_uri))
-}
-
-async fn publish_loop(
-    publishers: Arc<Vec<PublisherAny>>,
-    mut rx: mpsc::Receiver<(usize, Vec<u8>)>,
-) {
+async fn publish_loop(publishers: Vec<PublisherAny>, mut rx: mpsc::Receiver<(usize, Vec<u8>)>) {
     while let Some((index, framed)) = rx.recv().await {
         if let Some(p) = publishers.get(index) {
             // The outcome is already Sent (without confirmation); ROS 1 says nothing more.
@@ -390,39 +274,12 @@ impl Link for Ros1Bridge {
             return Ok(());
         };
         let (m, index, body) = (out.mapping, *out.publisher, out.body);
-        let Some(publish) = &self.publish else {
-            return Err(LinkError::Closed);
-        };
-        let w = &self.waiter;
-        if !w.ready[index].load(Ordering::Acquire) {
-            // On the runtime, answered over a std channel: the caller may be on another
-            // runtime's thread, where blocking on ours is not allowed.
-            let (tx, rx) = std::sync::mpsc::channel();
-            let (waiter, topic) = (w.clone(), m.topic.clone());
-            self.runtime
-                .as_ref()
-                .ok_or(LinkError::Closed)?
-                .spawn(async move { tx.send(wait_subscribers(waiter, index, topic).await) });
-            let reason = match rx.recv_timeout(w.timeout + Duration::from_secs(2)) {
-                Ok(Ok(())) => None,
-                Ok(Err(reason)) => Some(reason),
-                Err(_) => Some(format!(
-                    "no subscriber on {} within {} ms",
-                    m.topic,
-                    w.timeout.as_millis()
-                )),
-            };
-            if let Some(reason) = reason {
-                return Err(LinkError::Unreachable { peer: to, reason });
-            }
-        }
         // TCPROS frames each message with its length.
         let mut framed = Vec::with_capacity(body.len() + 4);
         framed.extend_from_slice(&(body.len() as u32).to_le_bytes());
         framed.extend_from_slice(&body);
-        match publish.try_send((index, framed)) {
+        match self.publish.try_send((index, framed)) {
             Ok(()) => {
-                self.published.store(true, Ordering::Relaxed);
                 self.tally.sent();
                 Ok(())
             }
@@ -447,23 +304,11 @@ impl Drop for Ros1Bridge {
         let (Some(runtime), node) = (self.runtime.take(), self.node.take()) else {
             return;
         };
-        // The publishing task ends once it has handed on everything queued.
-        self.publish = None;
-        let publishing = self.publishing.take();
-        let grace = self.published.load(Ordering::Relaxed);
         // On a plain thread: this may run inside another async runtime, where blocking on
         // ours is not allowed; roslibrust unregisters a dropped node with blocking calls.
         let shutdown = std::thread::Builder::new()
             .name("hetcomm-ros1-bridge-close".into())
             .spawn(move || {
-                if let Some(task) = publishing {
-                    runtime.block_on(async {
-                        let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
-                        if grace {
-                            tokio::time::sleep(CLOSE_GRACE).await;
-                        }
-                    });
-                }
                 {
                     let _guard = runtime.enter();
                     drop(node);

@@ -17,10 +17,6 @@ pub struct BridgeSettings {
     /// The ROS master's XML-RPC URI (`master_uri`; default `$ROS_MASTER_URI`, else
     /// `http://localhost:11311`).
     pub master_uri: String,
-    /// `connect_timeout_ms` (default [`DEFAULT_CONNECT_TIMEOUT_MS`]): how long a send on a
-    /// published topic waits for the topic's subscribers (as the master lists them then) to
-    /// connect, and for one to appear if none does.
-    pub connect_timeout_ms: u64,
     /// `[transports.x.publish]`: sends to (robot, module) of a message type become ROS
     /// messages on a topic.
     pub publish: Vec<Mapping>,
@@ -30,17 +26,7 @@ pub struct BridgeSettings {
 }
 
 /// The keys of a `ros1_bridge` table, besides the shared ones.
-pub const KEYS: [&str; 5] = [
-    COMMON_KEYS[0],
-    "master_uri",
-    "connect_timeout_ms",
-    COMMON_KEYS[1],
-    COMMON_KEYS[2],
-];
-
-/// `connect_timeout_ms` when the table does not say: long enough for `rostopic echo` or a
-/// rospy node on the same network to connect (they take 0.1–0.5 s after they register).
-pub const DEFAULT_CONNECT_TIMEOUT_MS: u64 = 2000;
+pub const KEYS: [&str; 4] = [COMMON_KEYS[0], "master_uri", COMMON_KEYS[1], COMMON_KEYS[2]];
 
 /// Why `topic` is not a global ROS 1 topic name (`/seg/seg`, segments of letters, digits and
 /// `_` starting with a letter).
@@ -74,20 +60,10 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         }
         false => hetcomm_config::default_master_uri(),
     };
-    let connect_timeout_ms = match s.has("connect_timeout_ms") {
-        true => s.int_in(
-            "connect_timeout_ms",
-            1,
-            600_000,
-            "write milliseconds, e.g. 2000",
-        )? as u64,
-        false => DEFAULT_CONNECT_TIMEOUT_MS,
-    };
     let common = parse_common(s, Flavour::Ros1, "ros1_bridge", check_topic)?;
     Some(BridgeSettings {
         robot: common.robot,
         master_uri,
-        connect_timeout_ms,
         publish: common.publish,
         subscribe: common.subscribe,
     })

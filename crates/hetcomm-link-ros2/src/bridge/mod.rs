@@ -7,12 +7,8 @@
 //! * **publish** (hetcomm → ROS): a message of type `TYPE_ID` sent to (robot, `MODULE`) is
 //!   converted by field name ([`crate::rostypes`]) and published on the topic. Nobody
 //!   acknowledges it: the transport must say `delivery = "unacknowledged"`, and the outcome
-//!   is Sent (without confirmation). A send first waits (at most `connect_timeout_ms`) until
-//!   the writer has a matched reader and as many as discovery knows for the topic (a sample
-//!   written before a reader matched never reaches it); none within the bound fails the send,
-//!   `peer unreachable: no subscriber on TOPIC within N ms`. Closing waits (at most 1 s) for
-//!   reliable readers to acknowledge what was written. A message that does not convert fails
-//!   its send once ([`LinkError::Unconvertible`]), naming both types and the field.
+//!   is Sent (without confirmation). A message that does not convert fails its send, naming
+//!   both types and the field.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot (the frame's source module is the
 //!   same module id). A system whose `[systems]` entry lists its modules without `MODULE`
@@ -26,7 +22,7 @@
 
 mod settings;
 
-use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -41,7 +37,7 @@ use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReader, DataWriter};
-use rustdds::{DataWriterStatus, DomainParticipant, StatusEvented, TopicKind};
+use rustdds::{DomainParticipant, TopicKind};
 
 pub use settings::{BridgeSettings, Mapping, KEYS};
 
@@ -65,43 +61,10 @@ struct Shared {
     closed: AtomicBool,
 }
 
-/// A published topic's writer and what it knows of its readers.
-struct Writer {
-    writer: DataWriter<RawCdr, RawAdapter>,
-    /// The topic's DDS name (`rt/...`), to count its discovered readers.
-    dds_topic: String,
-    /// Readers matched to the writer, as its status events last said.
-    matched: AtomicI32,
-    /// Whether the readers discovered once were all matched (later sends do not wait).
-    ready: AtomicBool,
-    /// Whether anything was written (closing then waits for acknowledgements).
-    written: AtomicBool,
-}
-
-impl Writer {
-    /// Applies the writer's pending status events; returns the matched readers.
-    fn refresh(&self) -> i32 {
-        while let Some(status) = self.writer.try_recv_status() {
-            if let DataWriterStatus::PublicationMatched { current, .. } = status {
-                self.matched.store(current.count(), Ordering::Relaxed);
-            }
-        }
-        self.matched.load(Ordering::Relaxed)
-    }
-}
-
-/// How long a send waits after its writer matched the topic's readers before it writes.
-const MATCH_SETTLE: Duration = Duration::from_millis(200);
-
-/// How long closing waits, at most, for reliable readers to acknowledge what was written.
-const CLOSE_ACK_WAIT: Duration = Duration::from_secs(1);
-
 /// A link to an external ROS 2 robot through typed topics.
 pub struct Ros2Bridge {
     /// Each publish mapping with its DDS writer.
-    outbound: Outbound<Writer>,
-    /// How long a send waits for its topic's readers to be matched (`connect_timeout_ms`).
-    connect_timeout: Duration,
+    outbound: Outbound<DataWriter<RawCdr, RawAdapter>>,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
     _participant: DomainParticipant,
@@ -142,13 +105,6 @@ impl Ros2Bridge {
             let writer = publisher
                 .create_datawriter_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the writer of {}", m.topic)))?;
-            let writer = Writer {
-                writer,
-                dds_topic: names::dds_topic(&m.topic),
-                matched: AtomicI32::new(0),
-                ready: AtomicBool::new(false),
-                written: AtomicBool::new(false),
-            };
             outbound.insert(module, m.clone(), writer);
         }
         let subscriber = dp
@@ -186,7 +142,6 @@ impl Ros2Bridge {
             .spawn(move || rx.run())?;
         Ok(Ros2Bridge {
             outbound,
-            connect_timeout: Duration::from_millis(settings.dds.connect_timeout_ms),
             shared,
             receiver: Some(receiver),
             _participant: dp,
@@ -197,42 +152,6 @@ impl Ros2Bridge {
     /// type on a mapped topic), each once.
     pub fn problems(&self) -> Vec<String> {
         self.shared.tally.problems()
-    }
-
-    /// Waits (at most the connect timeout) until `w` has a matched reader and as many as
-    /// discovery knows readers of its topic: a sample written before a reader is matched
-    /// never reaches it (volatile durability). Why not if that does not happen.
-    fn wait_matched(&self, w: &Writer, topic: &str) -> Result<(), String> {
-        let deadline = Instant::now() + self.connect_timeout;
-        let mut pause = Duration::from_micros(200);
-        loop {
-            let matched = w.refresh();
-            let known = self
-                ._participant
-                .discovered_readers()
-                .iter()
-                .filter(|r| r.subscription_topic_data.topic_name == w.dds_topic)
-                .count();
-            if matched > 0 && matched as usize >= known {
-                // Our side matched first: the reader's side learns of the writer by its own
-                // discovery, a moment later, and a volatile reader skips what was written
-                // before it matched.
-                std::thread::sleep(MATCH_SETTLE);
-                w.ready.store(true, Ordering::Relaxed);
-                return Ok(());
-            }
-            if Instant::now() >= deadline {
-                let ms = self.connect_timeout.as_millis();
-                return Err(match known {
-                    0 => format!("no subscriber on {topic} within {ms} ms"),
-                    n => format!(
-                        "{matched} of the {n} subscribers of {topic} matched within {ms} ms"
-                    ),
-                });
-            }
-            std::thread::sleep(pause);
-            pause = (pause * 2).min(Duration::from_millis(10));
-        }
     }
 }
 
@@ -353,12 +272,7 @@ impl Link for Ros2Bridge {
         let Some(out) = self.outbound.convert(to, frame)? else {
             return Ok(());
         };
-        let (m, w) = (out.mapping, out.publisher);
-        if !w.ready.load(Ordering::Relaxed) {
-            self.wait_matched(w, &m.topic)
-                .map_err(|reason| LinkError::Unreachable { peer: to, reason })?;
-        }
-        let writer = &w.writer;
+        let (m, writer) = (out.mapping, out.publisher);
         let cdr = RawCdr {
             body: out.body,
             little: true,
@@ -366,7 +280,6 @@ impl Link for Ros2Bridge {
         };
         match writer.write(cdr, None) {
             Ok(()) => {
-                w.written.store(true, Ordering::Relaxed);
                 self.shared.tally.sent();
                 Ok(())
             }
@@ -388,15 +301,6 @@ impl Link for Ros2Bridge {
 
 impl Drop for Ros2Bridge {
     fn drop(&mut self) {
-        // A process that exits right after a send (`hetcomm send`) must not take the sample
-        // with it before the reliable readers have it (best effort returns at once).
-        let deadline = Instant::now() + CLOSE_ACK_WAIT;
-        for w in self.outbound.publishers() {
-            if w.written.load(Ordering::Relaxed) {
-                let left = deadline.saturating_duration_since(Instant::now());
-                let _ = w.writer.wait_for_acknowledgments(left);
-            }
-        }
         self.shared.closed.store(true, Ordering::Relaxed);
         if let Some(t) = self.receiver.take() {
             let _ = t.join();

@@ -68,7 +68,7 @@ impl Outcome {
         self.inner.reason().map(|r| r.to_string())
     }
     /// Why it failed or went unconfirmed, as a short code: "no_acknowledgement",
-    /// "unreachable", "congested", "no_session", "unconvertible", "inbox_full", "unknown_module", "link",
+    /// "unreachable", "congested", "no_session", "inbox_full", "unknown_module", "link",
     /// "backpressure", "shutdown".
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
@@ -81,7 +81,6 @@ impl Outcome {
             FailReason::Backpressure => "backpressure",
             FailReason::Congested(_) => "congested",
             FailReason::NoSession(_) => "no_session",
-            FailReason::Unconvertible(_) => "unconvertible",
             FailReason::Shutdown => "shutdown",
             _ => "other",
         })

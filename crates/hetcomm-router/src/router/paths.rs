@@ -63,10 +63,7 @@ impl<T> Router<T> {
             Err(TransmitError::Congested(_)) => self.set_path_health(now, peer, link, true, true),
             // A missing session says nothing about the path: the handshake runs on it.
             Err(
-                TransmitError::TooLarge(_)
-                | TransmitError::Unconvertible(_)
-                | TransmitError::Other(_)
-                | TransmitError::NoSession(_),
+                TransmitError::TooLarge(_) | TransmitError::Other(_) | TransmitError::NoSession(_),
             ) => {}
         }
     }

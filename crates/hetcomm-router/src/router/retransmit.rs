@@ -124,7 +124,7 @@ impl<T> Router<T> {
                     self.finish(id, Outcome::Sent { attempts });
                 }
             }
-            Err(err @ (TransmitError::TooLarge(_) | TransmitError::Unconvertible(_))) => {
+            Err(err @ TransmitError::TooLarge(_)) => {
                 let outcome = p.give_up(err.into());
                 self.finish(id, outcome);
             }

@@ -168,8 +168,7 @@ impl<T> Router<T> {
         self.path_result(now, id.to, tx_link, &Err(err.clone()));
         let route = self.route(id.to);
         let retry = match (&err, route) {
-            // Neither gets better on a retry.
-            (TransmitError::TooLarge(_) | TransmitError::Unconvertible(_), _) | (_, None) => None,
+            (TransmitError::TooLarge(_), _) | (_, None) => None,
             (_, Some(route)) => Some(route).filter(|r| r.attempts > 1),
         };
         // The frame stays written for the path it was refused on; a retry on another path

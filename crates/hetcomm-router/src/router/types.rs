@@ -332,12 +332,6 @@ pub enum FailReason {
     /// handshake stood, e.g. "no secure session with B: handshake unanswered for 0.3 s; …".
     #[error("{0}")]
     NoSession(String),
-    /// The message does not convert to what its link carries (a ROS bridge's mapped type):
-    /// the text names both types and the field, e.g. "message type 44 for Drive does not
-    /// convert to geometry_msgs/Twist: field `speed` has no counterpart in
-    /// geometry_msgs/Twist". Tried once: a conversion never succeeds on a retry.
-    #[error("{0}")]
-    Unconvertible(String),
     /// The link refused the frame for another reason.
     #[error("transport error: {0}")]
     Link(String),
@@ -494,9 +488,6 @@ pub enum TransmitError {
     Congested(String),
     /// The frame can never fit (not retried).
     TooLarge(String),
-    /// The message does not convert to the link's format, e.g. a ROS bridge's mapped type
-    /// (not retried: it never will). The text names both types and the field.
-    Unconvertible(String),
     /// The link has no secure session with the peer yet and did not send the frame; it has
     /// started the handshake. The frame goes again when the link reports the session up
     /// ([`LinkEvent::PeerUp`]), else after a round trip's wait; such offers count as attempts
@@ -514,7 +505,6 @@ impl From<TransmitError> for FailReason {
             TransmitError::Unreachable(r) => FailReason::Unreachable(r),
             TransmitError::Congested(r) => FailReason::Congested(r),
             TransmitError::NoSession(r) => FailReason::NoSession(r),
-            TransmitError::Unconvertible(r) => FailReason::Unconvertible(r),
             TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
         }
     }

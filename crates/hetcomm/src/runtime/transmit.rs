@@ -189,7 +189,6 @@ pub(super) fn transmit_error(directory: &Directory, e: LinkError) -> TransmitErr
     match e {
         LinkError::Unreachable { reason, .. } => TransmitError::Unreachable(reason),
         LinkError::TooLarge { .. } => TransmitError::TooLarge(e.to_string()),
-        LinkError::Unconvertible { reason, .. } => TransmitError::Unconvertible(reason),
         LinkError::Congested { peer, reason } => TransmitError::Congested(format!(
             "link to {} is congested: {reason}",
             directory.system_name(peer)
