@@ -157,8 +157,12 @@ impl<T> Router<T> {
         p.attempts -= 1;
         p.session_waits += 1;
         let offers = p.attempts + p.session_waits;
-        if offers >= p.route.attempts {
-            p.attempts = offers;
+        // The last offer of the budget still gets its round trip's wait for the session, as
+        // a frame that left gets its wait for an acknowledgement: a handshake that needs a
+        // reconnection (the peer's old connection to a restarted sender is gone) takes longer
+        // than the first offers' waits. Past it the send gives up, every offer counted.
+        if offers > p.route.attempts {
+            p.attempts = p.route.attempts;
             let outcome = p.give_up(err.into());
             return self.finish(id, outcome);
         }
