@@ -141,14 +141,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         if now >= next_look {
             let drops = Drops::of(&comm.stats());
             if drops != shown {
-                let at = clock.format(Time::now_wall());
-                if args.verbose {
-                    for line in drops.changes_since(&shown) {
-                        eprintln!("{at}  {line}");
-                    }
-                } else {
-                    eprintln!("{at}  {}", drops.status(seen));
-                }
+                print_moved(&drops, &shown, seen, args.verbose, &clock);
                 shown = drops;
             }
             next_look = now + every;
@@ -187,14 +180,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     // last moments before the end read like the rest.
     let drops = Drops::of(&stats);
     if drops != shown {
-        let at = clock.format(Time::now_wall());
-        if args.verbose {
-            for line in drops.changes_since(&shown) {
-                eprintln!("{at}  {line}");
-            }
-        } else {
-            eprintln!("{at}  {}", drops.status(seen));
-        }
+        print_moved(&drops, &shown, seen, args.verbose, &clock);
     }
     eprintln!("{}", summary(seen, &stats));
     Ok(())
@@ -240,6 +226,19 @@ fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::
                 }
             }
         });
+}
+
+/// The status line for counters that moved since `shown` (each change on its own line when
+/// `verbose`), on stderr.
+fn print_moved(drops: &Drops, shown: &Drops, seen: usize, verbose: bool, clock: &Clock) {
+    let at = clock.format(Time::now_wall());
+    if verbose {
+        for line in drops.changes_since(shown) {
+            eprintln!("{at}  {line}");
+        }
+    } else {
+        eprintln!("{at}  {}", drops.status(seen));
+    }
 }
 
 /// The line printed at the end: messages printed, then every counter (zeros included, so
