@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use clap::{Args, Subcommand, ValueEnum};
+use hetcomm_experiments::latency::{self, LatencyConfig};
 use hetcomm_experiments::reliability::{self, LossModel, Mode, ReliabilityConfig};
 use hetcomm_experiments::report::{self, Format};
 use hetcomm_experiments::sweep::{self, SweepConfig};
@@ -25,6 +26,58 @@ pub enum Experiment {
     /// thesis's 413 of 420, and writes reliability.json, summary.csv and tables.csv (and the
     /// fleet used, under fleet/) into --out.
     Reliability(ReliabilityArgs),
+    /// The delay analysis of the thesis's future work (§6.1): one-way and round-trip delay per
+    /// ordered pair and transport of a fleet, under a load (--rate messages per second per
+    /// pair) and a payload size (--size). Pairs on emulated links run in the virtual-time
+    /// simulator (seeded: the same seed gives the same figures); pairs on real transports run
+    /// in real time, every system opened in this process over the real transports, timed on
+    /// the monotonic clock. The output states the clock method.
+    ///
+    /// Prints p50/p90/p99/p99.9/max per pair and writes latency.json, summary.csv,
+    /// samples.csv (every sample) and plots/<from>-<to>.png (histogram and CDF) into --out.
+    Latency(LatencyArgs),
+}
+
+/// Options of `hetcomm experiment latency`.
+#[derive(Args)]
+pub struct LatencyArgs {
+    /// The fleet file to measure (e.g. examples/leader_follower/fleet.toml).
+    #[arg(long, value_name = "FILE", required_unless_present = "against_thesis")]
+    fleet: Option<PathBuf>,
+    /// Measure the thesis's §5.1 fleet (Tables 6–8) with R and B emulated as in the
+    /// reliability experiment (R = `wired`, B = `bluetooth-classic`), and print the delays the
+    /// thesis publishes beside ours (written to OUT/fleet/).
+    #[arg(long, conflicts_with = "fleet")]
+    against_thesis: bool,
+    /// Counted probes per ordered pair.
+    #[arg(long, default_value_t = LatencyConfig::default().messages)]
+    messages: u32,
+    /// Probes per pair sent first and not counted.
+    #[arg(long, default_value_t = LatencyConfig::default().warmup)]
+    warmup: u32,
+    /// Load: probes per second per ordered pair (every pair sends at once).
+    #[arg(long, value_name = "MSG_PER_S", default_value_t = LatencyConfig::default().rate_hz)]
+    rate: f64,
+    /// Payload bytes of each probe and echo (at least 4: the sequence number).
+    #[arg(long, value_name = "BYTES", default_value_t = LatencyConfig::default().size_bytes)]
+    size: usize,
+    /// Seed of the simulator (the emulated links' loss and jitter).
+    #[arg(long, default_value_t = LatencyConfig::default().seed)]
+    seed: u64,
+    /// Run every pair in real time, emulated links included (emulated then in real time).
+    #[arg(long)]
+    realtime: bool,
+    /// After the last probe, how long to wait for the last receipts and echoes, ms.
+    #[arg(long, value_name = "MS", default_value_t = 2000)]
+    drain_ms: u64,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "hetcomm-out/latency")]
+    out: PathBuf,
+    /// What to print on stdout (files are always written): text, csv (summary.csv) or json.
+    #[arg(long, value_enum, default_value_t = FormatArg::Text)]
+    format: FormatArg,
+    #[command(flatten)]
+    security: SecurityArgs,
 }
 
 /// Which modes to run.
@@ -105,6 +158,7 @@ pub struct ReliabilityArgs {
 pub fn run(experiment: Experiment) -> anyhow::Result<ExitCode> {
     match experiment {
         Experiment::Reliability(args) => reliability_cmd(args),
+        Experiment::Latency(args) => latency_cmd(args),
     }
 }
 
@@ -234,6 +288,58 @@ fn reliability_cmd(args: ReliabilityArgs) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(exit(ok))
+}
+
+fn latency_cmd(args: LatencyArgs) -> anyhow::Result<ExitCode> {
+    let start = Instant::now();
+    let config = LatencyConfig {
+        messages: args.messages,
+        warmup: args.warmup,
+        rate_hz: args.rate,
+        size_bytes: args.size,
+        seed: args.seed,
+        realtime: args.realtime,
+        drain: std::time::Duration::from_millis(args.drain_ms),
+    };
+    latency::validate(&config)?;
+    let (fleet, fleet_file) = match &args.fleet {
+        Some(path) => (args.security.load(path)?, None),
+        None => {
+            let path = latency::thesis::write_fleet(&args.out.join("fleet"))?;
+            (args.security.load(&path)?, Some(path))
+        }
+    };
+    let thesis: Option<&dyn Fn(&str, &str) -> String> = if args.against_thesis {
+        Some(&latency::thesis::published)
+    } else {
+        None
+    };
+    let report = latency::run(&fleet, &config, thesis)?;
+    let mut paths = latency::write_files(&report, &args.out)?;
+    paths.extend(fleet_file);
+    let wall = start.elapsed().as_secs_f64();
+    match args.format {
+        FormatArg::Text => {
+            print!("{}", latency::text(&report));
+            println!();
+            print_paths(false, &paths);
+        }
+        FormatArg::Csv => {
+            print!("{}", latency::csv_summary(&report));
+            print_paths(true, &paths);
+        }
+        FormatArg::Json => {
+            let mut value = serde_json::to_value(&report)?;
+            value["wall_time_s"] = serde_json::json!(wall);
+            value["files"] = serde_json::json!(paths);
+            println!("{}", serde_json::to_string_pretty(&value)?);
+        }
+    }
+    // The wall time varies from run to run: on stderr, so that stdout of a simulated run is
+    // the same every time.
+    eprintln!("wall time: {wall:.3} s");
+    let duplicates: u64 = report.pairs.iter().map(|p| p.duplicates).sum();
+    Ok(exit(duplicates == 0))
 }
 
 /// Exit status: 0, or 1 when an invariant broke (unbalanced accounting, a duplicate reached an

@@ -314,7 +314,8 @@ enum Command {
         #[arg(long, default_value_t = 10_000)]
         lease_ms: u32,
     },
-    /// Run an experiment of the thesis in virtual time (`hetcomm experiment reliability`).
+    /// Run an experiment of the thesis: `hetcomm experiment reliability` (§5.2, in virtual
+    /// time) or `hetcomm experiment latency` (the delay analysis of §6.1).
     Experiment {
         #[command(subcommand)]
         experiment: experiment::Experiment,

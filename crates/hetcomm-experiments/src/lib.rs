@@ -14,6 +14,10 @@
 //! [`sweep`] repeats both modes over a range of loss rates (independent and bursty) and plots
 //! the delivery ratio and the delay ([`plot`]). [`report`] formats a run as text, CSV or JSON.
 //!
+//! [`latency`] is the delay analysis the thesis leaves for future work (§6.1): one-way and
+//! round-trip delay per ordered pair and transport of any fleet, under a given load and
+//! message size, in virtual time for emulated links and in real time for real ones.
+//!
 //! ```no_run
 //! use hetcomm_experiments::reliability::{self, ReliabilityConfig};
 //!
@@ -26,6 +30,7 @@
 
 #![warn(missing_docs)]
 
+pub mod latency;
 pub mod plot;
 pub mod reliability;
 pub mod report;

@@ -170,13 +170,23 @@ pub fn render_sweep(report: &SweepReport) -> Result<Vec<u8>, ExperimentError> {
 /// Renders the sweep and writes it as an 8-bit RGB PNG.
 pub fn sweep_png(report: &SweepReport, path: &Path) -> Result<(), ExperimentError> {
     let pixels = render_sweep(report)?;
+    write_png(&pixels, WIDTH, HEIGHT, path)
+}
+
+/// Encodes `width × height` RGB pixels as an 8-bit PNG and writes it to `path`.
+pub fn write_png(
+    pixels: &[u8],
+    width: u32,
+    height: u32,
+    path: &Path,
+) -> Result<(), ExperimentError> {
     let mut out = Vec::new();
     {
-        let mut enc = png::Encoder::new(&mut out, WIDTH, HEIGHT);
+        let mut enc = png::Encoder::new(&mut out, width, height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(draw_err)?;
-        writer.write_image_data(&pixels).map_err(draw_err)?;
+        writer.write_image_data(pixels).map_err(draw_err)?;
     }
     std::fs::write(path, out).map_err(ExperimentError::io(format!("writing {}", path.display())))
 }
