@@ -35,6 +35,7 @@ mod config_scale;
 mod ext;
 mod harness_cost;
 mod hc;
+mod latency_exp;
 mod raw;
 mod record_bench;
 mod report;
@@ -412,6 +413,13 @@ fn run(o: &Options) -> Vec<Row> {
                 |k| Box::new(move || raw::rtt(k, size, warmup, iters)),
                 |k, acked| Box::new(move || hc::rtt(k, acked, size, warmup, iters)),
             );
+            // `hetcomm experiment latency` on a real UDP fleet, in the same rounds as the
+            // `hetcomm-udp-unack` row its target compares it with.
+            if o.path_wanted(latency_exp::PATH) {
+                let run: Run<stats::Latency> =
+                    Box::new(move || latency_exp::rtt(size, warmup, iters));
+                paths.push((latency_exp::PATH.to_string(), run));
+            }
             // Two C++ processes, in the same rounds as the Rust rows it is compared with.
             if let Some(bin) = o.cpp_bin.clone().filter(|_| size == 64) {
                 if o.path_wanted(report::CPP_PATH) {

@@ -387,6 +387,7 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
     });
     t.extend(crate::secured::targets(rows));
     t.extend(crate::harness_cost::targets(rows));
+    t.extend(crate::latency_exp::targets(rows));
     t.extend(super::peers::record(rows));
     t.extend(super::peers::zenoh(rows));
     t.extend(super::peers::ros2(rows));

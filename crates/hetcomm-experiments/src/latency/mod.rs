@@ -288,6 +288,8 @@ pub struct LatencyReport {
     pub seed: u64,
     /// The clock method of each clock used, by clock name.
     pub clock_methods: std::collections::BTreeMap<String, String>,
+    /// What the run changed or noticed about the fleet (free ports given to port-0 endpoints).
+    pub notes: Vec<String>,
     /// Whether the thesis's figures are beside ours (`--against-thesis`).
     pub against_thesis: bool,
     /// One report per ordered pair, by (from, to) id.

@@ -16,7 +16,7 @@ fn pair_lines(out: &mut String, p: &PairReport) {
     let name = format!("{} → {}", p.from, p.to);
     let _ = writeln!(
         out,
-        "{:<26} {:<16} {:<7} {:<10} {:>6} {:>5} {}",
+        "{:<24} {:<20} {:<7} {:<10} {:>6} {:>5} {}",
         name,
         p.transport,
         p.clock.name(),
@@ -30,7 +30,7 @@ fn pair_lines(out: &mut String, p: &PairReport) {
             let back = format!("back: {}", p.return_transport.as_deref().unwrap_or("-"));
             let _ = writeln!(
                 out,
-                "{:<26} {:<16} {:<7} {:<10} {:>6} {:>5} {}",
+                "{:<24} {:<20} {:<7} {:<10} {:>6} {:>5} {}",
                 "",
                 back,
                 "",
@@ -43,7 +43,7 @@ fn pair_lines(out: &mut String, p: &PairReport) {
         _ => {
             let _ = writeln!(
                 out,
-                "{:<26} {:<16} {:<7} {:<10} no way back: the table has no pair {} → {}",
+                "{:<24} {:<20} {:<7} {:<10} no way back: the table has no pair {} → {}",
                 "", "", "", "round-trip", p.to, p.from
             );
         }
@@ -51,7 +51,7 @@ fn pair_lines(out: &mut String, p: &PairReport) {
     if p.refused > 0 || p.duplicates > 0 || p.echoes_refused > 0 {
         let _ = writeln!(
             out,
-            "{:<26} sent {} ({} refused{}), echoes refused {}, duplicates {}",
+            "{:<24} sent {} ({} refused{}), echoes refused {}, duplicates {}",
             "",
             p.sent,
             p.refused,
@@ -64,7 +64,7 @@ fn pair_lines(out: &mut String, p: &PairReport) {
         );
     }
     if let Some(t) = &p.thesis {
-        let _ = writeln!(out, "{:<26} thesis: {t}", "");
+        let _ = writeln!(out, "{:<24} thesis: {t}", "");
     }
 }
 
@@ -90,6 +90,9 @@ pub fn text(report: &LatencyReport) -> String {
     for (clock, method) in &report.clock_methods {
         let _ = writeln!(out, "  {clock}: {method}");
     }
+    for note in &report.notes {
+        let _ = writeln!(out, "Note: {note}");
+    }
     if report.against_thesis {
         let _ = writeln!(
             out,
@@ -101,7 +104,7 @@ pub fn text(report: &LatencyReport) -> String {
     let _ = writeln!(out);
     let _ = writeln!(
         out,
-        "{:<26} {:<16} {:<7} {:<10} {:>6} {:>5} {:>10} {:>10} {:>10} {:>10} {:>10}",
+        "{:<24} {:<20} {:<7} {:<10} {:>6} {:>5} {:>10} {:>10} {:>10} {:>10} {:>10}",
         "pair",
         "transport",
         "clock",

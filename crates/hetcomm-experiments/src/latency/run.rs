@@ -5,7 +5,7 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use hetcomm::config::{Fleet, TransportDef, TransportKind};
+use hetcomm::config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm::sim::{SimFleet, SimOptions};
 use hetcomm::{Comm, LocalFleet, MessageType, Module, RawMessage, SendOptions, SystemId, Time};
 
@@ -71,6 +71,58 @@ fn pairs(fleet: &Fleet, realtime: bool) -> Vec<Pair> {
         }
     }
     out
+}
+
+/// Gives every `udp` / `tcp` endpoint with port 0 a free port of its host, so that the
+/// systems, all opened in this process, know each other's ports (each would otherwise bind a
+/// port of its own that the others never learn). Returns one line per endpoint changed.
+fn assign_free_ports(fleet: &mut Fleet) -> Result<Vec<String>, ExperimentError> {
+    let mut notes = Vec::new();
+    // Every probe socket stays bound until all are chosen, so no port is handed out twice.
+    let mut held: Vec<Box<dyn std::any::Any>> = Vec::new();
+    let names: HashMap<SystemId, String> = fleet
+        .systems
+        .iter()
+        .map(|s| (s.id, s.name.clone()))
+        .collect();
+    for t in &mut fleet.transports {
+        let udp = t.kind == TransportKind::Udp;
+        let TransportSettings::Ip(ip) = &mut t.settings else {
+            continue;
+        };
+        for (id, endpoint) in ip.endpoints.iter_mut() {
+            let Some((host, "0")) = endpoint.rsplit_once(':') else {
+                continue;
+            };
+            let probe = format!("{host}:0");
+            let bound = if udp {
+                std::net::UdpSocket::bind(&probe).and_then(|s| {
+                    let port = s.local_addr()?.port();
+                    held.push(Box::new(s));
+                    Ok(port)
+                })
+            } else {
+                std::net::TcpListener::bind(&probe).and_then(|s| {
+                    let port = s.local_addr()?.port();
+                    held.push(Box::new(s));
+                    Ok(port)
+                })
+            };
+            let port = bound.map_err(ExperimentError::io(format!(
+                "finding a free port for {} on transport `{}` ({endpoint})",
+                names.get(id).map(String::as_str).unwrap_or("?"),
+                t.name
+            )))?;
+            *endpoint = format!("{host}:{port}");
+            notes.push(format!(
+                "transport `{}`: {} listens on {endpoint} (port 0 in the fleet file: a free port \
+                 chosen for this run, all systems being in this process)",
+                t.name,
+                names.get(id).map(String::as_str).unwrap_or("?")
+            ));
+        }
+    }
+    Ok(notes)
 }
 
 /// The module the probes use: `Plan` if the fleet has it, else its first module.
@@ -222,6 +274,7 @@ fn run_pass(
     clock: Clock,
     config: &LatencyConfig,
     module: &str,
+    notes: &mut Vec<String>,
 ) -> Result<(Sends, Arc<Shared>), ExperimentError> {
     let driver = match clock {
         Clock::Virtual => Driver::Sim(SimFleet::open(
@@ -231,7 +284,11 @@ fn run_pass(
                 ..SimOptions::default()
             },
         )?),
-        Clock::Real => Driver::Real(LocalFleet::open(fleet.clone())?),
+        Clock::Real => {
+            let mut fleet = fleet.clone();
+            notes.extend(assign_free_ports(&mut fleet)?);
+            Driver::Real(LocalFleet::open(fleet)?)
+        }
     };
     let mut modules = HashMap::new();
     for comm in driver.systems() {
@@ -363,6 +420,7 @@ pub fn run(
     let mut pair_reports: Vec<Option<PairReport>> = vec![None; all.len()];
     let mut samples = Vec::new();
     let mut clock_methods = BTreeMap::new();
+    let mut notes = Vec::new();
     for clock in [Clock::Virtual, Clock::Real] {
         let idx: Vec<usize> = (0..all.len()).filter(|&i| all[i].clock == clock).collect();
         if idx.is_empty() {
@@ -370,7 +428,7 @@ pub fn run(
         }
         clock_methods.insert(clock.name().to_string(), clock.method().to_string());
         let pass: Vec<Pair> = idx.iter().map(|&i| all[i].clone()).collect();
-        let (sends, shared) = run_pass(fleet, &pass, clock, config, &module)?;
+        let (sends, shared) = run_pass(fleet, &pass, clock, config, &module, &mut notes)?;
         let arrivals = std::mem::take(&mut *shared.arrivals.lock().unwrap_or_else(|e| e.into_inner()));
         let duplicates = shared.duplicates.lock().unwrap_or_else(|e| e.into_inner()).clone();
         let echo_refused = shared.echo_refused.lock().unwrap_or_else(|e| e.into_inner()).clone();
@@ -438,6 +496,7 @@ pub fn run(
         size_bytes: config.size_bytes,
         seed: config.seed,
         clock_methods,
+        notes,
         against_thesis: thesis.is_some(),
         pairs: pair_reports.into_iter().flatten().collect(),
         samples,
