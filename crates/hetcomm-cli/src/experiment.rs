@@ -42,7 +42,7 @@ pub enum Experiment {
 #[derive(Args)]
 pub struct LatencyArgs {
     /// The fleet file to measure (e.g. examples/leader_follower/fleet.toml).
-    #[arg(long, value_name = "FILE", required_unless_present = "against_thesis")]
+    #[arg(long, value_name = "FILE")]
     fleet: Option<PathBuf>,
     /// Measure the thesis's §5.1 fleet (Tables 6–8) with R and B emulated as in the
     /// reliability experiment (R = `wired`, B = `bluetooth-classic`), and print the delays the
@@ -302,6 +302,12 @@ fn latency_cmd(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         drain: std::time::Duration::from_millis(args.drain_ms),
     };
     latency::validate(&config)?;
+    if args.fleet.is_none() && !args.against_thesis {
+        anyhow::bail!(
+            "say what to measure: --fleet FILE (e.g. examples/leader_follower/fleet.toml) or \
+             --against-thesis (the thesis's §5.1 fleet)"
+        );
+    }
     let (fleet, fleet_file) = match &args.fleet {
         Some(path) => (args.security.load(path)?, None),
         None => {
