@@ -315,7 +315,7 @@ fn latency_cmd(args: LatencyArgs) -> anyhow::Result<ExitCode> {
             (args.security.load(&path)?, Some(path))
         }
     };
-    let thesis: Option<&dyn Fn(&str, &str) -> String> = if args.against_thesis {
+    let thesis: Option<&latency::ThesisFigures> = if args.against_thesis {
         Some(&latency::thesis::published)
     } else {
         None

@@ -147,7 +147,10 @@ B,A,fixed,fixed,virtual,round-trip,20,0,20,0,10000.000,10000.000,10000.000,10000
     );
     // The paths go to stderr with the wall time, so stdout is the CSV alone.
     let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(stderr.contains("wrote ") && stderr.contains("wall time: "), "{stderr}");
+    assert!(
+        stderr.contains("wrote ") && stderr.contains("wall time: "),
+        "{stderr}"
+    );
 }
 
 #[test]

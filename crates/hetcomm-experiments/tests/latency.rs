@@ -63,12 +63,18 @@ fn a_fixed_latency_link_gives_exactly_its_latency_one_way_and_twice_round_trip()
     for (from, to) in [("A", "B"), ("B", "A")] {
         let p = report.pair(from, to).expect("pair measured");
         assert_eq!(p.clock, Clock::Virtual, "seed {seed}");
-        assert_eq!((p.sent, p.lost_one_way, p.refused), (300, 0, 0), "seed {seed}");
+        assert_eq!(
+            (p.sent, p.lost_one_way, p.refused),
+            (300, 0, 0),
+            "seed {seed}"
+        );
         let d = &p.one_way;
         assert_eq!(d.count, 300, "seed {seed}");
         // The simulator's resolution is 1 µs; an emulated link without bandwidth adds no
         // serialization time, so every one-way delay is L exactly.
-        for x in [d.min_us, d.p50_us, d.p90_us, d.p99_us, d.p999_us, d.max_us, d.mean_us] {
+        for x in [
+            d.min_us, d.p50_us, d.p90_us, d.p99_us, d.p999_us, d.max_us, d.mean_us,
+        ] {
             assert_eq!(x, 5000.0, "seed {seed}: {from} → {to} one-way {d:?}");
         }
         let rt = p.round_trip.as_ref().expect("a way back");
@@ -76,7 +82,11 @@ fn a_fixed_latency_link_gives_exactly_its_latency_one_way_and_twice_round_trip()
         for x in [rt.min_us, rt.p50_us, rt.p99_us, rt.max_us] {
             assert_eq!(x, 10_000.0, "seed {seed}: {from} → {to} round trip {rt:?}");
         }
-        assert!((p.achieved_rate_hz - 100.0).abs() < 0.5, "{}", p.achieved_rate_hz);
+        assert!(
+            (p.achieved_rate_hz - 100.0).abs() < 0.5,
+            "{}",
+            p.achieved_rate_hz
+        );
     }
     // No way back: one-way only, said so.
     let ac = report.pair("A", "C").expect("A → C measured");
@@ -191,10 +201,18 @@ fn real_udp_on_loopback_measures_every_pair_and_writes_every_sample() {
         let (ow, rt) = (&p.one_way, p.round_trip.as_ref().unwrap());
         assert_eq!((ow.count, rt.count), (60, 60));
         assert!(ow.min_us > 0.0 && ow.p50_us <= ow.p99_us && ow.p99_us <= ow.max_us);
-        assert!(rt.p50_us > ow.p50_us, "a round trip is longer than one way: {p:?}");
+        assert!(
+            rt.p50_us > ow.p50_us,
+            "a round trip is longer than one way: {p:?}"
+        );
         assert!(ow.max_us < 5e6, "within the drain time: {p:?}");
     }
-    assert_eq!(report.notes.len(), 3, "three port-0 endpoints: {:?}", report.notes);
+    assert_eq!(
+        report.notes.len(),
+        3,
+        "three port-0 endpoints: {:?}",
+        report.notes
+    );
     assert!(report.clock_methods["real"].contains("monotonic"));
 
     let dir = tempfile::tempdir().unwrap();

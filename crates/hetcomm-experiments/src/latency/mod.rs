@@ -40,6 +40,10 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::reliability::ExperimentError;
 
+/// What a published reference says about the pair (from, to): `--against-thesis` passes
+/// [`thesis::published`].
+pub type ThesisFigures = dyn Fn(&str, &str) -> String;
+
 /// How the clocks of a pair's two ends are read, for pairs run in the simulator.
 pub const CLOCK_METHOD_VIRTUAL: &str = "virtual time of the simulator (1 µs resolution): both \
      ends read the one virtual clock, so no clock offset arises or is estimated";

@@ -126,10 +126,15 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
             .map_err(draw_err)?;
         for (d, bins) in &histograms {
             let c = color(*d);
-            hist.draw_series(bins.iter().enumerate().filter(|(_, &n)| n > 0).map(|(i, &n)| {
-                let x0 = lo + i as f64 * width;
-                Rectangle::new([(x0, 0.0), (x0 + width, n as f64)], c.mix(0.55).filled())
-            }))
+            hist.draw_series(
+                bins.iter()
+                    .enumerate()
+                    .filter(|(_, &n)| n > 0)
+                    .map(|(i, &n)| {
+                        let x0 = lo + i as f64 * width;
+                        Rectangle::new([(x0, 0.0), (x0 + width, n as f64)], c.mix(0.55).filled())
+                    }),
+            )
             .map_err(draw_err)?
             .label(d.name())
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
@@ -170,7 +175,9 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
             cdf.draw_series(LineSeries::new(points, c.stroke_width(2)))
                 .map_err(draw_err)?
                 .label(d.name())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(3)));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(3))
+                });
         }
         cdf.configure_series_labels()
             .position(SeriesLabelPosition::LowerRight)

@@ -163,17 +163,25 @@ impl Shared {
     }
 
     fn record(&self, key: Key, at: u64) {
-        let mut arrivals = self.arrivals.lock().unwrap_or_else(|e| e.into_inner());
-        if arrivals.contains_key(&key) {
-            drop(arrivals);
+        let fresh = match self
+            .arrivals
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .entry(key)
+        {
+            std::collections::hash_map::Entry::Occupied(_) => false,
+            std::collections::hash_map::Entry::Vacant(v) => {
+                v.insert(at);
+                true
+            }
+        };
+        if !fresh {
             *self
                 .duplicates
                 .lock()
                 .unwrap_or_else(|e| e.into_inner())
                 .entry((key.0, key.1))
                 .or_default() += 1;
-        } else {
-            arrivals.insert(key, at);
         }
     }
 
@@ -407,7 +415,7 @@ fn run_pass(
 pub fn run(
     fleet: &Fleet,
     config: &LatencyConfig,
-    thesis: Option<&dyn Fn(&str, &str) -> String>,
+    thesis: Option<&super::ThesisFigures>,
 ) -> Result<LatencyReport, ExperimentError> {
     validate(config)?;
     let module = module_name(fleet)?;
@@ -429,9 +437,18 @@ pub fn run(
         clock_methods.insert(clock.name().to_string(), clock.method().to_string());
         let pass: Vec<Pair> = idx.iter().map(|&i| all[i].clone()).collect();
         let (sends, shared) = run_pass(fleet, &pass, clock, config, &module, &mut notes)?;
-        let arrivals = std::mem::take(&mut *shared.arrivals.lock().unwrap_or_else(|e| e.into_inner()));
-        let duplicates = shared.duplicates.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        let echo_refused = shared.echo_refused.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let arrivals =
+            std::mem::take(&mut *shared.arrivals.lock().unwrap_or_else(|e| e.into_inner()));
+        let duplicates = shared
+            .duplicates
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        let echo_refused = shared
+            .echo_refused
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
         for (k, pair) in pass.iter().enumerate() {
             let sent_at = &sends.sent_at[k];
             let start = sent_at.values().next().copied().unwrap_or(0);
@@ -474,7 +491,10 @@ pub fn run(
                 refused_reason: sends.refused_reason[k].clone(),
                 lost_one_way: left - one_way.len() as u64,
                 lost_round_trip: has_back.then(|| left - round_trip.len() as u64),
-                echoes_refused: echo_refused.get(&(pair.to, pair.from)).copied().unwrap_or(0),
+                echoes_refused: echo_refused
+                    .get(&(pair.to, pair.from))
+                    .copied()
+                    .unwrap_or(0),
                 duplicates: duplicates.get(&(pair.from, pair.to)).copied().unwrap_or(0),
                 one_way: Distribution::from_nanos(&one_way),
                 round_trip: has_back.then(|| Distribution::from_nanos(&round_trip)),
