@@ -415,10 +415,13 @@ fn run(o: &Options) -> Vec<Row> {
             );
             // `hetcomm experiment latency` on a real UDP fleet, in the same rounds as the
             // `hetcomm-udp-unack` row its target compares it with.
-            if o.path_wanted(latency_exp::PATH) {
-                let run: Run<stats::Latency> =
-                    Box::new(move || latency_exp::rtt(size, warmup, iters));
-                paths.push((latency_exp::PATH.to_string(), run));
+            for (name, closed_loop) in [(latency_exp::PATH, true), (latency_exp::PACED_PATH, false)]
+            {
+                if o.path_wanted(name) {
+                    let run: Run<stats::Latency> =
+                        Box::new(move || latency_exp::rtt(size, warmup, iters, closed_loop));
+                    paths.push((name.to_string(), run));
+                }
             }
             // Two C++ processes, in the same rounds as the Rust rows it is compared with.
             if let Some(bin) = o.cpp_bin.clone().filter(|_| size == 64) {

@@ -67,6 +67,15 @@ pub struct LatencyArgs {
     /// Run every pair in real time, emulated links included (emulated then in real time).
     #[arg(long)]
     realtime: bool,
+    /// Closed loop: each pair's next probe leaves once the previous one's echo is back (and
+    /// not before its time at --rate): one probe in flight per pair, as a ping–pong. Real time
+    /// only; every pair measured needs a way back.
+    #[arg(long)]
+    closed_loop: bool,
+    /// Measure only this ordered pair (repeatable): FROM:TO, friendly names; the echoes still
+    /// come back on TO → FROM. Default: every pair the table connects.
+    #[arg(long = "pair", value_name = "FROM:TO", value_parser = parse_pair)]
+    pairs: Vec<(String, String)>,
     /// After the last probe, how long to wait for the last receipts and echoes, ms.
     #[arg(long, value_name = "MS", default_value_t = 2000)]
     drain_ms: u64,
@@ -290,6 +299,15 @@ fn reliability_cmd(args: ReliabilityArgs) -> anyhow::Result<ExitCode> {
     Ok(exit(ok))
 }
 
+fn parse_pair(s: &str) -> Result<(String, String), String> {
+    match s.split_once(':') {
+        Some((from, to)) if !from.is_empty() && !to.is_empty() => {
+            Ok((from.to_string(), to.to_string()))
+        }
+        _ => Err(format!("expected FROM:TO (two system names), got `{s}`")),
+    }
+}
+
 fn latency_cmd(args: LatencyArgs) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
     let config = LatencyConfig {
@@ -299,6 +317,8 @@ fn latency_cmd(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         size_bytes: args.size,
         seed: args.seed,
         realtime: args.realtime,
+        closed_loop: args.closed_loop,
+        pairs: args.pairs.clone(),
         drain: std::time::Duration::from_millis(args.drain_ms),
     };
     latency::validate(&config)?;

@@ -220,6 +220,15 @@ fn bad_arguments_are_clear_errors() {
     );
     let e = fail(&["--fleet", f, "--rate", "fast"]);
     assert!(e.contains("invalid value 'fast' for '--rate"), "{e}");
+    let e = fail(&["--fleet", f, "--pair", "A-B"]);
+    assert!(
+        e.contains("expected FROM:TO (two system names), got `A-B`"),
+        "{e}"
+    );
+    assert_eq!(
+        fail(&["--fleet", f, "--pair", "C:A"]),
+        "error: --pair C:A: the table has no traffic from C to A (X)\n"
+    );
     let e = fail(&["--fleet", f, "--against-thesis"]);
     assert!(e.contains("cannot be used with"), "{e}");
     let e = fail(&["--fleet", "/nonexistent/fleet.toml"]);

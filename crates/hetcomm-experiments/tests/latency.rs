@@ -129,6 +129,21 @@ fn the_same_seed_gives_the_same_figures_and_another_seed_other_ones() {
     assert_eq!(a, b, "seed {seed}: every figure and every sample");
     assert_eq!(latency::csv_samples(&a), latency::csv_samples(&b));
     assert_eq!(latency::text(&a), latency::text(&b));
+    // One pair alone: the same figures as among all the others (its link is its own).
+    let only = latency::run(
+        &emulated(),
+        &LatencyConfig {
+            pairs: vec![("A".into(), "B".into())],
+            ..config(seed)
+        },
+        None,
+    )
+    .unwrap();
+    assert_eq!(only.pairs.len(), 1);
+    assert_eq!(
+        only.pair("A", "B").unwrap().one_way,
+        a.pair("A", "B").unwrap().one_way
+    );
     let c = latency::run(&emulated(), &config(seed + 1), None).unwrap();
     assert_eq!(
         a.pair("A", "B"),
@@ -282,6 +297,16 @@ fn bad_settings_and_fleets_are_clear_errors() {
         e,
         "--size must be at most 16777216 bytes (the largest payload), got 17825792"
     );
+    let e = err(LatencyConfig {
+        pairs: vec![("A".into(), "Zulu".into())],
+        ..base.clone()
+    });
+    assert_eq!(e, "--pair A:Zulu: the fleet has no system `Zulu`");
+    let e = err(LatencyConfig {
+        pairs: vec![("C".into(), "A".into())],
+        ..base.clone()
+    });
+    assert_eq!(e, "--pair C:A: the table has no traffic from C to A (X)");
     let silent = hetcomm::parse_fleet(
         "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n",
         "silent.toml",

@@ -72,6 +72,13 @@ pub struct LatencyConfig {
     pub seed: u64,
     /// Run every pair in real time, emulated links included.
     pub realtime: bool,
+    /// Closed loop: a pair's next probe leaves only once the previous one's echo is back (or
+    /// after a second without it), and not before its time at [`LatencyConfig::rate_hz`]: one
+    /// probe in flight per pair, as a ping–pong. Real time only; every pair needs a way back.
+    pub closed_loop: bool,
+    /// Only these ordered pairs (from, to), by friendly name; empty: every pair the table
+    /// connects.
+    pub pairs: Vec<(String, String)>,
     /// After the last probe, how long to wait for the last receipts and echoes (virtual time
     /// in the simulator, real time otherwise).
     pub drain: std::time::Duration,
@@ -86,6 +93,8 @@ impl Default for LatencyConfig {
             size_bytes: 64,
             seed: 2019,
             realtime: false,
+            closed_loop: false,
+            pairs: Vec::new(),
             drain: std::time::Duration::from_secs(2),
         }
     }
@@ -286,6 +295,8 @@ pub struct LatencyReport {
     pub warmup: u32,
     /// Probes per second per pair.
     pub rate_hz: f64,
+    /// Closed loop: each probe waited for the previous one's echo.
+    pub closed_loop: bool,
     /// Payload bytes per probe.
     pub size_bytes: usize,
     /// Simulator seed.

@@ -73,7 +73,7 @@ pub fn text(report: &LatencyReport) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "Delay analysis{}: {} probes per ordered pair (after {} warm-up), {} msg/s per pair, \
+        "Delay analysis{}: {} probes per ordered pair (after {} warm-up), {} msg/s per pair{}, \
          {} B payload, seed {}",
         report
             .fleet
@@ -83,6 +83,11 @@ pub fn text(report: &LatencyReport) -> String {
         report.messages,
         report.warmup,
         report.rate_hz,
+        if report.closed_loop {
+            " at most, closed loop (each probe after the previous one's echo)"
+        } else {
+            ""
+        },
         report.size_bytes,
         report.seed
     );

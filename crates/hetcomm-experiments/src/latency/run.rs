@@ -2,6 +2,7 @@
 //! and turning receipt times into samples.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -185,7 +186,9 @@ impl Shared {
         }
     }
 
-    fn on_probe(&self, me: SystemId, raw: RawMessage) {
+    /// A probe reached `me`: its receipt time, and the echo from `echo_from` (the receiving
+    /// thread's module in real time; None under simulation, where the shared map has it).
+    fn on_probe(&self, me: SystemId, raw: RawMessage, echo_from: Option<&Module>) {
         let at = self.now_ns(&raw);
         let Some(seq) = seq_of(&raw.payload) else {
             return;
@@ -195,12 +198,15 @@ impl Shared {
         if !self.echoes.contains(&(me, from)) {
             return;
         }
-        let module = self
-            .modules
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(&me)
-            .cloned();
+        let module = match echo_from {
+            Some(m) => Some(m.clone()),
+            None => self
+                .modules
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .get(&me)
+                .cloned(),
+        };
         if let Some(m) = module {
             let sent = m.send_raw(
                 raw.envelope.source_system,
@@ -217,6 +223,23 @@ impl Shared {
                     .entry((me, from))
                     .or_default() += 1;
             }
+        }
+    }
+
+    /// Whether the echo of probe `seq` of `pair` is back.
+    fn arrived(&self, pair: &Pair, seq: u32) -> bool {
+        self.arrivals
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains_key(&(pair.from, pair.to, seq, Direction::RoundTrip))
+    }
+
+    /// Takes one message from a module's inbox.
+    fn on_message(&self, me: SystemId, raw: RawMessage, module: Option<&Module>) {
+        match raw.envelope.message_type() {
+            PROBE => self.on_probe(me, raw, module),
+            ECHO => self.on_echo(me, raw),
+            _ => {}
         }
     }
 
@@ -275,6 +298,109 @@ struct Sends {
     refused_reason: Vec<Option<String>>,
 }
 
+/// A send's time on the pass's clock (ns), or why `send` refused it.
+type SendResult = Result<u64, String>;
+
+/// Sends probe `seq` of `pair` from `from` (the payload: the sequence number, then zeros).
+fn probe(
+    from: &Module,
+    pair: &Pair,
+    module: &str,
+    seq: u32,
+    payload: &mut [u8],
+) -> Result<(), String> {
+    payload[..4].copy_from_slice(&seq.to_le_bytes());
+    from.send_raw(
+        &pair.to_name,
+        module,
+        PROBE,
+        payload,
+        SendOptions::default(),
+    )
+    .map(|_| ())
+    .map_err(|e| e.to_string())
+}
+
+/// In a closed loop, how long a probe waits for the previous one's echo before it goes anyway
+/// (that echo then counts as lost unless it still comes).
+pub const ECHO_WAIT: Duration = Duration::from_secs(1);
+
+/// One system's thread in real time: its probes, when due, and what arrives meanwhile.
+struct Sender {
+    id: SystemId,
+    module: Module,
+    module_name: String,
+    pairs: Vec<Pair>,
+    /// This system's probes, in time order.
+    slots: Vec<Slot>,
+    size: usize,
+    /// Each probe waits for the previous one's echo (see [`LatencyConfig::closed_loop`]).
+    closed_loop: bool,
+    start: Instant,
+    shared: Arc<Shared>,
+    stop: Arc<AtomicBool>,
+    /// Threads still sending: this one counts itself out after its last probe.
+    sending: Arc<AtomicUsize>,
+}
+
+impl Sender {
+    fn run(self) -> Vec<(usize, u32, SendResult)> {
+        let mut results = Vec::with_capacity(self.slots.len());
+        let mut payload = vec![0u8; self.size];
+        let mut next = 0;
+        let mut counted_out = false;
+        let mut last_sent: Option<Instant> = None;
+        loop {
+            let wait = match self.slots.get(next) {
+                Some(&(due, p, seq)) => {
+                    let due = self.start + Duration::from_nanos(due);
+                    let now = Instant::now();
+                    let ready = !self.closed_loop
+                        || seq == 0
+                        || last_sent.is_some_and(|t: Instant| t.elapsed() >= ECHO_WAIT)
+                        || self.shared.arrived(&self.pairs[p], seq - 1);
+                    if !ready {
+                        // The echo arrives on this thread: `recv` returns with it.
+                        Duration::from_millis(1)
+                    } else if now >= due {
+                        last_sent = Some(Instant::now());
+                        let at = self.shared.epoch.elapsed().as_nanos() as u64;
+                        let pair = &self.pairs[p];
+                        let r = probe(&self.module, pair, &self.module_name, seq, &mut payload);
+                        results.push((p, seq, r.map(|()| at)));
+                        next += 1;
+                        continue;
+                    } else {
+                        due - now
+                    }
+                }
+                None => {
+                    if !counted_out {
+                        counted_out = true;
+                        self.sending.fetch_sub(1, Ordering::AcqRel);
+                    }
+                    if self.stop.load(Ordering::Acquire) {
+                        break;
+                    }
+                    Duration::from_millis(5)
+                }
+            };
+            match self.module.recv_raw_timeout(Some(wait)) {
+                Ok(raw) => self.shared.on_message(self.id, raw, Some(&self.module)),
+                Err(hetcomm::RecvError::Timeout(_)) => {}
+                // Closed: nothing more will arrive.
+                Err(_) => {
+                    if !counted_out {
+                        self.sending.fetch_sub(1, Ordering::AcqRel);
+                    }
+                    break;
+                }
+            }
+        }
+        results
+    }
+}
+
 /// Runs the pairs of one clock.
 fn run_pass(
     fleet: &Fleet,
@@ -315,88 +441,121 @@ fn run_pass(
             .collect(),
         modules: Mutex::new(modules.clone()),
     });
-    for (&id, m) in &modules {
-        // Echo on the delivering thread, without a hand-off to a callback thread (under
-        // simulation callbacks are inline anyway).
-        m.set_inline_callbacks(true);
-        let s = shared.clone();
-        m.on_raw(PROBE, move |raw| s.on_probe(id, raw));
-        let s = shared.clone();
-        m.on_raw(ECHO, move |raw| s.on_echo(id, raw));
-    }
-
     let per_pair = config.warmup + config.messages;
     let slots = schedule(pairs.len(), per_pair, config.rate_hz);
-    let mut payload = vec![0u8; config.size_bytes];
     let mut sends = Sends {
         sent_at: vec![BTreeMap::new(); pairs.len()],
         refused: vec![0; pairs.len()],
         refused_reason: vec![None; pairs.len()],
     };
-    let start = Instant::now();
-    for &(due, p, seq) in &slots {
-        let pair = &pairs[p];
-        let sent_at = match &driver {
-            Driver::Sim(sim) => {
-                sim.run_until(Time::from_micros(due / 1000));
-                sim.now().as_micros() * 1000
-            }
-            Driver::Real(_) => {
-                let due = start + Duration::from_nanos(due);
-                let wait = due.saturating_duration_since(Instant::now());
-                if !wait.is_zero() {
-                    std::thread::sleep(wait);
-                }
-                shared.epoch.elapsed().as_nanos() as u64
-            }
-        };
-        payload[..4].copy_from_slice(&seq.to_le_bytes());
-        let counted = seq >= config.warmup;
-        match modules[&pair.from].send_raw(
-            &pair.to_name,
-            module,
-            PROBE,
-            &payload,
-            SendOptions::default(),
-        ) {
-            Ok(_) => {
-                if counted {
-                    sends.sent_at[p].insert(seq, sent_at);
-                }
+    let mut record = |p: usize, seq: u32, result: SendResult| {
+        if seq < config.warmup {
+            return;
+        }
+        match result {
+            Ok(at) => {
+                sends.sent_at[p].insert(seq, at);
             }
             Err(e) => {
-                if counted {
-                    sends.refused[p] += 1;
-                    sends.refused_reason[p].get_or_insert_with(|| e.to_string());
-                }
+                sends.refused[p] += 1;
+                sends.refused_reason[p].get_or_insert(e);
             }
         }
-    }
-    // Let the last receipts and echoes arrive.
-    let expected: usize = sends
-        .sent_at
-        .iter()
-        .zip(pairs)
-        .map(|(s, p)| s.len() * if p.return_transport.is_some() { 2 } else { 1 })
-        .sum();
-    let counted = |shared: &Shared| {
-        shared
-            .arrivals
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .keys()
-            .filter(|k| k.2 >= config.warmup)
-            .count()
     };
     match &driver {
+        // Under simulation: callbacks, run at the delivery in virtual time, and the sends
+        // from here, the clock moved to each one's time.
         Driver::Sim(sim) => {
+            for (&id, m) in &modules {
+                let s = shared.clone();
+                m.on_any(move |raw| s.on_message(id, raw, None));
+            }
+            let mut payload = vec![0u8; config.size_bytes];
+            for &(due, p, seq) in &slots {
+                sim.run_until(Time::from_micros(due / 1000));
+                let at = sim.now().as_micros() * 1000;
+                let result = probe(
+                    &modules[&pairs[p].from],
+                    &pairs[p],
+                    module,
+                    seq,
+                    &mut payload,
+                );
+                record(p, seq, result.map(|()| at));
+            }
             let end = sim.now().as_micros() + config.drain.as_micros() as u64;
             sim.run_idle(Time::from_micros(end));
         }
+        // In real time: a thread per system, as a robot's loop, that sends its probes when
+        // they are due and otherwise waits in `recv`. A thread waiting in `recv` reads its
+        // system's sockets itself (the runtime's reactor), so a probe reaches the receiver
+        // and its echo comes back without a hand-off to another thread.
         Driver::Real(_) => {
-            let deadline = Instant::now() + config.drain;
-            while counted(&shared) < expected && Instant::now() < deadline {
+            let start = Instant::now();
+            let stop = Arc::new(AtomicBool::new(false));
+            let sending = Arc::new(AtomicUsize::new(modules.len()));
+            let mut threads = Vec::new();
+            for (&id, m) in &modules {
+                let mine: Vec<Slot> = slots
+                    .iter()
+                    .filter(|s| pairs[s.1].from == id)
+                    .copied()
+                    .collect();
+                let ctx = Sender {
+                    id,
+                    module: m.clone(),
+                    module_name: module.to_string(),
+                    pairs: pairs.to_vec(),
+                    slots: mine,
+                    size: config.size_bytes,
+                    closed_loop: config.closed_loop,
+                    start,
+                    shared: shared.clone(),
+                    stop: stop.clone(),
+                    sending: sending.clone(),
+                };
+                let thread = std::thread::Builder::new()
+                    .name(format!("latency-{}", id.0))
+                    .spawn(move || ctx.run())
+                    .map_err(ExperimentError::io("starting a system's thread"))?;
+                threads.push(thread);
+            }
+            // Let the last receipts and echoes arrive.
+            let total: usize = slots
+                .iter()
+                .filter(|s| s.2 >= config.warmup)
+                .map(|s| {
+                    if pairs[s.1].return_transport.is_some() {
+                        2
+                    } else {
+                        1
+                    }
+                })
+                .sum();
+            let counted = || {
+                shared
+                    .arrivals
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .keys()
+                    .filter(|k| k.2 >= config.warmup)
+                    .count()
+            };
+            while sending.load(Ordering::Acquire) > 0 {
                 std::thread::sleep(Duration::from_millis(1));
+            }
+            let deadline = Instant::now() + config.drain;
+            while counted() < total && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            stop.store(true, Ordering::Release);
+            for t in threads {
+                let results = t
+                    .join()
+                    .map_err(|_| ExperimentError::Invalid("a system's thread panicked".into()))?;
+                for (p, seq, result) in results {
+                    record(p, seq, result);
+                }
             }
         }
     }
@@ -419,11 +578,51 @@ pub fn run(
 ) -> Result<LatencyReport, ExperimentError> {
     validate(config)?;
     let module = module_name(fleet)?;
-    let all = pairs(fleet, config.realtime);
+    let mut all = pairs(fleet, config.realtime);
+    if !config.pairs.is_empty() {
+        for (from, to) in &config.pairs {
+            for name in [from, to] {
+                if fleet.system_by_name(name).is_none() {
+                    return Err(ExperimentError::Invalid(format!(
+                        "--pair {from}:{to}: the fleet has no system `{name}`"
+                    )));
+                }
+            }
+            if !all.iter().any(|p| &p.from_name == from && &p.to_name == to) {
+                return Err(ExperimentError::Invalid(format!(
+                    "--pair {from}:{to}: the table has no traffic from {from} to {to} (X)"
+                )));
+            }
+        }
+        all.retain(|p| {
+            config
+                .pairs
+                .iter()
+                .any(|(f, t)| *f == p.from_name && *t == p.to_name)
+        });
+    }
     if all.is_empty() {
         return Err(ExperimentError::Invalid(
             "the fleet's table has no traffic: no pair to measure".into(),
         ));
+    }
+    if config.closed_loop {
+        for p in &all {
+            if p.clock == Clock::Virtual {
+                return Err(ExperimentError::Invalid(format!(
+                    "--closed-loop runs in real time only: {} → {} is on emulated links (add \
+                     --realtime to emulate them in real time)",
+                    p.from_name, p.to_name
+                )));
+            }
+            if p.return_transport.is_none() {
+                return Err(ExperimentError::Invalid(format!(
+                    "--closed-loop waits for each probe's echo, but {} → {} has no way back (the \
+                     table has no pair {} → {}); leave it out with --pair",
+                    p.from_name, p.to_name, p.to_name, p.from_name
+                )));
+            }
+        }
     }
     let mut pair_reports: Vec<Option<PairReport>> = vec![None; all.len()];
     let mut samples = Vec::new();
@@ -513,6 +712,7 @@ pub fn run(
         messages: config.messages,
         warmup: config.warmup,
         rate_hz: config.rate_hz,
+        closed_loop: config.closed_loop,
         size_bytes: config.size_bytes,
         seed: config.seed,
         clock_methods,
