@@ -258,6 +258,52 @@ fn real_udp_on_loopback_measures_every_pair_and_writes_every_sample() {
 }
 
 #[test]
+fn closed_loop_keeps_one_probe_in_flight_per_pair() {
+    let fleet = hetcomm::parse_fleet(UDP, "udp-three.toml", None).unwrap();
+    let config = LatencyConfig {
+        messages: 200,
+        warmup: 5,
+        // Only a cap: the next probe goes as soon as the echo is back.
+        rate_hz: 1e6,
+        closed_loop: true,
+        pairs: vec![("A".into(), "B".into())],
+        ..LatencyConfig::default()
+    };
+    let report = latency::run(&fleet, &config, None).expect("runs");
+    assert!(report.closed_loop);
+    assert_eq!(report.pairs.len(), 1, "--pair A:B only");
+    let p = report.pair("A", "B").unwrap();
+    assert_eq!(
+        (p.sent, p.lost_one_way, p.lost_round_trip),
+        (200, 0, Some(0))
+    );
+    // Each probe left after the previous echo: the sends are at least a round trip apart.
+    let sent: Vec<f64> = report
+        .samples
+        .iter()
+        .filter(|s| s.direction == Direction::RoundTrip)
+        .map(|s| s.sent_us)
+        .collect();
+    let rtts: Vec<f64> = report
+        .samples
+        .iter()
+        .filter(|s| s.direction == Direction::RoundTrip)
+        .map(|s| s.delay_us)
+        .collect();
+    for i in 1..sent.len() {
+        assert!(
+            sent[i] >= sent[i - 1] + rtts[i - 1],
+            "probe {i} left at {} µs, before the echo of {} (sent {} + {} µs)",
+            sent[i],
+            i - 1,
+            sent[i - 1],
+            rtts[i - 1]
+        );
+    }
+    assert!(latency::text(&report).contains("closed loop"));
+}
+
+#[test]
 fn bad_settings_and_fleets_are_clear_errors() {
     let fleet = emulated();
     let err = |c: LatencyConfig| {
@@ -307,6 +353,26 @@ fn bad_settings_and_fleets_are_clear_errors() {
         ..base.clone()
     });
     assert_eq!(e, "--pair C:A: the table has no traffic from C to A (X)");
+    let e = err(LatencyConfig {
+        closed_loop: true,
+        ..base.clone()
+    });
+    assert_eq!(
+        e,
+        "--closed-loop runs in real time only: A → B is on emulated links (add --realtime to \
+         emulate them in real time)"
+    );
+    let e = err(LatencyConfig {
+        closed_loop: true,
+        realtime: true,
+        pairs: vec![("A".into(), "C".into())],
+        ..base.clone()
+    });
+    assert_eq!(
+        e,
+        "--closed-loop waits for each probe's echo, but A → C has no way back (the table has no \
+         pair C → A); leave it out with --pair"
+    );
     let silent = hetcomm::parse_fleet(
         "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n",
         "silent.toml",
