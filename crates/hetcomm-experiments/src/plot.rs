@@ -22,7 +22,7 @@ fn ensure_font() {
     hetcomm_sim::report::plot::ensure_font();
 }
 
-fn draw_err<E: std::fmt::Display>(e: E) -> ExperimentError {
+pub(crate) fn draw_err<E: std::fmt::Display>(e: E) -> ExperimentError {
     ExperimentError::Plot(e.to_string())
 }
 

@@ -7,6 +7,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::{Direction, ExperimentError, LatencyReport, PairReport};
+use crate::plot::draw_err;
 
 /// Width of a pair's plot, pixels.
 pub const WIDTH: u32 = 1000;
@@ -14,10 +15,6 @@ pub const WIDTH: u32 = 1000;
 pub const HEIGHT: u32 = 900;
 /// Bins of the histogram.
 pub const BINS: usize = 60;
-
-fn draw_err<E: std::fmt::Display>(e: E) -> ExperimentError {
-    ExperimentError::Plot(e.to_string())
-}
 
 fn color(d: Direction) -> RGBColor {
     match d {

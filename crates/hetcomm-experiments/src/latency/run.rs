@@ -10,6 +10,8 @@ use hetcomm::config::{Fleet, TransportDef, TransportKind, TransportSettings};
 use hetcomm::sim::{SimFleet, SimOptions};
 use hetcomm::{Comm, LocalFleet, MessageType, Module, RawMessage, SendOptions, SystemId, Time};
 
+use crate::reliability::module_name;
+
 use super::{
     validate, Clock, Direction, Distribution, ExperimentError, LatencyConfig, LatencyReport,
     PairReport, Sample,
@@ -124,15 +126,6 @@ fn assign_free_ports(fleet: &mut Fleet) -> Result<Vec<String>, ExperimentError> 
         }
     }
     Ok(notes)
-}
-
-/// The module the probes use: `Plan` if the fleet has it, else its first module.
-fn module_name(fleet: &Fleet) -> Result<String, ExperimentError> {
-    fleet
-        .module_by_name("Plan")
-        .or(fleet.modules.first())
-        .map(|m| m.name.clone())
-        .ok_or_else(|| ExperimentError::Invalid("the fleet defines no modules".into()))
 }
 
 /// Key of a receipt: (probe's sender, probe's receiver, sequence number, which delay).

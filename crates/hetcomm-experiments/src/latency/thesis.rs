@@ -11,7 +11,7 @@ use std::path::Path;
 
 use hetcomm::config::Fleet;
 
-use crate::reliability::{load_fleet, ExperimentError};
+use crate::reliability::{load_fleet, write_fleet_files, ExperimentError};
 
 /// The §5.1 fleet's files, embedded: (file name, contents).
 pub const FLEET_FILES: [(&str, &str); 4] = [
@@ -36,14 +36,7 @@ pub const FLEET_FILES: [(&str, &str); 4] = [
 /// Writes the §5.1 fleet's files into `dir` (created if missing) and returns the path of its
 /// `fleet.toml`.
 pub fn write_fleet(dir: &Path) -> Result<std::path::PathBuf, ExperimentError> {
-    std::fs::create_dir_all(dir)
-        .map_err(ExperimentError::io(format!("creating {}", dir.display())))?;
-    for (name, text) in FLEET_FILES {
-        let path = dir.join(name);
-        std::fs::write(&path, text)
-            .map_err(ExperimentError::io(format!("writing {}", path.display())))?;
-    }
-    Ok(dir.join("fleet.toml"))
+    write_fleet_files(dir, &FLEET_FILES)
 }
 
 /// Loads the §5.1 fleet written by [`write_fleet`] into `dir`.

@@ -33,6 +33,7 @@ mod results;
 mod trial;
 
 pub use results::*;
+pub(crate) use trial::module_name;
 pub use trial::{fleet_for_mode, run};
 
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -307,9 +308,18 @@ pub const DEFAULT_FLEET_FILES: [(&str, &str); 4] = [
 /// Writes the default fleet's files into `dir` (created if missing) and returns the path of
 /// its `fleet.toml`.
 pub fn write_default_fleet(dir: &Path) -> Result<std::path::PathBuf, ExperimentError> {
+    write_fleet_files(dir, &DEFAULT_FLEET_FILES)
+}
+
+/// Writes a fleet's files, (name, contents), into `dir` (created if missing) and returns the
+/// path of its `fleet.toml`.
+pub(crate) fn write_fleet_files(
+    dir: &Path,
+    files: &[(&str, &str)],
+) -> Result<std::path::PathBuf, ExperimentError> {
     std::fs::create_dir_all(dir)
         .map_err(ExperimentError::io(format!("creating {}", dir.display())))?;
-    for (name, text) in DEFAULT_FLEET_FILES {
+    for (name, text) in files {
         let path = dir.join(name);
         std::fs::write(&path, text)
             .map_err(ExperimentError::io(format!("writing {}", path.display())))?;

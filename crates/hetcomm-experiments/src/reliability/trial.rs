@@ -173,7 +173,7 @@ fn plan(
 }
 
 /// The module the experiment uses: `Plan` if the fleet has it, else its first module.
-fn module_name(fleet: &Fleet) -> Result<String, ExperimentError> {
+pub(crate) fn module_name(fleet: &Fleet) -> Result<String, ExperimentError> {
     fleet
         .module_by_name("Plan")
         .or(fleet.modules.first())
