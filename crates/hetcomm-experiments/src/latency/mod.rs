@@ -7,18 +7,23 @@
 //! offset by *i*/(*n*·rate) so that their sends interleave). B echoes each probe back to A on
 //! the pair (B, A) when the table has that pair. Two delays per probe:
 //!
-//! - **one way**: B's receipt (the router put it in B's inbox and B's callback runs) minus A's
-//!   send call;
+//! - **one way**: B's receipt (B's router put it in B's inbox and B took it: a callback at
+//!   the delivery under simulation, B's thread waiting in `recv` in real time) minus A's send
+//!   call;
 //! - **round trip**: A's receipt of the echo minus A's send call.
 //!
 //! Where the time comes from ([`Clock`]): a pair whose messages travel only on `emulated`
 //! transports (there and back) runs in the virtual-time simulator, seeded, so the same seed
 //! gives the same figures; every other pair runs in real time, every system of the fleet
 //! opened in this process over the fleet's real transports (real sockets for `udp` / `tcp`),
-//! timed on the monotonic clock. Sender and receiver then read the same clock, so one-way
+//! each with a thread that sends its probes when due and otherwise waits in `recv` (reading
+//! its sockets itself), timed on the monotonic clock. Sender and receiver then read the same clock, so one-way
 //! delays need no clock-offset estimate ([`CLOCK_METHOD_VIRTUAL`], [`CLOCK_METHOD_REAL`]).
 //! [`LatencyConfig::realtime`] runs every pair in real time (emulated links then emulated in
 //! real time by their wrapper).
+//!
+//! The load is open loop by default (probes leave on schedule); [`LatencyConfig::closed_loop`]
+//! keeps one probe in flight per pair, as a ping–pong (real time only).
 //!
 //! The first [`LatencyConfig::warmup`] probes of each pair are sent but not counted (links
 //! connecting, caches warming). Lost probes and echoes are counted per pair, never hidden.

@@ -64,14 +64,28 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
     let series = delays(report, pair);
     let all = || series.iter().flat_map(|(_, v)| v.iter().copied());
     let lo = all().fold(f64::INFINITY, f64::min);
-    let hi = all().fold(0.0, f64::max);
+    let max = all().fold(0.0, f64::max);
+    // The histogram spans the smallest sample to the largest p99 (a real-time tail of a few
+    // slow samples would squash the rest into one bin); what lies above is counted in the
+    // last bin. The CDF shows every sample, on a logarithmic axis.
+    let p99 = series
+        .iter()
+        .map(|(_, v)| v[((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1])
+        .fold(0.0, f64::max);
     let (lo, hi) = if series.is_empty() {
         (0.0, 1.0)
-    } else if hi - lo < 1e-9 {
-        (lo - 0.5, hi + 0.5)
+    } else if p99 - lo < 1e-9 {
+        (lo - 0.5, p99 + 0.5)
     } else {
-        let pad = (hi - lo) * 0.03;
-        (lo - pad, hi + pad)
+        let pad = (p99 - lo) * 0.03;
+        (lo - pad, p99 + pad)
+    };
+    let clipped = max > hi;
+    let (cdf_lo, cdf_hi) = if series.is_empty() {
+        (1.0, 10.0)
+    } else {
+        let a = (all().fold(f64::INFINITY, f64::min) * 0.9).max(0.1);
+        (a, (max * 1.1).max(a * 10.0))
     };
     let width = (hi - lo) / BINS as f64;
     let histograms: Vec<(Direction, Vec<u64>)> = series
@@ -106,8 +120,13 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
             report.size_bytes,
             report.rate_hz
         );
+        let caption = if clipped {
+            format!("Delay histogram (to p99; above it in the last bin): {title}")
+        } else {
+            format!("Delay histogram: {title}")
+        };
         let mut hist = ChartBuilder::on(&top)
-            .caption(format!("Delay histogram: {title}"), ("sans-serif", 20))
+            .caption(caption, ("sans-serif", 18))
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(70)
@@ -147,16 +166,19 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
             .map_err(draw_err)?;
 
         let mut cdf = ChartBuilder::on(&bottom)
-            .caption("Cumulative distribution", ("sans-serif", 20))
+            .caption(
+                "Cumulative distribution (every sample, log scale)",
+                ("sans-serif", 20),
+            )
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(70)
-            .build_cartesian_2d(lo..hi, 0.0..1.0)
+            .build_cartesian_2d((cdf_lo..cdf_hi).log_scale(), 0.0..1.0)
             .map_err(draw_err)?;
         cdf.configure_mesh()
             .x_desc("delay (µs)")
             .y_desc("fraction of samples ≤ delay")
-            .x_label_formatter(&|x| format!("{x:.0}"))
+            .x_label_formatter(&|x| format!("{x}"))
             .axis_desc_style(("sans-serif", 16))
             .label_style(("sans-serif", 13))
             .light_line_style(RGBColor(235, 235, 235))
@@ -166,12 +188,12 @@ pub fn render_pair(report: &LatencyReport, pair: &PairReport) -> Result<Vec<u8>,
             let c = color(*d);
             let n = v.len() as f64;
             // A step function: at each sample the fraction rises by 1/n.
-            let mut points = vec![(lo, 0.0)];
+            let mut points = vec![(cdf_lo, 0.0)];
             for (i, &x) in v.iter().enumerate() {
                 points.push((x, i as f64 / n));
                 points.push((x, (i + 1) as f64 / n));
             }
-            points.push((hi, 1.0));
+            points.push((cdf_hi, 1.0));
             cdf.draw_series(LineSeries::new(points, c.stroke_width(2)))
                 .map_err(draw_err)?
                 .label(d.name())
