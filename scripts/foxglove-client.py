@@ -83,6 +83,17 @@ class Session:
             self.got.setdefault(topic, []).append((log_time, self.decoders[topic](msg[13:])))
 
     async def on_op(self, op):
+        # The SDK's server sends an advertisement before it records the channel as
+        # advertised: a subscription made the instant it arrives can be refused as an unknown
+        # channel. Ask again.
+        if op["op"] == "status" and op["message"].startswith("Unknown channel ID: "):
+            channel = int(op["message"].rsplit(" ", 1)[1])
+            for sid, topic in self.subs.items():
+                if self.channels[topic]["id"] == channel:
+                    await asyncio.sleep(0.02)
+                    await self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                        {"id": sid, "channelId": channel}]}))
+            return
         if op["op"] != "advertise":
             return
         new = []
