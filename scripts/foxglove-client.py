@@ -5,6 +5,8 @@ descriptors their channels carry (the `protobuf` package), never with hetcomm's 
 
     python foxglove-client.py monitor PORT   # `hetcomm monitor --foxglove` while a fleet runs
     python foxglove-client.py demo PORT      # `hetcomm demo --realtime --foxglove` while it runs
+    python foxglove-client.py listen PORT    # `hetcomm listen --as Charlie --foxglove`, secured
+    python foxglove-client.py replay PORT    # `hetcomm replay --foxglove` of a demo recording
     python foxglove-client.py mcap FILE      # a recording of `hetcomm demo --record`
 
 Called by scripts/foxglove-test.sh. The WebSocket modes connect, expect `serverInfo`, read
@@ -18,6 +20,7 @@ import asyncio
 import base64
 import json
 import math
+import pathlib
 import struct
 import sys
 import time
@@ -48,6 +51,31 @@ def message_class(schema_name: str, descriptor_set: bytes):
 
 def stamp_ns(ts) -> int:
     return ts.seconds * 10**9 + ts.nanos
+
+
+# --- docs/foxglove-layout.json -------------------------------------------------------------
+
+LAYOUT = pathlib.Path(__file__).resolve().parent.parent / "docs/foxglove-layout.json"
+
+
+def layout_topics() -> set:
+    """Every topic the layout's panels show (3D topics, plot paths' topics, raw messages)."""
+    config = json.loads(LAYOUT.read_text())["configById"]
+    topics = set()
+    for panel_id, panel in config.items():
+        kind = panel_id.split("!")[0]
+        if kind == "3D":
+            topics |= set(panel["topics"])
+        elif kind == "Plot":
+            topics |= {p["value"].split(".")[0] for p in panel["paths"]}
+        elif kind == "RawMessages":
+            topics.add(panel["topicPath"])
+    return topics
+
+
+def recorded_only(topic: str) -> bool:
+    """Topics of recordings (hetcomm-record's events), not served live."""
+    return topic.split("/")[1] in ("send", "receipt", "outcome")
 
 
 # --- the Foxglove WebSocket protocol -------------------------------------------------------
@@ -269,9 +297,72 @@ def check_demo(got, channels) -> None:
     assert "rejected_auth" in security and "handshakes" in security, security
     paths = got["/hetcomm/paths/Charlie"][-1][1]
     assert paths["system"] == "Charlie" and paths["path_changes"] == 0, paths
+    # The layout's live panels show topics the demo serves.
+    live = {t for t in layout_topics() if not recorded_only(t)}
+    assert live <= set(channels), sorted(live - set(channels))
     table = got["/hetcomm/pairs"][-1][1]["pairs"]
     assert any(r["source"] == "Alpha" and r["destination"] == "Charlie" and r["delivered"] > 0
                for r in table), table
+
+
+# --- `hetcomm listen --foxglove` on a secured fleet: messages and security rejections -------
+
+LISTENED = "/hetcomm/message/Charlie/Plan/type5"
+LISTEN_SECURITY = "/hetcomm/security/Charlie"
+
+
+async def listen(port: int) -> None:
+    ws = await connect(port)
+    async with ws:
+        s = Session(ws, [lambda t: t in (LISTENED, LISTEN_SECURITY, "/hetcomm/pairs")])
+        await s.run(listen_done, "hetcomm listen")
+        for _, m in s.got[LISTENED]:
+            check_message(m, ("Alpha", "Plan"), ("Charlie", "Plan"), 5)
+            assert m["payload"] == {"n": 1} and m["transport_name"] == "radio", m
+        last = s.got[LISTEN_SECURITY][-1][1]
+        assert last["enabled"] and last["handshakes"] >= 1, last
+        # The rejections counted once a second, and what moved since the last message.
+        assert sum(m["rejected_since_last"] for _, m in s.got[LISTEN_SECURITY]) <= last["rejected"]
+        print(f"foxglove client (listen): {len(s.got[LISTENED])} messages from Alpha; security: "
+              f"{last['rejected']} rejected ({', '.join(f'{k} {v}' for k, v in last.items() if k.startswith('rejected_') and k != 'rejected_since_last' and v)}), "
+              f"{last['handshakes']} handshakes")
+
+
+def listen_done(got) -> bool:
+    security = got.get(LISTEN_SECURITY, [])
+    return bool(got.get(LISTENED)) and any(m["rejected"] > 0 for _, m in security)
+
+
+# --- `hetcomm replay --foxglove`: a recording's sends, served as they are made again --------
+
+async def replay(port: int) -> None:
+    ws = await connect(port)
+    async with ws:
+        s = Session(ws, [lambda t: t.startswith("/hetcomm/message/") or
+                         t.startswith("/hetcomm/outcome/")])
+        await s.run(replay_done, "hetcomm replay")
+        messages = [m for t, v in s.got.items() if t.startswith("/hetcomm/message/") for _, m in v]
+        outcomes = [m for t, v in s.got.items() if t.startswith("/hetcomm/outcome/") for _, m in v]
+        for m in messages:
+            topic = f"/hetcomm/message/{m['destination']['system']}/{m['destination']['module']}/type{m['message_type']}"
+            assert topic in s.got, (topic, m)
+            # A message to a system this process opened is shown as received, else as it left
+            # (its first attempt).
+            if m["event"] == "receipt":
+                assert m["status"] == "delivered", m
+            else:
+                assert m["event"] == "send" and m["attempt"] == 1, m
+        for o in outcomes:
+            assert o["outcome"] in ("delivered", "sent", "unconfirmed", "failed"), o
+        print(f"foxglove client (replay): {len(messages)} messages on "
+              f"{sum(t.startswith('/hetcomm/message/') for t in s.got)} topics, "
+              f"{len(outcomes)} outcomes ({sorted({o['outcome'] for o in outcomes})})")
+
+
+def replay_done(got) -> bool:
+    wheels = [m for t, v in got.items() if t.endswith("/World/type1") for _, m in v]
+    outcomes = sum(len(v) for t, v in got.items() if t.startswith("/hetcomm/outcome/"))
+    return len(wheels) >= 5 and outcomes >= 5 and all("left" in m["payload"] for m in wheels)
 
 
 # --- a recording of `hetcomm demo --record` -------------------------------------------------
@@ -284,6 +375,9 @@ def recording(path: str) -> None:
         summary = reader.get_summary()
         schemas = {s.id: s for s in summary.schemas.values()}
         by_topic = {c.topic: (c, schemas.get(c.schema_id)) for c in summary.channels.values()}
+        # The layout's panels for recordings show topics the recording holds.
+        wanted = {t for t in layout_topics() if recorded_only(t)} | {"/hetcomm/rovers"}
+        assert wanted <= set(by_topic), sorted(wanted - set(by_topic))
         for topic, name in [("/tf", "foxglove.FrameTransforms"),
                             ("/hetcomm/rovers", "foxglove.SceneUpdate")]:
             channel, schema = by_topic[topic]
@@ -332,7 +426,11 @@ if __name__ == "__main__":
         asyncio.run(monitor(int(arg)))
     elif mode == "demo":
         asyncio.run(demo(int(arg)))
+    elif mode == "listen":
+        asyncio.run(listen(int(arg)))
+    elif mode == "replay":
+        asyncio.run(replay(int(arg)))
     elif mode == "mcap":
         recording(arg)
     else:
-        raise SystemExit(f"unknown mode {mode}: monitor, demo or mcap")
+        raise SystemExit(f"unknown mode {mode}: monitor, demo, listen, replay or mcap")

@@ -11,7 +11,10 @@
 #    Python clients written from the Foxglove WebSocket protocol (scripts/foxglove-client.py)
 #    subscribe to both servers and check what they decode (the monitor's counters; the demo's
 #    messages, outcomes, poses and counters), then the recording is read with the `mcap`
-#    package and its well-known schemas' fields are checked.
+#    package and its well-known schemas' fields are checked;
+# 4. `hetcomm listen --foxglove` on a secured fleet receiving a keyed sender and an impostor
+#    (messages and security rejections checked), and `hetcomm replay --foxglove` of the
+#    demo's recording.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
@@ -49,7 +52,7 @@ trap cleanup EXIT
 ws_port() {
     local err=$1
     for _ in $(seq 100); do
-        grep -q 'foxglove: serving on' "$err" && break
+        grep -qs 'foxglove: serving on' "$err" && break
         sleep 0.1
     done
     local port
@@ -79,4 +82,45 @@ grep -E '^foxglove: [0-9]+ messages and outcomes observed, [0-9]+ published, 0 d
     "$work/demo.err" || { cat "$work/demo.err" >&2; exit 1; }
 grep -E 'pose messages for Foxglove' "$work/demo.err"
 "$PY" scripts/foxglove-client.py mcap "$work/run.mcap"
+
+step "foxglove: listen on a secured fleet, with rejected frames; replay of the demo's recording"
+# The relay chain's fleet on free ports, with keys made here.
+base=$((30000 + RANDOM % 20000))
+sed -e "s/47310/$base/; s/47311/$((base + 1))/; s/47320/$((base + 2))/; s/47321/$((base + 3))/" \
+    examples/relay_chain.toml >"$work/chain.toml"
+"$HETCOMM" keygen --fleet "$work/chain.toml" --out "$work/keys" >/dev/null
+"$HETCOMM" listen "$work/chain.toml" --as Charlie --foxglove 127.0.0.1:0 --timeout 60 \
+    >"$work/listen.out" 2>"$work/listen.err" &
+listen_pid=$!
+pids+=($listen_pid)
+listen_ws=$(ws_port "$work/listen.err")
+# Alpha sends with its keys, and an impostor without them (unauthenticated frames Charlie's
+# security layer rejects), until the client has seen both.
+(
+    for _ in $(seq 60); do
+        "$HETCOMM" send "$work/chain.toml" --as Alpha --to Charlie --module Plan --type 5 \
+            --json '{"n":1}' --timeout 2 >/dev/null 2>&1 || true
+        "$HETCOMM" send "$work/chain.toml" --insecure --as Alpha --to Charlie --module Plan \
+            --type 5 --json '{"n":2}' --timeout 1 >/dev/null 2>&1 || true
+        sleep 0.3
+    done
+) &
+senders=$!
+pids+=($senders)
+"$PY" scripts/foxglove-client.py listen "$listen_ws"
+kill "$senders" 2>/dev/null || true
+kill -TERM "$listen_pid"
+wait "$listen_pid"
+grep -E '^foxglove: [0-9]+ messages and outcomes observed, [0-9]+ published, 0 dropped' \
+    "$work/listen.err" || { cat "$work/listen.err" >&2; exit 1; }
+"$HETCOMM" replay "$work/run.mcap" --into examples/leader_follower/fleet.toml --speed 2 \
+    --foxglove 127.0.0.1:0 >"$work/replay.out" 2>"$work/replay.err" &
+replay_pid=$!
+pids+=($replay_pid)
+replay_ws=$(ws_port "$work/replay.err")
+"$PY" scripts/foxglove-client.py replay "$replay_ws"
+# The replay's exit code says whether every send was made, not how they ended.
+wait "$replay_pid" || { cat "$work/replay.err" >&2; exit 1; }
+grep -E '^foxglove: [0-9]+ messages and outcomes observed, [0-9]+ published, 0 dropped' \
+    "$work/replay.err" || { cat "$work/replay.err" >&2; exit 1; }
 echo "foxglove: live views and the recording checked"

@@ -81,11 +81,13 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     }
     #[cfg(feature = "zenoh")]
     watch_zenoh_presence(&fleet, args.system, tx.clone());
+    // Before the system opens: a refused flag (a build without the feature, an address in
+    // use) must not cost the user a system opened for nothing.
+    let live = args.foxglove.start("hetcomm listen")?;
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
     // HETCOMM_MONITOR=host:port: statistics for `hetcomm monitor` (docs/record-replay.md).
     let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
         .map_err(anyhow::Error::msg)?;
-    let live = args.foxglove.start("hetcomm listen")?;
     if let Some(live) = &live {
         live.watch(std::slice::from_ref(&comm))?;
     }

@@ -110,9 +110,9 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
             );
         }
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        live = args.foxglove.start("hetcomm replay")?;
         let local = LocalFleet::open_systems(fleet, &refs)?;
         let _publisher = Publisher::from_env(local.systems()).map_err(anyhow::Error::msg)?;
-        live = args.foxglove.start("hetcomm replay")?;
         if let Some(live) = &live {
             live.watch(local.systems())?;
         }
