@@ -104,20 +104,18 @@ impl Observed {
     }
 }
 
-/// Names systems, modules and transports by the fleet and builds [`Event`]s.
+/// The fleet's names of systems, modules and transports, by id and tag.
 #[derive(Clone, Debug)]
-pub struct EventBuilder {
+pub struct FleetNames {
     systems: HashMap<u16, String>,
     modules: HashMap<u16, String>,
     transports: HashMap<u8, String>,
-    encoding: Encoding,
 }
 
-impl EventBuilder {
-    /// Names from `fleet`; with [`Encoding::Json`] payloads are decoded into the events, with
-    /// [`Encoding::MsgPack`] they are left to the caller.
-    pub fn new(fleet: &Fleet, encoding: Encoding) -> EventBuilder {
-        EventBuilder {
+impl FleetNames {
+    /// The names of `fleet`.
+    pub fn new(fleet: &Fleet) -> FleetNames {
+        FleetNames {
             systems: fleet
                 .systems
                 .iter()
@@ -133,7 +131,6 @@ impl EventBuilder {
                 .iter()
                 .map(|t| (t.tag, t.name.clone()))
                 .collect(),
-            encoding,
         }
     }
 
@@ -153,6 +150,34 @@ impl EventBuilder {
             .unwrap_or_else(|| format!("#{id}"))
     }
 
+    /// The name of the transport with this tag, if the fleet has one.
+    pub fn transport(&self, tag: u8) -> Option<&str> {
+        self.transports.get(&tag).map(String::as_str)
+    }
+}
+
+/// Names systems, modules and transports by the fleet and builds [`Event`]s.
+#[derive(Clone, Debug)]
+pub struct EventBuilder {
+    names: FleetNames,
+    encoding: Encoding,
+}
+
+impl EventBuilder {
+    /// Names from `fleet`; with [`Encoding::Json`] payloads are decoded into the events, with
+    /// [`Encoding::MsgPack`] they are left to the caller.
+    pub fn new(fleet: &Fleet, encoding: Encoding) -> EventBuilder {
+        EventBuilder {
+            names: FleetNames::new(fleet),
+            encoding,
+        }
+    }
+
+    /// The fleet's names.
+    pub fn names(&self) -> &FleetNames {
+        &self.names
+    }
+
     /// The envelope of a message, named.
     pub fn envelope(&self, h: &Header, payload: &[u8]) -> Envelope {
         let (value, b64) = match self.encoding {
@@ -161,18 +186,18 @@ impl EventBuilder {
         };
         Envelope {
             source: Addr {
-                system: self.system(h.source.system.0),
-                module: self.module(h.source.module.0),
+                system: self.names.system(h.source.system.0),
+                module: self.names.module(h.source.module.0),
             },
             destination: Addr {
-                system: self.system(h.destination.system.0),
-                module: self.module(h.destination.module.0),
+                system: self.names.system(h.destination.system.0),
+                module: self.names.module(h.destination.module.0),
             },
             seq: h.seq,
             message_type: h.message_type.0,
             priority: h.priority.0,
             transport: (h.transport as char).to_string(),
-            transport_name: self.transports.get(&h.transport).cloned(),
+            transport_name: self.names.transport(h.transport).map(str::to_string),
             ack_requested: h.flags & hetcomm::wire::FLAG_ACK_REQUESTED != 0,
             broadcast: h.flags & hetcomm::wire::FLAG_BROADCAST != 0,
             timestamp_us: h.timestamp.as_micros(),
@@ -224,7 +249,7 @@ impl EventBuilder {
                 Event::Outcome(OutcomeEvent {
                     time_us: time.as_micros(),
                     source_system: system.to_string(),
-                    destination_system: self.system(id.to.0),
+                    destination_system: self.names.system(id.to.0),
                     seq: id.seq,
                     outcome: outcome.to_string(),
                     attempts,

@@ -333,27 +333,7 @@ impl Recorder {
                     })
             }),
         };
-        let result = channel_id.and_then(|channel_id| {
-            inner.sequence = inner.sequence.wrapping_add(1);
-            writer.write_to_known_channel(
-                &mcap::records::MessageHeader {
-                    channel_id,
-                    sequence: inner.sequence,
-                    log_time,
-                    publish_time: log_time,
-                },
-                data,
-            )
-        });
-        match result {
-            Ok(()) => {
-                self.others.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(e) => {
-                self.lost.fetch_add(1, Ordering::Relaxed);
-                inner.error.get_or_insert(e.to_string());
-            }
-        }
+        self.log(inner, channel_id, log_time, data, &self.others);
     }
 
     /// Counts a message its writer could not encode for [`Recorder::write_other`] as lost.
@@ -449,25 +429,42 @@ impl Recorder {
                 })
             }
         };
+        let counter = match kind {
+            "send" => &self.sends,
+            "receipt" => &self.receipts,
+            _ => &self.outcomes,
+        };
+        self.log(inner, channel, time, &data, counter);
+    }
+
+    /// Writes `data` on the channel `channel` names (or records why there is none), and counts
+    /// it in `counter`, or as lost.
+    fn log(
+        &self,
+        inner: &mut Inner,
+        channel: Result<u16, mcap::McapError>,
+        log_time: u64,
+        data: &[u8],
+        counter: &AtomicU64,
+    ) {
+        let Some(writer) = inner.writer.as_mut() else {
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
         let result = channel.and_then(|channel_id| {
             inner.sequence = inner.sequence.wrapping_add(1);
             writer.write_to_known_channel(
                 &mcap::records::MessageHeader {
                     channel_id,
                     sequence: inner.sequence,
-                    log_time: time,
-                    publish_time: time,
+                    log_time,
+                    publish_time: log_time,
                 },
-                &data,
+                data,
             )
         });
         match result {
             Ok(()) => {
-                let counter = match kind {
-                    "send" => &self.sends,
-                    "receipt" => &self.receipts,
-                    _ => &self.outcomes,
-                };
                 counter.fetch_add(1, Ordering::Relaxed);
             }
             Err(e) => {
