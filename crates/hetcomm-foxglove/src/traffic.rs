@@ -76,13 +76,21 @@ pub struct Watch {
 
 impl Watch {
     pub(crate) fn start(channels: Arc<Channels>, systems: &[Comm]) -> anyhow::Result<Watch> {
+        Watch::start_with_queue(channels, systems, QUEUE)
+    }
+
+    fn start_with_queue(
+        channels: Arc<Channels>,
+        systems: &[Comm],
+        queue: usize,
+    ) -> anyhow::Result<Watch> {
         let Some(first) = systems.first() else {
             anyhow::bail!("no system to watch");
         };
         let builder = EventBuilder::new(first.fleet(), Encoding::Json);
         let local: Arc<HashSet<u16>> = Arc::new(systems.iter().map(|c| c.id().0).collect());
         let counters = Arc::new(Counters::default());
-        let (tx, rx) = mpsc::sync_channel(QUEUE);
+        let (tx, rx) = mpsc::sync_channel(queue);
         let mut handles = Vec::new();
         let mut watched = Vec::new();
         for comm in systems {
@@ -360,4 +368,54 @@ pub(crate) fn publish_path_switch(
         )?
         .log(&serde_json::to_vec(&value)?);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::FoxgloveView;
+    use hetcomm::{LocalFleet, MessageType, SendOptions};
+
+    /// A publishing thread that cannot keep up loses items, and every one is counted: the
+    /// observed sends never wait for it.
+    #[test]
+    fn a_full_queue_drops_and_counts_instead_of_blocking_the_sender() {
+        let fleet = hetcomm::parse_fleet(
+            "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n[transports.t]\nkind = \"inproc\"\n\
+             [table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"t\"]\nB = [\"t\", \"X\"]\n",
+            "<test>",
+            None,
+        )
+        .unwrap();
+        let fleet = LocalFleet::open(fleet).unwrap();
+        let view = FoxgloveView::start("127.0.0.1:0", "test").unwrap();
+        let watch = Watch::start_with_queue(view.channels.clone(), fleet.systems(), 4).unwrap();
+        let a = fleet.system("A").unwrap().module("M").unwrap();
+        // The publishing thread blocks on its first new channel while the test holds them.
+        let held = view.channels.json.lock().unwrap();
+        let started = Instant::now();
+        for _ in 0..50 {
+            let t = a
+                .send_raw("B", "M", MessageType(1), &[0xc0], SendOptions::default())
+                .unwrap();
+            assert!(matches!(
+                t.wait_timeout(Duration::from_secs(5)),
+                Some(hetcomm::Outcome::Delivered { .. })
+            ));
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "the sends waited"
+        );
+        drop(held);
+        let c = watch.finish();
+        // Each send: a receipt at B and an outcome at A.
+        assert_eq!(c.observed, 100, "{c:?}");
+        assert!(c.dropped >= 100 - 4 - 1, "{c:?}");
+        assert_eq!(
+            c.published + c.dropped + c.unpublishable,
+            c.observed,
+            "{c:?}"
+        );
+    }
 }
