@@ -11,9 +11,9 @@ use hetcomm_sim::Pose;
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct FoxgloveArgs {
     /// Serve this run to Foxglove / Lichtblick over the Foxglove WebSocket protocol on
-    /// HOST:PORT (port 0 picks one, printed on stderr): statistics, every message, outcomes,
-    /// security counters and, in the demo, the rovers in 3D (docs/foxglove.md; needs a build
-    /// with `--features foxglove`).
+    /// HOST:PORT (port 0 picks one, printed on stderr): the statistics, and for the systems
+    /// this command opens every message, outcome and security counter; the demo's rovers in
+    /// 3D (docs/foxglove.md; needs a build with `--features foxglove`).
     #[arg(long, value_name = "HOST:PORT")]
     pub foxglove: Option<String>,
 }

@@ -27,7 +27,7 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use anyhow::Context as _;
 use foxglove::{
@@ -72,7 +72,9 @@ pub(crate) struct Channels {
     context: Arc<Context>,
     /// JSON channels by topic, made on first use.
     json: Mutex<HashMap<String, Arc<RawChannel>>>,
-    poses: poses::PoseChannels,
+    /// Made with the first poses: only the demo has any, and a channel that never carries a
+    /// message would only clutter a viewer's topic list.
+    poses: OnceLock<poses::PoseChannels>,
 }
 
 impl Channels {
@@ -136,7 +138,7 @@ impl FoxgloveView {
             .with_context(|| format!("--foxglove {addr}: expected host:port"))?;
         let context = Context::new();
         let channels = Arc::new(Channels {
-            poses: poses::PoseChannels::new(&context)?,
+            poses: OnceLock::new(),
             context: context.clone(),
             json: Mutex::new(HashMap::new()),
         });
@@ -171,7 +173,11 @@ impl FoxgloveView {
     /// Publishes the rovers' poses now (log time and stamps: the wall clock, since the viewer
     /// may run on another host): `/tf` and `/hetcomm/rovers`.
     pub fn publish_poses(&self, rovers: &[RoverPose<'_>]) {
-        self.channels.poses.publish(rovers);
+        let channels = &self.channels;
+        channels
+            .poses
+            .get_or_init(|| poses::PoseChannels::new(&channels.context))
+            .publish(rovers);
     }
 
     /// Observes `systems` (open in this process) until the returned [`Watch`] is dropped:

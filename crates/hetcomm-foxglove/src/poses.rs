@@ -155,11 +155,11 @@ pub(crate) struct PoseChannels {
 }
 
 impl PoseChannels {
-    pub(crate) fn new(context: &Arc<Context>) -> anyhow::Result<PoseChannels> {
-        Ok(PoseChannels {
+    pub(crate) fn new(context: &Arc<Context>) -> PoseChannels {
+        PoseChannels {
             tf: ChannelBuilder::new(TF_TOPIC).context(context).build(),
             scene: ChannelBuilder::new(SCENE_TOPIC).context(context).build(),
-        })
+        }
     }
 
     /// Publishes the poses stamped now on the wall clock (the viewer may be on another host).
