@@ -250,6 +250,20 @@ def check_message(m, source, destination, message_type):
     assert m["timestamp_us"] * 1000 > EPOCH_2020_NS, m  # the sender's wall clock
 
 
+def check_scene(m) -> dict:
+    """A rover entity per rover, locked to its frame, and its trail in `world`; the trails'
+    points by rover."""
+    rovers = {e.id: e for e in m.entities if not e.id.endswith("/trail")}
+    trails = {e.id.removesuffix("/trail"): e for e in m.entities if e.id.endswith("/trail")}
+    assert set(rovers) == ROVERS and set(trails) == ROVERS, [e.id for e in m.entities]
+    for e in rovers.values():
+        assert e.frame_id == e.id and e.frame_locked, e
+        assert len(e.cubes) == 1 and e.texts[0].text == e.id, e
+    for e in trails.values():
+        assert e.frame_id == "world" and not e.frame_locked and e.lines[0].points, e
+    return {r: list(e.lines[0].points) for r, e in trails.items()}
+
+
 def check_demo(got, channels) -> None:
     # Messages: each on its (destination, module, type) topic, decoded payloads.
     for _, m in got[COMMANDS]:
@@ -283,11 +297,7 @@ def check_demo(got, channels) -> None:
     assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms", channels["/tf"]
     assert channels["/hetcomm/rovers"]["schemaName"] == "foxglove.SceneUpdate"
     for _, m in got["/hetcomm/rovers"]:
-        ids = {e.id for e in m.entities}
-        assert ids == ROVERS, ids
-        for e in m.entities:
-            assert e.frame_id == e.id and e.frame_locked, e
-            assert len(e.cubes) == 1 and e.texts[0].text == e.id, e
+        check_scene(m)
     # What the server itself counted: everything observed was published, nothing dropped.
     server = got["/hetcomm/foxglove"][-1][1]
     assert server["dropped"] == 0 and server["unpublishable"] == 0, server
@@ -388,6 +398,7 @@ def recording(path: str) -> None:
         tracks = {}  # rover -> [(log time, x, y)]
         scenes = 0
         receipts = 0
+        first_trails = last_trails = None
         for schema, channel, message in reader.iter_messages(log_time_order=True):
             if channel.topic == "/tf":
                 m = classes["/tf"].FromString(message.data)
@@ -398,9 +409,9 @@ def recording(path: str) -> None:
                     tracks.setdefault(t.child_frame_id, []).append(
                         (message.log_time, t.translation.x, t.translation.y))
             elif channel.topic == "/hetcomm/rovers":
-                m = classes["/hetcomm/rovers"].FromString(message.data)
-                assert {e.id for e in m.entities} == ROVERS, m
-                assert all(e.frame_id == e.id and e.frame_locked for e in m.entities), m
+                trails = check_scene(classes["/hetcomm/rovers"].FromString(message.data))
+                first_trails = first_trails or trails
+                last_trails = trails
                 scenes += 1
             elif channel.topic.startswith("/receipt/"):
                 receipts += 1
@@ -413,6 +424,11 @@ def recording(path: str) -> None:
         travelled = sum(math.dist(a[1:], b[1:]) for a, b in zip(track, track[1:]))
         assert travelled > 50, (rover, travelled)
         assert math.dist(track[0][1:], track[-1][1:]) > 10, (rover, track[0], track[-1])
+    # Each trail grew as its rover drove, and ends where the rover is.
+    for rover in ROVERS:
+        assert len(last_trails[rover]) > len(first_trails[rover]) >= 1, rover
+        end = last_trails[rover][-1]
+        assert math.dist((end.x, end.y), tracks[rover][-1][1:]) <= 1.0, (rover, end)
     # The demo's start poses (hetcomm-sim's thesis scenario).
     assert abs(tracks["Alpha"][0][1] - -190.494) < 1 and abs(tracks["Alpha"][0][2] - -200) < 1
     print(f"foxglove client (mcap): {path}: {sum(map(len, tracks.values()))} transforms of "

@@ -6,13 +6,16 @@
 //!   child frame the rover's name, translation (x, y, 0) in world units, rotation the heading
 //!   about +z;
 //! * `/hetcomm/rovers` (`foxglove.SceneUpdate`): one entity per rover, locked to its frame: a
-//!   box, an arrow along its heading and its name.
+//!   box, an arrow along its heading and its name; and one per rover in the `world` frame,
+//!   `<rover>/trail`, the line it has driven so far.
 
-use std::sync::Arc;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 
 use foxglove::messages::{
-    ArrowPrimitive, Color, CubePrimitive, FrameTransform, FrameTransforms, Pose, Quaternion,
-    SceneEntity, SceneUpdate, TextPrimitive, Timestamp, Vector3,
+    line_primitive, ArrowPrimitive, Color, CubePrimitive, FrameTransform, FrameTransforms,
+    LinePrimitive, Point3, Pose, Quaternion, SceneEntity, SceneUpdate, TextPrimitive, Timestamp,
+    Vector3,
 };
 use foxglove::{Channel, ChannelBuilder, Context, Encode};
 use hetcomm::Time;
@@ -78,7 +81,7 @@ fn colour(name: &str) -> Color {
 }
 
 /// `world` → each rover's frame, stamped `ns` (nanoseconds on the clock of the log times).
-pub fn frame_transforms(rovers: &[RoverPose<'_>], ns: u64) -> FrameTransforms {
+fn frame_transforms(rovers: &[RoverPose<'_>], ns: u64) -> FrameTransforms {
     FrameTransforms {
         transforms: rovers
             .iter()
@@ -97,8 +100,46 @@ pub fn frame_transforms(rovers: &[RoverPose<'_>], ns: u64) -> FrameTransforms {
     }
 }
 
-/// A box, a heading arrow and a label per rover, each in (and locked to) its rover's frame.
-pub fn scene_update(rovers: &[RoverPose<'_>], ns: u64) -> SceneUpdate {
+/// A trail point is added once a rover is this far (world units) from the last one.
+const TRAIL_STEP: f64 = 1.0;
+/// Points kept per trail (the oldest go first).
+const TRAIL_POINTS: usize = 2000;
+
+/// The line each rover has driven, for its trail entity.
+#[derive(Debug, Default)]
+pub(crate) struct Trails(Mutex<BTreeMap<String, Vec<Point3>>>);
+
+impl Trails {
+    /// Adds the rovers' positions (where they moved far enough) and returns every trail.
+    fn extend(&self, rovers: &[RoverPose<'_>]) -> Vec<(String, Vec<Point3>)> {
+        let mut trails = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        for r in rovers {
+            let trail = trails.entry(r.name.to_string()).or_default();
+            let far = trail
+                .last()
+                .map_or(true, |p| (p.x - r.x).hypot(p.y - r.y) >= TRAIL_STEP);
+            if far {
+                if trail.len() == TRAIL_POINTS {
+                    trail.remove(0);
+                }
+                trail.push(Point3 {
+                    x: r.x,
+                    y: r.y,
+                    z: 0.0,
+                });
+            }
+        }
+        trails.iter().map(|(n, t)| (n.clone(), t.clone())).collect()
+    }
+}
+
+/// A box, a heading arrow and a label per rover, each in (and locked to) its rover's frame,
+/// and each rover's trail in the `world` frame.
+fn scene_update(
+    rovers: &[RoverPose<'_>],
+    ns: u64,
+    trails: &[(String, Vec<Point3>)],
+) -> SceneUpdate {
     let identity = |x: f64, z: f64| Pose {
         position: Some(Vector3 { x, y: 0.0, z }),
         orientation: Some(heading(0.0)),
@@ -144,6 +185,21 @@ pub fn scene_update(rovers: &[RoverPose<'_>], ns: u64) -> SceneUpdate {
                     ..SceneEntity::default()
                 }
             })
+            .chain(trails.iter().map(|(name, points)| SceneEntity {
+                timestamp: Some(stamp(ns)),
+                frame_id: WORLD_FRAME.to_string(),
+                id: format!("{name}/trail"),
+                lines: vec![LinePrimitive {
+                    r#type: line_primitive::Type::LineStrip as i32,
+                    pose: Some(identity(0.0, 0.0)),
+                    thickness: 2.0,
+                    scale_invariant: true,
+                    points: points.clone(),
+                    color: Some(colour(name)),
+                    ..LinePrimitive::default()
+                }],
+                ..SceneEntity::default()
+            }))
             .collect(),
     }
 }
@@ -152,6 +208,7 @@ pub fn scene_update(rovers: &[RoverPose<'_>], ns: u64) -> SceneUpdate {
 pub(crate) struct PoseChannels {
     tf: Channel<FrameTransforms>,
     scene: Channel<SceneUpdate>,
+    trails: Trails,
 }
 
 impl PoseChannels {
@@ -159,6 +216,7 @@ impl PoseChannels {
         PoseChannels {
             tf: ChannelBuilder::new(TF_TOPIC).context(context).build(),
             scene: ChannelBuilder::new(SCENE_TOPIC).context(context).build(),
+            trails: Trails::default(),
         }
     }
 
@@ -166,16 +224,19 @@ impl PoseChannels {
     pub(crate) fn publish(&self, rovers: &[RoverPose<'_>]) {
         let ns = Time::now_wall().as_micros() * 1000;
         self.tf.log_with_time(&frame_transforms(rovers, ns), ns);
-        self.scene.log_with_time(&scene_update(rovers, ns), ns);
+        let trails = self.trails.extend(rovers);
+        self.scene
+            .log_with_time(&scene_update(rovers, ns, &trails), ns);
     }
 }
 
 /// Writes the poses into a recording beside its events, with the well-known schemas, so the
 /// recording opens in Foxglove with the rovers in the 3D panel.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct PoseRecording {
     tf: OtherChannel,
     scene: OtherChannel,
+    trails: Trails,
 }
 
 impl Default for PoseRecording {
@@ -183,6 +244,7 @@ impl Default for PoseRecording {
         PoseRecording {
             tf: other_channel::<FrameTransforms>(TF_TOPIC),
             scene: other_channel::<SceneUpdate>(SCENE_TOPIC),
+            trails: Trails::default(),
         }
     }
 }
@@ -194,7 +256,9 @@ impl PoseRecording {
     pub fn write(&self, recorder: &Recorder, rovers: &[RoverPose<'_>], time: Time) {
         let ns = time.as_micros() * 1000;
         write_encoded(recorder, &self.tf, &frame_transforms(rovers, ns), time);
-        write_encoded(recorder, &self.scene, &scene_update(rovers, ns), time);
+        let trails = self.trails.extend(rovers);
+        let scene = scene_update(rovers, ns, &trails);
+        write_encoded(recorder, &self.scene, &scene, time);
     }
 }
 
@@ -259,10 +323,33 @@ mod tests {
             "{q:?}"
         );
         assert_eq!(a.timestamp, Some(Timestamp::new(1500, 250)));
-        let scene = scene_update(&rovers, 0);
+        let scene = scene_update(&rovers, 0, &[]);
         assert_eq!(scene.entities[1].frame_id, "Tango");
         assert!(scene.entities[1].frame_locked);
         assert_eq!(scene.entities[1].texts[0].text, "Tango");
+        // Trails grow as the rovers move, in the world frame.
+        let trails = Trails::default();
+        trails.extend(&rovers);
+        let moved = [RoverPose {
+            x: -180.0,
+            ..rovers[0]
+        }];
+        let t = trails.extend(&moved);
+        assert_eq!(t[0].0, "Alpha");
+        assert_eq!(t[0].1.len(), 2);
+        assert_eq!(
+            trails.extend(&moved)[0].1.len(),
+            2,
+            "no point while standing still"
+        );
+        let scene = scene_update(&moved, 0, &t);
+        let trail = scene
+            .entities
+            .iter()
+            .find(|e| e.id == "Alpha/trail")
+            .unwrap();
+        assert_eq!(trail.frame_id, "world");
+        assert_eq!(trail.lines[0].points[1].x, -180.0);
         let ch = other_channel::<FrameTransforms>(TF_TOPIC);
         assert_eq!(ch.schema_name, "foxglove.FrameTransforms");
         assert_eq!(
