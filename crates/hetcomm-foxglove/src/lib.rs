@@ -23,6 +23,21 @@
 //! | `/tf` | `foxglove.FrameTransforms` (protobuf) | `world` → each rover's frame |
 //! | `/hetcomm/rovers` | `foxglove.SceneUpdate` (protobuf) | a box, heading arrow and label per rover |
 //!
+//! It does not authenticate viewers (serve on a local or trusted address), count the messages
+//! the SDK drops for a client that reads too slowly (the message topics' `seq` shows the
+//! gaps), or serve a simulation (virtual time runs far faster than anyone watches: record it).
+//!
+//! ```no_run
+//! # fn main() -> anyhow::Result<()> {
+//! let fleet = hetcomm::LocalFleet::open_file("fleet.toml")?;
+//! let view = hetcomm_foxglove::FoxgloveView::start("127.0.0.1:8765", "my robots")?;
+//! let watch = view.watch(fleet.systems())?;
+//! // … run; in Foxglove: Open connection, Foxglove WebSocket, ws://127.0.0.1:8765 …
+//! let counts = watch.finish();
+//! println!("{} published, {} dropped", counts.published, counts.dropped);
+//! # Ok(()) }
+//! ```
+//!
 //! See docs/foxglove.md for opening the view and how it is tested.
 
 use std::collections::HashMap;
