@@ -33,6 +33,7 @@ PIP_PACKAGES=(
     "cyclonedds==11.0.1"           # a foreign ROS 2 node (no ROS 2 install)
     "eclipse-zenoh==1.10.2"        # a plain Zenoh client written from docs/zenoh.md
     "websockets>=12"               # a Foxglove WebSocket client written from the protocol docs
+    "protobuf>=4"                  # decodes Foxglove's well-known schemas from their descriptors
 )
 
 step() { printf '\n=== %s ===\n' "$*"; }

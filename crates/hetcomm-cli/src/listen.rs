@@ -32,6 +32,8 @@ pub struct ListenArgs<'a> {
     pub verbose: bool,
     /// Times as raw microseconds since the UNIX epoch instead of seconds since the start.
     pub raw_times: bool,
+    /// `--foxglove HOST:PORT`: the system served to Foxglove while it listens.
+    pub foxglove: &'a crate::foxglove::FoxgloveArgs,
 }
 
 /// What the main loop waits for.
@@ -79,10 +81,16 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     }
     #[cfg(feature = "zenoh")]
     watch_zenoh_presence(&fleet, args.system, tx.clone());
+    // Before the system opens: a refused flag (a build without the feature, an address in
+    // use) must not cost the user a system opened for nothing.
+    let live = args.foxglove.start("hetcomm listen")?;
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
     // HETCOMM_MONITOR=host:port: statistics for `hetcomm monitor` (docs/record-replay.md).
     let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
         .map_err(anyhow::Error::msg)?;
+    if let Some(live) = &live {
+        live.watch(std::slice::from_ref(&comm))?;
+    }
     let start = Time::now_wall();
     let started = Instant::now();
     let modules: Vec<String> = match args.module {
@@ -183,6 +191,9 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         print_moved(&drops, &shown, seen, args.verbose, &clock);
     }
     eprintln!("{}", summary(seen, &stats));
+    if let Some(live) = &live {
+        live.finish();
+    }
     Ok(())
 }
 

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod demo;
 mod experiment;
+mod foxglove;
 mod keygen;
 mod listen;
 mod monitor;
@@ -163,6 +164,8 @@ enum Command {
         raw_times: bool,
         #[command(flatten)]
         security: SecurityArgs,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Send one message from a system of a live fleet and print its outcome (like
     /// `rostopic pub`). Exits 0 when delivered (in the destination module's inbox) or sent
@@ -262,6 +265,8 @@ enum Command {
         /// Live: seconds to wait for outstanding outcomes at the end.
         #[arg(long, default_value_t = 5.0)]
         settle: f64,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Show live per-pair statistics of a fleet, refreshed once a second
     /// (docs/record-replay.md).
@@ -281,10 +286,8 @@ enum Command {
         /// Exit after this many seconds.
         #[arg(long)]
         duration: Option<f64>,
-        /// Also serve the statistics to Foxglove / Lichtblick over WebSocket on HOST:PORT
-        /// (docs/foxglove.md; needs a build with `--features foxglove`).
-        #[arg(long, value_name = "HOST:PORT")]
-        foxglove: Option<String>,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Draw a fleet's systems and, per ordered pair, the transport that carries it
     /// (docs/record-replay.md). SVG or PNG by the output's extension.
@@ -339,6 +342,8 @@ struct DemoToolArgs {
     /// The systems whose code the replay replaces (comma-separated).
     #[arg(long, value_delimiter = ',', requires = "replay")]
     replace: Vec<String>,
+    #[command(flatten)]
+    foxglove: foxglove::FoxgloveArgs,
 }
 
 fn secs(s: f64) -> anyhow::Result<Duration> {
@@ -505,8 +510,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             verbose,
             raw_times,
             security,
+            foxglove,
         } => {
             listen::listen(listen::ListenArgs {
+                foxglove: &foxglove,
                 fleet: &fleet,
                 security: &security,
                 system: &system,
@@ -572,8 +579,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             sim,
             seed,
             settle,
+            foxglove,
         } => {
             let clean = replay::run(replay::ReplayArgs {
+                foxglove: &foxglove,
                 file: &file,
                 into: &into,
                 filter: hetcomm_record::ReplayFilter {
@@ -604,7 +613,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 listen: &listen,
                 json,
                 duration: duration.map(secs).transpose()?,
-                foxglove: foxglove.as_deref(),
+                foxglove: foxglove.foxglove.as_deref(),
             })?;
             Ok(ExitCode::SUCCESS)
         }
@@ -630,7 +639,15 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             tools,
             scenario,
         } => {
+            if tools.foxglove.foxglove.is_some() && !realtime {
+                anyhow::bail!(
+                    "--foxglove serves a run while it happens: add --realtime (a virtual-time run \
+                     is over in milliseconds; to look at one in Foxglove, --record FILE and open \
+                     the file)"
+                );
+            }
             let hooks = record::DemoTools {
+                foxglove: tools.foxglove,
                 record: tools.record,
                 record_systems: tools.record_systems,
                 msgpack: tools.msgpack,
