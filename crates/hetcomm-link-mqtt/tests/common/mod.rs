@@ -9,6 +9,8 @@
 
 #![allow(dead_code)]
 
+pub mod fleet;
+
 use std::collections::HashMap;
 use std::io::Write;
 use std::net::TcpStream;
