@@ -119,6 +119,11 @@ fn words(camel: &str) -> String {
     out
 }
 
+/// The first pause between connection attempts, doubled after each failure up to
+/// [`RETRY_MAX`].
+const RETRY_FIRST: Duration = Duration::from_millis(50);
+const RETRY_MAX: Duration = Duration::from_millis(500);
+
 /// Runs until the link closes.
 pub(crate) fn run(
     shared: Arc<Shared>,
@@ -130,12 +135,12 @@ pub(crate) fn run(
 ) {
     IN_EVENT_LOOP.with(|c| c.set(true));
     let mut current = 0;
-    let mut pause = Duration::from_millis(100);
+    let mut pause = RETRY_FIRST;
     loop {
         let Ok(event) = connection.recv() else { break };
         match event {
             Ok(Event::Incoming(Packet::ConnAck(ack))) => {
-                pause = Duration::from_millis(100);
+                pause = RETRY_FIRST;
                 on_connack(&shared, &client, &ack, &filters);
             }
             Ok(Event::Incoming(Packet::SubAck(ack))) => {
@@ -196,7 +201,7 @@ pub(crate) fn run(
                     shared.lock().broker = brokers[current].to_string();
                 }
                 std::thread::sleep(pause);
-                pause = (pause * 2).min(Duration::from_secs(1));
+                pause = (pause * 2).min(RETRY_MAX);
             }
         }
     }
@@ -214,6 +219,7 @@ fn on_connack(shared: &Shared, client: &Client, ack: &ConnAck, filters: &[Filter
     conn.refused = None;
     drop(conn);
     if !ack.session_present {
+        shared.presence.forget_all();
         let _ = client.try_subscribe_many(filters.to_vec());
     }
     // After the subscriptions: whoever sees `online` can publish to this system.

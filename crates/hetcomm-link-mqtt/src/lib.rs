@@ -40,8 +40,9 @@
 //!
 //! ## The broker going away
 //!
-//! The client reconnects by itself (every 0.1 s to 1 s, to each of `brokers` in turn),
-//! resubscribes when the broker kept no session, and announces itself online again. While it
+//! The client reconnects by itself (every 0.05 s to 0.5 s, to each of `brokers` in turn),
+//! resubscribes when the broker kept no session (and learns every system's presence again),
+//! and announces itself online again. While it
 //! is disconnected a send waits up to `reconnect_wait_ms` for the connection, then fails,
 //! naming the broker and why.
 //!

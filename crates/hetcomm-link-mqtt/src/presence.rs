@@ -169,6 +169,18 @@ impl Presence {
         ids
     }
 
+    /// Forgets what every system announced: the broker this link reconnected to kept no
+    /// session, so its retained messages may be gone too (a restart without persistence), and
+    /// each system's presence is learned again, from the retained messages replayed on
+    /// subscribing or from the system announcing itself when it reconnects. Until then a send
+    /// waits for it as for a system never seen, rather than publishing to a topic nobody may be
+    /// subscribed to yet.
+    pub(crate) fn forget_all(&self) {
+        let mut st = self.lock();
+        st.seen.clear();
+        st.first_wait.clear();
+    }
+
     /// Wakes waiting sends: the link is closing.
     pub(crate) fn close(&self) {
         self.lock().closed = true;
