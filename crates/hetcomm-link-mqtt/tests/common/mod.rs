@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::Harness;
 use hetcomm_link::{FrameSink, Link};
+pub use hetcomm_link_mqtt::Qos;
 use hetcomm_link_mqtt::{MqttLink, MqttLinkConfig, MqttSettings};
 
 /// A free TCP port on 127.0.0.1 (bound, read, released).
@@ -149,7 +150,7 @@ pub struct MqttHarness {
 
 impl MqttHarness {
     /// Links through the group's broker with QoS `qos`.
-    pub fn new(qos: hetcomm_link_mqtt::Qos) -> MqttHarness {
+    pub fn new(qos: Qos) -> MqttHarness {
         let mut settings = MqttSettings::with_broker(&broker()).expect("broker address");
         settings.qos = qos;
         MqttHarness {
