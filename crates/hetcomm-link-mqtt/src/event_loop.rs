@@ -4,12 +4,13 @@
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
 use hetcomm_link::Peer;
 use rumqttc::v5::mqttbytes::v5::{
-    ConnAck, Filter, LastWill, Packet, PubAckReason, Publish, SubscribeReasonCode,
+    ConnAck, DisconnectReasonCode, Filter, LastWill, Packet, PubAckReason, Publish,
+    SubscribeReasonCode,
 };
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, Connection, ConnectionError, Event, MqttOptions, StateError};
@@ -124,6 +125,12 @@ fn words(camel: &str) -> String {
 const RETRY_FIRST: Duration = Duration::from_millis(50);
 const RETRY_MAX: Duration = Duration::from_millis(500);
 
+/// A connection the broker closes sooner than this after it opened counts towards
+/// [`TAKEN_OVER_AFTER`].
+const SHORT_LIVED: Duration = Duration::from_secs(2);
+/// This many short-lived connections in a row: another client uses this system's client id.
+const TAKEN_OVER_AFTER: u32 = 3;
+
 /// Runs until the link closes.
 pub(crate) fn run(
     shared: Arc<Shared>,
@@ -136,11 +143,14 @@ pub(crate) fn run(
     IN_EVENT_LOOP.with(|c| c.set(true));
     let mut current = 0;
     let mut pause = RETRY_FIRST;
+    let mut connected_at: Option<Instant> = None;
+    let mut short_lived = 0;
     loop {
         let Ok(event) = connection.recv() else { break };
         match event {
             Ok(Event::Incoming(Packet::ConnAck(ack))) => {
                 pause = RETRY_FIRST;
+                connected_at = Some(Instant::now());
                 on_connack(&shared, &client, &ack, &filters);
             }
             Ok(Event::Incoming(Packet::SubAck(ack))) => {
@@ -183,15 +193,40 @@ pub(crate) fn run(
             Ok(_) => {}
             Err(e) => {
                 let (text, refused) = describe(&e);
+                // mosquitto closes a connection whose client id another client takes without
+                // a DISCONNECT saying so (MQTT 5's "session taken over" where a broker sends it):
+                // connections closed soon after they opened, again and again, are that.
+                let short = connected_at
+                    .take()
+                    .is_some_and(|t| t.elapsed() < SHORT_LIVED);
+                short_lived = if short { short_lived + 1 } else { 0 };
+                let taken_over = short_lived >= TAKEN_OVER_AFTER
+                    || matches!(
+                        e,
+                        ConnectionError::MqttState(StateError::ServerDisconnect {
+                            reason_code: DisconnectReasonCode::SessionTakenOver,
+                            ..
+                        })
+                    );
                 let mut conn = shared.lock();
                 conn.ready = false;
                 conn.last_error = Some(text);
                 if refused.is_some() {
                     conn.refused = refused;
                 }
+                if taken_over {
+                    // Another client connected with this system's client id (the system
+                    // opened twice): reconnecting would take it back, and the two would push
+                    // each other off for ever. This link stops; sends say why.
+                    conn.last_error = Some(format!(
+                        "another client connected with this system's client id `{}` (the broker closed this link's connection right after it opened, {short_lived} times; is the system open in another process?); this link stopped",
+                        options[current].client_id()
+                    ));
+                    conn.taken_over = true;
+                }
                 drop(conn);
                 shared.changed.notify_all();
-                if shared.closing.load(Ordering::SeqCst) {
+                if shared.closing.load(Ordering::SeqCst) || taken_over {
                     break;
                 }
                 // The next broker of the list, if there are several.

@@ -244,6 +244,21 @@ fn resolve(path: &mut Option<PathBuf>, base: Option<&Path>) {
     }
 }
 
+/// The topic level after the prefix: the transport's `fleet`, else the fleet file's `name`,
+/// else `fleet`.
+fn fleet_level(settings: &MqttSettings, fleet_name: Option<&str>) -> Result<String, String> {
+    match (&settings.fleet, fleet_name) {
+        (Some(f), _) => Ok(f.clone()),
+        (None, Some(name)) => {
+            validate_levels(name).map_err(|why| {
+                format!("the fleet's name `{name}` cannot be an MQTT topic level ({why}): set `fleet = \"…\"` in the transport")
+            })?;
+            Ok(name.to_string())
+        }
+        (None, None) => Ok("fleet".into()),
+    }
+}
+
 impl TransportFactory for MqttFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Mqtt
@@ -269,16 +284,32 @@ impl TransportFactory for MqttFactory {
         ] {
             resolve(path, base);
         }
-        let fleet = match (&settings.fleet, &request.fleet.name) {
-            (Some(f), _) => f.clone(),
-            (None, Some(name)) => {
-                validate_levels(name).map_err(|why| {
-                    format!("the fleet's name `{name}` cannot be an MQTT topic level ({why}): set `fleet = \"…\"` in the transport")
-                })?;
-                name.clone()
+        let fleet = fleet_level(&settings, request.fleet.name.as_deref())?;
+        // Two transports on one broker under the same topics would each carry every frame of
+        // the other (a system's links both subscribe to its one topic), and their clients would
+        // share an id and push each other off.
+        for other in &request.fleet.transports {
+            let TransportSettings::Registered(r) = &other.settings else {
+                continue;
+            };
+            let Some(o) = r.downcast_ref::<MqttSettings>() else {
+                continue;
+            };
+            if other.name != request.transport.name
+                && o.brokers == settings.brokers
+                && o.prefix == settings.prefix
+                && fleet_level(o, request.fleet.name.as_deref()).ok().as_ref() == Some(&fleet)
+            {
+                return Err(format!(
+                    "transports `{}` and `{}` are both on {} under `{}/{fleet}`: give one its own `fleet` (or `prefix`)",
+                    request.transport.name,
+                    other.name,
+                    settings.broker_list(),
+                    settings.prefix
+                )
+                .into());
             }
-            (None, None) => "fleet".into(),
-        };
+        }
         let systems = request
             .fleet
             .systems

@@ -164,6 +164,8 @@ pub(crate) struct Conn {
     pub(crate) last_error: Option<String>,
     /// The broker's refusal of this client, if that is why.
     pub(crate) refused: Option<String>,
+    /// Another client took this system's client id over: the link stopped for good.
+    pub(crate) taken_over: bool,
 }
 
 /// Counters of a link.
@@ -532,7 +534,7 @@ impl MqttLink {
                 return Err(LinkError::Closed);
             }
             let now = Instant::now();
-            if in_loop || now >= deadline {
+            if in_loop || conn.taken_over || now >= deadline {
                 return Err(LinkError::Unreachable {
                     peer: to,
                     reason: format!(

@@ -310,3 +310,62 @@ fn bin(len: usize) -> Vec<u8> {
     v.resize(len, 0xab);
     v
 }
+
+/// Two transports of one fleet on one broker under the same topics would each carry the
+/// other's frames: opening refuses, naming both.
+#[test]
+fn two_transports_under_the_same_topics_are_refused() {
+    let fleet_level = unique_fleet();
+    let text = format!(
+        "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n\
+         [transports.m]\nkind = \"mqtt\"\nbroker = \"{b}\"\nfleet = \"{fleet_level}\"\nsecurity = \"none\"\n\
+         [transports.n]\nkind = \"mqtt\"\nbroker = \"{b}\"\nfleet = \"{fleet_level}\"\nsecurity = \"none\"\n\
+         [table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"m\"]\nB = [\"n\", \"X\"]\n",
+        b = broker()
+    );
+    let fleet = hetcomm::parse_fleet(&text, "m.toml", None).expect("valid");
+    let Err(e) = hetcomm::Comm::open_fleet(&fleet, "A") else {
+        panic!("opening must fail");
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains(&format!(
+            "are both on mqtt://{} under `hetcomm/{fleet_level}`",
+            broker()
+        )),
+        "{e}"
+    );
+}
+
+/// The same system opened twice: the two clients share a client id and the broker keeps
+/// closing one for the other. One of the links stops (rather than taking the id back for
+/// ever) and says why; the other then works.
+#[test]
+fn a_system_opened_twice_stops_one_link_saying_why() {
+    let keys = keys(&broker(), &unique_fleet(), "reconnect_wait_ms = 300");
+    let (a, _b) = open_pair(&keys);
+    let from = a.module("M").unwrap();
+    assert!(matches!(send(&from, 1), Outcome::Delivered { .. }));
+    let a2 = open(&keys, "A");
+    let from2 = a2.module("M").unwrap();
+    let mut stopped = None;
+    eventually(15, "one A stopped", || {
+        for (which, m) in [(1, &from), (2, &from2)] {
+            if let Outcome::Failed { reason, .. } = send(m, 2) {
+                if reason
+                    .to_string()
+                    .contains("another client connected with this system's client id")
+                {
+                    stopped = Some(which);
+                    return true;
+                }
+            }
+        }
+        false
+    });
+    // The other works.
+    let other = if stopped == Some(1) { &from2 } else { &from };
+    eventually(10, "the other A delivers", || {
+        matches!(send(other, 3), Outcome::Delivered { .. })
+    });
+}
