@@ -85,7 +85,9 @@ certfile $TLS/server.crt
 keyfile $TLS/server.key
 require_certificate true
 CONF
-mosquitto -c "$WORK/mosquitto.conf" 2>"$WORK/mosquitto.log" &
+# Debian installs the broker in /usr/sbin, which a non-root PATH may lack.
+MOSQUITTO=$(command -v mosquitto || echo /usr/sbin/mosquitto)
+"$MOSQUITTO" -c "$WORK/mosquitto.conf" 2>"$WORK/mosquitto.log" &
 PIDS+=($!)
 for port in $PLAIN $AUTH $SECURE; do
     for _ in $(seq 100); do

@@ -27,7 +27,7 @@ pub(crate) fn options(
     name: &str,
     topics: &Topics,
 ) -> Result<Vec<MqttOptions>, OpenError> {
-    let tls = match s.tls() || s.client_cert_file.is_some() {
+    let tls = match s.tls() {
         true => Some(crate::tls::client_config(s).map_err(OpenError::Setting)?),
         false => None,
     };
@@ -65,8 +65,8 @@ pub(crate) fn options(
         .collect())
 }
 
-/// The subscriptions of a link: its own topic and the broadcasts (not its own publishes: "no
-/// local"), and every system's presence.
+/// The subscriptions of a link: its own topic, the broadcasts and every system's presence,
+/// none of its own publishes ("no local").
 pub(crate) fn filters(shared: &Shared, qos: Qos) -> Vec<Filter> {
     let data = |topic: &str| {
         let mut f = Filter::new(topic, qos.mqtt());
@@ -77,10 +77,13 @@ pub(crate) fn filters(shared: &Shared, qos: Qos) -> Vec<Filter> {
     if shared.broadcast {
         filters.push(data(&shared.topics.all));
     }
-    filters.push(Filter::new(
+    // Not its own announcements either.
+    let mut presence = Filter::new(
         format!("{}+", shared.topics.presence_prefix),
         QoS::AtLeastOnce,
-    ));
+    );
+    presence.nolocal = true;
+    filters.push(presence);
     filters
 }
 
@@ -188,7 +191,8 @@ pub(crate) fn run(
                 };
             }
             Ok(Event::Outgoing(Outgoing::Disconnect)) if shared.closing.load(Ordering::SeqCst) => {
-                break
+                drain(&mut connection);
+                break;
             }
             Ok(_) => {}
             Err(e) => {
@@ -243,6 +247,23 @@ pub(crate) fn run(
     shared.lock().ready = false;
     shared.changed.notify_all();
 }
+
+/// After the DISCONNECT: reads until the broker closes the connection (at most
+/// [`DRAIN`]). Closing a socket with unread bytes in it sends a reset, and a broker that gets
+/// one before it handled the DISCONNECT takes the close for a broken connection and publishes
+/// the last will (`lost`) over the `offline` just published (seen with mosquitto 2.0.11).
+fn drain(connection: &mut Connection) {
+    let deadline = Instant::now() + DRAIN;
+    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+        match connection.recv_timeout(left) {
+            Ok(Ok(_)) => {}
+            _ => return,
+        }
+    }
+}
+
+/// How long [`drain`] waits for the broker to close the connection.
+const DRAIN: Duration = Duration::from_millis(500);
 
 /// A connection came up: subscribe again if the broker kept no session, and announce this
 /// system online (retained). The link is ready at the SUBACK (or at once when the session

@@ -105,7 +105,12 @@ pub fn presence_topic(prefix: &str, fleet: &str, name: &str) -> String {
 /// (1 byte and a remaining length of up to 4), the topic (2-byte length and its bytes), the
 /// packet id (2) and an empty property list (1).
 pub fn publish_overhead(topic: &str) -> usize {
-    1 + 4 + 2 + topic.len() + 2 + 1
+    overhead(topic.len())
+}
+
+/// [`publish_overhead`] for a topic of `topic_len` bytes.
+fn overhead(topic_len: usize) -> usize {
+    1 + 4 + 2 + topic_len + 2 + 1
 }
 
 /// Everything an `mqtt` link needs to open.
@@ -251,6 +256,8 @@ pub struct MqttLink {
     thread: Mutex<Option<JoinHandle<()>>>,
     dests: HashMap<SystemId, Dest>,
     settings: MqttSettings,
+    /// The fleet level of its topics (`PREFIX/FLEET/…`).
+    fleet: String,
     qos: QoS,
     max_frame: usize,
     address: String,
@@ -346,6 +353,7 @@ impl MqttLink {
             thread: Mutex::new(Some(thread)),
             dests,
             settings: s.clone(),
+            fleet: config.fleet.clone(),
             qos: s.qos.mqtt(),
             max_frame: MAX_FRAME,
             address,
@@ -411,9 +419,10 @@ impl MqttLink {
             .map(|d| d.topic.len())
             .max()
             .unwrap_or(0);
-        let overhead = publish_overhead(&"x".repeat(longest));
         match limit {
-            Some(l) => (l as usize).saturating_sub(overhead).min(MAX_FRAME),
+            Some(l) => (l as usize)
+                .saturating_sub(overhead(longest))
+                .min(MAX_FRAME),
             None => MAX_FRAME,
         }
     }
@@ -477,7 +486,7 @@ impl MqttLink {
         }
         let in_loop = IN_EVENT_LOOP.with(|c| c.get());
         let grace = Duration::from_millis(self.settings.presence_timeout_ms as u64);
-        let topic = || presence_topic(&self.settings.prefix, self.fleet_level(), &dest.name);
+        let topic = || presence_topic(&self.settings.prefix, &self.fleet, &dest.name);
         match self.shared.presence.verdict(to, grace, !in_loop) {
             Verdict::Go => Ok(dest),
             // On the event loop (answering a frame from it): it is probably there.
@@ -511,13 +520,6 @@ impl MqttLink {
                 ),
             }),
         }
-    }
-
-    /// The fleet level of this link's topics.
-    fn fleet_level(&self) -> &str {
-        let own = &self.shared.topics.own;
-        let rest = &own[self.settings.prefix.len() + 1..];
-        &rest[..rest.rfind('/').unwrap_or(rest.len())]
     }
 
     /// Waits (up to `reconnect_wait_ms`, not at all on the event loop) for the connection.

@@ -162,9 +162,11 @@ impl MqttSettings {
         })
     }
 
-    /// Whether connections use TLS: an `mqtts://` broker or a CA file.
+    /// Whether connections use TLS: an `mqtts://` broker, a CA file or a client certificate.
     pub fn tls(&self) -> bool {
-        self.ca_file.is_some() || self.brokers.iter().any(|b| b.tls)
+        self.ca_file.is_some()
+            || self.client_cert_file.is_some()
+            || self.brokers.iter().any(|b| b.tls)
     }
 
     /// The brokers as the errors name them: `mqtt://a:1883, mqtt://b:1883`.

@@ -545,7 +545,11 @@ impl LocalFleet {
             env.keys = KeySource::Fleet {
                 private_key: options.private_key,
             };
-        } else if fleet.systems.iter().all(|s| names.contains(&s.name.as_str())) {
+        } else if fleet
+            .systems
+            .iter()
+            .all(|s| names.contains(&s.name.as_str()))
+        {
             // Every system runs here: as for `LocalFleet::open`, keys made for the run serve
             // when the file names none (nobody outside the process can join).
             env.keys = KeySource::for_local_fleet(&fleet);
