@@ -219,6 +219,30 @@ impl Shared {
     pub(crate) fn lock(&self) -> std::sync::MutexGuard<'_, Conn> {
         self.conn.lock().unwrap_or_else(|e| e.into_inner())
     }
+
+    /// Waits until `settled` reads an answer off the connection's state, or `deadline`
+    /// passes (then the state as it is, still locked).
+    fn wait_for<T>(
+        &self,
+        deadline: Instant,
+        mut settled: impl FnMut(&Conn) -> Option<T>,
+    ) -> Result<T, std::sync::MutexGuard<'_, Conn>> {
+        let mut conn = self.lock();
+        loop {
+            if let Some(answer) = settled(&conn) {
+                return Ok(answer);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(conn);
+            }
+            conn = self
+                .changed
+                .wait_timeout(conn, deadline - now)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
 }
 
 /// The topics one link uses.
@@ -364,44 +388,39 @@ impl MqttLink {
     /// Waits for the first connection (connected and subscribed), or fails as the docs of
     /// [`MqttLink::open`] say.
     fn wait_open(mut self) -> Result<MqttLink, OpenError> {
-        let s = &self.settings;
-        let deadline = Instant::now() + Duration::from_millis(s.open_timeout_ms as u64);
-        let mut conn = self.shared.lock();
-        loop {
-            if conn.ready {
-                break;
-            }
-            if let Some(reason) = conn.refused.clone() {
-                let broker = conn.broker.clone();
-                drop(conn);
-                self.abandon();
-                return Err(OpenError::Refused { broker, reason });
-            }
-            let now = Instant::now();
-            if now >= deadline {
-                let reason = conn
+        let timeout_ms = self.settings.open_timeout_ms;
+        let deadline = Instant::now() + Duration::from_millis(timeout_ms as u64);
+        let shared = self.shared.clone();
+        let settled = shared.wait_for(deadline, |c| match c.ready {
+            true => Some(Ok(c.broker_max_packet)),
+            false => c.refused.clone().map(|reason| {
+                Err(OpenError::Refused {
+                    broker: c.broker.clone(),
+                    reason,
+                })
+            }),
+        });
+        let result = match settled {
+            Ok(result) => result,
+            Err(conn) => Err(OpenError::Unreachable {
+                brokers: self.settings.broker_list(),
+                timeout_ms,
+                reason: conn
                     .last_error
                     .clone()
-                    .unwrap_or_else(|| "no answer".into());
-                drop(conn);
-                self.abandon();
-                return Err(OpenError::Unreachable {
-                    brokers: s.broker_list(),
-                    timeout_ms: s.open_timeout_ms,
-                    reason,
-                });
+                    .unwrap_or_else(|| "no answer".into()),
+            }),
+        };
+        match result {
+            Ok(limit) => {
+                self.max_frame = self.frame_limit(limit);
+                Ok(self)
             }
-            conn = self
-                .shared
-                .changed
-                .wait_timeout(conn, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            Err(e) => {
+                self.abandon();
+                Err(e)
+            }
         }
-        let limit = conn.broker_max_packet;
-        drop(conn);
-        self.max_frame = self.frame_limit(limit);
-        Ok(self)
     }
 
     /// Stops the event loop of a link that never opened, without waiting for it.
@@ -524,36 +543,35 @@ impl MqttLink {
 
     /// Waits (up to `reconnect_wait_ms`, not at all on the event loop) for the connection.
     fn connected_or_wait(&self, to: SystemId) -> Result<(), LinkError> {
-        let wait = Duration::from_millis(self.settings.reconnect_wait_ms as u64);
-        let deadline = Instant::now() + wait;
         let in_loop = IN_EVENT_LOOP.with(|c| c.get());
-        let mut conn = self.shared.lock();
-        loop {
-            if conn.ready {
-                return Ok(());
-            }
-            if self.shared.closing.load(Ordering::Relaxed) {
-                return Err(LinkError::Closed);
-            }
-            let now = Instant::now();
-            if in_loop || conn.taken_over || now >= deadline {
-                return Err(LinkError::Unreachable {
-                    peer: to,
-                    reason: format!(
-                        "the MQTT broker {} is unreachable ({}); waited {} ms for the connection to come back",
-                        conn.broker,
-                        conn.last_error.as_deref().unwrap_or("disconnected"),
-                        if in_loop { 0 } else { wait.as_millis() },
-                    ),
-                });
-            }
-            conn = self
-                .shared
-                .changed
-                .wait_timeout(conn, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+        let wait = match in_loop {
+            true => Duration::ZERO,
+            false => Duration::from_millis(self.settings.reconnect_wait_ms as u64),
+        };
+        let unreachable = |c: &Conn| {
+            LinkError::Unreachable {
+            peer: to,
+            reason: format!(
+                "the MQTT broker {} is unreachable ({}); waited {} ms for the connection to come back",
+                c.broker,
+                c.last_error.as_deref().unwrap_or("disconnected"),
+                wait.as_millis(),
+            ),
         }
+        };
+        let closing = &self.shared.closing;
+        let settled = self.shared.wait_for(Instant::now() + wait, |c| {
+            if c.ready {
+                Some(Ok(()))
+            } else if closing.load(Ordering::Relaxed) {
+                Some(Err(LinkError::Closed))
+            } else if c.taken_over {
+                Some(Err(unreachable(c)))
+            } else {
+                None
+            }
+        });
+        settled.unwrap_or_else(|conn| Err(unreachable(&conn)))
     }
 
     /// Publishes `frame` to `to`: checks, then queues it for the event loop (waiting for room
