@@ -278,7 +278,11 @@ fn on_connack(shared: &Shared, client: &Client, ack: &ConnAck, filters: &[Filter
         shared.presence.forget_all();
         let _ = client.try_subscribe_many(filters.to_vec());
     }
-    // After the subscriptions: whoever sees `online` can publish to this system.
+    // After the subscriptions: whoever sees `online` can publish to this system. Not while
+    // closing: the link's `offline` is queued already.
+    if shared.closing.load(Ordering::SeqCst) {
+        return;
+    }
     let _ = client.try_publish(
         shared.topics.own_presence.clone(),
         QoS::AtLeastOnce,

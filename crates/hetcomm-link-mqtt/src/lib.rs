@@ -665,22 +665,19 @@ impl Drop for MqttLink {
         self.shared.presence.close();
         self.shared.changed.notify_all();
         let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
-        if ready {
-            // Announce the close (retained), then disconnect normally: the broker then keeps
-            // the last will to itself. Both go out in order before the loop ends.
-            let _ = self.client.try_publish(
-                self.shared.topics.own_presence.clone(),
-                QoS::AtLeastOnce,
-                true,
-                Announced::Offline.payload(),
-            );
-            let _ = self.client.try_disconnect();
-            if let Some(t) = thread {
-                let _ = t.join();
-            }
-        } else {
-            // Disconnected: the loop ends after its current attempt; nothing to wait for.
-            let _ = self.client.try_disconnect();
+        // Announce the close (retained), then disconnect normally: the broker then keeps the
+        // last will to itself. Both go out in order before the loop ends (if the client is
+        // disconnected, once it is connected again).
+        let _ = self.client.try_publish(
+            self.shared.topics.own_presence.clone(),
+            QoS::AtLeastOnce,
+            true,
+            Announced::Offline.payload(),
+        );
+        let _ = self.client.try_disconnect();
+        // Disconnected, the loop ends after its current attempt: nothing to wait for.
+        if let (true, Some(t)) = (ready, thread) {
+            let _ = t.join();
         }
     }
 }
