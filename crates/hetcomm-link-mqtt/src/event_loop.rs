@@ -52,6 +52,12 @@ pub(crate) fn options(
             if !s.clean_session {
                 o.set_session_expiry_interval(Some(s.session_expiry_s));
             }
+            // A frame goes out when it is published: Nagle's algorithm would hold a small
+            // publish back until the previous one's TCP acknowledgement (delayed up to 40 ms
+            // on Linux), and a request and its reply are each one small publish.
+            let mut net = rumqttc::NetworkOptions::new();
+            net.set_tcp_nodelay(true);
+            o.set_network_options(net);
             if let Some(user) = &s.username {
                 o.set_credentials(user.clone(), s.password.clone().unwrap_or_default());
             }

@@ -76,7 +76,7 @@ impl Mosquitto {
         let mut f = std::fs::File::create(&conf).expect("broker conf");
         writeln!(
             f,
-            "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n{extra}"
+            "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nset_tcp_nodelay true\n{extra}"
         )
         .expect("write conf");
         Command::new(mosquitto_binary())
