@@ -42,8 +42,9 @@ enum Event {
     Message(String, RawMessage),
     /// SIGINT or SIGTERM (its name).
     Stop(&'static str),
-    /// A system joined or left a Zenoh network this system is on (a line for stderr).
-    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    /// A system joined or left a Zenoh network or an MQTT broker this system is on (a line
+    /// for stderr).
+    #[cfg_attr(not(any(feature = "zenoh", feature = "mqtt")), allow(dead_code))]
     Presence(String),
 }
 
@@ -80,7 +81,27 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
     #[cfg(feature = "zenoh")]
-    watch_zenoh_presence(&fleet, args.system, tx.clone());
+    forward_presence(
+        &fleet,
+        args.system,
+        tx.clone(),
+        ("zenoh", hetcomm_link_zenoh::watch_presence()),
+        |e| match e {
+            hetcomm_link_zenoh::PresenceEvent::Joined(id) => (id, true),
+            hetcomm_link_zenoh::PresenceEvent::Left(id) => (id, false),
+        },
+    );
+    #[cfg(feature = "mqtt")]
+    forward_presence(
+        &fleet,
+        args.system,
+        tx.clone(),
+        ("mqtt", hetcomm_link_mqtt::watch_presence()),
+        |e| match e {
+            hetcomm_link_mqtt::PresenceEvent::Joined(id) => (id, true),
+            hetcomm_link_mqtt::PresenceEvent::Left(id) => (id, false),
+        },
+    );
     // Before the system opens: a refused flag (a build without the feature, an address in
     // use) must not cost the user a system opened for nothing.
     let live = args.foxglove.start("hetcomm listen")?;
@@ -197,12 +218,18 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Forwards the joins and leaves that `system`'s Zenoh links see (liveliness tokens) to the
-/// main loop, which prints them on stderr. Started before the system opens, so the systems
-/// already present are reported too.
-#[cfg(feature = "zenoh")]
-fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::Sender<Event>) {
-    use hetcomm_link_zenoh::PresenceEvent;
+/// Forwards the joins and leaves that `system`'s links of one kind see (Zenoh liveliness
+/// tokens, MQTT presence messages: the kind's feed of every link of the process, each event
+/// read by `event` as (system, joined)) to the main loop, which prints them on stderr.
+/// Started before the system opens, so the systems already present are reported too.
+#[cfg(any(feature = "zenoh", feature = "mqtt"))]
+fn forward_presence<E: Send + 'static>(
+    fleet: &hetcomm::config::Fleet,
+    system: &str,
+    tx: mpsc::Sender<Event>,
+    (kind, feed): (&'static str, mpsc::Receiver<(hetcomm::SystemId, E)>),
+    event: fn(E) -> (hetcomm::SystemId, bool),
+) {
     let Some(me) = fleet
         .systems
         .iter()
@@ -216,21 +243,18 @@ fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::
         .iter()
         .map(|s| (s.id, s.name.clone()))
         .collect();
-    let feed = hetcomm_link_zenoh::watch_presence();
     let _ = std::thread::Builder::new()
         .name("listen-presence".into())
         .spawn(move || {
-            for (local, event) in feed {
+            for (local, e) in feed {
                 if local != me {
                     continue;
                 }
-                let (id, what) = match event {
-                    PresenceEvent::Joined(id) => (id, "joined"),
-                    PresenceEvent::Left(id) => (id, "left"),
-                };
+                let (id, joined) = event(e);
+                let what = if joined { "joined" } else { "left" };
                 let name = names.get(&id).cloned().unwrap_or_else(|| id.to_string());
                 if tx
-                    .send(Event::Presence(format!("{name} {what} (zenoh)")))
+                    .send(Event::Presence(format!("{name} {what} ({kind})")))
                     .is_err()
                 {
                     break;

@@ -95,17 +95,22 @@ enum Command {
         #[arg(long, conflicts_with_all = ["r", "b"])]
         fleet: Option<PathBuf>,
         /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), ros1, or zenoh (through a Zenoh router started in this process; needs
-        /// the `zenoh` feature).
+        /// profiles), ros1, zenoh (through a Zenoh router started in this process; needs
+        /// the `zenoh` feature), or mqtt (through the broker of --mqtt-broker; needs the
+        /// `mqtt` feature).
         #[arg(long, default_value = "inproc",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1", "zenoh"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1", "zenoh", "mqtt"])]
         r: String,
         /// What the table letter B means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), bluetooth (real RFCOMM; Table 8 addresses), or zenoh (through a Zenoh
-        /// router started in this process; needs the `zenoh` feature).
+        /// profiles), bluetooth (real RFCOMM; Table 8 addresses), zenoh (through a Zenoh
+        /// router started in this process; needs the `zenoh` feature), or mqtt (through the
+        /// broker of --mqtt-broker; needs the `mqtt` feature).
         #[arg(long, default_value = "bluetooth-classic",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth", "zenoh"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth", "zenoh", "mqtt"])]
         b: String,
+        /// The MQTT broker `--r mqtt` / `--b mqtt` go through (a running mosquitto, say).
+        #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:1883")]
+        mqtt_broker: String,
         /// One virtual environment receiving every rover's Wheels through callbacks, instead
         /// of one polling VE per rover.
         #[arg(long)]
@@ -632,6 +637,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             fleet,
             r,
             b,
+            mqtt_broker,
             single_ve,
             realtime,
             external,
@@ -665,6 +671,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 fleet: fleet.as_deref(),
                 r: &r,
                 b: &b,
+                mqtt_broker: &mqtt_broker,
                 single_ve,
                 realtime,
             })?;
