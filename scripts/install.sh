@@ -23,6 +23,7 @@ APT_PACKAGES=(
     cmake g++ pkg-config valgrind libmsgpack-cxx-dev                       # the C and C++ API
     libclang-dev              # bindgen, for Cyclone DDS under the ros2 transport (ros2-cyclone)
     faketime                  # libfaketime: a live sender's wall clock stepped (hetcomm-cli clock_step)
+    mosquitto mosquitto-clients  # the MQTT broker and mosquitto_pub/_sub (scripts/mqtt-test.sh)
 )
 
 # Installed into target/py-venv, the one venv every Python step uses.
@@ -33,6 +34,8 @@ PIP_PACKAGES=(
     "cyclonedds==11.0.1"           # a foreign ROS 2 node (no ROS 2 install)
     "eclipse-zenoh==1.10.2"        # a plain Zenoh client written from docs/zenoh.md
     "websockets>=12"               # a Foxglove WebSocket client written from the protocol docs
+    "protobuf>=4"                  # decodes Foxglove's well-known schemas from their descriptors
+    "paho-mqtt>=2,<3"              # a plain MQTT client written from docs/mqtt.md
 )
 
 step() { printf '\n=== %s ===\n' "$*"; }

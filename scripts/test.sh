@@ -50,6 +50,9 @@ bash scripts/ros2-test.sh
 step "Zenoh: conformance, a Python Zenoh client, multi-host in network namespaces"
 bash scripts/zenoh-test.sh
 
+step "MQTT: conformance, presence, auth, TLS, broker restart, mosquitto clients and paho-mqtt (one mosquitto)"
+bash scripts/mqtt-test.sh
+
 step "Foxglove: the live view served to a WebSocket client"
 bash scripts/foxglove-test.sh
 

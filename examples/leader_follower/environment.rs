@@ -138,23 +138,15 @@ impl Environment {
         Ok(())
     }
 
-    /// Current positions (rover name, x, y).
-    pub fn positions(&self) -> Vec<(String, f64, f64)> {
-        let mut all: Vec<(String, f64, f64)> = self
+    /// Current poses (rover name, pose): of the rovers it integrates and of the bridged ones.
+    pub fn poses(&self) -> Vec<(String, Pose)> {
+        let mut all: Vec<(String, Pose)> = self
             .env
             .lock()
-            .map(|e| {
-                e.positions()
-                    .map(|(n, x, y)| (n.to_string(), x, y))
-                    .collect()
-            })
+            .map(|e| e.poses().map(|(n, p)| (n.to_string(), p)).collect())
             .unwrap_or_default();
         if let Ok(o) = self.odometers.lock() {
-            all.extend(
-                o.rovers
-                    .iter()
-                    .map(|r| (r.name.clone(), r.pose.x, r.pose.y)),
-            );
+            all.extend(o.rovers.iter().map(|r| (r.name.clone(), r.pose)));
         }
         all
     }

@@ -287,7 +287,7 @@ pub enum Layout {
 }
 
 /// Lets a tool take part in a run without changing the rovers' code: watch the systems
-/// (recording, statistics for a monitor) or stand in for some of them (replaying a
+/// and the rovers' poses (recording, statistics for a monitor, a live Foxglove view) or stand in for some of them (replaying a
 /// recording). Every method but [`RunHooks::opened`] does nothing unless written.
 pub trait RunHooks: Send {
     /// Systems whose autonomy code this run must not run: [`RunHooks::step`] sends for them.
@@ -300,6 +300,15 @@ pub trait RunHooks: Send {
     /// A control step at `t_s` of replaced `system`, where its code would have run.
     fn step(&mut self, system: &str, t_s: f64) -> Result<(), Box<dyn std::error::Error>> {
         let _ = (system, t_s);
+        Ok(())
+    }
+    /// The virtual environments stepped to `t_s`: every rover's pose (rover, pose) now.
+    fn poses(
+        &mut self,
+        t_s: f64,
+        poses: &[(String, hetcomm_sim::Pose)],
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        let _ = (t_s, poses);
         Ok(())
     }
     /// The run is over (a simulation has settled): command records of the replaced systems
@@ -581,19 +590,24 @@ pub fn run(options: &DemoOptions) -> Result<DemoReport, Box<dyn std::error::Erro
                 (None, None) => {}
             }
         }
+        let mut poses = Vec::new();
         for ve in &environments {
             ve.step(t)?;
-            // Publish positions for range-dependent links.
-            for (name, x, y) in ve.positions() {
-                if let Some((_, id)) = ids.iter().find(|(n, _)| *n == name) {
-                    let positions = match (&sim, &local) {
-                        (Some(s), _) => s.positions(),
-                        (_, Some(l)) => l.positions(),
-                        _ => unreachable!(),
-                    };
-                    positions.set(*id, x, y);
-                }
+            poses.extend(ve.poses());
+        }
+        // Publish positions for range-dependent links.
+        let positions = match (&sim, &local) {
+            (Some(s), _) => s.positions(),
+            (_, Some(l)) => l.positions(),
+            _ => unreachable!("one of the two is always open"),
+        };
+        for (name, pose) in &poses {
+            if let Some((_, id)) = ids.iter().find(|(n, _)| n == name) {
+                positions.set(*id, pose.x, pose.y);
             }
+        }
+        if let Some(h) = &options.hooks {
+            h.lock().poses(t, &poses)?;
         }
         if options.progress && (k % 10 == 0 || k == steps) {
             let width = 30;

@@ -16,10 +16,14 @@ pub struct DemoArgs<'a> {
     pub out: &'a Path,
     /// A fleet file to use instead of the embedded one.
     pub fleet: Option<&'a Path>,
-    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1, zenoh).
+    /// What the table letter R means (inproc, wired, wifi, bluetooth-classic, ros1, zenoh,
+    /// mqtt).
     pub r: &'a str,
-    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth, zenoh).
+    /// What the table letter B means (inproc, wired, wifi, bluetooth-classic, bluetooth,
+    /// zenoh, mqtt).
     pub b: &'a str,
+    /// The MQTT broker of `--r mqtt` / `--b mqtt` (`host:port` or `mqtt://host:port`).
+    pub mqtt_broker: &'a str,
     /// One VE with callbacks instead of one polling VE per rover.
     pub single_ve: bool,
     /// Run in real time instead of virtual time.
@@ -51,16 +55,23 @@ fn zenoh_router() -> anyhow::Result<(hetcomm_link_zenoh::router::ZenohRouter, St
     Ok((router, keys))
 }
 
-/// A transport definition for a letter, from a short name; `zenoh_keys` are the keys of a
-/// `zenoh` transport (reaching the demo's router).
+/// The keys of the transports that reach a service: a `zenoh` transport (the demo's router)
+/// and an `mqtt` one (the broker of `--mqtt-broker`).
+struct ServiceKeys<'a> {
+    zenoh: &'a str,
+    mqtt: &'a str,
+}
+
+/// A transport definition for a letter, from a short name.
 fn transport_toml(
     name: &str,
     letter: char,
     spec: &str,
-    zenoh_keys: &str,
+    keys: &ServiceKeys<'_>,
 ) -> anyhow::Result<String> {
     Ok(match spec {
-        "zenoh" => format!("[transports.{name}]\nkind = \"zenoh\"\n{zenoh_keys}"),
+        "zenoh" => format!("[transports.{name}]\nkind = \"zenoh\"\n{}", keys.zenoh),
+        "mqtt" => format!("[transports.{name}]\nkind = \"mqtt\"\n{}", keys.mqtt),
         "inproc" => format!("[transports.{name}]\nkind = \"inproc\"\n"),
         "wired" | "wifi" => format!(
             "[transports.{name}]\nkind = \"emulated\"\nprofile = \"{spec}\"\nattempts = 8\n"
@@ -75,7 +86,7 @@ fn transport_toml(
             "[transports.{name}]\nkind = \"bluetooth\"\naddresses = {{ Charlie = \"68:A3:C4:4A:B3:BA\", Tango = \"E4:B3:18:09:09:06\" }}\n"
         ),
         other => anyhow::bail!(
-            "--{} {other}: expected inproc, wired, wifi, bluetooth-classic, zenoh{}",
+            "--{} {other}: expected inproc, wired, wifi, bluetooth-classic, zenoh, mqtt{}",
             letter.to_ascii_lowercase(),
             if letter == 'R' { ", or ros1" } else { ", or bluetooth" }
         ),
@@ -87,7 +98,7 @@ fn embedded_fleet(
     single_ve: bool,
     r: &str,
     b: &str,
-    zenoh_keys: &str,
+    keys: &ServiceKeys<'_>,
 ) -> anyhow::Result<hetcomm::config::Fleet> {
     let base = if single_ve {
         leader_follower::EMBEDDED_SINGLE_VE_FLEET
@@ -102,8 +113,8 @@ fn embedded_fleet(
     let text = format!(
         "{}{}\n{}\n{}",
         &base[..start],
-        transport_toml("wired", 'R', r, zenoh_keys)?,
-        transport_toml("radio", 'B', b, zenoh_keys)?,
+        transport_toml("wired", 'R', r, keys)?,
+        transport_toml("radio", 'B', b, keys)?,
         &base[end..]
     );
     Ok(hetcomm::parse_fleet(
@@ -144,7 +155,17 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let fleet = match args.fleet {
         Some(path) => args.security.load(path)?,
         None => {
-            let mut fleet = embedded_fleet(args.single_ve, args.r, args.b, &zenoh_keys)?;
+            // Every run under a fleet level of its own, so runs sharing a broker do not meet.
+            let mqtt_keys = format!(
+                "broker = \"{}\"\nfleet = \"hetcomm-demo-{}\"\n",
+                args.mqtt_broker,
+                std::process::id()
+            );
+            let keys = ServiceKeys {
+                zenoh: &zenoh_keys,
+                mqtt: &mqtt_keys,
+            };
+            let mut fleet = embedded_fleet(args.single_ve, args.r, args.b, &keys)?;
             args.security.apply(&mut fleet)?;
             fleet
         }
@@ -174,7 +195,9 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     // In virtual time the simulator replaces every link with a simulated one, so `--r ros1`
     // would never reach the ROS master (nor `zenoh` a Zenoh router): a real transport forces
     // real time.
-    let realtime = args.realtime || (args.fleet.is_none() && args.r == "ros1") || wants_zenoh;
+    let wants_mqtt = args.fleet.is_none() && (args.r == "mqtt" || args.b == "mqtt");
+    let realtime =
+        args.realtime || (args.fleet.is_none() && args.r == "ros1") || wants_zenoh || wants_mqtt;
     // A robot behind a bridge transport (it runs ROS, not hetcomm) moves in real time.
     let bridged = hetcomm::registry().bridged_robots(&fleet);
     if !bridged.is_empty() && !args.realtime {
@@ -187,15 +210,17 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     if realtime && !args.realtime && bridged.is_empty() {
         eprintln!(
             "--{} uses a real {}: running in real time (as with --realtime)",
-            if args.r == "ros1" || args.r == "zenoh" {
+            if ["ros1", "zenoh", "mqtt"].contains(&args.r) {
                 "r"
             } else {
                 "b"
             },
-            if args.r == "ros1" {
-                "ROS master"
-            } else {
-                "Zenoh router"
+            match args.r {
+                "ros1" => "ROS master",
+                "mqtt" => "MQTT broker",
+                "zenoh" => "Zenoh router",
+                _ if args.b == "mqtt" => "MQTT broker",
+                _ => "Zenoh router",
             }
         );
     }

@@ -32,6 +32,8 @@ pub struct ListenArgs<'a> {
     pub verbose: bool,
     /// Times as raw microseconds since the UNIX epoch instead of seconds since the start.
     pub raw_times: bool,
+    /// `--foxglove HOST:PORT`: the system served to Foxglove while it listens.
+    pub foxglove: &'a crate::foxglove::FoxgloveArgs,
 }
 
 /// What the main loop waits for.
@@ -40,8 +42,9 @@ enum Event {
     Message(String, RawMessage),
     /// SIGINT or SIGTERM (its name).
     Stop(&'static str),
-    /// A system joined or left a Zenoh network this system is on (a line for stderr).
-    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    /// A system joined or left a Zenoh network or an MQTT broker this system is on (a line
+    /// for stderr).
+    #[cfg_attr(not(any(feature = "zenoh", feature = "mqtt")), allow(dead_code))]
     Presence(String),
 }
 
@@ -78,11 +81,37 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         names::check_module(&fleet, args.fleet, "--module", m)?;
     }
     #[cfg(feature = "zenoh")]
-    watch_zenoh_presence(&fleet, args.system, tx.clone());
+    forward_presence(
+        &fleet,
+        args.system,
+        tx.clone(),
+        ("zenoh", hetcomm_link_zenoh::watch_presence()),
+        |e| match e {
+            hetcomm_link_zenoh::PresenceEvent::Joined(id) => (id, true),
+            hetcomm_link_zenoh::PresenceEvent::Left(id) => (id, false),
+        },
+    );
+    #[cfg(feature = "mqtt")]
+    forward_presence(
+        &fleet,
+        args.system,
+        tx.clone(),
+        ("mqtt", hetcomm_link_mqtt::watch_presence()),
+        |e| match e {
+            hetcomm_link_mqtt::PresenceEvent::Joined(id) => (id, true),
+            hetcomm_link_mqtt::PresenceEvent::Left(id) => (id, false),
+        },
+    );
+    // Before the system opens: a refused flag (a build without the feature, an address in
+    // use) must not cost the user a system opened for nothing.
+    let live = args.foxglove.start("hetcomm listen")?;
     let comm = names::open_system(args.fleet, &fleet, args.system)?;
     // HETCOMM_MONITOR=host:port: statistics for `hetcomm monitor` (docs/record-replay.md).
     let _publisher = hetcomm_record::stats::Publisher::from_env(std::slice::from_ref(&comm))
         .map_err(anyhow::Error::msg)?;
+    if let Some(live) = &live {
+        live.watch(std::slice::from_ref(&comm))?;
+    }
     let start = Time::now_wall();
     let started = Instant::now();
     let modules: Vec<String> = match args.module {
@@ -183,15 +212,24 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         print_moved(&drops, &shown, seen, args.verbose, &clock);
     }
     eprintln!("{}", summary(seen, &stats));
+    if let Some(live) = &live {
+        live.finish();
+    }
     Ok(())
 }
 
-/// Forwards the joins and leaves that `system`'s Zenoh links see (liveliness tokens) to the
-/// main loop, which prints them on stderr. Started before the system opens, so the systems
-/// already present are reported too.
-#[cfg(feature = "zenoh")]
-fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::Sender<Event>) {
-    use hetcomm_link_zenoh::PresenceEvent;
+/// Forwards the joins and leaves that `system`'s links of one kind see (Zenoh liveliness
+/// tokens, MQTT presence messages: the kind's feed of every link of the process, each event
+/// read by `event` as (system, joined)) to the main loop, which prints them on stderr.
+/// Started before the system opens, so the systems already present are reported too.
+#[cfg(any(feature = "zenoh", feature = "mqtt"))]
+fn forward_presence<E: Send + 'static>(
+    fleet: &hetcomm::config::Fleet,
+    system: &str,
+    tx: mpsc::Sender<Event>,
+    (kind, feed): (&'static str, mpsc::Receiver<(hetcomm::SystemId, E)>),
+    event: fn(E) -> (hetcomm::SystemId, bool),
+) {
     let Some(me) = fleet
         .systems
         .iter()
@@ -205,21 +243,18 @@ fn watch_zenoh_presence(fleet: &hetcomm::config::Fleet, system: &str, tx: mpsc::
         .iter()
         .map(|s| (s.id, s.name.clone()))
         .collect();
-    let feed = hetcomm_link_zenoh::watch_presence();
     let _ = std::thread::Builder::new()
         .name("listen-presence".into())
         .spawn(move || {
-            for (local, event) in feed {
+            for (local, e) in feed {
                 if local != me {
                     continue;
                 }
-                let (id, what) = match event {
-                    PresenceEvent::Joined(id) => (id, "joined"),
-                    PresenceEvent::Left(id) => (id, "left"),
-                };
+                let (id, joined) = event(e);
+                let what = if joined { "joined" } else { "left" };
                 let name = names.get(&id).cloned().unwrap_or_else(|| id.to_string());
                 if tx
-                    .send(Event::Presence(format!("{name} {what} (zenoh)")))
+                    .send(Event::Presence(format!("{name} {what} ({kind})")))
                     .is_err()
                 {
                     break;

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod demo;
 mod experiment;
+mod foxglove;
 mod keygen;
 mod listen;
 mod monitor;
@@ -94,17 +95,22 @@ enum Command {
         #[arg(long, conflicts_with_all = ["r", "b"])]
         fleet: Option<PathBuf>,
         /// What the table letter R means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), ros1, or zenoh (through a Zenoh router started in this process; needs
-        /// the `zenoh` feature).
+        /// profiles), ros1, zenoh (through a Zenoh router started in this process; needs
+        /// the `zenoh` feature), or mqtt (through the broker of --mqtt-broker; needs the
+        /// `mqtt` feature).
         #[arg(long, default_value = "inproc",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1", "zenoh"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "ros1", "zenoh", "mqtt"])]
         r: String,
         /// What the table letter B means: inproc, wired, wifi, bluetooth-classic (emulated
-        /// profiles), bluetooth (real RFCOMM; Table 8 addresses), or zenoh (through a Zenoh
-        /// router started in this process; needs the `zenoh` feature).
+        /// profiles), bluetooth (real RFCOMM; Table 8 addresses), zenoh (through a Zenoh
+        /// router started in this process; needs the `zenoh` feature), or mqtt (through the
+        /// broker of --mqtt-broker; needs the `mqtt` feature).
         #[arg(long, default_value = "bluetooth-classic",
-              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth", "zenoh"])]
+              value_parser = ["inproc", "wired", "wifi", "bluetooth-classic", "bluetooth", "zenoh", "mqtt"])]
         b: String,
+        /// The MQTT broker `--r mqtt` / `--b mqtt` go through (a running mosquitto, say).
+        #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:1883")]
+        mqtt_broker: String,
         /// One virtual environment receiving every rover's Wheels through callbacks, instead
         /// of one polling VE per rover.
         #[arg(long)]
@@ -163,6 +169,8 @@ enum Command {
         raw_times: bool,
         #[command(flatten)]
         security: SecurityArgs,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Send one message from a system of a live fleet and print its outcome (like
     /// `rostopic pub`). Exits 0 when delivered (in the destination module's inbox) or sent
@@ -262,6 +270,8 @@ enum Command {
         /// Live: seconds to wait for outstanding outcomes at the end.
         #[arg(long, default_value_t = 5.0)]
         settle: f64,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Show live per-pair statistics of a fleet, refreshed once a second
     /// (docs/record-replay.md).
@@ -281,10 +291,8 @@ enum Command {
         /// Exit after this many seconds.
         #[arg(long)]
         duration: Option<f64>,
-        /// Also serve the statistics to Foxglove / Lichtblick over WebSocket on HOST:PORT
-        /// (docs/foxglove.md; needs a build with `--features foxglove`).
-        #[arg(long, value_name = "HOST:PORT")]
-        foxglove: Option<String>,
+        #[command(flatten)]
+        foxglove: foxglove::FoxgloveArgs,
     },
     /// Draw a fleet's systems and, per ordered pair, the transport that carries it
     /// (docs/record-replay.md). SVG or PNG by the output's extension.
@@ -340,6 +348,8 @@ struct DemoToolArgs {
     /// The systems whose code the replay replaces (comma-separated).
     #[arg(long, value_delimiter = ',', requires = "replay")]
     replace: Vec<String>,
+    #[command(flatten)]
+    foxglove: foxglove::FoxgloveArgs,
 }
 
 fn secs(s: f64) -> anyhow::Result<Duration> {
@@ -506,8 +516,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             verbose,
             raw_times,
             security,
+            foxglove,
         } => {
             listen::listen(listen::ListenArgs {
+                foxglove: &foxglove,
                 fleet: &fleet,
                 security: &security,
                 system: &system,
@@ -573,8 +585,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             sim,
             seed,
             settle,
+            foxglove,
         } => {
             let clean = replay::run(replay::ReplayArgs {
+                foxglove: &foxglove,
                 file: &file,
                 into: &into,
                 filter: hetcomm_record::ReplayFilter {
@@ -605,7 +619,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 listen: &listen,
                 json,
                 duration: duration.map(secs).transpose()?,
-                foxglove: foxglove.as_deref(),
+                foxglove: foxglove.foxglove.as_deref(),
             })?;
             Ok(ExitCode::SUCCESS)
         }
@@ -624,6 +638,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             fleet,
             r,
             b,
+            mqtt_broker,
             single_ve,
             realtime,
             external,
@@ -631,7 +646,15 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
             tools,
             scenario,
         } => {
+            if tools.foxglove.foxglove.is_some() && !realtime {
+                anyhow::bail!(
+                    "--foxglove serves a run while it happens: add --realtime (a virtual-time run \
+                     is over in milliseconds; to look at one in Foxglove, --record FILE and open \
+                     the file)"
+                );
+            }
             let hooks = record::DemoTools {
+                foxglove: tools.foxglove,
                 record: tools.record,
                 record_systems: tools.record_systems,
                 msgpack: tools.msgpack,
@@ -649,6 +672,7 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                 fleet: fleet.as_deref(),
                 r: &r,
                 b: &b,
+                mqtt_broker: &mqtt_broker,
                 single_ve,
                 realtime,
             })?;

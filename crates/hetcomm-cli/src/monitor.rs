@@ -46,10 +46,10 @@ pub fn run(args: MonitorArgs<'_>) -> anyhow::Result<()> {
     if !args.json && !std::io::stdout().is_terminal() {
         anyhow::bail!("stdout is not a terminal: use --json for a script");
     }
-    let mut view = match args.foxglove {
-        Some(addr) => Some(foxglove::start(addr)?),
-        None => None,
-    };
+    let view = args
+        .foxglove
+        .map(|addr| crate::foxglove::start(addr, "hetcomm monitor"))
+        .transpose()?;
     let started = Instant::now();
     let mut state = MonitorState::default();
     let mut buf = vec![0u8; 65536];
@@ -88,8 +88,8 @@ pub fn run(args: MonitorArgs<'_>) -> anyhow::Result<()> {
             next_refresh = now + Duration::from_secs(1);
             let pairs = state.pairs();
             let systems = state.systems(now);
-            if let Some(v) = view.as_mut() {
-                foxglove::publish(v, &pairs, &systems)?;
+            if let Some(v) = &view {
+                v.publish(&pairs, &systems)?;
             }
             match terminal.as_mut() {
                 Some(t) => {
@@ -239,51 +239,4 @@ fn draw(
             .block(Block::bordered().title(" inboxes ")),
         bottom,
     );
-}
-
-/// `--foxglove`: the live statistics served by `hetcomm-foxglove` (feature `foxglove`).
-#[cfg(feature = "foxglove")]
-mod foxglove {
-    use hetcomm_record::stats::{PairRow, SystemRow};
-
-    pub type View = hetcomm_foxglove::FoxgloveView;
-
-    pub fn start(addr: &str) -> anyhow::Result<View> {
-        let view = View::start(addr, "hetcomm monitor")?;
-        // On stderr, so `--json` output stays machine-readable; the test reads the port here.
-        eprintln!(
-            "foxglove: serving on ws://{}:{} (open it in Foxglove: Open connection, Foxglove WebSocket)",
-            addr.rsplit_once(':').map_or(addr, |(h, _)| h),
-            view.port()
-        );
-        Ok(view)
-    }
-
-    pub fn publish(
-        view: &mut View,
-        pairs: &[PairRow],
-        systems: &[SystemRow],
-    ) -> anyhow::Result<()> {
-        view.publish(pairs, systems)
-    }
-}
-
-/// Without the feature the flag is refused instead of silently ignored.
-#[cfg(not(feature = "foxglove"))]
-mod foxglove {
-    use hetcomm_record::stats::{PairRow, SystemRow};
-
-    pub enum View {}
-
-    pub fn start(_addr: &str) -> anyhow::Result<View> {
-        anyhow::bail!("this build has no Foxglove server: rebuild with `--features foxglove`")
-    }
-
-    pub fn publish(
-        view: &mut View,
-        _pairs: &[PairRow],
-        _systems: &[SystemRow],
-    ) -> anyhow::Result<()> {
-        match *view {}
-    }
 }

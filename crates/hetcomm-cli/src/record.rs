@@ -15,6 +15,7 @@ use hetcomm_record::stats::Publisher;
 use hetcomm_record::{Encoding, RecordOptions, Recorder, ReplayFilter, ReplayItem};
 use hetcomm_sim::report::{CommandKind, CommandRecord};
 
+use crate::foxglove::{FoxgloveArgs, Live, PoseRecorder};
 use crate::listen::StopSignals;
 
 /// `--record`, `--replay`, `--replace` and `--msgpack` of `hetcomm demo`.
@@ -30,13 +31,19 @@ pub struct DemoTools {
     pub replay: Option<PathBuf>,
     /// The systems whose recorded sends replace their code.
     pub replace: Vec<String>,
+    /// `--foxglove HOST:PORT`: the run served to Foxglove live (real time only).
+    pub foxglove: FoxgloveArgs,
 }
 
 impl DemoTools {
     /// The demo's hooks, or None when no tool is asked for and no monitor is named.
     pub fn hooks(self) -> anyhow::Result<Option<Hooks>> {
         let monitor = std::env::var_os(hetcomm_record::stats::MONITOR_ENV).is_some();
-        if self.record.is_none() && self.replay.is_none() && !monitor {
+        if self.record.is_none()
+            && self.replay.is_none()
+            && !monitor
+            && self.foxglove.foxglove.is_none()
+        {
             return Ok(None);
         }
         if self.replay.is_some() == self.replace.is_empty() {
@@ -73,7 +80,15 @@ impl DemoTools {
                 }
             }
         }
+        // Started before the fleet opens, so a viewer can connect and see the run from its
+        // first message.
+        let live = self.foxglove.start("hetcomm demo")?;
+        if let (Some(_), Some(note)) = (&self.record, PoseRecorder::NOTE) {
+            eprintln!("note: {note}");
+        }
         Ok(Some(Hooks(Arc::new(Mutex::new(DemoHooks {
+            live,
+            poses: PoseRecorder::new(),
             tools: self,
             items,
             next: HashMap::new(),
@@ -90,6 +105,10 @@ impl DemoTools {
 
 struct DemoHooks {
     tools: DemoTools,
+    /// The live Foxglove view (`--foxglove`).
+    live: Option<Live>,
+    /// The rovers' poses into the recording, for Foxglove's 3D panel.
+    poses: PoseRecorder,
     /// Per replaced system, its recorded sends in time order, and the next one due.
     items: HashMap<String, Vec<ReplayItem>>,
     next: HashMap<String, usize>,
@@ -138,6 +157,25 @@ impl RunHooks for DemoHooks {
             self.player = Some(Player::new(systems));
         }
         self.publisher = Publisher::from_env(systems)?;
+        if let Some(live) = &self.live {
+            live.watch(systems)?;
+        }
+        Ok(())
+    }
+
+    fn poses(
+        &mut self,
+        t_s: f64,
+        poses: &[(String, hetcomm_sim::Pose)],
+    ) -> Result<(), Box<dyn std::error::Error>> {
+        if let Some(live) = &self.live {
+            live.poses(poses);
+        }
+        if let Some(r) = &self.recorder {
+            // On the recording's clock, as its events: the run's origin plus scenario time.
+            let time = self.start + Duration::from_secs_f64(t_s);
+            self.poses.write(r, poses, time);
+        }
         Ok(())
     }
 
@@ -170,14 +208,21 @@ impl RunHooks for DemoHooks {
     fn finish(&mut self) -> Result<Vec<CommandRecord>, Box<dyn std::error::Error>> {
         self.handles.clear();
         self.publisher = None;
+        if let Some(live) = &self.live {
+            live.finish();
+        }
         if let Some(r) = self.recorder.take() {
             let s = r.finish()?;
             eprintln!(
-                "recorded {}: {} send attempts, {} receipts, {} outcomes",
+                "recorded {}: {} send attempts, {} receipts, {} outcomes{}",
                 r.path().display(),
                 s.sends,
                 s.receipts,
-                s.outcomes
+                s.outcomes,
+                match s.others {
+                    0 => String::new(),
+                    n => format!(", {n} pose messages for Foxglove"),
+                }
             );
         }
         if let Some(p) = self.player.take() {

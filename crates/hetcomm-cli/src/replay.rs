@@ -28,6 +28,8 @@ pub struct ReplayArgs<'a> {
     pub seed: u64,
     /// Live: how long to wait for outstanding outcomes at the end.
     pub settle: Duration,
+    /// `--foxglove HOST:PORT`: the replaying systems served to Foxglove (live replays only).
+    pub foxglove: &'a crate::foxglove::FoxgloveArgs,
 }
 
 /// Runs the replay and prints what happened. Exit code 0 when every send was made, 1 when
@@ -36,8 +38,15 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         anyhow::bail!("--speed {}: expected a positive number", args.speed);
     }
+    if args.sim && args.foxglove.foxglove.is_some() {
+        anyhow::bail!(
+            "--foxglove serves a live replay while it happens; a replay --sim runs in virtual \
+             time, as fast as it computes: leave out --sim or --foxglove"
+        );
+    }
     let fleet = hetcomm::load_fleet(args.into)?;
     let mut filter = args.filter;
+    let mut live = None;
     let report = if args.sim {
         let sim = SimFleet::open(
             fleet,
@@ -101,8 +110,12 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
             );
         }
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        live = args.foxglove.start("hetcomm replay")?;
         let local = LocalFleet::open_systems(fleet, &refs)?;
         let _publisher = Publisher::from_env(local.systems()).map_err(anyhow::Error::msg)?;
+        if let Some(live) = &live {
+            live.watch(local.systems())?;
+        }
         eprintln!(
             "replaying {} as {} into {} at {}× speed",
             args.file.display(),
@@ -113,6 +126,9 @@ pub fn run(args: ReplayArgs<'_>) -> anyhow::Result<bool> {
         replay_realtime(args.file, local.systems(), &filter, args.speed, args.settle)?
     };
     print_report(&report, args.sim);
+    if let Some(live) = &live {
+        live.finish();
+    }
     let s = &report.stats;
     Ok(report.read.problem.is_none() && s.refused == 0 && s.unreadable == 0)
 }

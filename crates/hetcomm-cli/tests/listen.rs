@@ -363,13 +363,13 @@ fn demo_letters_suggest_the_nearest_value() {
             "--r",
             "wfi",
             "wifi",
-            "inproc, wired, wifi, bluetooth-classic, ros1, zenoh",
+            "inproc, wired, wifi, bluetooth-classic, ros1, zenoh, mqtt",
         ),
         (
             "--b",
             "bluetoth",
             "bluetooth",
-            "inproc, wired, wifi, bluetooth-classic, bluetooth, zenoh",
+            "inproc, wired, wifi, bluetooth-classic, bluetooth, zenoh, mqtt",
         ),
     ] {
         let f = hetcomm(&["demo", flag, typo], deadline);

@@ -20,6 +20,14 @@ use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 use serde_json::{json, Value};
 
+/// Whether `topic` is one of the events' channels (the table above); a recording may hold
+/// other channels beside them (`hetcomm demo --record` writes the rovers' poses for Foxglove).
+pub fn is_event_topic(topic: &str) -> bool {
+    ["/send/", "/receipt/", "/outcome/"]
+        .iter()
+        .any(|p| topic.starts_with(p))
+}
+
 /// Name of the MCAP metadata record that describes a recording.
 pub const METADATA_NAME: &str = "hetcomm";
 /// MCAP profile written into the header.

@@ -6,6 +6,8 @@
 //!   any MCAP reader (Foxglove, the `mcap` Python package) shows their fields;
 //!   [`Encoding::MsgPack`] keeps the raw MessagePack instead. [`format`] documents the
 //!   topics and fields.
+//! - [`events`]: what an observer sees, named by the fleet, as the recording's events (the
+//!   recorder and the live Foxglove view share it).
 //! - [`reader`]: reads a recording back, reporting what stopped the reading of a damaged or
 //!   truncated file after every event before the damage (never a panic).
 //! - [`replay`]: sends the recorded sends again, from the same systems and modules, with the
@@ -15,6 +17,7 @@
 //!
 //! `docs/record-replay.md` is the user's guide.
 
+pub mod events;
 pub mod format;
 pub mod reader;
 pub mod replay;
@@ -24,4 +27,4 @@ mod writer;
 pub use format::Event;
 pub use reader::{read, read_with, ReadError, ReadReport};
 pub use replay::{Player, ReplayFilter, ReplayItem, ReplayReport, ReplayStats};
-pub use writer::{Encoding, RecordError, RecordOptions, RecordSummary, Recorder};
+pub use writer::{Encoding, OtherChannel, RecordError, RecordOptions, RecordSummary, Recorder};

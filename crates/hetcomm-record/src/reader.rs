@@ -26,8 +26,11 @@ pub struct ReadReport {
     pub metadata: BTreeMap<String, String>,
     /// Events read (handed to the callback).
     pub events: u64,
-    /// MCAP messages on channels that are not hetcomm events, or that did not decode (the
-    /// first reason is in `skipped_reason`).
+    /// Messages on channels other than the events' (`/send/…`, `/receipt/…`, `/outcome/…`):
+    /// written beside them, e.g. the demo's rover poses for Foxglove; not read.
+    pub others: u64,
+    /// Messages on the events' channels that did not decode (the first reason is in
+    /// `skipped_reason`).
     pub skipped: u64,
     /// Why the first skipped message did not decode.
     pub skipped_reason: Option<String>,
@@ -46,6 +49,9 @@ impl ReadReport {
     /// One line for a person: events read, and what stopped the reading.
     pub fn describe(&self) -> String {
         let mut s = format!("{} events read", self.events);
+        if self.others > 0 {
+            s += &format!(", {} messages on other channels left aside", self.others);
+        }
         if self.skipped > 0 {
             s += &format!(
                 ", {} messages skipped ({})",
@@ -135,6 +141,10 @@ fn read_bytes_timed(bytes: &[u8], mut f: impl FnMut(u64, Event)) -> Result<ReadR
                 break;
             }
         };
+        if !format::is_event_topic(&message.channel.topic) {
+            report.others += 1;
+            continue;
+        }
         match decode(&message.channel.message_encoding, &message.data) {
             Ok(event) => {
                 report.events += 1;

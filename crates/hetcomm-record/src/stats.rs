@@ -20,6 +20,8 @@ use hetcomm::observe::{OutcomeRecord, ReceiptRecord, SendRecord};
 use hetcomm::{Comm, Observer, ObserverHandle, Outcome, Time};
 use serde::{Deserialize, Serialize};
 
+use crate::events::FleetNames;
+
 /// The environment variable naming the monitor's address (`host:port`, several separated by
 /// commas) for the commands that
 /// publish statistics (`hetcomm demo`, `listen`, `replay`, `record`).
@@ -93,8 +95,7 @@ struct Acc {
 /// An observer counting one system's traffic per pair.
 pub struct PairStats {
     system: String,
-    systems: HashMap<u16, String>,
-    transports: HashMap<u8, String>,
+    names: FleetNames,
     /// Keyed by (source, destination) system id.
     pairs: Mutex<BTreeMap<(u16, u16), Acc>>,
     id: u16,
@@ -103,20 +104,10 @@ pub struct PairStats {
 impl PairStats {
     /// Counters for `comm` (not yet registered: see [`PairStats::attach`]).
     pub fn new(comm: &Comm) -> Arc<PairStats> {
-        let fleet = comm.fleet();
         Arc::new(PairStats {
             system: comm.name().to_string(),
             id: comm.id().0,
-            systems: fleet
-                .systems
-                .iter()
-                .map(|s| (s.id.0, s.name.clone()))
-                .collect(),
-            transports: fleet
-                .transports
-                .iter()
-                .map(|t| (t.tag, t.name.clone()))
-                .collect(),
+            names: FleetNames::new(comm.fleet()),
             pairs: Mutex::new(BTreeMap::new()),
         })
     }
@@ -131,21 +122,13 @@ impl PairStats {
         let acc = pairs.entry(key).or_default();
         if let Some(tag) = tag {
             if acc.transport.is_empty() {
-                acc.transport = self
-                    .transports
-                    .get(&tag)
-                    .cloned()
-                    .unwrap_or_else(|| (tag as char).to_string());
+                acc.transport = match self.names.transport(tag) {
+                    Some(name) => name.to_string(),
+                    None => (tag as char).to_string(),
+                };
             }
         }
         f(acc);
-    }
-
-    fn name(&self, id: u16) -> String {
-        self.systems
-            .get(&id)
-            .cloned()
-            .unwrap_or_else(|| format!("#{id}"))
     }
 
     /// The report for now: cumulative counters, the last period's latencies (which it
@@ -159,8 +142,8 @@ impl PairStats {
             .iter_mut()
         {
             let mut c = acc.c.clone();
-            c.source = self.name(s);
-            c.destination = self.name(d);
+            c.source = self.names.system(s);
+            c.destination = self.names.system(d);
             c.transport = acc.transport.clone();
             acc.latencies.sort_unstable();
             c.latency_p50_us = quantile(&acc.latencies, 0.50);

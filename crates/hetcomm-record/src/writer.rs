@@ -10,12 +10,12 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 
 use hetcomm::config::Fleet;
-use hetcomm::observe::{OutcomeRecord, ReceiptRecord, RouteKind, SendRecord, Via};
-use hetcomm::wire::AckStatus;
-use hetcomm::{Comm, Header, Observer, ObserverHandle, Outcome, SendId, Time};
+use hetcomm::observe::{OutcomeRecord, ReceiptRecord, SendRecord};
+use hetcomm::{Comm, Observer, ObserverHandle, Time};
 use serde_json::Value;
 
-use crate::format::{self, Addr, Envelope, Event, OutcomeEvent, ReceiptEvent, SendEvent};
+use crate::events::{EventBuilder, Observed};
+use crate::format::{self, Event};
 
 /// How payloads (and the records around them) are written.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -71,49 +71,27 @@ pub struct RecordSummary {
     pub receipts: u64,
     /// Outcomes written.
     pub outcomes: u64,
+    /// Messages written on other channels ([`Recorder::write_other`]).
+    pub others: u64,
     /// Events that could not be written (the first error is returned by
     /// [`Recorder::finish`]).
     pub lost: u64,
 }
 
-struct Names {
-    systems: HashMap<u16, String>,
-    modules: HashMap<u16, String>,
-    transports: HashMap<u8, String>,
-}
-
-impl Names {
-    fn new(fleet: &Fleet) -> Names {
-        Names {
-            systems: fleet
-                .systems
-                .iter()
-                .map(|s| (s.id.0, s.name.clone()))
-                .collect(),
-            modules: fleet
-                .modules
-                .iter()
-                .map(|m| (m.id.0, m.name.clone()))
-                .collect(),
-            transports: fleet
-                .transports
-                .iter()
-                .map(|t| (t.tag, t.name.clone()))
-                .collect(),
-        }
-    }
-    fn system(&self, id: u16) -> String {
-        self.systems
-            .get(&id)
-            .cloned()
-            .unwrap_or_else(|| format!("#{id}"))
-    }
-    fn module(&self, id: u16) -> String {
-        self.modules
-            .get(&id)
-            .cloned()
-            .unwrap_or_else(|| format!("#{id}"))
-    }
+/// A channel whose messages another crate encodes, written beside the recorded events (the
+/// demo's rover poses as Foxglove well-known schemas, for instance).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OtherChannel {
+    /// The MCAP topic.
+    pub topic: String,
+    /// The messages' encoding (`protobuf`, `json`, …).
+    pub message_encoding: String,
+    /// The schema's name (`foxglove.FrameTransforms`, …).
+    pub schema_name: String,
+    /// The schema's encoding (`protobuf`, `jsonschema`, …).
+    pub schema_encoding: String,
+    /// The schema itself (for protobuf, a serialized `FileDescriptorSet`).
+    pub schema: Vec<u8>,
 }
 
 struct Inner {
@@ -122,6 +100,8 @@ struct Inner {
     channels: HashMap<String, u16>,
     /// (kind, message type) → schema id.
     schemas: HashMap<(&'static str, u32), u16>,
+    /// Schema name → schema id, for [`OtherChannel`]s.
+    other_schemas: HashMap<String, u16>,
     sequence: u32,
     error: Option<String>,
 }
@@ -141,7 +121,7 @@ struct Inner {
 /// ```
 pub struct Recorder {
     path: PathBuf,
-    names: Names,
+    events: EventBuilder,
     encoding: Encoding,
     inner: Mutex<Inner>,
     /// Observed events on their way to the writer thread.
@@ -153,6 +133,7 @@ pub struct Recorder {
     sends: AtomicU64,
     receipts: AtomicU64,
     outcomes: AtomicU64,
+    others: AtomicU64,
     lost: AtomicU64,
 }
 
@@ -218,18 +199,20 @@ impl Recorder {
             room: Condvar::new(),
             thread: Mutex::new(None),
             path: path.clone(),
-            names: Names::new(fleet),
+            events: EventBuilder::new(fleet, options.encoding),
             encoding: options.encoding,
             inner: Mutex::new(Inner {
                 writer: Some(writer),
                 channels: HashMap::new(),
                 schemas: HashMap::new(),
+                other_schemas: HashMap::new(),
                 sequence: 0,
                 error: None,
             }),
             sends: AtomicU64::new(0),
             receipts: AtomicU64::new(0),
             outcomes: AtomicU64::new(0),
+            others: AtomicU64::new(0),
             lost: AtomicU64::new(0),
         });
         let r = recorder.clone();
@@ -244,7 +227,7 @@ impl Recorder {
     /// Hands an observed event to the writer thread. Cheap: a lock and a push; the writer is
     /// woken once per [`BATCH`] events (or by its own timer), and the observed thread waits
     /// only while [`QUEUE`] events are queued (nothing is dropped).
-    fn enqueue(&self, item: Item) {
+    fn enqueue(&self, item: Observed) {
         let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         while q.items.len() >= QUEUE && !q.closed {
             q = self.room.wait(q).unwrap_or_else(|e| e.into_inner());
@@ -307,8 +290,55 @@ impl Recorder {
             sends: self.sends.load(Ordering::Relaxed),
             receipts: self.receipts.load(Ordering::Relaxed),
             outcomes: self.outcomes.load(Ordering::Relaxed),
+            others: self.others.load(Ordering::Relaxed),
             lost: self.lost.load(Ordering::Relaxed),
         }
+    }
+
+    /// Writes one message on `channel` (added to the file on first use), logged at `time` on
+    /// the recorded systems' clock, as the recorded events are. Written at once, from the
+    /// calling thread; a message that cannot be written is counted as lost.
+    pub fn write_other(&self, channel: &OtherChannel, time: Time, data: &[u8]) {
+        let log_time = time.as_micros() * 1000;
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let inner = &mut *inner;
+        let Some(writer) = inner.writer.as_mut() else {
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        let channel_id = match inner.channels.get(&channel.topic) {
+            Some(&c) => Ok(c),
+            None => match inner.other_schemas.get(&channel.schema_name) {
+                Some(&s) => Ok(s),
+                None => writer
+                    .add_schema(
+                        &channel.schema_name,
+                        &channel.schema_encoding,
+                        &channel.schema,
+                    )
+                    .inspect(|&s| {
+                        inner.other_schemas.insert(channel.schema_name.clone(), s);
+                    }),
+            }
+            .and_then(|s| {
+                writer
+                    .add_channel(
+                        s,
+                        &channel.topic,
+                        &channel.message_encoding,
+                        &BTreeMap::new(),
+                    )
+                    .inspect(|&c| {
+                        inner.channels.insert(channel.topic.clone(), c);
+                    })
+            }),
+        };
+        self.log(inner, channel_id, log_time, data, &self.others);
+    }
+
+    /// Counts a message its writer could not encode for [`Recorder::write_other`] as lost.
+    pub fn count_lost(&self) {
+        self.lost.fetch_add(1, Ordering::Relaxed);
     }
 
     /// Writes the summary and index and closes the file. Events after this are counted as
@@ -337,34 +367,6 @@ impl Recorder {
                 message: format!("{message} ({} events not recorded)", summary.lost),
             }),
             None => Ok(summary),
-        }
-    }
-
-    fn envelope(&self, h: &Header, payload: &[u8]) -> Envelope {
-        let (value, b64) = match self.encoding {
-            Encoding::Json => format::payload_json(payload),
-            Encoding::MsgPack => (None, None),
-        };
-        Envelope {
-            source: Addr {
-                system: self.names.system(h.source.system.0),
-                module: self.names.module(h.source.module.0),
-            },
-            destination: Addr {
-                system: self.names.system(h.destination.system.0),
-                module: self.names.module(h.destination.module.0),
-            },
-            seq: h.seq,
-            message_type: h.message_type.0,
-            priority: h.priority.0,
-            transport: (h.transport as char).to_string(),
-            transport_name: self.names.transports.get(&h.transport).cloned(),
-            ack_requested: h.flags & hetcomm::wire::FLAG_ACK_REQUESTED != 0,
-            broadcast: h.flags & hetcomm::wire::FLAG_BROADCAST != 0,
-            timestamp_us: h.timestamp.as_micros(),
-            size: payload.len(),
-            payload: value,
-            payload_b64: b64,
         }
     }
 
@@ -427,25 +429,42 @@ impl Recorder {
                 })
             }
         };
+        let counter = match kind {
+            "send" => &self.sends,
+            "receipt" => &self.receipts,
+            _ => &self.outcomes,
+        };
+        self.log(inner, channel, time, &data, counter);
+    }
+
+    /// Writes `data` on the channel `channel` names (or records why there is none), and counts
+    /// it in `counter`, or as lost.
+    fn log(
+        &self,
+        inner: &mut Inner,
+        channel: Result<u16, mcap::McapError>,
+        log_time: u64,
+        data: &[u8],
+        counter: &AtomicU64,
+    ) {
+        let Some(writer) = inner.writer.as_mut() else {
+            self.lost.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
         let result = channel.and_then(|channel_id| {
             inner.sequence = inner.sequence.wrapping_add(1);
             writer.write_to_known_channel(
                 &mcap::records::MessageHeader {
                     channel_id,
                     sequence: inner.sequence,
-                    log_time: time,
-                    publish_time: time,
+                    log_time,
+                    publish_time: log_time,
                 },
-                &data,
+                data,
             )
         });
         match result {
             Ok(()) => {
-                let counter = match kind {
-                    "send" => &self.sends,
-                    "receipt" => &self.receipts,
-                    _ => &self.outcomes,
-                };
                 counter.fetch_add(1, Ordering::Relaxed);
             }
             Err(e) => {
@@ -487,15 +506,6 @@ fn to_msgpack(event: &Event, payload: &[u8], kind: &str) -> Result<Vec<u8>, Stri
     Ok(out)
 }
 
-fn route_name(r: RouteKind) -> &'static str {
-    match r {
-        RouteKind::Routed => "routed",
-        RouteKind::Unqueued => "unqueued",
-        RouteKind::Direct => "direct",
-        _ => "other",
-    }
-}
-
 /// Events queued for the writer thread at most; an observer waits while the queue is full.
 const QUEUE: usize = 1 << 16;
 /// Events that wake the writer thread at once (it also wakes every 20 ms).
@@ -503,114 +513,38 @@ const BATCH: usize = 512;
 
 #[derive(Default)]
 struct Queue {
-    items: Vec<Item>,
+    items: Vec<Observed>,
     closed: bool,
-}
-
-/// An observed event, copied out of the observer's callback.
-enum Item {
-    Send {
-        header: Header,
-        payload: Vec<u8>,
-        time: Time,
-        route: RouteKind,
-        link: Option<usize>,
-        attempt: u32,
-    },
-    Receipt {
-        header: Header,
-        payload: Vec<u8>,
-        time: Time,
-        via: Via,
-        status: AckStatus,
-    },
-    Outcome {
-        system: Arc<str>,
-        id: SendId,
-        outcome: Outcome,
-        time: Time,
-    },
 }
 
 impl Recorder {
     /// Encodes and writes one event (on the writer thread).
-    fn process(&self, item: Item) {
-        match item {
-            Item::Send {
-                header,
-                payload,
-                time,
-                route,
-                link,
-                attempt,
-            } => {
-                let message = self.envelope(&header, &payload);
-                let topic = format!(
+    fn process(&self, item: Observed) {
+        let event = self.events.event(&item);
+        let (topic, kind) = match &event {
+            Event::Send(e) => (
+                format!(
                     "/send/{}/{}/{}/{}",
-                    message.source.system,
-                    message.source.module,
-                    message.destination.system,
-                    message.destination.module
-                );
-                let event = Event::Send(SendEvent {
-                    time_us: time.as_micros(),
-                    message,
-                    attempt,
-                    route: route_name(route).to_string(),
-                    link,
-                });
-                self.write(topic, "send", &event, &payload);
-            }
-            Item::Receipt {
-                header,
-                payload,
-                time,
-                via,
-                status,
-            } => {
-                let message = self.envelope(&header, &payload);
-                let topic = format!(
+                    e.message.source.system,
+                    e.message.source.module,
+                    e.message.destination.system,
+                    e.message.destination.module
+                ),
+                "send",
+            ),
+            Event::Receipt(e) => (
+                format!(
                     "/receipt/{}/{}",
-                    message.destination.system, message.destination.module
-                );
-                let status = match status {
-                    AckStatus::Delivered => "delivered",
-                    AckStatus::InboxFull => "inbox_full",
-                    AckStatus::UnknownModule => "unknown_module",
-                };
-                let event = Event::Receipt(ReceiptEvent {
-                    time_us: time.as_micros(),
-                    message,
-                    status: status.to_string(),
-                    link: match via {
-                        Via::Link(i) => Some(i),
-                        _ => None,
-                    },
-                });
-                self.write(topic, "receipt", &event, &payload);
-            }
-            Item::Outcome {
-                system,
-                id,
-                outcome,
-                time,
-            } => {
-                let (outcome, attempts, latency_us, reason) = format::outcome_parts(&outcome);
-                let destination = self.names.system(id.to.0);
-                let topic = format!("/outcome/{system}/{destination}");
-                let event = Event::Outcome(OutcomeEvent {
-                    time_us: time.as_micros(),
-                    source_system: system.to_string(),
-                    destination_system: destination,
-                    seq: id.seq,
-                    outcome: outcome.to_string(),
-                    attempts,
-                    latency_us,
-                    reason,
-                });
-                self.write(topic, "outcome", &event, &[]);
-            }
-        }
+                    e.message.destination.system, e.message.destination.module
+                ),
+                "receipt",
+            ),
+            Event::Outcome(e) => (
+                format!("/outcome/{}/{}", e.source_system, e.destination_system),
+                "outcome",
+            ),
+        };
+        self.write(topic, kind, &event, item.payload());
     }
 }
 
@@ -621,41 +555,18 @@ struct SystemRecorder {
     system: Arc<str>,
 }
 
-impl SystemRecorder {
-    fn send(&self, r: &SendRecord<'_>) {
-        self.recorder.enqueue(Item::Send {
-            header: r.header,
-            payload: r.payload.to_vec(),
-            time: r.time,
-            route: r.route,
-            link: r.link,
-            attempt: r.attempt,
-        });
-    }
-}
-
 impl Observer for SystemRecorder {
     fn on_send(&self, record: &SendRecord<'_>) {
-        self.send(record);
+        self.recorder.enqueue(Observed::send(record));
     }
     fn on_retransmit(&self, record: &SendRecord<'_>) {
-        self.send(record);
+        self.recorder.enqueue(Observed::send(record));
     }
-    fn on_receipt(&self, r: &ReceiptRecord<'_>) {
-        self.recorder.enqueue(Item::Receipt {
-            header: r.header,
-            payload: r.payload.to_vec(),
-            time: r.time,
-            via: r.via,
-            status: r.status,
-        });
+    fn on_receipt(&self, record: &ReceiptRecord<'_>) {
+        self.recorder.enqueue(Observed::receipt(record));
     }
-    fn on_outcome(&self, r: &OutcomeRecord<'_>) {
-        self.recorder.enqueue(Item::Outcome {
-            system: self.system.clone(),
-            id: r.id,
-            outcome: r.outcome.clone(),
-            time: r.time,
-        });
+    fn on_outcome(&self, record: &OutcomeRecord<'_>) {
+        self.recorder
+            .enqueue(Observed::outcome(&self.system, record));
     }
 }

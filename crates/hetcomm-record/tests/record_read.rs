@@ -279,3 +279,68 @@ fn a_replay_into_a_simulation_sends_what_was_recorded_at_the_recorded_times() {
         .collect();
     assert_eq!(received, want);
 }
+
+/// Messages another crate writes beside the events (the demo's poses for Foxglove) get their
+/// own channel and schema, are counted, and are left aside by the event reader, which says so.
+#[test]
+fn other_channels_are_written_beside_the_events_and_left_aside_when_reading() {
+    let fleet = LocalFleet::open(fleet("inproc")).unwrap();
+    let a = fleet.system("A").unwrap();
+    let b = fleet.system("B").unwrap();
+    let path = tmp("others.mcap");
+    let recorder = Recorder::create(&path, a.fleet(), RecordOptions::default()).unwrap();
+    let _ha = recorder.attach(&a);
+    let _hb = recorder.attach(&b);
+    let channel = hetcomm_record::OtherChannel {
+        topic: "/poses".into(),
+        message_encoding: "json".into(),
+        schema_name: "test.Pose".into(),
+        schema_encoding: "jsonschema".into(),
+        schema: br#"{"type": "object"}"#.to_vec(),
+    };
+    let start = hetcomm::Time::now_mono();
+    for i in 0..3u64 {
+        recorder.write_other(
+            &channel,
+            start + Duration::from_millis(100 * i),
+            format!(r#"{{"x": {i}}}"#).as_bytes(),
+        );
+    }
+    let t = a
+        .module("Plan")
+        .unwrap()
+        .send("B", "Act", &reading(1))
+        .unwrap();
+    assert!(matches!(t.wait(), Outcome::Delivered { .. }));
+    let summary = recorder.finish().unwrap();
+    assert_eq!((summary.others, summary.lost), (3, 0));
+    let (events, report) = hetcomm_record::read(&path).unwrap();
+    assert_eq!((report.others, report.skipped), (3, 0));
+    assert_eq!(report.events, events.len() as u64);
+    assert!(report
+        .describe()
+        .contains("3 messages on other channels left aside"));
+    // The channel is a standard MCAP channel with its schema and log times.
+    let bytes = std::fs::read(&path).unwrap();
+    let mut seen = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/poses" {
+            let schema = m.channel.schema.as_ref().unwrap();
+            assert_eq!(
+                (schema.name.as_str(), schema.encoding.as_str()),
+                ("test.Pose", "jsonschema")
+            );
+            seen.push((m.log_time, String::from_utf8(m.data.to_vec()).unwrap()));
+        }
+    }
+    let t0 = start.as_micros() * 1000;
+    assert_eq!(
+        seen,
+        [
+            (t0, r#"{"x": 0}"#.to_string()),
+            (t0 + 100_000_000, r#"{"x": 1}"#.to_string()),
+            (t0 + 200_000_000, r#"{"x": 2}"#.to_string()),
+        ]
+    );
+}

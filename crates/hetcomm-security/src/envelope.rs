@@ -21,8 +21,8 @@
 //! Response (type 2): `8 u32` the responder's session index, `12 u32` the initiator's
 //! session index, `16 …` Noise KK message 2.
 
-use aws_lc_rs::aead::{Aad, LessSafeKey, Nonce, UnboundKey, AES_256_GCM};
 use hetcomm_core::SystemId;
+use ring::aead::{Aad, LessSafeKey, Nonce, Tag, UnboundKey, AES_256_GCM};
 
 /// The first two bytes of every secured frame.
 pub const MAGIC: [u8; 2] = *b"HS";
@@ -152,11 +152,12 @@ pub fn u32_at(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
 
-/// One direction's AES-256-GCM key (aws-lc-rs: its AES-GCM uses the CPU's vector AES and
-/// carry-less multiply instructions with AVX-512 where present, 10–17 GB/s on a Zen 4, twice
-/// ring's speed there; without AVX-512 it runs its AES-NI code, 3.7 GB/s on a Zen 3 class CPU,
-/// where ring's VAES-AVX2 code reaches 5.2; `examples/seal_speed.rs` measures it, and
-/// docs/security.md, "What it costs", has the figures).
+/// One direction's AES-256-GCM key (ring, the crate that also serves the Noise handshake's
+/// AES-GCM and SHA-256: on x86-64 it uses vector AES and carry-less multiply with AVX2 where
+/// present, 5.2 GB/s on the 2-core AMD EPYC without AVX-512 where aws-lc-rs ran its older
+/// AES-NI code at 3.7; `examples/seal_speed.rs` measures it, and docs/security.md, "What it
+/// costs", has the figures). ring seals and opens in place only, so a frame's plaintext is
+/// copied into the frame's buffer and encrypted there.
 pub struct DirectionKey(LessSafeKey);
 
 impl DirectionKey {
@@ -174,9 +175,8 @@ impl DirectionKey {
     }
 
     /// Makes `out` the data frame carrying `head` + `body` (whatever `out` held is replaced,
-    /// without zeroing it first).
-    /// `head` and `body` are encrypted straight from where they lie into `out`: no copy of the
-    /// plaintext is made first.
+    /// without zeroing it first). `head` and `body` are copied into `out` once and encrypted
+    /// there: no other buffer is made.
     pub fn seal(
         &self,
         out: &mut Vec<u8>,
@@ -217,17 +217,14 @@ impl DirectionKey {
         clear[..8].copy_from_slice(&prefix_bytes(kind, sender, receiver));
         clear[8..12].copy_from_slice(&session.to_le_bytes());
         clear[12..].copy_from_slice(&counter.to_le_bytes());
-        let (head_out, body_out_and_tag) = rest.split_at_mut(head.len());
-        self.0
-            .seal_out_of_place_scatter(
-                Self::nonce(counter),
-                Aad::from(&*clear),
-                head,
-                head_out,
-                body,
-                body_out_and_tag,
-            )
-            .expect("AES-GCM seals any frame under 64 GiB into buffers of the right length");
+        let (plain, tag_out) = rest.split_at_mut(head.len() + body.len());
+        plain[..head.len()].copy_from_slice(head);
+        plain[head.len()..].copy_from_slice(body);
+        let tag = self
+            .0
+            .seal_in_place_separate_tag(Self::nonce(counter), Aad::from(&*clear), plain)
+            .expect("AES-GCM seals any frame under 64 GiB");
+        tag_out.copy_from_slice(tag.as_ref());
     }
 
     /// Decrypts a data frame in place: on success the inner frame is
@@ -239,26 +236,30 @@ impl DirectionKey {
         let counter = data_counter(frame);
         let (clear, rest) = frame.split_at_mut(DATA_HEADER_LEN);
         let (cipher, tag) = rest.split_at_mut(rest.len() - TAG_LEN);
+        let tag = Tag::try_from(&*tag).expect("TAG_LEN bytes");
         self.0
-            .open_in_place_separate_tag(Self::nonce(counter), Aad::from(&*clear), tag, cipher)
+            .open_in_place_separate_tag(Self::nonce(counter), Aad::from(&*clear), tag, cipher, 0..)
             .is_ok()
     }
 
     /// Decrypts a data frame into `out`, which must be [`inner_len`] bytes long; the frame
-    /// itself is only read. False if it does not authenticate (`out` then holds garbage).
+    /// itself is only read (its ciphertext is copied into `out` and opened there). False if it
+    /// does not authenticate (`out` then holds garbage).
     pub fn open_into(&self, frame: &[u8], out: &mut [u8]) -> bool {
         if frame.len() < OVERHEAD || out.len() != frame.len() - OVERHEAD {
             return false;
         }
         let (clear, rest) = frame.split_at(DATA_HEADER_LEN);
         let (cipher, tag) = rest.split_at(rest.len() - TAG_LEN);
+        let tag = Tag::try_from(tag).expect("TAG_LEN bytes");
+        out.copy_from_slice(cipher);
         self.0
-            .open_separate_gather(
+            .open_in_place_separate_tag(
                 Self::nonce(data_counter(frame)),
                 Aad::from(clear),
-                cipher,
                 tag,
                 out,
+                0..,
             )
             .is_ok()
     }

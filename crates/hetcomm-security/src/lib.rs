@@ -7,9 +7,9 @@
 //! - **Keys** ([`keys`]): one X25519 key pair per system; the fleet file names every
 //!   system's public key, each process holds only its own private key.
 //! - **Sessions** ([`session`]): a Noise KK handshake (`Noise_KK_25519_AESGCM_SHA256`, by the
-//!   `snow` crate) per pair of systems and link, with fresh ephemeral keys on both sides, so
+//!   `snow` crate, with `ring`'s AES-GCM and SHA-256 and curve25519-dalek's X25519) per pair of systems and link, with fresh ephemeral keys on both sides, so
 //!   frames of an old session (before either side restarted) never open in a new one.
-//! - **Frames** ([`envelope`]): every frame is sealed with AES-256-GCM (`aws-lc-rs`) under the
+//! - **Frames** ([`envelope`]): every frame is sealed with AES-256-GCM (`ring`) under the
 //!   session's key for its direction: the whole inner frame (header and payload) is encrypted,
 //!   and the clear prefix (sender, receiver, session, counter) is authenticated. Frames the
 //!   router lets wait to leave together are sealed together, as one data batch.

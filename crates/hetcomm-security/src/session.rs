@@ -12,7 +12,7 @@ use std::sync::Mutex;
 
 use hetcomm_core::SystemId;
 use rand::{RngCore, SeedableRng};
-use snow::resolvers::{CryptoResolver, DefaultResolver};
+use snow::resolvers::{CryptoResolver, DefaultResolver, RingResolver};
 
 use crate::envelope::{self, DirectionKey, Kind, NOISE_PARAMS};
 use crate::keys::{Keypair, PublicKey};
@@ -97,8 +97,11 @@ pub enum Entropy {
     Seeded(u64),
 }
 
-/// A snow resolver whose random source is seeded (simulations); everything else is snow's.
-struct SeededResolver(u64);
+/// Where the handshake's cryptography comes from: AES-256-GCM and SHA-256 from ring (snow's
+/// ring resolver; the same crate seals the data frames), X25519 from snow's own resolver
+/// (curve25519-dalek: ring's X25519 takes no static key), and randomness from the
+/// operating system (through ring) or, in a simulation, from the seed.
+struct Resolver(Entropy);
 
 struct SeededRandom(rand_chacha::ChaCha20Rng);
 
@@ -109,11 +112,14 @@ impl snow::types::Random for SeededRandom {
     }
 }
 
-impl CryptoResolver for SeededResolver {
+impl CryptoResolver for Resolver {
     fn resolve_rng(&self) -> Option<Box<dyn snow::types::Random>> {
-        Some(Box::new(SeededRandom(
-            rand_chacha::ChaCha20Rng::seed_from_u64(self.0),
-        )))
+        match self.0 {
+            Entropy::Os => RingResolver.resolve_rng(),
+            Entropy::Seeded(seed) => Some(Box::new(SeededRandom(
+                rand_chacha::ChaCha20Rng::seed_from_u64(seed),
+            ))),
+        }
     }
     fn resolve_dh(&self, choice: &snow::params::DHChoice) -> Option<Box<dyn snow::types::Dh>> {
         DefaultResolver.resolve_dh(choice)
@@ -122,13 +128,13 @@ impl CryptoResolver for SeededResolver {
         &self,
         choice: &snow::params::HashChoice,
     ) -> Option<Box<dyn snow::types::Hash>> {
-        DefaultResolver.resolve_hash(choice)
+        RingResolver.resolve_hash(choice)
     }
     fn resolve_cipher(
         &self,
         choice: &snow::params::CipherChoice,
     ) -> Option<Box<dyn snow::types::Cipher>> {
-        DefaultResolver.resolve_cipher(choice)
+        RingResolver.resolve_cipher(choice)
     }
 }
 
@@ -143,12 +149,7 @@ fn prologue(initiator: SystemId, responder: SystemId) -> Vec<u8> {
 
 fn builder(entropy: Entropy) -> snow::Builder<'static> {
     let params = NOISE_PARAMS.parse().expect("a valid Noise protocol name");
-    match entropy {
-        Entropy::Os => snow::Builder::new(params),
-        Entropy::Seeded(seed) => {
-            snow::Builder::with_resolver(params, Box::new(SeededResolver(seed)))
-        }
-    }
+    snow::Builder::with_resolver(params, Box::new(Resolver(entropy)))
 }
 
 /// A handshake we started and whose response we wait for.

@@ -523,7 +523,9 @@ impl LocalFleet {
     /// [`LocalFleet::open_systems`] with options: the message types declared with
     /// [`OpenOptions::message`] are checked by every system's transports. A private key is
     /// one system's: it is used when `names` is that one system; with several, each system's
-    /// key comes from the fleet file or the environment, as for `open_systems`.
+    /// key comes from the fleet file or the environment, as for `open_systems` (with every
+    /// system of a fleet whose file names no keys, keys made for the run, as for
+    /// [`LocalFleet::open`]).
     pub fn open_systems_with(
         fleet: Fleet,
         names: &[&str],
@@ -543,6 +545,14 @@ impl LocalFleet {
             env.keys = KeySource::Fleet {
                 private_key: options.private_key,
             };
+        } else if fleet
+            .systems
+            .iter()
+            .all(|s| names.contains(&s.name.as_str()))
+        {
+            // Every system runs here: as for `LocalFleet::open`, keys made for the run serve
+            // when the file names none (nobody outside the process can join).
+            env.keys = KeySource::for_local_fleet(&fleet);
         }
         env.shapes = options.shapes;
         let systems = names

@@ -62,6 +62,7 @@ pub fn registry() -> &'static Registry {
             bridges["ros2_bridge"]
         );
         link_crate!(registry, "zenoh", hetcomm_link_zenoh, ["zenoh"]);
+        link_crate!(registry, "mqtt", hetcomm_link_mqtt, ["mqtt"]);
         registry
     })
 }

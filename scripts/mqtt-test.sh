@@ -1,0 +1,117 @@
+#!/usr/bin/env bash
+# Everything about the `mqtt` transport (docs/mqtt.md), against a real mosquitto. Called by
+# scripts/test.sh.
+#
+#   bash scripts/mqtt-test.sh
+#
+# 1. format and lint the mqtt crate (it is outside the workspace's members, so the
+#    workspace-wide steps of test.sh do not see it) and the facade and CLI with `--features mqtt`;
+# 2. one mosquitto for the whole group, on free ports of 127.0.0.1: an anonymous listener, one
+#    that wants username `robot` / password `s3cret`, and a TLS one that wants a client
+#    certificate, with a test CA this script makes (openssl); stopped at the end;
+# 3. the crate's tests against it: the conformance suite (QoS 0 and 1, bare, emulated,
+#    secured), fleet keys and their errors, delivery, presence, username/password, TLS, bad
+#    input, and the broker killed and restarted mid-stream (those start brokers of their own);
+# 4. interoperation on an unsecured transport: mosquitto_sub watches a `hetcomm send`'s frame,
+#    mosquitto_pub publishes a frame that `hetcomm listen` prints, and a Python paho-mqtt
+#    system (crates/hetcomm-link-mqtt/tests/python/mqtt_system.py, written from the docs)
+#    talks to `hetcomm listen` and `hetcomm send` both ways.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
+# The mqtt crate is a workspace of its own: without this its builds would go to its own
+# target/ (and compile the shared crates a second time).
+export CARGO_TARGET_DIR=$TARGET
+CRATE=crates/hetcomm-link-mqtt/Cargo.toml
+
+step() { printf '\n== %s\n' "$*"; }
+
+bash scripts/install.sh apt
+
+step "mqtt: format and lint"
+cargo fmt --manifest-path "$CRATE" --all -- --check
+cargo clippy --manifest-path "$CRATE" --all-targets -- -D warnings
+cargo clippy -p hetcomm-cli --features hetcomm-cli/mqtt --all-targets -- -D warnings
+
+WORK=$(mktemp -d)
+PIDS=()
+cleanup() {
+    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
+    wait 2>/dev/null || true
+    rm -rf "$WORK"
+}
+trap cleanup EXIT
+
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+
+step "mqtt: a test CA, server and client certificates, a password file"
+TLS=$WORK/tls
+mkdir -p "$TLS"
+openssl_quiet() { openssl "$@" 2>/dev/null; }
+openssl_quiet req -x509 -newkey rsa:2048 -nodes -days 2 -subj /CN=hetcomm-test-ca \
+    -keyout "$TLS/ca.key" -out "$TLS/ca.crt"
+# A CA that signed nothing here: a client trusting it must refuse the broker.
+openssl_quiet req -x509 -newkey rsa:2048 -nodes -days 2 -subj /CN=another-ca \
+    -keyout "$TLS/other-ca.key" -out "$TLS/other-ca.crt"
+sign() { # NAME SUBJECT [EXTENSIONS]
+    openssl_quiet req -newkey rsa:2048 -nodes -subj "$2" -keyout "$TLS/$1.key" -out "$TLS/$1.csr"
+    printf '%s\n' "${3:-basicConstraints=CA:FALSE}" >"$TLS/$1.ext"
+    openssl_quiet x509 -req -in "$TLS/$1.csr" -CA "$TLS/ca.crt" -CAkey "$TLS/ca.key" \
+        -CAcreateserial -days 2 -extfile "$TLS/$1.ext" -out "$TLS/$1.crt"
+}
+sign server /CN=localhost "subjectAltName=IP:127.0.0.1,DNS:localhost"
+sign client /CN=robot
+mosquitto_passwd -c -b "$TLS/passwd" robot s3cret
+chmod 0644 "$TLS"/*
+
+step "mqtt: one mosquitto for the group (anonymous, password, TLS listeners)"
+PLAIN=$(free_port); AUTH=$(free_port); SECURE=$(free_port)
+cat >"$WORK/mosquitto.conf" <<CONF
+# Stays root when started as root (CI), so that it reads the files above.
+user root
+persistence false
+# Without it mosquitto holds small publishes back (Nagle): 40-85 ms per round trip (docs/mqtt.md).
+set_tcp_nodelay true
+per_listener_settings true
+log_dest stderr
+listener $PLAIN 127.0.0.1
+allow_anonymous true
+listener $AUTH 127.0.0.1
+allow_anonymous false
+password_file $TLS/passwd
+listener $SECURE 127.0.0.1
+allow_anonymous true
+cafile $TLS/ca.crt
+certfile $TLS/server.crt
+keyfile $TLS/server.key
+require_certificate true
+CONF
+# Debian installs the broker in /usr/sbin, which a non-root PATH may lack.
+MOSQUITTO=$(command -v mosquitto || echo /usr/sbin/mosquitto)
+"$MOSQUITTO" -c "$WORK/mosquitto.conf" 2>"$WORK/mosquitto.log" &
+PIDS+=($!)
+for port in $PLAIN $AUTH $SECURE; do
+    for _ in $(seq 100); do
+        python3 -c "import socket,sys; socket.create_connection(('127.0.0.1',$port),0.2)" 2>/dev/null && break
+        sleep 0.05
+    done
+done
+python3 -c "import socket; socket.create_connection(('127.0.0.1',$SECURE),0.2)" \
+    || { cat "$WORK/mosquitto.log"; exit 1; }
+export HETCOMM_MQTT_BROKER=127.0.0.1:$PLAIN
+export HETCOMM_MQTT_AUTH_BROKER=127.0.0.1:$AUTH
+export HETCOMM_MQTT_TLS_BROKER=mqtts://127.0.0.1:$SECURE
+export HETCOMM_MQTT_TLS_DIR=$TLS
+
+step "mqtt: crate tests (conformance, keys, delivery, presence, auth, TLS, bad input, broker restart)"
+cargo test --manifest-path "$CRATE"
+
+step "mqtt: building the CLI"
+cargo build -q -p hetcomm-cli --features mqtt
+HETCOMM=$TARGET/debug/hetcomm
+bash scripts/install.sh python
+PY=$ROOT/target/py-venv/bin/python
+
+step "mqtt: interoperation with mosquitto_sub, mosquitto_pub and a Python paho-mqtt system"
+bash scripts/mqtt-interop.sh "$HETCOMM" "$PY" "127.0.0.1:$PLAIN"
