@@ -489,10 +489,7 @@ fn resolve_list(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<V
         if list.contains(&i) {
             cx.diag.err_help(
                 loc,
-                format!(
-                    "`{text}` lists transport `{}` twice",
-                    cx.transports[i].name
-                ),
+                format!("`{text}` lists transport `{}` twice", cx.transports[i].name),
                 "list each transport once, in order of preference",
             );
             ok = false;

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::wire::{self, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId};
 use hetcomm_link::layer::{LayerContext, LinkLayer};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, Peer};
 use hetcomm_security::{Handshakes, Keypair, Policy, SecurityLayer};
 
 const A: SystemId = SystemId(0);
@@ -112,8 +112,10 @@ impl FrameSink for Router {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
         self.0.lock().unwrap().push(frame.to_vec());
     }
-    fn on_peer_up(&self, peer: SystemId) {
-        self.1.lock().unwrap().push(peer);
+    fn on_event(&self, event: LinkEvent) {
+        if let LinkEvent::PeerUp(peer) = event {
+            self.1.lock().unwrap().push(peer);
+        }
     }
 }
 

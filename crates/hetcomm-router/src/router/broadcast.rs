@@ -158,6 +158,7 @@ impl<T> Router<T> {
                     deadline: None,
                     broadcast: Some(b),
                     unbuilt: true,
+                    awaiting_ack: false,
                 },
             );
             self.stats.sends += 1;

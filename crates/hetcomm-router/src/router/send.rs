@@ -84,6 +84,7 @@ impl<T> Router<T> {
                 deadline: None,
                 broadcast: None,
                 unbuilt: false,
+                awaiting_ack: false,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -201,6 +202,7 @@ impl<T> Router<T> {
                 deadline: Some(deadline),
                 broadcast: None,
                 unbuilt: false,
+                awaiting_ack: false,
             },
         );
         self.timers.insert((deadline, Timer::Retransmit(id)));
