@@ -123,7 +123,7 @@ impl World {
                     self.wire
                         .push(Reverse((at, self.order, 1 - i, tx.link, tx.frame.clone())));
                 }
-                if tx.send.is_some() {
+                if tx.send.is_some() || tx.probe.is_some() {
                     self.routers[i].transmit_result(now, tx, Ok(()));
                 }
             }

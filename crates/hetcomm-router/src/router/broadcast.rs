@@ -218,6 +218,7 @@ impl<T> Router<T> {
                 to: TO_ALL_SYSTEM,
                 seq: BROADCAST_SEND | b,
             }),
+            probe: None,
         })
     }
 

@@ -138,6 +138,8 @@ struct RouteState {
     active: usize,
     /// When the paths that are down are probed next, while any is.
     probe_at: Option<Time>,
+    /// When they were last probed (a probe goes at most once per interval).
+    probed_at: Option<Time>,
 }
 
 /// What the router knows of one path.
@@ -148,6 +150,8 @@ struct PathState {
     rtt: Option<RttEstimator>,
     /// Unconfirmed sends and link errors in a row ([`Health::down_after`]).
     bad_run: u32,
+    /// When the last of them was counted.
+    last_bad: Option<Time>,
     /// While down: acknowledgements heard on it in a row ([`Health::up_after`]).
     good_run: u32,
     /// While down: whether anything answered since the last probe.
@@ -169,6 +173,7 @@ impl RouteState {
             paths: vec![PathState::new(route.path())],
             active: 0,
             probe_at: None,
+            probed_at: None,
         }
     }
 
@@ -204,6 +209,7 @@ impl PathState {
             congested: false,
             rtt: None,
             bad_run: 0,
+            last_bad: None,
             good_run: 0,
             answered: false,
             refused: false,

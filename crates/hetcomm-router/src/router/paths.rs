@@ -31,8 +31,15 @@ pub(super) enum Sign {
     /// A frame from the peer arrived on it (`ack`: an acknowledgement, which answers a frame
     /// sent on it and so proves both directions).
     Heard { ack: bool },
-    /// A send's acknowledgement did not come back in time, or its link failed otherwise.
-    Unconfirmed,
+    /// A send's acknowledgement did not come back in time (`offered`: when its last frame
+    /// left; `waiting`: how long since its first), or its link failed otherwise (`offered`
+    /// is now). `exhausted`: it was the last attempt of the send's budget, and the whole
+    /// budget went unanswered on this path.
+    Unconfirmed {
+        offered: Time,
+        waiting: Duration,
+        exhausted: bool,
+    },
 }
 
 impl<T> Router<T> {
@@ -81,7 +88,11 @@ impl<T> Router<T> {
             Err(e) if e.unreachable() => Sign::Down { refused: true },
             // A missing session says nothing about the path: the handshake runs on it.
             Err(TransmitError::TooLarge(_) | TransmitError::NoSession(_)) => return,
-            Err(_) if self.judging => Sign::Unconfirmed,
+            Err(_) if self.judging => Sign::Unconfirmed {
+                offered: now,
+                waiting: Duration::MAX,
+                exhausted: false,
+            },
             Err(_) => return,
         };
         self.path_sign(now, peer, link, sign);
@@ -116,7 +127,7 @@ impl<T> Router<T> {
                     p.up = true;
                     p.congested = true;
                 }
-                Sign::Unconfirmed => {}
+                Sign::Unconfirmed { .. } => {}
             }
         }
         let healthy = p.up && !p.congested;
@@ -126,10 +137,8 @@ impl<T> Router<T> {
             (false, true) => self.unhealthy_paths -= 1,
             _ => {}
         }
-        if went_down && r.probe_at.is_none() && !health.probe_interval.is_zero() {
-            let at = now + health.probe_interval;
-            r.probe_at = Some(at);
-            self.timers.insert((at, Timer::Probe(to)));
+        if went_down {
+            arm_probe(r, &mut self.timers, now, to, &health);
         }
         let best = r.best();
         if best == r.active {
@@ -176,31 +185,70 @@ impl<T> Router<T> {
             return; // superseded
         }
         r.probe_at = None;
-        let mut down: Vec<Path> = Vec::new();
+        if r.paths.iter().all(|p| p.up) {
+            return;
+        }
+        // A send's copy probed within the interval already (see `probe_soon`).
+        let recent = r
+            .probed_at
+            .is_some_and(|t| now.saturating_since(t) < interval);
+        // The oldest waiting send whose frame the router holds (not one being transmitted).
+        let waiting = |(id, p): &(&SendId, &Pending<T>)| id.to == to && p.route.acknowledged;
+        let carrier = self
+            .pending
+            .iter()
+            .filter(waiting)
+            .filter(|(_, p)| p.frame.is_some())
+            .map(|(id, _)| *id)
+            .min();
+        // With nothing waiting there is nothing to probe with: the timer stops, and the next
+        // send to `to` starts it again (`probe_soon`), so an idle pair costs no wake-ups.
+        if carrier.is_some() || self.pending.iter().any(|e| waiting(&e)) {
+            let at = now + interval;
+            r.probe_at = Some(at);
+            self.timers.insert((at, Timer::Probe(to)));
+        }
+        if let Some(id) = carrier.filter(|_| !recent) {
+            self.emit_probes(now, id);
+        }
+    }
+
+    /// Probes every path of `id.to` that is down with a copy of send `id`'s frame (its
+    /// frame must be with the router), ahead of anything queued. A path whose last probe went
+    /// unanswered starts its count of answers again.
+    fn emit_probes(&mut self, now: Time, id: SendId) {
+        let Some(r) = self.routes.get_mut(&id.to) else {
+            return;
+        };
+        r.probed_at = Some(now);
         for p in r.paths.iter_mut().filter(|p| !p.up) {
             if !p.answered {
                 p.good_run = 0;
             }
             p.answered = false;
-            down.push(p.path);
+            self.transmits
+                .push_front(TransmitItem::Probe { id, path: p.path });
         }
-        if down.is_empty() {
+    }
+
+    /// Send `id` was just queued while some path is unhealthy: if a path of its destination
+    /// is down, its copy probes that path now when the last probe is an interval old (a pair
+    /// whose sends are acknowledged faster than the interval has none waiting when the probe
+    /// timer falls due), and the timer runs again if it had stopped.
+    pub(super) fn probe_soon(&mut self, now: Time, id: SendId) {
+        let health = self.config.health;
+        let Some(r) = self.routes.get_mut(&id.to) else {
+            return;
+        };
+        if r.paths.len() < 2 || r.paths.iter().all(|p| p.up) {
             return;
         }
-        let at = now + interval;
-        r.probe_at = Some(at);
-        self.timers.insert((at, Timer::Probe(to)));
-        // The oldest waiting send whose frame the router holds (not one being transmitted).
-        let carrier = self
-            .pending
-            .iter()
-            .filter(|(id, p)| id.to == to && p.route.acknowledged && p.frame.is_some())
-            .map(|(id, _)| *id)
-            .min();
-        if let Some(id) = carrier {
-            for path in down {
-                self.transmits.push_back(TransmitItem::Probe { id, path });
-            }
+        arm_probe(r, &mut self.timers, now, id.to, &health);
+        let due = r
+            .probed_at
+            .is_none_or(|t| now.saturating_since(t) >= health.probe_interval);
+        if due && !health.probe_interval.is_zero() {
+            self.emit_probes(now, id);
         }
     }
 
@@ -280,6 +328,21 @@ impl<T> Router<T> {
     }
 }
 
+/// Arms `r`'s probe timer one interval from `now`, unless it is armed or probes are off.
+fn arm_probe(
+    r: &mut RouteState,
+    timers: &mut BTreeSet<(Time, Timer)>,
+    now: Time,
+    to: SystemId,
+    health: &Health,
+) {
+    if r.probe_at.is_none() && !health.probe_interval.is_zero() {
+        let at = now + health.probe_interval;
+        r.probe_at = Some(at);
+        timers.insert((at, Timer::Probe(to)));
+    }
+}
+
 /// [`Health::failover`]'s judgement of one sign on path `p`: a run of unconfirmed sends takes
 /// it down; while down, acknowledgements on it (and its link's word that the peer is up)
 /// count towards its return, which also waits for its hold time.
@@ -304,6 +367,7 @@ fn judge(p: &mut PathState, sign: Sign, now: Time, health: &Health) {
         Sign::Up | Sign::Heard { ack: true } => {
             if p.up {
                 p.bad_run = 0;
+                p.last_bad = None;
                 p.congested = false;
             } else {
                 good_sign(p, now, health);
@@ -311,11 +375,26 @@ fn judge(p: &mut PathState, sign: Sign, now: Time, health: &Health) {
         }
         // One direction only: a frame from the peer does not say ours arrive.
         Sign::Heard { ack: false } => {}
-        Sign::Unconfirmed => {
-            if p.up {
-                p.bad_run += 1;
-                if p.bad_run >= health.down_after {
-                    go_down(p, now, health);
+        Sign::Unconfirmed {
+            offered,
+            waiting,
+            exhausted,
+        } => {
+            if p.up && exhausted {
+                // A whole budget unanswered: where a single path would give the send up, the
+                // path is down and the send goes on the next.
+                go_down(p, now, health);
+            } else if p.up {
+                // One count per round: sends whose frames all left before the last count
+                // timing out together (a stall of this process, a burst in flight) are one
+                // sign, not many; and a send counts only once it waited `patience`.
+                let new_round = p.last_bad.is_none_or(|t| offered > t);
+                if new_round && waiting >= health.patience {
+                    p.last_bad = Some(now);
+                    p.bad_run += 1;
+                    if p.bad_run >= health.down_after {
+                        go_down(p, now, health);
+                    }
                 }
             } else {
                 p.good_run = 0;
@@ -335,6 +414,7 @@ fn go_down(p: &mut PathState, now: Time, health: &Health) {
     p.up = false;
     p.congested = false;
     p.bad_run = 0;
+    p.last_bad = None;
     p.good_run = 0;
     p.answered = false;
     p.down_at = now;

@@ -15,6 +15,7 @@ impl<T> Router<T> {
                         to,
                         frame,
                         send: None,
+                        probe: None,
                     })
                 }
                 TransmitItem::Broadcast(b) => match self.poll_broadcast(now, b) {
@@ -68,6 +69,7 @@ impl<T> Router<T> {
                         to: id.to,
                         frame,
                         send: Some(id),
+                        probe: None,
                     });
                 }
             }
@@ -82,6 +84,14 @@ impl<T> Router<T> {
             return self.broadcast_result(now, tx, result);
         }
         self.path_result(now, tx.to, tx.link, &result);
+        if let Some(id) = tx.probe {
+            // A copy of the message left on the probed path: giving up on it is unconfirmed
+            // from now on (the copy may arrive), never failed.
+            if let (Some(p), true) = (self.pending.get_mut(&id), result.is_ok()) {
+                p.transmitted = true;
+            }
+            return self.recycle(tx.frame);
+        }
         let Some(id) = tx.send else { return };
         let Some(p) = self.pending.get_mut(&id) else {
             return; // already ended (an ack overtook the result)
@@ -226,6 +236,7 @@ impl<T> Router<T> {
             to: id.to,
             frame,
             send: None,
+            probe: Some(id),
         })
     }
 

@@ -40,7 +40,12 @@ impl<T> Router<T> {
             // Unconfirmed on the path its last frame took: that path's health hears of it
             // (and may fail over, which gives this send a budget on the next path).
             let link = p.route.link;
-            self.path_sign(now, id.to, link, paths::Sign::Unconfirmed);
+            let sign = paths::Sign::Unconfirmed {
+                offered: p.offered,
+                waiting: now.saturating_since(p.first_sent.unwrap_or(now)),
+                exhausted: p.attempts >= p.route.attempts,
+            };
+            self.path_sign(now, id.to, link, sign);
         }
         let Some(p) = self.pending.get_mut(&id) else {
             return;

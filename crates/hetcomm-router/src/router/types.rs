@@ -167,8 +167,14 @@ pub struct Health {
     /// Retransmission timeouts (a frame left on the path and no acknowledgement came back)
     /// and link errors in a row on a path, with no acknowledgement heard on it between them,
     /// that make it unhealthy. 0: the router does not judge paths itself (the original rule;
-    /// the fields below are then unused).
+    /// the fields below are then unused). Counted once per round: timeouts of sends whose
+    /// frames all left before the last one counted are one sign (a stall of this process
+    /// times many sends out at once), and only sends that waited [`Health::patience`].
     pub down_after: u32,
+    /// How long a send must have waited for its acknowledgement (from its first frame)
+    /// before its timeout counts towards [`Health::down_after`]: a receiver that stalls for
+    /// less does not move the traffic.
+    pub patience: Duration,
     /// Acknowledgements heard on a path that is down (answers to its probes, or a
     /// [`LinkEvent::PeerUp`] from its link), in a row, before sends return to it. A probe left
     /// unanswered until the next one restarts the count.
@@ -189,6 +195,7 @@ impl Default for Health {
     fn default() -> Self {
         Health {
             down_after: 0,
+            patience: Duration::ZERO,
             up_after: 1,
             hold: Duration::ZERO,
             probe_interval: Duration::ZERO,
@@ -197,11 +204,13 @@ impl Default for Health {
 }
 
 impl Health {
-    /// The router judges paths too: down after 3 unconfirmed sends or link errors in a row,
-    /// probed every 50 ms, back after 3 acknowledgements on it and a hold of 500 ms.
+    /// The router judges paths too: down after 3 rounds of unconfirmed sends (each having
+    /// waited 50 ms) or link errors in a row, probed every 50 ms, back after 3
+    /// acknowledgements on it and a hold of 500 ms.
     pub fn failover() -> Health {
         Health {
             down_after: 3,
+            patience: Duration::from_millis(50),
             up_after: 3,
             hold: Duration::from_millis(500),
             probe_interval: Duration::from_millis(50),
@@ -551,6 +560,11 @@ pub struct Transmit {
     pub frame: Vec<u8>,
     /// The send this frame belongs to (None for acknowledgements, which need no result).
     pub send: Option<SendId>,
+    /// For a probe of a path that is down ([`Health::probe_interval`]): the send whose frame
+    /// it copies (`send` is None: it is no attempt of that send). Hand it back through
+    /// [`Router::transmit_result`] too: whether its link took it decides whether a copy of
+    /// the message may have left.
+    pub probe: Option<SendId>,
 }
 
 /// Why a link refused a frame, as the router needs to know it.

@@ -48,7 +48,7 @@ fn shrink(mut failing: Params) -> Params {
                 ..failing.clone()
             });
         }
-        let off: [fn(&mut Params); 12] = [
+        let off: [fn(&mut Params); 14] = [
             |p| p.loss = 0.0,
             |p| p.duplicate = 0.0,
             |p| p.jitter_us = 0,
@@ -61,6 +61,8 @@ fn shrink(mut failing: Params) -> Params {
             |p| p.ordered = false,
             |p| p.wall_steps = false,
             |p| p.sessions = false,
+            |p| p.outages = false,
+            |p| p.two_paths = false,
         ];
         for f in off {
             let mut p = failing.clone();

@@ -120,7 +120,7 @@ impl SystemCore {
                     );
                 }
                 let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic);
-                if tx.send.is_some() {
+                if tx.send.is_some() || tx.probe.is_some() {
                     transmit_results.push((tx, result));
                 }
             }
