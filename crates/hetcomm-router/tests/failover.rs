@@ -48,6 +48,9 @@ impl Outages {
     }
 }
 
+/// A frame in flight: (arrival, order, to router, link, bytes).
+type OnWire = (Time, u64, usize, usize, Vec<u8>);
+
 /// One world: A sends to B, B acknowledges, both with the wifi path first and the wired one
 /// as fallback.
 struct World {
@@ -55,8 +58,8 @@ struct World {
     rng: ChaCha8Rng,
     routers: [Router<u64>; 2],
     now: Time,
-    /// Frames in flight: (arrival, order, to router, link, bytes).
-    wire: BinaryHeap<Reverse<(Time, u64, usize, usize, Vec<u8>)>>,
+    /// Frames in flight.
+    wire: BinaryHeap<Reverse<OnWire>>,
     order: u64,
     /// Delays per link, and the wifi link's random loss.
     delay: [Duration; 2],

@@ -320,7 +320,7 @@ fn held_frames_leave_as_one_data_batch() {
 
 /// Without a session, a frame that wants an acknowledgement is refused (nothing of it leaves:
 /// only the initiation), however it is handed over, while an unacknowledged one waits for the
-/// handshake. When the session is up the layer says so (`on_peer_up`), and the refused frame,
+/// handshake. When the session is up the layer says so (`on_event` with `LinkEvent::PeerUp`), and the refused frame,
 /// offered again, goes sealed. Nothing else is sent: the waiting frame confirmed the session.
 #[test]
 fn a_frame_that_wants_an_acknowledgement_is_refused_until_the_session_is_up() {

@@ -153,6 +153,8 @@ impl<T> Router<T> {
             now: r.paths[best].path,
         };
         let budget = r.route.attempts;
+        // However often the route moves, a send's attempts stay bounded: one budget per path.
+        let most = budget.saturating_mul(r.paths.len() as u32);
         self.stats.path_changes += 1;
         if self.path_changes.len() >= PATH_CHANGES_KEPT {
             // Nobody polls them: the oldest go (every change is still counted).
@@ -161,11 +163,13 @@ impl<T> Router<T> {
         self.path_changes.push_back(change);
         if failed_over {
             if judged {
-                // Sends caught on the lost path get the route's budget again on this one:
-                // what was spent there says nothing about the path taken now.
+                // Sends caught on the lost path get the route's budget again on this one
+                // (what was spent there says nothing about the path taken now), up to one
+                // budget per path in all.
                 for (id, p) in self.pending.iter_mut() {
                     if id.to == to {
-                        p.route.attempts = p.route.attempts.max(p.attempts.saturating_add(budget));
+                        let fresh = p.attempts.saturating_add(budget).min(most);
+                        p.route.attempts = p.route.attempts.max(fresh);
                     }
                 }
             }

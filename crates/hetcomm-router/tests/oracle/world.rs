@@ -853,6 +853,14 @@ impl World {
         t
     }
 
+    /// Path changes and probes, summed over the routers (schedules with two paths).
+    pub fn switching(&self) -> (u64, u64) {
+        self.systems.iter().fold((0, 0), |(c, p), s| {
+            let st = s.router.stats();
+            (c + st.path_changes, p + st.probes)
+        })
+    }
+
     /// Sends whose outcome the world recorded.
     pub fn sends(&self) -> usize {
         self.records.len()
