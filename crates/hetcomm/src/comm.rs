@@ -112,6 +112,31 @@ pub struct PathSwitch {
     pub now: String,
 }
 
+/// Why [`Comm::set_transports`] changed nothing.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PathsError {
+    /// No system of that name in the fleet.
+    #[error("no system `{0}` in the fleet")]
+    UnknownSystem(String),
+    /// The table says X from this system to that one.
+    #[error("the communication table allows no traffic to `{0}` (X)")]
+    NoTraffic(String),
+    /// No transport was given.
+    #[error("give at least one transport")]
+    Empty,
+    /// A transport the pair's table cell does not list.
+    #[error("transport `{transport}` does not carry traffic to `{to}`: its table cell lists `{listed}` (a transport outside the cell is neither open here nor accepted by the peer's security layer)")]
+    NotListed {
+        /// The transport given.
+        transport: String,
+        /// The destination.
+        to: String,
+        /// What the cell lists.
+        listed: String,
+    },
+}
+
 /// One transport that may carry a pair's traffic, as the router sees it ([`Comm::paths`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PathStatus {
@@ -494,6 +519,54 @@ impl Comm {
                 srtt: p.srtt,
             })
             .collect()
+    }
+
+    /// Changes, while running, the transports that carry this system's traffic to
+    /// `system`, in order of preference (the first is taken while it is healthy; see
+    /// docs/failover.md). Each must be one the fleet file lists for that pair (its table
+    /// cell): those are the links this system opened for it, and the ones the peer's
+    /// security layer accepts the pair's frames on. A reorder or a subset of the cell,
+    /// then, e.g. `["wired"]` to move a pair off its Wi-Fi now, or `["wifi", "wired"]` to
+    /// bring it back. Sends waiting for an acknowledgement on a transport left out go again
+    /// on the new first choice. Nothing changes when the call is refused.
+    pub fn set_transports(&self, system: &str, transports: &[&str]) -> Result<(), PathsError> {
+        let fleet = &self.handle.fleet;
+        let core = &self.handle.core;
+        let to = fleet
+            .system_by_name(system)
+            .ok_or_else(|| PathsError::UnknownSystem(system.to_string()))?
+            .id;
+        let listed: Vec<&str> = fleet
+            .transports_for(core.id, to)
+            .into_iter()
+            .map(|i| fleet.transports[i].name.as_str())
+            .collect();
+        if listed.is_empty() {
+            return Err(PathsError::NoTraffic(system.to_string()));
+        }
+        if transports.is_empty() {
+            return Err(PathsError::Empty);
+        }
+        let mut paths = Vec::with_capacity(transports.len());
+        for &name in transports {
+            let link = (0..)
+                .map_while(|l| core.link_name(l).map(|n| (l, n)))
+                .find(|(_, n)| *n == name)
+                .map(|(l, _)| l)
+                .filter(|_| listed.contains(&name))
+                .ok_or_else(|| PathsError::NotListed {
+                    transport: name.to_string(),
+                    to: system.to_string(),
+                    listed: listed.join(","),
+                })?;
+            let tag = fleet.transport(name).map_or(0, |t| t.tag);
+            paths.push(hetcomm_router::Path { link, tag });
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        router.set_paths(now, to, &paths);
+        core.pump_at(router, now);
+        Ok(())
     }
 
     /// Counters for this system.

@@ -65,6 +65,74 @@ impl<T> Router<T> {
         self.path_changes.pop_front()
     }
 
+    /// Replaces the paths to `to` while running, in order of preference: the first becomes
+    /// the route's own, the rest its fallbacks; the route's delivery settings stay. A path
+    /// kept keeps what the router knows of it (health, RTT); a new one starts up. Sends take
+    /// the best path at once: a change is reported ([`Router::poll_path_change`]) and, when
+    /// the path they took is gone or down, sends waiting for an acknowledgement go again on
+    /// the new one. Returns false (and changes nothing) when `to` has no route or `paths`
+    /// is empty. Sends handed to an in-process lane ([`Router::direct_lane`]) are not
+    /// affected.
+    pub fn set_paths(&mut self, now: Time, to: SystemId, paths: &[Path]) -> bool {
+        let health = self.config.health;
+        let Some(r) = self.routes.get_mut(&to) else {
+            return false;
+        };
+        let Some(first) = paths.first() else {
+            return false;
+        };
+        let unhealthy = |ps: &[PathState]| ps.iter().filter(|p| !p.up || p.congested).count();
+        let before = unhealthy(&r.paths) as u32;
+        let old_active = r.paths[r.active].path;
+        let mut old = std::mem::take(&mut r.paths);
+        for path in paths {
+            if r.paths.iter().any(|p| p.path.link == path.link) {
+                continue;
+            }
+            let state = match old.iter().position(|p| p.path.link == path.link) {
+                Some(i) => {
+                    let mut p = old.swap_remove(i);
+                    p.path = *path;
+                    p
+                }
+                None => {
+                    let mut p = PathState::new(*path);
+                    p.hold = health.hold;
+                    p
+                }
+            };
+            r.paths.push(state);
+        }
+        r.route.link = first.link;
+        r.route.tag = first.tag;
+        let after = unhealthy(&r.paths) as u32;
+        self.unhealthy_paths = self.unhealthy_paths - before + after;
+        let kept = r.paths.iter().position(|p| p.path.link == old_active.link);
+        let lost = kept.is_none_or(|i| !r.paths[i].up);
+        r.active = kept.unwrap_or(0);
+        r.active = r.best();
+        let now_path = r.paths[r.active].path;
+        if r.paths.iter().any(|p| !p.up) {
+            arm_probe(r, &mut self.timers, now, to, &health);
+        }
+        self.judging = health.judges() && self.routes.values().any(|r| r.paths.len() > 1);
+        if now_path != old_active {
+            self.stats.path_changes += 1;
+            if self.path_changes.len() >= PATH_CHANGES_KEPT {
+                self.path_changes.pop_front();
+            }
+            self.path_changes.push_back(PathChange {
+                to,
+                from: old_active,
+                now: now_path,
+            });
+            if lost {
+                self.retransmit_now(now, to);
+            }
+        }
+        true
+    }
+
     /// A frame from `peer` arrived on `link`: that path works (cheap unless some path is
     /// marked unhealthy, or the router judges paths and it is an acknowledgement).
     pub(super) fn path_heard(&mut self, now: Time, peer: SystemId, link: usize, ack: bool) {
