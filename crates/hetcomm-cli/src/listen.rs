@@ -168,6 +168,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
             break;
         }
         if now >= next_look {
+            print_path_changes(&comm, &clock);
             let drops = Drops::of(&comm.stats());
             if drops != shown {
                 print_moved(&drops, &shown, seen, args.verbose, &clock);
@@ -204,6 +205,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     if let Some(why) = stopped {
         eprintln!("{why}");
     }
+    print_path_changes(&comm, &clock);
     let stats = comm.stats();
     // What moved since the last look (up to a second ago) gets its status line too, so the
     // last moments before the end read like the rest.
@@ -278,6 +280,20 @@ fn print_moved(drops: &Drops, shown: &Drops, seen: usize, verbose: bool, clock: 
 
 /// The line printed at the end: messages printed, then every counter (zeros included, so
 /// scripts can parse it).
+/// One line per change of the transport a destination's traffic takes since the last look
+/// (pairs whose table cell lists several transports: docs/failover.md).
+fn print_path_changes(comm: &Comm, clock: &Clock) {
+    for c in comm.path_changes() {
+        eprintln!(
+            "{}  traffic to {} moved from transport {} to {}",
+            clock.format(Time::now_wall()),
+            c.to,
+            c.from,
+            c.now
+        );
+    }
+}
+
 fn summary(seen: usize, s: &SystemStats) -> String {
     let d = Drops::of(s);
     let mut line = format!(
@@ -295,6 +311,9 @@ fn summary(seen: usize, s: &SystemStats) -> String {
     );
     if let Some(k) = d.kernel {
         line.push_str(&format!("; kernel dropped {k}"));
+    }
+    if s.router.path_changes > 0 {
+        line.push_str(&format!("; path changes {}", s.router.path_changes));
     }
     if d.security.enabled {
         let counters: Vec<String> = security_counters(&d.security)

@@ -105,7 +105,18 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
                 SendVerdict::Unconfirmed,
             ),
         };
-        println!("{}: {line}", t.destination());
+        // Where the cell lists several transports, which one carried it (docs/failover.md).
+        let several = match (
+            fleet.system_by_name(args.system),
+            fleet.system_by_name(t.destination()),
+        ) {
+            (Some(a), Some(b)) => fleet.fallbacks.contains_key(&(a.id, b.id)),
+            _ => false,
+        };
+        match t.transport().filter(|_| several) {
+            Some(via) => println!("{}: {line} via {via}", t.destination()),
+            None => println!("{}: {line}", t.destination()),
+        }
         let hint = outcome
             .as_ref()
             .and_then(|o| hint(o, args.fleet, &fleet, args.system, t.destination()));

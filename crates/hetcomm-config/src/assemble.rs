@@ -558,6 +558,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     // The table. Pairs are collected in file order (so that each problem is reported at the
     // first cell showing it) and sorted into the map only once the fleet is known to be valid.
     let mut pairs: Vec<((SystemId, SystemId), usize)> = Vec::new();
+    let mut fallbacks: Vec<((SystemId, SystemId), Vec<usize>)> = Vec::new();
     if let Some(table) = table.as_ref().filter(|t| {
         let empty = t.columns.is_empty() && !t.rows.is_empty();
         if empty {
@@ -569,7 +570,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         }
         !empty
     }) {
-        pairs = table_pairs(
+        (pairs, fallbacks) = table_pairs(
             table,
             &systems,
             &letter_map,
@@ -656,6 +657,7 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
         modules,
         transports: defs,
         table: pairs.into_iter().collect(),
+        fallbacks: fallbacks.into_iter().collect(),
         keys_dir,
         secure_in_process,
         taps: Vec::new(),

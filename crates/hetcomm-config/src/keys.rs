@@ -227,7 +227,7 @@ impl Fleet {
     /// key. What `hetcomm validate` prints after the summary.
     pub fn security_lines(&self) -> Vec<String> {
         let mut carried: Vec<BTreeSet<SystemId>> = vec![BTreeSet::new(); self.transports.len()];
-        for (&(src, dst), &i) in &self.table {
+        for (src, dst, i) in self.table_entries() {
             if let Some(set) = carried.get_mut(i) {
                 set.insert(src);
                 set.insert(dst);

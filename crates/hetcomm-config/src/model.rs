@@ -20,8 +20,15 @@ pub struct Fleet {
     pub modules: Vec<ModuleDef>,
     /// Transport instances, in file order. The communication table refers to them by index.
     pub transports: Vec<TransportDef>,
-    /// (source, destination) → index into `transports`; a missing pair is `X` (no traffic).
+    /// (source, destination) → index into `transports` of the pair's first choice; a missing
+    /// pair is `X` (no traffic). A cell listing several transports (`"wifi,bt"`) puts its
+    /// first here and the others in [`Fleet::fallbacks`]; [`Fleet::transports_for`] gives the
+    /// whole list.
     pub table: BTreeMap<(SystemId, SystemId), usize>,
+    /// (source, destination) → the transports after the first, in order of preference, for
+    /// the pairs whose cell lists more than one (`"wifi,bt"`, `"W,B"`). Pairs of one
+    /// transport are not here, so a large table of one-letter cells costs nothing more.
+    pub fallbacks: BTreeMap<(SystemId, SystemId), Vec<usize>>,
     /// `[security] keys = "DIR"`: the directory `hetcomm keygen` wrote, resolved against the
     /// fleet file's directory (systems' keys were read from it).
     pub keys_dir: Option<PathBuf>,
@@ -414,6 +421,38 @@ impl Fleet {
         self.table.get(&(src, dst)).map(|&i| &self.transports[i])
     }
 
+    /// Every transport that may carry traffic from `src` to `dst`, in order of preference
+    /// (indices into `transports`): the cell's first choice, then its fallbacks. Empty for `X`.
+    pub fn transports_for(&self, src: SystemId, dst: SystemId) -> Vec<usize> {
+        let Some(&first) = self.table.get(&(src, dst)) else {
+            return Vec::new();
+        };
+        let mut out = vec![first];
+        if let Some(rest) = self.fallbacks.get(&(src, dst)) {
+            out.extend_from_slice(rest);
+        }
+        out
+    }
+
+    /// Whether the table lets `src` send to `dst` on transport `i` (first choice or fallback).
+    pub fn carries(&self, src: SystemId, dst: SystemId, i: usize) -> bool {
+        self.table.get(&(src, dst)) == Some(&i)
+            || self
+                .fallbacks
+                .get(&(src, dst))
+                .is_some_and(|rest| rest.contains(&i))
+    }
+
+    /// Every (source, destination, transport) the table allows, first choices and fallbacks.
+    pub fn table_entries(&self) -> impl Iterator<Item = (SystemId, SystemId, usize)> + '_ {
+        let first = self.table.iter().map(|(&(s, d), &i)| (s, d, i));
+        let rest = self
+            .fallbacks
+            .iter()
+            .flat_map(|(&(s, d), v)| v.iter().map(move |&i| (s, d, i)));
+        first.chain(rest)
+    }
+
     /// The transport with this name.
     pub fn transport(&self, name: &str) -> Option<&TransportDef> {
         self.transports.iter().find(|t| t.name == name)
@@ -438,7 +477,7 @@ impl Fleet {
     pub fn summary(&self) -> String {
         // One pass over the pairs, however many transports: a big fleet has millions.
         let mut counts = vec![0usize; self.transports.len()];
-        for &i in self.table.values() {
+        for &i in self.table.values().chain(self.fallbacks.values().flatten()) {
             if let Some(c) = counts.get_mut(i) {
                 *c += 1;
             }

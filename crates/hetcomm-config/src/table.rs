@@ -110,10 +110,18 @@ impl RawTable {
     }
 }
 
+/// The table's pairs: each (source, destination) with its first transport, in file order,
+/// and the pairs whose cell lists more than one transport with the ones after the first.
+pub(crate) type TablePairs = (
+    Vec<((SystemId, SystemId), usize)>,
+    Vec<((SystemId, SystemId), Vec<usize>)>,
+);
+
 /// Resolves the table's rows, columns and cells: reports unknown or repeated systems, a
 /// non-square table, ragged rows, self-pairs, cells naming nothing and systems a transport has
 /// no endpoint or address for; returns the (source, destination) → transport pairs in file
-/// order.
+/// order. A cell may list several transports in order of preference, separated by commas
+/// (`"wifi,bt"`, `"W,B"`); a cell without a comma is one name or letter, as it always was.
 pub(crate) fn table_pairs(
     table: &RawTable,
     systems: &Systems,
@@ -123,7 +131,7 @@ pub(crate) fn table_pairs(
     // The legacy Bluetooth file's addresses for the implicit `B`, and how to give them.
     (legacy_bt, b_help): (Option<&LegacyBt>, &'static str),
     diag: &mut Diag,
-) -> Vec<((SystemId, SystemId), usize)> {
+) -> TablePairs {
     let cols: Vec<Option<SystemId>> = table
         .columns
         .iter()
@@ -184,6 +192,9 @@ pub(crate) fn table_pairs(
     // Each distinct text is resolved once; a text that names nothing is resolved (and
     // reported) again at each cell, as every such cell is an error of its own.
     let mut resolved: Vec<Option<usize>> = vec![None; table.texts.len()];
+    // Per text listing several transports: the ones after the first (empty otherwise).
+    let mut rest_of: Vec<Vec<usize>> = vec![Vec::new(); table.texts.len()];
+    let mut fallbacks = Vec::new();
     // Per text naming nothing: errors reported, cells not reported, the first of those.
     let mut unresolved: Vec<(usize, usize, Option<RawCell>)> =
         vec![(0, 0, None); table.texts.len()];
@@ -251,37 +262,43 @@ pub(crate) fn table_pairs(
                 }
                 None => {
                     let before = diag.errors.len();
-                    let resolved_now = resolve_cell(
-                        table.text(cell),
-                        &table.loc(cell),
+                    let mut cx = CellContext {
                         letter_map,
                         transports,
                         tag_of,
-                        &mut implicit,
+                        implicit: &mut implicit,
                         legacy_bt,
-                        &mut b_missing,
+                        b_missing: &mut b_missing,
                         diag,
-                    );
-                    let Some(i) = resolved_now else {
+                    };
+                    let resolved_now = resolve_list(table.text(cell), &table.loc(cell), &mut cx);
+                    let Some(list) = resolved_now else {
                         if diag.errors.len() > before {
                             unresolved[cell.text as usize].0 += 1;
                         }
                         continue;
                     };
-                    resolved[cell.text as usize] = Some(i);
-                    i
+                    resolved[cell.text as usize] = Some(list[0]);
+                    rest_of[cell.text as usize] = list[1..].to_vec();
+                    list[0]
                 }
             };
-            addresses.check(
-                i,
-                (src, src_pos),
-                (dst, dst_pos),
-                || table.loc(cell),
-                transports,
-                systems,
-                diag,
-            );
+            let rest = &rest_of[cell.text as usize];
+            for &t in std::iter::once(&i).chain(rest) {
+                addresses.check(
+                    t,
+                    (src, src_pos),
+                    (dst, dst_pos),
+                    || table.loc(cell),
+                    transports,
+                    systems,
+                    diag,
+                );
+            }
             pairs.push(((src, dst), i));
+            if !rest.is_empty() {
+                fallbacks.push(((src, dst), rest.clone()));
+            }
         }
     }
     for (text, (_, more, first)) in table.texts.iter().zip(&unresolved) {
@@ -297,7 +314,7 @@ pub(crate) fn table_pairs(
             );
         }
     }
-    pairs
+    (pairs, fallbacks)
 }
 
 /// Cells of one text naming nothing that are each reported; the rest are counted in one
@@ -424,20 +441,78 @@ struct BMissing {
     help: &'static str,
 }
 
-/// Resolves one non-X cell: a letter, a transport name, or a default letter (`R`, `B`).
-/// None when it names nothing usable (already reported).
-#[allow(clippy::too_many_arguments)]
-fn resolve_cell(
-    text: &str,
-    loc: &Loc,
-    letter_map: &BTreeMap<u8, (usize, Loc)>,
-    transports: &mut Vec<TransportSpec>,
-    tag_of: &mut Vec<Option<u8>>,
-    implicit: &mut HashMap<&'static str, usize>,
-    legacy_bt: Option<&LegacyBt>,
-    b_missing: &mut BMissing,
-    diag: &mut Diag,
-) -> Option<usize> {
+/// What resolving a cell reads and adds to: the letters, the transports (the implicit `R` and
+/// `B` are added at their first cell) and the errors.
+struct CellContext<'a, 'b> {
+    letter_map: &'a BTreeMap<u8, (usize, Loc)>,
+    transports: &'a mut Vec<TransportSpec>,
+    tag_of: &'a mut Vec<Option<u8>>,
+    implicit: &'a mut HashMap<&'static str, usize>,
+    legacy_bt: Option<&'b LegacyBt>,
+    b_missing: &'a mut BMissing,
+    diag: &'a mut Diag,
+}
+
+/// Resolves one non-X cell into its transports in order of preference: one name or letter,
+/// or several separated by commas (`"wifi,bt"`, `"W, B"`). Every entry is checked and each
+/// mistake reported (an empty entry, `X` among transports, a transport listed twice, a name
+/// that names nothing); None when any entry is unusable.
+fn resolve_list(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<Vec<usize>> {
+    if !text.contains(',') {
+        return resolve_cell(text, loc, cx).map(|i| vec![i]);
+    }
+    let mut list: Vec<usize> = Vec::new();
+    let mut ok = true;
+    for part in text.split(',').map(str::trim) {
+        if part.is_empty() {
+            cx.diag.err_help(
+                loc,
+                format!("`{text}` has an empty entry"),
+                "list transports or letters separated by single commas, e.g. \"wifi,bt\"",
+            );
+            ok = false;
+            continue;
+        }
+        if part == "X" {
+            cx.diag.err_help(
+                loc,
+                format!("`{text}` lists `X` among transports"),
+                "X means no traffic and stands alone: write \"X\", or list only transports",
+            );
+            ok = false;
+            continue;
+        }
+        let Some(i) = resolve_cell(part, loc, cx) else {
+            ok = false;
+            continue;
+        };
+        if list.contains(&i) {
+            cx.diag.err_help(
+                loc,
+                format!("`{text}` lists transport `{}` twice", cx.transports[i].name),
+                "list each transport once, in order of preference",
+            );
+            ok = false;
+            continue;
+        }
+        list.push(i);
+    }
+    (ok && !list.is_empty()).then_some(list)
+}
+
+/// Resolves one name or letter of a cell: a letter, a transport name, or a default letter
+/// (`R`, `B`). None when it names nothing usable (already reported).
+fn resolve_cell(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<usize> {
+    let CellContext {
+        letter_map,
+        transports,
+        tag_of,
+        implicit,
+        legacy_bt,
+        b_missing,
+        diag,
+    } = cx;
+    let legacy_bt = *legacy_bt;
     if let [b] = text.as_bytes() {
         if let Some((i, _)) = letter_map.get(b) {
             return Some(*i);

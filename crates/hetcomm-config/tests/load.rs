@@ -403,3 +403,52 @@ fn names_are_compared_in_nfc() {
     assert_eq!(f.transports[0].name, "r\u{e9}seau");
     assert_eq!(pairs_of(&f, "r\u{e9}seau"), [(0, 1), (1, 0)]);
 }
+
+#[test]
+fn a_cell_may_list_several_transports_in_order_of_preference() {
+    let text = r#"
+[systems]
+Alpha = 0
+Bravo = 1
+Charlie = 2
+
+[transports.wifi]
+kind = "udp"
+endpoints = { Alpha = "127.0.0.1:7000", Bravo = "127.0.0.1:7001", Charlie = "127.0.0.1:7002" }
+
+[transports.bt]
+kind = "tcp"
+endpoints = { Alpha = "127.0.0.1:7100", Bravo = "127.0.0.1:7101", Charlie = "127.0.0.1:7102" }
+
+[letters]
+W = "wifi"
+B = "bt"
+
+[table]
+columns = ["Alpha", "Bravo", "Charlie"]
+Alpha = ["X", "wifi,bt", "W"]
+Bravo = ["W, B", "X", "bt"]
+Charlie = ["bt,W", "B", "X"]
+"#;
+    let f = parse_str(text, "list.toml", None).unwrap_or_else(|e| panic!("{e}"));
+    let names = |s: u16, d: u16| -> Vec<&str> {
+        f.transports_for(SystemId(s), SystemId(d))
+            .into_iter()
+            .map(|i| f.transports[i].name.as_str())
+            .collect()
+    };
+    assert_eq!(names(0, 1), ["wifi", "bt"]);
+    assert_eq!(names(1, 0), ["wifi", "bt"], "letters with a space");
+    assert_eq!(names(2, 0), ["bt", "wifi"], "a name and a letter");
+    assert_eq!(names(0, 2), ["wifi"], "a one-letter cell is one transport");
+    assert_eq!(names(1, 2), ["bt"]);
+    assert!(names(0, 0).is_empty(), "X");
+    // The first choice stays in `table`, the rest only where a cell lists more.
+    assert_eq!(f.table.len(), 6);
+    assert_eq!(f.fallbacks.len(), 3);
+    let (wifi, bt) = (0, 1);
+    assert!(f.carries(SystemId(0), SystemId(1), bt));
+    assert!(f.carries(SystemId(0), SystemId(1), wifi));
+    assert!(!f.carries(SystemId(0), SystemId(2), bt));
+    assert_eq!(f.table_entries().count(), 9);
+}

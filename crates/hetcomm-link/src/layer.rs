@@ -275,9 +275,9 @@ macro_rules! forward_sink {
                 }
             });
         });
-        $crate::__if_named!(on_peer_up [$($n)*] {} {
-            fn on_peer_up(&self, peer: $crate::__core::SystemId) {
-                $crate::FrameSink::on_peer_up(&self.$($field).+, peer)
+        $crate::__if_named!(on_event [$($n)*] {} {
+            fn on_event(&self, event: $crate::LinkEvent) {
+                $crate::FrameSink::on_event(&self.$($field).+, event)
             }
         });
         $crate::__if_named!(takes_frames [$($n)*] {} {

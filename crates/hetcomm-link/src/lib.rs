@@ -98,11 +98,38 @@ pub trait FrameSink: Send + Sync + 'static {
         false
     }
 
-    /// The link can now carry frames to `peer` that it refused before for want of a session
-    /// ([`LinkError::NoSession`]: a security layer completed its handshake). The system's sink
-    /// sends what waited at once instead of at its retry deadline. The default ignores it.
-    fn on_peer_up(&self, peer: SystemId) {
-        let _ = peer;
+    /// What the link knows about a peer's reachability ([`LinkEvent`]): a connection came up
+    /// or was lost, a presence service saw the peer come or go, a security layer completed a
+    /// handshake. Every layer forwards it (a layer may hold back what it knows to be untrue
+    /// above it); the system's sink hands it to the router, which fails a pair's traffic
+    /// over to its next transport on a peer lost and sends what waited on a peer up
+    /// (`docs/failover.md`). Called on any thread; must not block for long. The default
+    /// ignores it.
+    fn on_event(&self, event: LinkEvent) {
+        let _ = event;
+    }
+}
+
+/// What a link reports about a peer through [`FrameSink::on_event`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LinkEvent {
+    /// The link can carry frames to the peer now: a connection to it came up, a presence
+    /// service saw it, or (from a security layer) a secure session with it was made, so
+    /// frames refused for want of one ([`LinkError::NoSession`]) may go at once.
+    PeerUp(SystemId),
+    /// The link lost the peer: its connection closed or failed, or a presence service said
+    /// it left. Frames to it may still be accepted (a stream link reconnects), but nothing
+    /// is known to arrive until it is up again.
+    PeerDown(SystemId),
+}
+
+impl LinkEvent {
+    /// The peer the event is about.
+    pub fn peer(&self) -> SystemId {
+        match *self {
+            LinkEvent::PeerUp(p) | LinkEvent::PeerDown(p) => p,
+        }
     }
 }
 
@@ -509,6 +536,7 @@ macro_rules! __if_named {
     (on_frame_owned [on_frame_owned $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (on_frames [on_frames $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (takes_frames [takes_frames $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (on_event [on_event $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     ($m:ident [$o:ident $($r:ident)*] $y:tt $n:tt) => {
         $crate::__if_named!($m [$($r)*] $y $n);
     };
@@ -561,7 +589,7 @@ impl<S: FrameSink + ?Sized> FrameSink for Arc<S> {
     fn takes_frames(&self) -> bool {
         (**self).takes_frames()
     }
-    fn on_peer_up(&self, peer: SystemId) {
-        (**self).on_peer_up(peer)
+    fn on_event(&self, event: LinkEvent) {
+        (**self).on_event(event)
     }
 }

@@ -289,3 +289,41 @@ fn the_link_s_view_of_the_sender_decides_which_path_is_heard_and_mismatches_are_
     assert_eq!(a.route_link(B), Some(0));
     assert_eq!(a.stats().peer_mismatch, 1);
 }
+
+#[test]
+fn a_route_s_paths_are_replaced_while_running() {
+    let (mut a, _) = pair();
+    let t0 = Time::from_micros(1_000);
+    // A send in flight on the wired path, then the radio is put first.
+    a.send(t0, request(), 1).unwrap();
+    let first = a.poll_transmit(t0).unwrap();
+    assert_eq!(first.link, WIRED.link);
+    a.transmit_result(t0, first, Ok(()));
+    assert!(a.set_paths(t0, B, &[RADIO, WIRED]));
+    assert_eq!(a.route(B).map(|r| (r.link, r.tag)), Some((1, b'R')));
+    assert_eq!(
+        a.poll_path_change(),
+        Some(PathChange {
+            to: B,
+            from: WIRED,
+            now: RADIO
+        })
+    );
+    // The wired path is still there (not lost): the send in flight waits for its ack.
+    assert!(a.poll_transmit(t0).is_none());
+    // Only the radio: the wired path is gone, so what waited goes again on the radio now.
+    let t1 = t0 + Duration::from_millis(1);
+    assert!(a.set_paths(t1, B, &[WIRED]));
+    assert!(a.set_paths(t1, B, &[RADIO]));
+    let changes: Vec<_> = std::iter::from_fn(|| a.poll_path_change()).collect();
+    assert_eq!(changes.len(), 2, "{changes:?}");
+    a.handle_timeout(t1);
+    let again = a.poll_transmit(t1).expect("retransmitted on the radio");
+    assert_eq!(again.link, RADIO.link);
+    assert_eq!(wire::decode(&again.frame).unwrap().header.transport, b'R');
+    assert_eq!(a.paths(B).len(), 1);
+    // Nothing changes for an unknown destination or no paths.
+    assert!(!a.set_paths(t1, SystemId(9), &[RADIO]));
+    assert!(!a.set_paths(t1, B, &[]));
+    assert_eq!(a.route_link(B), Some(1));
+}

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::wire::{self, Header};
 use hetcomm_core::{Address, MessageType, ModuleId, SystemId};
 use hetcomm_link::layer::{LayerContext, LinkLayer};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, Peer};
 use hetcomm_security::{Handshakes, Keypair, Policy, SecurityLayer};
 
 const A: SystemId = SystemId(0);
@@ -112,8 +112,10 @@ impl FrameSink for Router {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
         self.0.lock().unwrap().push(frame.to_vec());
     }
-    fn on_peer_up(&self, peer: SystemId) {
-        self.1.lock().unwrap().push(peer);
+    fn on_event(&self, event: LinkEvent) {
+        if let LinkEvent::PeerUp(peer) = event {
+            self.1.lock().unwrap().push(peer);
+        }
     }
 }
 
@@ -318,7 +320,7 @@ fn held_frames_leave_as_one_data_batch() {
 
 /// Without a session, a frame that wants an acknowledgement is refused (nothing of it leaves:
 /// only the initiation), however it is handed over, while an unacknowledged one waits for the
-/// handshake. When the session is up the layer says so (`on_peer_up`), and the refused frame,
+/// handshake. When the session is up the layer says so (`on_event` with `LinkEvent::PeerUp`), and the refused frame,
 /// offered again, goes sealed. Nothing else is sent: the waiting frame confirmed the session.
 #[test]
 fn a_frame_that_wants_an_acknowledgement_is_refused_until_the_session_is_up() {

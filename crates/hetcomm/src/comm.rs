@@ -101,6 +101,55 @@ pub struct Comm {
     pub(crate) handle: Arc<SystemHandle>,
 }
 
+/// A destination's sends moved from one transport to another ([`Comm::path_changes`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PathSwitch {
+    /// The destination system's name.
+    pub to: String,
+    /// The transport its sends took until then.
+    pub from: String,
+    /// The transport they take from then on.
+    pub now: String,
+}
+
+/// Why [`Comm::set_transports`] changed nothing.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PathsError {
+    /// No system of that name in the fleet.
+    #[error("no system `{0}` in the fleet")]
+    UnknownSystem(String),
+    /// The table says X from this system to that one.
+    #[error("the communication table allows no traffic to `{0}` (X)")]
+    NoTraffic(String),
+    /// No transport was given.
+    #[error("give at least one transport")]
+    Empty,
+    /// A transport the pair's table cell does not list.
+    #[error("transport `{transport}` does not carry traffic to `{to}`: its table cell lists `{listed}` (a transport outside the cell is neither open here nor accepted by the peer's security layer)")]
+    NotListed {
+        /// The transport given.
+        transport: String,
+        /// The destination.
+        to: String,
+        /// What the cell lists.
+        listed: String,
+    },
+}
+
+/// One transport that may carry a pair's traffic, as the router sees it ([`Comm::paths`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PathStatus {
+    /// The transport's name in the fleet file.
+    pub transport: String,
+    /// Whether sends may take it (false while it is judged down: docs/failover.md).
+    pub up: bool,
+    /// Whether sends take it now.
+    pub active: bool,
+    /// The smoothed round-trip time measured on it, once measured.
+    pub srtt: Option<std::time::Duration>,
+}
+
 /// Everything counted about one system.
 #[derive(Clone, Debug)]
 pub struct SystemStats {
@@ -184,12 +233,12 @@ impl Comm {
             .system_by_name(system)
             .ok_or_else(|| unknown_system(system, fleet.systems.iter().map(|s| s.name.as_str())))?
             .id;
-        // The links this system needs: every transport that carries traffic from or to it.
+        // The links this system needs: every transport that carries traffic from or to it,
+        // fallbacks included.
         let mut used: Vec<usize> = fleet
-            .table
-            .iter()
-            .filter(|((s, d), _)| *s == me || *d == me)
-            .map(|(_, &t)| t)
+            .table_entries()
+            .filter(|&(s, d, _)| s == me || d == me)
+            .map(|(_, _, t)| t)
             .collect::<BTreeSet<_>>()
             .into_iter()
             .collect();
@@ -229,6 +278,11 @@ impl Comm {
             direct.push(opened.direct);
         }
         core.set_direct(env.hubs.clone(), direct);
+        core.set_link_names(
+            used.iter()
+                .map(|&t| crate::runtime::intern(&fleet.transports[t].name))
+                .collect(),
+        );
         let routes: Vec<(SystemId, Route)> = fleet
             .table
             .iter()
@@ -236,6 +290,15 @@ impl Comm {
             .map(|(&(_, dst), &t)| {
                 let def = &fleet.transports[t];
                 let link = link_index[&t];
+                // A message must fit every path it may take: the smallest frame limit of the
+                // cell's transports.
+                let max_frame = fleet
+                    .fallbacks
+                    .get(&(me, dst))
+                    .into_iter()
+                    .flatten()
+                    .map(|f| links[link_index[f]].caps().max_frame)
+                    .fold(links[link].caps().max_frame, usize::min);
                 (
                     dst,
                     Route {
@@ -243,7 +306,7 @@ impl Comm {
                         tag: def.tag,
                         acknowledged: def.delivery == DeliveryMode::Acknowledged,
                         attempts: def.attempts.max(1),
-                        max_frame: links[link].caps().max_frame,
+                        max_frame,
                         max_in_flight: def.max_in_flight.max(1),
                         max_in_flight_bytes: def.max_in_flight_bytes.max(1),
                     },
@@ -252,13 +315,24 @@ impl Comm {
             .collect();
         let mut config = RouterConfig::new(me, incarnation, routes);
         config.known_systems = fleet.systems.iter().map(|s| s.id).collect();
+        // The other transports of each cell, in order of preference: the router fails over
+        // to them (docs/failover.md).
+        let path_of = |t: usize| hetcomm_router::Path {
+            link: link_index[&t],
+            tag: fleet.transports[t].tag,
+        };
+        config.fallbacks = fleet
+            .fallbacks
+            .iter()
+            .filter(|((s, _), _)| *s == me)
+            .flat_map(|(&(_, dst), rest)| rest.iter().map(move |&t| (dst, path_of(t))))
+            .collect();
         // Who may send here, on which link: a frame every system of a transport receives
         // (a native broadcast) is taken only where the table allows it.
         config.inbound = fleet
-            .table
-            .iter()
-            .filter(|((_, d), _)| *d == me)
-            .filter_map(|(&(s, _), t)| link_index.get(t).map(|&l| (s, l)))
+            .table_entries()
+            .filter(|&(_, d, _)| d == me)
+            .filter_map(|(s, _, t)| link_index.get(&t).map(|&l| (s, l)))
             .collect();
         config.ordered_sources = fleet
             .table
@@ -266,6 +340,9 @@ impl Comm {
             .filter(|((_, d), &t)| *d == me && fleet.transports[t].ordered)
             .map(|((s, _), _)| *s)
             .collect();
+        // Pairs with several transports fail over and back by what the router sees too
+        // (a route of one transport is not judged: docs/failover.md).
+        config.health = hetcomm_router::Health::failover();
         if let Some(timing) = env.timing {
             config.timing = timing;
         }
@@ -403,6 +480,93 @@ impl Comm {
     /// ```
     pub fn observe(&self, observer: Arc<dyn Observer>) -> ObserverHandle {
         ObserverHandle::register(&self.handle.core, observer)
+    }
+
+    /// The changes of the transport each destination's sends take, oldest first, since the
+    /// last call (at most the last 1024; `SystemStats::router.path_changes` counts them
+    /// all). Only pairs whose table cell lists several transports change (docs/failover.md).
+    pub fn path_changes(&self) -> Vec<PathSwitch> {
+        let core = &self.handle.core;
+        let mut router = core.router();
+        let changes: Vec<_> = std::iter::from_fn(|| router.poll_path_change()).collect();
+        drop(router);
+        let name = |link: usize| core.link_name(link).unwrap_or("?").to_string();
+        changes
+            .into_iter()
+            .map(|c| PathSwitch {
+                to: core.directory.system_name(c.to).to_string(),
+                from: name(c.from.link),
+                now: name(c.now.link),
+            })
+            .collect()
+    }
+
+    /// The transports that may carry this system's traffic to `system`, in order of
+    /// preference, with what the router knows of each: whether it is up and whether sends
+    /// take it now. Empty when the table says X (or there is no such system).
+    pub fn paths(&self, system: &str) -> Vec<PathStatus> {
+        let core = &self.handle.core;
+        let Some(id) = self.handle.fleet.system_by_name(system).map(|s| s.id) else {
+            return Vec::new();
+        };
+        let paths = core.router().paths(id);
+        paths
+            .into_iter()
+            .map(|p| PathStatus {
+                transport: core.link_name(p.path.link).unwrap_or("?").to_string(),
+                up: p.up,
+                active: p.active,
+                srtt: p.srtt,
+            })
+            .collect()
+    }
+
+    /// Changes, while running, the transports that carry this system's traffic to
+    /// `system`, in order of preference (the first is taken while it is healthy; see
+    /// docs/failover.md). Each must be one the fleet file lists for that pair (its table
+    /// cell): those are the links this system opened for it, and the ones the peer's
+    /// security layer accepts the pair's frames on. A reorder or a subset of the cell,
+    /// then, e.g. `["wired"]` to move a pair off its Wi-Fi now, or `["wifi", "wired"]` to
+    /// bring it back. Sends waiting for an acknowledgement on a transport left out go again
+    /// on the new first choice. Nothing changes when the call is refused.
+    pub fn set_transports(&self, system: &str, transports: &[&str]) -> Result<(), PathsError> {
+        let fleet = &self.handle.fleet;
+        let core = &self.handle.core;
+        let to = fleet
+            .system_by_name(system)
+            .ok_or_else(|| PathsError::UnknownSystem(system.to_string()))?
+            .id;
+        let listed: Vec<&str> = fleet
+            .transports_for(core.id, to)
+            .into_iter()
+            .map(|i| fleet.transports[i].name.as_str())
+            .collect();
+        if listed.is_empty() {
+            return Err(PathsError::NoTraffic(system.to_string()));
+        }
+        if transports.is_empty() {
+            return Err(PathsError::Empty);
+        }
+        let mut paths = Vec::with_capacity(transports.len());
+        for &name in transports {
+            let link = (0..)
+                .map_while(|l| core.link_name(l).map(|n| (l, n)))
+                .find(|(_, n)| *n == name)
+                .map(|(l, _)| l)
+                .filter(|_| listed.contains(&name))
+                .ok_or_else(|| PathsError::NotListed {
+                    transport: name.to_string(),
+                    to: system.to_string(),
+                    listed: listed.join(","),
+                })?;
+            let tag = fleet.transport(name).map_or(0, |t| t.tag);
+            paths.push(hetcomm_router::Path { link, tag });
+        }
+        let now = core.clock.now();
+        let mut router = core.router();
+        router.set_paths(now, to, &paths);
+        core.pump_at(router, now);
+        Ok(())
     }
 
     /// Counters for this system.

@@ -58,7 +58,7 @@ pub mod sim;
 mod ticket;
 mod transports;
 
-pub use comm::{Comm, LocalFleet, SystemStats};
+pub use comm::{Comm, LocalFleet, PathStatus, PathSwitch, PathsError, SystemStats};
 pub use error::{OpenError, RecvError, SendError};
 pub use harness::{
     HarnessStats, Replacement, TapAction, TapError, TapHandle, TapMessage, TapPath, TapVerdict,

@@ -165,9 +165,8 @@ impl Module {
         }
         let now = core.clock.now();
         let mut router = core.router();
-        let direct = router
-            .route_link(to.system)
-            .and_then(|link| core.direct_peer(link, to.system));
+        let link = router.route_link(to.system);
+        let direct = link.and_then(|link| core.direct_peer(link, to.system));
         let what = Outgoing {
             to,
             message_type,
@@ -184,6 +183,7 @@ impl Module {
                 module: peer.modules.get(&to.module).map(|m| &**m),
                 lane: &lane,
                 name: core.directory.system_name(to.system),
+                lane_transport: link.and_then(|l| core.link_name(l)),
             };
             return self.hand_over(to, what, payload, now);
         }
@@ -222,13 +222,15 @@ impl Module {
                 .send_frame(&tx.frame, tx.body, now, RouteKind::Unqueued, tx.link, 1);
         }
         let id = tx.id();
+        let tx_link = tx.link;
         let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now, Traffic::Data);
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {
                 drop(router);
+                let transport = core.link_name(tx_link);
                 Ok(Ticket {
-                    slot: core.end_send(id, outcome, None, now),
+                    slot: core.end_send(id, outcome, transport, None, now),
                     destination,
                 })
             }
@@ -271,7 +273,7 @@ impl Module {
             .peer
             .deliver_direct(to.module, header, payload.into_buf(), now);
         Ok(Ticket {
-            slot: TicketSlot::Ready(to.lane.result(&header, status)),
+            slot: TicketSlot::Ready(to.lane.result(&header, status), to.lane_transport),
             destination: to.name,
         })
     }
@@ -306,7 +308,13 @@ impl Module {
             seq: header.seq,
         };
         Ok(Ticket {
-            slot: core.end_send(id, to.lane.result(&header, status), None, now),
+            slot: core.end_send(
+                id,
+                to.lane.result(&header, status),
+                to.lane_transport,
+                None,
+                now,
+            ),
             destination: to.name,
         })
     }
@@ -352,6 +360,7 @@ impl Module {
                 lane: router
                     .direct_lane(to.system)
                     .map_err(|e| send_error(&core.directory, e))?,
+                transport: core.link_name(link),
             }),
             None => None,
         };
@@ -429,10 +438,13 @@ impl Module {
             // are sent, and that one's ticket tells it was not.
             let ticket = match sent {
                 Err(SendError::Backpressure { .. }) => Ticket {
-                    slot: TicketSlot::Ready(hetcomm_router::Outcome::Failed {
-                        reason: hetcomm_router::FailReason::Backpressure,
-                        attempts: 0,
-                    }),
+                    slot: TicketSlot::Ready(
+                        hetcomm_router::Outcome::Failed {
+                            reason: hetcomm_router::FailReason::Backpressure,
+                            attempts: 0,
+                        },
+                        None,
+                    ),
                     destination: self.sys.core.directory.system_name(system),
                 },
                 other => other?,
@@ -786,6 +798,8 @@ struct DirectRoute {
     /// The destination module (None: that system has no such module).
     module: Option<Arc<ModuleCore>>,
     lane: Arc<DirectLane>,
+    /// The in-process transport's name, for the ticket.
+    transport: Option<&'static str>,
 }
 
 /// Where an in-process send goes ([`Module::hand_over`]).
@@ -797,6 +811,8 @@ struct DirectTarget<'a> {
     lane: &'a DirectLane,
     /// The destination system's name, for the ticket.
     name: &'static str,
+    /// The in-process transport's name, for the ticket.
+    lane_transport: Option<&'static str>,
 }
 
 impl Route {
@@ -821,6 +837,7 @@ impl Route {
                     module: d.module.as_deref(),
                     lane: &d.lane,
                     name: self.destination,
+                    lane_transport: d.transport,
                 };
                 self.from.hand_over(to, what, payload, now)
             }

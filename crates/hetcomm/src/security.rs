@@ -143,17 +143,17 @@ pub(crate) fn layer(
 ) -> Result<Arc<dyn LinkLayer>, SecurityError> {
     let t = &fleet.transports[index];
     let carried = carried(fleet, index);
+    // Every transport a cell lists carries its pair (first choice or fallback); a transport
+    // the cell does not list is refused its frames (`rejected_table`).
     let data_from: HashSet<SystemId> = fleet
-        .table
-        .iter()
-        .filter(|((s, d), i)| *d == local && *s != local && carried.contains(i))
-        .map(|((s, _), _)| *s)
+        .table_entries()
+        .filter(|(s, d, i)| *d == local && *s != local && carried.contains(i))
+        .map(|(s, _, _)| s)
         .collect();
     let acks_from: HashSet<SystemId> = fleet
-        .table
-        .iter()
-        .filter(|((s, d), i)| *s == local && *d != local && carried.contains(i))
-        .map(|((_, d), _)| *d)
+        .table_entries()
+        .filter(|(s, d, i)| *s == local && *d != local && carried.contains(i))
+        .map(|(_, d, _)| d)
         .collect();
     let talks_to: HashSet<SystemId> = data_from.union(&acks_from).copied().collect();
     // The layer knows every member's key, not only those the table connects to this system:

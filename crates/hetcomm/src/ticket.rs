@@ -15,15 +15,18 @@ pub(crate) struct OutcomeSlot {
 #[derive(Default)]
 struct SlotState {
     outcome: Option<Outcome>,
+    /// The transport that carried it (see [`Ticket::transport`]).
+    transport: Option<&'static str>,
     /// Threads in `wait`: most tickets are never waited on, and signalling the condition
     /// variable is a system call, so it is only signalled when someone waits.
     waiters: usize,
 }
 
 impl OutcomeSlot {
-    pub(crate) fn complete(&self, outcome: Outcome) {
+    pub(crate) fn complete(&self, outcome: Outcome, transport: Option<&'static str>) {
         let mut s = self.lock();
         s.outcome = Some(outcome);
+        s.transport = transport;
         if s.waiters > 0 {
             self.ready.notify_all();
         }
@@ -71,8 +74,9 @@ pub struct Ticket {
 /// Where a ticket finds its outcome.
 #[derive(Clone)]
 pub(crate) enum TicketSlot {
-    /// Known when the send returned (a direct in-process hand-over): nothing to share.
-    Ready(Outcome),
+    /// Known when the send returned (a direct in-process hand-over): nothing to share. With
+    /// the transport that carried it.
+    Ready(Outcome, Option<&'static str>),
     /// Filled in later by the runtime.
     Pending(Arc<OutcomeSlot>),
 }
@@ -95,8 +99,22 @@ impl Ticket {
     /// The outcome, if the send has ended.
     pub fn try_outcome(&self) -> Option<Outcome> {
         match &self.slot {
-            TicketSlot::Ready(o) => Some(o.clone()),
+            TicketSlot::Ready(o, _) => Some(o.clone()),
             TicketSlot::Pending(slot) => slot.lock().outcome.clone(),
+        }
+    }
+
+    /// The fleet-file name of the transport that carried the send, once it has ended: for a
+    /// delivery (or a refusal by the receiver), the one its acknowledgement came back on;
+    /// otherwise the one its last frame was offered on (`docs/failover.md`). None while the
+    /// send is pending and when no frame was offered (refused before sending).
+    pub fn transport(&self) -> Option<&str> {
+        match &self.slot {
+            TicketSlot::Ready(_, t) => *t,
+            TicketSlot::Pending(slot) => {
+                let s = slot.lock();
+                s.outcome.as_ref().and(s.transport)
+            }
         }
     }
 
@@ -116,7 +134,7 @@ impl Ticket {
 
     fn wait_until(&self, deadline: Option<Instant>) -> Option<Outcome> {
         match &self.slot {
-            TicketSlot::Ready(o) => Some(o.clone()),
+            TicketSlot::Ready(o, _) => Some(o.clone()),
             TicketSlot::Pending(slot) => slot.wait_until(deadline),
         }
     }

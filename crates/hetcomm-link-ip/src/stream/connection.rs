@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{BufferPool, SystemId};
-use hetcomm_link::Peer;
+use hetcomm_link::{LinkEvent, Peer};
 
 use super::framing::decode_hello;
 use super::poller::{refuse, reject, Permit};
@@ -288,5 +288,13 @@ impl<S: StreamSocket> Connection<S> {
             bump(&shared.counters.frames_dropped);
         }
         let _ = self.socket.shutdown_both();
+        // The peer's connection to us ended (it closed it, or it broke): as far as this link
+        // knows, the peer is gone until it connects again. Not told when we are closing, or
+        // for a connection still waiting for more bytes.
+        if let (Peer::System(peer), false) = (self.from, shared.closing.load(Ordering::SeqCst)) {
+            if !matches!(end, StreamEnd::Pending) {
+                shared.sink.on_event(LinkEvent::PeerDown(peer));
+            }
+        }
     }
 }

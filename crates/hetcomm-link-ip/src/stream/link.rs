@@ -11,7 +11,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{FrameBuf, SystemId};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Readable};
 
 use super::connection::accept_loop;
 use super::framing::{append_record, encode_hello, record_header, write_parts, FrameParts};
@@ -162,7 +162,10 @@ impl<T: StreamTransport> StreamLink<T> {
             .name(format!("hetcomm-{}-connect-{to}", T::NAME))
             .spawn(move || {
                 if let Some(entry) = peers.get(&to) {
-                    run_connector(&shared, local, entry);
+                    // Told after the peer's lock is released: the sink may send at once.
+                    if let Some(event) = run_connector(&shared, local, entry, to) {
+                        shared.sink.on_event(event);
+                    }
                 }
             })
             .map(|_| ())
@@ -355,8 +358,14 @@ fn connect<T: StreamTransport>(
 
 /// The connector thread: makes the connection without holding the peer's lock (senders keep
 /// queueing meanwhile), then installs it and writes the released frames in order (held ones
-/// stay in the batch), or drops them all and starts the backoff.
-fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry: &PeerEntry<T>) {
+/// stay in the batch), or drops them all and starts the backoff. Returns what the sink is to
+/// be told: the peer up (connected) or lost (the connect or its first write failed).
+fn run_connector<T: StreamTransport>(
+    shared: &Shared<T>,
+    local: SystemId,
+    entry: &PeerEntry<T>,
+    to: SystemId,
+) -> Option<LinkEvent> {
     let result = connect(shared, local, &entry.addr);
     let mut slot = lock(&entry.slot);
     slot.connecting = false;
@@ -364,7 +373,7 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
         // The link closed while connecting: what waited for the connection is lost, counted.
         let lost = slot.clear_pending(shared.config.batch_bytes);
         add(&shared.counters.frames_lost_connecting, lost);
-        return;
+        return None;
     }
     let cfg = &shared.config;
     let error = match result {
@@ -380,7 +389,7 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
                     slot.released_frames = 0;
                     slot.conn = Some(socket);
                     slot.backoff = None;
-                    return;
+                    return Some(LinkEvent::PeerUp(to));
                 }
                 Err(e) => {
                     bump(&shared.counters.write_failures);
@@ -402,6 +411,7 @@ fn run_connector<T: StreamTransport>(shared: &Shared<T>, local: SystemId, entry:
         delay,
         reason: format!("{} connect to {} failed: {error}", T::NAME, entry.addr),
     });
+    Some(LinkEvent::PeerDown(to))
 }
 
 impl<T: StreamTransport> StreamLink<T> {

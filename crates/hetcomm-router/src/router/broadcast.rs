@@ -158,6 +158,7 @@ impl<T> Router<T> {
                     deadline: None,
                     broadcast: Some(b),
                     unbuilt: true,
+                    awaiting_ack: false,
                 },
             );
             self.stats.sends += 1;
@@ -217,6 +218,7 @@ impl<T> Router<T> {
                 to: TO_ALL_SYSTEM,
                 seq: BROADCAST_SEND | b,
             }),
+            probe: None,
         })
     }
 

@@ -49,7 +49,10 @@ fn request(payload: &[u8]) -> SendRequest<'_> {
 
 fn outcomes(a: &mut Router<SystemId>) -> Vec<(SystemId, Outcome)> {
     let mut all = Vec::new();
-    while let Some(Event::Outcome { id, token, outcome }) = a.poll_event() {
+    while let Some(Event::Outcome {
+        id, token, outcome, ..
+    }) = a.poll_event()
+    {
         assert_eq!(id.to, token);
         assert!(id.is_broadcast());
         all.push((token, outcome));

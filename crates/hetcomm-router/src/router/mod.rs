@@ -39,6 +39,7 @@ mod send;
 mod timers;
 mod types;
 
+pub use paths::PATH_CHANGES_KEPT;
 pub use types::*;
 
 /// One unresolved send.
@@ -69,6 +70,10 @@ struct Pending<T> {
     /// retransmission) is not written yet: `frame` is None because there is none, not
     /// because the driver holds it.
     unbuilt: bool,
+    /// Its last frame left and its deadline waits for the acknowledgement: that deadline
+    /// passing is an unconfirmed send on its path ([`Health::down_after`]), unlike a retry
+    /// after a refusal.
+    awaiting_ack: bool,
 }
 
 impl<T> Pending<T> {
@@ -119,6 +124,8 @@ enum Timer {
     Retransmit(SendId),
     /// In-order delivery of (origin, incarnation) gives up on its gap.
     Hold(SystemId, u32),
+    /// The paths of a destination that are down are probed ([`Health::probe_interval`]).
+    Probe(SystemId),
 }
 
 /// A route and the state of each of its paths.
@@ -129,6 +136,10 @@ struct RouteState {
     paths: Vec<PathState>,
     /// The index in `paths` sends take now.
     active: usize,
+    /// When the paths that are down are probed next, while any is.
+    probe_at: Option<Time>,
+    /// When they were last probed (a probe goes at most once per interval).
+    probed_at: Option<Time>,
 }
 
 /// What the router knows of one path.
@@ -137,6 +148,22 @@ struct PathState {
     up: bool,
     congested: bool,
     rtt: Option<RttEstimator>,
+    /// Unconfirmed sends and link errors in a row ([`Health::down_after`]).
+    bad_run: u32,
+    /// When the last of them was counted.
+    last_bad: Option<Time>,
+    /// While down: acknowledgements heard on it in a row ([`Health::up_after`]).
+    good_run: u32,
+    /// While down: whether anything answered since the last probe.
+    answered: bool,
+    /// It went down because its link refused a frame (not for want of acknowledgements): a
+    /// frame the link takes again is a sign that it is back.
+    refused: bool,
+    /// When it last went down, and last came up.
+    down_at: Time,
+    up_at: Time,
+    /// Its hold time now ([`Health::hold`], doubled while it flaps).
+    hold: Duration,
 }
 
 impl RouteState {
@@ -145,6 +172,8 @@ impl RouteState {
             route,
             paths: vec![PathState::new(route.path())],
             active: 0,
+            probe_at: None,
+            probed_at: None,
         }
     }
 
@@ -179,6 +208,14 @@ impl PathState {
             up: true,
             congested: false,
             rtt: None,
+            bad_run: 0,
+            last_bad: None,
+            good_run: 0,
+            answered: false,
+            refused: false,
+            down_at: Time::ZERO,
+            up_at: Time::ZERO,
+            hold: Duration::ZERO,
         }
     }
 }
@@ -215,6 +252,9 @@ pub struct Router<T> {
     /// Paths marked down or congested: while there are none, frames and link results need
     /// not look their path up.
     unhealthy_paths: u32,
+    /// Some route has more than one path and [`Health::judges`]: acknowledgements and
+    /// timeouts then feed the paths' health (routes of one path never look it up).
+    judging: bool,
     transmits: VecDeque<TransmitItem>,
     deliveries: VecDeque<Delivery>,
     awaiting: HashMap<DeliveryToken, PendingDelivery>,
@@ -259,6 +299,11 @@ enum TransmitItem {
         to: SystemId,
         frame: Vec<u8>,
     },
+    /// A copy of a waiting send's frame, as a probe of a path that is down.
+    Probe {
+        id: SendId,
+        path: Path,
+    },
 }
 
 impl<T> Router<T> {
@@ -276,6 +321,12 @@ impl<T> Router<T> {
                 }
             }
         }
+        for r in routes.values_mut() {
+            for p in &mut r.paths {
+                p.hold = config.health.hold;
+            }
+        }
+        let judging = config.health.judges() && routes.values().any(|r| r.paths.len() > 1);
         let dedup = Dedup::new(config.dedup_window);
         let broadcast_dedup = Dedup::new(config.dedup_window);
         Router {
@@ -286,6 +337,7 @@ impl<T> Router<T> {
             timers: BTreeSet::new(),
             path_changes: VecDeque::new(),
             unhealthy_paths: 0,
+            judging,
             transmits: VecDeque::new(),
             deliveries: VecDeque::new(),
             awaiting: HashMap::default(),
@@ -346,6 +398,9 @@ impl<T> Router<T> {
                 congested: p.congested,
                 srtt: p.rtt.as_ref().and_then(|r| r.srtt()),
                 active: i == r.active,
+                bad_run: p.bad_run,
+                good_run: p.good_run,
+                hold: p.hold,
             })
             .collect()
     }

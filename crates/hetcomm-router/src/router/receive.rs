@@ -117,14 +117,15 @@ impl<T> Router<T> {
         if peer.is_some_and(|p| p != h.source.system) {
             self.stats.peer_mismatch += 1;
         }
-        self.path_heard(now, peer.unwrap_or(h.source.system), link);
+        let ack = h.kind == FrameKind::Ack;
+        self.path_heard(now, peer.unwrap_or(h.source.system), link, ack);
         match h.kind {
-            FrameKind::Ack => self.handle_ack(now, &h, body.as_slice()),
+            FrameKind::Ack => self.handle_ack(now, link, &h, body.as_slice()),
             FrameKind::Data => self.handle_data(now, link, &h, body),
         }
     }
 
-    pub(super) fn handle_ack(&mut self, now: Time, h: &Header, payload: &[u8]) {
+    pub(super) fn handle_ack(&mut self, now: Time, link: usize, h: &Header, payload: &[u8]) {
         let status = match payload {
             [b] => AckStatus::from_u8(*b),
             _ => None,
@@ -147,10 +148,19 @@ impl<T> Router<T> {
         let p = &self.pending[&id];
         let attempts = p.attempts;
         let latency = now.saturating_since(p.first_sent.unwrap_or(now));
-        if attempts == 1 {
+        let sent_on = p.route.link;
+        if attempts == 1 && link == sent_on {
             // Karn: only unambiguous samples.
-            let link = p.route.link;
-            self.rtt_sample(id.to, link, latency);
+            self.rtt_sample(id.to, sent_on, latency);
+        }
+        if link != sent_on {
+            // Confirmed on another path than its last frame took (a probe's copy, or an
+            // earlier frame's acknowledgement after a failover): the outcome names the path
+            // that carried the confirmation.
+            let route = self.route_written_for(id.to, link, self.pending[&id].route);
+            if let Some(p) = self.pending.get_mut(&id) {
+                p.route = route;
+            }
         }
         self.finish(id, Outcome::acknowledged(status, attempts, latency));
     }

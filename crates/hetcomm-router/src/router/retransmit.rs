@@ -15,9 +15,14 @@ impl<T> Router<T> {
                         to,
                         frame,
                         send: None,
+                        probe: None,
                     })
                 }
                 TransmitItem::Broadcast(b) => match self.poll_broadcast(now, b) {
+                    Some(tx) => return Some(tx),
+                    None => continue,
+                },
+                TransmitItem::Probe { id, path } => match self.probe_frame(id, path) {
                     Some(tx) => return Some(tx),
                     None => continue,
                 },
@@ -64,6 +69,7 @@ impl<T> Router<T> {
                         to: id.to,
                         frame,
                         send: Some(id),
+                        probe: None,
                     });
                 }
             }
@@ -78,6 +84,14 @@ impl<T> Router<T> {
             return self.broadcast_result(now, tx, result);
         }
         self.path_result(now, tx.to, tx.link, &result);
+        if let Some(id) = tx.probe {
+            // A copy of the message left on the probed path: giving up on it is unconfirmed
+            // from now on (the copy may arrive), never failed.
+            if let (Some(p), true) = (self.pending.get_mut(&id), result.is_ok()) {
+                p.transmitted = true;
+            }
+            return self.recycle(tx.frame);
+        }
         let Some(id) = tx.send else { return };
         let Some(p) = self.pending.get_mut(&id) else {
             return; // already ended (an ack overtook the result)
@@ -109,6 +123,7 @@ impl<T> Router<T> {
         if result.is_ok() {
             p.transmitted = true;
         }
+        p.awaiting_ack = result.is_ok() && p.route.acknowledged;
         if let Err(err @ TransmitError::NoSession(_)) = result {
             return self.wait_for_session(now, id, link, err);
         }
@@ -202,6 +217,29 @@ impl<T> Router<T> {
         }
     }
 
+    /// A probe of `path` towards `id.to`: a copy of send `id`'s frame written for that path,
+    /// handed out like an acknowledgement (its link's answer is not needed: the path is
+    /// judged by the acknowledgement that comes back on it). None when the send ended or its
+    /// frame is out with the driver.
+    fn probe_frame(&mut self, id: SendId, path: Path) -> Option<Transmit> {
+        let p = self.pending.get(&id)?;
+        let frame = p.frame.clone()?;
+        let route = Route {
+            link: path.link,
+            tag: path.tag,
+            ..p.route
+        };
+        let frame = self.frame_for_path(&route, frame);
+        self.stats.probes += 1;
+        Some(Transmit {
+            link: path.link,
+            to: id.to,
+            frame,
+            send: None,
+            probe: Some(id),
+        })
+    }
+
     pub(super) fn finish(&mut self, id: SendId, outcome: Outcome) {
         if let Some(p) = self.pending.remove(&id) {
             if let Some(t) = self.towards.get_mut(&id.to) {
@@ -224,10 +262,12 @@ impl<T> Router<T> {
                 Outcome::Unconfirmed { .. } => self.stats.unconfirmed += 1,
                 Outcome::Failed { .. } => self.stats.failed += 1,
             }
+            let path = (p.attempts > 0 || p.transmitted).then(|| p.route.path());
             self.events.push_back(Event::Outcome {
                 id,
                 token: p.token,
                 outcome,
+                path,
             });
         }
     }

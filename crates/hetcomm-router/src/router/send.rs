@@ -7,14 +7,13 @@ impl<T> Router<T> {
     /// later through [`Router::poll_event`]. The header is stamped with `req.timestamp`;
     /// `now`, the driver's monotonic time as for every input, is not needed to admit a send
     /// (its timers start when its frame is polled).
-    pub fn send(
-        &mut self,
-        _now: Time,
-        req: SendRequest<'_>,
-        token: T,
-    ) -> Result<SendId, SendError> {
+    pub fn send(&mut self, now: Time, req: SendRequest<'_>, token: T) -> Result<SendId, SendError> {
         let (route, header) = self.admit(&req)?;
-        Ok(self.queue(route, header, req.payload, token))
+        let id = self.queue(route, header, req.payload, token);
+        if self.judging && self.unhealthy_paths > 0 {
+            self.probe_soon(now, id);
+        }
+        Ok(id)
     }
 
     /// Encodes a send's frame (into a spare buffer when one is big enough).
@@ -84,6 +83,7 @@ impl<T> Router<T> {
                 deadline: None,
                 broadcast: None,
                 unbuilt: false,
+                awaiting_ack: false,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -102,18 +102,17 @@ impl<T> Router<T> {
     /// Stamped and timed as [`Router::send`].
     pub fn send_unqueued<'a>(
         &mut self,
-        _now: Time,
+        now: Time,
         req: SendRequest<'a>,
         token: impl FnOnce() -> T,
     ) -> Result<Admitted<'a>, SendError> {
         let (route, header) = self.admit(&req)?;
         if route.acknowledged {
-            return Ok(Admitted::Queued(self.queue(
-                route,
-                header,
-                req.payload,
-                token(),
-            )));
+            let id = self.queue(route, header, req.payload, token());
+            if self.judging && self.unhealthy_paths > 0 {
+                self.probe_soon(now, id);
+            }
+            return Ok(Admitted::Queued(id));
         }
         let id = SendId {
             to: header.destination.system,
@@ -201,6 +200,7 @@ impl<T> Router<T> {
                 deadline: Some(deadline),
                 broadcast: None,
                 unbuilt: false,
+                awaiting_ack: false,
             },
         );
         self.timers.insert((deadline, Timer::Retransmit(id)));

@@ -18,16 +18,17 @@ impl<T> Router<T> {
             }
             self.timers.pop_first();
             match timer {
-                Timer::Retransmit(id) => self.retransmit_due(id, deadline),
+                Timer::Retransmit(id) => self.retransmit_due(now, id, deadline),
                 Timer::Hold(origin, incarnation) => {
                     self.hold_due(now, (origin, incarnation), deadline)
                 }
+                Timer::Probe(to) => self.probe_due(now, to, deadline),
             }
         }
     }
 
     /// A send's deadline fell due: transmit it again, or give up without attempts left.
-    fn retransmit_due(&mut self, id: SendId, deadline: Time) {
+    fn retransmit_due(&mut self, now: Time, id: SendId, deadline: Time) {
         let Some(p) = self.pending.get_mut(&id) else {
             return;
         };
@@ -35,6 +36,20 @@ impl<T> Router<T> {
             return; // superseded
         }
         p.deadline = None;
+        if std::mem::take(&mut p.awaiting_ack) && self.judging {
+            // Unconfirmed on the path its last frame took: that path's health hears of it
+            // (and may fail over, which gives this send a budget on the next path).
+            let link = p.route.link;
+            let sign = paths::Sign::Unconfirmed {
+                offered: p.offered,
+                waiting: now.saturating_since(p.first_sent.unwrap_or(now)),
+                exhausted: p.attempts >= p.route.attempts,
+            };
+            self.path_sign(now, id.to, link, sign);
+        }
+        let Some(p) = self.pending.get_mut(&id) else {
+            return;
+        };
         if p.attempts < p.route.attempts {
             self.transmits.push_back(TransmitItem::Send(id));
         } else {

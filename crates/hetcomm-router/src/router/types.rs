@@ -89,7 +89,9 @@ pub struct PathHealth {
     /// The path.
     pub path: Path,
     /// Whether sends may take it: false after its link said the peer is down or refused a
-    /// frame as unreachable, until it says the peer is up or a frame goes through.
+    /// frame as unreachable, until it says the peer is up or a frame goes through (under
+    /// [`Health::failover`]: also after a run of unconfirmed sends, and until acknowledgements
+    /// on it and its hold time say it is back).
     pub up: bool,
     /// Whether its link last refused a frame as congested.
     pub congested: bool,
@@ -97,6 +99,12 @@ pub struct PathHealth {
     pub srtt: Option<Duration>,
     /// Whether sends take this path now.
     pub active: bool,
+    /// Unconfirmed sends and link errors in a row on it (see [`Health::down_after`]).
+    pub bad_run: u32,
+    /// While down: acknowledgements heard on it in a row (see [`Health::up_after`]).
+    pub good_run: u32,
+    /// Its hold time now (see [`Health::hold`]).
+    pub hold: Duration,
 }
 
 /// Sends to a destination moved from one path to another ([`Router::poll_path_change`]).
@@ -143,6 +151,78 @@ impl Default for Timing {
     }
 }
 
+/// How the router judges the health of a destination's paths and when it moves the
+/// destination's sends between them (`docs/failover.md`). It matters only for routes with
+/// more than one path ([`RouterConfig::fallbacks`]); a route with one path sends on it
+/// whatever happens.
+///
+/// [`Health::default`] is the original rule: a path is down only while its link says so
+/// (a [`LinkEvent::PeerDown`], a refusal as unreachable) and up again at the first sign that
+/// it works (a [`LinkEvent::PeerUp`], a frame the link takes, a frame heard from the peer on
+/// it). [`Health::failover`] also judges what the router sees: a run of unconfirmed sends or
+/// link errors takes a path down, a path that is down is probed, and it comes back only after
+/// several acknowledgements on it and a hold time that grows when it flaps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Health {
+    /// Retransmission timeouts (a frame left on the path and no acknowledgement came back)
+    /// and link errors in a row on a path, with no acknowledgement heard on it between them,
+    /// that make it unhealthy. 0: the router does not judge paths itself (the original rule;
+    /// the fields below are then unused). Counted once per round: timeouts of sends whose
+    /// frames all left before the last one counted are one sign (a stall of this process
+    /// times many sends out at once), and only sends that waited [`Health::patience`].
+    pub down_after: u32,
+    /// How long a send must have waited for its acknowledgement (from its first frame)
+    /// before its timeout counts towards [`Health::down_after`]: a receiver that stalls for
+    /// less does not move the traffic.
+    pub patience: Duration,
+    /// Acknowledgements heard on a path that is down (answers to its probes, or a
+    /// [`LinkEvent::PeerUp`] from its link), in a row, before sends return to it. A probe left
+    /// unanswered until the next one restarts the count.
+    pub up_after: u32,
+    /// The least time a path stays down once it went down. Doubled (up to 32 times) each
+    /// time the path goes down again within twice its hold time of coming back, and back to
+    /// this once it stayed up longer: a flapping link does not make traffic flap.
+    pub hold: Duration,
+    /// The interval between probes of a path that is down: at most one frame per path per
+    /// interval, a copy of the oldest acknowledged send waiting for its outcome (the
+    /// receiver's duplicate filter drops the copy that arrives second and acknowledges both).
+    /// No send waiting, no probe: the path is then judged by its link's events alone.
+    pub probe_interval: Duration,
+}
+
+impl Default for Health {
+    /// The original rule (see [`Health`]): links alone say when a path is down.
+    fn default() -> Self {
+        Health {
+            down_after: 0,
+            patience: Duration::ZERO,
+            up_after: 1,
+            hold: Duration::ZERO,
+            probe_interval: Duration::ZERO,
+        }
+    }
+}
+
+impl Health {
+    /// The router judges paths too: down after 3 rounds of unconfirmed sends (each having
+    /// waited 50 ms) or link errors in a row, probed every 50 ms, back after 3
+    /// acknowledgements on it and a hold of 500 ms.
+    pub fn failover() -> Health {
+        Health {
+            down_after: 3,
+            patience: Duration::from_millis(50),
+            up_after: 3,
+            hold: Duration::from_millis(500),
+            probe_interval: Duration::from_millis(50),
+        }
+    }
+
+    /// Whether the router judges paths itself (`down_after > 0`).
+    pub fn judges(&self) -> bool {
+        self.down_after > 0
+    }
+}
+
 /// Everything a router needs to know, built by the driver from the fleet.
 #[derive(Clone, Debug)]
 pub struct RouterConfig {
@@ -166,6 +246,9 @@ pub struct RouterConfig {
     /// sends fail over to the first that is up when the paths before it are down. The
     /// route's delivery settings (acknowledgement, attempts, sizes) hold on every path.
     pub fallbacks: Vec<(SystemId, Path)>,
+    /// How paths are judged healthy and when sends move between them (routes with fallbacks
+    /// only).
+    pub health: Health,
     /// (sender, link) pairs the communication table allows to send to this system: a native
     /// broadcast (one frame every system on a transport receives, `FLAG_TO_ALL`) is taken
     /// only from a sender on the link the table names for that pair; others are dropped and
@@ -191,6 +274,7 @@ impl RouterConfig {
             dedup_window: 4096,
             ordered_sources: BTreeSet::new(),
             fallbacks: Vec::new(),
+            health: Health::default(),
         }
     }
 
@@ -476,6 +560,11 @@ pub struct Transmit {
     pub frame: Vec<u8>,
     /// The send this frame belongs to (None for acknowledgements, which need no result).
     pub send: Option<SendId>,
+    /// For a probe of a path that is down ([`Health::probe_interval`]): the send whose frame
+    /// it copies (`send` is None: it is no attempt of that send). Hand it back through
+    /// [`Router::transmit_result`] too: whether its link took it decides whether a copy of
+    /// the message may have left.
+    pub probe: Option<SendId>,
 }
 
 /// Why a link refused a frame, as the router needs to know it.
@@ -494,8 +583,43 @@ pub enum TransmitError {
     /// only if the send gives up. The path stays up. The text is the whole reason, naming the
     /// peer.
     NoSession(String),
-    /// Anything else (retried while attempts remain).
+    /// An operating-system error, its kind kept (retried while attempts remain). Kinds that
+    /// say the peer cannot be reached (`ConnectionRefused`, `ConnectionReset`, `BrokenPipe`,
+    /// `HostUnreachable`, …) take the path down as [`TransmitError::Unreachable`] does;
+    /// others count towards [`Health::down_after`].
+    Io {
+        /// The error's kind.
+        kind: std::io::ErrorKind,
+        /// The whole reason.
+        reason: String,
+    },
+    /// The link is closed (retried while attempts remain; the path counts as down).
+    Closed(String),
+    /// Anything else (retried while attempts remain; counts towards [`Health::down_after`]).
     Other(String),
+}
+
+impl TransmitError {
+    /// Whether the error says the peer cannot be reached on this link now.
+    pub fn unreachable(&self) -> bool {
+        use std::io::ErrorKind as K;
+        match self {
+            TransmitError::Unreachable(_) | TransmitError::Closed(_) => true,
+            TransmitError::Io { kind, .. } => matches!(
+                kind,
+                K::ConnectionRefused
+                    | K::ConnectionReset
+                    | K::ConnectionAborted
+                    | K::NotConnected
+                    | K::BrokenPipe
+                    | K::HostUnreachable
+                    | K::NetworkUnreachable
+                    | K::NetworkDown
+                    | K::AddrNotAvailable
+            ),
+            _ => false,
+        }
+    }
 }
 
 impl From<TransmitError> for FailReason {
@@ -505,7 +629,10 @@ impl From<TransmitError> for FailReason {
             TransmitError::Unreachable(r) => FailReason::Unreachable(r),
             TransmitError::Congested(r) => FailReason::Congested(r),
             TransmitError::NoSession(r) => FailReason::NoSession(r),
-            TransmitError::TooLarge(r) | TransmitError::Other(r) => FailReason::Link(r),
+            TransmitError::Io { reason, .. } => FailReason::Link(reason),
+            TransmitError::TooLarge(r) | TransmitError::Other(r) | TransmitError::Closed(r) => {
+                FailReason::Link(r)
+            }
         }
     }
 }
@@ -579,6 +706,10 @@ pub enum Event<T> {
         token: T,
         /// How it ended.
         outcome: Outcome,
+        /// The path that carried it: for a delivery or a refusal by the receiver, the one its
+        /// acknowledgement came back on (each copy is acknowledged on the path it came by);
+        /// otherwise the one its last frame was offered on. None when no frame was offered.
+        path: Option<Path>,
     },
 }
 
@@ -630,6 +761,9 @@ pub struct RouterStats {
     pub backpressured: u64,
     /// Times a destination's sends moved to another path ([`PathChange`]).
     pub path_changes: u64,
+    /// Probe frames sent on paths that are down ([`Health::probe_interval`]): copies of
+    /// waiting sends, not counted in `transmissions`.
+    pub probes: u64,
     /// Frames whose header claimed another origin than the system their link saw them come
     /// from ([`Router::handle_frame_from`]): counted, still handled.
     pub peer_mismatch: u64,

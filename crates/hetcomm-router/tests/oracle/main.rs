@@ -1,11 +1,13 @@
 //! The outcome oracle: sans-IO routers driven through long random schedules — loss,
 //! duplication, reordering, delay, acknowledgement loss, link and inbox refusals, unknown
 //! modules, bursts past the duplicate window, restarts, ordered and unordered delivery,
-//! native broadcasts, the senders' wall clocks stepped by ± hours — while the world keeps the
-//! ground truth of what entered which inbox.
+//! native broadcasts, the senders' wall clocks stepped by ± hours, routes with a second path
+//! and outages of the first (failover, probes, return) — while the world keeps the ground
+//! truth of what entered which inbox.
 //! For every send it asserts: exactly one outcome; *delivered* ⇒ in the destination inbox;
 //! *failed* ⇒ never in it; *sent* only on unacknowledged routes; *unconfirmed* only where a
-//! data frame left; nothing enters one inbox twice; the counters balance.
+//! data frame left; a confirmed outcome names a path a data frame of it left on; nothing
+//! enters one inbox twice; the counters balance.
 //!
 //! A failing schedule prints its parameters (seed included) and the smallest schedule the
 //! shrinker found that still fails. Run more of them with
@@ -48,7 +50,7 @@ fn shrink(mut failing: Params) -> Params {
                 ..failing.clone()
             });
         }
-        let off: [fn(&mut Params); 12] = [
+        let off: [fn(&mut Params); 14] = [
             |p| p.loss = 0.0,
             |p| p.duplicate = 0.0,
             |p| p.jitter_us = 0,
@@ -61,6 +63,8 @@ fn shrink(mut failing: Params) -> Params {
             |p| p.ordered = false,
             |p| p.wall_steps = false,
             |p| p.sessions = false,
+            |p| p.outages = false,
+            |p| p.two_paths = false,
         ];
         for f in off {
             let mut p = failing.clone();
@@ -79,14 +83,17 @@ fn shrink(mut failing: Params) -> Params {
 /// Runs `schedules` random schedules from `first_seed`; panics with the first failure, its
 /// seed and its shrunk form. Returns (schedules, sends, router calls, outcomes by kind as
 /// [`World::tally`] counts them).
-fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64, [u64; 5]) {
+fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64, [u64; 5], (u64, u64)) {
     let (mut total_sends, mut total_events, mut tally) = (0, 0, [0u64; 5]);
+    let mut switching = (0, 0);
     for seed in first_seed..first_seed + schedules {
         let params = Params::random(seed, sends);
         let mut world = World::new(params.clone());
         world.run();
         total_events += world.events;
         total_sends += world.sends() as u64;
+        let (changes, probes) = world.switching();
+        switching = (switching.0 + changes, switching.1 + probes);
         for (t, n) in tally.iter_mut().zip(world.tally()) {
             *t += n;
         }
@@ -104,7 +111,7 @@ fn check(first_seed: u64, schedules: u64, sends: u32) -> (u64, u64, u64, [u64; 5
             );
         }
     }
-    (schedules, total_sends, total_events, tally)
+    (schedules, total_sends, total_events, tally, switching)
 }
 
 fn env(name: &str) -> Option<u64> {
@@ -114,12 +121,17 @@ fn env(name: &str) -> Option<u64> {
 #[test]
 fn every_outcome_is_true_on_random_schedules() {
     // Bounded for CI: a few seconds in a debug build.
-    let (schedules, sends, events, tally) = check(0, 150, 300);
+    let (schedules, sends, events, tally, (changes, probes)) = check(0, 150, 300);
     let [delivered, sent, unconfirmed, failed, no_session] = tally;
     println!(
         "{schedules} schedules, {sends} sends, {events} router calls: {delivered} delivered, \
          {sent} sent, {unconfirmed} unconfirmed, {failed} failed ({no_session} for want of a \
-         session), no false outcome"
+         session), {changes} path changes, {probes} probes, no false outcome"
+    );
+    // Schedules with two paths and outages must have switched paths and probed.
+    assert!(
+        changes > 100 && probes > 100,
+        "{changes} path changes, {probes} probes"
     );
     assert!(
         events > 100_000,
@@ -203,11 +215,11 @@ fn soak() {
     let first = env("HETCOMM_ORACLE_FIRST_SEED").unwrap_or(10_000);
     let sends = env("HETCOMM_ORACLE_SENDS").unwrap_or(2_000) as u32;
     let started = std::time::Instant::now();
-    let (schedules, sends, events, tally) = check(first, schedules, sends);
+    let (schedules, sends, events, tally, switching) = check(first, schedules, sends);
     println!(
         "soak: seeds {first}..{}, {schedules} schedules, {sends} sends, {events} router calls, \
          0 false outcomes (delivered, sent, unconfirmed, failed, of which no session: \
-         {tally:?}), {:.0} s",
+         {tally:?}), (path changes, probes) {switching:?}, {:.0} s",
         first + schedules,
         started.elapsed().as_secs_f64()
     );

@@ -63,6 +63,13 @@ pub struct Params {
     /// destination exists; the refusal starts a handshake, which completes after a while
     /// (`LinkEvent::PeerUp`) or, for some pairs (a wrong key, a refusing receiver), never.
     pub sessions: bool,
+    /// Whether every route has a second path (link 1, reliable) after its own (link 0), and
+    /// the routers judge their paths (`Health::failover`, with short times).
+    pub two_paths: bool,
+    /// Whether link 0 has outages: windows in which every frame put on it is lost (the link
+    /// still takes them, as a UDP socket does); for some, the link also says the peers are
+    /// down at the start and up at the end (`LinkEvent::PeerDown` / `PeerUp`).
+    pub outages: bool,
 }
 
 impl Params {
@@ -92,12 +99,19 @@ impl Params {
             ordered: rng.gen_bool(0.5),
             wall_steps: rng.gen_bool(0.5),
             sessions: rng.gen_bool(0.4),
+            two_paths: rng.gen_bool(0.5),
+            outages: rng.gen_bool(0.5),
         }
     }
 }
 
-/// The only link every system has: one shared medium reaching every other system.
+/// The link every system has: one shared medium reaching every other system (the first path
+/// of every route, and the one broadcasts take).
 const LINK: usize = 0;
+/// The second path of every route when [`Params::two_paths`]: reliable, slower.
+const FALLBACK: Path = Path { link: 1, tag: b'T' };
+/// Extra delay of the fallback link.
+const FALLBACK_DELAY_US: u64 = 400;
 /// The module every system has; sends to any other module are refused as unknown.
 const MODULE: ModuleId = ModuleId(1);
 const MISSING_MODULE: ModuleId = ModuleId(9);
@@ -118,6 +132,10 @@ struct SendRecord {
     /// The destination's life when the send began.
     dest_life: u32,
     outcomes: Vec<Outcome>,
+    /// The paths its outcomes named.
+    paths: Vec<Option<Path>>,
+    /// The links a data frame of it left on.
+    left_on: BTreeSet<usize>,
 }
 
 /// A frame on the way.
@@ -126,6 +144,7 @@ struct InFlight {
     at: u64,
     order: u64,
     to: u16,
+    link: usize,
     frame: Vec<u8>,
 }
 
@@ -183,6 +202,11 @@ pub struct World {
     handshakes: BinaryHeap<Reverse<Handshake>>,
     /// Pairs whose handshakes never complete.
     refusing: BTreeSet<(u16, u16)>,
+    /// Link 0's outages, (from, to) µs (see [`Params::outages`]), and those its link
+    /// reports as peers down and up.
+    outages: Vec<(u64, u64)>,
+    /// Link events to give: (at, system, event), sorted by time, the next first.
+    link_events: std::collections::VecDeque<(u64, u16, LinkEvent)>,
 }
 
 impl World {
@@ -206,7 +230,32 @@ impl World {
             sessions: BTreeSet::new(),
             handshakes: BinaryHeap::new(),
             refusing: BTreeSet::new(),
+            outages: Vec::new(),
+            link_events: Default::default(),
         };
+        if world.params.outages {
+            // From a stream of their own, so that the rest of the run draws what it would.
+            let mut pick = ChaCha8Rng::seed_from_u64(world.params.seed ^ 0x0d7a);
+            let span = u64::from(world.params.sends) * (world.params.send_gap_us / 2 + 50);
+            let mut at = 1_000 + pick.gen_range(0..=span / 4 + 1);
+            let mut events = Vec::new();
+            for _ in 0..pick.gen_range(1..=4) {
+                let len = [5_000, 50_000, 400_000][pick.gen_range(0..3)];
+                world.outages.push((at, at + len));
+                if pick.gen_bool(0.5) {
+                    for s in 0..world.params.systems {
+                        for p in (0..world.params.systems).filter(|&p| p != s) {
+                            let peer = SystemId(p);
+                            events.push((at, s, LinkEvent::PeerDown { link: LINK, peer }));
+                            events.push((at + len, s, LinkEvent::PeerUp { link: LINK, peer }));
+                        }
+                    }
+                }
+                at += len + pick.gen_range(1_000..=span / 4 + 2_000);
+            }
+            events.sort_by_key(|e| e.0);
+            world.link_events = events.into();
+        }
         if world.params.sessions {
             let mut pick = ChaCha8Rng::seed_from_u64(world.params.seed ^ 0x5e55);
             for from in 0..world.params.systems {
@@ -245,6 +294,17 @@ impl World {
             .map(|d| (SystemId(d), route))
             .collect();
         let mut config = RouterConfig::new(SystemId(s), incarnation, routes);
+        if p.two_paths {
+            config.fallbacks = (0..p.systems)
+                .filter(|&d| d != s)
+                .map(|d| (SystemId(d), FALLBACK))
+                .collect();
+            config.health = Health {
+                hold: Duration::from_millis(30),
+                probe_interval: Duration::from_millis(5),
+                ..Health::failover()
+            };
+        }
         config.dedup_window = p.dedup_window;
         // Short timers keep the runs short; the hold gives up gaps the network will never fill.
         config.timing.initial_rto = Duration::from_millis(20);
@@ -278,7 +338,8 @@ impl World {
                 .map(Time::as_micros)
                 .min();
             let send = (sent < self.params.sends).then_some(next_send);
-            let candidates = [network, verdict, handshake, timer, send];
+            let event = self.link_events.front().map(|e| e.0);
+            let candidates = [network, verdict, handshake, timer, send, event];
             let Some(at) = candidates.into_iter().flatten().min() else {
                 return;
             };
@@ -308,8 +369,16 @@ impl World {
                 let now = self.time();
                 self.systems[usize::from(f.to)]
                     .router
-                    .handle_frame(now, LINK, &f.frame);
+                    .handle_frame(now, f.link, &f.frame);
                 self.pump(f.to);
+            } else if event == Some(at) {
+                let (_, s, e) = self.link_events.pop_front().expect("peeked");
+                self.events += 1;
+                let now = self.time();
+                self.systems[usize::from(s)]
+                    .router
+                    .handle_link_event(now, e);
+                self.pump(s);
             } else if handshake == Some(at) {
                 let Reverse(h) = self.handshakes.pop().expect("peeked");
                 let lives = (
@@ -407,6 +476,8 @@ impl World {
                     data_left: false,
                     dest_life: 0,
                     outcomes: Vec::new(),
+                    paths: Vec::new(),
+                    left_on: BTreeSet::new(),
                 });
                 records.len() - 1
             });
@@ -445,6 +516,8 @@ impl World {
                     data_left: false,
                     dest_life,
                     outcomes: Vec::new(),
+                    paths: Vec::new(),
+                    left_on: BTreeSet::new(),
                 });
             }
         }
@@ -478,10 +551,15 @@ impl World {
                 progressed = true;
                 self.deliver(s, d);
             }
-            while let Some(Event::Outcome { token, outcome, .. }) =
-                self.systems[usize::from(s)].router.poll_event()
+            while let Some(Event::Outcome {
+                token,
+                outcome,
+                path,
+                ..
+            }) = self.systems[usize::from(s)].router.poll_event()
             {
                 self.records[token].outcomes.push(outcome);
+                self.records[token].paths.push(path);
             }
             if !progressed {
                 return;
@@ -538,6 +616,7 @@ impl World {
             for r in shares.take_while(|r| r.tag == tag) {
                 if r.from == s && r.life == life && dest.is_none_or(|d| d == r.to) {
                     r.data_left = true;
+                    r.left_on.insert(tx.link);
                 }
             }
         }
@@ -547,24 +626,33 @@ impl World {
             } else {
                 vec![tx.to.0]
             };
+            // Link 0 loses what it is given during an outage; the fallback loses nothing.
+            let lossy = tx.link == LINK;
+            let out = lossy
+                && self
+                    .outages
+                    .iter()
+                    .any(|&(a, b)| self.now >= a && self.now < b);
             for to in targets {
                 let copies = if self.rng.gen_bool(p.duplicate) { 2 } else { 1 };
                 for _ in 0..copies {
-                    if self.rng.gen_bool(p.loss) {
+                    if self.rng.gen_bool(p.loss) && lossy || out {
                         continue;
                     }
-                    let at = self.now + BASE_DELAY_US + self.rng.gen_range(0..=p.jitter_us);
+                    let extra = if lossy { 0 } else { FALLBACK_DELAY_US };
+                    let at = self.now + BASE_DELAY_US + extra + self.rng.gen_range(0..=p.jitter_us);
                     self.order += 1;
                     self.network.push(Reverse(InFlight {
                         at,
                         order: self.order,
                         to,
+                        link: tx.link,
                         frame: tx.frame.clone(),
                     }));
                 }
             }
         }
-        if tx.send.is_some() {
+        if tx.send.is_some() || tx.probe.is_some() {
             let result = match refused {
                 false => Ok(()),
                 true => Err(TransmitError::Unreachable(
@@ -661,6 +749,26 @@ impl World {
             if let Some(lie) = lie {
                 wrong.push(format!("{what}: {lie}: {outcome:?}"));
             }
+            // The path an outcome names carried it: a confirmation came back on the path a
+            // copy went by, so a data frame of it left there; any outcome after a frame
+            // left names a path.
+            let path = r.paths.first().copied().flatten();
+            let confirmed = matches!(outcome, Outcome::Delivered { .. })
+                || matches!(
+                    outcome.reason(),
+                    Some(FailReason::InboxFull | FailReason::UnknownModule)
+                );
+            match path {
+                Some(p) if confirmed && !r.left_on.contains(&p.link) => wrong.push(format!(
+                    "{what}: {outcome:?} names link {}, but no data frame left on it ({:?})",
+                    p.link, r.left_on
+                )),
+                None if r.data_left && !r.left_on.is_empty() => wrong.push(format!(
+                    "{what}: {outcome:?} names no path, but frames left on {:?}",
+                    r.left_on
+                )),
+                _ => {}
+            }
         }
         for (i, system) in self.systems.iter().enumerate() {
             let s = system.router.stats();
@@ -743,6 +851,14 @@ impl World {
             }
         }
         t
+    }
+
+    /// Path changes and probes, summed over the routers (schedules with two paths).
+    pub fn switching(&self) -> (u64, u64) {
+        self.systems.iter().fold((0, 0), |(c, p), s| {
+            let st = s.router.stats();
+            (c + st.path_changes, p + st.probes)
+        })
     }
 
     /// Sends whose outcome the world recorded.

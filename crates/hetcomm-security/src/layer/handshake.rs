@@ -115,7 +115,7 @@ impl Secured {
         drop(st);
         self.flush_queue(sender, slot, session);
         // Frames refused for want of this session may go now.
-        self.sink.on_peer_up(sender);
+        self.sink.on_event(LinkEvent::PeerUp(sender));
     }
 
     pub(super) fn receive_init(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
@@ -209,7 +209,7 @@ impl Secured {
         self.flush_queue(sender, slot, &session);
         // Frames refused for want of this session go now (the router sends them on this
         // thread, through this layer).
-        self.sink.on_peer_up(sender);
+        self.sink.on_event(LinkEvent::PeerUp(sender));
         if session.sealed() == 0 {
             // Nothing to send: an empty frame tells the responder the session is in use
             // (receivers hand empty frames to nobody).

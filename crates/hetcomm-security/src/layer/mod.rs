@@ -14,7 +14,9 @@ use std::time::{Duration, Instant};
 
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
-use hetcomm_link::{forward_link, forward_sink, FrameSink, Link, LinkError, Peer, SecurityStats};
+use hetcomm_link::{
+    forward_link, forward_sink, FrameSink, Link, LinkError, LinkEvent, Peer, SecurityStats,
+};
 use rustc_hash::FxHashMap;
 
 use crate::envelope::OVERHEAD;
@@ -412,6 +414,22 @@ forward_sink! {
     // is then neither copied here nor by the router (see `on_frame_owned`).
     fn takes_frames(&self) -> bool {
         self.secured.sink.takes_frames()
+    }
+    // A peer lost below is lost above. A peer up below (a connection came up) goes up only
+    // when a session with it exists: without one, frames to it are still refused, and the
+    // session's own `PeerUp` comes when the handshake completes.
+    fn on_event(&self, event: LinkEvent) {
+        let up_without_session = matches!(event, LinkEvent::PeerUp(_))
+            && self.secured.peers.get(&event.peer()).is_none_or(|slot| {
+                slot.state
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .current
+                    .is_none()
+            });
+        if !up_without_session {
+            self.secured.sink.on_event(event);
+        }
     }
 }
 

@@ -81,8 +81,15 @@ impl SystemCore {
             if transmits.is_empty() && deliveries.is_empty() && events.is_empty() {
                 return;
             }
-            for Event::Outcome { id, token, outcome } in events.drain(..) {
-                self.end_send(id, outcome, Some(token), now);
+            for Event::Outcome {
+                id,
+                token,
+                outcome,
+                path,
+            } in events.drain(..)
+            {
+                let transport = path.and_then(|p| self.link_name(p.link));
+                self.end_send(id, outcome, transport, Some(token), now);
             }
             for d in deliveries.drain(..) {
                 let token = d.token;
@@ -113,7 +120,7 @@ impl SystemCore {
                     );
                 }
                 let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic);
-                if tx.send.is_some() {
+                if tx.send.is_some() || tx.probe.is_some() {
                     transmit_results.push((tx, result));
                 }
             }
@@ -211,6 +218,7 @@ impl SystemCore {
         &self,
         id: SendId,
         outcome: Outcome,
+        transport: Option<&'static str>,
         slot: Option<Arc<OutcomeSlot>>,
         now: Time,
     ) -> TicketSlot {
@@ -219,14 +227,14 @@ impl SystemCore {
                 if self.observers.active() {
                     self.observe_outcome(id, &outcome, now);
                 }
-                slot.complete(outcome);
+                slot.complete(outcome, transport);
                 TicketSlot::Pending(slot)
             }
             None => {
                 // Made first, so the outcome is not moved again after the observers saw it.
-                let ready = TicketSlot::Ready(outcome);
+                let ready = TicketSlot::Ready(outcome, transport);
                 if self.observers.active() {
-                    if let TicketSlot::Ready(outcome) = &ready {
+                    if let TicketSlot::Ready(outcome, _) = &ready {
                         self.observe_outcome(id, outcome, now);
                     }
                 }

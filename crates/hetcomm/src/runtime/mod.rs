@@ -389,6 +389,8 @@ pub(crate) struct SystemCore {
     /// Frames that arrived before `start`, held for the router ([`Opening`]).
     pub(crate) opening: Opening,
     links: OnceLock<Vec<Arc<dyn Link>>>,
+    /// The fleet-file name of each link's transport, by link index (what tickets name).
+    link_names: OnceLock<Vec<&'static str>>,
     /// Per link: when small frames are held back to share a write (see [`Batching`]).
     batching: OnceLock<Vec<Batching>>,
     timer: Timer,
@@ -458,6 +460,7 @@ impl SystemCore {
             router: Mutex::new(router),
             opening: Opening::default(),
             links: OnceLock::new(),
+            link_names: OnceLock::new(),
             batching: OnceLock::new(),
             timer: Timer::default(),
             timer_thread: Mutex::new(None),
@@ -476,6 +479,16 @@ impl SystemCore {
     /// Installs the links (once), hands the router the frames that arrived while the system
     /// opened ([`Opening`]) and, unless a simulator drives time, starts the timer thread.
     /// The router must be the system's real one by now.
+    /// Names each link by its transport's fleet-file name (link index order), for tickets.
+    pub(crate) fn set_link_names(&self, names: Vec<&'static str>) {
+        let _ = self.link_names.set(names);
+    }
+
+    /// The fleet-file name of link `link`'s transport.
+    pub(crate) fn link_name(&self, link: usize) -> Option<&'static str> {
+        self.link_names.get().and_then(|n| n.get(link)).copied()
+    }
+
     pub(crate) fn start(
         self: &Arc<Self>,
         links: Vec<Arc<dyn Link>>,
@@ -584,13 +597,20 @@ impl SystemCore {
         let mut router = self.router();
         router.shutdown();
         let mut ended = Vec::new();
-        while let Some(Event::Outcome { id, token, outcome }) = router.poll_event() {
-            ended.push((id, token, outcome));
+        while let Some(Event::Outcome {
+            id,
+            token,
+            outcome,
+            path,
+        }) = router.poll_event()
+        {
+            ended.push((id, token, outcome, path));
         }
         drop(router);
         let now = self.clock.now();
-        for (id, token, outcome) in ended {
-            self.end_send(id, outcome, Some(token), now);
+        for (id, token, outcome, path) in ended {
+            let transport = path.and_then(|p| self.link_name(p.link));
+            self.end_send(id, outcome, transport, Some(token), now);
         }
         for m in self.modules.values() {
             m.close();

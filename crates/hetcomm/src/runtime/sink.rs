@@ -230,8 +230,10 @@ impl FrameSink for SystemSink {
         true
     }
 
-    /// A security session with `peer` is up: sends that waited for it go now.
-    fn on_peer_up(&self, peer: SystemId) {
+    /// What the link knows of a peer, for the router: a peer up (a connection, or a security
+    /// session: sends that waited for it go now) or lost (its sends fail over to the pair's
+    /// next transport, docs/failover.md).
+    fn on_event(&self, event: hetcomm_link::LinkEvent) {
         let Some(core) = self.core.upgrade() else {
             return;
         };
@@ -243,7 +245,16 @@ impl FrameSink for SystemSink {
         let now = core.clock.now();
         let mut router = core.router();
         let link = self.link;
-        router.handle_link_event(now, hetcomm_router::LinkEvent::PeerUp { link, peer });
+        let event = match event {
+            hetcomm_link::LinkEvent::PeerUp(peer) => {
+                hetcomm_router::LinkEvent::PeerUp { link, peer }
+            }
+            hetcomm_link::LinkEvent::PeerDown(peer) => {
+                hetcomm_router::LinkEvent::PeerDown { link, peer }
+            }
+            _ => return,
+        };
+        router.handle_link_event(now, event);
         core.pump_at(router, now);
     }
 }

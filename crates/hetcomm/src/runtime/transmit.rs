@@ -197,6 +197,11 @@ pub(super) fn transmit_error(directory: &Directory, e: LinkError) -> TransmitErr
             "no secure session with {}: {reason}",
             directory.system_name(peer)
         )),
+        LinkError::Io(io) => TransmitError::Io {
+            kind: io.kind(),
+            reason: format!("i/o error: {io}"),
+        },
+        LinkError::Closed => TransmitError::Closed(e.to_string()),
         other => TransmitError::Other(other.to_string()),
     }
 }
