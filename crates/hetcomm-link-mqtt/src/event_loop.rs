@@ -6,8 +6,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm_core::SystemId;
-use hetcomm_link::Peer;
+use hetcomm_link::{LinkEvent, Peer};
 use rumqttc::v5::mqttbytes::v5::{
     ConnAck, DisconnectReasonCode, Filter, LastWill, Packet, PubAckReason, Publish,
     SubscribeReasonCode,
@@ -16,7 +15,7 @@ use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, Connection, ConnectionError, Event, MqttOptions, StateError};
 use rumqttc::{Outgoing, TlsConfiguration, Transport};
 
-use crate::presence::Announced;
+use crate::presence::{Announced, PresenceEvent};
 use crate::settings::{Broker, MqttSettings, Qos};
 use crate::{OpenError, Shared, Topics, IN_EVENT_LOOP, MAX_FRAME};
 
@@ -338,16 +337,11 @@ fn on_publish(shared: &Shared, p: &Publish) {
         c.dropped.fetch_add(1, Ordering::Relaxed);
         return;
     };
-    if shared.presence.set(id, announced, !p.retain) {
-        report_up(shared, id);
+    match shared.presence.set(id, announced, !p.retain) {
+        // The router sends what waited for it now.
+        Some(PresenceEvent::Joined(id)) => shared.sink.on_event(LinkEvent::PeerUp(id)),
+        // The router's failover takes a pair with another transport off this one.
+        Some(PresenceEvent::Left(id)) => shared.sink.on_event(LinkEvent::PeerDown(id)),
+        None => {}
     }
-}
-
-/// A system came online: the router sends what waited for it now.
-///
-/// This is the link seam's peer event. When `FrameSink` gains its one event method (peer up
-/// and down, for failover), report `PeerDown` from `on_publish` too, where a live `offline` or
-/// `lost` arrives.
-fn report_up(shared: &Shared, id: SystemId) {
-    shared.sink.on_peer_up(id);
 }

@@ -35,8 +35,9 @@
 //! A send to a system whose last presence message this link heard live was `offline` or
 //! `lost` fails at once ([`LinkError::Unreachable`], saying which); one not announced online
 //! waits for it up to `presence_timeout_ms` the first time, then fails at once until it
-//! comes. A system coming online is reported through the link seam
-//! ([`FrameSink::on_peer_up`]), so the router sends what waited for it at once.
+//! comes. A system coming and going is reported through the link seam
+//! ([`FrameSink::on_event`]: `LinkEvent::PeerUp`, so the router sends what waited for it at
+//! once, and `PeerDown` when it leaves, so a pair with another transport fails over).
 //!
 //! ## The broker going away
 //!

@@ -107,29 +107,36 @@ impl Presence {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Records `id`'s announcement; true when it came online (it was not before).
-    pub(crate) fn set(&self, id: SystemId, announced: Announced, live: bool) -> bool {
+    /// Records `id`'s announcement; what changed, if anything: `Joined` when it came online,
+    /// `Left` when it went away while this link watched (`live`, or it was online).
+    pub(crate) fn set(
+        &self,
+        id: SystemId,
+        announced: Announced,
+        live: bool,
+    ) -> Option<PresenceEvent> {
         let mut st = self.lock();
         let before = st.seen.insert(id, Entry { announced, live });
         let was_online = before.is_some_and(|e| e.announced == Announced::Online);
         let is_online = announced == Announced::Online;
         if was_online == is_online {
-            return false;
+            return None;
         }
         drop(st);
         self.changed.notify_all();
         // A retained `offline` replayed on subscribing is no news of a leave.
-        if is_online || live || was_online {
-            let event = match is_online {
-                true => PresenceEvent::Joined(id),
-                false => PresenceEvent::Left(id),
-            };
-            EVERY_LINK
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .retain(|l| l.send((self.local, event)).is_ok());
+        if !(is_online || live || was_online) {
+            return None;
         }
-        is_online
+        let event = match is_online {
+            true => PresenceEvent::Joined(id),
+            false => PresenceEvent::Left(id),
+        };
+        EVERY_LINK
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .retain(|l| l.send((self.local, event)).is_ok());
+        Some(event)
     }
 
     /// Whether a send to `id` may go. One that went away while watched fails at once; one not
@@ -197,17 +204,24 @@ mod tests {
     #[test]
     fn a_live_leave_fails_at_once_and_a_retained_one_is_waited_out() {
         let p = Presence::new(SystemId(1));
-        assert!(!p.set(B, Announced::Offline, false));
+        // A retained `offline` from before: no news.
+        assert_eq!(p.set(B, Announced::Offline, false), None);
         let started = Instant::now();
         assert_eq!(
             p.verdict(B, Duration::from_millis(30), true),
             Verdict::NotAnnounced(Some(Announced::Offline))
         );
         assert!(started.elapsed() >= Duration::from_millis(30));
-        assert!(p.set(B, Announced::Online, true));
+        assert_eq!(
+            p.set(B, Announced::Online, true),
+            Some(PresenceEvent::Joined(B))
+        );
         assert_eq!(p.verdict(B, Duration::ZERO, true), Verdict::Go);
         assert_eq!(p.online(), [B]);
-        assert!(!p.set(B, Announced::Lost, true));
+        assert_eq!(
+            p.set(B, Announced::Lost, true),
+            Some(PresenceEvent::Left(B))
+        );
         let started = Instant::now();
         assert_eq!(
             p.verdict(B, Duration::from_secs(5), true),
