@@ -496,6 +496,23 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_ros_1_md5_sum_is_what_rosmsg_prints() {
+        let table = include_str!("../tests/data/ros1-md5sums.txt");
+        let r = Flavour::shipped(Flavour::Ros1);
+        let mut checked = 0;
+        for line in table.lines().filter(|l| !l.starts_with('#')) {
+            let (name, md5) = line.split_once(' ').unwrap();
+            assert_eq!(r.resolve(name).unwrap().md5, md5, "{name}");
+            checked += 1;
+        }
+        assert_eq!(
+            checked,
+            r.names().len(),
+            "every shipped type is in the table"
+        );
+    }
+
+    #[test]
     fn custom_packages_nested_types_and_where_it_looked() {
         let d = temp("custom");
         write(
