@@ -1,6 +1,6 @@
 //! Every ROS 1 type shipped with hetcomm has the MD5 sum `rosmsg md5` prints for it (ROS 1's
 //! own computation from the installed definitions), and the committed table the pure-Rust
-//! tests check (crates/hetcomm-rosmsg/tests/data/ros1-md5sums.txt) says the same. ROS 1
+//! tests check (crates/hetcomm-rosmsg/msg/ros1-md5sums.txt) says the same. ROS 1
 //! checks this sum at every connection: a wrong one and nothing is received.
 
 mod common;
@@ -14,7 +14,7 @@ fn every_shipped_type_has_the_md5_sum_rosmsg_prints() {
     common::require_ros();
     let registry = Flavour::Ros1.shipped();
     let names = registry.names();
-    let table = include_str!("../../hetcomm-rosmsg/tests/data/ros1-md5sums.txt");
+    let table = include_str!("../../hetcomm-rosmsg/msg/ros1-md5sums.txt");
     // rosmsg takes about half a second a call: two at a time (the machine has two cores).
     let theirs: Vec<(String, String)> = std::thread::scope(|s| {
         let halves: Vec<_> = names

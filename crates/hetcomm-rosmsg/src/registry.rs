@@ -497,7 +497,7 @@ mod tests {
 
     #[test]
     fn every_shipped_ros_1_md5_sum_is_what_rosmsg_prints() {
-        let table = include_str!("../tests/data/ros1-md5sums.txt");
+        let table = include_str!("../msg/ros1-md5sums.txt");
         let r = Flavour::shipped(Flavour::Ros1);
         let mut checked = 0;
         for line in table.lines().filter(|l| !l.starts_with('#')) {
