@@ -279,7 +279,7 @@ pub fn parse(
                     "constant `{cname}` is of type `{ty_text}`: a constant is a primitive or a string"
                 )));
             }
-            let value = constant_value(&ty.base, value, flavour)
+            let value = constant_value(&ty.base, value)
                 .map_err(|why| err(format!("constant `{cname}`: {why}")))?;
             if out.constants.iter().any(|c| c.name == cname) {
                 return Err(err(format!("constant `{cname}` is declared twice")));
@@ -444,13 +444,10 @@ fn parse_base(text: &str, package: &str, flavour: Flavour) -> Result<(Base, Stri
     Ok((Base::Msg(full.clone()), full))
 }
 
-fn constant_value(base: &Base, value: &str, flavour: Flavour) -> Result<String, String> {
+fn constant_value(base: &Base, value: &str) -> Result<String, String> {
     let Base::Prim(p) = base else {
-        // ROS 1 takes the rest of the line; ROS 2 a quoted literal or the trimmed text.
-        return Ok(match flavour {
-            Flavour::Ros1 => value.trim().to_string(),
-            Flavour::Ros2 => value.trim().to_string(),
-        });
+        // The rest of the line (ROS 2's quotes kept, as written).
+        return Ok(value.trim().to_string());
     };
     let v = value.trim();
     let ok = match p {
