@@ -53,7 +53,7 @@ fn mappings_parse_and_their_mistakes_are_located() {
             .unwrap_err()
             .to_string()
     };
-    let t = fleet_text("/t", 0, "").replace("nav_msgs/Odometry", "nav_msgs/Path");
+    let t = fleet_text("/t", 0, "").replace("nav_msgs/Odometry", "my_robot_msgs/Status");
     let e = errors(t);
     assert!(
         e.starts_with("b.toml:19:13: mapping of `/t/odom`: the ROS type `my_robot_msgs/Status` was not found: looked in "),
