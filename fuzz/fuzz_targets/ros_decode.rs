@@ -14,14 +14,7 @@ use libfuzzer_sys::fuzz_target;
 fn types() -> &'static [(Flavour, &'static RosType)] {
     static ALL: OnceLock<Vec<(Flavour, &'static RosType)>> = OnceLock::new();
     ALL.get_or_init(|| {
-        let mut all = Vec::new();
-        for f in [Flavour::Ros1, Flavour::Ros2] {
-            let r = f.shipped();
-            for name in r.names() {
-                all.push((f, r.resolve(&name).expect("a shipped type resolves")));
-            }
-        }
-        all
+        hetcomm_rosmsg::registry::every_shipped_type().expect("the shipped types resolve")
     })
 }
 

@@ -171,52 +171,48 @@ pub fn valid_package(name: &str) -> bool {
         && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
 }
 
+/// A name as ROS 1 spells fields, constants and types: a letter, then letters, digits, `_`.
+fn ros1_name(name: &str) -> bool {
+    let mut chars = name.chars();
+    chars.next().is_some_and(|c| c.is_ascii_alphabetic())
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+/// A letter that `first` accepts, then characters that `rest` accepts.
+fn spelled(name: &str, first: fn(&char) -> bool, rest: fn(char) -> bool) -> bool {
+    let mut chars = name.chars();
+    chars.next().is_some_and(|c| first(&c)) && chars.all(rest)
+}
+
 /// Whether `name` is a valid message name (a letter, then letters, digits; ROS 1 also `_`).
 pub fn valid_message(name: &str, flavour: Flavour) -> bool {
-    let mut chars = name.chars();
-    let first = chars.next();
     match flavour {
-        Flavour::Ros1 => {
-            first.is_some_and(|c| c.is_ascii_alphabetic())
-                && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
-        }
-        Flavour::Ros2 => {
-            first.is_some_and(|c| c.is_ascii_uppercase())
-                && chars.all(|c| c.is_ascii_alphanumeric())
-        }
+        Flavour::Ros1 => ros1_name(name),
+        Flavour::Ros2 => spelled(name, char::is_ascii_uppercase, |c| {
+            c.is_ascii_alphanumeric()
+        }),
     }
 }
 
 fn valid_field(name: &str, flavour: Flavour) -> bool {
-    let mut chars = name.chars();
-    let first = chars.next();
     match flavour {
-        Flavour::Ros1 => {
-            first.is_some_and(|c| c.is_ascii_alphabetic())
-                && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
-        }
+        Flavour::Ros1 => ros1_name(name),
         // rosidl: lower case, digits and single underscores, not ending in one.
         Flavour::Ros2 => {
-            first.is_some_and(|c| c.is_ascii_lowercase())
-                && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
-                && !name.contains("__")
+            spelled(name, char::is_ascii_lowercase, |c| {
+                c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_'
+            }) && !name.contains("__")
                 && !name.ends_with('_')
         }
     }
 }
 
 fn valid_constant(name: &str, flavour: Flavour) -> bool {
-    let mut chars = name.chars();
-    let first = chars.next();
     match flavour {
-        Flavour::Ros1 => {
-            first.is_some_and(|c| c.is_ascii_alphabetic())
-                && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
-        }
-        Flavour::Ros2 => {
-            first.is_some_and(|c| c.is_ascii_uppercase())
-                && chars.all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
-        }
+        Flavour::Ros1 => ros1_name(name),
+        Flavour::Ros2 => spelled(name, char::is_ascii_uppercase, |c| {
+            c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_'
+        }),
     }
 }
 

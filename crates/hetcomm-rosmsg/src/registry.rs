@@ -78,14 +78,19 @@ impl Registry {
     /// `dirs` (in order), then the shipped definitions: no installed ROS. A directory that
     /// does not exist is an error naming it.
     pub fn from_dirs(flavour: Flavour, dirs: &[PathBuf]) -> Result<Registry, String> {
+        let mut r = Registry::with_dirs(flavour, dirs, "")?;
+        r.add_shipped();
+        Ok(r)
+    }
+
+    fn with_dirs(flavour: Flavour, dirs: &[PathBuf], label: &str) -> Result<Registry, String> {
         let mut r = Registry::empty(flavour);
         for d in dirs {
             if !d.is_dir() {
                 return Err(format!("`{}` is not a directory", d.display()));
             }
-            r.add_dir(d, &format!("{}", d.display()));
+            r.add_dir(d, &format!("{label}{}", d.display()));
         }
-        r.add_shipped();
         Ok(r)
     }
 
@@ -93,13 +98,7 @@ impl Registry {
     /// (`ROS_PACKAGE_PATH` for ROS 1, `AMENT_PREFIX_PATH`'s `share` directories for ROS 2,
     /// where set), then the shipped definitions.
     pub fn for_bridge(flavour: Flavour, msg_paths: &[PathBuf]) -> Result<Registry, String> {
-        let mut r = Registry::empty(flavour);
-        for d in msg_paths {
-            if !d.is_dir() {
-                return Err(format!("`{}` is not a directory", d.display()));
-            }
-            r.add_dir(d, &format!("msg_paths entry {}", d.display()));
-        }
+        let mut r = Registry::with_dirs(flavour, msg_paths, "msg_paths entry ")?;
         let var = ros_env(flavour);
         if let Some(value) = std::env::var_os(var) {
             for entry in std::env::split_paths(&value) {
@@ -198,6 +197,12 @@ impl Registry {
     /// Where it looks, in order (for "not found" messages).
     pub fn searched(&self) -> String {
         self.searched.join("; ")
+    }
+
+    /// Every type it can name, resolved (sorted by name); the first that does not resolve is
+    /// the error.
+    pub fn resolve_all(&self) -> Result<Vec<&'static RosType>, String> {
+        self.names().iter().map(|n| self.resolve(n)).collect()
     }
 
     /// Every type it can name, sorted.
@@ -414,6 +419,15 @@ fn intern(
     }));
     all.push(t);
     t
+}
+
+/// Every shipped type of both flavours (for tests and fuzzing).
+pub fn every_shipped_type() -> Result<Vec<(Flavour, &'static RosType)>, String> {
+    let mut out = Vec::new();
+    for f in [Flavour::Ros1, Flavour::Ros2] {
+        out.extend(f.shipped().resolve_all()?.into_iter().map(|t| (f, t)));
+    }
+    Ok(out)
 }
 
 /// ROS 1's builtin `time` and `duration`.

@@ -56,14 +56,7 @@ fn message_of(m: &'static RosType) -> BoxedStrategy<Value> {
 }
 
 fn every_shipped_type() -> Vec<(Flavour, &'static RosType)> {
-    let mut all = Vec::new();
-    for f in [Flavour::Ros1, Flavour::Ros2] {
-        let r = f.shipped();
-        for name in r.names() {
-            all.push((f, r.resolve(&name).expect("a shipped type resolves")));
-        }
-    }
-    all
+    hetcomm_rosmsg::registry::every_shipped_type().expect("the shipped types resolve")
 }
 
 fn wire(f: Flavour) -> Wire {
