@@ -135,3 +135,62 @@ fn arbitrary_bytes_never_panic_and_huge_lengths_do_not_allocate() {
         "`fields` has 4294967295 elements, more than the 0 bytes left can hold"
     );
 }
+
+#[test]
+fn a_ros_2_custom_type_with_bounds_defaults_and_time_converts_and_checks_its_bounds() {
+    let dir = std::env::temp_dir().join(format!("hc_ros2_msgs_{}", std::process::id()));
+    let pkg = dir.join("share/my_robot_msgs/msg");
+    std::fs::create_dir_all(&pkg).unwrap();
+    std::fs::write(
+        pkg.join("Status.msg"),
+        "uint8 OK = 0\nstd_msgs/Header header\nstring<=4 code \"ok\"\nint16[<=2] levels\n\
+         builtin_interfaces/Duration uptime\nuint64 count 7\n",
+    )
+    .unwrap();
+    let r =
+        hetcomm_rosmsg::registry::Registry::from_dirs(Flavour::Ros2, &[dir.join("share")]).unwrap();
+    let ty = r.resolve("my_robot_msgs/msg/Status").unwrap();
+    let map = |pairs: Vec<(&str, Value)>| {
+        Value::Map(
+            pairs
+                .into_iter()
+                .map(|(k, v)| (Value::from(k), v))
+                .collect(),
+        )
+    };
+    let value = |code: &str, levels: Vec<i16>| {
+        map(vec![
+            (
+                "header",
+                map(vec![
+                    ("stamp", map(vec![("sec", 1.into()), ("nanosec", 2.into())])),
+                    ("frame_id", "base".into()),
+                ]),
+            ),
+            ("code", code.into()),
+            (
+                "levels",
+                Value::Array(levels.into_iter().map(Value::from).collect()),
+            ),
+            (
+                "uptime",
+                map(vec![("sec", (-3).into()), ("nanosec", 4.into())]),
+            ),
+            ("count", u64::MAX.into()),
+        ])
+    };
+    let v = value("warn", vec![-1, 2]);
+    let cdr = encode(&v, ty, Wire::CDR, "Status").unwrap();
+    assert_eq!(decode(&cdr, ty, Wire::CDR).unwrap(), v);
+    assert_eq!(
+        encode(&value("broken", vec![]), ty, Wire::CDR, "Status").unwrap_err(),
+        "Status does not convert to my_robot_msgs/Status: field `code` has 6 bytes, the ROS \
+         field has at most 4"
+    );
+    assert_eq!(
+        encode(&value("ok", vec![1, 2, 3]), ty, Wire::CDR, "Status").unwrap_err(),
+        "Status does not convert to my_robot_msgs/Status: field `levels` has 3 elements, the \
+         ROS field has at most 2"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
