@@ -18,6 +18,7 @@ APT_PACKAGES=(
     iproute2                  # network namespaces: the multi-host Zenoh run
     ros-core python3-rospy python3-rostopic ros-std-msgs python3-msgpack  # ROS 1 master, rospy
     ros-geometry-msgs ros-nav-msgs ros-sensor-msgs                         # typed ROS 1 topics
+    ros-diagnostic-msgs ros-tf2-msgs ros-actionlib-msgs   # rosmsg md5 of every shipped ROS 1 type
     python3-geometry-msgs python3-nav-msgs python3-sensor-msgs
     cyclonedds-tools          # ddsperf: the DDS baseline of the benchmarks
     cmake g++ pkg-config valgrind libmsgpack-cxx-dev                       # the C and C++ API

@@ -102,12 +102,16 @@ fn mappings_parse_and_their_mistakes_are_located() {
             .to_string()
     };
     let good = fleet_text("/t", "http://127.0.0.1:1");
-    let e = errors(good.replace("nav_msgs/Odometry", "nav_msgs/Path"));
+    let e = errors(good.replace("nav_msgs/Odometry", "my_robot_msgs/Status"));
     assert!(
-        e.starts_with("b.toml:18:13: mapping of `/t/odom`: this build does not know the ROS type `nav_msgs/Path`"),
+        e.starts_with("b.toml:18:13: mapping of `/t/odom`: the ROS type `my_robot_msgs/Status` was not found: looked in "),
         "{e}"
     );
-    assert!(e.contains("known types: std_msgs/String"), "{e}");
+    assert!(
+        e.contains("the definitions shipped with hetcomm (actionlib_msgs, diagnostic_msgs, "),
+        "{e}"
+    );
+    assert!(e.contains("to `msg_paths`"), "{e}");
     let e = errors(good.replace("delivery = \"unacknowledged\"\n", ""));
     assert!(
         e.contains("(kind ros1_bridge) carries plain ROS messages, which nobody acknowledges"),

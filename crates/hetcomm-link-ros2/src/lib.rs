@@ -29,8 +29,9 @@
 //! ## Bridges
 //!
 //! The crate also has the `ros2_bridge` kind ([`bridge`]): an external ROS 2 robot in the
-//! fleet through typed topics (docs/ros-bridges.md), with the standard types' schemas and
-//! CDR conversion in [`rostypes`] and Rust types for them in [`msgs`].
+//! fleet through typed topics (docs/ros-bridges.md), any type read from its `.msg` definition
+//! (`hetcomm_rosmsg::registry`), CDR conversion in [`rostypes`] and Rust types for common ones
+//! in [`msgs`].
 //!
 //! ## Discovery
 //!

@@ -8,18 +8,14 @@ use hetcomm_rosmsg::codec::{self, Wire};
 use hetcomm_rosmsg::schema::Flavour;
 use rmpv::Value;
 
-pub use hetcomm_rosmsg::schema::ros2::{HEADER, KNOWN, NAV_SAT_FIX, ODOMETRY, POSE_STAMPED, TIME};
-pub use hetcomm_rosmsg::schema::{
-    RosType, Ty, FLOAT64, NAV_SAT_STATUS, POINT, POSE, POSE_WITH_COVARIANCE, QUATERNION, STRING,
-    TWIST, TWIST_WITH_COVARIANCE, VECTOR3,
-};
+pub use hetcomm_rosmsg::schema::{RosType, Ty};
 
-/// The known type named `name` (`pkg/Type` or `pkg/msg/Type`).
+/// The shipped type named `name` (`pkg/Type` or `pkg/msg/Type`).
 pub fn lookup(name: &str) -> Option<&'static RosType> {
     Flavour::Ros2.lookup(name)
 }
 
-/// The names of [`KNOWN`], for help texts.
+/// The packages of the shipped definitions, for help texts.
 pub fn known_names() -> String {
     Flavour::Ros2.known_names()
 }

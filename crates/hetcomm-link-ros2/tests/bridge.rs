@@ -53,14 +53,14 @@ fn mappings_parse_and_their_mistakes_are_located() {
             .unwrap_err()
             .to_string()
     };
-    let t = fleet_text("/t", 0, "").replace("nav_msgs/Odometry", "nav_msgs/Path");
+    let t = fleet_text("/t", 0, "").replace("nav_msgs/Odometry", "my_robot_msgs/Status");
     let e = errors(t);
     assert!(
-        e.starts_with("b.toml:19:13: mapping of `/t/odom`: this build does not know the ROS type `nav_msgs/Path`"),
+        e.starts_with("b.toml:19:13: mapping of `/t/odom`: the ROS type `my_robot_msgs/Status` was not found: looked in "),
         "{e}"
     );
     assert!(
-        e.contains("known types: std_msgs/String, std_msgs/Float64"),
+        e.contains("the definitions shipped with hetcomm (builtin_interfaces, diagnostic_msgs, "),
         "{e}"
     );
     let e = errors(

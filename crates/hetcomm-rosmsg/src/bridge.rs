@@ -1,6 +1,6 @@
 //! What the `ros1_bridge` and `ros2_bridge` transport kinds share besides the conversion:
-//! reading their fleet-file tables ([`parse_common`]: `robot`, the `publish` and `subscribe`
-//! mappings, the required `delivery` and `security`), naming the robot and modules
+//! reading their fleet-file tables ([`parse_common`]: `robot`, `msg_paths`, the `publish` and
+//! `subscribe` mappings, the required `delivery` and `security`), naming the robot and modules
 //! ([`robot_id`], [`module_id`]), converting what is sent to the robot ([`Outbound`]),
 //! counting and reporting bad input once ([`Tally`]), turning a ROS message into a hetcomm
 //! frame from the robot ([`FrameMaker`]), what the link promises ([`caps`]), and the kind's
@@ -23,6 +23,7 @@ use rmpv::Value;
 
 use crate::check::{self, Direction};
 use crate::codec::{self, Wire};
+use crate::registry::Registry;
 use crate::schema::{Flavour, RosType};
 
 /// One mapping between a hetcomm (module, message type) and a ROS topic of a ROS type.
@@ -60,7 +61,7 @@ impl PartialEq for Mapping {
 impl Eq for Mapping {}
 
 /// The keys every bridge kind reads (besides the shared ones and its own).
-pub const COMMON_KEYS: [&str; 3] = ["robot", "publish", "subscribe"];
+pub const COMMON_KEYS: [&str; 4] = ["robot", "publish", "subscribe", "msg_paths"];
 
 /// What every bridge's table says: the robot and the mappings.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -73,7 +74,13 @@ pub struct Common {
     /// `[transports.x.subscribe]`: ROS messages on a topic become messages of a type from the
     /// robot, to this system's module.
     pub subscribe: Vec<Mapping>,
+    /// `msg_paths = ["…"]`: directories searched for `PKG/msg/TYPE.msg` before the installed
+    /// ROS and the shipped definitions (relative to the fleet file).
+    pub msg_paths: Vec<std::path::PathBuf>,
 }
+
+const MSG_PATHS_HELP: &str = "write directories that hold ROS packages (PKG/msg/TYPE.msg), \
+                              relative to the fleet file, e.g. msg_paths = [\"ros/src\"]";
 
 const MAPPING_HELP: &str =
     "write \"MODULE TYPE_ID ROS_TYPE\", e.g. \"Drive 40 geometry_msgs/Twist\"";
@@ -81,7 +88,7 @@ const MAPPING_HELP: &str =
 fn mappings(
     s: &mut SettingsReader<'_, '_>,
     key: &str,
-    flavour: Flavour,
+    registry: &Registry,
     check_topic: fn(&str) -> Result<(), String>,
     ok: &mut bool,
 ) -> Vec<Mapping> {
@@ -89,6 +96,7 @@ fn mappings(
         *ok &= !s.has(key);
         return Vec::new();
     };
+    let flavour = registry.flavour();
     let mut out = Vec::new();
     for (topic, text) in entries {
         if let Err(why) = check_topic(&topic) {
@@ -122,15 +130,19 @@ fn mappings(
             *ok = false;
             continue;
         };
-        let Some(schema) = flavour.lookup(ros_type) else {
-            s.error_entry(
-                key,
-                &topic,
-                format!("mapping of `{topic}`: this build does not know the ROS type `{ros_type}`"),
-                format!("known types: {}", flavour.known_names()),
-            );
-            *ok = false;
-            continue;
+        let schema = match registry.resolve(ros_type) {
+            Ok(schema) => schema,
+            Err(why) => {
+                s.error_entry(
+                    key,
+                    &topic,
+                    format!("mapping of `{topic}`: {why}"),
+                    "add the directory that holds its package (PKG/msg/TYPE.msg) to `msg_paths`, \
+                     or fix the file",
+                );
+                *ok = false;
+                continue;
+            }
         };
         out.push(Mapping {
             topic,
@@ -192,8 +204,26 @@ pub fn parse_common(
         );
         ok = false;
     }
-    let publish = mappings(s, "publish", flavour, check_topic, &mut ok);
-    let subscribe = mappings(s, "subscribe", flavour, check_topic, &mut ok);
+    let msg_paths: Vec<std::path::PathBuf> = match s.has("msg_paths") {
+        true => match s.strings("msg_paths", MSG_PATHS_HELP) {
+            Some(list) => list.iter().map(|p| s.path(p)).collect(),
+            None => {
+                ok = false;
+                Vec::new()
+            }
+        },
+        false => Vec::new(),
+    };
+    let registry = match Registry::for_bridge(flavour, &msg_paths) {
+        Ok(r) => r,
+        Err(why) => {
+            s.error("msg_paths", format!("`msg_paths`: {why}"), MSG_PATHS_HELP);
+            ok = false;
+            Registry::shipped(flavour)
+        }
+    };
+    let publish = mappings(s, "publish", &registry, check_topic, &mut ok);
+    let subscribe = mappings(s, "subscribe", &registry, check_topic, &mut ok);
     if ok && publish.is_empty() && subscribe.is_empty() {
         s.error(
             "publish",
@@ -206,6 +236,7 @@ pub fn parse_common(
         robot: robot?,
         publish,
         subscribe,
+        msg_paths,
     })
 }
 

@@ -24,7 +24,7 @@ pub enum Direction {
 
 /// Whether a value of `shape` converts to or from `ty` in `direction`; the error names the
 /// field and what is wrong, as the per-message conversion would.
-pub fn check(shape: &Shape, ty: &'static RosType, direction: Direction) -> Result<(), String> {
+pub fn check(shape: &Shape, ty: &RosType, direction: Direction) -> Result<(), String> {
     match shape {
         Shape::Struct { fields, .. } => message(fields, ty, "", direction),
         Shape::Unknown | Shape::Map(..) | Shape::Enum(_) => Ok(()),
@@ -46,7 +46,7 @@ fn path_of(prefix: &str, name: &str) -> String {
 
 fn message(
     fields: &[(String, Shape)],
-    ty: &'static RosType,
+    ty: &RosType,
     prefix: &str,
     direction: Direction,
 ) -> Result<(), String> {
@@ -75,38 +75,39 @@ fn message(
     Ok(())
 }
 
-fn ros_name(ty: &Ty) -> String {
-    match ty {
-        Ty::Bool => "bool".into(),
-        Ty::I8 => "int8".into(),
-        Ty::U8 => "uint8".into(),
-        Ty::U16 => "uint16".into(),
-        Ty::I32 => "int32".into(),
-        Ty::U32 => "uint32".into(),
-        Ty::F64 => "float64".into(),
-        Ty::Str => "string".into(),
-        Ty::Array(elem, n) => format!("{}[{n}]", ros_name(elem)),
-        Ty::Msg(m) => m.name.into(),
-    }
-}
-
 fn value(shape: &Shape, ros: &Ty, path: &str, direction: Direction) -> Result<(), String> {
-    let integer = matches!(ros, Ty::I8 | Ty::U8 | Ty::U16 | Ty::I32 | Ty::U32);
+    let integer = matches!(
+        ros,
+        Ty::I8 | Ty::U8 | Ty::I16 | Ty::U16 | Ty::I32 | Ty::U32 | Ty::I64 | Ty::U64
+    );
+    let float = matches!(ros, Ty::F32 | Ty::F64);
     let fits = match (shape, ros) {
         (Shape::Unknown | Shape::Enum(_), _) => true,
         // Towards ROS a None has no ROS value; from ROS the value fills the Some.
         (Shape::Option(inner), _) if direction == Direction::FromRos => {
             return value(inner, ros, path, direction)
         }
-        (Shape::Bool, Ty::Bool) | (Shape::Str, Ty::Str) => true,
+        (Shape::Bool, Ty::Bool) | (Shape::Str, Ty::Str | Ty::BoundedStr(_)) => true,
         (Shape::Int, _) if integer => true,
         // An integer converts to float64 towards ROS; from ROS a float fills an integer
         // field only if it is one, which serde refuses.
-        (Shape::Int, Ty::F64) => direction == Direction::ToRos,
-        (Shape::Float, Ty::F64) => true,
+        (Shape::Int, _) if float => direction == Direction::ToRos,
+        (Shape::Float, _) if float => true,
         (Shape::Float, _) if integer => direction == Direction::FromRos,
-        (Shape::Seq(elem), Ty::Array(ros_elem, _)) => {
+        (Shape::Seq(elem), Ty::Array(ros_elem, _) | Ty::Seq(ros_elem, _)) => {
             return value(elem, ros_elem, &format!("{path}[]"), direction)
+        }
+        (Shape::Tuple(items), Ty::Seq(ros_elem, bound)) => {
+            if let Some(max) = bound.filter(|max| items.len() > *max) {
+                return Err(format!(
+                    "field `{path}` has {} elements, the ROS field has at most {max}",
+                    items.len()
+                ));
+            }
+            for (i, item) in items.iter().enumerate() {
+                value(item, ros_elem, &format!("{path}[{i}]"), direction)?;
+            }
+            return Ok(());
         }
         (Shape::Tuple(items), Ty::Array(ros_elem, n)) => {
             if items.len() != *n {
@@ -120,6 +121,8 @@ fn value(shape: &Shape, ros: &Ty, path: &str, direction: Direction) -> Result<()
             }
             return Ok(());
         }
+        // Bytes are a uint8 array either way (MessagePack bin towards ROS, an array back).
+        (Shape::Bytes, Ty::Array(e, _) | Ty::Seq(e, _)) => matches!(e, Ty::U8),
         (Shape::Struct { fields, .. }, Ty::Msg(m)) => return message(fields, m, path, direction),
         (Shape::Map(..), Ty::Msg(_)) => true,
         _ => false,
@@ -130,7 +133,7 @@ fn value(shape: &Shape, ros: &Ty, path: &str, direction: Direction) -> Result<()
         Err(format!(
             "field `{path}` is {}, the ROS field is {}",
             shape.describe(),
-            ros_name(ros)
+            crate::codec::ty_name(ros)
         ))
     }
 }
@@ -138,7 +141,7 @@ fn value(shape: &Shape, ros: &Ty, path: &str, direction: Direction) -> Result<()
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::schema::{Flavour, RosType};
+    use crate::schema::Flavour;
 
     fn ty(name: &str) -> &'static RosType {
         Flavour::Ros2.lookup(name).unwrap()

@@ -49,12 +49,7 @@ impl Wire {
 
 /// Converts a MessagePack value (a hetcomm payload) into `ty`'s body in `wire` (CDR is
 /// written XCDR1 little endian whatever `wire` says). `what` names the hetcomm type in errors.
-pub fn encode(
-    value: &Value,
-    ty: &'static RosType,
-    wire: Wire,
-    what: &str,
-) -> Result<Vec<u8>, String> {
+pub fn encode(value: &Value, ty: &RosType, wire: Wire, what: &str) -> Result<Vec<u8>, String> {
     let mut w = Writer {
         out: Vec::with_capacity(64),
         cdr: wire != Wire::Ros1,
@@ -66,7 +61,7 @@ pub fn encode(
 
 /// Reads `ty`'s body in `wire` into a MessagePack value: a map of every field by name. ROS 1
 /// bodies must end where the message does (trailing bytes are an error: another type).
-pub fn decode(body: &[u8], ty: &'static RosType, wire: Wire) -> Result<Value, String> {
+pub fn decode(body: &[u8], ty: &RosType, wire: Wire) -> Result<Value, String> {
     let mut r = Reader {
         body,
         pos: 0,
@@ -185,6 +180,10 @@ impl Writer {
             Ty::U8 => self
                 .out
                 .push(int_in(v, path, 0, u8::MAX as i64, "uint8")? as u8),
+            Ty::I16 => {
+                let n = int_in(v, path, i16::MIN as i64, i16::MAX as i64, "int16")? as i16;
+                self.put(&n.to_le_bytes());
+            }
             Ty::U16 => {
                 let n = int_in(v, path, 0, u16::MAX as i64, "uint16")? as u16;
                 self.put(&n.to_le_bytes());
@@ -197,28 +196,48 @@ impl Writer {
                 let n = int_in(v, path, 0, u32::MAX as i64, "uint32")? as u32;
                 self.put(&n.to_le_bytes());
             }
-            Ty::F64 => {
-                let x = match v {
-                    Value::F64(x) => *x,
-                    Value::F32(x) => *x as f64,
-                    Value::Integer(i) => i.as_f64().unwrap_or(f64::NAN),
-                    _ => {
-                        return Err(format!(
-                            "field `{path}` is {}, the ROS field is float64",
-                            kind_of(v)
-                        ))
-                    }
-                };
-                self.put(&x.to_le_bytes());
+            Ty::I64 => {
+                let n = int_in(v, path, i64::MIN, i64::MAX, "int64")?;
+                self.put(&n.to_le_bytes());
             }
-            Ty::Str => {
-                let Value::String(s) = v else {
+            Ty::U64 => {
+                let n = match v {
+                    Value::Integer(i) => i.as_u64(),
+                    _ => None,
+                };
+                let Some(n) = n else {
                     return Err(format!(
-                        "field `{path}` is {}, the ROS field is string",
+                        "field `{path}` is {} ({v}), the ROS field is uint64",
                         kind_of(v)
                     ));
                 };
+                self.put(&n.to_le_bytes());
+            }
+            Ty::F32 => {
+                let x = float(v, path, "float32")? as f32;
+                self.put(&x.to_le_bytes());
+            }
+            Ty::F64 => {
+                let x = float(v, path, "float64")?;
+                self.put(&x.to_le_bytes());
+            }
+            Ty::Str | Ty::BoundedStr(_) => {
+                let Value::String(s) = v else {
+                    return Err(format!(
+                        "field `{path}` is {}, the ROS field is {}",
+                        kind_of(v),
+                        ty_name(ty)
+                    ));
+                };
                 let bytes = s.as_bytes();
+                if let Ty::BoundedStr(max) = ty {
+                    if bytes.len() > *max {
+                        return Err(format!(
+                            "field `{path}` has {} bytes, the ROS field has at most {max}",
+                            bytes.len()
+                        ));
+                    }
+                }
                 // CDR counts and writes a terminating NUL; ROS 1 has none.
                 let nul = self.cdr as usize;
                 self.put(&((bytes.len() + nul) as u32).to_le_bytes());
@@ -228,27 +247,120 @@ impl Writer {
                 }
             }
             Ty::Array(elem, n) => {
-                let Value::Array(items) = v else {
-                    return Err(format!(
-                        "field `{path}` is {}, the ROS field is an array of {n}",
-                        kind_of(v)
-                    ));
-                };
+                let items = self.items(v, elem, path, &format!("an array of {n}"))?;
                 if items.len() != *n {
                     return Err(format!(
                         "field `{path}` has {} elements, the ROS field has {n}",
                         items.len()
                     ));
                 }
-                for (i, item) in items.iter().enumerate() {
-                    self.value(item, elem, &format!("{path}[{i}]"))?;
+                self.elements(&items, elem, path)?;
+            }
+            Ty::Seq(elem, bound) => {
+                let items = self.items(v, elem, path, "an array")?;
+                if let Some(max) = bound {
+                    if items.len() > *max {
+                        return Err(format!(
+                            "field `{path}` has {} elements, the ROS field has at most {max}",
+                            items.len()
+                        ));
+                    }
                 }
+                let len = u32::try_from(items.len())
+                    .map_err(|_| format!("field `{path}` has more than 2^32 elements"))?;
+                self.put(&len.to_le_bytes());
+                self.elements(&items, elem, path)?;
             }
             Ty::Msg(inner) => self.msg(v, inner, path)?,
         }
         Ok(())
     }
+
+    /// The elements of an array value; bytes (MessagePack bin) are an array of `uint8`s.
+    fn items<'v>(
+        &self,
+        v: &'v Value,
+        elem: &Ty,
+        path: &str,
+        what: &str,
+    ) -> Result<std::borrow::Cow<'v, [Value]>, String> {
+        match v {
+            Value::Array(items) => Ok(std::borrow::Cow::Borrowed(items)),
+            Value::Binary(b) if matches!(elem, Ty::U8) => Ok(std::borrow::Cow::Owned(
+                b.iter().map(|x| Value::from(*x)).collect(),
+            )),
+            _ => Err(format!(
+                "field `{path}` is {}, the ROS field is {what}",
+                kind_of(v)
+            )),
+        }
+    }
+
+    fn elements(&mut self, items: &[Value], elem: &Ty, path: &str) -> Result<(), String> {
+        for (i, item) in items.iter().enumerate() {
+            self.value(item, elem, &format!("{path}[{i}]"))?;
+        }
+        Ok(())
+    }
 }
+
+fn float(v: &Value, path: &str, ros: &str) -> Result<f64, String> {
+    match v {
+        Value::F64(x) => Ok(*x),
+        Value::F32(x) => Ok(*x as f64),
+        Value::Integer(i) => Ok(i.as_f64().unwrap_or(f64::NAN)),
+        _ => Err(format!(
+            "field `{path}` is {}, the ROS field is {ros}",
+            kind_of(v)
+        )),
+    }
+}
+
+/// A field type's ROS name, as a `.msg` file writes it.
+pub fn ty_name(ty: &Ty) -> String {
+    match ty {
+        Ty::Bool => "bool".into(),
+        Ty::I8 => "int8".into(),
+        Ty::U8 => "uint8".into(),
+        Ty::I16 => "int16".into(),
+        Ty::U16 => "uint16".into(),
+        Ty::I32 => "int32".into(),
+        Ty::U32 => "uint32".into(),
+        Ty::I64 => "int64".into(),
+        Ty::U64 => "uint64".into(),
+        Ty::F32 => "float32".into(),
+        Ty::F64 => "float64".into(),
+        Ty::Str => "string".into(),
+        Ty::BoundedStr(n) => format!("string<={n}"),
+        Ty::Array(elem, n) => format!("{}[{n}]", ty_name(elem)),
+        Ty::Seq(elem, None) => format!("{}[]", ty_name(elem)),
+        Ty::Seq(elem, Some(n)) => format!("{}[<={n}]", ty_name(elem)),
+        Ty::Msg(m) => m.name.into(),
+    }
+}
+
+/// The fewest bytes a value of `ty` takes on the wire (without alignment): what a length
+/// prefix is checked against before anything is allocated.
+fn min_size(ty: &Ty, cdr: bool) -> usize {
+    match ty {
+        Ty::Bool | Ty::I8 | Ty::U8 => 1,
+        Ty::I16 | Ty::U16 => 2,
+        Ty::I32 | Ty::U32 | Ty::F32 => 4,
+        Ty::I64 | Ty::U64 | Ty::F64 => 8,
+        // A length, and in CDR its NUL.
+        Ty::Str | Ty::BoundedStr(_) => 4 + cdr as usize,
+        Ty::Seq(..) => 4,
+        Ty::Array(elem, n) => min_size(elem, cdr).saturating_mul(*n),
+        Ty::Msg(m) => m
+            .fields
+            .iter()
+            .fold(0usize, |acc, (_, t)| acc.saturating_add(min_size(t, cdr))),
+    }
+}
+
+/// Elements of zero size (empty messages) an array may announce: nothing bounds them by
+/// the bytes left.
+const MAX_EMPTY_ELEMENTS: usize = 1 << 16;
 
 struct Reader<'a> {
     body: &'a [u8],
@@ -284,7 +396,7 @@ impl Reader<'_> {
         Ok(a)
     }
 
-    fn msg(&mut self, ty: &'static RosType, path: &str) -> Result<Value, String> {
+    fn msg(&mut self, ty: &RosType, path: &str) -> Result<Value, String> {
         let mut map = Vec::with_capacity(ty.fields.len());
         for (name, fty) in ty.fields {
             let p = field_path(path, name);
@@ -298,11 +410,15 @@ impl Reader<'_> {
             Ty::Bool => Value::Boolean(self.take(1, path)?[0] != 0),
             Ty::I8 => Value::from(self.take(1, path)?[0] as i8),
             Ty::U8 => Value::from(self.take(1, path)?[0]),
+            Ty::I16 => Value::from(i16::from_le_bytes(self.num(path)?)),
             Ty::U16 => Value::from(u16::from_le_bytes(self.num(path)?)),
             Ty::I32 => Value::from(i32::from_le_bytes(self.num(path)?)),
             Ty::U32 => Value::from(u32::from_le_bytes(self.num(path)?)),
+            Ty::I64 => Value::from(i64::from_le_bytes(self.num(path)?)),
+            Ty::U64 => Value::from(u64::from_le_bytes(self.num(path)?)),
+            Ty::F32 => Value::F32(f32::from_le_bytes(self.num(path)?)),
             Ty::F64 => Value::F64(f64::from_le_bytes(self.num(path)?)),
-            Ty::Str => {
+            Ty::Str | Ty::BoundedStr(_) => {
                 let len = u32::from_le_bytes(self.num(path)?) as usize;
                 let cdr = self.max_align > 0;
                 if cdr && len == 0 {
@@ -314,26 +430,67 @@ impl Reader<'_> {
                     .ok_or_else(|| format!("string `{path}` runs past the end of the message"))?;
                 self.pos += len;
                 let text = if cdr { &raw[..len - 1] } else { raw };
+                if let Ty::BoundedStr(max) = ty {
+                    if text.len() > *max {
+                        return Err(format!(
+                            "string `{path}` has {} bytes, the ROS field has at most {max}",
+                            text.len()
+                        ));
+                    }
+                }
                 let text = std::str::from_utf8(text)
                     .map_err(|_| format!("string `{path}` is not UTF-8"))?;
                 Value::from(text)
             }
-            Ty::Array(elem, n) => {
-                let mut items = Vec::with_capacity(*n);
-                for i in 0..*n {
-                    items.push(self.value(elem, &format!("{path}[{i}]"))?);
+            Ty::Array(elem, n) => self.elements(elem, *n, path)?,
+            Ty::Seq(elem, bound) => {
+                let n = u32::from_le_bytes(self.num(path)?) as usize;
+                if let Some(max) = bound {
+                    if n > *max {
+                        return Err(format!(
+                            "`{path}` has {n} elements, the ROS field has at most {max}"
+                        ));
+                    }
                 }
-                Value::Array(items)
+                self.elements(elem, n, path)?
             }
             Ty::Msg(inner) => self.msg(inner, path)?,
         })
+    }
+
+    /// `n` elements of `elem`, checked against the bytes left before allocating.
+    fn elements(&mut self, elem: &Ty, n: usize, path: &str) -> Result<Value, String> {
+        let left = self.body.len().saturating_sub(self.pos);
+        let each = min_size(elem, self.max_align > 0);
+        let fits = match each {
+            0 => n <= MAX_EMPTY_ELEMENTS,
+            _ => n <= left / each,
+        };
+        if !fits {
+            return Err(format!(
+                "`{path}` has {n} elements, more than the {left} bytes left can hold"
+            ));
+        }
+        let mut items = Vec::with_capacity(n);
+        for i in 0..n {
+            items.push(self.value(elem, &format!("{path}[{i}]"))?);
+        }
+        Ok(Value::Array(items))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::schema::{ros1, ros2, FLOAT64, STRING, TWIST};
+    use crate::schema::Flavour;
+
+    fn ros1(name: &str) -> &'static RosType {
+        Flavour::Ros1.lookup(name).unwrap()
+    }
+
+    fn ros2(name: &str) -> &'static RosType {
+        Flavour::Ros2.lookup(name).unwrap()
+    }
 
     fn map(pairs: &[(&str, Value)]) -> Value {
         Value::Map(
@@ -369,12 +526,24 @@ mod tests {
             ("linear", vec3(0.5, 0.0, 0.0)),
             ("angular", vec3(0.0, 0.0, 0.25)),
         ]);
-        let cdr = encode(&twist, &TWIST, Wire::CDR, "Command (type 40)").unwrap();
+        let cdr = encode(
+            &twist,
+            ros2("geometry_msgs/Twist"),
+            Wire::CDR,
+            "Command (type 40)",
+        )
+        .unwrap();
         assert_eq!(cdr.len(), 48);
         assert_eq!(&cdr[..8], &0.5f64.to_le_bytes());
-        assert_eq!(decode(&cdr, &TWIST, Wire::CDR).unwrap(), twist);
+        assert_eq!(
+            decode(&cdr, ros2("geometry_msgs/Twist"), Wire::CDR).unwrap(),
+            twist
+        );
         // Six float64s have no padding either way: ROS 1's body is the same bytes.
-        assert_eq!(encode(&twist, &TWIST, Wire::Ros1, "C").unwrap(), cdr);
+        assert_eq!(
+            encode(&twist, ros2("geometry_msgs/Twist"), Wire::Ros1, "C").unwrap(),
+            cdr
+        );
     }
 
     #[test]
@@ -384,11 +553,17 @@ mod tests {
             ("frame_id", "map".into()),
         ]);
         let stamped = map(&[("header", header), ("pose", pose())]);
-        let cdr = encode(&stamped, &ros2::POSE_STAMPED, Wire::CDR, "Fix").unwrap();
+        let cdr = encode(
+            &stamped,
+            ros2("geometry_msgs/PoseStamped"),
+            Wire::CDR,
+            "Fix",
+        )
+        .unwrap();
         // sec, nanosec, len 4, "map\0", then the first float64 at offset 16.
         assert_eq!(&cdr[8..16], &[4, 0, 0, 0, b'm', b'a', b'p', 0]);
         assert_eq!(&cdr[16..24], &1.0f64.to_le_bytes());
-        let back = decode(&cdr, &ros2::POSE_STAMPED, Wire::CDR).unwrap();
+        let back = decode(&cdr, ros2("geometry_msgs/PoseStamped"), Wire::CDR).unwrap();
         assert_eq!(back, stamped);
     }
 
@@ -403,14 +578,20 @@ mod tests {
             ("frame_id", "map".into()),
         ]);
         let stamped = map(&[("header", header), ("pose", pose())]);
-        let body = encode(&stamped, &ros1::POSE_STAMPED, Wire::Ros1, "Fix").unwrap();
+        let body = encode(
+            &stamped,
+            ros1("geometry_msgs/PoseStamped"),
+            Wire::Ros1,
+            "Fix",
+        )
+        .unwrap();
         // seq, secs, nsecs, len 3, "map", then the first float64 right after (byte 19).
         assert_eq!(&body[..4], &9u32.to_le_bytes());
         assert_eq!(&body[12..19], &[3, 0, 0, 0, b'm', b'a', b'p']);
         assert_eq!(&body[19..27], &1.0f64.to_le_bytes());
         assert_eq!(body.len(), 19 + 7 * 8);
         assert_eq!(
-            decode(&body, &ros1::POSE_STAMPED, Wire::Ros1).unwrap(),
+            decode(&body, ros1("geometry_msgs/PoseStamped"), Wire::Ros1).unwrap(),
             stamped
         );
         // A ROS 2 header is not a ROS 1 header: the field is named.
@@ -421,7 +602,13 @@ mod tests {
             ),
             ("pose", pose()),
         ]);
-        let err = encode(&ros2_header, &ros1::POSE_STAMPED, Wire::Ros1, "Fix").unwrap_err();
+        let err = encode(
+            &ros2_header,
+            ros1("geometry_msgs/PoseStamped"),
+            Wire::Ros1,
+            "Fix",
+        )
+        .unwrap_err();
         assert_eq!(
             err,
             "Fix does not convert to geometry_msgs/PoseStamped: field `header.seq` of \
@@ -433,19 +620,37 @@ mod tests {
     fn mismatches_name_both_types_and_the_field() {
         let missing = map(&[("linear", vec3(1.0, 0.0, 0.0))]);
         assert_eq!(
-            encode(&missing, &TWIST, Wire::CDR, "Command (type 40)").unwrap_err(),
+            encode(
+                &missing,
+                ros2("geometry_msgs/Twist"),
+                Wire::CDR,
+                "Command (type 40)"
+            )
+            .unwrap_err(),
             "Command (type 40) does not convert to geometry_msgs/Twist: field `angular` of \
              geometry_msgs/Twist is missing"
         );
         let extra = map(&[("data", 1.0.into()), ("unit", "m".into())]);
         assert_eq!(
-            encode(&extra, &FLOAT64, Wire::Ros1, "Range (type 7)").unwrap_err(),
+            encode(
+                &extra,
+                ros2("std_msgs/Float64"),
+                Wire::Ros1,
+                "Range (type 7)"
+            )
+            .unwrap_err(),
             "Range (type 7) does not convert to std_msgs/Float64: field `unit` has no \
              counterpart in std_msgs/Float64"
         );
         let wrong = map(&[("data", "high".into())]);
         assert_eq!(
-            encode(&wrong, &FLOAT64, Wire::CDR, "Range (type 7)").unwrap_err(),
+            encode(
+                &wrong,
+                ros2("std_msgs/Float64"),
+                Wire::CDR,
+                "Range (type 7)"
+            )
+            .unwrap_err(),
             "Range (type 7) does not convert to std_msgs/Float64: field `data` is a string, \
              the ROS field is float64"
         );
@@ -454,19 +659,34 @@ mod tests {
     #[test]
     fn truncated_or_garbled_bodies_are_an_error_not_a_panic() {
         for wire in [Wire::CDR, Wire::Ros1] {
-            let body = encode(&map(&[("data", "hello".into())]), &STRING, wire, "T").unwrap();
+            let body = encode(
+                &map(&[("data", "hello".into())]),
+                ros2("std_msgs/String"),
+                wire,
+                "T",
+            )
+            .unwrap();
             for cut in 0..body.len() - 1 {
-                assert!(decode(&body[..cut], &STRING, wire).is_err(), "cut at {cut}");
+                assert!(
+                    decode(&body[..cut], ros2("std_msgs/String"), wire).is_err(),
+                    "cut at {cut}"
+                );
             }
             let mut huge = body.clone();
             huge[..4].copy_from_slice(&u32::MAX.to_le_bytes());
-            assert!(decode(&huge, &STRING, wire).is_err());
-            assert!(decode(&[1, 2, 3], &ros1::ODOMETRY, wire).is_err());
+            assert!(decode(&huge, ros2("std_msgs/String"), wire).is_err());
+            assert!(decode(&[1, 2, 3], ros1("nav_msgs/Odometry"), wire).is_err());
         }
         // A std_msgs/String "abcdef" read as a Float64 on ROS 1 is refused for its length.
-        let s = encode(&map(&[("data", "abcdef".into())]), &STRING, Wire::Ros1, "T").unwrap();
+        let s = encode(
+            &map(&[("data", "abcdef".into())]),
+            ros2("std_msgs/String"),
+            Wire::Ros1,
+            "T",
+        )
+        .unwrap();
         assert_eq!(
-            decode(&s, &FLOAT64, Wire::Ros1).unwrap_err(),
+            decode(&s, ros2("std_msgs/Float64"), Wire::Ros1).unwrap_err(),
             "2 bytes are left after the message (10 bytes)"
         );
     }

@@ -5,8 +5,10 @@
 //! topics (docs/ros-bridges.md). Everything about them that does not depend on the ROS
 //! transport is here, once:
 //!
-//! * [`schema`]: the 7 standard types a bridge maps, for ROS 1 and ROS 2 (they differ only in
-//!   `std_msgs/Header`);
+//! * [`msgfile`]: reading a `.msg` file (ROS 1 or ROS 2), with errors at `file:line`;
+//! * [`registry`]: where definitions are found (`msg_paths`, an installed ROS, the shipped
+//!   common_interfaces) and how a type resolves into a schema, with ROS 1's MD5 sum;
+//! * [`schema`]: a ROS type's schema, for ROS 1 or ROS 2 (they differ in `std_msgs/Header`);
 //! * [`codec`]: conversion between a hetcomm payload and a ROS message body, by serde field
 //!   name, in ROS 1's serialization or ROS 2's CDR;
 //! * [`msgs`]: Rust types of those messages whose serde names are the ROS names;
@@ -17,5 +19,7 @@
 pub mod bridge;
 pub mod check;
 pub mod codec;
+pub mod msgfile;
 pub mod msgs;
+pub mod registry;
 pub mod schema;

@@ -1,4 +1,5 @@
-//! The standard ROS messages a bridge knows, as Rust types whose serde field names are the
+//! Seven common ROS messages (any type with a definition maps: these save writing the Rust
+//! side of the most used ones), as Rust types whose serde field names are the
 //! ROS field names: wrap one in a hetcomm message and it maps to its ROS type with nothing
 //! to write by hand. The header differs between ROS 1 and ROS 2: take the stamped types from
 //! [`ros1`] or [`ros2`].

@@ -1,53 +1,87 @@
-//! The standard ROS message types a bridge knows, as schemas ([`RosType`]), for ROS 1
-//! ([`ros1`]) and ROS 2 ([`ros2`]).
+//! The ROS message types a bridge maps, as schemas ([`RosType`]) read from their definitions
+//! (the [`crate::registry`]), for ROS 1 and ROS 2 ([`Flavour`]).
 //!
-//! Both flavours share every type but the header: ROS 1's `std_msgs/Header` is `seq`, `stamp`
+//! The two flavours differ in their header: ROS 1's `std_msgs/Header` is `seq`, `stamp`
 //! (`time`: `secs`, `nsecs`) and `frame_id`; ROS 2's is `stamp` (`builtin_interfaces/Time`:
-//! `sec`, `nanosec`) and `frame_id`. So `geometry_msgs/PoseStamped`, `nav_msgs/Odometry` and
-//! `sensor_msgs/NavSatFix` exist once per flavour; the others once.
+//! `sec`, `nanosec`) and `frame_id`. So every type with a header exists once per flavour.
+
+use std::sync::OnceLock;
+
+use crate::registry::Registry;
 
 /// A field's type.
 #[derive(Debug)]
 pub enum Ty {
     /// `bool`.
     Bool,
-    /// `int8`.
+    /// `int8` (ROS 1's `byte`).
     I8,
-    /// `uint8`.
+    /// `uint8` (`char`, ROS 2's `byte`).
     U8,
+    /// `int16`.
+    I16,
     /// `uint16`.
     U16,
     /// `int32`.
     I32,
     /// `uint32`.
     U32,
+    /// `int64`.
+    I64,
+    /// `uint64`.
+    U64,
+    /// `float32`.
+    F32,
     /// `float64`.
     F64,
     /// `string`.
     Str,
+    /// `string<=N` (ROS 2): at most N bytes.
+    BoundedStr(usize),
     /// `T[N]`: exactly N elements, no length on the wire.
     Array(&'static Ty, usize),
-    /// A nested message.
+    /// `T[]` (no bound) or `T[<=N]` (ROS 2, a bound): a `uint32` length, then the elements.
+    Seq(&'static Ty, Option<usize>),
+    /// A nested message (also ROS 1's `time` and `duration`, two fields each).
     Msg(&'static RosType),
 }
 
-/// A ROS message type: its name (`pkg/Type`) and fields in order.
+/// A ROS message type: its name (`pkg/Type`), fields in order, and what identifies it.
 #[derive(Debug)]
 pub struct RosType {
     /// `pkg/Type`, e.g. `geometry_msgs/Twist`.
     pub name: &'static str,
     /// Fields, in wire order.
     pub fields: &'static [(&'static str, Ty)],
+    /// Its constants: (type, name, value as written).
+    pub constants: &'static [(&'static str, &'static str, &'static str)],
+    /// ROS 1's MD5 sum of the definition (hex); empty for ROS 2 types and builtins.
+    pub md5: &'static str,
+    /// The full definition ROS 1 sends in a connection header (the type's text, then each
+    /// type it uses after a line of `=` and `MSG: pkg/Type`); for ROS 2, the type's text.
+    pub definition: &'static str,
 }
 
 /// Which ROS a schema is for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Flavour {
     /// ROS 1 (TCPROS, ROS 1 serialization).
     Ros1,
     /// ROS 2 (DDS, CDR).
     Ros2,
 }
+
+/// The types the bridges mapped before they read definitions, and the fleet files' examples
+/// use.
+const CLASSIC: [&str; 7] = [
+    "std_msgs/String",
+    "std_msgs/Float64",
+    "geometry_msgs/Twist",
+    "geometry_msgs/Pose",
+    "geometry_msgs/PoseStamped",
+    "nav_msgs/Odometry",
+    "sensor_msgs/NavSatFix",
+];
 
 impl Flavour {
     /// "ROS 1" or "ROS 2", for messages.
@@ -58,175 +92,36 @@ impl Flavour {
         }
     }
 
-    /// The types a bridge of this flavour can map.
+    /// The shipped definitions of this flavour (std_msgs, geometry_msgs, sensor_msgs,
+    /// nav_msgs, diagnostic_msgs, tf2_msgs; builtin_interfaces in ROS 2), no directories.
+    pub fn shipped(self) -> &'static Registry {
+        static REGISTRIES: [OnceLock<Registry>; 2] = [OnceLock::new(), OnceLock::new()];
+        REGISTRIES[self as usize].get_or_init(|| Registry::shipped(self))
+    }
+
+    /// Seven common types (`std_msgs/String`, `Float64`, `geometry_msgs/Twist`, `Pose`,
+    /// `PoseStamped`, `nav_msgs/Odometry`, `sensor_msgs/NavSatFix`), from the shipped
+    /// definitions.
     pub fn known(self) -> &'static [&'static RosType; 7] {
-        match self {
-            Flavour::Ros1 => &ros1::KNOWN,
-            Flavour::Ros2 => &ros2::KNOWN,
-        }
+        static KNOWN: [OnceLock<[&'static RosType; 7]>; 2] = [OnceLock::new(), OnceLock::new()];
+        KNOWN[self as usize].get_or_init(|| {
+            CLASSIC.map(|name| {
+                self.shipped()
+                    .resolve(name)
+                    .unwrap_or_else(|e| panic!("the shipped definition of {name}: {e}"))
+            })
+        })
     }
 
-    /// The known type named `name` (`pkg/Type` or `pkg/msg/Type`).
+    /// The shipped type named `name` (`pkg/Type` or `pkg/msg/Type`).
     pub fn lookup(self, name: &str) -> Option<&'static RosType> {
-        let short = match name.split('/').collect::<Vec<_>>()[..] {
-            [pkg, "msg", ty] => format!("{pkg}/{ty}"),
-            _ => name.to_string(),
-        };
-        self.known().iter().copied().find(|t| t.name == short)
+        self.shipped().resolve(name).ok()
     }
 
-    /// The names of the known types, for help texts.
+    /// The packages whose definitions ship with hetcomm, for help texts.
     pub fn known_names(self) -> String {
-        let names: Vec<_> = self.known().iter().map(|t| t.name).collect();
-        names.join(", ")
+        self.shipped().packages().join(", ")
     }
-}
-
-macro_rules! ros_type {
-    ($id:ident, $name:literal, [$(($f:literal, $t:expr)),* $(,)?]) => {
-        #[doc = concat!("`", $name, "`.")]
-        pub static $id: RosType = RosType { name: $name, fields: &[$(($f, $t)),*] };
-    };
-}
-
-ros_type!(STRING, "std_msgs/String", [("data", Ty::Str)]);
-ros_type!(FLOAT64, "std_msgs/Float64", [("data", Ty::F64)]);
-ros_type!(
-    VECTOR3,
-    "geometry_msgs/Vector3",
-    [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]
-);
-ros_type!(
-    POINT,
-    "geometry_msgs/Point",
-    [("x", Ty::F64), ("y", Ty::F64), ("z", Ty::F64)]
-);
-ros_type!(
-    QUATERNION,
-    "geometry_msgs/Quaternion",
-    [
-        ("x", Ty::F64),
-        ("y", Ty::F64),
-        ("z", Ty::F64),
-        ("w", Ty::F64)
-    ]
-);
-ros_type!(
-    TWIST,
-    "geometry_msgs/Twist",
-    [
-        ("linear", Ty::Msg(&VECTOR3)),
-        ("angular", Ty::Msg(&VECTOR3))
-    ]
-);
-ros_type!(
-    POSE,
-    "geometry_msgs/Pose",
-    [
-        ("position", Ty::Msg(&POINT)),
-        ("orientation", Ty::Msg(&QUATERNION))
-    ]
-);
-static COV: Ty = Ty::F64;
-ros_type!(
-    POSE_WITH_COVARIANCE,
-    "geometry_msgs/PoseWithCovariance",
-    [
-        ("pose", Ty::Msg(&POSE)),
-        ("covariance", Ty::Array(&COV, 36))
-    ]
-);
-ros_type!(
-    TWIST_WITH_COVARIANCE,
-    "geometry_msgs/TwistWithCovariance",
-    [
-        ("twist", Ty::Msg(&TWIST)),
-        ("covariance", Ty::Array(&COV, 36))
-    ]
-);
-ros_type!(
-    NAV_SAT_STATUS,
-    "sensor_msgs/NavSatStatus",
-    [("status", Ty::I8), ("service", Ty::U16)]
-);
-
-/// The types that contain a header, and the list of known types, for one flavour's `HEADER`.
-macro_rules! stamped_types {
-    () => {
-        use super::*;
-
-        ros_type!(
-            POSE_STAMPED,
-            "geometry_msgs/PoseStamped",
-            [("header", Ty::Msg(&HEADER)), ("pose", Ty::Msg(&POSE))]
-        );
-        ros_type!(
-            ODOMETRY,
-            "nav_msgs/Odometry",
-            [
-                ("header", Ty::Msg(&HEADER)),
-                ("child_frame_id", Ty::Str),
-                ("pose", Ty::Msg(&POSE_WITH_COVARIANCE)),
-                ("twist", Ty::Msg(&TWIST_WITH_COVARIANCE)),
-            ]
-        );
-        ros_type!(
-            NAV_SAT_FIX,
-            "sensor_msgs/NavSatFix",
-            [
-                ("header", Ty::Msg(&HEADER)),
-                ("status", Ty::Msg(&NAV_SAT_STATUS)),
-                ("latitude", Ty::F64),
-                ("longitude", Ty::F64),
-                ("altitude", Ty::F64),
-                ("position_covariance", Ty::Array(&COV, 9)),
-                ("position_covariance_type", Ty::U8),
-            ]
-        );
-
-        /// The types a bridge can map.
-        pub static KNOWN: [&RosType; 7] = [
-            &STRING,
-            &FLOAT64,
-            &TWIST,
-            &POSE,
-            &POSE_STAMPED,
-            &ODOMETRY,
-            &NAV_SAT_FIX,
-        ];
-    };
-}
-
-/// ROS 1's header and the types that contain it.
-pub mod ros1 {
-    stamped_types!();
-
-    ros_type!(TIME, "time", [("secs", Ty::U32), ("nsecs", Ty::U32)]);
-    ros_type!(
-        HEADER,
-        "std_msgs/Header",
-        [
-            ("seq", Ty::U32),
-            ("stamp", Ty::Msg(&TIME)),
-            ("frame_id", Ty::Str)
-        ]
-    );
-}
-
-/// ROS 2's header and the types that contain it.
-pub mod ros2 {
-    stamped_types!();
-
-    ros_type!(
-        TIME,
-        "builtin_interfaces/Time",
-        [("sec", Ty::I32), ("nanosec", Ty::U32)]
-    );
-    ros_type!(
-        HEADER,
-        "std_msgs/Header",
-        [("stamp", Ty::Msg(&TIME)), ("frame_id", Ty::Str)]
-    );
 }
 
 #[cfg(test)]
@@ -240,8 +135,9 @@ mod tests {
                 f.lookup("nav_msgs/msg/Odometry").unwrap().name,
                 "nav_msgs/Odometry"
             );
-            assert!(f.lookup("nav_msgs/Path").is_none());
-            assert_eq!(f.known_names().split(", ").count(), 7);
+            assert!(f.lookup("nav_msgs/Path").is_some());
+            assert!(f.lookup("nav_msgs/Paht").is_none());
+            assert_eq!(f.known().len(), 7);
         }
         let header = |f: Flavour| match f.lookup("nav_msgs/Odometry").unwrap().fields[0].1 {
             Ty::Msg(h) => h.fields.len(),

@@ -47,6 +47,15 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
         self.kind
     }
 
+    /// The path `written` in the fleet file names: relative to the fleet file's directory,
+    /// when it has one.
+    pub fn path(&self, written: &str) -> std::path::PathBuf {
+        match self.p.base_dir {
+            Some(d) => d.join(written),
+            None => std::path::PathBuf::from(written),
+        }
+    }
+
     /// Whether the table has `key`.
     pub fn has(&self, key: &str) -> bool {
         self.t.get(key).is_some()

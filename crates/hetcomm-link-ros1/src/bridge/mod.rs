@@ -15,12 +15,16 @@
 //!   `MODULE` as a message of type `TYPE_ID` from the robot. A system whose `[systems]` entry
 //!   lists its modules without `MODULE` does not subscribe to that topic.
 //!
+//! Types are read from their definitions (`hetcomm_rosmsg::registry`: the bridge's
+//! `msg_paths`, `ROS_PACKAGE_PATH`, the definitions shipped with hetcomm), converted from the
+//! definition, advertised with the MD5 sum and full definition computed from it.
+//!
 //! Bad input never reaches a module: a message that does not deserialize as the mapped type,
 //! and a publisher on a mapped topic whose type is another (ROS 1 refuses its connection at
-//! the handshake, for its MD5 sum; the bridge asks the master who publishes each mapped topic
-//! and each publisher's `getPublications` for its type), are counted (dropped frames in the
-//! link's stats) and described in [`Ros1Bridge::problems`], each problem printed once to
-//! stderr. Plain ROS messages are unauthenticated: the transport must say
+//! the handshake, for its MD5 sum, for every shipped type: see `types`; the bridge asks the
+//! master who publishes each mapped topic and each publisher's `getPublications` for its
+//! type), are counted (dropped frames in the link's stats) and described in
+//! [`Ros1Bridge::problems`], each problem printed once to stderr. Plain ROS messages are unauthenticated: the transport must say
 //! `security = "none"`.
 
 mod settings;
@@ -42,7 +46,7 @@ use roslibrust::ros1::{NodeHandle, PublisherAny};
 use tokio::sync::mpsc;
 
 pub use settings::{check_topic, BridgeSettings, Mapping, KEYS};
-pub use types::description;
+pub use types::{description, md5_checked, Description};
 
 use crate::xmlrpc;
 
@@ -129,6 +133,7 @@ impl Ros1Bridge {
                 let mut publishers = Vec::new();
                 for m in &settings.publish {
                     let d = description(m.schema);
+                    types::check_advertised_md5(&d)?;
                     let p = node
                         .advertise_any(&m.topic, d.ros_type_name, d.definition, ROS_QUEUE, false)
                         .await
@@ -250,11 +255,23 @@ async fn check_publisher_types(
                 };
                 checked.insert((m.topic.clone(), node.clone()));
                 match xmlrpc::publication_type(&pubs, &m.topic) {
-                    Some(ty) if ty != m.ros_type() => tally.dropped_once(format!(
-                        "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
+                    Some(ty) if ty != m.ros_type() && types::md5_checked(m.schema) => tally
+                        .dropped_once(format!(
+                            "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
                              as {}: ROS 1 refuses its connection (MD5 sum mismatch), its \
                              messages are not received",
+                            m.topic,
+                            m.ros_type()
+                        )),
+                    // Subscribed with any MD5 sum: its messages arrive and are checked one
+                    // by one against the definition.
+                    Some(ty) if ty != m.ros_type() => tally.dropped_once(format!(
+                        "a publisher on {} ({node}) has type {ty}, but the topic is mapped \
+                         as {} (a definition read at run time, subscribed to with any MD5 \
+                         sum): its messages are dropped where they do not read as {}, and \
+                         may be taken for it where they do",
                         m.topic,
+                        m.ros_type(),
                         m.ros_type()
                     )),
                     _ => {}

@@ -23,10 +23,18 @@ pub struct BridgeSettings {
     /// `[transports.x.subscribe]`: ROS messages on a topic become messages of a type from the
     /// robot, to this system's module.
     pub subscribe: Vec<Mapping>,
+    /// `msg_paths`: directories searched for message definitions first.
+    pub msg_paths: Vec<std::path::PathBuf>,
 }
 
 /// The keys of a `ros1_bridge` table, besides the shared ones.
-pub const KEYS: [&str; 4] = [COMMON_KEYS[0], "master_uri", COMMON_KEYS[1], COMMON_KEYS[2]];
+pub const KEYS: [&str; 5] = [
+    COMMON_KEYS[0],
+    "master_uri",
+    COMMON_KEYS[1],
+    COMMON_KEYS[2],
+    COMMON_KEYS[3],
+];
 
 /// Why `topic` is not a global ROS 1 topic name (`/seg/seg`, segments of letters, digits and
 /// `_` starting with a letter).
@@ -66,6 +74,7 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         master_uri,
         publish: common.publish,
         subscribe: common.subscribe,
+        msg_paths: common.msg_paths,
     })
 }
 

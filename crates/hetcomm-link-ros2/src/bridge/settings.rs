@@ -24,10 +24,12 @@ pub struct BridgeSettings {
     /// `[transports.x.subscribe]`: ROS messages on a topic become messages of a type from the
     /// robot, to this system's module.
     pub subscribe: Vec<Mapping>,
+    /// `msg_paths`: directories searched for message definitions first.
+    pub msg_paths: Vec<std::path::PathBuf>,
 }
 
 /// The keys of a `ros2_bridge` table, besides the shared ones.
-pub const KEYS: [&str; 8] = [
+pub const KEYS: [&str; 9] = [
     COMMON_KEYS[0],
     "domain_id",
     "reliability",
@@ -36,6 +38,7 @@ pub const KEYS: [&str; 8] = [
     "same_host",
     COMMON_KEYS[1],
     COMMON_KEYS[2],
+    COMMON_KEYS[3],
 ];
 
 /// Reads a `ros2_bridge` table.
@@ -51,5 +54,6 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         dds: dds?,
         publish: common.publish,
         subscribe: common.subscribe,
+        msg_paths: common.msg_paths,
     })
 }
