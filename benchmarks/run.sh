@@ -16,12 +16,19 @@ log() { echo "== $*" >&2; }
 
 bash scripts/install.sh apt || log "could not install the Debian packages: baselines that need them are skipped"
 
-BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/ros2-cyclone,hetcomm-bench/hetcomm-zenoh"
+# hetcomm-bench/mqtt: the `mqtt` rows beside a raw rumqttc client; the benchmark starts its own
+# mosquitto (Debian's, installed above) on a free port for them and stops it when it is done.
+BUILD_CMD="cargo build --release -p hetcomm-bench -p hetcomm-cli --features hetcomm-bench/zenoh,hetcomm-bench/ros2,hetcomm-bench/ros2-cyclone,hetcomm-bench/hetcomm-zenoh,hetcomm-bench/mqtt,hetcomm-bench/shm"
 ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.toml"
 log "$BUILD_CMD"
 $BUILD_CMD || { log "build failed"; exit 1; }
 log "$ZBUILD_CMD"
 $ZBUILD_CMD || log "zenoh peer build failed: the Zenoh baseline is skipped"
+IBUILD_CMD="cargo build --release --manifest-path benchmarks/iceoryx2-peer/Cargo.toml"
+log "$IBUILD_CMD"
+# Its own target/ (the bench looks for benchmarks/iceoryx2-peer/target/release/...).
+CARGO_TARGET_DIR=$ROOT/benchmarks/iceoryx2-peer/target $IBUILD_CMD \
+    || log "iceoryx2 peer build failed: the raw iceoryx2 baseline is skipped"
 
 # The C++ API's round trip (two C++ processes): libhetcomm_c in release, installed with its
 # CMake package into a scratch prefix, and examples/cpp built against it.

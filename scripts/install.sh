@@ -20,6 +20,7 @@ APT_PACKAGES=(
     ros-geometry-msgs ros-nav-msgs ros-sensor-msgs                         # typed ROS 1 topics
     ros-diagnostic-msgs ros-tf2-msgs ros-actionlib-msgs   # rosmsg md5 of every shipped ROS 1 type
     python3-geometry-msgs python3-nav-msgs python3-sensor-msgs
+    python3-diagnostic-msgs python3-tf2-msgs python3-actionlib-msgs  # rosmsg md5 loads the Python classes
     cyclonedds-tools          # ddsperf: the DDS baseline of the benchmarks
     cmake g++ pkg-config valgrind libmsgpack-cxx-dev                       # the C and C++ API
     libclang-dev              # bindgen, for Cyclone DDS under the ros2 transport (ros2-cyclone)
@@ -37,6 +38,7 @@ PIP_PACKAGES=(
     "websockets>=12"               # a Foxglove WebSocket client written from the protocol docs
     "protobuf>=4"                  # decodes Foxglove's well-known schemas from their descriptors
     "paho-mqtt>=2,<3"              # a plain MQTT client written from docs/mqtt.md
+    "iceoryx2==0.10.0"             # a foreign system on the shm transport (docs/shm.md)
 )
 
 step() { printf '\n=== %s ===\n' "$*"; }

@@ -12,6 +12,7 @@
 # 3. the crate's tests against it: the conformance suite (QoS 0 and 1, bare, emulated,
 #    secured), fleet keys and their errors, delivery, presence, username/password, TLS, bad
 #    input, and the broker killed and restarted mid-stream (those start brokers of their own);
+#    and the `mqtt_bridge` kind with the Python AGV examples/mqtt/agv.py (tests/bridge.rs);
 # 4. interoperation on an unsecured transport: mosquitto_sub watches a `hetcomm send`'s frame,
 #    mosquitto_pub publishes a frame that `hetcomm listen` prints, and a Python paho-mqtt
 #    system (crates/hetcomm-link-mqtt/tests/python/mqtt_system.py, written from the docs)
@@ -104,14 +105,29 @@ export HETCOMM_MQTT_AUTH_BROKER=127.0.0.1:$AUTH
 export HETCOMM_MQTT_TLS_BROKER=mqtts://127.0.0.1:$SECURE
 export HETCOMM_MQTT_TLS_DIR=$TLS
 
-step "mqtt: crate tests (conformance, keys, delivery, presence, auth, TLS, bad input, broker restart)"
+# paho-mqtt for the bridge's Python AGV (tests/bridge.rs) and the interop script.
+bash scripts/install.sh python
+PY=$ROOT/target/py-venv/bin/python
+export HETCOMM_PYTHON=$PY
+
+step "mqtt: crate tests (conformance, keys, delivery, presence, auth, TLS, bad input, broker restart, mqtt_bridge with the Python AGV)"
 cargo test --manifest-path "$CRATE"
 
 step "mqtt: building the CLI"
 cargo build -q -p hetcomm-cli --features mqtt
 HETCOMM=$TARGET/debug/hetcomm
-bash scripts/install.sh python
-PY=$ROOT/target/py-venv/bin/python
+"$HETCOMM" validate examples/mqtt/agv.toml
 
 step "mqtt: interoperation with mosquitto_sub, mosquitto_pub and a Python paho-mqtt system"
 bash scripts/mqtt-interop.sh "$HETCOMM" "$PY" "127.0.0.1:$PLAIN"
+
+step "mqtt: the leader-follower demonstration with R on the broker (hetcomm demo --r mqtt)"
+# Real time (about 15 s): every system of the demo is a client of the group's broker, under a
+# fleet level of the run's own. It must end, write its tables, and Tango must have followed.
+"$HETCOMM" demo --r mqtt --mqtt-broker "127.0.0.1:$PLAIN" --out "$WORK/demo" \
+    >"$WORK/demo.out" 2>"$WORK/demo.err" || { cat "$WORK/demo.err"; exit 1; }
+grep -q 'Alpha → Charlie → Tango, .*R = mqtt' "$WORK/demo.err" || { cat "$WORK/demo.err"; exit 1; }
+# Tango (reached from Charlie over R) received both of Alpha's turns.
+awk '/^Table 11: Tango command data/{f=1} /^Table 12/{f=0} f && /Turn Left/{n++} END{exit n<2}' "$WORK/demo.out" \
+    && test -s "$WORK/demo/NOTES.md" || { cat "$WORK/demo.out"; exit 1; }
+echo "hetcomm demo --r mqtt: ok"

@@ -11,7 +11,8 @@
 # Tango must receive the leader's four commands in order and keep within 10 units and 15
 # degrees of the simulated run each second, scripts/tango-follows.py), the facade's tests
 # (the security attack suite over ros1 included) and the CLI's `ros1_send` acceptance test
-# (50 fresh `hetcomm send` processes, each delivered on the first attempt) with
+# (50 fresh `hetcomm send` processes, each delivered on the first attempt) and the bridge's
+# (20 one-shot `hetcomm send` processes reach a running `rostopic echo`) with
 # `--features ros1`.
 # Called by scripts/test.sh.
 set -euo pipefail
@@ -71,3 +72,5 @@ echo "== facade and CLI with --features ros1"
 cargo test -p hetcomm --features ros1 --lib
 cargo test -p hetcomm --features ros1 --test security_attacks ros1::
 cargo test -p hetcomm-cli --features ros1 --test ros1_send
+# One-shot `hetcomm send` processes through the ros1_bridge to rostopic echo and rospy.
+cargo test -p hetcomm-cli --features ros1 --test ros1_bridge_send

@@ -17,7 +17,10 @@
 #    exchanging acknowledged messages, frames echoed by a Python `cyclonedds` program, and the
 #    bridge against examples/ros2/tango_rover.py (a Cyclone DDS ROS 2 rover): Twist out,
 #    Odometry and String back, mismatches, garbage and wrong-type publishers; then, without
-#    the feature, the fleet-key test (`dds = "cyclone"` refused, naming the feature);
+#    the feature, the fleet-key test (`dds = "cyclone"` refused, naming the feature); presence
+#    (peers up and down) and the plain-DDS `dds` kind against a Python participant with its
+#    own IDL type run among the crate's tests; then the CLI's one-shot sends
+#    (crates/hetcomm-cli/tests/ros2_send.rs);
 # 4. the demos: the rover follows a hetcomm leader (crates/hetcomm-link-ros2/examples/tango_follows.rs),
 #    printing a table; it fails if Tango ends more than 1 m from its target. Then the thesis's
 #    demonstration, `hetcomm demo --fleet examples/ros2/leader-follower-ros2.toml`, with the
@@ -53,6 +56,9 @@ export HETCOMM_ROS2_PYTHON=$VENV/bin/python
 step "ros2: crate tests on rustdds and Cyclone DDS (conformance, keys, delivery, interop, bridge)"
 cargo test --manifest-path "$CRATE" --features cyclone
 cargo test --manifest-path "$CRATE" --test fleet the_keys_parse
+
+step "ros2: one-shot hetcomm send processes (50 over ros2, 20 through the bridge to Cyclone DDS)"
+cargo test -p hetcomm-cli --features ros2 --test ros2_send
 
 step "ros2: hetcomm validate on the bridge example (CLI with --features ros2)"
 cargo build -q -p hetcomm-cli --features ros2

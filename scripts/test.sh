@@ -53,6 +53,9 @@ bash scripts/zenoh-test.sh
 step "MQTT: conformance, presence, auth, TLS, broker restart, mosquitto clients and paho-mqtt (one mosquitto)"
 bash scripts/mqtt-test.sh
 
+step "Shared memory (iceoryx2): conformance, a peer killed and restarted, backpressure, foreign segments"
+bash scripts/shm-test.sh
+
 step "Foxglove: the live view served to a WebSocket client"
 bash scripts/foxglove-test.sh
 

@@ -274,9 +274,15 @@ impl Run {
         let layer = SecurityLayer::new("udp", policy, handshakes);
         let ctx = LayerContext::new(LOCAL);
         let up = CollectSink::new();
-        let sink = layer.wrap_sink(&ctx, up.clone());
         let below = Arc::new(Capture::default());
-        let link = layer.wrap_link(&ctx, below.clone()).expect("wraps");
+        let mut sink = None;
+        let link = layer
+            .wrap(&ctx, up.clone(), &mut |s| {
+                sink = Some(s);
+                Ok(below.clone())
+            })
+            .expect("wraps");
+        let sink = sink.expect("opened");
         let mut run = Run {
             in_memory,
             data_from,

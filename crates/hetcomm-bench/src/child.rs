@@ -287,6 +287,9 @@ pub fn run_peer(args: &[String]) -> Result<(), String> {
                     }
                 }
                 report_cpu("hc-sink", c.count);
+                if std::env::var_os("HETCOMM_BENCH_DIAG").is_some() {
+                    eprintln!("sink stats: {:#?}", comm.stats());
+                }
                 // Datagrams the kernel dropped at this system's sockets (UDP on Linux).
                 let drops: u64 = comm.stats().links.iter().map(|(_, l)| l.kernel_drops).sum();
                 say(&format!("{} kernel_drops={drops}", c.line()));

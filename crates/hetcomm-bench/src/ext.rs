@@ -29,26 +29,31 @@ fn free_tcp_port() -> Result<u16, String> {
         .map_err(|e| e.to_string())
 }
 
-/// Zenoh ping/pong between two processes; the pinging process reports each round trip and
-/// this process builds the histogram.
-pub fn zenoh_rtt(bin: &Path, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
-    let ep = format!("tcp/127.0.0.1:{}", free_tcp_port()?);
-    let pong = Peer::spawn(Some(bin), &["pong".into(), "--listen".into(), ep.clone()])?;
+/// Ping/pong between two processes of a peer program (`benchmarks/zenoh-peer`,
+/// `benchmarks/iceoryx2-peer`): `pong ARGS…` until it prints `ready`, then `ping ARGS… --size
+/// --iters --warmup [PING_EXTRA…]`, which prints `rtt_ns` and then each round trip in
+/// nanoseconds; this process builds the histogram.
+pub fn peer_rtt(
+    bin: &Path,
+    pong_args: &[String],
+    ping_args: &[String],
+    (size, warmup, iters): (usize, u64, u64),
+) -> Result<Latency, String> {
+    let mut pong_cmd = vec!["pong".to_string()];
+    pong_cmd.extend_from_slice(pong_args);
+    let pong = Peer::spawn(Some(bin), &pong_cmd)?;
     pong.expect("ready", Duration::from_secs(20))?;
-    let ping = Peer::spawn(
-        Some(bin),
-        &[
-            "ping".into(),
-            "--connect".into(),
-            ep,
-            "--size".into(),
-            size.to_string(),
-            "--iters".into(),
-            iters.to_string(),
-            "--warmup".into(),
-            warmup.to_string(),
-        ],
-    )?;
+    let mut ping_cmd = vec!["ping".to_string()];
+    ping_cmd.extend_from_slice(ping_args);
+    ping_cmd.extend([
+        "--size".into(),
+        size.to_string(),
+        "--iters".into(),
+        iters.to_string(),
+        "--warmup".into(),
+        warmup.to_string(),
+    ]);
+    let ping = Peer::spawn(Some(bin), &ping_cmd)?;
     ping.expect("rtt_ns", Duration::from_secs(60))?;
     let mut rec = Recorder::new();
     for _ in 0..iters {
@@ -62,23 +67,29 @@ pub fn zenoh_rtt(bin: &Path, size: usize, warmup: u64, iters: u64) -> Result<Lat
     Ok(rec.summary())
 }
 
-/// Zenoh one-way: a source process publishes for `duration`, a sink process counts.
-pub fn zenoh_oneway(bin: &Path, size: usize, duration: Duration) -> Result<Throughput, String> {
-    let ep = format!("tcp/127.0.0.1:{}", free_tcp_port()?);
-    let sink = Peer::spawn(Some(bin), &["sink".into(), "--listen".into(), ep.clone()])?;
+/// One-way between two processes of a peer program: `sink ARGS…` until it prints `ready`,
+/// then `source ARGS… --size --millis`, which publishes for `duration` and prints `sent` and
+/// its count; the sink's line is the figure (`what` names the peer in errors).
+pub fn peer_oneway(
+    bin: &Path,
+    what: &str,
+    sink_args: &[String],
+    source_args: &[String],
+    (size, duration): (usize, Duration),
+) -> Result<Throughput, String> {
+    let mut sink_cmd = vec!["sink".to_string()];
+    sink_cmd.extend_from_slice(sink_args);
+    let sink = Peer::spawn(Some(bin), &sink_cmd)?;
     sink.expect("ready", Duration::from_secs(20))?;
-    let source = Peer::spawn(
-        Some(bin),
-        &[
-            "source".into(),
-            "--connect".into(),
-            ep,
-            "--size".into(),
-            size.to_string(),
-            "--millis".into(),
-            duration.as_millis().to_string(),
-        ],
-    )?;
+    let mut source_cmd = vec!["source".to_string()];
+    source_cmd.extend_from_slice(source_args);
+    source_cmd.extend([
+        "--size".into(),
+        size.to_string(),
+        "--millis".into(),
+        duration.as_millis().to_string(),
+    ]);
+    let source = Peer::spawn(Some(bin), &source_cmd)?;
     let sent = source
         .expect("sent", duration + Duration::from_secs(60))?
         .parse::<u64>()
@@ -86,7 +97,27 @@ pub fn zenoh_oneway(bin: &Path, size: usize, duration: Duration) -> Result<Throu
     let line = sink.line(Duration::from_secs(30))?;
     source.finish(Duration::from_secs(5));
     sink.finish(Duration::from_secs(5));
-    parse_sink_line(&line, sent).ok_or(format!("bad zenoh sink line {line:?}"))
+    parse_sink_line(&line, sent).ok_or(format!("bad {what} sink line {line:?}"))
+}
+
+/// Zenoh ping/pong between two processes (the peer listens, the pinger connects).
+pub fn zenoh_rtt(bin: &Path, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+    let ep = format!("tcp/127.0.0.1:{}", free_tcp_port()?);
+    let pong = ["--listen".to_string(), ep.clone()];
+    peer_rtt(bin, &pong, &["--connect".into(), ep], (size, warmup, iters))
+}
+
+/// Zenoh one-way: a source process publishes for `duration`, a sink process counts.
+pub fn zenoh_oneway(bin: &Path, size: usize, duration: Duration) -> Result<Throughput, String> {
+    let ep = format!("tcp/127.0.0.1:{}", free_tcp_port()?);
+    let sink = ["--listen".to_string(), ep.clone()];
+    peer_oneway(
+        bin,
+        "zenoh",
+        &sink,
+        &["--connect".into(), ep],
+        (size, duration),
+    )
 }
 
 /// Whether `ddsperf` is on the PATH.

@@ -243,20 +243,20 @@ pub(crate) fn round_trips_inline(
     }
     let total = warmup + iters;
     let run = Arc::new((
-        std::sync::Mutex::new(Run {
+        parking_lot::Mutex::new(Run {
             rec: Recorder::new(),
             sent_at: Instant::now(),
             done: 0,
             sender: Some(comm.module("M").map_err(|e| e.to_string())?),
         }),
-        std::sync::Condvar::new(),
+        parking_lot::Condvar::new(),
     ));
     m.set_inline_callbacks(true);
     let cb = run.clone();
     m.on_any(move |_reply| {
         let now = Instant::now();
         let (lock, ended) = &*cb;
-        let mut r = lock.lock().unwrap_or_else(|e| e.into_inner());
+        let mut r = lock.lock();
         if r.done >= warmup {
             let rtt = now - r.sent_at;
             r.rec.record(rtt);
@@ -273,7 +273,7 @@ pub(crate) fn round_trips_inline(
         }
     });
     let (lock, ended) = &*run;
-    let mut r = lock.lock().unwrap_or_else(|e| e.into_inner());
+    let mut r = lock.lock();
     r.sent_at = Instant::now();
     m.send_raw("B", "M", DATA, &vec![7u8; size], Default::default())
         .map_err(|e| e.to_string())?;
@@ -288,10 +288,7 @@ pub(crate) fn round_trips_inline(
                 "the ping–pong chain stopped after {done} of {total}"
             ));
         }
-        r = ended
-            .wait_timeout(r, left)
-            .unwrap_or_else(|e| e.into_inner())
-            .0;
+        ended.wait_for(&mut r, left);
     }
     Ok(r.rec.summary())
 }
@@ -382,7 +379,7 @@ pub fn oneway(
     duration: Duration,
 ) -> Result<Throughput, String> {
     if kind == Kind::Inproc {
-        return inproc_oneway(acked, size, duration).map(|(t, _)| t);
+        return inproc_oneway(acked, size, duration, false).map(|(t, _)| t);
     }
     let mut pair = open_pair(kind, acked, "sink")?;
     let msg = vec![7u8; size];
@@ -421,6 +418,9 @@ pub fn oneway(
     }
     // Counted before STOP is sent: the outcomes are those of the measured messages.
     let outcomes = acked.then(|| wait_for_outcomes(&pair.comm, &before, OUTCOME_WAIT));
+    if std::env::var_os("HETCOMM_BENCH_DIAG").is_some() {
+        eprintln!("sender stats: {:#?}", pair.comm.stats());
+    }
     for _ in 0..3 {
         let stop_by = Instant::now() + Duration::from_secs(5);
         let _ = send_with_room(&pair.m, "B", STOP, &[0], stop_by);
@@ -517,10 +517,14 @@ pub(crate) const RECV_BATCH: usize = 256;
 /// 64 carries its send time, so the receiver also measures hand-off latency (queueing
 /// included) from a sample: reading the clock for every message on both threads would cost
 /// each side about 25 ns a message, a quarter of the budget of the 10 M msg/s target.
+///
+/// `batched`: the sender hands its messages over 64 at a time (`RawSender::send_many`)
+/// instead of one by one.
 pub fn inproc_oneway(
     acked: bool,
     size: usize,
     duration: Duration,
+    batched: bool,
 ) -> Result<(Throughput, Latency), String> {
     let (f, a, b) = local(acked)?;
     let sender = f.system("A").map_err(|e| e.to_string())?;
@@ -561,7 +565,17 @@ pub fn inproc_oneway(
     // A pre-resolved handle, as a program sending a stream of messages would use.
     let to_b = a.raw_sender("B", "M", DATA).map_err(|e| e.to_string())?;
     let end = Instant::now() + duration;
+    let mut stamped = msg.clone();
     while Instant::now() < end {
+        if batched {
+            stamp(&mut stamped, epoch);
+            write_stamp(&mut msg, UNSTAMPED);
+            let mut batch: [&[u8]; 64] = [&msg; 64];
+            batch[0] = &stamped;
+            let tickets = to_b.send_many(&batch, Default::default());
+            sent += tickets.iter().filter(|t| t.is_ok()).count() as u64;
+            continue;
+        }
         stamp(&mut msg, epoch);
         for _ in 0..64 {
             if to_b.send(&msg, Default::default()).is_ok() {

@@ -28,14 +28,18 @@
 //! environment variable `HETCOMM_BENCH_SINK_CPU` set, the raw TCP and hetcomm sink processes
 //! of the `oneway` section also print to standard error the CPU time (user + system, whole
 //! process) they used per message received, and the hetcomm rows' sending thread the CPU
-//! time it used per message sent.
+//! time it used per message sent. With `HETCOMM_BENCH_DIAG` set, a hetcomm one-way run
+//! prints both systems' full stats to standard error after it.
 
 mod child;
 mod config_scale;
 mod ext;
+mod failover;
 mod harness_cost;
 mod hc;
 mod latency_exp;
+#[cfg(feature = "mqtt")]
+mod mqtt;
 mod raw;
 mod record_bench;
 mod report;
@@ -43,8 +47,11 @@ mod report;
 mod ros2;
 #[cfg(feature = "ros2-cyclone")]
 mod ros2cyclone;
+mod rounds;
 mod scale;
 mod secured;
+#[cfg(feature = "shm")]
+mod shm;
 mod stats;
 #[cfg(feature = "hetcomm-zenoh")]
 mod zenoh_scale;
@@ -53,6 +60,9 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use report::Row;
+use rounds::{
+    bench_paths, interleaved, interleaved_rounds, median_by, median_run, paired_rows, Run,
+};
 
 /// Command-line options.
 #[derive(Debug, Default)]
@@ -94,7 +104,7 @@ fn comma_list(v: &str) -> Vec<String> {
 
 const USAGE: &str = "usage: hetcomm-bench [--quick] [--json FILE] [--markdown FILE] \
 [--zenoh-bin PATH] [--no-zenoh] [--no-ddsperf] [--reliability-wall SECONDS|TEXT] \
-[--only rtt,oneway,inproc,pinning,scale,sim,config,record,harness] [--sizes BYTES,…] [--paths ROW,…] \
+[--only rtt,oneway,inproc,pinning,scale,sim,config,record,harness,failover] [--sizes BYTES,…] [--paths ROW,…] \
 [--cpp-bin PATH] [--rounds N]";
 
 fn parse(args: &[String]) -> Result<Options, String> {
@@ -145,8 +155,8 @@ struct Plan {
     scale_ns: Vec<usize>,
     /// Fleet sizes of the `config` section.
     config_ns: Vec<usize>,
-    sim_systems: usize,
-    sim_seconds: f64,
+    /// Star fleets of the `sim` section: (systems, simulated seconds).
+    sim_fleets: Vec<(usize, f64)>,
     dds_seconds: f64,
 }
 
@@ -158,8 +168,7 @@ fn plan(quick: bool) -> Plan {
             oneway: Duration::from_millis(100),
             scale_ns: vec![10, 100],
             config_ns: vec![300],
-            sim_systems: 100,
-            sim_seconds: 1.0,
+            sim_fleets: vec![(100, 1.0)],
             dds_seconds: 3.0,
         }
     } else {
@@ -173,8 +182,7 @@ fn plan(quick: bool) -> Plan {
             oneway: Duration::from_secs(1),
             scale_ns: vec![10, 100, 1000],
             config_ns: vec![3000, 10_000],
-            sim_systems: 1000,
-            sim_seconds: 10.0,
+            sim_fleets: vec![(1000, 10.0), (10_000, 2.0)],
             dds_seconds: 5.0,
         }
     }
@@ -221,105 +229,6 @@ fn lat_row(
     }
 }
 
-/// One measurement of one path, run again in each round.
-type Run<T> = Box<dyn Fn() -> Result<T, String>>;
-
-/// The raw and hetcomm paths the options ask for, each with its measurement.
-fn bench_paths<T>(
-    o: &Options,
-    raws: &[raw::RawKind],
-    hc_paths: &[(hc::Kind, bool)],
-    raw_run: impl Fn(raw::RawKind) -> Run<T>,
-    hc_run: impl Fn(hc::Kind, bool) -> Run<T>,
-) -> Vec<(String, Run<T>)> {
-    raws.iter()
-        .map(|&k| (k.name().to_string(), raw_run(k)))
-        .chain(
-            hc_paths
-                .iter()
-                .map(|&(k, acked)| (hc::path_name(k, acked), hc_run(k, acked))),
-        )
-        .filter(|(name, _)| o.path_wanted(name))
-        .collect()
-}
-
-/// Runs every path once per round, the paths interleaved within each round, and gives each
-/// path's run with the median `key` (see [`median_by`]).
-fn interleaved<T>(
-    quick: bool,
-    what: &str,
-    paths: Vec<(String, Run<T>)>,
-    rounds: usize,
-    key: impl Fn(&T) -> f64 + Copy,
-) -> Vec<(String, Result<T, String>)> {
-    interleaved_rounds(quick, what, paths, rounds, key)
-        .into_iter()
-        .map(|(name, median, _)| (name, median))
-        .collect()
-}
-
-/// A path's name, its run with the median key, and its key per round (`None`: that round
-/// failed).
-type Measured<T> = (String, Result<T, String>, Vec<Option<f64>>);
-
-/// As [`interleaved`], with each path's `key` per round too (`None` where that round failed),
-/// so that two paths run one after the other can be compared round by round.
-fn interleaved_rounds<T>(
-    quick: bool,
-    what: &str,
-    paths: Vec<(String, Run<T>)>,
-    rounds: usize,
-    key: impl Fn(&T) -> f64 + Copy,
-) -> Vec<Measured<T>> {
-    let mut results: Vec<Vec<Result<T, String>>> = paths.iter().map(|_| Vec::new()).collect();
-    for round in 0..rounds {
-        for ((name, run), out) in paths.iter().zip(results.iter_mut()) {
-            log(quick, &format!("{what} {name} (round {})", round + 1));
-            out.push(run());
-        }
-    }
-    paths
-        .into_iter()
-        .zip(results)
-        .map(|((name, _), runs)| {
-            let per_round = runs.iter().map(|r| r.as_ref().ok().map(key)).collect();
-            (name, median_by(runs, key), per_round)
-        })
-        .collect()
-}
-
-/// For every secured path among `measured` whose unsecured twin was measured too (run just
-/// before it in every round), a `paired` row: the secured rate over the twin's, round by
-/// round, and their median. On a machine whose speed drifts between rounds, comparing each
-/// round's two runs, made seconds apart, is steadier than comparing the two medians.
-fn paired_rows(section_size: usize, measured: &[(String, Vec<Option<f64>>)]) -> Vec<Row> {
-    let mut rows = Vec::new();
-    for (name, secured) in measured {
-        let Some(twin) = name
-            .strip_prefix("hetcomm-")
-            .and_then(|rest| rest.split_once("-secured-"))
-            .map(|(transport, mode)| format!("hetcomm-{transport}-{mode}"))
-        else {
-            continue;
-        };
-        let Some((_, plain)) = measured.iter().find(|(n, _)| *n == twin) else {
-            continue;
-        };
-        let ratios: Vec<f64> = secured
-            .iter()
-            .zip(plain)
-            .filter_map(|(s, p)| match (s, p) {
-                (Some(s), Some(p)) if *p > 0.0 => Some(s / p),
-                _ => None,
-            })
-            .collect();
-        if let Some(row) = Row::paired(name, &twin, section_size, &ratios) {
-            rows.push(row);
-        }
-    }
-    rows
-}
-
 /// Rounds of each small round-trip measurement (see `run`).
 const RTT_ROUNDS: usize = 3;
 
@@ -330,31 +239,6 @@ const ONEWAY_ROUNDS: usize = 3;
 /// each round's secured and unsecured runs (see [`paired_rows`]), and five pairs give a
 /// median that one odd round does not move.
 const ONEWAY_ROUNDS_LARGE: usize = 5;
-
-/// The run with the median p50 among those that succeeded (the first error if none did).
-fn median_run(runs: Vec<Result<stats::Latency, String>>) -> Result<stats::Latency, String> {
-    median_by(runs, |l| l.p50)
-}
-
-/// The run with the median `key` among those that succeeded (the first error if none did).
-fn median_by<T>(mut runs: Vec<Result<T, String>>, key: impl Fn(&T) -> f64) -> Result<T, String> {
-    let mut ok: Vec<T> = Vec::new();
-    let mut first_err = None;
-    for r in runs.drain(..) {
-        match r {
-            Ok(l) => ok.push(l),
-            Err(e) => {
-                first_err.get_or_insert(e);
-            }
-        }
-    }
-    if ok.is_empty() {
-        return Err(first_err.unwrap_or_else(|| "no run".into()));
-    }
-    ok.sort_by(|a, b| key(a).total_cmp(&key(b)));
-    let mid = ok.len() / 2;
-    Ok(ok.swap_remove(mid))
-}
 
 fn tp_row(path: &str, size: usize, r: Result<stats::Throughput, String>) -> Row {
     match r {
@@ -394,6 +278,12 @@ fn run(o: &Options) -> Vec<Row> {
         hc_paths.extend([(hc::Kind::Zenoh, false), (hc::Kind::Zenoh, true)]);
     }
     let raws = [raw::RawKind::Udp, raw::RawKind::Tcp, raw::RawKind::Unix];
+    // One mosquitto for the run's `mqtt` rows (stopped when `run` returns).
+    #[cfg(feature = "mqtt")]
+    let mqtt_broker = mqtt::Broker::start().map(|b| {
+        let address = b.address.clone();
+        (b, address)
+    });
 
     if want("rtt") {
         for &size in &p.sizes {
@@ -431,6 +321,24 @@ fn run(o: &Options) -> Vec<Row> {
                     paths.push((report::CPP_PATH.to_string(), run));
                 }
             }
+            #[cfg(feature = "shm")]
+            paths.extend(shm::rtt_paths(o, size, warmup, iters));
+            #[cfg(feature = "mqtt")]
+            paths.extend(mqtt_paths(
+                o,
+                &mqtt_broker,
+                size,
+                &mqtt::RTT_ROWS,
+                |b, path| {
+                    // Capped: a round trip through the broker takes tens of µs to ms.
+                    let (warmup, iters) = (warmup.min(1000), iters.min(5000));
+                    Box::new(move || match path {
+                        mqtt::RAW => mqtt::raw_rtt(&b, size, warmup, iters),
+                        mqtt::UNACK_INLINE => mqtt::rtt_inline(&b, size, warmup, iters),
+                        _ => mqtt::rtt(&b, path == mqtt::ACK, size, warmup, iters),
+                    })
+                },
+            ));
             for (name, r) in
                 interleaved(o.quick, &format!("rtt {size} B"), paths, rounds, |l| l.p50)
             {
@@ -514,13 +422,29 @@ fn run(o: &Options) -> Vec<Row> {
                 (false, false) => ONEWAY_ROUNDS,
             });
             let duration = p.oneway;
-            let paths = bench_paths(
+            #[allow(unused_mut)]
+            let mut paths = bench_paths(
                 o,
                 &raws,
                 &hc_paths,
                 |k| Box::new(move || raw::oneway(k, size, duration)),
                 |k, acked| Box::new(move || hc::oneway(k, acked, size, duration)),
             );
+            #[cfg(feature = "shm")]
+            paths.extend(shm::oneway_paths(o, size, duration));
+            #[cfg(feature = "mqtt")]
+            paths.extend(mqtt_paths(
+                o,
+                &mqtt_broker,
+                size,
+                &mqtt::ONEWAY_ROWS,
+                |b, path| {
+                    Box::new(move || match path {
+                        mqtt::RAW => mqtt::raw_oneway(&b, size, duration),
+                        _ => mqtt::oneway(&b, size, duration),
+                    })
+                },
+            ));
             let rate = |t: &stats::Throughput| t.msgs_per_s();
             let what = format!("oneway {size} B");
             let mut per_round = Vec::new();
@@ -564,14 +488,17 @@ fn run(o: &Options) -> Vec<Row> {
             let name = hc::path_name(hc::Kind::Inproc, acked);
             log(o.quick, &format!("inproc hand-off {name}"));
             let rounds = if o.quick { 1 } else { ONEWAY_ROUNDS };
-            let runs = (0..rounds)
-                .map(|_| hc::inproc_oneway(acked, 64, p.oneway.max(Duration::from_millis(100))))
-                .collect();
-            match median_by(runs, |(t, _)| t.msgs_per_s()) {
-                Ok((t, l)) => {
-                    rows.push(Row::handoff(&name, "saturated", 64, Some(&t), &l));
+            for (mode, batched) in [("saturated", false), ("saturated, batches of 64", true)] {
+                let runs = (0..rounds)
+                    .map(|_| {
+                        let d = p.oneway.max(Duration::from_millis(100));
+                        hc::inproc_oneway(acked, 64, d, batched)
+                    })
+                    .collect();
+                match median_by(runs, |(t, _)| t.msgs_per_s()) {
+                    Ok((t, l)) => rows.push(Row::handoff(&name, mode, 64, Some(&t), &l)),
+                    Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
                 }
-                Err(e) => rows.push(Row::failed("inproc", &name, 64, &e)),
             }
             let n = if o.quick { 300 } else { 20_000 };
             match hc::inproc_paced_handoff(acked, 64, n, None) {
@@ -658,17 +585,26 @@ fn run(o: &Options) -> Vec<Row> {
             Ok((sim, wall)) => Row::sim("leader-follower demo", 3, sim, wall, 0),
             Err(e) => Row::failed("sim", "leader-follower demo", 0, &e),
         });
-        log(o.quick, &format!("sim {}-system fleet", p.sim_systems));
-        let name = format!("{}-system star fleet", p.sim_systems);
-        rows.push(match scale::sim_fleet(p.sim_systems, p.sim_seconds) {
-            Ok(s) => Row::sim(&name, s.systems, s.simulated_s, s.wall_s, s.delivered),
-            Err(e) => Row::failed("sim", &name, 0, &e),
-        });
+        for &(systems, seconds) in &p.sim_fleets {
+            log(o.quick, &format!("sim {systems}-system fleet"));
+            let name = format!("{systems}-system star fleet");
+            rows.push(match scale::sim_fleet(systems, seconds) {
+                Ok(s) => Row::sim_fleet(&name, &s),
+                Err(e) => Row::failed("sim", &name, 0, &e),
+            });
+        }
     }
     if want("harness") {
         log(o.quick, "harness: taps' cost per in-process message");
         let (rounds, per_round) = if o.quick { (3, 2_000) } else { (401, 5_000) };
         rows.extend(harness_cost::measure(rounds, per_round));
+    }
+    if want("failover") {
+        log(
+            o.quick,
+            "failover: a pair's preferred path cut, time to the next path",
+        );
+        rows.push(failover::measure(if o.quick { 3 } else { 20 }));
     }
     if want("record") {
         let dir = std::env::temp_dir().join(format!("hetcomm-bench-record-{}", std::process::id()));
@@ -695,6 +631,34 @@ fn run(o: &Options) -> Vec<Row> {
         let _ = std::fs::remove_dir_all(&dir);
     }
     rows
+}
+
+/// The `mqtt` rows at `size` (64 B and 64 KiB only), each measured by `run(broker, row)`: the
+/// rows named (the raw rumqttc client, ours), through the run's broker.
+#[cfg(feature = "mqtt")]
+fn mqtt_paths<T: 'static>(
+    o: &Options,
+    broker: &Result<(mqtt::Broker, String), String>,
+    size: usize,
+    rows: &[&'static str],
+    run: impl Fn(String, &'static str) -> Run<T>,
+) -> Vec<(String, Run<T>)> {
+    if !mqtt::SIZES.contains(&size) {
+        return Vec::new();
+    }
+    rows.iter()
+        .filter(|r| o.path_wanted(r))
+        .map(|&r| {
+            let run: Run<T> = match broker {
+                Ok((_, address)) => run(address.clone(), r),
+                Err(e) => {
+                    let e = e.clone();
+                    Box::new(move || Err(e.clone()))
+                }
+            };
+            (r.to_string(), run)
+        })
+        .collect()
 }
 
 fn main() {
@@ -788,38 +752,5 @@ mod tests {
         assert_eq!(parse(&args(&["--rounds", "5"])).unwrap().rounds, Some(5));
         assert!(parse(&args(&["--rounds", "0"])).is_err());
         assert!(parse(&args(&["--rounds", "x"])).is_err());
-    }
-}
-
-#[cfg(test)]
-mod paired_tests {
-    use super::*;
-
-    /// Each secured path is paired with its unsecured twin round by round; a round where
-    /// either failed is left out, and a path without a twin gets no row.
-    #[test]
-    fn secured_paths_are_paired_with_their_twins_round_by_round() {
-        let measured = vec![
-            (
-                "hetcomm-udp-unack".to_string(),
-                vec![Some(100.0), Some(100.0), None],
-            ),
-            (
-                "hetcomm-udp-secured-unack".to_string(),
-                vec![Some(90.0), Some(80.0), Some(70.0)],
-            ),
-            ("hetcomm-tcp-secured-ack".to_string(), vec![Some(1.0)]),
-            ("raw-udp".to_string(), vec![Some(5.0)]),
-        ];
-        let rows = paired_rows(65536, &measured);
-        assert_eq!(rows.len(), 1);
-        let r = &rows[0];
-        assert_eq!(
-            (r.section, r.path.as_str(), r.size),
-            ("paired", "hetcomm-udp-secured-unack", 65536)
-        );
-        assert_eq!(r.get("rounds"), Some(2.0));
-        assert_eq!(r.get("ratio_median"), Some(0.9));
-        assert_eq!(r.note, "over hetcomm-udp-unack, round by round: 90%, 80%");
     }
 }

@@ -3,59 +3,47 @@
 
 use std::time::{Duration, Instant};
 
+use std::fmt::Write;
+
+use hetcomm::config::Fleet;
 use hetcomm::sim::{SimFleet, SimOptions};
-use hetcomm::{LocalFleet, Time};
+use hetcomm::{LocalFleet, SystemId, Time};
 
 use crate::child::DATA;
 
 /// A star fleet: `Hub` talks to every leaf and every leaf to `Hub` over one transport of
-/// `kind`; one module `M`.
-pub fn star_fleet_text(n: usize, kind: &str, acked: bool) -> String {
+/// `kind`; one module `M`. The systems and the transport come from a fleet file; the table's
+/// 2 × (n − 1) pairs are put into the [`Fleet`] directly: written out, the table of a
+/// 10 000-system star would be 100 M cells (400 MB of text to parse) of which all but
+/// 20 000 are `X`.
+pub fn star_fleet(n: usize, kind: &str, acked: bool) -> Result<Fleet, String> {
     let n = n.max(2);
-    let name = |i: usize| {
-        if i == 0 {
-            "Hub".to_string()
-        } else {
-            format!("S{i}")
-        }
-    };
-    let mut t = String::with_capacity(n * n * 5 + 1024);
-    t.push_str("[systems]\n");
-    for i in 0..n {
-        t.push_str(&format!("{} = {i}\n", name(i)));
+    let mut t = String::with_capacity(n * 16 + 256);
+    t.push_str("[systems]\nHub = 0\n");
+    for i in 1..n {
+        let _ = writeln!(t, "S{i} = {i}");
     }
     t.push_str("[modules]\nM = 0\n[inbox]\ncapacity = 4096\n[transports.t]\n");
-    t.push_str(&format!(
-        "kind = \"{kind}\"\ndelivery = \"{}\"\n",
-        if acked {
-            "acknowledged"
-        } else {
-            "unacknowledged"
-        }
-    ));
-    t.push_str("[table]\ncolumns = [");
-    for i in 0..n {
-        t.push_str(&format!(
-            "\"{}\"{}",
-            name(i),
-            if i + 1 < n { ", " } else { "]\n" }
-        ));
+    let delivery = if acked {
+        "acknowledged"
+    } else {
+        "unacknowledged"
+    };
+    let _ = writeln!(t, "kind = \"{kind}\"\ndelivery = \"{delivery}\"");
+    let mut fleet =
+        hetcomm::config::parse_str(&t, "bench-star.toml", None).map_err(|e| e.to_string())?;
+    let transport = fleet
+        .transports
+        .iter()
+        .position(|t| t.name == "t")
+        .ok_or("the star fleet has no transport `t`")?;
+    let hub = fleet.systems[0].id;
+    let leaves: Vec<SystemId> = fleet.systems[1..].iter().map(|s| s.id).collect();
+    for leaf in leaves {
+        fleet.table.insert((hub, leaf), transport);
+        fleet.table.insert((leaf, hub), transport);
     }
-    for i in 0..n {
-        t.push_str(&format!("{} = [", name(i)));
-        for j in 0..n {
-            let cell = if i == j || (i != 0 && j != 0) {
-                "X"
-            } else {
-                "t"
-            };
-            t.push_str(&format!(
-                "\"{cell}\"{}",
-                if j + 1 < n { "," } else { "]\n" }
-            ));
-        }
-    }
-    t
+    Ok(fleet)
 }
 
 /// Resident set size of this process, bytes (0 if /proc is unreadable).
@@ -92,9 +80,7 @@ pub struct ScaleResult {
 }
 
 fn broadcast_cost(n: usize, acked: bool, rounds: u32) -> Result<(f64, f64, f64), String> {
-    let text = star_fleet_text(n, "inproc", acked);
-    let fleet =
-        hetcomm::config::parse_str(&text, "bench-scale.toml", None).map_err(|e| e.to_string())?;
+    let fleet = star_fleet(n, "inproc", acked)?;
     let before = rss_bytes();
     let t0 = Instant::now();
     let f = LocalFleet::open(fleet).map_err(|e| e.to_string())?;
@@ -146,6 +132,10 @@ pub fn leader_follower() -> Result<(f64, f64), String> {
 pub struct SimResult {
     /// Systems.
     pub systems: usize,
+    /// Wall seconds to open the fleet in the simulator.
+    pub open_s: f64,
+    /// RSS growth from opening, per system, bytes.
+    pub rss_per_system: f64,
     /// Simulated seconds.
     pub simulated_s: f64,
     /// Wall seconds (opening excluded).
@@ -158,10 +148,12 @@ pub struct SimResult {
 /// time each leaf sends a 64-byte status to the hub and the hub broadcasts a 64-byte command;
 /// every module drains its inbox.
 pub fn sim_fleet(n: usize, simulated_s: f64) -> Result<SimResult, String> {
-    let text = star_fleet_text(n, "inproc", true);
-    let fleet =
-        hetcomm::config::parse_str(&text, "bench-sim.toml", None).map_err(|e| e.to_string())?;
+    let fleet = star_fleet(n, "inproc", true)?;
+    let before = rss_bytes();
+    let t_open = Instant::now();
     let sim = SimFleet::open(fleet, SimOptions::default()).map_err(|e| e.to_string())?;
+    let open_s = t_open.elapsed().as_secs_f64();
+    let rss_per_system = rss_bytes().saturating_sub(before) as f64 / n.max(1) as f64;
     let modules = sim
         .systems()
         .iter()
@@ -190,6 +182,8 @@ pub fn sim_fleet(n: usize, simulated_s: f64) -> Result<SimResult, String> {
     }
     Ok(SimResult {
         systems: n,
+        open_s,
+        rss_per_system,
         simulated_s: sim.now().as_secs_f64(),
         wall_s: t0.elapsed().as_secs_f64(),
         delivered,

@@ -70,6 +70,9 @@ typedef enum hetcomm_outcome_kind {
   HETCOMM_OUTCOME_KIND_UNCONFIRMED = 2,
   // Certainly not delivered.
   HETCOMM_OUTCOME_KIND_FAILED = 3,
+  // Handed to a transport whose broker (MQTT at QoS 1) confirmed it has it
+  // (unacknowledged mode): still not known to be delivered.
+  HETCOMM_OUTCOME_KIND_RELAYED = 4,
 } hetcomm_outcome_kind;
 
 // Why a send ended unconfirmed or failed.
@@ -94,6 +97,13 @@ typedef enum hetcomm_fail_reason {
   HETCOMM_FAIL_REASON_SHUTDOWN = 8,
   // A reason newer than this header.
   HETCOMM_FAIL_REASON_OTHER = 9,
+  // What the broker of the transport said (it refused the frame, or nobody is subscribed
+  // to its destination), or that it said nothing in time.
+  HETCOMM_FAIL_REASON_RELAY = 10,
+  // The link will never carry the message as it is (a bridge could not convert it to the
+  // mapped ROS type, or no topic is mapped for it): failed on its first attempt, nothing
+  // sent, never retried.
+  HETCOMM_FAIL_REASON_REFUSED = 11,
 } hetcomm_fail_reason;
 
 // The pending outcomes of one broadcast: one ticket per destination the table allows. Free
@@ -114,6 +124,11 @@ typedef struct hetcomm_message hetcomm_message;
 // `hetcomm_comm_module`, freed by [`hetcomm_module_free`].
 // Safe to use from several threads at once.
 typedef struct hetcomm_module hetcomm_module;
+
+// Path switches of one system from when it was made ([`hetcomm_comm_watch_paths`]); free it
+// with [`hetcomm_path_watch_free`]. Holds up to 1024 unread switches (older ones are
+// dropped: a gap in `number` shows it). One thread at a time polls it.
+typedef struct hetcomm_path_watch hetcomm_path_watch;
 
 // The pending outcome of one send (the Rust `hetcomm::Ticket`). Free with
 // [`hetcomm_ticket_free`]; freeing it does not cancel the send (its outcome is still counted
@@ -200,6 +215,21 @@ typedef struct hetcomm_inbox_stats {
   // The inbox's bound.
   size_t capacity;
 } hetcomm_inbox_stats;
+
+// One path switch ([`hetcomm_path_watch_poll`]): the strings stay valid until the next poll
+// of the same watch or its free.
+typedef struct hetcomm_path_switch {
+  // The destination system whose sends moved.
+  const char *to;
+  // The transport they took until then.
+  const char *from;
+  // The transport they take from then on.
+  const char *now;
+  // When, microseconds on the system's monotonic clock.
+  uint64_t at_us;
+  // The system's switches so far, this one included (a gap: switches were dropped).
+  uint64_t number;
+} hetcomm_path_switch;
 
 // One send's outcome.
 typedef struct hetcomm_outcome {
@@ -494,6 +524,45 @@ enum hetcomm_status hetcomm_module_set_inline_callbacks(const struct hetcomm_mod
 // `module` is NULL or a live handle; `out` NULL or writable.
 enum hetcomm_status hetcomm_module_inbox_stats(const struct hetcomm_module *module,
                                                struct hetcomm_inbox_stats *out);
+
+// Changes, while running, the transports (fleet-file names, in order of preference) that
+// carry this system's traffic to `system`: `count` strings at `transports`. Each must be one
+// the pair's table cell lists (a reorder or a subset of it).
+//
+// Errors (nothing changes; `hetcomm_last_error` says why): `HETCOMM_STATUS_UNKNOWN_SYSTEM`,
+// `HETCOMM_STATUS_NO_ROUTE` (the table says X), `HETCOMM_STATUS_INVALID_ARGUMENT` (no
+// transport given, or one the cell does not list).
+//
+// # Safety
+// `comm` is NULL or a live handle; `system` NULL or a NUL-terminated string; `transports`
+// NULL or `count` pointers to NUL-terminated strings.
+enum hetcomm_status hetcomm_comm_set_transports(const struct hetcomm_comm *comm,
+                                                const char *system,
+                                                const char *const *transports,
+                                                size_t count);
+
+// Starts watching this system's path switches; `*out` is a new watch to free with
+// [`hetcomm_path_watch_free`].
+//
+// # Safety
+// `comm` is NULL or a live handle; `out` NULL or writable.
+enum hetcomm_status hetcomm_comm_watch_paths(const struct hetcomm_comm *comm,
+                                             struct hetcomm_path_watch **out);
+
+// The next path switch into `*out`, waiting up to `timeout_ms` for one (0: do not wait).
+// `HETCOMM_STATUS_EMPTY` when none came in time.
+//
+// # Safety
+// `watch` is NULL or a live watch; `out` NULL or writable.
+enum hetcomm_status hetcomm_path_watch_poll(const struct hetcomm_path_watch *watch,
+                                            uint64_t timeout_ms,
+                                            struct hetcomm_path_switch *out);
+
+// Frees a watch (NULL is ignored).
+//
+// # Safety
+// `watch` is NULL or a watch not freed yet; no other thread uses it during or after this.
+void hetcomm_path_watch_free(struct hetcomm_path_watch *watch);
 
 // Waits for the send's outcome and writes it to `*out`. Every send ends (its attempt budget
 // bounds it), so this returns.

@@ -160,7 +160,7 @@ inline std::string_view view(const char* s) { return s ? std::string_view(s) : s
 }  // namespace detail
 
 /// How a send ended.
-enum class OutcomeKind { Delivered = 0, Sent = 1, Unconfirmed = 2, Failed = 3 };
+enum class OutcomeKind { Delivered = 0, Sent = 1, Unconfirmed = 2, Failed = 3, Relayed = 4 };
 
 /// One send's outcome: what the sender knows.
 struct Outcome {
@@ -176,17 +176,22 @@ struct Outcome {
     }
     /// In the destination module's inbox (acknowledged).
     bool delivered() const noexcept { return kind == OutcomeKind::Delivered; }
-    /// Delivered, or sent on a transport that cannot confirm.
-    bool ok() const noexcept { return kind == OutcomeKind::Delivered || kind == OutcomeKind::Sent; }
+    /// Delivered, sent on a transport that cannot confirm, or relayed (its broker confirmed it).
+    bool ok() const noexcept {
+        return kind == OutcomeKind::Delivered || kind == OutcomeKind::Sent || kind == OutcomeKind::Relayed;
+    }
     /// "delivered after 1 attempt(s) in 120 µs", "unconfirmed: no acknowledgement after 3 attempt(s)", …
     std::string to_string() const {
-        static const char* const kinds[] = {"delivered", "sent", "unconfirmed", "failed"};
+        static const char* const kinds[] = {"delivered", "sent", "unconfirmed", "failed",
+                                            "sent; the broker confirmed it has it"};
         static const char* const reasons[] = {"", "no acknowledgement", "peer unreachable", "link congested",
                                               "destination inbox full", "destination has no such module",
                                               "transport error", "window full (backpressure)", "shut down",
-                                              "other"};
-        std::string s = kinds[static_cast<int>(kind) & 3];
-        if (reason != HETCOMM_FAIL_REASON_NONE && static_cast<unsigned>(reason) < 10) {
+                                              "other", "the broker refused it or did not confirm it",
+                                              "refused by the link"};
+        const auto k = static_cast<unsigned>(kind);
+        std::string s = k < 5 ? kinds[k] : "other";
+        if (reason != HETCOMM_FAIL_REASON_NONE && static_cast<unsigned>(reason) < 12) {
             s += std::string(": ") + reasons[reason];
         }
         s += " after " + std::to_string(attempts) + " attempt(s)";
@@ -515,6 +520,32 @@ private:
     std::shared_ptr<std::atomic<std::uint64_t>> failures_;
 };
 
+/// One path switch, copied out of the C API's strings.
+struct PathSwitch {
+    std::string to, from, now;
+    std::uint64_t at_us = 0;
+    std::uint64_t number = 0;
+};
+
+/// Every path switch of one system from when it was made (`Comm::watch_paths`).
+class PathWatch {
+public:
+    /// The next switch, waiting up to `timeout_ms` (0: do not wait); empty when none came.
+    std::optional<PathSwitch> poll(std::uint64_t timeout_ms = 0) {
+        hetcomm_path_switch s;
+        hetcomm_status st = hetcomm_path_watch_poll(watch_.get(), timeout_ms, &s);
+        if (st == HETCOMM_STATUS_EMPTY) return std::nullopt;
+        detail::check(st);
+        return PathSwitch{s.to, s.from, s.now, s.at_us, s.number};
+    }
+
+private:
+    friend class Comm;
+    struct Deleter { void operator()(hetcomm_path_watch* w) const noexcept { hetcomm_path_watch_free(w); } };
+    explicit PathWatch(hetcomm_path_watch* w) : watch_(w) {}
+    std::unique_ptr<hetcomm_path_watch, Deleter> watch_;
+};
+
 /// One opened system of a fleet. Copies share one handle; the system closes when the last
 /// Comm and Module of it are destroyed (after its callback threads have stopped).
 class Comm {
@@ -558,6 +589,16 @@ public:
         detail::check(hetcomm_comm_stats(comm_.get(), &s));
         return s;
     }
+    /// Changes, while running, the transports that carry this system's traffic to `system`,
+    /// in order of preference (a reorder or subset of the pair's table cell; docs/failover.md).
+    /// Throws Error (and changes nothing) when refused.
+    void set_transports(const std::string& system, const std::vector<std::string>& transports) const {
+        std::vector<const char*> names;
+        for (const auto& t : transports) names.push_back(t.c_str());
+        detail::check(hetcomm_comm_set_transports(comm_.get(), system.c_str(), names.data(), names.size()));
+    }
+    /// A watch of this system's path switches from now on (each watch sees every switch).
+    PathWatch watch_paths() const;
     /// The C handle.
     hetcomm_comm* handle() const noexcept { return comm_.get(); }
 
@@ -569,6 +610,12 @@ private:
     std::shared_ptr<Module::CallbackStore> callbacks_;
     std::shared_ptr<hetcomm_comm> comm_;
 };
+
+inline PathWatch Comm::watch_paths() const {
+    hetcomm_path_watch* w = nullptr;
+    detail::check(hetcomm_comm_watch_paths(comm_.get(), &w));
+    return PathWatch(w);
+}
 
 #ifdef HETCOMM_HAS_MSGPACK
 /// The thesis's communication interface (Table 5) over one module, so code written against

@@ -12,7 +12,7 @@ use crate::module::hetcomm_module;
 /// [`hetcomm_comm_open_str`], freed by [`hetcomm_comm_close`]. Safe to use from several
 /// threads at once.
 pub struct hetcomm_comm {
-    comm: Comm,
+    pub(crate) comm: Comm,
     name: CString,
     /// Per open transport: (name, listening address or None).
     endpoints: Vec<(CString, Option<CString>)>,

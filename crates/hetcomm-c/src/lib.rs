@@ -45,6 +45,7 @@
 mod comm;
 mod error;
 mod module;
+mod paths;
 mod ticket;
 
 pub use comm::{
@@ -61,6 +62,10 @@ pub use module::{
     hetcomm_module_pending, hetcomm_module_recv, hetcomm_module_recv_alloc,
     hetcomm_module_recv_alloc_type, hetcomm_module_send, hetcomm_module_set_inline_callbacks,
     hetcomm_module_set_wait_spin, HETCOMM_PRIORITY_NORMAL,
+};
+pub use paths::{
+    hetcomm_comm_set_transports, hetcomm_comm_watch_paths, hetcomm_path_switch, hetcomm_path_watch,
+    hetcomm_path_watch_free, hetcomm_path_watch_poll,
 };
 pub use ticket::{
     hetcomm_broadcast, hetcomm_broadcast_count, hetcomm_broadcast_free, hetcomm_broadcast_ticket,

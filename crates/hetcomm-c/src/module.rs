@@ -1,8 +1,9 @@
 //! A module: send, broadcast, poll the inbox, receive, callbacks.
 
+use parking_lot::{Mutex, MutexGuard};
 use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_char, c_void, CStr, CString};
-use std::sync::{Mutex, MutexGuard, OnceLock};
+use std::sync::OnceLock;
 use std::time::Duration;
 
 use hetcomm::{Envelope, MessageType, Module, RawMessage, SendOptions};
@@ -32,7 +33,7 @@ impl hetcomm_module {
     }
 
     fn held(&self) -> MutexGuard<'_, VecDeque<RawMessage>> {
-        self.held.lock().unwrap_or_else(|e| e.into_inner())
+        self.held.lock()
     }
 
     /// The next message: a held one, or one from the inbox (`timeout_ms` < 0: wait forever,
@@ -88,10 +89,7 @@ pub struct hetcomm_envelope {
 /// fleet files' names.
 fn static_cstr(name: &'static str) -> *const c_char {
     static NAMES: OnceLock<Mutex<HashMap<(usize, usize), &'static CStr>>> = OnceLock::new();
-    let mut names = NAMES
-        .get_or_init(Default::default)
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+    let mut names = NAMES.get_or_init(Default::default).lock();
     names
         .entry((name.as_ptr() as usize, name.len()))
         .or_insert_with(|| {

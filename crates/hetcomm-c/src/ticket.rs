@@ -43,6 +43,9 @@ pub enum hetcomm_outcome_kind {
     Unconfirmed = 2,
     /// Certainly not delivered.
     Failed = 3,
+    /// Handed to a transport whose broker (MQTT at QoS 1) confirmed it has it
+    /// (unacknowledged mode): still not known to be delivered.
+    Relayed = 4,
 }
 
 /// Why a send ended unconfirmed or failed.
@@ -69,6 +72,13 @@ pub enum hetcomm_fail_reason {
     Shutdown = 8,
     /// A reason newer than this header.
     Other = 9,
+    /// What the broker of the transport said (it refused the frame, or nobody is subscribed
+    /// to its destination), or that it said nothing in time.
+    Relay = 10,
+    /// The link will never carry the message as it is (a bridge could not convert it to the
+    /// mapped ROS type, or no topic is mapped for it): failed on its first attempt, nothing
+    /// sent, never retried.
+    Refused = 11,
 }
 
 /// One send's outcome.
@@ -97,6 +107,8 @@ impl From<&Outcome> for hetcomm_outcome {
             FailReason::Link(_) => hetcomm_fail_reason::Link,
             FailReason::Backpressure => hetcomm_fail_reason::Backpressure,
             FailReason::Shutdown => hetcomm_fail_reason::Shutdown,
+            FailReason::Relay(_) => hetcomm_fail_reason::Relay,
+            FailReason::Refused(_) => hetcomm_fail_reason::Refused,
             #[allow(unreachable_patterns)]
             _ => hetcomm_fail_reason::Other,
         };
@@ -109,6 +121,12 @@ impl From<&Outcome> for hetcomm_outcome {
             ),
             Outcome::Sent { attempts } => (
                 hetcomm_outcome_kind::Sent,
+                *attempts,
+                0,
+                hetcomm_fail_reason::None,
+            ),
+            Outcome::Relayed { attempts } => (
+                hetcomm_outcome_kind::Relayed,
                 *attempts,
                 0,
                 hetcomm_fail_reason::None,
@@ -275,5 +293,37 @@ pub unsafe extern "C" fn hetcomm_broadcast_free(broadcast: *mut hetcomm_broadcas
     if !broadcast.is_null() {
         // SAFETY: made by Box::into_raw in a broadcast; freed once by contract.
         guard_value((), || drop(unsafe { Box::from_raw(broadcast) }));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refused_send_has_its_own_reason_and_no_known_reason_is_other() {
+        let refused = Outcome::Failed {
+            reason: FailReason::Refused("Drive does not convert to geometry_msgs/Twist".into()),
+            attempts: 1,
+        };
+        let c = hetcomm_outcome::from(&refused);
+        assert_eq!(c.kind, hetcomm_outcome_kind::Failed);
+        assert_eq!((c.reason, c.attempts), (hetcomm_fail_reason::Refused, 1));
+        assert_eq!(hetcomm_fail_reason::Refused as u32, 11);
+        let unreachable = Outcome::Unconfirmed {
+            reason: FailReason::Unreachable("no route".into()),
+            attempts: 3,
+        };
+        let c = hetcomm_outcome::from(&unreachable);
+        assert_eq!(c.reason, hetcomm_fail_reason::Unreachable);
+        // `NoSession` has no code of its own yet: it is reported as `Other`.
+        let no_session = Outcome::Failed {
+            reason: FailReason::NoSession("handshake pending".into()),
+            attempts: 1,
+        };
+        assert_eq!(
+            hetcomm_outcome::from(&no_session).reason,
+            hetcomm_fail_reason::Other
+        );
     }
 }

@@ -20,7 +20,7 @@ pub struct FoxgloveArgs {
 
 #[cfg(feature = "foxglove")]
 mod imp {
-    use std::sync::Mutex;
+    use parking_lot::Mutex;
 
     use hetcomm_foxglove::{FoxgloveView, PoseRecording, RoverPose, Watch};
 
@@ -68,7 +68,7 @@ mod imp {
         /// Publishes `systems`' traffic and counters from now until [`Live::finish`].
         pub fn watch(&self, systems: &[Comm]) -> anyhow::Result<()> {
             let watch = self.view.watch(systems)?;
-            *self.watch.lock().unwrap_or_else(|e| e.into_inner()) = Some(watch);
+            *self.watch.lock() = Some(watch);
             Ok(())
         }
 
@@ -79,7 +79,7 @@ mod imp {
 
         /// Stops watching and says on stderr what was published and dropped.
         pub fn finish(&self) {
-            let watch = self.watch.lock().unwrap_or_else(|e| e.into_inner()).take();
+            let watch = self.watch.lock().take();
             if let Some(w) = watch {
                 let c = w.finish();
                 eprintln!(

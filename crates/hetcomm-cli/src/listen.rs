@@ -42,6 +42,8 @@ enum Event {
     Message(String, RawMessage),
     /// SIGINT or SIGTERM (its name).
     Stop(&'static str),
+    /// SIGHUP: reload the fleet file.
+    Reload,
     /// A system joined or left a Zenoh network or an MQTT broker this system is on (a line
     /// for stderr).
     #[cfg_attr(not(any(feature = "zenoh", feature = "mqtt")), allow(dead_code))]
@@ -58,7 +60,7 @@ const VERBOSE_EVERY: Duration = Duration::from_millis(20);
 pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
     // First, before any thread exists: every thread started later inherits the mask, so
     // the signals reach only the thread that waits for them.
-    let signals = StopSignals::block()?;
+    let signals = StopSignals::block_with_reload()?;
     let (tx, rx) = mpsc::channel::<Event>();
     // Until the system is open and listening there is nothing to summarise: a signal then
     // ends the process at once, as it would without this thread (opening may wait, e.g. for
@@ -68,7 +70,13 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         let listening = listening.clone();
         let tx = tx.clone();
         signals.watch(move |signal| {
-            if listening.load(Ordering::SeqCst) {
+            if signal == libc::SIGHUP {
+                // Before the system is open there is nothing to reload into: it opens with
+                // the file as it is then.
+                if listening.load(Ordering::SeqCst) {
+                    let _ = tx.send(Event::Reload);
+                }
+            } else if listening.load(Ordering::SeqCst) {
                 let _ = tx.send(Event::Stop(signal_name(signal)));
             } else {
                 std::process::exit(128 + signal);
@@ -139,7 +147,7 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
         .map(|(t, a)| format!("{t} {}", a.as_deref().unwrap_or("(in-process)")))
         .collect();
     eprintln!(
-        "listening as {} (modules: {}) on {}; Ctrl-C to stop",
+        "listening as {} (modules: {}) on {}; Ctrl-C to stop, SIGHUP to reload the fleet file",
         comm.name(),
         modules.join(", "),
         endpoints.join(", ")
@@ -196,6 +204,13 @@ pub fn listen(args: ListenArgs<'_>) -> anyhow::Result<()> {
             Ok(Event::Stop(signal)) => {
                 stopped = Some(format!("stopped by {signal}"));
                 break;
+            }
+            Ok(Event::Reload) => {
+                let at = clock.format(Time::now_wall());
+                for line in reload_lines(&comm, args.fleet) {
+                    eprintln!("{at}  {line}");
+                }
+                print_path_changes(&comm, &clock);
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
@@ -458,7 +473,7 @@ fn wait_for_acks(comm: &Comm, owed: u64, limit: Duration) {
         let s = comm.stats();
         let on_wire: u64 = s.links.iter().map(|(_, l)| l.frames_sent).sum();
         let queued: u64 = s.links.iter().map(|(_, l)| l.buffered_bytes).sum();
-        if (s.router.acks_sent >= owed && on_wire >= s.router.acks_sent && queued == 0)
+        if (s.router.acks_sent >= owed && on_wire >= s.router.ack_frames_sent && queued == 0)
             || Instant::now() >= give_up
         {
             return;
@@ -586,58 +601,12 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// SIGINT and SIGTERM, blocked in every thread and taken by one thread that waits for them
-/// (sigwait): no handler runs inside another thread's system call, and the main loop learns
-/// of the signal as an event like a message.
-pub struct StopSignals {
-    set: libc::sigset_t,
+/// What a reload of the fleet file did (SIGHUP), as lines for stderr.
+fn reload_lines(comm: &Comm, fleet: &Path) -> Vec<String> {
+    hetcomm::describe_reload(fleet, &comm.reload(fleet))
 }
 
-impl StopSignals {
-    /// Blocks SIGINT and SIGTERM in the calling thread. Call it before any thread starts:
-    /// threads inherit the mask, and a thread that does not block them would be killed by
-    /// them as before.
-    pub fn block() -> io::Result<StopSignals> {
-        // SAFETY: sigemptyset/sigaddset write into the set we own; pthread_sigmask reads it
-        // and changes only this thread's mask.
-        unsafe {
-            let mut set: libc::sigset_t = std::mem::zeroed();
-            libc::sigemptyset(&mut set);
-            libc::sigaddset(&mut set, libc::SIGINT);
-            libc::sigaddset(&mut set, libc::SIGTERM);
-            let rc = libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut());
-            if rc != 0 {
-                return Err(io::Error::from_raw_os_error(rc));
-            }
-            Ok(StopSignals { set })
-        }
-    }
-
-    /// Starts the thread that waits for the signals: the first calls `on_stop` with its
-    /// number; a second one (the user insisting) ends the process at once, with the shell's
-    /// code for death by that signal (128 + its number).
-    pub fn watch(self, on_stop: impl Fn(libc::c_int) + Send + 'static) -> io::Result<()> {
-        let set = self.set;
-        std::thread::Builder::new()
-            .name("signals".into())
-            .spawn(move || {
-                let mut stopping = false;
-                loop {
-                    let mut signal: libc::c_int = 0;
-                    // SAFETY: sigwait reads the set we own and writes the signal number.
-                    if unsafe { libc::sigwait(&set, &mut signal) } != 0 {
-                        return;
-                    }
-                    if stopping {
-                        std::process::exit(128 + signal);
-                    }
-                    stopping = true;
-                    on_stop(signal);
-                }
-            })?;
-        Ok(())
-    }
-}
+pub use hetcomm::signals::StopSignals;
 
 /// SIGINT's or SIGTERM's name.
 fn signal_name(signal: libc::c_int) -> &'static str {
@@ -668,6 +637,7 @@ mod tests {
                 .collect(),
             callback_failures: 0,
             held_frames: 0,
+            path_switches: Vec::new(),
             unknown_module: 0,
         }
     }

@@ -125,6 +125,17 @@ fn latency(us: Option<u64>) -> String {
     }
 }
 
+/// A system's path switches: how many, and the last one.
+fn switches(s: &SystemRow) -> String {
+    match &s.last_switch {
+        Some(l) => format!(
+            "{} (last: to {} {} → {})",
+            s.path_switches, l.destination, l.from, l.to
+        ),
+        None => s.path_switches.to_string(),
+    }
+}
+
 fn draw(
     f: &mut ratatui::Frame<'_>,
     title: &str,
@@ -211,6 +222,7 @@ fn draw(
         "capacity",
         "dropped",
         "report age",
+        "path switches",
     ])
     .style(bold);
     let rows = systems.iter().flat_map(|s| {
@@ -222,6 +234,7 @@ fn draw(
                 i.capacity.to_string(),
                 i.dropped.to_string(),
                 format!("{:.1} s", s.age_s),
+                switches(s),
             ])
         })
     });
@@ -232,6 +245,7 @@ fn draw(
         Constraint::Length(9),
         Constraint::Length(8),
         Constraint::Length(11),
+        Constraint::Min(14),
     ];
     f.render_widget(
         Table::new(rows, widths)

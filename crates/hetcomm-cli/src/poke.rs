@@ -92,9 +92,7 @@ pub fn send(args: SendArgs<'_>) -> anyhow::Result<SendVerdict> {
     for t in tickets {
         let outcome = t.wait_timeout(args.timeout);
         let (line, this) = match &outcome {
-            Some(o @ (Outcome::Delivered { .. } | Outcome::Sent { .. })) => {
-                (o.to_string(), SendVerdict::Success)
-            }
+            Some(o) if o.is_success() => (o.to_string(), SendVerdict::Success),
             Some(o @ Outcome::Unconfirmed { .. }) => (o.to_string(), SendVerdict::Unconfirmed),
             Some(o) => (o.to_string(), SendVerdict::Failed),
             None => (

@@ -167,6 +167,7 @@ impl Contents {
                 }
             }
             Event::Outcome(_) => c.outcomes += 1,
+            Event::PathSwitch(_) => {}
         })?;
         Ok(c)
     }

@@ -554,3 +554,56 @@ fn a_closed_output_ends_listen_with_its_summary() {
     );
     assert!(counters_line(&pipeline).contains("; router: "));
 }
+
+/// SIGHUP reloads the fleet file: a reordered pair is applied live (the difference, what was
+/// applied and the path switch are printed); a file that changes an id is refused with the
+/// reason and changes nothing; the listener keeps running through both.
+#[test]
+fn sighup_reloads_the_fleet_file_or_says_why_not() {
+    let deadline = Deadline::after(40);
+    let dir = TempDir::new("reload");
+    let (p1, p2, p3, p4) = (
+        free_udp_port(),
+        free_udp_port(),
+        free_udp_port(),
+        free_udp_port(),
+    );
+    let text = |bravo: u16, cell: &str| {
+        format!(
+            "[systems]\nAlpha = 0\nBravo = {bravo}\n[modules]\nPlan = 0\nAct = 1\n\
+             [transports.wifi]\nkind = \"udp\"\nsecurity = \"none\"\n\
+             endpoints = {{ Alpha = \"127.0.0.1:{p1}\", Bravo = \"127.0.0.1:{p2}\" }}\n\
+             [transports.radio]\nkind = \"udp\"\nsecurity = \"none\"\n\
+             endpoints = {{ Alpha = \"127.0.0.1:{p3}\", Bravo = \"127.0.0.1:{p4}\" }}\n\
+             [table]\ncolumns = [\"Alpha\", \"Bravo\"]\n\
+             Alpha = [\"X\", \"{cell}\"]\nBravo = [\"{cell}\", \"X\"]\n"
+        )
+    };
+    let fleet = dir.write("fleet.toml", &text(1, "wifi,radio"));
+    let mut bravo = listen(&fleet, "Bravo", &[], deadline);
+    dir.write("fleet.toml", &text(1, "radio,wifi"));
+    signal(&bravo, libc::SIGHUP);
+    bravo.wait_stderr("reload", deadline);
+    bravo.wait_stderr("applied: traffic to Alpha now takes radio,wifi", deadline);
+    bravo.wait_stderr(
+        "traffic to Alpha moved from transport wifi to radio",
+        deadline,
+    );
+    dir.write("fleet.toml", &text(5, "wifi,radio"));
+    signal(&bravo, libc::SIGHUP);
+    bravo.wait_stderr("refused, nothing changed", deadline);
+    bravo.wait_stderr("system `Bravo` changes id (1 -> 5)", deadline);
+    signal(&bravo, libc::SIGINT);
+    assert_eq!(bravo.wait_exit(deadline).code(), Some(0));
+    let err = bravo.stderr_lines();
+    assert!(
+        err.iter()
+            .any(|l| l.contains("pair Bravo -> Alpha: wifi,radio -> radio,wifi")),
+        "{err:?}"
+    );
+    let moved = err
+        .iter()
+        .filter(|l| l.contains("moved from transport"))
+        .count();
+    assert_eq!(moved, 1, "the refused reload moved nothing: {err:?}");
+}

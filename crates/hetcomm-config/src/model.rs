@@ -118,39 +118,38 @@ pub enum DeliveryMode {
     Unacknowledged,
 }
 
-/// A transport kind: the name a fleet file gives in `kind = "…"`. The named variants are the
-/// kinds the fleet loader knows by itself; a link crate adds its own with
-/// [`TransportKind::new`] (an [`TransportKind::Other`]) and a [`crate::kinds::KindSpec`] (see
-/// `docs/architecture.md`, "A new transport"). Whether a kind is compiled into a program is
-/// decided when the fleet is opened, not here.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum TransportKind {
-    /// Between systems of one process.
-    Inproc,
-    /// UDP datagrams.
-    Udp,
-    /// TCP streams.
-    Tcp,
-    /// ROS 1 topics through a ROS master.
-    Ros1,
-    /// Bluetooth Classic RFCOMM.
-    Bluetooth,
-    /// Zenoh (known to the fleet file; its keys are kept raw until a crate registers it).
-    Zenoh,
-    /// MQTT through a broker (likewise).
-    Mqtt,
-    /// DDS (likewise).
-    Dds,
-    /// A wrapper that emulates a radio link (loss, latency, range, …) over another transport.
-    Emulated,
-    /// A kind registered by a link crate under a name of its own (e.g. `ros2`, `shm`).
-    Other(OtherKind),
-}
+/// A transport kind: the name a fleet file gives in `kind = "…"`. One type for every kind,
+/// built in or registered by a link crate ([`TransportKind::new`] and a
+/// [`crate::kinds::KindSpec`], see `docs/architecture.md`, "A new transport"); the
+/// constants below are the kinds the fleet loader knows by itself ([`TransportKind::ALL`],
+/// the one built-in list). Whether a kind is compiled into a program is decided when the
+/// fleet is opened, not here. Kinds order by name.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TransportKind(&'static str);
 
-/// The name of a kind registered by a link crate; made only by [`TransportKind::new`], so a
-/// built-in name always comes out as its own variant.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct OtherKind(&'static str);
+// The built-in kinds keep the spelling they had as enum variants (`TransportKind::Udp`), so
+// that code matching on them reads as before.
+#[allow(non_upper_case_globals)]
+impl TransportKind {
+    /// Between systems of one process.
+    pub const Inproc: TransportKind = TransportKind("inproc");
+    /// UDP datagrams.
+    pub const Udp: TransportKind = TransportKind("udp");
+    /// TCP streams.
+    pub const Tcp: TransportKind = TransportKind("tcp");
+    /// ROS 1 topics through a ROS master.
+    pub const Ros1: TransportKind = TransportKind("ros1");
+    /// Bluetooth Classic RFCOMM.
+    pub const Bluetooth: TransportKind = TransportKind("bluetooth");
+    /// Zenoh (known to the fleet file; its keys are kept raw until a crate registers it).
+    pub const Zenoh: TransportKind = TransportKind("zenoh");
+    /// MQTT through a broker (likewise).
+    pub const Mqtt: TransportKind = TransportKind("mqtt");
+    /// DDS (likewise).
+    pub const Dds: TransportKind = TransportKind("dds");
+    /// A wrapper that emulates a radio link (loss, latency, range, …) over another transport.
+    pub const Emulated: TransportKind = TransportKind("emulated");
+}
 
 impl TransportKind {
     /// The kinds the fleet loader knows by itself, in documentation order. Kinds registered
@@ -167,31 +166,26 @@ impl TransportKind {
         TransportKind::Emulated,
     ];
 
-    /// The kind named `name` in fleet files: the built-in one of that name, else a kind of a
-    /// link crate's own (e.g. `TransportKind::new("ros2")`).
-    pub fn new(name: &'static str) -> TransportKind {
-        Self::parse(name).unwrap_or(TransportKind::Other(OtherKind(name)))
+    /// The kind named `name` in fleet files (e.g. `TransportKind::new("ros2")`); the same
+    /// value as the built-in constant of that name, if there is one.
+    pub const fn new(name: &'static str) -> TransportKind {
+        TransportKind(name)
     }
 
     /// The name used in fleet files (`kind = "…"`).
     pub fn as_str(self) -> &'static str {
-        match self {
-            TransportKind::Inproc => "inproc",
-            TransportKind::Udp => "udp",
-            TransportKind::Tcp => "tcp",
-            TransportKind::Ros1 => "ros1",
-            TransportKind::Bluetooth => "bluetooth",
-            TransportKind::Zenoh => "zenoh",
-            TransportKind::Mqtt => "mqtt",
-            TransportKind::Dds => "dds",
-            TransportKind::Emulated => "emulated",
-            TransportKind::Other(OtherKind(name)) => name,
-        }
+        self.0
     }
 
     /// Parses the fleet-file name of a built-in kind ([`TransportKind::ALL`]).
     pub fn parse(s: &str) -> Option<TransportKind> {
         Self::ALL.into_iter().find(|k| k.as_str() == s)
+    }
+}
+
+impl std::fmt::Debug for TransportKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.0)
     }
 }
 

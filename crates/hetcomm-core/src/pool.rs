@@ -8,9 +8,10 @@
 //! shoot-downs were 10–15% of a 64 KiB receiver's time). A pool lets the buffers circulate
 //! between the two threads instead, and keeps them warm.
 
+use parking_lot::Mutex;
 use std::fmt;
 use std::ops::Deref;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// Buffers given back by dropped [`FrameBuf`]s, for the next frames to be read into. Holds at
 /// most `max_bytes` of capacity; buffers beyond that (or larger than it) are freed.
@@ -115,9 +116,9 @@ impl BufferPool {
         drop(buf);
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Free> {
+    fn lock(&self) -> parking_lot::MutexGuard<'_, Free> {
         // The lists stay consistent whatever panicked while holding the lock.
-        self.free.lock().unwrap_or_else(|e| e.into_inner())
+        self.free.lock()
     }
 }
 

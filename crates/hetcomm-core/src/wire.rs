@@ -33,7 +33,8 @@ pub enum FrameKind {
     /// A user message for a module.
     Data = 0,
     /// The receiver's router has handled the data frame named by (origin, incarnation, seq);
-    /// the one-byte payload is an [`AckStatus`].
+    /// the payload is an [`AckStatus`] byte, optionally followed by the first seq of a range
+    /// of frames acknowledged with that status ([`AckPayload`]).
     Ack = 1,
 }
 
@@ -68,6 +69,55 @@ impl AckStatus {
             2 => Some(AckStatus::UnknownModule),
             _ => None,
         }
+    }
+}
+
+/// The most sequence numbers one acknowledgement may cover (its header's `seq` and the
+/// numbers below it down to [`AckPayload::first`]): a receiver of an ACK walks the range, so
+/// it is bounded; a wider range is malformed.
+pub const ACK_RANGE_MAX: u64 = 4096;
+
+/// What an ACK's payload says: one status for the frames `first..=seq` (`seq` from the ACK's
+/// header). One byte (the status) acknowledges `seq` alone; nine bytes (the status, then
+/// `first` as a little-endian u64, `first < seq`, `seq - first < ACK_RANGE_MAX`) acknowledge
+/// the range: a receiver that answers several frames in a row with one status sends one ACK.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AckPayload {
+    /// The status of every frame in the range.
+    pub status: AckStatus,
+    /// The lowest sequence number acknowledged (equal to the header's `seq` for one frame).
+    pub first: u64,
+}
+
+impl AckPayload {
+    /// Reads an ACK's payload for the ACK whose header says `seq`; None when it is neither
+    /// form, or its range is empty, reversed or wider than [`ACK_RANGE_MAX`].
+    pub fn parse(payload: &[u8], seq: u64) -> Option<AckPayload> {
+        let (status, first) = match payload {
+            [b] => (*b, seq),
+            [b, rest @ ..] if rest.len() == 8 => {
+                let first = u64::from_le_bytes(rest.try_into().ok()?);
+                if first >= seq || seq - first >= ACK_RANGE_MAX {
+                    return None;
+                }
+                (*b, first)
+            }
+            _ => return None,
+        };
+        Some(AckPayload {
+            status: AckStatus::from_u8(status)?,
+            first,
+        })
+    }
+
+    /// The payload's bytes for an ACK whose header says `seq` (one byte when `first == seq`).
+    pub fn write(&self, seq: u64, out: &mut [u8; 9]) -> usize {
+        out[0] = self.status as u8;
+        if self.first == seq {
+            return 1;
+        }
+        out[1..].copy_from_slice(&self.first.to_le_bytes());
+        9
     }
 }
 

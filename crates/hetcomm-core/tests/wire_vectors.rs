@@ -14,8 +14,8 @@
 use std::path::PathBuf;
 
 use hetcomm_core::wire::{
-    self, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC, FLAG_TO_ALL,
-    HEADER_LEN, MAX_PAYLOAD, TO_ALL_SYSTEM,
+    self, AckPayload, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC,
+    FLAG_TO_ALL, HEADER_LEN, MAX_PAYLOAD, TO_ALL_SYSTEM,
 };
 use hetcomm_core::{
     payload, AckStatus, Address, DecodeError, FrameKind, Header, MessageType, ModuleId, Priority,
@@ -113,6 +113,9 @@ struct ValidVector {
     payload_json: Value,
     #[serde(skip_serializing_if = "Option::is_none")]
     ack_status: Option<AckStatus>,
+    /// An ACK range's first seq (the nine-byte payload; "ACK ranges").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    ack_first: Option<u64>,
 }
 
 /// The header as the file shows it: every field as a plain number.
@@ -243,12 +246,13 @@ struct RecordsVector {
 
 fn valid(name: &str, description: &str, h: Header, payload: &[u8]) -> ValidVector {
     let frame = wire::encode(&h, payload);
-    let (payload_json, ack_status) = match h.kind {
-        FrameKind::Ack => (
-            Value::Null,
-            Some(AckStatus::from_u8(payload[0]).expect("ack vectors carry a valid status")),
-        ),
-        FrameKind::Data => (payload::to_json(payload).unwrap_or(Value::Null), None),
+    let (payload_json, ack_status, ack_first) = match h.kind {
+        FrameKind::Ack => {
+            let ack = AckPayload::parse(payload, h.seq).expect("ack vectors carry a valid payload");
+            let first = (payload.len() == 9).then_some(ack.first);
+            (Value::Null, Some(ack.status), first)
+        }
+        FrameKind::Data => (payload::to_json(payload).unwrap_or(Value::Null), None, None),
     };
     ValidVector {
         name: name.into(),
@@ -270,6 +274,7 @@ fn valid(name: &str, description: &str, h: Header, payload: &[u8]) -> ValidVecto
         payload_hex: hex(payload),
         payload_json,
         ack_status,
+        ack_first,
     }
 }
 
@@ -463,6 +468,21 @@ fn generate() -> VectorFile {
             &[status as u8],
         ));
     }
+    // An ACK range: data_struct_wheels's sender's frames 2 to 5 all delivered, in one ACK.
+    let mut range_payload = vec![AckStatus::Delivered as u8];
+    range_payload.extend_from_slice(&2u64.to_le_bytes());
+    valid_vectors.push(valid(
+        "ack_range_delivered",
+        "An ACK range (\"ACK ranges\"): the acknowledgement of data_struct_wheels's sender's \
+         frames 2, 3, 4 and 5, all delivered, in one frame. The header is the ACK of the \
+         last (seq 5); the nine-byte payload is the status (0, delivered) and then first = 2 \
+         (u64 little-endian).",
+        Header {
+            seq: 5,
+            ..ack_of(&wheels_h)
+        },
+        &range_payload,
+    ));
     valid_vectors.extend([
         valid(
             "ack_of_broadcast",
@@ -1690,12 +1710,11 @@ fn valid_vectors_decode_and_re_encode() {
         );
         match h.kind {
             FrameKind::Ack => {
-                assert_eq!(
-                    frame.payload.len(),
-                    1,
-                    "{name}: an ack carries one status byte"
-                );
-                let status = AckStatus::from_u8(frame.payload[0]).expect("known status");
+                let ack = AckPayload::parse(frame.payload, h.seq)
+                    .unwrap_or_else(|| panic!("{name}: an ack carries a status or a range"));
+                let first = (frame.payload.len() == 9).then_some(ack.first);
+                assert_eq!(first, v["ack_first"].as_u64(), "{name}: ack_first");
+                let status = ack.status;
                 assert_eq!(
                     serde_json::to_value(status).unwrap(),
                     v["ack_status"],

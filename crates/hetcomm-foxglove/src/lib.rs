@@ -201,10 +201,10 @@ impl FoxgloveView {
         traffic::Watch::start(self.channels.clone(), systems)
     }
 
-    /// Where a path switch is published once the observation point reports one: a JSON
-    /// message on `/hetcomm/paths/<system>` naming the destination and both paths. Until
-    /// then the counter of switches ([`hetcomm::Comm::stats`]' `router.path_changes`) is
-    /// published there once a second by [`FoxgloveView::watch`].
+    /// Publishes one path switch: a JSON message on `/hetcomm/paths/<system>` naming the
+    /// destination and both paths. [`FoxgloveView::watch`] does this for every switch of
+    /// the systems it watches (the observation point reports each); the counter of switches
+    /// is published there once a second too.
     pub fn publish_path_switch(
         &self,
         system: &str,

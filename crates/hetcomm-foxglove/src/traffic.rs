@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm::observe::{OutcomeRecord, ReceiptRecord, SendRecord};
+use hetcomm::observe::{OutcomeRecord, PathChangeRecord, ReceiptRecord, SendRecord};
 use hetcomm::{Comm, Observer, ObserverHandle};
 use hetcomm_record::events::{EventBuilder, Observed};
 use hetcomm_record::format::Event;
@@ -185,6 +185,9 @@ impl Observer for TrafficObserver {
     fn on_outcome(&self, r: &OutcomeRecord<'_>) {
         self.offer(Observed::outcome(&self.system, r));
     }
+    fn on_path_change(&self, r: &PathChangeRecord<'_>) {
+        self.offer(Observed::path_switch(&self.system, r));
+    }
 }
 
 /// The publishing thread's state.
@@ -223,6 +226,21 @@ impl Publisher {
 
     fn publish_item(&self, item: &Observed) {
         let event = self.builder.event(item);
+        if let Event::PathSwitch(e) = &event {
+            let result = publish_path_switch(
+                &self.channels,
+                &e.source_system,
+                &e.destination_system,
+                &e.from,
+                &e.to,
+            );
+            let counter = match result {
+                Ok(()) => &self.counters.published,
+                Err(_) => &self.counters.unpublishable,
+            };
+            counter.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
         let result = (|| -> anyhow::Result<()> {
             let channel = match &event {
                 Event::Send(e) => self.message_channel(&e.message)?,
@@ -232,6 +250,7 @@ impl Publisher {
                     "hetcomm.Outcome",
                     schemas::outcome,
                 )?,
+                Event::PathSwitch(_) => return Ok(()),
             };
             channel.log(&serde_json::to_vec(&event)?);
             Ok(())

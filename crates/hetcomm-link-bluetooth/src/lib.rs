@@ -38,7 +38,7 @@
 //! contribute is one `socket()` call and the 10-byte `sockaddr_rc` layout (its `sys` module
 //! is private). So this crate creates the socket with `socket2`
 //! (`AF_BLUETOOTH` = 31, `SOCK_STREAM`, `BTPROTO_RFCOMM` = 3), builds `sockaddr_rc` itself
-//! ([`socket::sockaddr_rc_bytes`], unit-tested), and uses `libc::poll` for a wakeable
+//! ([`socket::sockaddr_rc_bytes`], unit-tested), and uses `poll(2)` (through `rustix`) for a wakeable
 //! listener: no async runtime, no extra threads, no D-Bus, and the same blocking model as the
 //! TCP and Unix links. Pairing, trusting and adapter power stay with BlueZ (`bluetoothctl`,
 //! see `docs/bluetooth.md`).

@@ -6,12 +6,12 @@
 //! family decides only how sockets are created and what addresses look like.
 
 use std::io::{self, IoSlice, Read, Write};
-use std::os::fd::{AsRawFd, RawFd};
 use std::os::unix::net::UnixStream;
 use std::time::Duration;
 
 use hetcomm_config::BdAddr;
 use hetcomm_link_ip::stream::{StreamListener, StreamSocket};
+use rustix::event::{poll, PollFd, PollFlags};
 use socket2::{Domain, Protocol, SockAddr, Socket, Type};
 
 /// Linux's address family number for Bluetooth sockets (`AF_BLUETOOTH`).
@@ -239,36 +239,23 @@ impl RfcommListener {
     /// Waits until the listener has a connection to accept (`Ok(false)`) or was woken
     /// (`Ok(true)`).
     fn wait(&self) -> io::Result<bool> {
-        let mut fds = [
-            pollfd(self.socket.as_raw_fd()),
-            pollfd(self.wake_rx.as_raw_fd()),
-        ];
         loop {
-            // SAFETY: `fds` is a valid, exclusively borrowed array of `fds.len()` pollfds for
-            // the duration of the call, and both descriptors are owned by `self`.
-            let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, -1) };
-            if n < 0 {
-                let e = io::Error::last_os_error();
-                if e.kind() == io::ErrorKind::Interrupted {
-                    continue;
-                }
-                return Err(e);
+            let mut fds = [
+                PollFd::new(&self.socket, PollFlags::IN),
+                PollFd::new(&self.wake_rx, PollFlags::IN),
+            ];
+            match poll(&mut fds, None) {
+                Ok(_) => {}
+                Err(rustix::io::Errno::INTR) => continue,
+                Err(e) => return Err(e.into()),
             }
-            if fds[1].revents != 0 {
+            if !fds[1].revents().is_empty() {
                 return Ok(true);
             }
-            if fds[0].revents != 0 {
+            if !fds[0].revents().is_empty() {
                 return Ok(false);
             }
         }
-    }
-}
-
-fn pollfd(fd: RawFd) -> libc::pollfd {
-    libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
     }
 }
 

@@ -37,9 +37,9 @@ impl StreamSocket for TcpStream {
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()> {
         TcpStream::set_read_timeout(self, timeout)
     }
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
         // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
-        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+        Some(std::os::fd::AsFd::as_fd(self))
     }
     fn set_nonblocking(&self, on: bool) -> io::Result<()> {
         TcpStream::set_nonblocking(self, on)
@@ -54,8 +54,8 @@ impl StreamListener for TcpListener {
         TcpListener::accept(self)
     }
 
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
-        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
+        Some(std::os::fd::AsFd::as_fd(self))
     }
 
     fn set_nonblocking(&self, on: bool) -> io::Result<()> {

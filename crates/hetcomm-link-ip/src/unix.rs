@@ -33,9 +33,9 @@ impl StreamSocket for UnixStream {
     fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()> {
         UnixStream::set_read_timeout(self, timeout)
     }
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
         // Reading the socket through `Read` is exactly `read(2)` on this descriptor.
-        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+        Some(std::os::fd::AsFd::as_fd(self))
     }
     fn set_nonblocking(&self, on: bool) -> io::Result<()> {
         UnixStream::set_nonblocking(self, on)
@@ -50,8 +50,8 @@ impl StreamListener for UnixListener {
         UnixListener::accept(self)
     }
 
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
-        Some(std::os::fd::AsRawFd::as_raw_fd(self))
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
+        Some(std::os::fd::AsFd::as_fd(self))
     }
 
     fn set_nonblocking(&self, on: bool) -> io::Result<()> {

@@ -7,10 +7,10 @@
 //! the limit in bookkeeping, with an eviction scan of 21 ms per new message. They guard that
 //! fix.
 
+use parking_lot::Mutex;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -115,7 +115,7 @@ fn amplifying_first_fragment(message_id: u32) -> Vec<u8> {
 
 #[test]
 fn amplifying_first_fragment_is_pending_and_charged_for_what_arrived() {
-    let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
+    let _g = MEASURING.lock();
     let mut r = default_reassembler();
     let d = amplifying_first_fragment(1);
     assert_eq!(d.len(), 276);
@@ -139,7 +139,7 @@ fn amplifying_first_fragment_is_pending_and_charged_for_what_arrived() {
 
 #[test]
 fn a_first_fragment_allocates_little_more_than_itself() {
-    let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
+    let _g = MEASURING.lock();
     let mut r = default_reassembler();
     let d = amplifying_first_fragment(1);
     let (_, peak, _) = measure(|| r.on_fragment(&d, SRC, Some(SystemId(1)), Instant::now()));
@@ -153,7 +153,7 @@ fn a_first_fragment_allocates_little_more_than_itself() {
 
 #[test]
 fn a_few_tiny_datagrams_do_not_evict_a_pending_message() {
-    let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
+    let _g = MEASURING.lock();
     let mut r = default_reassembler();
     let t0 = Instant::now();
     // A legitimate 1 MiB message from another source, half received.
@@ -196,7 +196,7 @@ fn a_few_tiny_datagrams_do_not_evict_a_pending_message() {
 /// message then scanned them all to evict the oldest (21 ms each in a release build).
 #[test]
 fn tiny_messages_stay_within_a_small_multiple_of_the_limit() {
-    let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
+    let _g = MEASURING.lock();
     let limit = 64 << 10;
     let mut r = Reassembler::new(limit, Duration::from_secs(2), 1 << 20);
     let t0 = Instant::now();
@@ -295,7 +295,7 @@ fn time_per_new_message_when_full(limit: usize) -> (usize, Duration) {
 /// and the expired: the cost per datagram must not grow with the number pending.
 #[test]
 fn eviction_cost_does_not_grow_with_the_messages_pending() {
-    let _g = MEASURING.lock().unwrap_or_else(|e| e.into_inner());
+    let _g = MEASURING.lock();
     let (few, small) = time_per_new_message_when_full(64 << 10);
     let (many, large) = time_per_new_message_when_full(8 << 20);
     println!("{few} pending: {small:?} per new message; {many} pending: {large:?}");

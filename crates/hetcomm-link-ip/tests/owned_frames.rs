@@ -5,7 +5,8 @@
 
 mod common;
 
-use std::sync::{Arc, Mutex};
+use parking_lot::Mutex;
+use std::sync::Arc;
 
 use common::{wait_until, TcpHarness, UdpHarness, UnixHarness, DEADLINE};
 use hetcomm_core::{FrameBuf, SystemId};
@@ -46,16 +47,10 @@ struct OwningSink {
 
 impl FrameSink for OwningSink {
     fn on_frame(&self, frame: &[u8], from: Peer) {
-        self.frames
-            .lock()
-            .unwrap()
-            .push((frame.to_vec(), false, from));
+        self.frames.lock().push((frame.to_vec(), false, from));
     }
     fn on_frame_owned(&self, frame: FrameBuf, from: Peer) {
-        self.frames
-            .lock()
-            .unwrap()
-            .push((frame.into_vec(), true, from));
+        self.frames.lock().push((frame.into_vec(), true, from));
     }
     fn takes_frames(&self) -> bool {
         true
@@ -81,9 +76,9 @@ fn hands_over_large_frames(h: &mut dyn Harness) {
         a.send(B, f).expect("send");
     }
     wait_until("every frame", DEADLINE, || {
-        sink.frames.lock().unwrap().len() == sent.len()
+        sink.frames.lock().len() == sent.len()
     });
-    let got = sink.frames.lock().unwrap();
+    let got = sink.frames.lock();
     for (i, ((bytes, owned, from), f)) in got.iter().zip(&sent).enumerate() {
         assert!(bytes == f, "frame {i} differs");
         assert_eq!(*from, Peer::System(A), "frame {i}");
@@ -139,7 +134,7 @@ struct DroppingSink {
 
 impl FrameSink for DroppingSink {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
-        self.seen.lock().unwrap().push(Seen {
+        self.seen.lock().push(Seen {
             bytes: frame.to_vec(),
             owned: false,
             pooled: false,
@@ -147,7 +142,7 @@ impl FrameSink for DroppingSink {
         });
     }
     fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
-        self.seen.lock().unwrap().push(Seen {
+        self.seen.lock().push(Seen {
             bytes: frame.to_vec(),
             owned: true,
             pooled: frame.is_pooled(),
@@ -178,11 +173,9 @@ fn udp_hands_over_large_frames_in_buffers_that_come_back() {
     // One at a time: each is dropped by the sink before the next is sent.
     for (i, f) in sent.iter().enumerate() {
         a.send(B, f).expect("send");
-        wait_until("the frame", DEADLINE, || {
-            sink.seen.lock().unwrap().len() == i + 1
-        });
+        wait_until("the frame", DEADLINE, || sink.seen.lock().len() == i + 1);
     }
-    let seen = sink.seen.lock().unwrap();
+    let seen = sink.seen.lock();
     for (i, (s, f)) in seen.iter().zip(&sent).enumerate() {
         assert!(s.bytes == *f, "frame {i} differs");
         let large = f.len() >= 16 * 1024;

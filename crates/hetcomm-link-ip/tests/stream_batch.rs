@@ -551,3 +551,48 @@ fn a_failed_flush_counts_the_held_frames_as_dropped() {
     // The failed batch is gone; a later flush has nothing to write.
     a.flush().unwrap();
 }
+
+/// Records how frames arrive: each `on_frame` call as a group of one, each `on_frames` call
+/// as one group.
+#[derive(Default)]
+struct GroupSink(std::sync::Mutex<Vec<Vec<Vec<u8>>>>);
+
+impl GroupSink {
+    fn frames(&self) -> usize {
+        self.0.lock().unwrap().iter().map(Vec::len).sum()
+    }
+}
+
+impl FrameSink for GroupSink {
+    fn on_frame(&self, frame: &[u8], _from: Peer) {
+        self.0.lock().unwrap().push(vec![frame.to_vec()]);
+    }
+
+    fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
+        assert_eq!(from, Peer::System(A));
+        let group: Vec<Vec<u8>> = frames.map(<[u8]>::to_vec).collect();
+        self.0.lock().unwrap().push(group);
+    }
+}
+
+#[test]
+fn records_read_together_reach_the_sink_in_runs() {
+    on_both(|t| {
+        let sink = Arc::new(GroupSink::default());
+        let _b = t.open(B, sink.clone(), &StreamConfig::default());
+        let a = t.open(A, CollectSink::new(), &StreamConfig::default());
+        let expected: Vec<Vec<u8>> = (0..200).map(|i| frame(i, 40)).collect();
+        a.send(B, &expected[0]).unwrap();
+        wait_until("the first frame", DEADLINE, || sink.frames() == 1);
+        // The other 199 in one write: read in one go, they go up in runs of at most 64.
+        for f in &expected[1..] {
+            a.send_held(B, f).unwrap();
+        }
+        a.flush().unwrap();
+        wait_until("every frame", DEADLINE, || sink.frames() == expected.len());
+        let groups = sink.0.lock().unwrap().clone();
+        assert_eq!(groups.concat(), expected, "in order, each once");
+        assert!(groups.iter().all(|g| g.len() <= 64), "runs of at most 64");
+        assert!(groups.len() < 20, "{} calls for 200 frames", groups.len());
+    });
+}

@@ -4,9 +4,10 @@
 
 mod common;
 
+use parking_lot::Mutex;
 use std::io::Write;
 use std::net::TcpStream;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::driven::{poll_readable, Driver};
@@ -59,11 +60,11 @@ struct OwningSink {
 
 impl FrameSink for OwningSink {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
-        self.frames.lock().unwrap().push((frame.to_vec(), false));
+        self.frames.lock().push((frame.to_vec(), false));
     }
     fn on_frame_owned(&self, frame: FrameBuf, _from: Peer) {
         let pooled = frame.is_pooled();
-        self.frames.lock().unwrap().push((frame.into_vec(), pooled));
+        self.frames.lock().push((frame.into_vec(), pooled));
     }
     fn takes_frames(&self) -> bool {
         true
@@ -98,9 +99,9 @@ fn frames_wait_for_read_ready_then_arrive_whole_and_in_order() {
         })
     };
     // Nobody drives B: the bytes wait in its socket.
-    assert!(poll_readable(rx.fd(), 10_000), "epoll never reported data");
+    assert!(poll_readable(rx, 10_000), "epoll never reported data");
     std::thread::sleep(Duration::from_millis(100));
-    assert!(sink.frames.lock().unwrap().is_empty());
+    assert!(sink.frames.lock().is_empty());
     assert_eq!(b.stats().frames_received, 0);
     // Driving it hands them over, a budget's worth per connection and call.
     let mut handed = 0;
@@ -110,15 +111,15 @@ fn frames_wait_for_read_ready_then_arrive_whole_and_in_order() {
             Instant::now() < deadline,
             "only {handed} frames arrived; B: {:?}, readable now: {}",
             b.stream_stats(),
-            poll_readable(rx.fd(), 0)
+            poll_readable(rx, 0)
         );
-        poll_readable(rx.fd(), 100);
+        poll_readable(rx, 100);
         let n = rx.read_ready(4).unwrap();
         assert!(n <= 4 + 64, "budget ignored: {n}");
         handed += n;
     }
     assert_eq!(handed, frames.len());
-    let got = sink.frames.lock().unwrap();
+    let got = sink.frames.lock();
     for (i, ((g, pooled), f)) in got.iter().zip(&frames).enumerate() {
         assert!(g == f, "frame {i}");
         // Large frames are read into pooled buffers of their own.

@@ -331,17 +331,17 @@ fn held_frames_go_out_when_the_link_is_dropped() {
 /// Records how frames arrive: each `on_frame` call as a group of one, each `on_frames` call
 /// as one group.
 #[derive(Default)]
-struct GroupSink(std::sync::Mutex<Vec<Vec<Vec<u8>>>>);
+struct GroupSink(parking_lot::Mutex<Vec<Vec<Vec<u8>>>>);
 
 impl FrameSink for GroupSink {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
-        self.0.lock().unwrap().push(vec![frame.to_vec()]);
+        self.0.lock().push(vec![frame.to_vec()]);
     }
 
     fn on_frames(&self, frames: &mut dyn Iterator<Item = &[u8]>, from: Peer) {
         assert_eq!(from, Peer::System(A));
         let group = frames.map(<[u8]>::to_vec).collect();
-        self.0.lock().unwrap().push(group);
+        self.0.lock().push(group);
     }
 }
 
@@ -362,9 +362,9 @@ fn the_frames_of_a_batch_reach_the_sink_in_one_call() {
     raw.send(&batch(&[&f[0], &f[1], &f[2]])).unwrap();
     raw.send(&f[0]).unwrap();
     wait_until("both datagrams handled", DEADLINE, || {
-        sink.0.lock().unwrap().len() == 2
+        sink.0.lock().len() == 2
     });
-    let groups = sink.0.lock().unwrap().clone();
+    let groups = sink.0.lock().clone();
     assert_eq!(groups, vec![f.clone(), vec![f[0].clone()]]);
     let s = b.udp_stats();
     assert_eq!((s.frames_received, s.batches_received), (4, 1), "{s:?}");
@@ -441,29 +441,29 @@ fn a_driven_link_reads_only_when_asked() {
     assert_eq!(rx.read_ready(16).unwrap(), 0, "nothing there yet");
     let f = wire_frame(1, 16);
     a.send(B, &f).unwrap();
-    assert!(poll_readable(rx.fd(), 10_000), "fd never polled readable");
+    assert!(poll_readable(rx, 10_000), "fd never polled readable");
     // No thread reads behind the caller's back.
     std::thread::sleep(Duration::from_millis(100));
     assert!(sink_b.frames().is_empty());
-    assert!(poll_readable(rx.fd(), 0));
+    assert!(poll_readable(rx, 0));
     assert_eq!(rx.read_ready(16).unwrap(), 1);
     assert_eq!(sink_b.frames()[0].bytes, f);
     assert_eq!(sink_b.frames()[0].from, Peer::System(A));
-    assert!(!poll_readable(rx.fd(), 0));
+    assert!(!poll_readable(rx, 0));
     assert_eq!(rx.read_ready(16).unwrap(), 0);
 
     // The budget bounds the datagrams read per call; a budget of 0 only does upkeep.
     for i in 2..5 {
         a.send(B, &wire_frame(i, 16)).unwrap();
     }
-    assert!(poll_readable(rx.fd(), 10_000));
+    assert!(poll_readable(rx, 10_000));
     assert_eq!(rx.read_ready(0).unwrap(), 0);
-    assert!(poll_readable(rx.fd(), 0), "budget 0 read something");
+    assert!(poll_readable(rx, 0), "budget 0 read something");
     assert!(rx.read_ready(1).unwrap() <= 1);
     let deadline = Instant::now() + DEADLINE;
     while sink_b.frames().len() < 4 {
         assert!(Instant::now() < deadline, "frames never arrived");
-        poll_readable(rx.fd(), 100);
+        poll_readable(rx, 100);
         rx.read_ready(1).unwrap();
     }
     let seqs: Vec<u64> = sink_b.frames().iter().map(|r| seq_of(&r.bytes)).collect();

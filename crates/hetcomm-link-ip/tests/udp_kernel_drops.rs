@@ -75,7 +75,7 @@ fn a_full_receive_buffer_counts_every_dropped_datagram() {
             std::time::Instant::now() < deadline,
             "datagrams unaccounted for: {s:?}, sent {sent}"
         );
-        poll_readable(rx.fd(), 100);
+        poll_readable(rx, 100);
     }
 
     let s = b.stats();

@@ -26,10 +26,6 @@ pub(crate) fn options(
     name: &str,
     topics: &Topics,
 ) -> Result<Vec<MqttOptions>, OpenError> {
-    let tls = match s.tls() {
-        true => Some(crate::tls::client_config(s).map_err(OpenError::Setting)?),
-        false => None,
-    };
     let client_id = format!("{}{fleet}-{name}", s.client_id_prefix).replace('/', "-");
     let will = LastWill::new(
         topics.own_presence.clone(),
@@ -38,16 +34,32 @@ pub(crate) fn options(
         true,
         None,
     );
+    connect_options(s, &client_id, Some(will))
+}
+
+/// The options of a client `client_id` with last will `will` for each broker of `s`, in
+/// `brokers` order: keep-alive, session, credentials, TLS, no Nagle.
+pub(crate) fn connect_options(
+    s: &MqttSettings,
+    client_id: &str,
+    will: Option<LastWill>,
+) -> Result<Vec<MqttOptions>, OpenError> {
+    let tls = match s.tls() {
+        true => Some(crate::tls::client_config(s).map_err(OpenError::Setting)?),
+        false => None,
+    };
     Ok(s.brokers
         .iter()
         .map(|b| {
-            let mut o = MqttOptions::new(client_id.clone(), b.host.clone(), b.port);
+            let mut o = MqttOptions::new(client_id, b.host.clone(), b.port);
             o.set_keep_alive(Duration::from_secs(s.keep_alive_s as u64))
                 .set_clean_start(s.clean_session)
-                .set_last_will(will.clone())
                 .set_connection_timeout((s.open_timeout_ms as u64).div_ceil(1000).max(1))
                 // Frames up to the wire format's largest, with their publish around them.
                 .set_max_packet_size(Some((MAX_FRAME + 64 * 1024) as u32));
+            if let Some(will) = &will {
+                o.set_last_will(will.clone());
+            }
             if !s.clean_session {
                 o.set_session_expiry_interval(Some(s.session_expiry_s));
             }
@@ -93,7 +105,7 @@ pub(crate) fn filters(shared: &Shared, qos: Qos) -> Vec<Filter> {
 }
 
 /// A connection error in words, naming what refused what.
-fn describe(e: &ConnectionError) -> (String, Option<String>) {
+pub(crate) fn describe(e: &ConnectionError) -> (String, Option<String>) {
     match e {
         ConnectionError::ConnectionRefused(code) => {
             let why = format!("{code:?}");
@@ -117,7 +129,7 @@ fn describe(e: &ConnectionError) -> (String, Option<String>) {
 }
 
 /// `BadUserNamePassword` → `bad user name password`.
-fn words(camel: &str) -> String {
+pub(crate) fn words(camel: &str) -> String {
     let mut out = String::new();
     for (i, c) in camel.chars().enumerate() {
         if c.is_uppercase() && i > 0 {
@@ -155,10 +167,15 @@ pub(crate) fn run(
     let mut short_lived = 0;
     loop {
         let Ok(event) = connection.recv() else { break };
+        match &event {
+            Ok(event) => shared.receipts.on_event(event),
+            Err(_) => shared.receipts.disconnected(&connection.eventloop.pending),
+        }
         match event {
             Ok(Event::Incoming(Packet::ConnAck(ack))) => {
                 pause = RETRY_FIRST;
                 connected_at = Some(Instant::now());
+                shared.receipts.connected(ack.session_present);
                 on_connack(&shared, &client, &ack, &filters);
             }
             Ok(Event::Incoming(Packet::SubAck(ack))) => {
@@ -243,6 +260,7 @@ pub(crate) fn run(
                     current = (current + 1) % options.len();
                     connection.eventloop.options = options[current].clone();
                     shared.lock().broker = brokers[current].to_string();
+                    shared.receipts.set_broker(brokers[current].to_string());
                 }
                 std::thread::sleep(pause);
                 pause = (pause * 2).min(RETRY_MAX);
@@ -288,12 +306,16 @@ fn on_connack(shared: &Shared, client: &Client, ack: &ConnAck, filters: &[Filter
     if shared.closing.load(Ordering::SeqCst) {
         return;
     }
-    let _ = client.try_publish(
-        shared.topics.own_presence.clone(),
-        QoS::AtLeastOnce,
-        true,
-        Announced::Online.payload(),
-    );
+    let _ = shared.receipts.queue(QoS::AtLeastOnce, &mut None, || {
+        client
+            .try_publish(
+                shared.topics.own_presence.clone(),
+                QoS::AtLeastOnce,
+                true,
+                Announced::Online.payload(),
+            )
+            .is_ok()
+    });
     if ack.session_present {
         let mut conn = shared.lock();
         conn.ready = true;

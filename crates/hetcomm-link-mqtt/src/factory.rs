@@ -16,22 +16,22 @@ pub struct MqttFactory;
 
 /// The keys of an `mqtt` transport, besides the ones every transport has.
 pub const KEYS: [&str; 17] = [
-    "broker",
-    "brokers",
+    CONNECTION_KEYS[0],
+    CONNECTION_KEYS[1],
     "prefix",
     "fleet",
     "client_id_prefix",
-    "keep_alive_s",
+    CONNECTION_KEYS[2],
     "clean_session",
     "session_expiry_s",
-    "qos",
-    "username",
-    "password",
-    "ca_file",
-    "client_cert_file",
-    "client_key_file",
-    "open_timeout_ms",
-    "reconnect_wait_ms",
+    CONNECTION_KEYS[3],
+    CONNECTION_KEYS[4],
+    CONNECTION_KEYS[5],
+    CONNECTION_KEYS[6],
+    CONNECTION_KEYS[7],
+    CONNECTION_KEYS[8],
+    CONNECTION_KEYS[9],
+    CONNECTION_KEYS[10],
     "presence_timeout_ms",
 ];
 
@@ -48,47 +48,8 @@ impl KindSpec for MqttFactory {
     }
 
     fn parse(&self, s: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
-        let mut ok = true;
         let mut m = MqttSettings::default();
-        let texts = match (s.has("broker"), s.has("brokers")) {
-            (true, true) => {
-                s.error(
-                    "brokers",
-                    "`broker` and `brokers` both name brokers",
-                    "keep one: `broker = \"…\"` for one broker, `brokers = [\"…\", \"…\"]` for several",
-                );
-                None
-            }
-            (true, false) => s.string("broker", BROKER_HELP).map(|b| vec![b]),
-            (false, true) => s.strings("brokers", BROKER_HELP),
-            (false, false) => {
-                s.missing("broker", "add `broker = \"mqtt://127.0.0.1:1883\"`");
-                None
-            }
-        };
-        let key = if s.has("brokers") {
-            "brokers"
-        } else {
-            "broker"
-        };
-        match texts {
-            Some(texts) if texts.is_empty() => {
-                s.error(key, "`brokers` is empty", BROKER_HELP);
-                ok = false;
-            }
-            Some(texts) => {
-                for text in texts {
-                    match Broker::parse(&text) {
-                        Ok(b) => m.brokers.push(b),
-                        Err(why) => {
-                            s.error(key, why, BROKER_HELP);
-                            ok = false;
-                        }
-                    }
-                }
-            }
-            None => ok = false,
-        }
+        let mut ok = parse_connection(s, &mut m);
         for (key, slot) in [("prefix", &mut m.prefix)] {
             if let Some(p) = read_levels(s, key, &mut ok) {
                 *slot = p;
@@ -101,17 +62,6 @@ impl KindSpec for MqttFactory {
                 "write the client-id prefix in quotes, e.g. \"site-a-\"",
             ) {
                 Some(p) => m.client_id_prefix = p,
-                None => ok = false,
-            }
-        }
-        if s.has("keep_alive_s") {
-            match s.int_in(
-                "keep_alive_s",
-                5,
-                65535,
-                "seconds; the broker declares a silent system gone after 1.5 times this",
-            ) {
-                Some(v) => m.keep_alive_s = v as u16,
                 None => ok = false,
             }
         }
@@ -140,76 +90,153 @@ impl KindSpec for MqttFactory {
                 ok = false;
             }
         }
-        if s.has("qos") {
-            match s.int_in(
-                "qos",
-                0,
-                1,
-                "0 (at most once) or 1 (at least once; the broker acknowledges each publish)",
-            ) {
-                Some(0) => m.qos = Qos::AtMostOnce,
-                Some(_) => m.qos = Qos::AtLeastOnce,
+        if s.has("presence_timeout_ms") {
+            match s.int_in("presence_timeout_ms", 0, 600_000, "milliseconds, e.g. 2000") {
+                Some(v) => m.presence_timeout_ms = v as u32,
                 None => ok = false,
-            }
-        }
-        for key in ["username", "password"] {
-            if s.has(key) {
-                match s.string(key, "write it in quotes") {
-                    Some(v) if key == "username" => m.username = Some(v),
-                    Some(v) => m.password = Some(v),
-                    None => ok = false,
-                }
-            }
-        }
-        if m.password.is_some() && !s.has("username") {
-            s.error(
-                "password",
-                "a `password` without a `username`",
-                "add `username = \"…\"`",
-            );
-            ok = false;
-        }
-        for key in ["ca_file", "client_cert_file", "client_key_file"] {
-            if !s.has(key) {
-                continue;
-            }
-            let Some(path) = s.string(key, "write the path of a PEM file in quotes") else {
-                ok = false;
-                continue;
-            };
-            let path = Some(PathBuf::from(path));
-            match key {
-                "ca_file" => m.ca_file = path,
-                "client_cert_file" => m.client_cert_file = path,
-                _ => m.client_key_file = path,
-            }
-        }
-        if m.client_cert_file.is_some() != m.client_key_file.is_some() {
-            let (key, other) = match m.client_cert_file.is_some() {
-                true => ("client_cert_file", "client_key_file"),
-                false => ("client_key_file", "client_cert_file"),
-            };
-            s.error(
-                key,
-                format!("`{key}` without `{other}`"),
-                format!("add `{other}`: a client certificate needs its private key, and the other way round"),
-            );
-            ok = false;
-        }
-        for (key, slot, min) in [
-            ("open_timeout_ms", &mut m.open_timeout_ms, 1),
-            ("reconnect_wait_ms", &mut m.reconnect_wait_ms, 0),
-            ("presence_timeout_ms", &mut m.presence_timeout_ms, 0),
-        ] {
-            if s.has(key) {
-                match s.int_in(key, min, 600_000, "milliseconds, e.g. 2000") {
-                    Some(v) => *slot = v as u32,
-                    None => ok = false,
-                }
             }
         }
         ok.then(|| RegisteredSettings::new(m))
     }
+}
+
+/// The keys of the connection to the broker, which the `mqtt` and `mqtt_bridge` kinds share.
+pub const CONNECTION_KEYS: [&str; 11] = [
+    "broker",
+    "brokers",
+    "keep_alive_s",
+    "qos",
+    "username",
+    "password",
+    "ca_file",
+    "client_cert_file",
+    "client_key_file",
+    "open_timeout_ms",
+    "reconnect_wait_ms",
+];
+
+/// Reads the connection keys ([`CONNECTION_KEYS`]) into `m`, reporting problems through `s`;
+/// false if there was one.
+pub(crate) fn parse_connection(s: &mut SettingsReader<'_, '_>, m: &mut MqttSettings) -> bool {
+    let mut ok = true;
+    let texts = match (s.has("broker"), s.has("brokers")) {
+        (true, true) => {
+            s.error(
+                "brokers",
+                "`broker` and `brokers` both name brokers",
+                "keep one: `broker = \"…\"` for one broker, `brokers = [\"…\", \"…\"]` for several",
+            );
+            None
+        }
+        (true, false) => s.string("broker", BROKER_HELP).map(|b| vec![b]),
+        (false, true) => s.strings("brokers", BROKER_HELP),
+        (false, false) => {
+            s.missing("broker", "add `broker = \"mqtt://127.0.0.1:1883\"`");
+            None
+        }
+    };
+    let key = if s.has("brokers") {
+        "brokers"
+    } else {
+        "broker"
+    };
+    match texts {
+        Some(texts) if texts.is_empty() => {
+            s.error(key, "`brokers` is empty", BROKER_HELP);
+            ok = false;
+        }
+        Some(texts) => {
+            for text in texts {
+                match Broker::parse(&text) {
+                    Ok(b) => m.brokers.push(b),
+                    Err(why) => {
+                        s.error(key, why, BROKER_HELP);
+                        ok = false;
+                    }
+                }
+            }
+        }
+        None => ok = false,
+    }
+    if s.has("keep_alive_s") {
+        match s.int_in(
+            "keep_alive_s",
+            5,
+            65535,
+            "seconds; the broker declares a silent system gone after 1.5 times this",
+        ) {
+            Some(v) => m.keep_alive_s = v as u16,
+            None => ok = false,
+        }
+    }
+    if s.has("qos") {
+        match s.int_in(
+            "qos",
+            0,
+            1,
+            "0 (at most once) or 1 (at least once; the broker acknowledges each publish)",
+        ) {
+            Some(0) => m.qos = Qos::AtMostOnce,
+            Some(_) => m.qos = Qos::AtLeastOnce,
+            None => ok = false,
+        }
+    }
+    for key in ["username", "password"] {
+        if s.has(key) {
+            match s.string(key, "write it in quotes") {
+                Some(v) if key == "username" => m.username = Some(v),
+                Some(v) => m.password = Some(v),
+                None => ok = false,
+            }
+        }
+    }
+    if m.password.is_some() && !s.has("username") {
+        s.error(
+            "password",
+            "a `password` without a `username`",
+            "add `username = \"…\"`",
+        );
+        ok = false;
+    }
+    for key in ["ca_file", "client_cert_file", "client_key_file"] {
+        if !s.has(key) {
+            continue;
+        }
+        let Some(path) = s.string(key, "write the path of a PEM file in quotes") else {
+            ok = false;
+            continue;
+        };
+        let path = Some(PathBuf::from(path));
+        match key {
+            "ca_file" => m.ca_file = path,
+            "client_cert_file" => m.client_cert_file = path,
+            _ => m.client_key_file = path,
+        }
+    }
+    if m.client_cert_file.is_some() != m.client_key_file.is_some() {
+        let (key, other) = match m.client_cert_file.is_some() {
+            true => ("client_cert_file", "client_key_file"),
+            false => ("client_key_file", "client_cert_file"),
+        };
+        s.error(
+                key,
+                format!("`{key}` without `{other}`"),
+                format!("add `{other}`: a client certificate needs its private key, and the other way round"),
+            );
+        ok = false;
+    }
+    for (key, slot, min) in [
+        ("open_timeout_ms", &mut m.open_timeout_ms, 1),
+        ("reconnect_wait_ms", &mut m.reconnect_wait_ms, 0),
+    ] {
+        if s.has(key) {
+            match s.int_in(key, min, 600_000, "milliseconds, e.g. 2000") {
+                Some(v) => *slot = v as u32,
+                None => ok = false,
+            }
+        }
+    }
+    ok
 }
 
 /// Reads `key` as topic levels (`prefix`, `fleet`), reporting what MQTT would refuse.
@@ -241,6 +268,18 @@ fn resolve(path: &mut Option<PathBuf>, base: Option<&Path>) {
         if p.is_relative() {
             *p = base.join(&*p);
         }
+    }
+}
+
+/// The TLS files of `settings` against the directory of `fleet`'s file, where relative.
+pub(crate) fn resolve_files(settings: &mut MqttSettings, fleet: &hetcomm_config::Fleet) {
+    let base = fleet.source.as_deref().and_then(Path::parent);
+    for path in [
+        &mut settings.ca_file,
+        &mut settings.client_cert_file,
+        &mut settings.client_key_file,
+    ] {
+        resolve(path, base);
     }
 }
 
@@ -276,14 +315,7 @@ impl TransportFactory for MqttFactory {
                 .clone(),
             other => return Err(format!("expected mqtt settings, found {other:?}").into()),
         };
-        let base = request.fleet.source.as_deref().and_then(Path::parent);
-        for path in [
-            &mut settings.ca_file,
-            &mut settings.client_cert_file,
-            &mut settings.client_key_file,
-        ] {
-            resolve(path, base);
-        }
+        resolve_files(&mut settings, request.fleet);
         let fleet = fleet_level(&settings, request.fleet.name.as_deref())?;
         // Two transports on one broker under the same topics would each carry every frame of
         // the other (a system's links both subscribe to its one topic), and their clients would

@@ -47,6 +47,12 @@
 //! is disconnected a send waits up to `reconnect_wait_ms` for the connection, then fails,
 //! naming the broker and why.
 //!
+//! ## The `mqtt_bridge` kind
+//!
+//! A second kind in this crate ([`bridge`]): a plain MQTT client speaking JSON (a VDA
+//! 5050-style AGV or fleet manager) as a bridged robot, its topics mapped to (module, message
+//! type) both ways in the fleet file, its JSON converted field by field.
+//!
 //! ## Threads
 //!
 //! One thread per link runs the MQTT client's event loop and hands received frames to the
@@ -55,9 +61,11 @@
 //! connection, or for room in the client's queue (a full queue refuses the frame as
 //! congested).
 
+pub mod bridge;
 mod event_loop;
 pub mod factory;
 mod presence;
+mod receipts;
 mod settings;
 mod tls;
 
@@ -76,11 +84,15 @@ use rumqttc::v5::{Client, ClientError, Request};
 pub use presence::{watch_all as watch_presence, Announced, PresenceEvent};
 pub use settings::{validate_levels, Broker, MqttSettings, Qos};
 
+use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt};
 use presence::{Presence, Verdict};
+use receipts::Receipts;
 
-/// Registers the `mqtt` transport factory ([`factory::MqttFactory`]).
+/// Registers the `mqtt` transport factory ([`factory::MqttFactory`]) and the `mqtt_bridge`
+/// one ([`bridge::MqttBridgeFactory`]).
 pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(factory::MqttFactory);
+    registry.register(bridge::MqttBridgeFactory);
 }
 
 /// Largest frame the link ever takes: the wire format's largest (16 MiB payload and the
@@ -214,6 +226,8 @@ pub(crate) struct Shared {
     pub(crate) names: HashMap<String, SystemId>,
     /// Whether this link takes broadcasts on the `@all` topic.
     pub(crate) broadcast: bool,
+    /// What the broker said about each QoS 1 publish, for sends that wait on it.
+    pub(crate) receipts: Receipts,
 }
 
 impl Shared {
@@ -226,23 +240,34 @@ impl Shared {
     fn wait_for<T>(
         &self,
         deadline: Instant,
-        mut settled: impl FnMut(&Conn) -> Option<T>,
+        settled: impl FnMut(&Conn) -> Option<T>,
     ) -> Result<T, std::sync::MutexGuard<'_, Conn>> {
-        let mut conn = self.lock();
-        loop {
-            if let Some(answer) = settled(&conn) {
-                return Ok(answer);
-            }
-            let now = Instant::now();
-            if now >= deadline {
-                return Err(conn);
-            }
-            conn = self
-                .changed
-                .wait_timeout(conn, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+        wait_until(&self.conn, &self.changed, deadline, settled)
+    }
+}
+
+/// Waits on `changed` until `settled` reads an answer off the state behind `lock`, or
+/// `deadline` passes (then the state as it is, still locked). The link's and the bridge's
+/// connection states both wait this way.
+pub(crate) fn wait_until<'a, S, T>(
+    lock: &'a Mutex<S>,
+    changed: &Condvar,
+    deadline: Instant,
+    mut settled: impl FnMut(&S) -> Option<T>,
+) -> Result<T, std::sync::MutexGuard<'a, S>> {
+    let mut state = lock.lock().unwrap_or_else(|e| e.into_inner());
+    loop {
+        if let Some(answer) = settled(&state) {
+            return Ok(answer);
         }
+        let now = Instant::now();
+        if now >= deadline {
+            return Err(state);
+        }
+        state = changed
+            .wait_timeout(state, deadline - now)
+            .unwrap_or_else(|e| e.into_inner())
+            .0;
     }
 }
 
@@ -359,6 +384,10 @@ impl MqttLink {
                 .map(|(id, n)| (n.clone(), *id))
                 .collect(),
             broadcast,
+            receipts: Receipts::new(
+                Duration::from_millis(s.reconnect_wait_ms as u64),
+                s.brokers[0].to_string(),
+            ),
         });
         let (client, connection) = Client::new(options[0].clone(), QUEUE);
         let filters = event_loop::filters(&shared, s.qos);
@@ -372,6 +401,14 @@ impl MqttLink {
                 })
                 .map_err(|e| OpenError::Setting(format!("cannot start a thread: {e}")))?
         };
+        {
+            // Ends the broker's receipts that wait past their bound (`receipts`).
+            let shared = shared.clone();
+            std::thread::Builder::new()
+                .name(format!("mqtt-receipts-{local_name}"))
+                .spawn(move || shared.receipts.run_expiry())
+                .map_err(|e| OpenError::Setting(format!("cannot start a thread: {e}")))?;
+        }
         let link = MqttLink {
             shared,
             client,
@@ -576,45 +613,89 @@ impl MqttLink {
     }
 
     /// Publishes `frame` to `to`: checks, then queues it for the event loop (waiting for room
-    /// up to `reconnect_wait_ms`, not at all on the event loop).
-    fn publish(&self, to: SystemId, frame: Vec<u8>) -> Result<(), LinkError> {
+    /// up to `reconnect_wait_ms`, not at all on the event loop). `promise`: kept with the
+    /// broker's PUBACK (QoS 1).
+    fn publish(
+        &self,
+        to: SystemId,
+        frame: Vec<u8>,
+        promise: Option<RelayPromise>,
+    ) -> Result<(), LinkError> {
         let dest = self.reachable(to, frame.len())?;
         self.connected_or_wait(to)?;
-        let deadline =
-            Instant::now() + Duration::from_millis(self.settings.reconnect_wait_ms as u64);
-        let in_loop = IN_EVENT_LOOP.with(|c| c.get());
-        let mut payload = bytes::Bytes::from(frame);
-        let mut pause = Duration::from_micros(20);
-        loop {
-            match self
-                .client
-                .try_publish(dest.topic.clone(), self.qos, false, payload)
-            {
-                Ok(()) => {
-                    self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
-                    return Ok(());
-                }
-                Err(ClientError::TryRequest(Request::Publish(p)))
-                | Err(ClientError::Request(Request::Publish(p))) => payload = p.payload,
-                Err(e) => {
-                    return Err(LinkError::Unreachable {
-                        peer: to,
-                        reason: format!("mqtt client: {e}"),
-                    })
-                }
+        let wait = Duration::from_millis(self.settings.reconnect_wait_ms as u64);
+        queue_publish(
+            &self.client,
+            (dest.topic.clone(), self.qos),
+            frame,
+            (to, wait),
+            &self.shared.closing,
+            Some((&self.shared.receipts, promise)),
+        )?;
+        self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+/// Queues a publish of `body` on `topic` for the event loop. While the client's queue is
+/// full it waits, backing off, up to `wait` (not at all on the event loop's own thread,
+/// which is the one that empties the queue); then the send is refused as congested. The
+/// link closing ends the wait. `receipts`: the client's, when it keeps them (the link's; the
+/// bridge's client keeps none), with the promise to keep with this publish's PUBACK.
+pub(crate) fn queue_publish(
+    client: &Client,
+    (topic, qos): (String, QoS),
+    body: Vec<u8>,
+    (to, wait): (SystemId, Duration),
+    closing: &AtomicBool,
+    receipts: Option<(&Receipts, Option<RelayPromise>)>,
+) -> Result<(), LinkError> {
+    let deadline = Instant::now() + wait;
+    let in_loop = IN_EVENT_LOOP.with(|c| c.get());
+    let mut payload = bytes::Bytes::from(body);
+    let mut pause = Duration::from_micros(20);
+    let (receipts, mut promise) = match receipts {
+        Some((r, p)) => (Some(r), p),
+        None => (None, None),
+    };
+    loop {
+        let mut refused = None;
+        let attempt = || match client.try_publish(topic.clone(), qos, false, payload) {
+            Ok(()) => true,
+            Err(e) => {
+                refused = Some(e);
+                false
             }
-            if self.shared.closing.load(Ordering::Relaxed) {
-                return Err(LinkError::Closed);
+        };
+        let queued = match receipts {
+            Some(r) => r.queue(qos, &mut promise, attempt),
+            None => attempt(),
+        };
+        match refused {
+            None => {
+                debug_assert!(queued);
+                return Ok(());
             }
-            if in_loop || Instant::now() >= deadline {
-                return Err(LinkError::Congested {
+            Some(ClientError::TryRequest(Request::Publish(p)))
+            | Some(ClientError::Request(Request::Publish(p))) => payload = p.payload,
+            Some(e) => {
+                return Err(LinkError::Unreachable {
                     peer: to,
-                    reason: format!("the MQTT client's queue of {QUEUE} requests is full"),
-                });
+                    reason: format!("mqtt client: {e}"),
+                })
             }
-            std::thread::sleep(pause);
-            pause = (pause * 2).min(Duration::from_millis(2));
         }
+        if closing.load(Ordering::Relaxed) {
+            return Err(LinkError::Closed);
+        }
+        if in_loop || Instant::now() >= deadline {
+            return Err(LinkError::Congested {
+                peer: to,
+                reason: format!("the MQTT client's queue of {QUEUE} requests is full"),
+            });
+        }
+        std::thread::sleep(pause);
+        pause = (pause * 2).min(Duration::from_millis(2));
     }
 }
 
@@ -630,14 +711,29 @@ impl Link for MqttLink {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.publish(to, frame.to_vec())
+        self.publish(to, frame.to_vec(), None)
     }
 
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        let mut frame = Vec::with_capacity(head.len() + body.len());
-        frame.extend_from_slice(head);
-        frame.extend_from_slice(body);
-        self.publish(to, frame)
+        self.publish(to, [head, body].concat(), None)
+    }
+
+    /// At QoS 1, a receipt kept with the broker's PUBACK for this publish: confirmed
+    /// (*Success*), refused (*no matching subscribers*, or a refusal), or unanswered within
+    /// `reconnect_wait_ms` (or lost with a connection to a broker that kept no session). At
+    /// QoS 0 the broker confirms nothing: no receipt.
+    fn send_relayed(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<Option<RelayReceipt>, LinkError> {
+        if self.qos == QoS::AtMostOnce {
+            return self.send_parts(to, head, body).map(|()| None);
+        }
+        let (receipt, promise) = relay_receipt();
+        self.publish(to, [head, body].concat(), Some(promise))?;
+        Ok(Some(receipt))
     }
 
     /// True: the connections to and from the broker are TCP (or TLS over it), whose
@@ -663,18 +759,23 @@ impl Drop for MqttLink {
     fn drop(&mut self) {
         let ready = self.shared.lock().ready;
         self.shared.closing.store(true, Ordering::SeqCst);
+        self.shared.receipts.close();
         self.shared.presence.close();
         self.shared.changed.notify_all();
         let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
         // Announce the close (retained), then disconnect normally: the broker then keeps the
         // last will to itself. Both go out in order before the loop ends (if the client is
         // disconnected, once it is connected again).
-        let _ = self.client.try_publish(
-            self.shared.topics.own_presence.clone(),
-            QoS::AtLeastOnce,
-            true,
-            Announced::Offline.payload(),
-        );
+        let _ = self.shared.receipts.queue(QoS::AtLeastOnce, &mut None, || {
+            self.client
+                .try_publish(
+                    self.shared.topics.own_presence.clone(),
+                    QoS::AtLeastOnce,
+                    true,
+                    Announced::Offline.payload(),
+                )
+                .is_ok()
+        });
         let _ = self.client.try_disconnect();
         // Disconnected, the loop ends after its current attempt: nothing to wait for.
         if let (true, Some(t)) = (ready, thread) {

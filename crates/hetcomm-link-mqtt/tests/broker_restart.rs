@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use common::fleet::{keys, open_pair};
 use common::{unique_fleet, Mosquitto};
-use hetcomm::{MessageType, Outcome, SendOptions};
+use hetcomm::{FailReason, MessageType, Outcome, SendOptions};
 
 const N: u16 = 200;
 
@@ -55,9 +55,9 @@ fn stream_through_a_restart(more: &str) -> Run {
     }
     let count = |f: fn(&Outcome) -> bool| outcomes.iter().filter(|o| f(o)).count();
     eprintln!(
-        "{more:?}: broker down {down:?}; {} delivered, {} sent, {} unconfirmed, {} failed; {} received",
+        "{more:?}: broker down {down:?}; {} delivered, {} sent or relayed, {} unconfirmed, {} failed; {} received",
         count(|o| matches!(o, Outcome::Delivered { .. })),
-        count(|o| matches!(o, Outcome::Sent { .. })),
+        count(|o| matches!(o, Outcome::Sent { .. } | Outcome::Relayed { .. })),
         count(|o| matches!(o, Outcome::Unconfirmed { .. })),
         count(|o| matches!(o, Outcome::Failed { .. })),
         received.len()
@@ -99,6 +99,10 @@ fn acknowledged_mode_loses_nothing_and_delivers_nothing_twice_across_a_broker_re
     assert_eq!(unique, (0..N).collect::<BTreeSet<u16>>());
 }
 
+/// Unacknowledged at QoS 1 (the default): a send the broker confirmed is *relayed*; one whose
+/// PUBACK the broker's death swallowed is *unconfirmed* (the broker said nothing in time);
+/// one made while it is away fails naming it. A send whose first frame the link refused and
+/// the router retried ends *sent*: the retry path takes no receipt (docs/mqtt.md, Outcomes).
 #[test]
 fn unacknowledged_sends_during_a_broker_restart_fail_naming_the_broker() {
     let run = stream_through_a_restart("delivery = \"unacknowledged\"\nreconnect_wait_ms = 200");
@@ -113,17 +117,25 @@ fn unacknowledged_sends_during_a_broker_restart_fail_naming_the_broker() {
             unreachable!()
         };
         let text = reason.to_string();
-        assert!(
-            text.contains("MQTT broker mqtt://127.0.0.1:") && text.contains("unreachable"),
-            "{text}"
-        );
+        let unreachable =
+            text.contains("MQTT broker mqtt://127.0.0.1:") && text.contains("unreachable");
+        let nobody = matches!(reason, FailReason::Relay(_)) && text.contains("no subscriber");
+        assert!(unreachable || nobody, "{text}");
     }
     for (i, o) in run.outcomes.iter().enumerate() {
+        let unanswered = matches!(
+            o,
+            Outcome::Unconfirmed { reason: FailReason::Relay(why), .. }
+                if why.contains("broker mqtt://127.0.0.1:")
+        );
+        let retried = matches!(o, Outcome::Sent { attempts } if *attempts > 1);
         assert!(
-            matches!(o, Outcome::Sent { .. } | Outcome::Failed { .. }),
+            matches!(o, Outcome::Relayed { .. } | Outcome::Failed { .. }) || unanswered || retried,
             "message {i}: {o}"
         );
     }
+    // Before the outage, the broker confirmed every send.
+    assert!((0..50).all(|i| matches!(run.outcomes[i], Outcome::Relayed { .. })));
     // Traffic resumed: the last messages, sent long after the restart, arrived.
     assert!(
         unique.contains(&(N - 1)),
@@ -131,4 +143,67 @@ fn unacknowledged_sends_during_a_broker_restart_fail_naming_the_broker() {
     );
     // Before the outage, everything arrived.
     assert!((0..50).all(|i| unique.contains(&i)));
+}
+
+/// A send the broker does not confirm within `reconnect_wait_ms` (the broker frozen: its
+/// connection stays open, nothing answers) ends *unconfirmed*, saying so, within the bound;
+/// with the broker killed, a send fails naming it. QoS 0 stays *sent*: nothing to confirm.
+#[test]
+fn an_unacknowledged_send_the_broker_does_not_confirm_is_unconfirmed_and_one_to_a_dead_broker_fails(
+) {
+    let broker = Mosquitto::start("");
+    let more = "delivery = \"unacknowledged\"\nreconnect_wait_ms = 300";
+    let (a, b) = open_pair(&keys(&broker.address, &unique_fleet(), more));
+    let (from, to) = (a.module("M").unwrap(), b.module("M").unwrap());
+    let send = |i: u8| {
+        from.send_raw("B", "M", MessageType(7), &[0x91, i], SendOptions::default())
+            .expect("send")
+    };
+    assert_eq!(send(1).wait(), Outcome::Relayed { attempts: 1 });
+    to.recv_raw_timeout(Some(Duration::from_secs(5)))
+        .expect("the relayed message arrives");
+
+    broker.pause();
+    let started = Instant::now();
+    let outcome = send(2)
+        .wait_timeout(Duration::from_secs(5))
+        .expect("an outcome within the bound, though the broker says nothing");
+    let waited = started.elapsed();
+    broker.resume();
+    let Outcome::Unconfirmed {
+        reason: FailReason::Relay(why),
+        attempts: 1,
+    } = &outcome
+    else {
+        panic!("{outcome}");
+    };
+    assert!(
+        why.contains(&format!("the broker mqtt://{}", broker.address))
+            && why.contains("did not confirm it within 300 ms"),
+        "{why}"
+    );
+    assert!(
+        waited >= Duration::from_millis(300) && waited < Duration::from_secs(2),
+        "{waited:?}"
+    );
+    assert!(
+        outcome.to_string().starts_with("unconfirmed: "),
+        "{outcome}"
+    );
+
+    let mut broker = broker;
+    broker.kill();
+    // The link sees the connection close (the kernel closes a dead process's sockets) at once;
+    // a send made before it did would be queued, and end unconfirmed like the one above.
+    std::thread::sleep(Duration::from_millis(500));
+    let outcome = send(3).wait();
+    let Outcome::Failed { reason, .. } = &outcome else {
+        panic!("{outcome}");
+    };
+    let text = reason.to_string();
+    assert!(
+        text.contains(&format!("MQTT broker mqtt://{}", broker.address))
+            && text.contains("unreachable"),
+        "{text}"
+    );
 }

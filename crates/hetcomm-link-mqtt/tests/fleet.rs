@@ -135,19 +135,38 @@ fn acknowledged_sends_are_delivered_at_qos_0_and_1() {
     delivers_acknowledged(1);
 }
 
-/// Unacknowledged: every send ends *sent* (the broker's PUBACK is not a delivery), and every
-/// message arrives on loopback; at QoS 1 the link counts the broker's acknowledgements.
+/// Unacknowledged: at QoS 0 every send ends *sent* (the broker confirms nothing); at QoS 1
+/// *relayed*, the broker's PUBACK for that very publish having come (which is not a delivery);
+/// every message arrives on loopback.
 #[test]
-fn unacknowledged_sends_are_sent_at_qos_0_and_1() {
+fn unacknowledged_sends_are_sent_at_qos_0_and_relayed_at_qos_1() {
     for qos in [0, 1] {
         let more = format!("qos = {qos}\ndelivery = \"unacknowledged\"");
         let (a, b) = open_pair(&keys(&broker(), &unique_fleet(), &more));
         let (from, to) = (a.module("M").unwrap(), b.module("M").unwrap());
         for i in 0..50u8 {
             let outcome = send(&from, i);
-            assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+            match qos {
+                0 => assert_eq!(outcome, Outcome::Sent { attempts: 1 }, "{outcome}"),
+                _ => assert_eq!(outcome, Outcome::Relayed { attempts: 1 }, "{outcome}"),
+            }
         }
-        let mut got: Vec<u8> = (0..50)
+        // Sends in a burst, their receipts waiting together: each ends relayed (each
+        // PUBACK matched to its own publish).
+        let burst: Vec<_> = (50..100u8)
+            .map(|i| {
+                from.send_raw("B", "M", MessageType(7), &[0x91, i], SendOptions::default())
+                    .expect("send")
+            })
+            .collect();
+        for t in burst {
+            let outcome = t.wait();
+            match qos {
+                0 => assert_eq!(outcome, Outcome::Sent { attempts: 1 }, "{outcome}"),
+                _ => assert_eq!(outcome, Outcome::Relayed { attempts: 1 }, "{outcome}"),
+            }
+        }
+        let mut got: Vec<u8> = (0..100)
             .map(|_| {
                 to.recv_raw_timeout(Some(Duration::from_secs(5)))
                     .expect("recv")
@@ -155,10 +174,50 @@ fn unacknowledged_sends_are_sent_at_qos_0_and_1() {
             })
             .collect();
         got.sort_unstable();
-        assert_eq!(got, (0..50).collect::<Vec<u8>>());
+        assert_eq!(got, (0..100).collect::<Vec<u8>>());
         let sent = a.stats().links[0].1.frames_sent;
-        assert_eq!(sent, 50, "qos {qos}");
+        assert_eq!(sent, 100, "qos {qos}");
     }
+}
+
+/// Secured (the default: frames sealed inside the publishes), unacknowledged at QoS 1: once the
+/// pair's handshake is done, every send ends *relayed*, the security layer passing the
+/// broker's receipt for the sealed frame up to the outcome.
+#[test]
+fn secured_unacknowledged_sends_at_qos_1_are_relayed() {
+    let more = "qos = 1\ndelivery = \"unacknowledged\"";
+    let text = common::fleet::fleet_text(&keys(&broker(), &unique_fleet(), more))
+        .replace("security = \"none\"\n", "");
+    let fleet = hetcomm::parse_fleet(&text, "m.toml", None).expect("valid fleet");
+    let local = hetcomm::LocalFleet::open(fleet).expect("open fleet");
+    let (a, b) = (local.system("A").unwrap(), local.system("B").unwrap());
+    let (from, to) = (a.module("M").unwrap(), b.module("M").unwrap());
+    // The first frame waits for the handshake: it has not left when the send returns, so no
+    // receipt can come for it, and it ends *sent*.
+    let first = send(&from, 0);
+    assert!(
+        matches!(first, Outcome::Sent { .. } | Outcome::Relayed { .. }),
+        "{first}"
+    );
+    let got = to.recv_raw_timeout(Some(Duration::from_secs(10)));
+    assert_eq!(got.expect("the first message").payload, [0x91, 0]);
+    for i in 1..50u8 {
+        let outcome = send(&from, i);
+        assert_eq!(
+            outcome,
+            Outcome::Relayed { attempts: 1 },
+            "message {i}: {outcome}"
+        );
+        let got = to
+            .recv_raw_timeout(Some(Duration::from_secs(5)))
+            .expect("recv");
+        assert_eq!(got.payload, [0x91, i]);
+    }
+    let security = a.stats().links[0].1.security;
+    assert!(
+        security.enabled && security.handshakes >= 1,
+        "not sealed: {security:?}"
+    );
 }
 
 #[test]

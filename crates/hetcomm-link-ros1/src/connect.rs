@@ -5,10 +5,7 @@ use super::*;
 
 impl Shared {
     pub(super) fn identity(&self) -> Identity {
-        self.identity
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
+        self.identity.lock().clone()
     }
 
     /// Asks the master who subscribes to what.
@@ -25,15 +22,14 @@ impl Shared {
         .map_err(|e| e.to_string())
         .map(|v| {
             let graph = xmlrpc::Graph::from_value(&v);
-            *self.graph_cache.lock().unwrap_or_else(|e| e.into_inner()) =
-                Some((Instant::now(), Arc::new(graph.clone())));
+            *self.graph_cache.lock() = Some((Instant::now(), Arc::new(graph.clone())));
             graph
         })
     }
 
     /// The master's last answer, if it is recent (one supervision interval).
     pub(super) fn cached_graph(&self) -> Option<Arc<xmlrpc::Graph>> {
-        let cache = self.graph_cache.lock().unwrap_or_else(|e| e.into_inner());
+        let cache = self.graph_cache.lock();
         let (at, graph) = cache.as_ref()?;
         (at.elapsed() <= self.plan.config.supervise_interval).then(|| graph.clone())
     }
@@ -47,12 +43,7 @@ impl Shared {
         topic: &str,
         timeout: Duration,
     ) -> Option<bool> {
-        if self
-            .without_bus_info
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .contains(node)
-        {
+        if self.without_bus_info.lock().contains(node) {
             return None;
         }
         let me = self.identity();
@@ -68,10 +59,7 @@ impl Shared {
         match xmlrpc::call(http, &uri, "getBusInfo", args, timeout).await {
             Ok(info) => Some(xmlrpc::bus_info_has_inbound(&info, topic, &me.uri)),
             Err(e) if e.http_status == Some(501) => {
-                let mut without = self
-                    .without_bus_info
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner());
+                let mut without = self.without_bus_info.lock();
                 without.insert(node.to_string());
                 None
             }
@@ -109,12 +97,7 @@ pub(super) async fn wait_connected(
     let our_prefix = format!("{NODE_PREFIX}{name}_");
     let nonce = nonce();
     let (wake, mut answered) = oneshot::channel();
-    shared
-        .wiring
-        .pending
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .insert(nonce, (to, wake));
+    shared.wiring.pending.lock().insert(nonce, (to, wake));
     // What the master said last: None until it answered.
     let mut subscribers: Option<Vec<String>> = shared.cached_graph().map(|g| g.subscribers(&topic));
     let mut master_problem = None;
@@ -197,12 +180,7 @@ pub(super) async fn wait_connected(
     if let Some(task) = asking {
         task.abort();
     }
-    shared
-        .wiring
-        .pending
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .remove(&nonce);
+    shared.wiring.pending.lock().remove(&nonce);
     outcome.map(|()| subscribers.unwrap_or_default())
 }
 
@@ -225,10 +203,7 @@ pub(super) async fn wait_answer(shared: Arc<Shared>, to: SystemId, timeout: Dura
     let nonce = nonce();
     let (wake, answered) = oneshot::channel();
     let pending = &shared.wiring.pending;
-    pending
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .insert(nonce, (to, wake));
+    pending.lock().insert(nonce, (to, wake));
     if shared
         .wiring
         .commands
@@ -238,8 +213,5 @@ pub(super) async fn wait_answer(shared: Arc<Shared>, to: SystemId, timeout: Dura
     {
         let _ = tokio::time::timeout(timeout, answered).await;
     }
-    pending
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .remove(&nonce);
+    pending.lock().remove(&nonce);
 }

@@ -107,16 +107,17 @@ use tasks::{
     connect_running_peers, publish_loop, receive_loop, supervise_loop, FOREIGN_FLUSH_GRACE,
 };
 
+use parking_lot::Mutex;
 use std::cell::Cell;
 use std::collections::{BTreeMap, HashMap};
 use std::hash::{BuildHasher, Hasher};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_config::Ros1Settings;
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Peer};
 use roslibrust::ros1::{MasterClient, NodeHandle, Publisher, Subscriber};
 use tokio::sync::{mpsc, oneshot};
 
@@ -309,26 +310,28 @@ struct Dest {
     /// it since the last registration). The supervision task re-registers when this lasts
     /// while sends still wait (see [`tasks::HEAL_AFTER`]).
     unanswered: Mutex<Option<(Instant, Instant)>>,
+    /// Whether the link last reported it up (its subscriber connected) to the sink.
+    up: AtomicBool,
 }
 
 impl Dest {
     /// Records that a wait for its subscriber ended without an answer to the probes.
     fn mark_unanswered(&self) {
         let now = Instant::now();
-        let mut unanswered = self.unanswered.lock().unwrap_or_else(|e| e.into_inner());
+        let mut unanswered = self.unanswered.lock();
         let since = unanswered.map_or(now, |(since, _)| since);
         *unanswered = Some((since, now));
     }
 
     /// Forgets that its subscriber did not answer.
     fn clear_unanswered(&self) {
-        *self.unanswered.lock().unwrap_or_else(|e| e.into_inner()) = None;
+        *self.unanswered.lock() = None;
     }
 
     /// How long its subscriber has answered none of our probes, if it has not and a wait for
     /// it failed within `recent` (a destination nobody sends to any more is left alone).
     fn unanswered_for(&self, recent: Duration) -> Option<Duration> {
-        let unanswered = self.unanswered.lock().unwrap_or_else(|e| e.into_inner());
+        let unanswered = self.unanswered.lock();
         let (since, last) = (*unanswered)?;
         (last.elapsed() <= recent).then(|| since.elapsed())
     }
@@ -355,8 +358,12 @@ struct Wiring {
     /// The publishing task's queue (frames, probes, answers, registration swaps).
     commands: mpsc::Sender<Command>,
     /// Received frames, to the thread that calls the sink; taken when the link closes, so that
-    /// the thread ends once the receive tasks are gone.
+    /// the thread ends once the receive tasks are gone. An empty one only wakes the thread for
+    /// `presence`.
     frames: Mutex<Option<mpsc::Sender<Vec<u8>>>>,
+    /// Presence changes not yet told to the sink (the receive thread tells them, after the
+    /// frames queued before them).
+    presence: Mutex<Vec<LinkEvent>>,
     /// For the XML-RPC calls roslibrust does not make.
     http: reqwest::Client,
 }

@@ -56,6 +56,7 @@ impl Ros1Link {
             pending: Mutex::new(HashMap::new()),
             commands,
             frames: Mutex::new(Some(frames)),
+            presence: Mutex::default(),
             http: reqwest::Client::new(),
         });
         let timeout = plan.config.open_timeout;
@@ -76,13 +77,20 @@ impl Ros1Link {
                 return Err(e);
             }
         };
-        // Frames reach the sink on a thread of their own (see "Threads" in the crate docs).
+        // Frames and presence reach the sink on a thread of their own (see "Threads" in the
+        // crate docs).
         let (receiver_done, receiver_ended) = std::sync::mpsc::channel();
+        let told = wiring.clone();
         let receiver = std::thread::Builder::new()
             .name("hetcomm-ros1-rx".into())
             .spawn(move || {
                 while let Some(frame) = frames_rx.blocking_recv() {
-                    sink.on_frame(&frame, Peer::Unknown);
+                    if !frame.is_empty() {
+                        sink.on_frame(&frame, Peer::Unknown);
+                    }
+                    for event in told.take_presence() {
+                        sink.on_event(event);
+                    }
                 }
                 drop(sink);
                 let _ = receiver_done.send(());
@@ -149,11 +157,7 @@ impl Ros1Link {
 
     /// What the supervision task last saw of the master.
     pub fn master_state(&self) -> MasterState {
-        self.shared
-            .master
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
+        self.shared.master.lock().clone()
     }
 
     /// The system this link belongs to.
@@ -227,7 +231,7 @@ impl Ros1Link {
                 ),
             });
         }
-        let _gate = dest.gate.lock().unwrap_or_else(|e| e.into_inner());
+        let _gate = dest.gate.lock();
         if dest.connected.load(Ordering::Acquire) {
             return Ok(());
         }
@@ -340,14 +344,7 @@ impl Drop for Ros1Link {
     fn drop(&mut self) {
         self.shared.closed.store(true, Ordering::Relaxed);
         self.flush();
-        drop(
-            self.shared
-                .wiring
-                .frames
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .take(),
-        );
+        drop(self.shared.wiring.frames.lock().take());
         let Some(runtime) = self.runtime.take() else {
             return;
         };
@@ -382,7 +379,7 @@ impl Drop for Ros1Link {
         // The receive thread ends once the receive tasks (gone with the runtime) dropped their
         // senders, unless the sink it is in waits for something the closing thread holds (the
         // system's router, say): then it is left to finish on its own.
-        let receiver = self.receiver.get_mut().unwrap_or_else(|e| e.into_inner());
+        let receiver = self.receiver.get_mut();
         if let Some((receiver, ended)) = receiver.take() {
             if receiver.thread().id() != std::thread::current().id()
                 && ended.recv_timeout(Duration::from_secs(1)).is_ok()

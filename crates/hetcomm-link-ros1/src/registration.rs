@@ -7,11 +7,37 @@ impl Wiring {
     /// Records that `to`'s subscriber is connected (`subscribers`: the topic's subscribers).
     pub(super) fn settle(&self, to: SystemId, subscribers: Vec<String>) {
         if let Some(dest) = self.dests.get(&to) {
-            *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) =
-                Some(relevant(subscribers));
+            *dest.subscribers.lock() = Some(relevant(subscribers));
             dest.connected.store(true, Ordering::Release);
             dest.clear_unanswered();
+            self.set_presence(to, true);
         }
+    }
+
+    /// Tells the sink (through the receive thread) that `to` is up (its subscriber connected
+    /// to us) or down (the master lists no subscriber of its topic any more: its node
+    /// unregistered), if that is news.
+    pub(super) fn set_presence(&self, to: SystemId, up: bool) {
+        let Some(dest) = self.dests.get(&to) else {
+            return;
+        };
+        if dest.up.swap(up, Ordering::AcqRel) == up {
+            return;
+        }
+        let event = match up {
+            true => LinkEvent::PeerUp(to),
+            false => LinkEvent::PeerDown(to),
+        };
+        self.presence.lock().push(event);
+        // Wakes the receive thread; if its queue is full, it tells the event after the frames.
+        if let Some(frames) = &*self.frames.lock() {
+            let _ = frames.try_send(Vec::new());
+        }
+    }
+
+    /// The presence changes not told yet.
+    pub(super) fn take_presence(&self) -> Vec<LinkEvent> {
+        std::mem::take(&mut *self.presence.lock())
     }
 
     /// Forgets every connection (a new registration has new publishers), and that any
@@ -100,7 +126,6 @@ pub(super) async fn register(
     let frames = wiring
         .frames
         .lock()
-        .unwrap_or_else(|e| e.into_inner())
         .clone()
         .ok_or_else(|| registration("receiving", &"the link is closing"))?;
     let receive_task = tokio::spawn(receive_loop(subscriber, wiring, frames, counters.clone()));

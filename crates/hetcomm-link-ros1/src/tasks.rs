@@ -28,7 +28,7 @@ pub(super) async fn receive_loop(
                     let _ = wiring.commands.try_send(Command::ProbeAck(from, nonce));
                 }
                 Some((PROBE_ACK_LABEL, nonce, from)) => {
-                    let mut pending = wiring.pending.lock().unwrap_or_else(|e| e.into_inner());
+                    let mut pending = wiring.pending.lock();
                     if pending.get(&nonce).is_some_and(|(to, _)| *to == from) {
                         if let Some((_, wake)) = pending.remove(&nonce) {
                             // Queued before the waiting send's frame, so it arrives first.
@@ -42,9 +42,10 @@ pub(super) async fn receive_loop(
                     // (A new process of that system: the subscribers the supervision task
                     // compares against are asked anew.)
                     if let Some(dest) = wiring.dests.get(&from) {
-                        *dest.subscribers.lock().unwrap_or_else(|e| e.into_inner()) = None;
+                        *dest.subscribers.lock() = None;
                         dest.connected.store(true, Ordering::Release);
                         dest.clear_unanswered();
+                        wiring.set_presence(from, true);
                     }
                 }
                 // Other empty messages (e.g. `rostopic pub` with no data) are ignored.
@@ -164,11 +165,18 @@ pub(super) async fn supervise_loop(shared: Arc<Shared>) {
             Err(e) => MasterState::Unreachable(e),
             Ok(graph) if graph.subscribers(&plan.own_topic).contains(&node_name) => {
                 for (to, dest) in &shared.wiring.dests {
+                    let now = relevant(graph.subscribers(&plan.peer_topics[to]));
+                    if now.is_empty() {
+                        // Its node unregistered (or its master lost it): down until it is
+                        // connected again.
+                        dest.connected.store(false, Ordering::Release);
+                        shared.wiring.set_presence(*to, false);
+                        continue;
+                    }
                     if !dest.connected.load(Ordering::Acquire) {
                         continue;
                     }
-                    let now = relevant(graph.subscribers(&plan.peer_topics[to]));
-                    let mut then = dest.subscribers.lock().unwrap_or_else(|e| e.into_inner());
+                    let mut then = dest.subscribers.lock();
                     match &*then {
                         None => *then = Some(now),
                         Some(then) if *then != now => {
@@ -209,7 +217,7 @@ pub(super) async fn supervise_loop(shared: Arc<Shared>) {
                 None => return,
             },
         };
-        *shared.master.lock().unwrap_or_else(|e| e.into_inner()) = new_state;
+        *shared.master.lock() = new_state;
     }
 }
 
@@ -272,7 +280,7 @@ async fn reregister(shared: &Shared) -> Option<MasterState> {
                 return None;
             }
             shared.wiring.forget_all();
-            *shared.identity.lock().unwrap_or_else(|e| e.into_inner()) = identity;
+            *shared.identity.lock() = identity;
             MasterState::Registered
         }
         Ok(Err(e)) => MasterState::Reregistering(e.to_string()),

@@ -155,17 +155,28 @@ pub(crate) fn publication_type(publications: &Value, topic: &str) -> Option<Stri
 }
 
 /// Whether a `getBusInfo` answer (a list of `[id, peer, direction, transport, topic,
-/// connected, …]`) lists an inbound connection on `topic` from the publisher whose XML-RPC URI
-/// is `publisher_uri` (rospy and roscpp name the publisher of an inbound connection by its
-/// URI; a trailing `/` is ignored).
+/// connected, info]`) lists an inbound connection on `topic` from the publisher whose XML-RPC
+/// URI is `publisher_uri` (rospy and roscpp name the publisher of an inbound connection by its
+/// URI; a trailing `/` is ignored), with its handshake done.
 pub(crate) fn bus_info_has_inbound(info: &Value, topic: &str, publisher_uri: &str) -> bool {
+    inbound_connection(info, topic, publisher_uri).is_some()
+}
+
+/// The id of the connection that [`bus_info_has_inbound`] finds, if it finds one.
+///
+/// rospy lists a subscriber's connection as soon as it starts connecting (before the TCP
+/// connection and the TCPROS handshake), always with `connected` true; its `info` text names
+/// the local port only once the handshake read the publisher's header ("TCPROS connection on
+/// port None to [None:None …]" before). A connection whose text says `port None` is not
+/// counted: a message published before the handshake is lost.
+pub(crate) fn inbound_connection(info: &Value, topic: &str, publisher_uri: &str) -> Option<i64> {
     let Value::Array(connections) = info else {
-        return false;
+        return None;
     };
     let want = publisher_uri.trim_end_matches('/');
-    connections.iter().any(|c| {
+    connections.iter().find_map(|c| {
         let Value::Array(f) = c else {
-            return false;
+            return None;
         };
         let peer = f.get(1).and_then(string).map(|s| s.trim_end_matches('/'));
         let direction = f.get(2).and_then(string);
@@ -177,7 +188,57 @@ pub(crate) fn bus_info_has_inbound(info: &Value, topic: &str, publisher_uri: &st
             None => true,
             _ => false,
         };
-        peer == Some(want) && direction == Some("i") && on_topic == Some(topic) && connected
+        let handshaken = !f
+            .get(6)
+            .and_then(string)
+            .is_some_and(|text| text.contains("port None"));
+        let id = match f.first() {
+            Some(Value::Int(i)) => i64::from(*i),
+            Some(Value::Int64(i)) => *i,
+            _ => -1,
+        };
+        (peer == Some(want)
+            && direction == Some("i")
+            && on_topic == Some(topic)
+            && connected
+            && handshaken)
+            .then_some(id)
+    })
+}
+
+/// How many messages a subscriber's connection `id` on `topic` has read, from its
+/// `getBusStats` answer (`[publishStats, subscribeStats, serviceStats]`, subscribeStats a list
+/// of `[topic, [[id, bytes, messages, drops, connected], …]]`, as rospy answers).
+pub(crate) fn messages_read(stats: &Value, topic: &str, id: i64) -> Option<i64> {
+    let int = |v: &Value| match v {
+        Value::Int(i) => Some(i64::from(*i)),
+        Value::Int64(i) => Some(*i),
+        _ => None,
+    };
+    let Value::Array(parts) = stats else {
+        return None;
+    };
+    let Some(Value::Array(subscribed)) = parts.get(1) else {
+        return None;
+    };
+    subscribed.iter().find_map(|t| {
+        let Value::Array(t) = t else {
+            return None;
+        };
+        if t.first().and_then(string) != Some(topic) {
+            return None;
+        }
+        let Some(Value::Array(connections)) = t.get(1) else {
+            return None;
+        };
+        connections.iter().find_map(|c| {
+            let Value::Array(c) = c else {
+                return None;
+            };
+            (c.first().and_then(int) == Some(id))
+                .then(|| c.get(2).and_then(int))
+                .flatten()
+        })
     })
 }
 
@@ -258,5 +319,47 @@ mod tests {
         ])]);
         assert!(!bus_info_has_inbound(&down, "/t", "http://127.0.0.1:37533"));
         assert!(!bus_info_has_inbound(&Value::Nil, "/t", "x"));
+        // rospy before the handshake: listed, "connected", but no port yet.
+        let connecting = Value::Array(vec![Value::Array(vec![
+            Value::Int(3),
+            s("http://127.0.0.1:37533/"),
+            s("i"),
+            s("TCPROS"),
+            s("/t"),
+            Value::Bool(true),
+            s("TCPROS connection on port None to [None:None on socket None]"),
+        ])]);
+        assert!(!bus_info_has_inbound(
+            &connecting,
+            "/t",
+            "http://127.0.0.1:37533"
+        ));
+        assert_eq!(
+            inbound_connection(&info, "/t", "http://127.0.0.1:37533"),
+            Some(1)
+        );
+    }
+
+    #[test]
+    fn bus_stats_give_the_messages_a_connection_read() {
+        // rospy: [publishStats, subscribeStats, serviceStats].
+        let stats = Value::Array(vec![
+            Value::Array(vec![]),
+            Value::Array(vec![Value::Array(vec![
+                s("/t"),
+                Value::Array(vec![Value::Array(vec![
+                    Value::Int(4),
+                    Value::Int(120),
+                    Value::Int(3),
+                    Value::Int(-1),
+                    Value::Bool(true),
+                ])]),
+            ])]),
+            Value::Array(vec![]),
+        ]);
+        assert_eq!(messages_read(&stats, "/t", 4), Some(3));
+        assert_eq!(messages_read(&stats, "/t", 5), None);
+        assert_eq!(messages_read(&stats, "/u", 4), None);
+        assert_eq!(messages_read(&Value::Nil, "/t", 4), None);
     }
 }

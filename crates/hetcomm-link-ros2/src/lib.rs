@@ -31,7 +31,8 @@
 //! The crate also has the `ros2_bridge` kind ([`bridge`]): an external ROS 2 robot in the
 //! fleet through typed topics (docs/ros-bridges.md), any type read from its `.msg` definition
 //! (`hetcomm_rosmsg::registry`), CDR conversion in [`rostypes`] and Rust types for common ones
-//! in [`msgs`].
+//! in [`msgs`]; and the `dds` kind ([`bridge::dds`]): the same bridge to a robot that runs
+//! plain DDS, with its own topic and type names.
 //!
 //! ## Discovery
 //!
@@ -57,9 +58,10 @@ pub use factory::Ros2Factory;
 pub use link::{OpenError, Ros2Link, MAX_FRAME};
 pub use settings::{Backend, Reliability, Ros2Settings};
 
-/// Registers the `ros2` transport kind (called by `hetcomm`'s registry with the `ros2`
-/// feature).
+/// Registers the `ros2` transport kind, the `ros2_bridge` and the plain-DDS bridge `dds`
+/// (called by `hetcomm`'s registry with the `ros2` feature).
 pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
     registry.register(Ros2Factory);
     registry.register(bridge::Ros2BridgeFactory::default());
+    registry.register(bridge::dds::DdsFactory::default());
 }

@@ -8,13 +8,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Peer, Readable};
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::{DataReaderCdr, DataWriterCdr};
 use rustdds::policy::{Durability, History, Reliability as DdsReliability};
 use rustdds::{
     DataWriterStatus, DomainParticipant, DomainParticipantBuilder, QosPolicies, QosPolicyBuilder,
-    StatusEvented, TopicKind,
+    StatusEvented, TopicKind, GUID,
 };
 
 use crate::msg::{FrameMessage, FRAME_TYPE};
@@ -67,8 +67,12 @@ pub fn qos(settings: &Ros2Settings) -> QosPolicies {
         .build()
 }
 
-/// Opens the DDS participant a `ros2` transport (or bridge) uses.
+/// Opens the DDS participant a `ros2` transport (or bridge) uses. Give it back with
+/// [`retire`] when done: participants dropped elsewhere can take the process down at exit.
 pub fn participant(settings: &Ros2Settings) -> Result<DomainParticipant, OpenError> {
+    // Participants retired earlier go now, on this thread (see `retire`).
+    let retired = std::mem::take(&mut *retired().lock().unwrap_or_else(|e| e.into_inner()));
+    drop(retired);
     let mut builder =
         DomainParticipantBuilder::new(settings.domain_id).same_host_loopback(settings.same_host);
     if let Some(ip) = settings.interface {
@@ -77,25 +81,73 @@ pub fn participant(settings: &Ros2Settings) -> Result<DomainParticipant, OpenErr
     builder.build().map_err(dds_err("the domain participant"))
 }
 
+fn retired() -> &'static Mutex<Vec<DomainParticipant>> {
+    static RETIRED: std::sync::OnceLock<Mutex<Vec<DomainParticipant>>> = std::sync::OnceLock::new();
+    RETIRED.get_or_init(Default::default)
+}
+
+/// Takes a participant whose readers and writers are gone: it is dropped when the next
+/// participant is opened, or never if the process exits first.
+///
+/// rustdds's discovery thread holds its participant for a moment now and then (its
+/// announcements); if the last other handle goes meanwhile, the discovery thread drops it,
+/// joins itself and panics ("failed to join thread: Resource deadlock avoided", about one
+/// process in two hundred, when a process exits right after closing its links). A participant
+/// kept here is not dropped at exit (statics are not), so a process that exits after closing
+/// its links never hits that; at most the participants retired since the last one opened are
+/// kept meanwhile.
+pub fn retire(dp: DomainParticipant) {
+    retired().lock().unwrap_or_else(|e| e.into_inner()).push(dp);
+}
+
 /// One destination: its topic's writer and whether a reader is matched to it.
 struct Dest {
+    id: SystemId,
     topic: String,
     writer: Mutex<DataWriterCdr<FrameMessage>>,
     /// Readers matched to the writer, as its status events last said.
     matched: AtomicI32,
+    /// The readers matched, each with when it was.
+    readers: Mutex<HashMap<GUID, Instant>>,
+    /// Whether the link last reported the destination up (a reader matched).
+    up: AtomicBool,
 }
 
 impl Dest {
-    /// Applies the writer's pending status events; returns the matched readers.
-    fn refresh(&self, writer: &DataWriterCdr<FrameMessage>) -> i32 {
+    /// Applies the writer's pending status events; returns the matched readers. A change
+    /// between none and some is queued in `events` as the destination's presence.
+    fn refresh(&self, writer: &DataWriterCdr<FrameMessage>, events: &Mutex<Vec<LinkEvent>>) -> i32 {
         while let Some(status) = writer.try_recv_status() {
-            if let DataWriterStatus::PublicationMatched { current, .. } = status {
+            if let DataWriterStatus::PublicationMatched {
+                current, reader, ..
+            } = status
+            {
+                let mut readers = self.readers.lock().unwrap_or_else(|e| e.into_inner());
+                if current.count_change() > 0 {
+                    readers.insert(reader, Instant::now());
+                } else if current.count_change() < 0 {
+                    readers.remove(&reader);
+                }
                 self.matched.store(current.count(), Ordering::Relaxed);
+                let up = current.count() > 0;
+                if self.up.swap(up, Ordering::Relaxed) != up {
+                    let event = match up {
+                        true => LinkEvent::PeerUp(self.id),
+                        false => LinkEvent::PeerDown(self.id),
+                    };
+                    events.lock().unwrap_or_else(|e| e.into_inner()).push(event);
+                }
             }
         }
         self.matched.load(Ordering::Relaxed)
     }
 }
+
+/// How long after the first reader of a destination matched a send waits for a writer of that
+/// reader's participant on this link's own topic (the destination's answers) to be
+/// discovered, so that its first acknowledgement is read at once; a reader with no such
+/// writer (a program that only reads) is not waited for longer.
+const ANSWER_WAIT: Duration = Duration::from_millis(100);
 
 #[derive(Default)]
 struct Counters {
@@ -108,18 +160,22 @@ struct Counters {
 struct Shared {
     counters: Counters,
     closed: AtomicBool,
+    /// Presence changes not yet reported to the sink (reported by the receive side).
+    events: Mutex<Vec<LinkEvent>>,
 }
 
 /// A `ros2` link: frames as `std_msgs/msg/UInt8MultiArray` on `<namespace>/<System>`.
 pub struct Ros2Link {
     topic: String,
-    dests: HashMap<SystemId, Dest>,
+    dests: Arc<HashMap<SystemId, Dest>>,
+    /// This system's DDS topic (the destinations' answers come on it).
+    own_dds_topic: String,
     connect_timeout: Duration,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
     driven: Option<Driven>,
-    // Dropped last: the writers and the reader belong to it.
-    _participant: DomainParticipant,
+    /// Retired last ([`retire`]): the writers and the reader belong to it.
+    participant: Option<DomainParticipant>,
 }
 
 impl Ros2Link {
@@ -178,6 +234,12 @@ impl Ros2Link {
             .create_datareader_no_key_cdr::<FrameMessage>(&topic, Some(qos.clone()))
             .map_err(dds_err(format!("the reader of {own_topic}")))?;
 
+        let io_err = |e: std::io::Error| OpenError::Dds {
+            what: "the receive side".into(),
+            reason: e.to_string(),
+        };
+        // The writers' status (readers matched and lost) wakes the receive side too.
+        let poll = Poll::new().map_err(io_err)?;
         let publisher = dp.create_publisher(&qos).map_err(dds_err("a publisher"))?;
         let mut dests = HashMap::new();
         for (id, name) in names.iter().filter(|(id, _)| *id != local) {
@@ -190,28 +252,36 @@ impl Ros2Link {
                     TopicKind::NoKey,
                 )
                 .map_err(dds_err(format!("topic {t}")))?;
-            let writer = publisher
+            let mut writer = publisher
                 .create_datawriter_no_key_cdr::<FrameMessage>(&dds_topic, Some(qos.clone()))
                 .map_err(dds_err(format!("the writer of {t}")))?;
+            poll.registry()
+                .register(
+                    writer.as_status_source_mio1(),
+                    Token(1 + dests.len()),
+                    Interest::READABLE,
+                )
+                .map_err(io_err)?;
             dests.insert(
                 *id,
                 Dest {
+                    id: *id,
                     topic: t,
                     writer: Mutex::new(writer),
                     matched: AtomicI32::new(0),
+                    readers: Mutex::default(),
+                    up: AtomicBool::new(false),
                 },
             );
         }
+        let dests = Arc::new(dests);
 
         let shared = Arc::new(Shared {
             counters: Counters::default(),
             closed: AtomicBool::new(false),
+            events: Mutex::default(),
         });
-        let io_err = |e: std::io::Error| OpenError::Dds {
-            what: "the receive side".into(),
-            reason: e.to_string(),
-        };
-        let rx = Rx::new(reader, sink).map_err(io_err)?;
+        let rx = Rx::new(poll, reader, sink, dests.clone()).map_err(io_err)?;
         let (receiver, driven) = if driven {
             use std::os::fd::AsRawFd;
             let fd = rx.poll.as_raw_fd();
@@ -235,13 +305,14 @@ impl Ros2Link {
             (Some(thread), None)
         };
         Ok(Ros2Link {
+            own_dds_topic: names::dds_topic(&own_topic),
             topic: own_topic,
             dests,
             connect_timeout: Duration::from_millis(settings.connect_timeout_ms),
             shared,
             receiver,
             driven,
-            _participant: dp,
+            participant: Some(dp),
         })
     }
 
@@ -256,16 +327,21 @@ impl Ros2Link {
         self.shared.counters.malformed.load(Ordering::Relaxed)
     }
 
-    /// Waits (at most the connect timeout) for a reader to be matched to `dest`'s writer.
+    /// Waits (at most the connect timeout) for a reader to be matched to `dest`'s writer, and
+    /// (at most [`ANSWER_WAIT`] more) for a writer of that reader's participant on this
+    /// link's own topic to be discovered: the destination answers on it (acknowledgements),
+    /// and an answer from a writer this link's reader has not matched yet would wait for
+    /// DDS's repair, past the first retransmission.
     fn wait_matched(&self, to: SystemId, dest: &Dest) -> Result<(), LinkError> {
         let deadline = Instant::now() + self.connect_timeout;
         let mut pause = Duration::from_micros(200);
         loop {
             let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
-            if dest.refresh(&writer) > 0 {
+            let matched = dest.refresh(&writer, &self.shared.events);
+            drop(writer);
+            if matched > 0 && self.answers_matched(dest) {
                 return Ok(());
             }
-            drop(writer);
             if Instant::now() >= deadline {
                 return Err(LinkError::Unreachable {
                     peer: to,
@@ -281,22 +357,45 @@ impl Ros2Link {
             pause = (pause * 2).min(Duration::from_millis(10));
         }
     }
+
+    /// Whether a participant with a reader matched to `dest`'s writer has a writer on this
+    /// link's own topic that discovery knows, or the first such reader matched
+    /// [`ANSWER_WAIT`] ago.
+    fn answers_matched(&self, dest: &Dest) -> bool {
+        let readers = dest.readers.lock().unwrap_or_else(|e| e.into_inner());
+        if readers.values().any(|at| at.elapsed() >= ANSWER_WAIT) {
+            return true;
+        }
+        let Some(dp) = &self.participant else {
+            return true;
+        };
+        dp.discovered_writers().iter().any(|w| {
+            let t = &w.publication_topic_data;
+            t.topic_name == self.own_dds_topic
+                && readers
+                    .keys()
+                    .any(|r| r.prefix == w.writer_proxy.remote_writer_guid.prefix)
+        })
+    }
 }
 
-/// The receive side: the reader, registered with its own `mio` poll.
+/// The receive side: the reader, registered with its own `mio` poll (with the writers'
+/// status), and the destinations, whose presence it reports to the sink.
 struct Rx {
     poll: Poll,
     events: Events,
     reader: DataReaderCdr<FrameMessage>,
     sink: Arc<dyn FrameSink>,
+    dests: Arc<HashMap<SystemId, Dest>>,
 }
 
 impl Rx {
     fn new(
+        poll: Poll,
         mut reader: DataReaderCdr<FrameMessage>,
         sink: Arc<dyn FrameSink>,
+        dests: Arc<HashMap<SystemId, Dest>>,
     ) -> std::io::Result<Rx> {
-        let poll = Poll::new()?;
         poll.registry()
             .register(&mut reader, Token(0), Interest::READABLE)?;
         Ok(Rx {
@@ -304,13 +403,29 @@ impl Rx {
             events: Events::with_capacity(8),
             reader,
             sink,
+            dests,
         })
+    }
+
+    /// Applies the writers' status and reports presence changes: a destination is up while a
+    /// reader is matched to its writer, down when the last one unmatched (its system closed,
+    /// or DDS discovery lost it).
+    fn presence(&self, shared: &Shared) {
+        for dest in self.dests.values() {
+            let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
+            dest.refresh(&writer, &shared.events);
+        }
+        let events = std::mem::take(&mut *shared.events.lock().unwrap_or_else(|e| e.into_inner()));
+        for event in events {
+            self.sink.on_event(event);
+        }
     }
 
     /// Waits at most `timeout` for a notification, then takes everything there is (the
     /// registration is edge-triggered), in batches; returns the frames handed on.
     fn read(&mut self, timeout: Duration, shared: &Shared) -> usize {
         let _ = self.poll.poll(&mut self.events, Some(timeout));
+        self.presence(shared);
         let mut frames = 0;
         loop {
             match self.reader.take(256, rustdds::ReadCondition::any()) {
@@ -393,7 +508,7 @@ impl Link for Ros2Link {
             self.wait_matched(to, dest)?;
         }
         let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
-        dest.refresh(&writer);
+        dest.refresh(&writer, &self.shared.events);
         let message = FrameMessage {
             data: frame.to_vec(),
             ..FrameMessage::default()
@@ -437,6 +552,11 @@ impl Drop for Ros2Link {
         self.shared.closed.store(true, Ordering::Relaxed);
         if let Some(t) = self.receiver.take() {
             let _ = t.join();
+        }
+        self.driven = None;
+        drop(std::mem::take(&mut self.dests));
+        if let Some(dp) = self.participant.take() {
+            retire(dp);
         }
     }
 }

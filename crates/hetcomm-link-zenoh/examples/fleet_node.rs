@@ -16,6 +16,11 @@
 //! | `received` | `{"event":"received","count":C,"duplicates":D,"tags":{TAG: C}}`: messages that reached module `M` since the start, how many of them a second time (same sender and text) |
 //! | `quit` | closes the system and exits |
 //!
+//! On **SIGHUP** it reloads FLEET.toml into the running system (`Comm::reload`, as `hetcomm
+//! listen` does) and prints `{"event":"reload","ok":true|false,"lines":[..]}`: the lines
+//! `hetcomm listen` prints for a reload (`hetcomm::describe_reload`): the difference and what
+//! was applied, or why nothing changed (`ok` false).
+//!
 //! Every join and leave its Zenoh links see is printed as
 //! `{"event":"joined"|"left","system":..,"links":N}`, N the number of its links that see that
 //! system now (a system on two `zenoh` transports has joined fully at 2, left fully at 0).
@@ -24,6 +29,7 @@
 
 use std::collections::HashMap;
 use std::io::{BufRead, Write};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use hetcomm::{Comm, MessageType, Outcome, SendOptions, Ticket};
@@ -91,6 +97,7 @@ fn describe(o: &Outcome) -> &'static str {
     match o {
         Outcome::Delivered { .. } => "delivered",
         Outcome::Sent { .. } => "sent",
+        Outcome::Relayed { .. } => "relayed",
         Outcome::Unconfirmed { .. } => "unconfirmed",
         Outcome::Failed { .. } => "failed",
     }
@@ -129,6 +136,15 @@ fn main() {
             router(endpoint, lease_ms);
         }
     }
+    // SIGHUP reloads the fleet file: blocked first, before any thread exists (threads
+    // inherit the mask; one that did not block it would die of it), taken by one thread.
+    let signals = match hetcomm::signals::StopSignals::block_reload() {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("fleet_node: blocking SIGHUP: {e}");
+            std::process::exit(1);
+        }
+    };
     // Zenoh's own log when RUST_LOG asks for it: on stdout, between the JSON lines (Zenoh's
     // formatter writes there; scripts/zenoh-multihost.py keeps the lines that are not JSON in
     // a file with HCZ_LOG_DIR). How reconnections are looked into.
@@ -184,6 +200,26 @@ fn main() {
             std::process::exit(1);
         }
     };
+    {
+        let (comm, fleet) = (comm.clone(), fleet.clone());
+        let watching = signals.watch(move |_| {
+            let path = Path::new(&fleet);
+            let result = comm.reload(path);
+            let lines: Vec<String> = hetcomm::describe_reload(path, &result)
+                .iter()
+                .map(|l| quote(l))
+                .collect();
+            emit(format!(
+                "{{\"event\":\"reload\",\"ok\":{},\"lines\":[{}]}}",
+                result.is_ok(),
+                lines.join(",")
+            ));
+        });
+        if let Err(e) = watching {
+            eprintln!("fleet_node: watching SIGHUP: {e}");
+            std::process::exit(1);
+        }
+    }
     let module = comm.module("M").expect("module M");
     let received = Arc::new(Mutex::new(Received::default()));
     {

@@ -26,13 +26,17 @@
 //!
 //! ## What the link guarantees
 //!
-//! [`LinkCaps`]: `reliable = false`, `ordered = false`; the link batches ([`Link::send_held`])
-//! and checksums payloads (Zenoh over TCP delivers a message whole or not at all). Puts go on Zenoh's reliable channel with
+//! [`LinkCaps`]: `reliable = false`, `ordered = false`, `mtu` = [`UNSPLIT_FRAME`] (Zenoh
+//! fragments larger puts, up to [`MAX_FRAME`]); the link batches ([`Link::send_held`]) and
+//! checksums payloads (Zenoh over TCP delivers a message whole or not at all). Puts go on
+//! Zenoh's reliable channel with
 //! congestion control `Block` (a full queue makes the put wait, never drops the frame:
 //! `Drop` congestion control discards messages without telling the application, zenoh issues
 //! #1835, #2258, #2587), but Zenoh still loses what is put before the destination's
 //! subscription has reached the sender and what is in flight when a connection or a router
-//! goes away, and a change of route (direct peer link ↔ through a router) can reorder. The
+//! goes away (Zenoh itself closes a connection whose blocking queue stays full longer than its
+//! `wait_before_close`); none of these losses is reported to the application, so the link
+//! cannot count them. A change of route (direct peer link ↔ through a router) can reorder. The
 //! router's acknowledgements and retransmissions make delivery reliable on top, exactly as over
 //! UDP; `ordered = true` on the transport restores each sender's order at the receiver.
 //!
@@ -77,8 +81,8 @@ use std::time::Duration;
 
 use hetcomm_core::wire::TO_ALL_SYSTEM;
 use hetcomm_core::{BufferPool, SystemId};
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
-use hetcomm_link_ip::udp::{batch_records, BATCH_MAGIC, BATCH_VERSION};
+use hetcomm_link::batch::{batch_records, BATCH_MAGIC, BATCH_VERSION};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Peer};
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::Locality;
@@ -96,6 +100,10 @@ pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
 /// Largest frame a `zenoh` link accepts: the wire format's largest frame (16 MiB payload plus
 /// the 48-byte header). Zenoh fragments it on the way.
 pub const MAX_FRAME: usize = hetcomm_core::wire::HEADER_LEN + hetcomm_core::wire::MAX_PAYLOAD;
+
+/// The largest frame a put carries in one of Zenoh's batches (65 535 bytes by default, less
+/// room for Zenoh's own headers); Zenoh fragments a larger one ([`LinkCaps::mtu`]).
+pub const UNSPLIT_FRAME: usize = 65_535 - 1_024;
 
 /// The key expression frames for system `name` are put on: `<prefix>/sys/<name>`.
 pub fn data_key(prefix: &str, name: &str) -> String {
@@ -360,6 +368,8 @@ impl ZenohLink {
         let presence = Arc::new(Presence::new(config.local));
         let live_prefix = format!("{}/live/", s.prefix);
         let follower = presence.clone();
+        let events = sink.clone();
+        let local = config.local;
         let live = session
             .liveliness()
             .declare_subscriber(format!("{}/live/*", s.prefix))
@@ -373,7 +383,17 @@ impl ZenohLink {
                     zenoh::sample::SampleKind::Put => Seen::Present,
                     zenoh::sample::SampleKind::Delete => Seen::Left,
                 };
-                follower.set(*id, seen);
+                // Through the link seam: `PeerUp` sends what waited for the system at once,
+                // `PeerDown` takes a pair with another transport off this one (failover).
+                match follower.set(*id, seen) {
+                    Some(PresenceEvent::Joined(id)) if id != local => {
+                        events.on_event(LinkEvent::PeerUp(id))
+                    }
+                    Some(PresenceEvent::Left(id)) if id != local => {
+                        events.on_event(LinkEvent::PeerDown(id))
+                    }
+                    _ => {}
+                }
             })
             .wait()
             .map_err(zerr("liveliness subscriber"))?;
@@ -587,7 +607,7 @@ impl Link for ZenohLink {
     fn caps(&self) -> LinkCaps {
         LinkCaps {
             max_frame: MAX_FRAME,
-            mtu: MAX_FRAME,
+            mtu: UNSPLIT_FRAME,
             reliable: false,
             ordered: false,
             broadcast: self.broadcast,

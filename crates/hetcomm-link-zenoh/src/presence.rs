@@ -89,12 +89,12 @@ impl Presence {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Records a token appearing (`Present`) or going (`Left`).
-    pub(crate) fn set(&self, id: SystemId, now: Seen) {
+    /// Records a token appearing (`Present`) or going (`Left`); what changed, if anything.
+    pub(crate) fn set(&self, id: SystemId, now: Seen) -> Option<PresenceEvent> {
         let mut st = self.lock();
         let before = st.seen.insert(id, now).unwrap_or(Seen::Never);
         if before == now {
-            return;
+            return None;
         }
         let event = match now {
             Seen::Present => {
@@ -110,6 +110,7 @@ impl Presence {
             .unwrap_or_else(|e| e.into_inner())
             .retain(|l| l.send((self.local, event)).is_ok());
         self.changed.notify_all();
+        Some(event)
     }
 
     /// `id`'s presence. A token never seen is waited for until `grace` after the first send

@@ -1,11 +1,14 @@
 //! The in-process link: systems of one process hand frames to each other's sinks directly, on
 //! the sender's thread (no copy into a queue, no thread wake-up).
 
+use parking_lot::RwLock;
 use std::collections::HashMap;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 
 use hetcomm_core::{wire::HEADER_LEN, wire::MAX_PAYLOAD, SystemId};
 
+use crate::registry::config::TransportKind;
+use crate::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use crate::{FrameSink, Link, LinkCaps, LinkError, Peer};
 
 /// The meeting point of one in-process transport instance: every system opened on it registers
@@ -25,10 +28,7 @@ impl InprocHub {
     /// same system again replaces its sink.
     pub fn open(&self, system: SystemId, sink: Arc<dyn FrameSink>) -> InprocLink {
         let registered = sink.clone();
-        self.sinks
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(system, sink);
+        self.sinks.write().insert(system, sink);
         InprocLink {
             hub: self.clone(),
             local: system,
@@ -38,10 +38,7 @@ impl InprocHub {
 
     /// Unregisters `system`; frames to it then fail as unreachable.
     pub fn close(&self, system: SystemId) {
-        self.sinks
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&system);
+        self.sinks.write().remove(&system);
     }
 }
 
@@ -75,13 +72,7 @@ impl Link for InprocLink {
             });
         }
         // Clone the sink out so the hub lock is not held while the receiver runs.
-        let sink = self
-            .hub
-            .sinks
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(&to)
-            .cloned();
+        let sink = self.hub.sinks.read().get(&to).cloned();
         match sink {
             Some(sink) => {
                 sink.on_frame(frame, Peer::System(self.local));
@@ -97,13 +88,40 @@ impl Link for InprocLink {
 
 impl Drop for InprocLink {
     fn drop(&mut self) {
-        let mut sinks = self.hub.sinks.write().unwrap_or_else(|e| e.into_inner());
+        let mut sinks = self.hub.sinks.write();
         if sinks
             .get(&self.local)
             .is_some_and(|s| Arc::ptr_eq(s, &self.sink))
         {
             sinks.remove(&self.local);
         }
+    }
+}
+
+/// The `inproc` transport factory: a system's link of an in-process transport is its place on
+/// the hub the program keeps for that transport ([`OpenHost::hub`]). Its systems may hand
+/// messages over directly ([`TransportFactory::hands_over`]); nothing leaves the process.
+pub struct InprocFactory;
+
+impl TransportFactory for InprocFactory {
+    fn kind(&self) -> TransportKind {
+        TransportKind::Inproc
+    }
+
+    fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
+        let hub = request.host.hub(&request.transport.name);
+        Ok(Opened {
+            link: Arc::new(hub.open(request.local, request.sink)),
+            local_address: None,
+        })
+    }
+
+    fn leaves_process(&self) -> bool {
+        false
+    }
+
+    fn hands_over(&self) -> bool {
+        true
     }
 }
 

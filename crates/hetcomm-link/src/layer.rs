@@ -14,8 +14,11 @@
 //! simulation ([`LayerContext::virtual_time`]) a layer whose model the simulator applies
 //! itself (emulation) leaves the link as it is.
 //!
-//! Writing a layer: a wrapper link implements [`Link`] with [`forward_link!`](crate::forward_link)
-//! and a wrapper sink implements [`FrameSink`] with [`forward_sink!`](crate::forward_sink):
+//! A layer wraps one link in one call, [`LinkLayer::wrap`]: it is handed the sink above and a
+//! function that opens the link below, so the state its two sides share is made for that
+//! link alone. Writing a layer: a wrapper link implements [`Link`] with
+//! [`forward_link!`](crate::forward_link) and a wrapper sink implements [`FrameSink`] with
+//! [`forward_sink!`](crate::forward_sink):
 //! both write only the methods the layer changes and forward the rest, so nothing a link
 //! offers (its driven receive side, [`Link::readable`], above all) is lost by wrapping. The
 //! stack also refuses a wrapper that hides a receive side the link has
@@ -49,11 +52,13 @@
 //! let stack = LayerStack::new().with(Arc::new(TapLayer::new(count.clone())));
 //! let hub = InprocHub::new();
 //! let (ctx_a, ctx_b) = (LayerContext::new(SystemId(1)), LayerContext::new(SystemId(2)));
-//! let a = hub.open(SystemId(1), stack.wrap_sink(&ctx_a, CollectSink::new()));
-//! let a = stack.wrap_link(&ctx_a, Arc::new(a)).unwrap();
+//! let a = stack
+//!     .open(&ctx_a, CollectSink::new(), &mut |sink| Ok(Arc::new(hub.open(SystemId(1), sink))))
+//!     .unwrap();
 //! let sink_b = CollectSink::new();
-//! let b = hub.open(SystemId(2), stack.wrap_sink(&ctx_b, sink_b.clone()));
-//! let _b = stack.wrap_link(&ctx_b, Arc::new(b)).unwrap();
+//! let _b = stack
+//!     .open(&ctx_b, sink_b.clone(), &mut |sink| Ok(Arc::new(hub.open(SystemId(2), sink))))
+//!     .unwrap();
 //! a.send(SystemId(2), b"frame").unwrap();
 //! assert_eq!(sink_b.frames()[0].bytes, b"frame");
 //! assert_eq!((count.0.load(Ordering::Relaxed), count.1.load(Ordering::Relaxed)), (1, 1));
@@ -114,7 +119,14 @@ pub enum LayerError {
         /// The layer's [`LinkLayer::name`].
         layer: String,
     },
+    /// The link under the layers could not be opened: the opener's error, as it is.
+    #[error(transparent)]
+    Open(Box<dyn std::error::Error + Send + Sync>),
 }
+
+/// Opens the link under a layer, delivering to the sink it is handed: the layers below and, at
+/// the bottom, the transport's own link. Called at most once per [`LinkLayer::wrap`].
+pub type OpenBelow<'a> = &'a mut dyn FnMut(Arc<dyn FrameSink>) -> Result<Arc<dyn Link>, LayerError>;
 
 /// Something put between the router and a link, on both directions: the send side and the
 /// receive side. See the [module docs](self).
@@ -122,19 +134,19 @@ pub trait LinkLayer: Send + Sync {
     /// A short name for errors and tools (`emulation`, `tap`, …).
     fn name(&self) -> &str;
 
-    /// Wraps the sink that the link hands received frames to (the default: no change).
-    /// Called before the link is opened, since the link is opened with its sink.
-    fn wrap_sink(&self, ctx: &LayerContext, sink: Arc<dyn FrameSink>) -> Arc<dyn FrameSink> {
-        let _ = ctx;
-        sink
-    }
-
-    /// Wraps the link's send side. A wrapper must offer everything the link offers that it
-    /// does not change (write it with [`forward_link!`](crate::forward_link)).
-    fn wrap_link(
+    /// Wraps one link, both sides, in one call: `sink` is where the layer above (or the
+    /// router) takes received frames; the layer wraps it, opens the link below with the
+    /// wrapped sink through `open`, and returns the link the layer above sends through. What
+    /// the two sides share is made here, for this link alone, so a layer used for a second
+    /// link binds nothing of the first. A wrapper must offer everything the link offers
+    /// that it does not change (write it with [`forward_link!`](crate::forward_link) and
+    /// [`forward_sink!`](crate::forward_sink)). A layer that changes nothing returns
+    /// `open(sink)`.
+    fn wrap(
         &self,
         ctx: &LayerContext,
-        link: Arc<dyn Link>,
+        sink: Arc<dyn FrameSink>,
+        open: OpenBelow<'_>,
     ) -> Result<Arc<dyn Link>, LayerError>;
 }
 
@@ -171,34 +183,44 @@ impl LayerStack {
         self.layers.iter().map(|l| l.name()).collect()
     }
 
-    /// Wraps the router's `sink`: frames the link reads pass through the bottom layer first
-    /// and the top layer last. Give the result to the link when opening it.
-    pub fn wrap_sink(&self, ctx: &LayerContext, sink: Arc<dyn FrameSink>) -> Arc<dyn FrameSink> {
-        // The top layer's wrapper is the one nearest the router's sink: wrap it first.
-        self.layers
-            .iter()
-            .fold(sink, |sink, layer| layer.wrap_sink(ctx, sink))
-    }
-
-    /// Wraps the opened `link`: the router's sends pass through the top layer first and the
-    /// bottom layer last. Fails if a layer cannot build its wrapper or hides the link's
-    /// receive side.
-    pub fn wrap_link(
+    /// Opens a link through the layers: `open` opens the transport's own link with the sink
+    /// the bottom layer hands it; frames it reads pass through the bottom layer first and the
+    /// top layer last on their way to the router's `sink`, and the router's sends through
+    /// the top layer first. Fails if opening fails (with `open`'s error), if a layer cannot
+    /// build its wrapper, or if a layer hides the receive side of the link below
+    /// ([`LayerError::HidesReceive`]). An empty stack returns `open(sink)`.
+    pub fn open(
         &self,
         ctx: &LayerContext,
-        link: Arc<dyn Link>,
+        sink: Arc<dyn FrameSink>,
+        open: OpenBelow<'_>,
     ) -> Result<Arc<dyn Link>, LayerError> {
-        self.layers.iter().rev().try_fold(link, |link, layer| {
-            let driven = link.readable().is_some();
-            let wrapped = layer.wrap_link(ctx, link)?;
-            if driven && wrapped.readable().is_none() {
-                return Err(LayerError::HidesReceive {
-                    layer: layer.name().to_string(),
-                });
-            }
-            Ok(wrapped)
-        })
+        open_through(&self.layers, ctx, sink, open)
     }
+}
+
+/// `layers[0]` over `layers[1]` over … over what `open` opens.
+fn open_through(
+    layers: &[Arc<dyn LinkLayer>],
+    ctx: &LayerContext,
+    sink: Arc<dyn FrameSink>,
+    open: OpenBelow<'_>,
+) -> Result<Arc<dyn Link>, LayerError> {
+    let Some((top, below)) = layers.split_first() else {
+        return open(sink);
+    };
+    let mut driven = false;
+    let wrapped = top.wrap(ctx, sink, &mut |sink| {
+        let link = open_through(below, ctx, sink, open)?;
+        driven = link.readable().is_some();
+        Ok(link)
+    })?;
+    if driven && wrapped.readable().is_none() {
+        return Err(LayerError::HidesReceive {
+            layer: top.name().to_string(),
+        });
+    }
+    Ok(wrapped)
 }
 
 /// Implements [`FrameSink`] for a type that wraps another sink, forwarding to it every method
@@ -324,18 +346,16 @@ impl LinkLayer for TapLayer {
         "tap"
     }
 
-    fn wrap_sink(&self, _ctx: &LayerContext, sink: Arc<dyn FrameSink>) -> Arc<dyn FrameSink> {
-        Arc::new(TapSink {
-            inner: sink,
-            tap: self.tap.clone(),
-        })
-    }
-
-    fn wrap_link(
+    fn wrap(
         &self,
         _ctx: &LayerContext,
-        link: Arc<dyn Link>,
+        sink: Arc<dyn FrameSink>,
+        open: OpenBelow<'_>,
     ) -> Result<Arc<dyn Link>, LayerError> {
+        let link = open(Arc::new(TapSink {
+            inner: sink,
+            tap: self.tap.clone(),
+        }))?;
         Ok(Arc::new(TapLink {
             inner: link,
             tap: self.tap.clone(),
@@ -397,8 +417,8 @@ crate::forward_sink! {
 
 #[cfg(test)]
 mod tests {
+    use parking_lot::Mutex;
     use std::os::fd::RawFd;
-    use std::sync::Mutex;
 
     use super::*;
     use crate::conformance::CollectSink;
@@ -460,13 +480,23 @@ mod tests {
         fn name(&self) -> &str {
             "forgetful"
         }
-        fn wrap_link(
+        fn wrap(
             &self,
             _ctx: &LayerContext,
-            link: Arc<dyn Link>,
+            sink: Arc<dyn FrameSink>,
+            open: OpenBelow<'_>,
         ) -> Result<Arc<dyn Link>, LayerError> {
-            Ok(Arc::new(ForgetfulLink(link)))
+            Ok(Arc::new(ForgetfulLink(open(sink)?)))
         }
+    }
+
+    /// Opens `link` under `stack` (a link made before, whatever sink it is handed).
+    fn over(
+        stack: &LayerStack,
+        ctx: &LayerContext,
+        link: &Arc<dyn Link>,
+    ) -> Result<Arc<dyn Link>, LayerError> {
+        stack.open(ctx, CollectSink::new(), &mut |_| Ok(link.clone()))
     }
 
     fn emulation() -> Arc<dyn LinkLayer> {
@@ -483,7 +513,7 @@ mod tests {
         let sink = CollectSink::new();
         let link: Arc<dyn Link> = Arc::new(Driven { sink: sink.clone() });
         let stack = LayerStack::new().with(emulation());
-        let wrapped = stack.wrap_link(&LayerContext::new(A), link).unwrap();
+        let wrapped = over(&stack, &LayerContext::new(A), &link).unwrap();
         let rx = wrapped
             .readable()
             .expect("the emulated link offers the receive side");
@@ -497,8 +527,7 @@ mod tests {
             sink: CollectSink::new(),
         });
         let stack = LayerStack::new().with(Arc::new(Forgetful));
-        let err = stack
-            .wrap_link(&LayerContext::new(A), link)
+        let err = over(&stack, &LayerContext::new(A), &link)
             .err()
             .expect("refused");
         assert!(
@@ -513,10 +542,7 @@ mod tests {
             sink: CollectSink::new(),
         });
         let ctx = LayerContext::new(A).in_virtual_time();
-        let wrapped = LayerStack::new()
-            .with(emulation())
-            .wrap_link(&ctx, link.clone())
-            .unwrap();
+        let wrapped = over(&LayerStack::new().with(emulation()), &ctx, &link).unwrap();
         assert!(Arc::ptr_eq(&wrapped, &link));
     }
 
@@ -525,10 +551,10 @@ mod tests {
 
     impl Tap for Named {
         fn on_send(&self, _to: SystemId, _head: &[u8], _body: &[u8]) {
-            self.1.lock().unwrap().push(format!("send {}", self.0));
+            self.1.lock().push(format!("send {}", self.0));
         }
         fn on_receive(&self, _frame: &[u8], _from: Peer) {
-            self.1.lock().unwrap().push(format!("receive {}", self.0));
+            self.1.lock().push(format!("receive {}", self.0));
         }
     }
 
@@ -544,14 +570,19 @@ mod tests {
         assert_eq!(stack.names(), ["tap", "tap"]);
         let hub = InprocHub::new();
         let (ca, cb) = (LayerContext::new(A), LayerContext::new(B));
-        let a = hub.open(A, stack.wrap_sink(&ca, CollectSink::new()));
-        let a = stack.wrap_link(&ca, Arc::new(a)).unwrap();
+        let a = stack
+            .open(&ca, CollectSink::new(), &mut |s| {
+                Ok(Arc::new(hub.open(A, s)))
+            })
+            .unwrap();
         let sink = CollectSink::new();
-        let _b = hub.open(B, stack.wrap_sink(&cb, sink.clone()));
+        let _b = stack
+            .open(&cb, sink.clone(), &mut |s| Ok(Arc::new(hub.open(B, s))))
+            .unwrap();
         a.send(B, b"x").unwrap();
         assert_eq!(sink.frames().len(), 1);
         assert_eq!(
-            *log.lock().unwrap(),
+            *log.lock(),
             ["send top", "send bottom", "receive bottom", "receive top"]
         );
     }
@@ -563,11 +594,16 @@ mod tests {
         let stack = LayerStack::new();
         assert!(stack.is_empty());
         let ctx = LayerContext::new(A);
-        assert!(Arc::ptr_eq(&stack.wrap_sink(&ctx, sink.clone()), &sink));
-        let link: Arc<dyn Link> = Arc::new(hub.open(A, sink));
-        assert!(Arc::ptr_eq(
-            &stack.wrap_link(&ctx, link.clone()).unwrap(),
-            &link
-        ));
+        let mut handed = None;
+        let link = stack
+            .open(&ctx, sink.clone(), &mut |s| {
+                handed = Some(s.clone());
+                Ok(Arc::new(hub.open(A, s)))
+            })
+            .unwrap();
+        assert!(Arc::ptr_eq(&handed.expect("opened"), &sink));
+        let bare: Arc<dyn Link> = Arc::new(hub.open(A, sink));
+        assert!(Arc::ptr_eq(&over(&stack, &ctx, &bare).unwrap(), &bare));
+        drop(link);
     }
 }

@@ -24,14 +24,25 @@
 //! assert_eq!(sink_b.frames()[0].bytes, b"frame");
 //! ```
 
+pub mod batch;
+pub mod bridge;
 pub mod conformance;
 pub mod emulation;
 pub mod inproc;
 pub mod layer;
+pub mod readiness;
 pub mod registry;
+pub mod relay;
 pub mod shape;
 
 use std::sync::Arc;
+
+/// Registers this crate's kinds, `inproc` and `emulated`, as every link crate registers its
+/// own ([`registry`]).
+pub fn register_transports(registry: &mut registry::Registry) {
+    registry.register(inproc::InprocFactory);
+    registry.register(emulation::EmulatedFactory);
+}
 
 use hetcomm_core::{FrameBuf, SystemId};
 
@@ -171,6 +182,18 @@ pub enum LinkError {
         /// Where the handshake stands, e.g. "the handshake has not been answered".
         reason: String,
     },
+    /// The link will never carry this frame as it is: what it holds cannot be put on this
+    /// transport (a bridge's message type has no mapping, or its payload does not convert to
+    /// the mapped ROS type). Nothing was sent; a retry would be refused the same way, so the
+    /// router fails the send at once, with this reason.
+    #[error("refused by the link: {reason}")]
+    Refused {
+        /// The destination system.
+        peer: SystemId,
+        /// Why the frame cannot be carried, e.g. "message type 40 for Drive does not convert
+        /// to geometry_msgs/Twist: …".
+        reason: String,
+    },
     /// The link was closed.
     #[error("link closed")]
     Closed,
@@ -255,6 +278,21 @@ pub trait Link: Send + Sync {
     fn checksums_payload(&self) -> bool {
         false
     }
+
+    /// Like [`send_parts`](Link::send_parts), for a link whose frames pass through an
+    /// intermediary that confirms taking them (an MQTT broker's PUBACK at QoS 1): `Some`
+    /// receipt that the link completes when the intermediary answers, or when it gives up
+    /// waiting (its own bound; see [`relay`]). The runtime asks for one for an unacknowledged
+    /// send's frame, whose outcome then says what the intermediary confirmed. The default,
+    /// for links with nothing to confirm, sends and gives `None`.
+    fn send_relayed(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<Option<relay::RelayReceipt>, LinkError> {
+        self.send_parts(to, head, body).map(|()| None)
+    }
 }
 
 /// A receive side that a thread waiting for messages can drive itself, so that a frame
@@ -263,13 +301,32 @@ pub trait Link: Send + Sync {
 /// reads; the link does not start a receive thread of its own for it.
 pub trait Readable: Send + Sync {
     /// A descriptor that polls readable (`POLLIN`) whenever [`read_ready`](Readable::read_ready)
-    /// may find something to read.
+    /// may find something to read, open for as long as this receive side lives
+    /// ([`readiness::readable_fd`] borrows it for that long).
     fn fd(&self) -> std::os::fd::RawFd;
 
     /// Reads, without blocking, what has arrived (at most `budget` reads), hands each complete
     /// frame to the link's sink, and does the link's periodic upkeep (e.g. expiring partial
     /// messages). Returns the number of frames handed on.
     fn read_ready(&self, budget: usize) -> std::io::Result<usize>;
+
+    /// Whether something waits to be read, when the link can tell without a system call (its
+    /// receive queue is in memory this process maps, as `shm`'s is). A thread that spins
+    /// looks here instead of polling [`fd`](Readable::fd), and calls
+    /// [`read_ready`](Readable::read_ready) on `Some(true)`. `None` (the default): the link
+    /// cannot tell; poll its descriptor.
+    fn pending(&self) -> Option<bool> {
+        None
+    }
+
+    /// A thread starts (`true`) or stops (`false`) spinning on this link: reading it through
+    /// [`pending`](Readable::pending) without sleeping in between. A link whose senders wake
+    /// its descriptor may tell them to skip the wake-up meanwhile; when told `false` it makes
+    /// its descriptor readable again if something arrived that no wake-up announced, so a
+    /// thread that then sleeps on the descriptor still wakes. The default does nothing.
+    fn set_spinning(&self, spinning: bool) {
+        let _ = spinning;
+    }
 }
 
 /// Counters a link may keep. Links fill in what applies to them.
@@ -365,19 +422,44 @@ pub use hetcomm_core as __core;
 ///         self.sent.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
 ///         self.inner.send(to, frame)
 ///     }
+///     // Writing `send` means saying what held frames do: here, they keep the inner
+///     // link's batching (writing `fn batches(&self) -> bool { false }` instead would send
+///     // them at once through `send`).
+///     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+///         self.sent.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+///         self.inner.send_held(to, frame)
+///     }
+/// }
+/// ```
+///
+/// A wrapper that writes `send` and says nothing of held frames is refused at compile time:
+///
+/// ```compile_fail
+/// use hetcomm_core::SystemId;
+/// use hetcomm_link::{forward_link, Link, LinkError};
+///
+/// struct Quiet<L> {
+///     inner: L,
+/// }
+///
+/// forward_link! {
+///     [impl<L: Link>] Quiet<L> => inner;
+///     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+///         self.inner.send(to, frame)
+///     }
 /// }
 /// ```
 ///
 /// What a method the wrapper leaves out does:
 ///
-/// - `caps`, `stats`, `flush`, `readable`, `checksums_payload`: forwarded.
-/// - `send`: forwarded.
-/// - `send_parts`, `send_held`, `send_owned`: forwarded if the wrapper does not write `send`;
-///   if it does, they go through the wrapper's `send` (the parts joined, the frame sent at
-///   once, an owned frame lent), so a wrapper that changes `send` sees every frame. A
-///   wrapper that wants vectored writes, batching or write-behind kept writes these too.
-/// - `batches`: forwarded if the wrapper writes `send_held` or leaves `send` alone; false
-///   otherwise (its `send_held` sends at once).
+/// - Every method the wrapper does not write is forwarded, with one exception:
+/// - a wrapper that writes `send` gets the trait's defaults for the `send_parts`,
+///   `send_owned`, `send_held` and `send_relayed` (no receipt) it does not write (they go through its `send`: the parts
+///   joined, an owned frame lent, a held frame sent at once), so it sees every frame; and it
+///   must write `send_held` (its `batches` is then the inner link's unless it writes that
+///   too) or `batches` (false), or the macro refuses it: what held frames do is never left
+///   to a rule. A wrapper that wants vectored writes or write-behind kept writes
+///   `send_parts` / `send_owned` too.
 #[macro_export]
 macro_rules! forward_link {
     (
@@ -410,23 +492,27 @@ macro_rules! forward_link {
                 $crate::Link::send(&self.$($field).+, to, frame)
             }
         });
-        $crate::__if_named!(send_parts [$($n)*] {} {
-            $crate::__if_named!(send [$($n)*] {
-                fn send_parts(
-                    &self,
-                    to: $crate::__core::SystemId,
-                    head: &[u8],
-                    body: &[u8],
-                ) -> ::std::result::Result<(), $crate::LinkError> {
-                    if body.is_empty() {
-                        return $crate::Link::send(self, to, head);
+        // The send family. A wrapper that leaves `send` alone has every send method it does
+        // not write forwarded. One that writes `send` gets the trait's defaults for the
+        // others it does not write (through its `send`: parts joined, an owned frame lent, a
+        // held frame at once), so it sees every frame; and it says what becomes of held
+        // frames: it writes `send_held` (then the inner link's `batches` stays, unless it
+        // writes that too) or `batches` (false: held frames go at once, through its `send`).
+        // Leaving both out once turned batching off unnoticed.
+        $crate::__if_named!(send [$($n)*] {
+            $crate::__if_named!(batches [$($n)*] {} {
+                $crate::__if_named!(send_held [$($n)*] {
+                    fn batches(&self) -> bool {
+                        $crate::Link::batches(&self.$($field).+)
                     }
-                    let mut frame = ::std::vec::Vec::with_capacity(head.len() + body.len());
-                    frame.extend_from_slice(head);
-                    frame.extend_from_slice(body);
-                    $crate::Link::send(self, to, &frame)
-                }
-            } {
+                } {
+                    ::std::compile_error!(
+                        "forward_link!: a wrapper that writes `send` writes `send_held` too (to keep the inner link's batching) or `batches` (false: held frames go at once through its `send`)"
+                    );
+                });
+            });
+        } {
+            $crate::__if_named!(send_parts [$($n)*] {} {
                 fn send_parts(
                     &self,
                     to: $crate::__core::SystemId,
@@ -436,17 +522,7 @@ macro_rules! forward_link {
                     $crate::Link::send_parts(&self.$($field).+, to, head, body)
                 }
             });
-        });
-        $crate::__if_named!(send_owned [$($n)*] {} {
-            $crate::__if_named!(send [$($n)*] {
-                fn send_owned(
-                    &self,
-                    to: $crate::__core::SystemId,
-                    frame: $crate::__core::FrameBuf,
-                ) -> ::std::result::Result<(), $crate::LinkError> {
-                    $crate::Link::send(self, to, &frame)
-                }
-            } {
+            $crate::__if_named!(send_owned [$($n)*] {} {
                 fn send_owned(
                     &self,
                     to: $crate::__core::SystemId,
@@ -455,22 +531,7 @@ macro_rules! forward_link {
                     $crate::Link::send_owned(&self.$($field).+, to, frame)
                 }
             });
-        });
-        $crate::__if_named!(stats [$($n)*] {} {
-            fn stats(&self) -> $crate::LinkStats {
-                $crate::Link::stats(&self.$($field).+)
-            }
-        });
-        $crate::__if_named!(send_held [$($n)*] {} {
-            $crate::__if_named!(send [$($n)*] {
-                fn send_held(
-                    &self,
-                    to: $crate::__core::SystemId,
-                    frame: &[u8],
-                ) -> ::std::result::Result<(), $crate::LinkError> {
-                    $crate::Link::send(self, to, frame)
-                }
-            } {
+            $crate::__if_named!(send_held [$($n)*] {} {
                 fn send_held(
                     &self,
                     to: $crate::__core::SystemId,
@@ -479,28 +540,34 @@ macro_rules! forward_link {
                     $crate::Link::send_held(&self.$($field).+, to, frame)
                 }
             });
+            $crate::__if_named!(batches [$($n)*] {} {
+                fn batches(&self) -> bool {
+                    $crate::Link::batches(&self.$($field).+)
+                }
+            });
+            $crate::__if_named!(send_relayed [$($n)*] {} {
+                fn send_relayed(
+                    &self,
+                    to: $crate::__core::SystemId,
+                    head: &[u8],
+                    body: &[u8],
+                ) -> ::std::result::Result<
+                    ::std::option::Option<$crate::relay::RelayReceipt>,
+                    $crate::LinkError,
+                > {
+                    $crate::Link::send_relayed(&self.$($field).+, to, head, body)
+                }
+            });
+        });
+        $crate::__if_named!(stats [$($n)*] {} {
+            fn stats(&self) -> $crate::LinkStats {
+                $crate::Link::stats(&self.$($field).+)
+            }
         });
         $crate::__if_named!(flush [$($n)*] {} {
             fn flush(&self) -> ::std::result::Result<(), $crate::LinkError> {
                 $crate::Link::flush(&self.$($field).+)
             }
-        });
-        $crate::__if_named!(batches [$($n)*] {} {
-            $crate::__if_named!(send_held [$($n)*] {
-                fn batches(&self) -> bool {
-                    $crate::Link::batches(&self.$($field).+)
-                }
-            } {
-                $crate::__if_named!(send [$($n)*] {
-                    fn batches(&self) -> bool {
-                        false
-                    }
-                } {
-                    fn batches(&self) -> bool {
-                        $crate::Link::batches(&self.$($field).+)
-                    }
-                });
-            });
         });
         $crate::__if_named!(readable [$($n)*] {} {
             fn readable(&self) -> ::std::option::Option<&dyn $crate::Readable> {
@@ -532,6 +599,7 @@ macro_rules! __if_named {
     (batches [batches $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (readable [readable $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (checksums_payload [checksums_payload $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
+    (send_relayed [send_relayed $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (on_frame [on_frame $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (on_frame_owned [on_frame_owned $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
     (on_frames [on_frames $($r:ident)*] {$($y:tt)*} $n:tt) => { $($y)* };
@@ -555,6 +623,14 @@ impl<L: Link + ?Sized> Link for Arc<L> {
     }
     fn send_owned(&self, to: SystemId, frame: FrameBuf) -> Result<(), LinkError> {
         (**self).send_owned(to, frame)
+    }
+    fn send_relayed(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<Option<relay::RelayReceipt>, LinkError> {
+        (**self).send_relayed(to, head, body)
     }
     fn stats(&self) -> LinkStats {
         (**self).stats()

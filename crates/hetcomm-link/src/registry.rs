@@ -19,19 +19,32 @@
 //! The two halves are split by the crates' dependency direction: the fleet loader
 //! (`hetcomm-config`) sits below this crate, so it knows the spec half only, through a
 //! [`Kinds`] table; opening needs the [`Link`] trait, which lives here. The kinds the loader
-//! models itself (`udp`, `tcp`, `ros1`, `bluetooth`: `hetcomm validate` checks them in every
-//! build, and the legacy table files name them) have no spec; their factories only open.
-//! `inproc` and `emulated` belong to the runtime (direct hand-over, the layer stack) and are
-//! opened by it, not through a factory.
+//! models itself (`udp`, `tcp`, `ros1`, `bluetooth`, `inproc`, `emulated`: `hetcomm validate`
+//! checks them in every build, and the legacy table files name them) have no spec; their
+//! factories only open. `inproc` and `emulated` are factories too (this crate's
+//! [`register_transports`](crate::register_transports)): what they need of the program that
+//! opens them (its in-process hubs, opening the transport an `emulated` one wraps) comes
+//! through the request's [`OpenHost`].
+//!
+//! A factory also answers what the runtime and the security layer ask of a kind, so that
+//! neither names a kind: whether its frames leave the process
+//! ([`TransportFactory::leaves_process`]), which transport it is layered over
+//! ([`TransportFactory::over`]), the layer it puts over its link
+//! ([`TransportFactory::layer`]) and whether its systems may skip the link and hand messages
+//! over directly ([`TransportFactory::hands_over`]).
 //!
 //! Opening only: nothing here is on the path of a frame.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
+use std::time::Instant;
 
 use hetcomm_config::{Fleet, KindSpec, Kinds, TransportDef, TransportKind};
 use hetcomm_core::SystemId;
 
+use crate::emulation::{LinkModel, PositionTable};
+use crate::inproc::InprocHub;
+use crate::layer::LinkLayer;
 use crate::shape::MessageShapes;
 use crate::{FrameSink, Link};
 
@@ -53,6 +66,58 @@ pub struct OpenRequest<'a> {
     /// payloads and checks its mappings when it opens ([`NO_SHAPES`](crate::shape::NO_SHAPES)
     /// when there are none).
     pub shapes: &'a MessageShapes,
+    /// What the program opening the link offers a factory ([`STANDALONE`] outside a runtime).
+    pub host: &'a dyn OpenHost,
+}
+
+/// What the program that opens links offers their factories beyond the fleet: the in-process
+/// meeting points of the systems it opens together, opening another transport of the fleet
+/// for a kind layered over one, and what emulated links share.
+pub trait OpenHost {
+    /// The in-process hub named `name` that the systems opened together meet at.
+    fn hub(&self, name: &str) -> InprocHub;
+
+    /// Opens transport number `index` of the fleet for the same system, with its own layers,
+    /// delivering to `sink`: the link under a kind layered over another (`emulated` with
+    /// `over`). An error of the program's own is returned as it is, boxed.
+    fn open_transport(&self, index: usize, sink: Arc<dyn FrameSink>)
+        -> Result<Opened, OpenFailure>;
+
+    /// The positions distance-dependent emulation reads.
+    fn positions(&self) -> PositionTable;
+
+    /// The instant emulated links count their outage schedules from.
+    fn epoch(&self) -> Instant;
+}
+
+/// An [`OpenHost`] for a link opened on its own, outside a runtime: every hub is a new one
+/// (so nothing meets there), no other transport can be opened, positions are empty and the
+/// epoch is now.
+pub struct Standalone;
+
+/// The [`OpenHost`] of links opened on their own.
+pub const STANDALONE: &Standalone = &Standalone;
+
+impl OpenHost for Standalone {
+    fn hub(&self, _name: &str) -> InprocHub {
+        InprocHub::new()
+    }
+
+    fn open_transport(
+        &self,
+        index: usize,
+        _sink: Arc<dyn FrameSink>,
+    ) -> Result<Opened, OpenFailure> {
+        Err(format!("transport number {index} cannot be opened outside a runtime").into())
+    }
+
+    fn positions(&self) -> PositionTable {
+        PositionTable::default()
+    }
+
+    fn epoch(&self) -> Instant {
+        Instant::now()
+    }
 }
 
 /// An opened link and where it listens.
@@ -91,6 +156,59 @@ pub trait TransportFactory: Send + Sync {
         let _ = transport;
         None
     }
+
+    /// Whether frames of this kind leave the process (then the security layer seals them,
+    /// unless the transport says `security = "none"`). The default, true, is every network
+    /// kind's; `inproc` and `emulated` (whose own link is a private in-process hub) say false.
+    fn leaves_process(&self) -> bool {
+        true
+    }
+
+    /// For a kind layered over another transport of the fleet: that transport's name, from
+    /// `transport`'s settings. Its frames then travel on that transport's link, and are
+    /// secured by its layer. The default, None, is for a kind with a link of its own.
+    fn over<'t>(&self, transport: &'t TransportDef) -> Option<&'t str> {
+        let _ = transport;
+        None
+    }
+
+    /// The layer this kind puts over its link (the top of the link's stack, nearest the
+    /// router), e.g. `emulated`'s model. The default, None, is for a kind whose link is all.
+    fn layer(
+        &self,
+        transport: &TransportDef,
+        host: &dyn OpenHost,
+    ) -> Result<Option<Arc<dyn LinkLayer>>, OpenFailure> {
+        let _ = (transport, host);
+        Ok(None)
+    }
+
+    /// The loss model a simulation applies, in virtual time, to frames on `transport` (what
+    /// the kind's [`layer`](TransportFactory::layer) does in real time), its seed mixed with
+    /// `seed_mix` (the simulation's). The default, None, is for a kind that models nothing.
+    fn sim_model(
+        &self,
+        transport: &TransportDef,
+        seed_mix: u64,
+    ) -> Result<Option<LinkModel>, OpenFailure> {
+        let _ = (transport, seed_mix);
+        Ok(None)
+    }
+
+    /// Whether the systems on a link of this kind are all in this process, so that a send
+    /// between two of them may skip the link and go straight to the destination's inbox (when
+    /// no layer is over the link). Only `inproc` says true.
+    fn hands_over(&self) -> bool {
+        false
+    }
+
+    /// Whether the kind's frames never leave the host they are sent on (shared memory between
+    /// processes of one machine): the operating system's permissions guard them, like an
+    /// in-process transport's, so the runtime seals them only with `[security] in_process =
+    /// true`. The default, false, is for every kind whose frames may cross a network.
+    fn host_local(&self) -> bool {
+        false
+    }
 }
 
 /// Why a factory could not open a link: any error, its cause chain kept.
@@ -101,8 +219,9 @@ pub type OpenFailure = Box<dyn std::error::Error + Send + Sync + 'static>;
 pub struct Registry {
     factories: BTreeMap<TransportKind, Arc<dyn TransportFactory>>,
     kinds: Kinds,
-    /// Kinds known by name whose crate is not compiled in, with the feature that adds it.
-    unbuilt: BTreeMap<TransportKind, &'static str>,
+    /// Kinds known by name whose crate is not compiled in, with the feature that adds it and
+    /// what else to do (when there is more to say than to rebuild).
+    unbuilt: BTreeMap<TransportKind, (&'static str, Option<&'static str>)>,
     /// Those of them that are bridges: each transport of one stands for a robot that runs no
     /// hetcomm, which nothing in this program can stand in for.
     unbuilt_bridges: BTreeSet<TransportKind>,
@@ -129,7 +248,31 @@ impl Registry {
     /// opening it can say which feature to rebuild with ([`Registry::feature_for`]).
     pub fn not_built(&mut self, kind: TransportKind, feature: &'static str) {
         self.kinds.add_unbuilt(kind);
-        self.unbuilt.insert(kind, feature);
+        self.unbuilt.insert(kind, (feature, None));
+    }
+
+    /// Like [`Registry::not_built`], with the whole sentence opening such a transport says
+    /// instead of "rebuild with `--features …`" (e.g. how to run without the kind).
+    pub fn not_built_with_hint(
+        &mut self,
+        kind: TransportKind,
+        feature: &'static str,
+        hint: &'static str,
+    ) {
+        self.kinds.add_unbuilt(kind);
+        self.unbuilt.insert(kind, (feature, Some(hint)));
+    }
+
+    /// What to do about a transport of `kind` in a program without it: the hint it was
+    /// recorded with, else to rebuild with its feature, else (a kind nothing here knows) to
+    /// choose another kind.
+    pub fn unavailable_hint(&self, kind: TransportKind) -> String {
+        match self.unbuilt.get(&kind) {
+            Some((_, Some(hint))) => (*hint).to_string(),
+            Some((feature, None)) => format!("rebuild with `--features {feature}`"),
+            None => "choose `inproc` (one process) or another available kind in the fleet file"
+                .to_string(),
+        }
     }
 
     /// Like [`Registry::not_built`], for a bridge kind (see [`TransportFactory::bridged_robot`]):
@@ -153,7 +296,13 @@ impl Registry {
 
     /// The feature that compiles `kind` in, for a kind recorded with [`Registry::not_built`].
     pub fn feature_for(&self, kind: TransportKind) -> Option<&'static str> {
-        self.unbuilt.get(&kind).copied()
+        self.unbuilt.get(&kind).map(|(feature, _)| *feature)
+    }
+
+    /// Whether `kind` is compiled in and declares itself host-local
+    /// ([`TransportFactory::host_local`]).
+    pub fn host_local(&self, kind: TransportKind) -> bool {
+        self.factory(kind).is_some_and(|f| f.host_local())
     }
 
     /// The factory of `kind`, if it is compiled in.
@@ -183,6 +332,25 @@ impl Registry {
             }
         }
         robots
+    }
+
+    /// Whether frames of `kind` leave the process ([`TransportFactory::leaves_process`]); true
+    /// for a kind not compiled in (a network kind, as far as anything here knows).
+    pub fn leaves_process(&self, kind: TransportKind) -> bool {
+        self.factory(kind).is_none_or(|f| f.leaves_process())
+    }
+
+    /// The index in `fleet` of the transport `t` is layered over ([`TransportFactory::over`]),
+    /// if its kind is layered over one and that one exists.
+    pub fn over(&self, fleet: &Fleet, t: &TransportDef) -> Option<usize> {
+        let name = self.factory(t.kind)?.over(t)?;
+        fleet.transports.iter().position(|o| o.name == name)
+    }
+
+    /// Whether `t` names a transport it is layered over ([`TransportFactory::over`]), whether
+    /// or not the fleet has it.
+    pub fn is_layered(&self, t: &TransportDef) -> bool {
+        self.factory(t.kind).is_some_and(|f| f.over(t).is_some())
     }
 
     /// Opens `request.transport`'s link through its kind's factory; None when the kind is not

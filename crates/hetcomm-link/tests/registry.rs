@@ -155,6 +155,7 @@ fn a_registered_kind_parses_reports_located_errors_and_opens() {
                 local: SystemId(local),
                 sink,
                 shapes: &hetcomm_link::shape::NO_SHAPES,
+                host: hetcomm_link::registry::STANDALONE,
             })
             .expect("loopback is registered")
             .expect("opens")
@@ -196,6 +197,7 @@ Bravo = ["z", "X"]
         local: SystemId(0),
         sink: CollectSink::new(),
         shapes: &hetcomm_link::shape::NO_SHAPES,
+        host: hetcomm_link::registry::STANDALONE,
     });
     assert!(opened.is_none());
 }
@@ -222,6 +224,7 @@ fn a_kind_not_built_stays_known_by_name_and_names_its_feature() {
         local: SystemId(0),
         sink: CollectSink::new(),
         shapes: &hetcomm_link::shape::NO_SHAPES,
+        host: hetcomm_link::registry::STANDALONE,
     });
     assert!(opened.is_none());
 }

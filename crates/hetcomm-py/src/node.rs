@@ -148,23 +148,23 @@ pub struct TopicNotification(#[allow(dead_code)] hetcomm::Notification);
 
 /// Keeps a tap on its path (`Comm.tap`); `remove()` or dropping it takes the tap off.
 #[pyclass(module = "hetcomm", frozen)]
-pub struct TapHandle(std::sync::Mutex<Option<hetcomm::TapHandle>>);
+pub struct TapHandle(parking_lot::Mutex<Option<hetcomm::TapHandle>>);
 
 #[pymethods]
 impl TapHandle {
     /// Takes the tap off.
     fn remove(&self) {
-        self.0.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.0.lock().take();
     }
 }
 
 /// The replaced source of a path (`Comm.replace`): real messages are discarded while it lives.
 #[pyclass(module = "hetcomm", frozen)]
-pub struct Replacement(std::sync::Mutex<Option<hetcomm::Replacement>>);
+pub struct Replacement(parking_lot::Mutex<Option<hetcomm::Replacement>>);
 
 impl Replacement {
     fn with<T>(&self, f: impl FnOnce(&hetcomm::Replacement) -> T) -> PyResult<T> {
-        let g = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let g = self.0.lock();
         g.as_ref()
             .map(f)
             .ok_or_else(|| new_err("ClosedError", "the replacement has ended"))
@@ -187,7 +187,7 @@ impl Replacement {
     }
     /// Ends the replacement: real messages flow again.
     fn end(&self) {
-        self.0.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.0.lock().take();
     }
 }
 
@@ -402,14 +402,14 @@ pub fn on_topic(
 /// `Comm.tap`.
 pub fn tap(c: &hetcomm::Comm, path: &TapPath, action: TapAction) -> PyResult<TapHandle> {
     c.tap(path, action)
-        .map(|h| TapHandle(std::sync::Mutex::new(Some(h))))
+        .map(|h| TapHandle(parking_lot::Mutex::new(Some(h))))
         .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
 /// `Comm.replace`.
 pub fn replace(c: &hetcomm::Comm, path: &TapPath) -> PyResult<Replacement> {
     c.replace(path)
-        .map(|r| Replacement(std::sync::Mutex::new(Some(r))))
+        .map(|r| Replacement(parking_lot::Mutex::new(Some(r))))
         .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
@@ -427,7 +427,7 @@ pub fn add_classes(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// A scenario file applied to systems of this process (`Comm.apply_scenario`,
 /// `LocalFleet.apply_scenario`); its taps stay while this object lives.
 #[pyclass(module = "hetcomm", frozen)]
-pub struct ScenarioRun(std::sync::Mutex<Option<hetcomm::harness::scenario::ScenarioRun>>);
+pub struct ScenarioRun(parking_lot::Mutex<Option<hetcomm::harness::scenario::ScenarioRun>>);
 
 #[pymethods]
 impl ScenarioRun {
@@ -435,7 +435,6 @@ impl ScenarioRun {
     fn injection_report(&self) -> Vec<String> {
         self.0
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .as_ref()
             .map(|r| r.injection_report())
             .unwrap_or_default()
@@ -443,15 +442,11 @@ impl ScenarioRun {
     /// How many systems got a fault schedule.
     #[getter]
     fn faulted_systems(&self) -> usize {
-        self.0
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .as_ref()
-            .map_or(0, |r| r.faulted_systems())
+        self.0.lock().as_ref().map_or(0, |r| r.faulted_systems())
     }
     /// Removes the scenario's taps (faults and injections stay scheduled).
     fn end(&self) {
-        self.0.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.0.lock().take();
     }
 }
 
@@ -468,6 +463,6 @@ pub fn load_scenario(
 pub fn scenario_run(
     r: Result<hetcomm::harness::scenario::ScenarioRun, hetcomm::harness::scenario::ScenarioError>,
 ) -> PyResult<ScenarioRun> {
-    r.map(|r| ScenarioRun(std::sync::Mutex::new(Some(r))))
+    r.map(|r| ScenarioRun(parking_lot::Mutex::new(Some(r))))
         .map_err(|e| PyValueError::new_err(e.to_string()))
 }

@@ -80,6 +80,27 @@ def ack_for(data_header: dict, status: int = 0, me: Optional[int] = None) -> byt
     return encode_frame(h, bytes([status]))
 
 
+ACK_RANGE_MAX = 4096
+
+
+def decode_ack(header: dict, payload: bytes) -> Tuple[str, int, int]:
+    """An ACK's payload ("The ACK frame", "ACK ranges"): (status, first, last), the seqs
+    first..=last it acknowledges. One byte acknowledges the header's seq alone; nine bytes
+    are the status and `first` (u64 little-endian), first < seq and seq - first < 4096."""
+    seq = header["seq"]
+    if len(payload) == 1:
+        first = seq
+    elif len(payload) == 9:
+        (first,) = struct.unpack_from("<Q", payload, 1)
+        if first >= seq or seq - first >= ACK_RANGE_MAX:
+            raise ValueError("BadAckRange")
+    else:
+        raise ValueError("BadAckPayload")
+    if payload[0] not in ACK_STATUS:
+        raise ValueError("BadAckStatus")
+    return ACK_STATUS[payload[0]], first, seq
+
+
 def peek_frame_len(d: bytes) -> Optional[int]:
     """Checks 1-4 on the first 48 bytes: the declared frame length, or None."""
     if len(d) < HEADER_LEN or d[:2] != b"HC" or d[2] != 1:

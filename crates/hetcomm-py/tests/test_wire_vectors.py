@@ -48,12 +48,28 @@ def test_valid_vector(v):
     assert py_encode(header, payload) == frame
     if header["kind"] == 1:
         assert ACK_STATUS.get(payload[0]) == v.get("ack_status")
+        status, first, last = docport.decode_ack(header, payload)
+        assert (status, last) == (v["ack_status"], header["seq"])
+        assert first == v.get("ack_first", header["seq"])
     elif v["payload_json"] is None and payload != b"\xc0":
         # No JSON form: not exactly one MessagePack value (e.g. zero bytes).
         with pytest.raises(hetcomm.DecodeError):
             hetcomm.unpack(payload)
     else:
         assert as_json(hetcomm.unpack(payload)) == v["payload_json"]
+
+
+def test_ack_ranges_outside_the_rules_are_refused():
+    h = {"seq": 5}
+    for first in (5, 6):
+        with pytest.raises(ValueError):
+            docport.decode_ack(h, b"\x00" + first.to_bytes(8, "little"))
+    with pytest.raises(ValueError):
+        docport.decode_ack({"seq": 5000}, b"\x00" + (5000 - 4096).to_bytes(8, "little"))
+    assert docport.decode_ack({"seq": 5000}, b"\x00" + (5000 - 4095).to_bytes(8, "little")) \
+        == ("delivered", 905, 5000)
+    with pytest.raises(ValueError):
+        docport.decode_ack(h, b"\x00\x00")
 
 
 @pytest.mark.parametrize("v", VECTORS["invalid"], ids=[v["name"] for v in VECTORS["invalid"]])

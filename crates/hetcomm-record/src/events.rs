@@ -10,11 +10,15 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use hetcomm::config::Fleet;
-use hetcomm::observe::{OutcomeRecord, ReceiptRecord, RouteKind, SendRecord, Via};
+use hetcomm::observe::{
+    OutcomeRecord, PathChangeRecord, ReceiptRecord, RouteKind, SendRecord, Via,
+};
 use hetcomm::wire::AckStatus;
 use hetcomm::{Header, Outcome, SendId, Time};
 
-use crate::format::{self, Addr, Envelope, Event, OutcomeEvent, ReceiptEvent, SendEvent};
+use crate::format::{
+    self, Addr, Envelope, Event, OutcomeEvent, PathSwitchEvent, ReceiptEvent, SendEvent,
+};
 use crate::Encoding;
 
 /// An observed send attempt, receipt or outcome, copied out of the observer's callback.
@@ -59,6 +63,21 @@ pub enum Observed {
         /// When, on the system's clock.
         time: Time,
     },
+    /// A path switch of `system` ([`hetcomm::Observer::on_path_change`]).
+    PathSwitch {
+        /// The switching system (the observed one).
+        system: Arc<str>,
+        /// The destination system's name.
+        to: String,
+        /// The transport left.
+        from: String,
+        /// The transport taken.
+        now: String,
+        /// The system's switches so far.
+        number: u64,
+        /// When, on the system's clock.
+        time: Time,
+    },
 }
 
 impl Observed {
@@ -95,11 +114,23 @@ impl Observed {
         }
     }
 
-    /// The encoded payload of a send or receipt (empty for an outcome).
+    /// A copy of a path switch of `system`.
+    pub fn path_switch(system: &Arc<str>, r: &PathChangeRecord<'_>) -> Observed {
+        Observed::PathSwitch {
+            system: system.clone(),
+            to: r.to_name.to_string(),
+            from: r.from.to_string(),
+            now: r.now.to_string(),
+            number: r.number,
+            time: r.time,
+        }
+    }
+
+    /// The encoded payload of a send or receipt (empty for an outcome or a path switch).
     pub fn payload(&self) -> &[u8] {
         match self {
             Observed::Send { payload, .. } | Observed::Receipt { payload, .. } => payload,
-            Observed::Outcome { .. } => &[],
+            Observed::Outcome { .. } | Observed::PathSwitch { .. } => &[],
         }
     }
 }
@@ -257,6 +288,21 @@ impl EventBuilder {
                     reason,
                 })
             }
+            Observed::PathSwitch {
+                system,
+                to,
+                from,
+                now,
+                number,
+                time,
+            } => Event::PathSwitch(PathSwitchEvent {
+                time_us: time.as_micros(),
+                source_system: system.to_string(),
+                destination_system: to.clone(),
+                from: from.clone(),
+                to: now.clone(),
+                number: *number,
+            }),
         }
     }
 }

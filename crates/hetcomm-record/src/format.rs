@@ -7,6 +7,7 @@
 //! | `/send/Src/SrcModule/Dst/DstModule` | every attempt of a send (`attempt` 1 is the send) | `hetcomm.Send.type<N>` |
 //! | `/receipt/Dst/DstModule` | every message handed to an inbox of a recorded system | `hetcomm.Receipt.type<N>` |
 //! | `/outcome/Src/Dst` | how each send of a recorded system ended | `hetcomm.Outcome` |
+//! | `/path_switch/Src/Dst` | each time a recorded system's sends to Dst moved to another transport (docs/failover.md) | `hetcomm.PathSwitch` |
 //!
 //! A send and its outcome share (`source.system`, `destination.system`, `seq`); a receipt
 //! carries the same source system and `seq`. In JSON recordings the payload is the decoded
@@ -23,7 +24,7 @@ use serde_json::{json, Value};
 /// Whether `topic` is one of the events' channels (the table above); a recording may hold
 /// other channels beside them (`hetcomm demo --record` writes the rovers' poses for Foxglove).
 pub fn is_event_topic(topic: &str) -> bool {
-    ["/send/", "/receipt/", "/outcome/"]
+    ["/send/", "/receipt/", "/outcome/", "/path_switch/"]
         .iter()
         .any(|p| topic.starts_with(p))
 }
@@ -51,6 +52,9 @@ pub enum Event {
     Receipt(ReceiptEvent),
     /// A send of a recorded system ended.
     Outcome(OutcomeEvent),
+    /// A recorded system's sends to a destination moved to another transport
+    /// (docs/failover.md).
+    PathSwitch(PathSwitchEvent),
 }
 
 impl Event {
@@ -60,6 +64,7 @@ impl Event {
             Event::Send(e) => e.time_us,
             Event::Receipt(e) => e.time_us,
             Event::Outcome(e) => e.time_us,
+            Event::PathSwitch(e) => e.time_us,
         }
     }
 }
@@ -177,6 +182,23 @@ pub struct OutcomeEvent {
     pub reason: Option<String>,
 }
 
+/// A system's sends to a destination moved from one transport to another.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PathSwitchEvent {
+    /// When the router decided it, microseconds on the sending system's clock.
+    pub time_us: u64,
+    /// The sending system.
+    pub source_system: String,
+    /// The destination system.
+    pub destination_system: String,
+    /// The transport its sends took until then.
+    pub from: String,
+    /// The transport they take from then on.
+    pub to: String,
+    /// The system's switches so far, this one included.
+    pub number: u64,
+}
+
 /// The one JSON object every event is written as (serde's flattening and internal tags
 /// buffer values, which a [`RawValue`] payload does not survive).
 #[derive(Serialize, Deserialize)]
@@ -228,6 +250,12 @@ struct Flat {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     reason: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    from: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    to: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    number: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     payload: Option<Box<RawValue>>,
 }
 
@@ -258,6 +286,9 @@ impl Serialize for Event {
             attempts: None,
             latency_us: None,
             reason: None,
+            from: None,
+            to: None,
+            number: None,
             payload: None,
         };
         let mut env = |m: &Envelope| {
@@ -298,6 +329,14 @@ impl Serialize for Event {
                 f.attempts = Some(e.attempts);
                 f.latency_us = e.latency_us;
                 f.reason = e.reason.clone();
+            }
+            Event::PathSwitch(e) => {
+                f.event = "path_switch".into();
+                f.source_system = Some(e.source_system.clone());
+                f.destination_system = Some(e.destination_system.clone());
+                f.from = Some(e.from.clone());
+                f.to = Some(e.to.clone());
+                f.number = Some(e.number);
             }
         }
         f.serialize(s)
@@ -359,6 +398,20 @@ impl<'de> Deserialize<'de> for Event {
                 latency_us: f.latency_us,
                 reason: f.reason.clone(),
             }),
+            "path_switch" => Event::PathSwitch(PathSwitchEvent {
+                time_us: f.time_us,
+                source_system: f
+                    .source_system
+                    .clone()
+                    .ok_or_else(|| missing("source_system"))?,
+                destination_system: f
+                    .destination_system
+                    .clone()
+                    .ok_or_else(|| missing("destination_system"))?,
+                from: f.from.clone().ok_or_else(|| missing("from"))?,
+                to: f.to.clone().ok_or_else(|| missing("to"))?,
+                number: f.number.unwrap_or_default(),
+            }),
             other => return Err(D::Error::custom(format!("unknown event {other:?}"))),
         })
     }
@@ -374,6 +427,7 @@ pub fn outcome_parts(o: &hetcomm::Outcome) -> (&'static str, u32, Option<u64>, O
             None,
         ),
         hetcomm::Outcome::Sent { attempts } => ("sent", *attempts, None, None),
+        hetcomm::Outcome::Relayed { attempts } => ("relayed", *attempts, None, None),
         hetcomm::Outcome::Unconfirmed { reason, attempts } => {
             ("unconfirmed", *attempts, None, Some(format!("{reason:?}")))
         }
@@ -554,10 +608,28 @@ pub fn outcome_schema() -> Value {
             "source_system": {"type": "string"},
             "destination_system": {"type": "string"},
             "seq": {"type": "integer"},
-            "outcome": {"type": "string", "enum": ["delivered", "sent", "unconfirmed", "failed"]},
+            "outcome": {"type": "string", "enum": ["delivered", "sent", "relayed", "unconfirmed", "failed"]},
             "attempts": {"type": "integer"},
             "latency_us": {"type": "integer"},
             "reason": {"type": "string"}
+        }
+    })
+}
+
+/// The JSON Schema of a path switch event.
+pub fn path_switch_schema() -> Value {
+    json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "hetcomm path switch",
+        "type": "object",
+        "properties": {
+            "event": {"type": "string"},
+            "time_us": {"type": "integer"},
+            "source_system": {"type": "string"},
+            "destination_system": {"type": "string"},
+            "from": {"type": "string"},
+            "to": {"type": "string"},
+            "number": {"type": "integer"}
         }
     })
 }

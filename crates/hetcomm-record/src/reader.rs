@@ -222,7 +222,7 @@ pub fn decode(encoding: &str, data: &[u8]) -> Result<Event, String> {
                 let env = match &mut event {
                     Event::Send(s) => Some(&mut s.message),
                     Event::Receipt(r) => Some(&mut r.message),
-                    Event::Outcome(_) => None,
+                    Event::Outcome(_) | Event::PathSwitch(_) => None,
                 };
                 if let Some(env) = env {
                     env.payload = format::payload_json(&p).0;

@@ -113,7 +113,7 @@ pub struct ReplayStats {
     pub unreadable: u64,
     /// Outcomes: delivered.
     pub delivered: u64,
-    /// Outcomes: sent without confirmation.
+    /// Outcomes: sent without confirmation, or relayed (a broker confirmed taking it).
     pub sent_unconfirmable: u64,
     /// Outcomes: unconfirmed.
     pub unconfirmed: u64,
@@ -204,7 +204,7 @@ impl Player {
     fn count(&mut self, o: &Outcome) {
         match o {
             Outcome::Delivered { .. } => self.stats.delivered += 1,
-            Outcome::Sent { .. } => self.stats.sent_unconfirmable += 1,
+            Outcome::Sent { .. } | Outcome::Relayed { .. } => self.stats.sent_unconfirmable += 1,
             Outcome::Unconfirmed { .. } => self.stats.unconfirmed += 1,
             _ => self.stats.failed += 1,
         }

@@ -9,10 +9,11 @@
 //! destination's. Reports carry counters, names and inbox depths, never payloads; they go
 //! outside the fleet's secured links, so point them at a local or trusted address only.
 
+use parking_lot::Mutex;
 use std::collections::{BTreeMap, HashMap};
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -72,6 +73,19 @@ pub struct InboxReport {
     pub dropped: u64,
 }
 
+/// One path switch of a system (docs/failover.md).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SwitchReport {
+    /// The destination whose sends moved.
+    pub destination: String,
+    /// The transport left.
+    pub from: String,
+    /// The transport taken.
+    pub to: String,
+    /// The system's switches so far, this one included.
+    pub number: u64,
+}
+
 /// What one system reports once a period.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StatsReport {
@@ -83,6 +97,12 @@ pub struct StatsReport {
     pub pairs: Vec<PairCounters>,
     /// Its modules' inboxes.
     pub inboxes: Vec<InboxReport>,
+    /// Its path switches so far (0 in reports of versions without failover).
+    #[serde(default)]
+    pub path_switches: u64,
+    /// Its last path switches (up to 4, oldest first).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub last_switches: Vec<SwitchReport>,
 }
 
 #[derive(Default)]
@@ -118,7 +138,7 @@ impl PairStats {
     }
 
     fn with(&self, key: (u16, u16), tag: Option<u8>, f: impl FnOnce(&mut Acc)) {
-        let mut pairs = self.pairs.lock().unwrap_or_else(|e| e.into_inner());
+        let mut pairs = self.pairs.lock();
         let acc = pairs.entry(key).or_default();
         if let Some(tag) = tag {
             if acc.transport.is_empty() {
@@ -135,12 +155,7 @@ impl PairStats {
     /// clears), and `comm`'s inboxes.
     pub fn report(&self, comm: &Comm) -> StatsReport {
         let mut pairs = Vec::new();
-        for (&(s, d), acc) in self
-            .pairs
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter_mut()
-        {
+        for (&(s, d), acc) in self.pairs.lock().iter_mut() {
             let mut c = acc.c.clone();
             c.source = self.names.system(s);
             c.destination = self.names.system(d);
@@ -151,8 +166,19 @@ impl PairStats {
             acc.latencies.clear();
             pairs.push(c);
         }
-        let inboxes = comm
-            .stats()
+        let stats = comm.stats();
+        let last_switches = stats
+            .path_switches
+            .iter()
+            .skip(stats.path_switches.len().saturating_sub(4))
+            .map(|s| SwitchReport {
+                destination: s.to.clone(),
+                from: s.from.clone(),
+                to: s.now.clone(),
+                number: s.number,
+            })
+            .collect();
+        let inboxes = stats
             .inboxes
             .into_iter()
             .map(|(module, s)| InboxReport {
@@ -167,6 +193,8 @@ impl PairStats {
             time_us: Time::now_wall().as_micros(),
             pairs,
             inboxes,
+            path_switches: stats.router.path_changes,
+            last_switches,
         }
     }
 }
@@ -199,7 +227,8 @@ impl Observer for PairStats {
                 a.c.delivered += 1;
                 a.latencies.push(latency.as_micros() as u64);
             }
-            Outcome::Sent { .. } => a.c.sent += 1,
+            // Relayed (a broker confirmed taking it) is still only sent, not delivered.
+            Outcome::Sent { .. } | Outcome::Relayed { .. } => a.c.sent += 1,
             Outcome::Unconfirmed { .. } => a.c.unconfirmed += 1,
             Outcome::Failed { .. } => a.c.failed += 1,
         });
@@ -327,6 +356,12 @@ pub struct SystemRow {
     pub age_s: f64,
     /// Its inboxes.
     pub inboxes: Vec<InboxReport>,
+    /// Its path switches so far.
+    #[serde(default)]
+    pub path_switches: u64,
+    /// Its last path switch, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub last_switch: Option<SwitchReport>,
 }
 
 #[derive(Clone)]
@@ -424,6 +459,8 @@ impl MonitorState {
                 system: s.report.system.clone(),
                 age_s: now.saturating_duration_since(s.at).as_secs_f64(),
                 inboxes: s.report.inboxes.clone(),
+                path_switches: s.report.path_switches,
+                last_switch: s.report.last_switches.last().cloned(),
             })
             .collect()
     }
@@ -440,6 +477,37 @@ mod tests {
         assert_eq!(quantile(&v, 0.99), Some(99));
         assert_eq!(quantile(&[7], 0.99), Some(7));
         assert_eq!(quantile(&[], 0.5), None);
+    }
+
+    /// A system's path switches reach its row; a report without them (an older version's)
+    /// still parses, with none.
+    #[test]
+    fn path_switches_reach_the_system_row() {
+        let mut m = MonitorState::default();
+        let now = Instant::now();
+        let old = r#"{"system":"A","time_us":1,"pairs":[],"inboxes":[]}"#;
+        m.ingest_bytes(old.as_bytes(), now);
+        assert_eq!(m.bad_reports, 0);
+        assert_eq!(m.systems(now)[0].path_switches, 0);
+        let switch = SwitchReport {
+            destination: "B".into(),
+            from: "wifi".into(),
+            to: "bt".into(),
+            number: 3,
+        };
+        let report = StatsReport {
+            system: "A".into(),
+            time_us: 2,
+            path_switches: 3,
+            last_switches: vec![switch.clone()],
+            ..Default::default()
+        };
+        m.ingest_bytes(&serde_json::to_vec(&report).unwrap(), now);
+        let row = &m.systems(now)[0];
+        assert_eq!(
+            (row.path_switches, row.last_switch.as_ref()),
+            (3, Some(&switch))
+        );
     }
 
     #[test]
@@ -460,6 +528,7 @@ mod tests {
             time_us,
             pairs: vec![p],
             inboxes: vec![],
+            ..Default::default()
         };
         m.ingest(report("A", 1_000_000, pair(10, 0)), now);
         m.ingest(report("B", 1_000_000, pair(0, 9)), now);

@@ -1,16 +1,17 @@
 //! [`Recorder`]: an [`Observer`] that writes every send, retransmission, receipt and outcome
 //! of the systems it is attached to into an MCAP file.
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use hetcomm::config::Fleet;
-use hetcomm::observe::{OutcomeRecord, ReceiptRecord, SendRecord};
+use hetcomm::observe::{OutcomeRecord, PathChangeRecord, ReceiptRecord, SendRecord};
 use hetcomm::{Comm, Observer, ObserverHandle, Time};
 use serde_json::Value;
 
@@ -71,6 +72,8 @@ pub struct RecordSummary {
     pub receipts: u64,
     /// Outcomes written.
     pub outcomes: u64,
+    /// Path switches written (docs/failover.md).
+    pub path_switches: u64,
     /// Messages written on other channels ([`Recorder::write_other`]).
     pub others: u64,
     /// Events that could not be written (the first error is returned by
@@ -133,6 +136,7 @@ pub struct Recorder {
     sends: AtomicU64,
     receipts: AtomicU64,
     outcomes: AtomicU64,
+    path_switches: AtomicU64,
     others: AtomicU64,
     lost: AtomicU64,
 }
@@ -212,6 +216,7 @@ impl Recorder {
             sends: AtomicU64::new(0),
             receipts: AtomicU64::new(0),
             outcomes: AtomicU64::new(0),
+            path_switches: AtomicU64::new(0),
             others: AtomicU64::new(0),
             lost: AtomicU64::new(0),
         });
@@ -220,7 +225,7 @@ impl Recorder {
             .name("hetcomm-record".into())
             .spawn(move || r.drain())
             .map_err(|e| err(e.to_string()))?;
-        *recorder.thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(thread);
+        *recorder.thread.lock() = Some(thread);
         Ok(recorder)
     }
 
@@ -228,9 +233,9 @@ impl Recorder {
     /// woken once per [`BATCH`] events (or by its own timer), and the observed thread waits
     /// only while [`QUEUE`] events are queued (nothing is dropped).
     fn enqueue(&self, item: Observed) {
-        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        let mut q = self.queue.lock();
         while q.items.len() >= QUEUE && !q.closed {
-            q = self.room.wait(q).unwrap_or_else(|e| e.into_inner());
+            self.room.wait(&mut q);
         }
         if q.closed {
             drop(q);
@@ -248,13 +253,10 @@ impl Recorder {
         let mut batch = Vec::new();
         loop {
             {
-                let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+                let mut q = self.queue.lock();
                 while q.items.len() < BATCH && !q.closed {
-                    let (g, _) = self
-                        .ready
-                        .wait_timeout(q, std::time::Duration::from_millis(20))
-                        .unwrap_or_else(|e| e.into_inner());
-                    q = g;
+                    self.ready
+                        .wait_for(&mut q, std::time::Duration::from_millis(20));
                     if !q.items.is_empty() {
                         break;
                     }
@@ -271,7 +273,7 @@ impl Recorder {
         }
     }
 
-    /// Records `comm`'s sends, receipts and outcomes until the handle is dropped.
+    /// Records `comm`'s sends, receipts, outcomes and path switches until the handle is dropped.
     pub fn attach(self: &Arc<Self>, comm: &Comm) -> ObserverHandle {
         comm.observe(Arc::new(SystemRecorder {
             recorder: self.clone(),
@@ -290,6 +292,7 @@ impl Recorder {
             sends: self.sends.load(Ordering::Relaxed),
             receipts: self.receipts.load(Ordering::Relaxed),
             outcomes: self.outcomes.load(Ordering::Relaxed),
+            path_switches: self.path_switches.load(Ordering::Relaxed),
             others: self.others.load(Ordering::Relaxed),
             lost: self.lost.load(Ordering::Relaxed),
         }
@@ -300,7 +303,7 @@ impl Recorder {
     /// calling thread; a message that cannot be written is counted as lost.
     pub fn write_other(&self, channel: &OtherChannel, time: Time, data: &[u8]) {
         let log_time = time.as_micros() * 1000;
-        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let mut inner = self.inner.lock();
         let inner = &mut *inner;
         let Some(writer) = inner.writer.as_mut() else {
             self.lost.fetch_add(1, Ordering::Relaxed);
@@ -345,16 +348,16 @@ impl Recorder {
     /// lost. An error says what failed first (a full disk, …) and how many events were lost.
     pub fn finish(&self) -> Result<RecordSummary, RecordError> {
         // Close the queue, let the writer thread write what is in it, and end.
-        self.queue.lock().unwrap_or_else(|e| e.into_inner()).closed = true;
+        self.queue.lock().closed = true;
         self.ready.notify_all();
         self.room.notify_all();
-        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let thread = self.thread.lock().take();
         if let Some(t) = thread {
             if t.join().is_err() {
                 self.fail("the writer thread panicked".into());
             }
         }
-        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let mut inner = self.inner.lock();
         if let Some(mut w) = inner.writer.take() {
             if let Err(e) = w.finish() {
                 inner.error.get_or_insert(e.to_string());
@@ -385,10 +388,10 @@ impl Recorder {
         let message_type = match event {
             Event::Send(s) => s.message.message_type,
             Event::Receipt(r) => r.message.message_type,
-            Event::Outcome(_) => 0,
+            Event::Outcome(_) | Event::PathSwitch(_) => 0,
         };
         let time = event.time_us() * 1000;
-        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let mut inner = self.inner.lock();
         let inner = &mut *inner;
         let Some(writer) = inner.writer.as_mut() else {
             self.lost.fetch_add(1, Ordering::Relaxed);
@@ -404,6 +407,11 @@ impl Recorder {
                         None => {
                             let (name, schema) = if kind == "outcome" {
                                 ("hetcomm.Outcome".to_string(), format::outcome_schema())
+                            } else if kind == "path_switch" {
+                                (
+                                    "hetcomm.PathSwitch".to_string(),
+                                    format::path_switch_schema(),
+                                )
                             } else {
                                 (
                                     format!(
@@ -432,6 +440,7 @@ impl Recorder {
         let counter = match kind {
             "send" => &self.sends,
             "receipt" => &self.receipts,
+            "path_switch" => &self.path_switches,
             _ => &self.outcomes,
         };
         self.log(inner, channel, time, &data, counter);
@@ -476,7 +485,7 @@ impl Recorder {
 
     fn fail(&self, message: String) {
         self.lost.fetch_add(1, Ordering::Relaxed);
-        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let mut inner = self.inner.lock();
         inner.error.get_or_insert(message);
     }
 }
@@ -485,7 +494,7 @@ fn event_payload(event: &Event) -> Option<Value> {
     match event {
         Event::Send(s) => s.message.payload_value(),
         Event::Receipt(r) => r.message.payload_value(),
-        Event::Outcome(_) => None,
+        Event::Outcome(_) | Event::PathSwitch(_) => None,
     }
 }
 
@@ -493,7 +502,7 @@ fn event_payload(event: &Event) -> Option<Value> {
 fn to_msgpack(event: &Event, payload: &[u8], kind: &str) -> Result<Vec<u8>, String> {
     let json = serde_json::to_value(event).map_err(|e| e.to_string())?;
     let mut value = format::json_to_msgpack(&json);
-    if kind != "outcome" {
+    if kind != "outcome" && kind != "path_switch" {
         if let rmpv::Value::Map(m) = &mut value {
             m.push((
                 rmpv::Value::from("payload_msgpack"),
@@ -543,6 +552,10 @@ impl Recorder {
                 format!("/outcome/{}/{}", e.source_system, e.destination_system),
                 "outcome",
             ),
+            Event::PathSwitch(e) => (
+                format!("/path_switch/{}/{}", e.source_system, e.destination_system),
+                "path_switch",
+            ),
         };
         self.write(topic, kind, &event, item.payload());
     }
@@ -568,5 +581,9 @@ impl Observer for SystemRecorder {
     fn on_outcome(&self, record: &OutcomeRecord<'_>) {
         self.recorder
             .enqueue(Observed::outcome(&self.system, record));
+    }
+    fn on_path_change(&self, record: &PathChangeRecord<'_>) {
+        self.recorder
+            .enqueue(Observed::path_switch(&self.system, record));
     }
 }

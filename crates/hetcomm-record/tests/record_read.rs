@@ -122,6 +122,7 @@ fn every_send_receipt_and_outcome_of_a_udp_fleet_is_recorded_with_its_payload() 
                 Event::Send(_) => {}
                 Event::Receipt(r) => receipts.push(r),
                 Event::Outcome(o) => outcomes.push(o),
+                Event::PathSwitch(_) => {}
             }
         }
         assert_eq!(sends.len(), 50);
@@ -343,4 +344,64 @@ fn other_channels_are_written_beside_the_events_and_left_aside_when_reading() {
             (t0 + 200_000_000, r#"{"x": 2}"#.to_string()),
         ]
     );
+}
+
+/// A path switch is in the recording, in both encodings: the system, the destination, both
+/// transports and the switch's number.
+#[test]
+fn path_switches_are_recorded() {
+    for encoding in [Encoding::Json, Encoding::MsgPack] {
+        let (u1, u2, u3, u4) = (
+            free_udp_port(),
+            free_udp_port(),
+            free_udp_port(),
+            free_udp_port(),
+        );
+        let text = format!(
+            "[systems]\nA = 0\nB = 1\n[modules]\nPlan = 0\nAct = 1\n\
+             [transports.wifi]\nkind = \"udp\"\nsecurity = \"none\"\n\
+             endpoints = {{ A = \"127.0.0.1:{u1}\", B = \"127.0.0.1:{u2}\" }}\n\
+             [transports.radio]\nkind = \"udp\"\nsecurity = \"none\"\n\
+             endpoints = {{ A = \"127.0.0.1:{u3}\", B = \"127.0.0.1:{u4}\" }}\n\
+             [table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"wifi,radio\"]\nB = [\"wifi,radio\", \"X\"]\n"
+        );
+        let fleet =
+            LocalFleet::open(hetcomm::config::parse_str(&text, "p.toml", None).unwrap()).unwrap();
+        let a = fleet.system("A").unwrap();
+        let path = tmp(&format!("switch-{encoding:?}.mcap"));
+        let recorder = Recorder::create(
+            &path,
+            a.fleet(),
+            RecordOptions {
+                encoding,
+                ..RecordOptions::default()
+            },
+        )
+        .unwrap();
+        let _h = recorder.attach(&a);
+        a.set_transports("B", &["radio"]).unwrap();
+        a.set_transports("B", &["wifi", "radio"]).unwrap();
+        recorder.finish().unwrap();
+        let (events, report) = hetcomm_record::reader::read(&path).unwrap();
+        assert_eq!((report.skipped, report.others), (0, 0), "{report:?}");
+        let switches: Vec<_> = events
+            .into_iter()
+            .filter_map(|e| match e {
+                Event::PathSwitch(s) => Some((
+                    s.source_system,
+                    s.destination_system,
+                    s.from,
+                    s.to,
+                    s.number,
+                )),
+                _ => None,
+            })
+            .collect();
+        let expected = [
+            ("A", "B", "wifi", "radio", 1),
+            ("A", "B", "radio", "wifi", 2),
+        ]
+        .map(|(a, b, c, d, n)| (a.into(), b.into(), c.into(), d.into(), n));
+        assert_eq!(switches, expected, "{encoding:?}");
+    }
 }

@@ -2,23 +2,23 @@
 //! reading their fleet-file tables ([`parse_common`]: `robot`, `msg_paths`, the `publish` and
 //! `subscribe` mappings, the required `delivery` and `security`), naming the robot and modules
 //! ([`robot_id`], [`module_id`]), converting what is sent to the robot ([`Outbound`]),
-//! counting and reporting bad input once ([`Tally`]), turning a ROS message into a hetcomm
+//! counting and reporting bad input once ([`Tally`]; `module_id`, `hosts` and `Tally` are
+//! `hetcomm_link::bridge`'s, which every bridge kind shares), turning a ROS message into a hetcomm
 //! frame from the robot ([`FrameMaker`]), what the link promises ([`caps`]), and the kind's
 //! registration ([`BridgeFactory`] of a [`BridgeKind`]).
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::HashMap;
 use std::marker::PhantomData;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::sync::Arc;
 
 use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
 use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
-use hetcomm_core::wire::{self, FrameKind, Header};
-use hetcomm_core::{Address, MessageType, ModuleId, SystemId, Time};
+use hetcomm_core::wire::{self, FrameKind};
+use hetcomm_core::{MessageType, ModuleId, SystemId};
+pub use hetcomm_link::bridge::{hosts, module_id, Tally};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use hetcomm_link::shape::MessageShapes;
-use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats};
+use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError};
 use rmpv::Value;
 
 use crate::check::{self, Direction};
@@ -248,117 +248,7 @@ pub fn robot_id(
     robot: &str,
     flavour: Flavour,
 ) -> Result<SystemId, String> {
-    let id = fleet
-        .systems
-        .iter()
-        .find(|s| s.name == robot)
-        .map(|s| s.id)
-        .ok_or_else(|| format!("robot `{robot}` is not in [systems]"))?;
-    if id == local {
-        let ros = flavour.label();
-        return Err(format!(
-            "`{robot}` is the external {ros} robot of this bridge: it runs {ros}, not hetcomm"
-        ));
-    }
-    Ok(id)
-}
-
-/// The id of the module `name` that the mapping of `topic` names.
-pub fn module_id(fleet: &Fleet, name: &str, topic: &str) -> Result<ModuleId, String> {
-    fleet
-        .modules
-        .iter()
-        .find(|m| m.name == name)
-        .map(|m| m.id)
-        .ok_or_else(|| {
-            format!("the mapping of {topic} names module `{name}`, which is not in [modules]")
-        })
-}
-
-/// Whether system `local` hosts `module`: true unless its `[systems]` entry lists its
-/// modules and leaves this one out. A bridge reads a subscribed topic only where its module
-/// is hosted: elsewhere the messages would have nowhere to go (e.g. a system that only
-/// publishes the robot's commands).
-pub fn hosts(fleet: &Fleet, local: SystemId, module: ModuleId) -> bool {
-    fleet
-        .systems
-        .iter()
-        .find(|s| s.id == local)
-        .and_then(|s| s.modules.as_ref())
-        .is_none_or(|hosted| hosted.contains(&module))
-}
-
-/// A bridge's counts (the link's stats) and what went wrong with input from ROS, each
-/// distinct problem once, in order; shared by its send side and its receive tasks.
-pub struct Tally {
-    kind: &'static str,
-    sent: AtomicU64,
-    received: AtomicU64,
-    dropped: AtomicU64,
-    seen: Mutex<BTreeSet<String>>,
-}
-
-impl Tally {
-    /// Nothing counted yet; `kind` (e.g. `ros1_bridge`) prefixes what is printed.
-    pub fn new(kind: &'static str) -> Tally {
-        Tally {
-            kind,
-            sent: AtomicU64::new(0),
-            received: AtomicU64::new(0),
-            dropped: AtomicU64::new(0),
-            seen: Mutex::default(),
-        }
-    }
-
-    /// One message handed to ROS.
-    pub fn sent(&self) {
-        self.sent.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// One message from ROS handed to the system.
-    pub fn received(&self) {
-        self.received.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// Records `problem`; true (and printed to stderr) the first time it is seen.
-    fn report(&self, problem: String) -> bool {
-        let mut seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        let new = seen.insert(problem.clone());
-        if new {
-            eprintln!("hetcomm {}: {problem}", self.kind);
-        }
-        new
-    }
-
-    /// `n` messages from ROS dropped because of `problem` (reported the first time).
-    pub fn dropped(&self, n: u64, problem: String) {
-        self.dropped.fetch_add(n, Ordering::Relaxed);
-        self.report(problem);
-    }
-
-    /// A problem that costs messages no one can count (a publisher ROS does not connect):
-    /// counted as one drop and reported, the first time it is seen only.
-    pub fn dropped_once(&self, problem: String) {
-        if self.report(problem) {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Every distinct problem seen so far.
-    pub fn problems(&self) -> Vec<String> {
-        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
-        seen.iter().cloned().collect()
-    }
-
-    /// The link's stats: sent, received and dropped messages.
-    pub fn stats(&self) -> LinkStats {
-        LinkStats {
-            frames_sent: self.sent.load(Ordering::Relaxed),
-            frames_received: self.received.load(Ordering::Relaxed),
-            frames_dropped: self.dropped.load(Ordering::Relaxed),
-            ..LinkStats::default()
-        }
-    }
+    hetcomm_link::bridge::robot_id(fleet, local, robot, flavour.label())
 }
 
 /// What a bridge link promises: ordered per topic, not reliable (nobody acknowledges), any
@@ -430,29 +320,30 @@ impl<T> Outbound<T> {
 
     /// The mapping, publisher and converted body of `frame`, sent to `to`; None for frames
     /// that are not data. A frame to another system, of an unmapped type, or whose payload
-    /// does not convert (named by both types and the field) is [`LinkError::Unreachable`].
+    /// does not convert (named by both types and the field) is [`LinkError::Refused`]: a
+    /// retry cannot change it, so the send fails once with that reason.
     pub fn convert(
         &self,
         to: SystemId,
         frame: &[u8],
     ) -> Result<Option<Converted<'_, T>>, LinkError> {
-        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
+        let refused = |reason: String| LinkError::Refused { peer: to, reason };
         if to != self.robot {
             let (kind, name) = (self.kind, &self.robot_name);
-            return Err(unreachable(format!("this {kind} reaches only {name}")));
+            return Err(refused(format!("this {kind} reaches only {name}")));
         }
         // Acknowledgements have no ROS counterpart (delivery is unacknowledged anyway).
-        let Some((key, value)) = outgoing(frame).map_err(unreachable)? else {
+        let Some((key, value)) = outgoing(frame).map_err(refused)? else {
             return Ok(None);
         };
         let Some((m, publisher)) = self.by_key.get(&key) else {
-            return Err(unreachable(format!(
+            return Err(refused(format!(
                 "no ROS topic is mapped for message type {} to {}'s module {}",
                 key.1 .0, self.robot_name, key.0 .0
             )));
         };
         let what = format!("message type {} for {}", m.message, m.module);
-        let body = codec::encode(&value, m.schema, self.wire, &what).map_err(unreachable)?;
+        let body = codec::encode(&value, m.schema, self.wire, &what).map_err(refused)?;
         Ok(Some(Converted {
             mapping: m,
             publisher,
@@ -462,23 +353,17 @@ impl<T> Outbound<T> {
 }
 
 /// Makes the hetcomm frames of messages received from the robot: data from (robot, module) to
-/// (this system, module), numbered per module under one random incarnation.
-pub struct FrameMaker {
-    local: SystemId,
-    robot: SystemId,
-    incarnation: u32,
-    seq: HashMap<ModuleId, u64>,
-}
+/// (this system, module), numbered per module under one random incarnation
+/// ([`hetcomm_link::bridge::FrameMaker`], taking decoded ROS messages). Their CRC covers the
+/// header only: a ROS bridge's frames never leave the process, and its link says so
+/// (`Link::checksums_payload`), sparing a pass over every byte of an image or point cloud
+/// each way (the ROS side has its own transport: TCPROS over TCP, RTPS over UDP).
+pub struct FrameMaker(hetcomm_link::bridge::FrameMaker);
 
 impl FrameMaker {
     /// Frames from `robot` to `local`.
     pub fn new(local: SystemId, robot: SystemId) -> FrameMaker {
-        FrameMaker {
-            local,
-            robot,
-            incarnation: rand::random::<u32>() | 1,
-            seq: HashMap::new(),
-        }
+        FrameMaker(hetcomm_link::bridge::FrameMaker::new(local, robot).header_crc())
     }
 
     /// The frame of `value` (a decoded ROS message) for `module` as message type `message`.
@@ -491,21 +376,7 @@ impl FrameMaker {
         let mut payload = Vec::with_capacity(128);
         rmpv::encode::write_value(&mut payload, value)
             .map_err(|e| format!("could not be encoded: {e}"))?;
-        let seq = self.seq.entry(module).or_insert(0);
-        *seq += 1;
-        let us = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map(|d| d.as_micros() as u64)
-            .unwrap_or(0);
-        let at = |system| Address { system, module };
-        let header = Header {
-            kind: FrameKind::Data,
-            incarnation: self.incarnation,
-            seq: *seq,
-            timestamp: Time::from_micros(us),
-            ..Header::data(at(self.robot), at(self.local), MessageType(message))
-        };
-        Ok(wire::encode(&header, &payload))
+        Ok(self.0.frame_of(module, message, &payload))
     }
 }
 

@@ -8,7 +8,9 @@
 //! z: f64 }` is `geometry_msgs/Twist`. Towards ROS, every ROS field must be present (numbers
 //! convert when they fit) and no other field may be: a mismatch is an error naming both types
 //! and the field. From ROS, the message becomes a map of every ROS field; a hetcomm struct may
-//! declare only some of them (serde ignores the rest).
+//! declare only some of them (serde ignores the rest). `uint8` arrays (an image's pixels, a
+//! point cloud's points) are copied whole each way: MessagePack bytes from ROS, and bytes or
+//! an array of integers towards it.
 
 use rmpv::Value;
 
@@ -247,6 +249,16 @@ impl Writer {
                 }
             }
             Ty::Array(elem, n) => {
+                if let (Value::Binary(b), Ty::U8) = (v, &**elem) {
+                    if b.len() != *n {
+                        return Err(format!(
+                            "field `{path}` has {} elements, the ROS field has {n}",
+                            b.len()
+                        ));
+                    }
+                    self.out.extend_from_slice(b);
+                    return Ok(());
+                }
                 let items = self.items(v, elem, path, &format!("an array of {n}"))?;
                 if items.len() != *n {
                     return Err(format!(
@@ -257,22 +269,33 @@ impl Writer {
                 self.elements(&items, elem, path)?;
             }
             Ty::Seq(elem, bound) => {
-                let items = self.items(v, elem, path, "an array")?;
-                if let Some(max) = bound {
-                    if items.len() > *max {
-                        return Err(format!(
-                            "field `{path}` has {} elements, the ROS field has at most {max}",
-                            items.len()
-                        ));
-                    }
+                if let (Value::Binary(b), Ty::U8) = (v, &**elem) {
+                    // Bytes (an image's pixels) are copied whole, not element by element.
+                    self.seq_len(b.len(), *bound, path)?;
+                    self.out.extend_from_slice(b);
+                    return Ok(());
                 }
-                let len = u32::try_from(items.len())
-                    .map_err(|_| format!("field `{path}` has more than 2^32 elements"))?;
-                self.put(&len.to_le_bytes());
+                let items = self.items(v, elem, path, "an array")?;
+                self.seq_len(items.len(), *bound, path)?;
                 self.elements(&items, elem, path)?;
             }
             Ty::Msg(inner) => self.msg(v, inner, path)?,
         }
+        Ok(())
+    }
+
+    /// Writes a sequence's length, checked against its bound.
+    fn seq_len(&mut self, len: usize, bound: Option<usize>, path: &str) -> Result<(), String> {
+        if let Some(max) = bound {
+            if len > max {
+                return Err(format!(
+                    "field `{path}` has {len} elements, the ROS field has at most {max}"
+                ));
+            }
+        }
+        let len = u32::try_from(len)
+            .map_err(|_| format!("field `{path}` has more than 2^32 elements"))?;
+        self.put(&len.to_le_bytes());
         Ok(())
     }
 
@@ -297,8 +320,17 @@ impl Writer {
     }
 
     fn elements(&mut self, items: &[Value], elem: &Ty, path: &str) -> Result<(), String> {
+        self.out
+            .reserve(items.len().saturating_mul(min_size(elem, self.cdr)));
         for (i, item) in items.iter().enumerate() {
-            self.value(item, elem, &format!("{path}[{i}]"))?;
+            // An element's path is formatted only when it fails (formatting one per element
+            // cost more than the conversion of a large array): the failing one is written
+            // again with its path, for the error.
+            let start = self.out.len();
+            if self.value(item, elem, path).is_err() {
+                self.out.truncate(start);
+                self.value(item, elem, &format!("{path}[{i}]"))?;
+            }
         }
         Ok(())
     }
@@ -371,11 +403,17 @@ struct Reader<'a> {
 }
 
 impl Reader<'_> {
+    /// The next value of `n` bytes (a number), aligned to its size as the wire says.
     fn take(&mut self, n: usize, path: &str) -> Result<&[u8], String> {
         let a = n.min(self.max_align);
         if a > 1 && !self.pos.is_multiple_of(a) {
             self.pos += a - self.pos % a;
         }
+        self.bytes(n, path)
+    }
+
+    /// The next `n` bytes, unaligned.
+    fn bytes(&mut self, n: usize, path: &str) -> Result<&[u8], String> {
         let end = self.pos.saturating_add(n);
         let bytes = self.body.get(self.pos..end).ok_or_else(|| {
             format!(
@@ -471,9 +509,25 @@ impl Reader<'_> {
                 "`{path}` has {n} elements, more than the {left} bytes left can hold"
             ));
         }
+        if matches!(elem, Ty::U8) {
+            // Bytes (an image's pixels) in one copy, as MessagePack bin: rmp-serde reads them
+            // into a `Vec<u8>`, `[u8; N]` or `serde_bytes`, Python as `bytes` (as rospy and
+            // rclpy give them), where an array of integers cost 30 bytes of memory a pixel.
+            let bytes = self.bytes(n, path)?;
+            return Ok(Value::Binary(bytes.to_vec()));
+        }
         let mut items = Vec::with_capacity(n);
         for i in 0..n {
-            items.push(self.value(elem, &format!("{path}[{i}]"))?);
+            // As when writing: the path is formatted only for an element that fails, read
+            // again from where it started.
+            let start = self.pos;
+            match self.value(elem, path) {
+                Ok(v) => items.push(v),
+                Err(_) => {
+                    self.pos = start;
+                    items.push(self.value(elem, &format!("{path}[{i}]"))?);
+                }
+            }
         }
         Ok(Value::Array(items))
     }
@@ -688,6 +742,73 @@ mod tests {
         assert_eq!(
             decode(&s, ros2("std_msgs/Float64"), Wire::Ros1).unwrap_err(),
             "2 bytes are left after the message (10 bytes)"
+        );
+    }
+
+    fn image(data: Value, ros1_header: bool) -> Value {
+        let stamp = match ros1_header {
+            true => map(&[("secs", 5u32.into()), ("nsecs", 7u32.into())]),
+            false => map(&[("sec", 5.into()), ("nanosec", 7u32.into())]),
+        };
+        let mut header = vec![("stamp", stamp), ("frame_id", "camera".into())];
+        if ros1_header {
+            header.insert(0, ("seq", 3u32.into()));
+        }
+        map(&[
+            ("header", map(&header)),
+            ("height", 480u32.into()),
+            ("width", 640u32.into()),
+            ("encoding", "rgb8".into()),
+            ("is_bigendian", 0u8.into()),
+            ("step", 1920u32.into()),
+            ("data", data),
+        ])
+    }
+
+    #[test]
+    fn a_640_by_480_image_goes_whole_from_bytes_or_integers_and_comes_back_as_bytes() {
+        let pixels: Vec<u8> = (0..640 * 480 * 3).map(|i| (i % 251) as u8).collect();
+        let as_ints = Value::Array(pixels.iter().map(|b| Value::from(*b)).collect());
+        for (wire, flavour) in [
+            (Wire::CDR, ros2("sensor_msgs/Image")),
+            (Wire::Ros1, ros1("sensor_msgs/Image")),
+        ] {
+            let ros1 = wire == Wire::Ros1;
+            let body = encode(
+                &image(Value::Binary(pixels.clone()), ros1),
+                flavour,
+                wire,
+                "Image",
+            )
+            .unwrap();
+            // The pixels are the message's last bytes, after their length.
+            assert_eq!(&body[body.len() - pixels.len()..], &pixels[..]);
+            let len = body.len() - pixels.len() - 4;
+            assert_eq!(&body[len..len + 4], &(pixels.len() as u32).to_le_bytes());
+            assert_eq!(
+                encode(&image(as_ints.clone(), ros1), flavour, wire, "Image").unwrap(),
+                body
+            );
+            assert_eq!(
+                decode(&body, flavour, wire).unwrap(),
+                image(Value::Binary(pixels.clone()), ros1)
+            );
+            // One byte short: the pixels do not fit, whatever the wire.
+            assert!(decode(&body[..body.len() - 1], flavour, wire).is_err());
+        }
+        // An element that does not convert is named by its index.
+        let mut bad = pixels.iter().map(|b| Value::from(*b)).collect::<Vec<_>>();
+        bad[1000] = Value::from(256);
+        let e = encode(
+            &image(Value::Array(bad), false),
+            ros2("sensor_msgs/Image"),
+            Wire::CDR,
+            "Image",
+        )
+        .unwrap_err();
+        assert!(
+            e.ends_with("field `data[1000]` is an integer (256), the ROS field is uint8"),
+            "{e}"
         );
     }
 }

@@ -11,9 +11,9 @@
 //! ([`RosType`]) with its nested types, ROS 1's MD5 sum and full definition. Schemas are kept
 //! for the life of the process, one per distinct definition.
 
+use parking_lot::Mutex;
 use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 
 use crate::msgfile::{self, Array, Base, MsgFile, Prim};
 use crate::schema::{Flavour, RosType, Ty};
@@ -319,8 +319,8 @@ impl Registry {
         Ok(t)
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, &'static RosType>> {
-        self.resolved.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, HashMap<String, &'static RosType>> {
+        self.resolved.lock()
     }
 }
 
@@ -391,7 +391,7 @@ fn intern(
     md5: String,
     definition: String,
 ) -> &'static RosType {
-    let mut all = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
+    let mut all = INTERNED.lock();
     if let Some(t) = all
         .iter()
         .find(|t| t.name == full && t.definition == definition && t.md5 == md5)

@@ -1,5 +1,5 @@
 //! Property tests of the conversion written from the definitions: every shipped type of both
-//! flavours, over generated values, encodes and decodes back to the same value in its wire
+//! flavours, over generated values (`uint8` arrays as bytes), encodes and decodes back to the same value in its wire
 //! encoding (ROS 1 serialization for ROS 1 types, CDR for ROS 2 types); any cut of an
 //! encoding, and arbitrary bytes in any encoding, are an error or a value, never a panic.
 
@@ -31,6 +31,15 @@ fn value_of(ty: &'static Ty) -> BoxedStrategy<Value> {
         )
         .prop_map(|c| Value::from(c.into_iter().collect::<String>()))
         .boxed(),
+        // uint8 arrays come back as bytes (MessagePack bin).
+        Ty::Array(Ty::U8, n) => proptest::collection::vec(any::<u8>(), *n)
+            .prop_map(Value::Binary)
+            .boxed(),
+        Ty::Seq(Ty::U8, bound) => {
+            proptest::collection::vec(any::<u8>(), 0..=bound.unwrap_or(3).min(3))
+                .prop_map(Value::Binary)
+                .boxed()
+        }
         Ty::Array(elem, n) => proptest::collection::vec(value_of(elem), *n)
             .prop_map(Value::Array)
             .boxed(),

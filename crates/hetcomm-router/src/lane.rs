@@ -107,9 +107,10 @@ impl DirectLane {
             Outcome::Delivered { .. } => &self.delivered,
             // An acknowledgement's outcome is delivered or failed: never `Sent`, and never
             // unconfirmed, since the inbox answered on this thread.
-            Outcome::Sent { .. } | Outcome::Unconfirmed { .. } | Outcome::Failed { .. } => {
-                &self.failed
-            }
+            Outcome::Sent { .. }
+            | Outcome::Relayed { .. }
+            | Outcome::Unconfirmed { .. }
+            | Outcome::Failed { .. } => &self.failed,
         };
         // Release, with the acquiring loads in `add_to`: whoever sees the outcome counted
         // also sees the send's number, so `in_flight` never goes below zero.

@@ -7,8 +7,8 @@
 //! across restarts of either side). The initiation carries the initiator's timestamp, which
 //! must grow from one initiation to the next (its own clock only: peers' clocks never meet).
 
+use parking_lot::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
 
 use hetcomm_core::SystemId;
 use rand::{RngCore, SeedableRng};
@@ -81,10 +81,7 @@ impl Session {
 
     /// Records an authenticated frame's counter; false if it was seen before (a replay).
     pub fn accept_counter(&self, counter: u64) -> bool {
-        self.window
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .accept(counter)
+        self.window.lock().accept(counter)
     }
 }
 

@@ -3,8 +3,9 @@
 //! restarted, responses that come late or not at all; and held frames leaving as one data
 //! batch.
 
+use parking_lot::Mutex;
 use std::collections::{HashMap, HashSet, VecDeque};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::wire::{self, Header};
@@ -36,7 +37,7 @@ impl Net {
     fn run_until_kind(&self, kind: u8) {
         loop {
             let next = {
-                let mut q = self.queue.lock().unwrap();
+                let mut q = self.queue.lock();
                 match q.front() {
                     Some((_, f)) if f[3] != kind => q.pop_front(),
                     _ => None,
@@ -50,11 +51,11 @@ impl Net {
     }
 
     fn pop(&self) -> Option<(SystemId, Vec<u8>)> {
-        self.queue.lock().unwrap().pop_front()
+        self.queue.lock().pop_front()
     }
 
     fn deliver(&self, to: SystemId, frame: &[u8]) {
-        let sink = self.sinks.lock().unwrap().get(&to).cloned();
+        let sink = self.sinks.lock().get(&to).cloned();
         if let Some(sink) = sink {
             sink.on_frame(frame, Peer::Unknown);
         }
@@ -66,7 +67,7 @@ impl Net {
         let deadline = Instant::now() + Duration::from_secs(1);
         loop {
             {
-                let mut q = self.queue.lock().unwrap();
+                let mut q = self.queue.lock();
                 if let Some(i) = q.iter().position(|(_, f)| f[3] == kind) {
                     return q.remove(i);
                 }
@@ -95,11 +96,7 @@ impl Link for Pipe {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.net
-            .queue
-            .lock()
-            .unwrap()
-            .push_back((to, frame.to_vec()));
+        self.net.queue.lock().push_back((to, frame.to_vec()));
         Ok(())
     }
 }
@@ -110,11 +107,11 @@ struct Router(Mutex<Vec<Vec<u8>>>, Mutex<Vec<SystemId>>);
 
 impl FrameSink for Router {
     fn on_frame(&self, frame: &[u8], _from: Peer) {
-        self.0.lock().unwrap().push(frame.to_vec());
+        self.0.lock().push(frame.to_vec());
     }
     fn on_event(&self, event: LinkEvent) {
         if let LinkEvent::PeerUp(peer) = event {
-            self.1.lock().unwrap().push(peer);
+            self.1.lock().push(peer);
         }
     }
 }
@@ -141,10 +138,11 @@ impl Node {
         let layer = SecurityLayer::new("t", policy, Handshakes::OverTheLink);
         let ctx = LayerContext::new(local);
         let router = Arc::new(Router::default());
-        let sink = layer.wrap_sink(&ctx, router.clone());
-        net.sinks.lock().unwrap().insert(local, sink);
         let link = layer
-            .wrap_link(&ctx, Arc::new(Pipe { net: net.clone() }))
+            .wrap(&ctx, router.clone(), &mut |sink| {
+                net.sinks.lock().insert(local, sink);
+                Ok(Arc::new(Pipe { net: net.clone() }))
+            })
             .unwrap();
         Node {
             link,
@@ -186,7 +184,6 @@ impl Node {
         self.router
             .0
             .lock()
-            .unwrap()
             .iter()
             .map(|f| wire::decode(f).unwrap().header.seq)
             .collect()
@@ -293,14 +290,11 @@ fn held_frames_leave_as_one_data_batch() {
     for seq in 2..=6 {
         a.send_held(seq);
     }
-    assert!(net.queue.lock().unwrap().is_empty(), "held until the flush");
+    assert!(net.queue.lock().is_empty(), "held until the flush");
     a.link.flush().unwrap();
     let (to, batch) = net.take(4).expect("a data batch");
     assert_eq!(to, B);
-    assert!(
-        net.queue.lock().unwrap().is_empty(),
-        "one secured frame for five"
-    );
+    assert!(net.queue.lock().is_empty(), "one secured frame for five");
     net.deliver(B, &batch);
     assert_eq!(b.got(), [1, 2, 3, 4, 5, 6]);
     net.deliver(B, &batch);
@@ -343,23 +337,13 @@ fn a_frame_that_wants_an_acknowledgement_is_refused_until_the_session_is_up() {
         Err(LinkError::NoSession { .. })
     ));
     a.send(2); // unacknowledged: waits
-    let kinds: Vec<u8> = net
-        .queue
-        .lock()
-        .unwrap()
-        .iter()
-        .map(|(_, f)| f[3])
-        .collect();
+    let kinds: Vec<u8> = net.queue.lock().iter().map(|(_, f)| f[3]).collect();
     assert_eq!(kinds, [1], "only A's initiation left");
-    assert!(a.router.1.lock().unwrap().is_empty());
+    assert!(a.router.1.lock().is_empty());
     net.run_until_kind(2);
     let (_, response) = net.take(2).expect("B's response");
     net.deliver(A, &response);
-    assert_eq!(
-        *a.router.1.lock().unwrap(),
-        [B],
-        "A's router told the session is up"
-    );
+    assert_eq!(*a.router.1.lock(), [B], "A's router told the session is up");
     a.link.send(B, &acked).expect("sealed in the session now");
     net.run();
     assert_eq!(
@@ -368,7 +352,7 @@ fn a_frame_that_wants_an_acknowledgement_is_refused_until_the_session_is_up() {
         "the waiting frame, then the refused one offered again"
     );
     assert_eq!(
-        *b.router.1.lock().unwrap(),
+        *b.router.1.lock(),
         [A],
         "B's router told too, on confirmation"
     );

@@ -67,8 +67,9 @@ fn dropping_a_secured_link_stops_its_upkeep_thread_at_once() {
     };
     let layer = SecurityLayer::new("t", policy, Handshakes::OverTheLink);
     let ctx = LayerContext::new(a);
-    let _sink = layer.wrap_sink(&ctx, Arc::new(Ignore));
-    let link = layer.wrap_link(&ctx, Arc::new(Void)).unwrap();
+    let link = layer
+        .wrap(&ctx, Arc::new(Ignore), &mut |_sink| Ok(Arc::new(Void)))
+        .unwrap();
     assert_eq!(
         wait_for(1),
         1,

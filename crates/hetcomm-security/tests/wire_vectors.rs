@@ -253,9 +253,14 @@ fn receiver_layer(
     );
     let ctx = LayerContext::new(local).in_virtual_time();
     let up = CollectSink::new();
-    let sink = layer.wrap_sink(&ctx, up.clone());
-    let link = layer.wrap_link(&ctx, Arc::new(NullLink)).expect("wraps");
-    (up, link, sink)
+    let mut sink = None;
+    let link = layer
+        .wrap(&ctx, up.clone(), &mut |below| {
+            sink = Some(below);
+            Ok(Arc::new(NullLink))
+        })
+        .expect("wraps");
+    (up, link, sink.expect("opened"))
 }
 
 #[test]

@@ -1,12 +1,13 @@
 //! Opening systems: [`Comm`] is one system of a fleet; [`LocalFleet`] is every system of a
 //! fleet in this process.
 
+use parking_lot::RwLock;
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 
 use hetcomm_config::{DeliveryMode, Fleet};
-use hetcomm_core::{Message, SystemId, TypeRegistry, TypeRegistryError};
+use hetcomm_core::{Message, SystemId, Time, TypeRegistry, TypeRegistryError};
 
 use hetcomm_link::LinkStats;
 use hetcomm_router::{Route, Router, RouterConfig, RouterStats};
@@ -63,6 +64,11 @@ pub(crate) struct SystemHandle {
     pub fleet: Arc<Fleet>,
     /// Per link: (transport name, where it listens, if it does).
     pub endpoints: Vec<(String, Option<String>)>,
+    /// The number of the last switch [`Comm::path_changes`] returned.
+    pub path_cursor: std::sync::atomic::AtomicU64,
+    /// The fleet last applied by a reload (`fleet` until one is): what the next is compared
+    /// with ([`Comm::reload`]).
+    pub loaded: parking_lot::Mutex<Arc<Fleet>>,
 }
 
 impl Drop for SystemHandle {
@@ -110,6 +116,10 @@ pub struct PathSwitch {
     pub from: String,
     /// The transport they take from then on.
     pub now: String,
+    /// When the router decided it, on the system's (monotonic) clock.
+    pub at: Time,
+    /// This system's switches so far, this one included (1 for the first).
+    pub number: u64,
 }
 
 /// Why [`Comm::set_transports`] changed nothing.
@@ -148,6 +158,9 @@ pub struct PathStatus {
     pub active: bool,
     /// The smoothed round-trip time measured on it, once measured.
     pub srtt: Option<std::time::Duration>,
+    /// Its retransmission timeout now (before back-off): from its RTT once measured, the
+    /// router's initial timeout until then.
+    pub rto: std::time::Duration,
 }
 
 /// Everything counted about one system.
@@ -170,6 +183,9 @@ pub struct SystemStats {
     /// Messages dropped because they were for a module id this system's fleet file does not
     /// have: the sender's fleet file differs from this one.
     pub unknown_module: u64,
+    /// The last path switches (up to 16, oldest first; `router.path_changes` counts them
+    /// all): which destination's sends moved from which transport to which, and when.
+    pub path_switches: Vec<PathSwitch>,
 }
 
 impl Comm {
@@ -356,8 +372,10 @@ impl Comm {
         let comm = Comm {
             handle: Arc::new(SystemHandle {
                 core,
+                loaded: parking_lot::Mutex::new(fleet.clone()),
                 fleet,
                 endpoints,
+                path_cursor: Default::default(),
             }),
         };
         crate::harness::scenario::install_fleet_taps(&comm)?;
@@ -413,12 +431,7 @@ impl Comm {
     /// Registers a message type; fails if another type already has its id. Sending,
     /// receiving or subscribing to a type registers it too.
     pub fn register<M: Message>(&self) -> Result<(), TypeRegistryError> {
-        self.handle
-            .core
-            .registry
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .register::<M>()
+        self.handle.core.registry.write().register::<M>()
     }
 
     /// Registers `observer` to see every send, receipt and outcome of this system, whichever
@@ -483,22 +496,24 @@ impl Comm {
     }
 
     /// The changes of the transport each destination's sends take, oldest first, since the
-    /// last call (at most the last 1024; `SystemStats::router.path_changes` counts them
-    /// all). Only pairs whose table cell lists several transports change (docs/failover.md).
+    /// last call of this (on any clone of this handle; at most the last 1024;
+    /// `SystemStats::router.path_changes` counts them all). Only pairs whose table cell lists
+    /// several transports change (docs/failover.md). Other consumers are not affected: a
+    /// [`Comm::watch_paths`] or an [`Observer::on_path_change`](crate::Observer::on_path_change)
+    /// sees every switch too.
     pub fn path_changes(&self) -> Vec<PathSwitch> {
-        let core = &self.handle.core;
-        let mut router = core.router();
-        let changes: Vec<_> = std::iter::from_fn(|| router.poll_path_change()).collect();
-        drop(router);
-        let name = |link: usize| core.link_name(link).unwrap_or("?").to_string();
-        changes
-            .into_iter()
-            .map(|c| PathSwitch {
-                to: core.directory.system_name(c.to).to_string(),
-                from: name(c.from.link),
-                now: name(c.now.link),
-            })
-            .collect()
+        use std::sync::atomic::Ordering;
+        let after = self.handle.path_cursor.load(Ordering::Acquire);
+        let (list, newest) = self.handle.core.path_log.since(after);
+        // Two threads calling at once may both get a switch; neither misses one.
+        self.handle.path_cursor.fetch_max(newest, Ordering::AcqRel);
+        list
+    }
+
+    /// A queue of this system's path switches from now on, for a consumer of its own (each
+    /// watch sees every switch, whatever others read): an [`Observer`] underneath.
+    pub fn watch_paths(&self) -> crate::PathWatch {
+        crate::PathWatch::new(&self.handle.core)
     }
 
     /// The transports that may carry this system's traffic to `system`, in order of
@@ -517,6 +532,7 @@ impl Comm {
                 up: p.up,
                 active: p.active,
                 srtt: p.srtt,
+                rto: p.rto,
             })
             .collect()
     }
@@ -612,6 +628,7 @@ impl Comm {
             unknown_module: core
                 .unknown_module
                 .load(std::sync::atomic::Ordering::Relaxed),
+            path_switches: core.path_log.last(16),
         }
     }
 }

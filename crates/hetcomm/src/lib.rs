@@ -51,10 +51,13 @@ pub mod node;
 pub mod observe;
 mod reactor;
 mod received;
+mod reload;
 mod runtime;
 pub mod security;
 mod shape;
+pub mod signals;
 pub mod sim;
+mod switches;
 mod ticket;
 mod transports;
 
@@ -68,8 +71,10 @@ pub use module::{Module, RawSender, SendOptions, Sender};
 pub use node::{Node, Notification, Publisher, Subscription, TopicError};
 pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
+pub use reload::{describe_reload, Reload, ReloadError};
 pub use runtime::{Clock, SystemClock};
 pub use security::OpenOptions;
+pub use switches::PathWatch;
 pub use ticket::{BroadcastTicket, Ticket};
 pub use transports::{load_fleet, parse_fleet, registry};
 

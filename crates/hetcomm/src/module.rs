@@ -8,14 +8,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority, Time};
-use hetcomm_router::{Admitted, DirectLane, SendId, SendRequest};
+use hetcomm_router::{Admitted, DirectLane, Outcome, SendId, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::observe::RouteKind;
 use crate::received::{RawMessage, Received};
-use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore, Traffic};
+use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
 
 mod senders;
@@ -82,16 +82,9 @@ impl Module {
             return Ok(());
         }
         let registry = &self.sys.core.registry;
-        let known = registry
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(M::TYPE)
-            .map(|t| t.name == M::NAME);
+        let known = registry.read().get(M::TYPE).map(|t| t.name == M::NAME);
         if known != Some(true) {
-            registry
-                .write()
-                .unwrap_or_else(|e| e.into_inner())
-                .register::<M>()?;
+            registry.write().register::<M>()?;
         }
         CHECKED_TYPES.with(|c| c.borrow_mut().insert(key));
         Ok(())
@@ -228,16 +221,25 @@ impl Module {
         }
         let id = tx.id();
         let tx_link = tx.link;
-        let result = core.transmit_on(tx.link, tx.to, &tx.frame, tx.body, now, Traffic::Data);
+        let (result, receipt) =
+            match core.transmit_relayed_on(tx.link, tx.to, &tx.frame, tx.body, now) {
+                Ok(receipt) => (Ok(()), receipt),
+                Err(e) => (Err(e), None),
+            };
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {
                 drop(router);
                 let transport = core.link_name(tx_link);
-                Ok(Ticket {
-                    slot: core.end_send(id, outcome, transport, None, now),
-                    destination,
-                })
+                // A link with an intermediary that confirms frames (an MQTT broker at QoS 1)
+                // gave a receipt: the outcome says what the intermediary said.
+                let slot = match (receipt, &outcome) {
+                    (Some(receipt), Outcome::Sent { attempts }) => {
+                        core.end_relayed(id, receipt, *attempts, transport)
+                    }
+                    _ => core.end_send(id, outcome, transport, None, now),
+                };
+                Ok(Ticket { slot, destination })
             }
             None => {
                 // Refused and retried later: the timer must learn the retry's deadline.
@@ -588,7 +590,6 @@ impl Module {
             .core
             .registry
             .read()
-            .unwrap_or_else(|e| e.into_inner())
             .get(found)
             .map(|t| t.name.clone())
             .unwrap_or_else(|| "unregistered".into());

@@ -27,11 +27,12 @@
 //!
 //! Taps ([`crate::harness`]) on a topic path see each value before the subscribers do.
 
+use parking_lot::{Condvar, Mutex, RwLock};
 use std::any::{Any, TypeId};
 use std::collections::{HashMap, VecDeque};
 use std::marker::PhantomData;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, RwLock, Weak};
+use std::sync::{Arc, Weak};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{payload, Message, ModuleId, Time};
@@ -129,7 +130,7 @@ impl Topics {
             return Err(TopicError::EmptyName);
         }
         let t = {
-            let mut map = self.map.write().unwrap_or_else(|e| e.into_inner());
+            let mut map = self.map.write();
             map.entry(Arc::from(name))
                 .or_insert_with(|| {
                     Arc::new(TopicCore {
@@ -141,7 +142,7 @@ impl Topics {
                 })
                 .clone()
         };
-        let mut ty = t.ty.lock().unwrap_or_else(|e| e.into_inner());
+        let mut ty = t.ty.lock();
         match &*ty {
             Some(existing) if existing.id != TypeId::of::<T>() => {
                 return Err(TopicError::TypeMismatch {
@@ -164,23 +165,14 @@ impl Topics {
     }
 
     fn get(&self, name: &str) -> Option<Arc<TopicCore>> {
-        self.map
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(name)
-            .cloned()
+        self.map.read().get(name).cloned()
     }
 
     /// Decodes `bytes` as the topic's type (for injections from scenario files and tools).
     pub(crate) fn decode(&self, name: &str, bytes: &[u8]) -> Result<TopicValue, InjectError> {
         let decode = self
             .get(name)
-            .and_then(|t| {
-                t.ty.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .as_ref()
-                    .map(|ty| ty.decode)
-            })
+            .and_then(|t| t.ty.lock().as_ref().map(|ty| ty.decode))
             .ok_or_else(|| InjectError::Unsupported {
                 path: format!("topic {name}"),
                 reason: "no node advertised or subscribed to it yet, so its type is unknown".into(),
@@ -206,7 +198,7 @@ impl Topics {
             received: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
         });
-        let mut subs = t.subs.write().unwrap_or_else(|e| e.into_inner());
+        let mut subs = t.subs.write();
         let mut v: Vec<_> = subs.iter().cloned().collect();
         v.push(sub.clone());
         *subs = v.into();
@@ -215,19 +207,14 @@ impl Topics {
 
     /// Every topic: (name, type name, values published, subscribers).
     pub(crate) fn list(&self) -> Vec<TopicInfo> {
-        let map = self.map.read().unwrap_or_else(|e| e.into_inner());
+        let map = self.map.read();
         let mut v: Vec<_> = map
             .values()
             .map(|t| TopicInfo {
                 name: t.name.to_string(),
-                type_name: t
-                    .ty
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .as_ref()
-                    .map_or("", |ty| ty.name),
+                type_name: t.ty.lock().as_ref().map_or("", |ty| ty.name),
                 published: t.published.load(Ordering::Relaxed),
-                subscribers: t.subs.read().unwrap_or_else(|e| e.into_inner()).len(),
+                subscribers: t.subs.read().len(),
             })
             .collect();
         v.sort_by(|a, b| a.name.cmp(&b.name));
@@ -236,13 +223,13 @@ impl Topics {
 }
 
 fn unsubscribe(t: &TopicCore, id: u64) {
-    let mut subs = t.subs.write().unwrap_or_else(|e| e.into_inner());
+    let mut subs = t.subs.write();
     let v: Vec<_> = subs.iter().filter(|s| s.id != id).cloned().collect();
     *subs = v.into();
 }
 
 fn deliver_to(t: &TopicCore, value: TopicValue, now: Time) {
-    let subs = t.subs.read().unwrap_or_else(|e| e.into_inner()).clone();
+    let subs = t.subs.read().clone();
     for s in subs.iter() {
         s.received.fetch_add(1, Ordering::Relaxed);
         match &s.kind {
@@ -251,7 +238,7 @@ fn deliver_to(t: &TopicCore, value: TopicValue, now: Time) {
                 ready,
                 capacity,
             } => {
-                let mut q = values.lock().unwrap_or_else(|e| e.into_inner());
+                let mut q = values.lock();
                 if q.len() >= *capacity {
                     q.pop_front();
                     s.dropped.fetch_add(1, Ordering::Relaxed);
@@ -355,7 +342,7 @@ impl<T: Any + Send + Sync> Subscription<T> {
     /// Takes the oldest value waiting, if any (Table 4's *Callback*, polled).
     pub fn try_recv(&self) -> Option<Arc<T>> {
         let (q, _) = self.queue();
-        let v = q.lock().unwrap_or_else(|e| e.into_inner()).pop_front()?;
+        let v = q.lock().pop_front()?;
         Some(Self::cast(v))
     }
 
@@ -363,7 +350,7 @@ impl<T: Any + Send + Sync> Subscription<T> {
     pub fn recv_timeout(&self, timeout: Duration) -> Result<Arc<T>, TopicError> {
         let (q, ready) = self.queue();
         let deadline = Instant::now() + timeout;
-        let mut g = q.lock().unwrap_or_else(|e| e.into_inner());
+        let mut g = q.lock();
         loop {
             if let Some(v) = g.pop_front() {
                 return Ok(Self::cast(v));
@@ -375,17 +362,14 @@ impl<T: Any + Send + Sync> Subscription<T> {
                     timeout,
                 });
             }
-            g = ready
-                .wait_timeout(g, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            ready.wait_for(&mut g, left);
         }
     }
 
     /// Takes every value waiting and returns the newest (older ones are discarded).
     pub fn latest(&self) -> Option<Arc<T>> {
         let (q, _) = self.queue();
-        let mut g = q.lock().unwrap_or_else(|e| e.into_inner());
+        let mut g = q.lock();
         let last = g.pop_back();
         g.clear();
         last.map(Self::cast)
@@ -393,11 +377,7 @@ impl<T: Any + Send + Sync> Subscription<T> {
 
     /// Values waiting.
     pub fn pending(&self) -> usize {
-        self.queue()
-            .0
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .len()
+        self.queue().0.lock().len()
     }
 
     /// Values pushed out of a full queue so far.

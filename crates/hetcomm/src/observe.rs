@@ -14,6 +14,7 @@
 //! | [`Observer::on_retransmit`] | a later attempt of the same send leaves | once per extra attempt |
 //! | [`Observer::on_receipt`] | a message for one of this system's modules reached its inbox (or was refused) | once per message handed to an inbox (duplicates the router suppressed are not) |
 //! | [`Observer::on_outcome`] | a send of this system ended | exactly once per send |
+//! | [`Observer::on_path_change`] | a destination's sends moved to another transport (docs/failover.md) | exactly once per switch |
 //!
 //! A send and its outcome share a [`SendId`] (destination system, sequence number); the
 //! receiver's [`ReceiptRecord::header`] carries the same source system and sequence number.
@@ -23,8 +24,9 @@
 //! Sends refused before they were numbered (an `Err` from `send`, or a broadcast's
 //! [`Backpressure`](crate::FailReason::Backpressure) ticket) are not sends: no record.
 
+use parking_lot::RwLock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, RwLock, Weak};
+use std::sync::{Arc, Weak};
 
 pub use hetcomm_core::wire::AckStatus;
 use hetcomm_core::wire::{FrameKind, HEADER_LEN};
@@ -128,6 +130,31 @@ pub struct OutcomeRecord<'a> {
     pub time: Time,
 }
 
+/// A destination's sends moved from one transport to another ([`Observer::on_path_change`]):
+/// a failover, a return to the preferred transport, or a change made with
+/// [`Comm::set_transports`](crate::Comm::set_transports) or a reload.
+#[derive(Clone, Copy, Debug)]
+#[non_exhaustive]
+pub struct PathChangeRecord<'a> {
+    /// The destination system.
+    pub to: SystemId,
+    /// The destination system's name.
+    pub to_name: &'a str,
+    /// The transport (fleet-file name) its sends took until then.
+    pub from: &'a str,
+    /// The transport they take from then on.
+    pub now: &'a str,
+    /// The link indexes of `from` and `now` (the order of
+    /// [`Comm::endpoints`](crate::Comm::endpoints)).
+    pub links: (usize, usize),
+    /// When the router decided it, on the system's (monotonic) clock, as
+    /// [`SendRecord::time`].
+    pub time: Time,
+    /// This system's switches so far, this one included (1 for the first): a consumer that
+    /// sees a gap lost some.
+    pub number: u64,
+}
+
 /// Sees every send, receipt and outcome of the systems it is registered with
 /// ([`Comm::observe`](crate::Comm::observe)). Every method does nothing unless written.
 ///
@@ -151,6 +178,10 @@ pub trait Observer: Send + Sync {
     }
     /// A send of this system ended (exactly once per send).
     fn on_outcome(&self, record: &OutcomeRecord<'_>) {
+        let _ = record;
+    }
+    /// A destination's sends moved to another transport (exactly once per switch).
+    fn on_path_change(&self, record: &PathChangeRecord<'_>) {
         let _ = record;
     }
 }
@@ -183,12 +214,12 @@ impl Observers {
     }
 
     fn snapshot(&self) -> Entries {
-        self.list.read().unwrap_or_else(|e| e.into_inner()).clone()
+        self.list.read().clone()
     }
 
     fn add(&self, observer: Arc<dyn Observer>) -> u64 {
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
-        let mut list = self.list.write().unwrap_or_else(|e| e.into_inner());
+        let mut list = self.list.write();
         let mut v: Vec<_> = list.iter().cloned().collect();
         v.push((id, observer));
         *list = v.into();
@@ -197,7 +228,7 @@ impl Observers {
     }
 
     fn remove(&self, id: u64) {
-        let mut list = self.list.write().unwrap_or_else(|e| e.into_inner());
+        let mut list = self.list.write();
         let v: Vec<_> = list.iter().filter(|(i, _)| *i != id).cloned().collect();
         self.active.store(!v.is_empty(), Ordering::Release);
         *list = v.into();
@@ -291,6 +322,14 @@ impl Observers {
     pub(crate) fn receipt(&self, record: &ReceiptRecord<'_>) {
         for (_, o) in self.snapshot().iter() {
             o.on_receipt(record);
+        }
+    }
+
+    /// Reports a path switch.
+    #[cold]
+    pub(crate) fn path_change(&self, record: &PathChangeRecord<'_>) {
+        for (_, o) in self.snapshot().iter() {
+            o.on_path_change(record);
         }
     }
 

@@ -18,15 +18,17 @@
 //!
 //! A leader blocked in `poll` must also notice a message put into its inbox by another
 //! thread (an in-process sender, a TCP reader thread): the runtime then writes to the wake
-//! descriptor, an `eventfd`.
+//! descriptor, an `eventfd` ([`WakeFd`]).
 
+use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::cell::Cell;
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
+use std::sync::{Arc, Weak};
 use std::time::{Duration, Instant};
 
+use hetcomm_link::readiness::{readable_fd, timespec, WakeFd};
 use hetcomm_link::Link;
+use rustix::event::{poll, PollFd, PollFlags};
 
 /// How long after a module last led the background thread waits before it leads again: a
 /// module that loops over `recv` comes back within microseconds and should find the
@@ -71,7 +73,7 @@ struct State {
 /// The leader protocol of one system; see the module docs.
 pub(crate) struct Reactor {
     links: Vec<Arc<dyn Link>>,
-    wake: OwnedFd,
+    wake: WakeFd,
     state: Mutex<State>,
     /// The background thread waits here while modules lead.
     idle: Condvar,
@@ -88,13 +90,7 @@ impl Reactor {
         if links.is_empty() {
             return Ok(None);
         }
-        // SAFETY: eventfd has no memory-safety preconditions; the result is checked.
-        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
-        if fd < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: `fd` is a fresh descriptor that nothing else owns.
-        let wake = unsafe { OwnedFd::from_raw_fd(fd) };
+        let wake = WakeFd::new()?;
         Ok(Some(Arc::new(Reactor {
             links,
             wake,
@@ -110,33 +106,12 @@ impl Reactor {
     }
 
     fn lock(&self) -> MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+        self.state.lock()
     }
 
     /// Interrupts the leader's `poll`.
     pub(crate) fn kick(&self) {
-        let one: u64 = 1;
-        // SAFETY: writes 8 bytes from a valid u64 to our own eventfd. A full counter
-        // (EAGAIN) still leaves the descriptor readable, which is all a kick needs.
-        unsafe {
-            libc::write(
-                self.wake.as_raw_fd(),
-                (&one as *const u64).cast(),
-                std::mem::size_of::<u64>(),
-            );
-        }
-    }
-
-    fn drain_kicks(&self) {
-        let mut v: u64 = 0;
-        // SAFETY: reads 8 bytes into a valid u64 from our own non-blocking eventfd.
-        unsafe {
-            libc::read(
-                self.wake.as_raw_fd(),
-                (&mut v as *mut u64).cast(),
-                std::mem::size_of::<u64>(),
-            );
-        }
+        self.wake.wake();
     }
 
     /// A module's thread asks to lead. True: it leads until [`Reactor::end_module_turn`].
@@ -195,49 +170,75 @@ impl Reactor {
     pub(crate) fn turn(&self, timeout: Duration) {
         let timeout = timeout.min(MAX_TURN);
         // Round up so that a sub-millisecond timeout still waits rather than spins.
-        let ms = timeout.as_micros().div_ceil(1000).min(i32::MAX as u128) as i32;
+        let ms = timeout.as_micros().div_ceil(1000).min(i32::MAX as u128) as u64;
         self.turn_ms(ms, true);
     }
 
-    /// One look at the links without waiting: reads whatever is ready.
-    pub(crate) fn poll_now(&self) {
-        self.turn_ms(0, false);
+    /// A leader starts (`true`) or stops spinning over the links: each is told
+    /// ([`Readable::set_spinning`](hetcomm_link::Readable::set_spinning)), so that senders
+    /// that would wake it may skip that while it spins.
+    pub(crate) fn set_spinning(&self, spinning: bool) {
+        for l in &self.links {
+            if let Some(r) = l.readable() {
+                r.set_spinning(spinning);
+            }
+        }
+    }
+
+    /// One look of a spinning leader: reads the links that can say without a system call
+    /// that something waits ([`Readable::pending`](hetcomm_link::Readable::pending)), and
+    /// polls, without waiting, the descriptors of the others (none: no system call at all).
+    pub(crate) fn poll_spinning(&self) {
+        let mut undecided = false;
+        LEADING.with(|l| l.set(true));
+        for r in self.links.iter().filter_map(|l| l.readable()) {
+            match r.pending() {
+                Some(true) => {
+                    let _ = r.read_ready(BUDGET);
+                }
+                Some(false) => {}
+                None => undecided = true,
+            }
+        }
+        LEADING.with(|l| l.set(false));
+        if undecided {
+            self.turn_filtered(0, false, true);
+        }
     }
 
     /// Waits up to `ms` for a link to become readable and reads what is ready; with `upkeep`,
     /// a wait that ends without anything ready still lets every link do its upkeep.
-    fn turn_ms(&self, ms: i32, upkeep: bool) {
-        let mut fds: smallvec::SmallVec<[libc::pollfd; 4]> = smallvec::SmallVec::new();
-        fds.push(libc::pollfd {
-            fd: self.wake.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        });
-        for l in &self.links {
-            if let Some(r) = l.readable() {
-                fds.push(libc::pollfd {
-                    fd: r.fd(),
-                    events: libc::POLLIN,
-                    revents: 0,
-                });
+    fn turn_ms(&self, ms: u64, upkeep: bool) {
+        self.turn_filtered(ms, upkeep, false);
+    }
+
+    /// [`turn_ms`](Reactor::turn_ms); with `undecided_only`, over only the links that cannot
+    /// tell without their descriptor whether something waits (`pending` is None).
+    fn turn_filtered(&self, ms: u64, upkeep: bool, undecided_only: bool) {
+        let mut fds: smallvec::SmallVec<[PollFd<'_>; 4]> = smallvec::SmallVec::new();
+        let mut polled: smallvec::SmallVec<[&dyn hetcomm_link::Readable; 4]> =
+            smallvec::SmallVec::new();
+        fds.push(PollFd::new(&self.wake, PollFlags::IN));
+        for r in self.links.iter().filter_map(|l| l.readable()) {
+            if undecided_only && r.pending().is_some() {
+                continue;
             }
+            fds.push(PollFd::from_borrowed_fd(readable_fd(r), PollFlags::IN));
+            polled.push(r);
         }
-        // SAFETY: `fds` is a valid, exclusively borrowed array of `fds.len()` pollfds.
-        let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, ms) };
-        if n < 0 {
+        let timeout = timespec(Duration::from_millis(ms));
+        let Ok(n) = poll(&mut fds, Some(&timeout)) else {
             // EINTR and the like: the caller simply takes another turn.
             return;
-        }
-        if fds[0].revents != 0 {
-            self.drain_kicks();
+        };
+        if !fds[0].revents().is_empty() {
+            self.wake.drain();
         }
         LEADING.with(|l| l.set(true));
-        for (l, fd) in self.links.iter().zip(&fds[1..]) {
+        for (r, fd) in polled.iter().zip(&fds[1..]) {
             // On a timeout every link still gets its upkeep.
-            if (n == 0 && upkeep) || fd.revents != 0 {
-                if let Some(r) = l.readable() {
-                    let _ = r.read_ready(BUDGET);
-                }
+            if (n == 0 && upkeep) || !fd.revents().is_empty() {
+                let _ = r.read_ready(BUDGET);
             }
         }
         LEADING.with(|l| l.set(false));
@@ -270,11 +271,8 @@ impl Reactor {
                 } else {
                     LINGER.saturating_sub(quiet).max(Duration::from_micros(200))
                 };
-                drop(
-                    self.idle
-                        .wait_timeout(s, wait)
-                        .unwrap_or_else(|e| e.into_inner()),
-                );
+                self.idle.wait_for(&mut s, wait);
+                drop(s);
                 continue;
             }
             s.leader = Some(Leader::Background);

@@ -11,11 +11,12 @@
 //!   the process has them, so nobody outside can join;
 //! - derived from the seed in a simulation, so secured simulations repeat exactly.
 
+use parking_lot::Mutex;
 use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
-use hetcomm_config::{Fleet, SecurityMode, TransportKind, TransportSettings};
+use hetcomm_config::{Fleet, SecurityMode};
 use hetcomm_core::SystemId;
 use hetcomm_link::layer::LinkLayer;
 use hetcomm_security::{Handshakes, Policy, SecurityLayer, SimSessions};
@@ -62,51 +63,46 @@ impl KeySource {
 }
 
 /// Whether transport `index` gets a security layer where it is opened: every kind that
-/// leaves the process, unless it says `security = "none"`. An emulated transport over
-/// another is secured by that one's layer (below the emulation) in real time; a simulation
-/// opens the emulated transport itself, so there it takes the secured-ness of what it wraps.
+/// leaves the process (the registry says which: [`Registry::leaves_process`]), unless it says
+/// `security = "none"`; a kind whose factory declares its frames never leave the host
+/// ([`Registry::host_local`], e.g. `shm`) only with `[security] in_process = true`, like
+/// `inproc`. A transport layered over another (`emulated` with `over`, [`Registry::over`]) is
+/// secured by that one's layer (below its own) in real time; a simulation opens the layered
+/// transport itself, so there it takes the secured-ness of what it wraps.
+///
+/// [`Registry::leaves_process`]: hetcomm_link::registry::Registry::leaves_process
+/// [`Registry::host_local`]: hetcomm_link::registry::Registry::host_local
+/// [`Registry::over`]: hetcomm_link::registry::Registry::over
 pub(crate) fn secured(fleet: &Fleet, index: usize, simulated: bool) -> bool {
     let t = &fleet.transports[index];
     if t.security == SecurityMode::None {
         return false;
     }
+    let registry = crate::transports::registry();
     if fleet.secure_in_process {
-        // Every link, in-process ones included; an emulated transport over another is
-        // secured by that one's layer in real time (see below).
-        return !matches!(&t.settings, TransportSettings::Emulated(s) if s.over.is_some() && !simulated);
+        // Every link, in-process ones included; a transport layered over another is secured
+        // by that one's layer in real time (see below).
+        return simulated || !registry.is_layered(t);
     }
-    match (&t.kind, &t.settings) {
-        (TransportKind::Inproc, _) => false,
-        (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
-            simulated
-                && settings.over.as_ref().is_some_and(|over| {
-                    fleet
-                        .transports
-                        .iter()
-                        .position(|o| &o.name == over)
-                        .is_some_and(|i| secured(fleet, i, true))
-                })
-        }
-        (TransportKind::Emulated, _) => false,
-        _ => t.security == SecurityMode::Keys,
+    if registry.is_layered(t) {
+        return simulated
+            && registry
+                .over(fleet, t)
+                .is_some_and(|i| secured(fleet, i, true));
     }
+    registry.leaves_process(t.kind) && !registry.host_local(t.kind)
 }
 
 /// The transports whose traffic a link of transport `index` carries: itself, and every
-/// emulated transport over it (in real time the emulated frames travel on its link).
+/// transport layered over it (in real time their frames travel on its link).
 fn carried(fleet: &Fleet, index: usize) -> HashSet<usize> {
+    let registry = crate::transports::registry();
     let mut set = HashSet::from([index]);
     loop {
         let before = set.len();
         for (i, t) in fleet.transports.iter().enumerate() {
-            if let TransportSettings::Emulated(s) = &t.settings {
-                let over = s
-                    .over
-                    .as_ref()
-                    .and_then(|o| fleet.transports.iter().position(|x| &x.name == o));
-                if over.is_some_and(|o| set.contains(&o)) {
-                    set.insert(i);
-                }
+            if registry.over(fleet, t).is_some_and(|o| set.contains(&o)) {
+                set.insert(i);
             }
         }
         if set.len() == before {
@@ -178,7 +174,7 @@ pub(crate) fn layer(
             (keypair, peers, Handshakes::InMemory(sim.clone()))
         }
         KeySource::Ephemeral(store) => {
-            let mut store = store.lock().unwrap_or_else(|e| e.into_inner());
+            let mut store = store.lock();
             // Every system of the fleet gets its key now: they all run in this process.
             for s in &fleet.systems {
                 if let std::collections::hash_map::Entry::Vacant(slot) = store.entry(s.id) {

@@ -27,12 +27,13 @@
 //! run on the simulator's thread at the moment of delivery. Blocking calls (`recv`,
 //! `Ticket::wait`) would wait for time that never passes: don't use them under simulation.
 
+use parking_lot::{Mutex, RwLock};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::Arc;
 
-use hetcomm_config::{Fleet, TransportKind, TransportSettings};
+use hetcomm_config::Fleet;
 use hetcomm_core::{SystemId, Time};
 use hetcomm_link::emulation::{DropReason, LinkModel, PositionTable, Verdict};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, Peer};
@@ -138,6 +139,36 @@ impl Ord for Scheduled {
     }
 }
 
+/// Wake-ups the systems asked for, by system index (position in [`SimFleet::systems`]):
+/// their routers' deadlines and the times their harnesses hold items until. The systems push
+/// them as they arm them ([`SimWake`]), so the simulator finds the next one without asking
+/// every system at every event (which made a step cost the fleet's size). An entry may be
+/// stale (the deadline was cancelled or moved): the simulator checks it against the system
+/// before it acts on it.
+#[derive(Default)]
+struct SimWakeups {
+    timers: Mutex<BinaryHeap<Reverse<(Time, usize)>>>,
+    held: Mutex<BinaryHeap<Reverse<(Time, usize)>>>,
+}
+
+/// One system's way to its simulator's wake-ups ([`crate::runtime::SystemCore::attach_sim`]).
+pub(crate) struct SimWake {
+    wakeups: Arc<SimWakeups>,
+    index: usize,
+}
+
+impl SimWake {
+    /// The system's router has a deadline at `at`.
+    pub(crate) fn timer(&self, at: Time) {
+        self.wakeups.timers.lock().push(Reverse((at, self.index)));
+    }
+
+    /// The system's harness holds something until `at`.
+    pub(crate) fn held(&self, at: Time) {
+        self.wakeups.held.lock().push(Reverse((at, self.index)));
+    }
+}
+
 /// The simulated network: pending frame arrivals, the link models and the endpoints.
 pub(crate) struct SimNet {
     seed: u64,
@@ -203,20 +234,15 @@ impl SimNet {
         let id = self.next_event.fetch_add(1, Ordering::Relaxed);
         self.queue
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .push(Reverse(Scheduled { at, id, event: ev }));
     }
 
     fn next_frame_time(&self) -> Option<Time> {
-        self.queue
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .peek()
-            .map(|Reverse(s)| s.at)
+        self.queue.lock().peek().map(|Reverse(s)| s.at)
     }
 
     fn pop_due(&self, now: Time) -> Option<FrameEvent> {
-        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        let mut q = self.queue.lock();
         match q.peek() {
             Some(Reverse(s)) if s.at <= now => q.pop().map(|Reverse(s)| s.event),
             _ => None,
@@ -230,10 +256,7 @@ impl SimNet {
         local: SystemId,
         sink: Arc<dyn FrameSink>,
     ) -> Arc<dyn Link> {
-        self.sinks
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert((transport, local), sink);
+        self.sinks.write().insert((transport, local), sink);
         let max = hetcomm_core::wire::HEADER_LEN + hetcomm_core::wire::MAX_PAYLOAD;
         let lossy = self.models[transport].is_some();
         Arc::new(SimLink {
@@ -254,7 +277,6 @@ impl SimNet {
         *self
             .stats
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .dropped
             .entry(format!("{reason:?}"))
             .or_default() += 1;
@@ -275,28 +297,15 @@ impl Link for SimLink {
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         let net = &self.net;
-        if !net
-            .sinks
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .contains_key(&(self.transport, to))
-        {
+        if !net.sinks.read().contains_key(&(self.transport, to)) {
             return Err(LinkError::Unreachable {
                 peer: to,
                 reason: "no such system in the simulation".into(),
             });
         }
-        net.stats
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .frames_sent += 1;
+        net.stats.lock().frames_sent += 1;
         let now = net.clock.now();
-        if let Some(recorded) = net
-            .recorded
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .as_mut()
-        {
+        if let Some(recorded) = net.recorded.lock().as_mut() {
             recorded.push(SimFrame {
                 transport: net.transports[self.transport].clone(),
                 from: self.local,
@@ -317,13 +326,9 @@ impl Link for SimLink {
             return Ok(());
         };
         let distance = net.positions.distance(self.local, to);
-        let verdict = model.lock().unwrap_or_else(|e| e.into_inner()).on_frame(
-            now,
-            self.local,
-            to,
-            frame.len(),
-            distance,
-        );
+        let verdict = model
+            .lock()
+            .on_frame(now, self.local, to, frame.len(), distance);
         match verdict {
             Verdict::Drop(reason) => {
                 net.count_drop(reason);
@@ -346,10 +351,7 @@ impl Link for SimLink {
                     let mut bytes = frame.to_vec();
                     if let Some(flip) = d.corrupt {
                         flip.apply(&mut bytes);
-                        net.stats
-                            .lock()
-                            .unwrap_or_else(|e| e.into_inner())
-                            .corrupted += 1;
+                        net.stats.lock().corrupted += 1;
                     }
                     net.push(
                         d.at,
@@ -371,6 +373,7 @@ pub struct SimFleet {
     fleet: LocalFleet,
     net: Arc<SimNet>,
     cores: Vec<Arc<SystemCore>>,
+    wakeups: Arc<SimWakeups>,
 }
 
 impl SimFleet {
@@ -379,16 +382,14 @@ impl SimFleet {
         let clock = Arc::new(VirtualClock::default());
         let mut models = Vec::with_capacity(fleet.transports.len());
         for t in &fleet.transports {
-            let model = match (&t.kind, &t.settings) {
-                (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
-                    let mut settings = settings.clone();
-                    settings.seed ^= options.seed.wrapping_mul(0x2545_F491_4F6C_DD1D);
-                    let model = LinkModel::from_settings(&settings)
-                        .map_err(|e| OpenError::transport(&t.name, "(simulation)", e))?;
-                    Some(Mutex::new(model))
-                }
-                _ => None,
+            // The model the kind's layer applies in real time, applied here in virtual time.
+            let model = match crate::transports::registry().factory(t.kind) {
+                Some(factory) => factory
+                    .sim_model(t, options.seed.wrapping_mul(0x2545_F491_4F6C_DD1D))
+                    .map_err(|e| OpenError::transport(&t.name, "(simulation)", e))?,
+                None => None,
             };
+            let model = model.map(Mutex::new);
             models.push(model);
         }
         let positions = PositionTable::new();
@@ -417,12 +418,27 @@ impl SimFleet {
             shapes: Default::default(),
         };
         let fleet = LocalFleet::open_in(Arc::new(fleet), env)?;
-        let cores = fleet
+        let cores: Vec<Arc<SystemCore>> = fleet
             .systems()
             .iter()
             .map(|c| c.handle.core.clone())
             .collect();
-        Ok(SimFleet { fleet, net, cores })
+        let wakeups = Arc::new(SimWakeups::default());
+        for (index, core) in cores.iter().enumerate() {
+            core.attach_sim(SimWake {
+                wakeups: wakeups.clone(),
+                index,
+            });
+            if let Some(at) = core.harness.next_due() {
+                core.sim_held(at);
+            }
+        }
+        Ok(SimFleet {
+            fleet,
+            net,
+            cores,
+            wakeups,
+        })
     }
 
     /// The current virtual time.
@@ -447,12 +463,7 @@ impl SimFleet {
 
     /// What the simulated network did.
     pub fn net_stats(&self) -> SimNetStats {
-        let s = self
-            .net
-            .stats
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
+        let s = self.net.stats.lock().clone();
         s
     }
 
@@ -461,7 +472,7 @@ impl SimFleet {
     /// loses, delays or corrupts it. Off by default. For tests that replay or tamper with
     /// real traffic ([`SimFleet::inject_frame`]); recording changes nothing in the run.
     pub fn record_frames(&self, on: bool) {
-        let mut recorded = self.net.recorded.lock().unwrap_or_else(|e| e.into_inner());
+        let mut recorded = self.net.recorded.lock();
         match (on, recorded.is_some()) {
             (true, false) => *recorded = Some(Vec::new()),
             (false, _) => *recorded = None,
@@ -474,7 +485,6 @@ impl SimFleet {
         self.net
             .recorded
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .as_mut()
             .map(std::mem::take)
             .unwrap_or_default()
@@ -499,13 +509,7 @@ impl SimFleet {
             transport: transport.to_string(),
         };
         let id = self.system(to).map_err(|_| not_on())?.id();
-        if !self
-            .net
-            .sinks
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .contains_key(&(index, id))
-        {
+        if !self.net.sinks.read().contains_key(&(index, id)) {
             return Err(not_on());
         }
         self.net.push(
@@ -536,12 +540,18 @@ impl SimFleet {
     }
 
     fn run(&self, until: Time) {
+        // Deadlines are pushed as they are armed, by the routers' pumps; this catches one
+        // armed some other way since the last run (the program's calls between two runs).
+        // Nothing is pushed twice (`Timer::arm`).
+        for core in &self.cores {
+            core.arm_timer(core.next_deadline());
+        }
         loop {
             let next_frame = self.net.next_frame_time();
-            let next_timer = self.cores.iter().filter_map(|c| c.next_deadline()).min();
+            let next_timer = self.next_timer();
             // What the harness holds back (taps' delays, faults' latency, scheduled
             // injections) is due like a timer.
-            let next_held = self.cores.iter().filter_map(|c| c.harness.next_due()).min();
+            let next_held = self.next_held();
             let next_timer = match (next_timer, next_held) {
                 (Some(a), Some(b)) => Some(a.min(b)),
                 (a, b) => a.or(b),
@@ -560,33 +570,88 @@ impl SimFleet {
             self.net.clock.set(now);
             if next_frame.is_some_and(|t| t <= now) {
                 while let Some(ev) = self.net.pop_due(now) {
-                    let sink = self
-                        .net
-                        .sinks
-                        .read()
-                        .unwrap_or_else(|e| e.into_inner())
-                        .get(&(ev.transport, ev.to))
-                        .cloned();
+                    let sink = self.net.sinks.read().get(&(ev.transport, ev.to)).cloned();
                     if let Some(sink) = sink {
-                        self.net
-                            .stats
-                            .lock()
-                            .unwrap_or_else(|e| e.into_inner())
-                            .frames_delivered += 1;
+                        self.net.stats.lock().frames_delivered += 1;
                         sink.on_frame(&ev.frame, Peer::Unknown);
                     }
                 }
             } else if next_held.is_some_and(|t| t <= now) {
-                for core in &self.cores {
+                for i in take_due(&self.wakeups.held, now) {
+                    let core = &self.cores[i];
                     core.harness.fire_due(core, now);
+                    if let Some(at) = core.harness.next_due() {
+                        core.sim_held(at);
+                    }
                 }
             } else {
-                for core in &self.cores {
+                for i in take_due(&self.wakeups.timers, now) {
+                    let core = &self.cores[i];
+                    core.sim_timer_taken(now);
                     if core.next_deadline().is_some_and(|d| d <= now) {
+                        // Re-arms through the router's pump.
                         core.fire_timers();
                     }
+                    core.arm_timer(core.next_deadline());
                 }
             }
         }
     }
+
+    /// The earliest router deadline of any system. Entries that are no longer a system's
+    /// deadline (acknowledged sends, moved deadlines) are dropped on the way, and the
+    /// system's real deadline armed in their place.
+    fn next_timer(&self) -> Option<Time> {
+        loop {
+            let (at, i) = {
+                let mut q = self.wakeups.timers.lock();
+                let &Reverse((at, i)) = q.peek()?;
+                let actual = self.cores[i].next_deadline();
+                if actual == Some(at) {
+                    return Some(at);
+                }
+                q.pop();
+                (at, i)
+            };
+            // Outside the queue's lock: arming pushes into it.
+            let core = &self.cores[i];
+            core.sim_timer_taken(at);
+            core.arm_timer(core.next_deadline());
+        }
+    }
+
+    /// The earliest time any system's harness holds something until (stale entries dropped,
+    /// as in [`SimFleet::next_timer`]).
+    fn next_held(&self) -> Option<Time> {
+        let mut q = self.wakeups.held.lock();
+        loop {
+            let &Reverse((at, i)) = q.peek()?;
+            let actual = self.cores[i].harness.next_due();
+            if actual == Some(at) {
+                return Some(at);
+            }
+            q.pop();
+            if let Some(t) = actual {
+                q.push(Reverse((t, i)));
+            }
+        }
+    }
+}
+
+/// The systems with a wake-up due by `now` in `queue`, each once, in index order (the order
+/// the simulator has always fired them in); their entries are taken out.
+fn take_due(queue: &Mutex<BinaryHeap<Reverse<(Time, usize)>>>, now: Time) -> Vec<usize> {
+    let mut due = Vec::new();
+    let mut q = queue.lock();
+    while let Some(&Reverse((at, i))) = q.peek() {
+        if at > now {
+            break;
+        }
+        q.pop();
+        due.push(i);
+    }
+    drop(q);
+    due.sort_unstable();
+    due.dedup();
+    due
 }

@@ -1,6 +1,7 @@
 //! Tickets: how a caller learns a send's outcome without being blocked by the send.
 
-use std::sync::{Arc, Condvar, Mutex};
+use parking_lot::{Condvar, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_router::Outcome;
@@ -32,8 +33,8 @@ impl OutcomeSlot {
         }
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, SlotState> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, SlotState> {
+        self.state.lock()
     }
 
     /// Waits for the outcome until `deadline` (None: forever).
@@ -44,20 +45,17 @@ impl OutcomeSlot {
                 return Some(outcome.clone());
             }
             s.waiters += 1;
-            s = match deadline {
-                None => self.ready.wait(s).unwrap_or_else(|e| e.into_inner()),
+            match deadline {
+                None => self.ready.wait(&mut s),
                 Some(d) => {
                     let left = d.saturating_duration_since(Instant::now());
                     if left.is_zero() {
                         s.waiters -= 1;
                         return None;
                     }
-                    self.ready
-                        .wait_timeout(s, left)
-                        .unwrap_or_else(|e| e.into_inner())
-                        .0
+                    self.ready.wait_for(&mut s, left);
                 }
-            };
+            }
             s.waiters -= 1;
         }
     }

@@ -4,20 +4,25 @@
 //!
 //! Which kinds this program has is [`registry`]: one registration line per link crate, behind
 //! that crate's feature (without it, the crate's kinds stay known by name and opening one says
-//! which feature to rebuild with). `inproc` and `emulated` are the runtime's own (direct
-//! hand-over, the layer stack) and are opened here; every other kind is opened by its crate's
-//! `TransportFactory`, and a kind without one says it is not available in this build.
+//! which feature to rebuild with). Every kind, `inproc` and `emulated` included, is opened by
+//! its crate's `TransportFactory`, which also says whether it leaves the process, which
+//! transport it is layered over, which layer it adds and whether its systems may hand
+//! messages over directly; a kind without a factory says it is not available in this build.
+//! Nothing here names a kind.
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::sync::{Arc, OnceLock, Weak};
 
-use hetcomm_config::{ConfigErrors, Fleet, TransportDef, TransportKind, TransportSettings};
+use hetcomm_config::{ConfigErrors, Fleet, TransportDef, TransportKind};
 use hetcomm_core::SystemId;
-use hetcomm_link::emulation::EmulationLayer;
+use hetcomm_link::emulation::PositionTable;
 use hetcomm_link::inproc::InprocHub;
-use hetcomm_link::layer::{LayerContext, LayerStack};
-use hetcomm_link::registry::{OpenFailure, OpenRequest, Registry};
+use hetcomm_link::layer::{LayerContext, LayerError, LayerStack};
+#[cfg(doc)]
+use hetcomm_link::registry::TransportFactory;
+use hetcomm_link::registry::{OpenFailure, OpenHost, OpenRequest, Opened, Registry};
 use hetcomm_link::{FrameSink, Link};
 
 use crate::comm::OpenEnv;
@@ -28,12 +33,16 @@ use crate::runtime::SystemCore;
 /// with it off, the kinds stay known by name (a fleet file may name them, keys kept raw) and
 /// opening one says to rebuild with the feature.
 macro_rules! link_crate {
-    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+] $(, bridges [$($bridge:literal),+])?) => {
+    ($registry:ident, $feature:literal, $krate:ident, [$($kind:literal),+] $(, bridges [$($bridge:literal),+])? $(, hint $hint:literal)?) => {
         #[cfg(feature = $feature)]
         $krate::register_transports(&mut $registry);
         #[cfg(not(feature = $feature))]
         {
-            $($registry.not_built(TransportKind::new($kind), $feature);)+
+            let hint: Option<&'static str> = None $(.or(Some($hint)))?;
+            $(match hint {
+                Some(hint) => $registry.not_built_with_hint(TransportKind::new($kind), $feature, hint),
+                None => $registry.not_built(TransportKind::new($kind), $feature),
+            })+
             $($($registry.not_built_bridge(TransportKind::new($bridge), $feature);)+)?
         }
     };
@@ -45,24 +54,39 @@ pub fn registry() -> &'static Registry {
     static REGISTRY: OnceLock<Registry> = OnceLock::new();
     REGISTRY.get_or_init(|| {
         let mut registry = Registry::new();
+        hetcomm_link::register_transports(&mut registry);
         hetcomm_link_ip::register_transports(&mut registry);
-        link_crate!(registry, "bluetooth", hetcomm_link_bluetooth, ["bluetooth"]);
+        link_crate!(
+            registry,
+            "bluetooth",
+            hetcomm_link_bluetooth,
+            ["bluetooth"],
+            hint "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio"
+        );
         link_crate!(
             registry,
             "ros1",
             hetcomm_link_ros1,
             ["ros1"],
-            bridges["ros1_bridge"]
+            bridges["ros1_bridge"],
+            hint "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one"
         );
         link_crate!(
             registry,
             "ros2",
             hetcomm_link_ros2,
             ["ros2"],
-            bridges["ros2_bridge"]
+            bridges["ros2_bridge", "dds"]
         );
         link_crate!(registry, "zenoh", hetcomm_link_zenoh, ["zenoh"]);
-        link_crate!(registry, "mqtt", hetcomm_link_mqtt, ["mqtt"]);
+        link_crate!(
+            registry,
+            "mqtt",
+            hetcomm_link_mqtt,
+            ["mqtt"],
+            bridges["mqtt_bridge"]
+        );
+        link_crate!(registry, "shm", hetcomm_link_shm, ["shm"]);
         registry
     })
 }
@@ -100,19 +124,13 @@ impl Hubs {
     pub(crate) fn for_fleet_key(key: &str) -> Hubs {
         static GLOBAL: OnceLock<Mutex<HashMap<String, Hubs>>> = OnceLock::new();
         let global = GLOBAL.get_or_init(Default::default);
-        global
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .entry(key.to_string())
-            .or_default()
-            .clone()
+        global.lock().entry(key.to_string()).or_default().clone()
     }
 
     /// Records that `core` is on in-process transport `name`.
     pub(crate) fn register(&self, name: &str, core: &Arc<SystemCore>) {
         self.systems
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .insert((name.to_string(), core.id), Arc::downgrade(core));
     }
 
@@ -120,16 +138,14 @@ impl Hubs {
     pub(crate) fn system(&self, name: &str, id: SystemId) -> Option<Arc<SystemCore>> {
         self.systems
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .get(&(name.to_string(), id))
             .and_then(Weak::upgrade)
             .filter(|c| !c.is_closed())
     }
 
-    fn hub(&self, name: &str) -> InprocHub {
+    pub(crate) fn hub(&self, name: &str) -> InprocHub {
         self.hubs
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .entry(name.to_string())
             .or_default()
             .clone()
@@ -164,52 +180,103 @@ pub(crate) fn open_link(
     let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
     // A kind this program cannot open says so first (how to build it in matters more than
     // the keys it would need).
-    if env.sim.is_none()
-        && !matches!(t.kind, TransportKind::Inproc | TransportKind::Emulated)
-        && registry().factory(t.kind).is_none()
-    {
-        return Err(unavailable(t, t.kind));
-    }
-    let stack = layers(fleet, index, local, env).map_err(&failed)?;
+    let factory = match registry().factory(t.kind) {
+        Some(factory) => Some(factory),
+        None if env.sim.is_some() => None,
+        None => return Err(unavailable(t, t.kind)),
+    };
+    let host = Host { fleet, local, env };
+    let stack = layers(fleet, index, local, env, &host).map_err(&failed)?;
     let mut ctx = LayerContext::new(local);
     if env.sim.is_some() {
         ctx = ctx.in_virtual_time();
     }
-    let sink = stack.wrap_sink(&ctx, sink);
-    let mut opened = match &env.sim {
-        Some(net) => OpenedLink {
-            link: net.open(index, local, sink),
-            local_address: None,
-            direct: None,
-        },
-        None => open_bare(fleet, index, local, sink, env)?,
-    };
-    if !stack.is_empty() {
-        opened.link = stack
-            .wrap_link(&ctx, opened.link)
-            .map_err(|e| failed(e.into()))?;
+    let mut local_address = None;
+    let mut direct = None;
+    let link = stack.open(&ctx, sink, &mut |sink| match (&env.sim, factory) {
+        (Some(net), _) => Ok(net.open(index, local, sink)),
+        (None, Some(factory)) => {
+            let request = OpenRequest {
+                fleet,
+                transport: t,
+                local,
+                sink,
+                shapes: &env.shapes,
+                host: &host,
+            };
+            let opened = factory.open(request).map_err(LayerError::Open)?;
+            local_address = opened.local_address;
+            direct = factory.hands_over().then(|| t.name.clone());
+            Ok(opened.link)
+        }
+        (None, None) => unreachable!("a kind without a factory was refused above"),
+    });
+    let link = link.map_err(|e| match e {
+        // An error of the runtime's own (opening the transport under this one) is returned
+        // as it is.
+        LayerError::Open(e) => e.downcast::<OpenError>().map_or_else(&failed, |e| *e),
+        e => failed(e.into()),
+    })?;
+    let opened = OpenedLink {
+        link,
+        local_address,
         // A message must pass the layers: no hand-over that skips the link.
-        opened.direct = None;
-    }
+        direct: direct.filter(|_| stack.is_empty()),
+    };
     Ok(opened)
 }
 
-/// The layers over system `local`'s link of transport `index`, from the router down:
-/// emulation for an `emulated` transport, then security for a transport that leaves the
-/// process (nearest the link, so that what the emulation delays or drops is a sealed frame's
-/// worth of traffic, and nothing reaches the link unsealed).
+/// What the runtime offers the factories of the kinds it opens ([`OpenHost`]): its hubs,
+/// opening the transport another is layered over, emulation's positions and epoch.
+struct Host<'a> {
+    fleet: &'a Fleet,
+    local: SystemId,
+    env: &'a OpenEnv,
+}
+
+impl OpenHost for Host<'_> {
+    fn hub(&self, name: &str) -> InprocHub {
+        self.env.hubs.hub(name)
+    }
+
+    fn open_transport(
+        &self,
+        index: usize,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<Opened, OpenFailure> {
+        let opened = open_link(self.fleet, index, self.local, sink, self.env)?;
+        Ok(Opened {
+            link: opened.link,
+            local_address: opened.local_address,
+        })
+    }
+
+    fn positions(&self) -> PositionTable {
+        self.env.positions.clone()
+    }
+
+    fn epoch(&self) -> std::time::Instant {
+        self.env.epoch
+    }
+}
+
+/// The layers over system `local`'s link of transport `index`, from the router down: the
+/// kind's own layer (`emulated`'s model, [`TransportFactory::layer`]), then security for a
+/// transport that leaves the process (nearest the link, so that what the emulation delays or
+/// drops is a sealed frame's worth of traffic, and nothing reaches the link unsealed).
 fn layers(
     fleet: &Fleet,
     index: usize,
     local: SystemId,
     env: &OpenEnv,
+    host: &Host<'_>,
 ) -> Result<LayerStack, OpenFailure> {
     let t = &fleet.transports[index];
     let mut stack = LayerStack::new();
-    if let (TransportKind::Emulated, TransportSettings::Emulated(settings)) = (&t.kind, &t.settings)
-    {
-        let layer = EmulationLayer::from_settings(settings, env.positions.clone(), env.epoch)?;
-        stack.push(Arc::new(layer));
+    if let Some(factory) = registry().factory(t.kind) {
+        if let Some(layer) = factory.layer(t, host)? {
+            stack.push(layer);
+        }
     }
     if crate::security::secured(fleet, index, env.sim.is_some()) {
         stack.push(crate::security::layer(fleet, index, local, &env.keys)?);
@@ -217,92 +284,12 @@ fn layers(
     Ok(stack)
 }
 
-/// Opens transport number `index`'s own link, without its layers.
-fn open_bare(
-    fleet: &Fleet,
-    index: usize,
-    local: SystemId,
-    sink: Arc<dyn FrameSink>,
-    env: &OpenEnv,
-) -> Result<OpenedLink, OpenError> {
-    let t = &fleet.transports[index];
-    let hubs = &env.hubs;
-    let system = fleet
-        .system(local)
-        .map(|s| s.name.clone())
-        .unwrap_or_else(|| local.to_string());
-    let failed = |e: OpenFailure| OpenError::transport(&t.name, &system, e);
-    match (&t.kind, &t.settings) {
-        (TransportKind::Inproc, _) => Ok(OpenedLink {
-            link: Arc::new(hubs.hub(&t.name).open(local, sink)),
-            local_address: None,
-            direct: Some(t.name.clone()),
-        }),
-        (TransportKind::Emulated, TransportSettings::Emulated(settings)) => {
-            // The link under the emulation layer: another transport of the fleet (with its own
-            // layers), or a private in-process hub.
-            match &settings.over {
-                Some(over) => {
-                    let over_index = fleet
-                        .transports
-                        .iter()
-                        .position(|o| &o.name == over)
-                        .ok_or_else(|| {
-                            failed(format!("wrapped transport `{over}` not found").into())
-                        })?;
-                    let inner = open_link(fleet, over_index, local, sink, env)?;
-                    let under = inner.local_address.as_deref().unwrap_or("in-process");
-                    Ok(OpenedLink {
-                        link: inner.link,
-                        local_address: Some(format!("emulated over {under}")),
-                        direct: None,
-                    })
-                }
-                None => Ok(OpenedLink {
-                    link: Arc::new(hubs.hub(&format!("emulated:{}", t.name)).open(local, sink)),
-                    local_address: None,
-                    direct: None,
-                }),
-            }
-        }
-        (&kind, _) => {
-            let request = OpenRequest {
-                fleet,
-                transport: t,
-                local,
-                sink,
-                shapes: &env.shapes,
-            };
-            match registry().open(request) {
-                Some(opened) => {
-                    let opened = opened.map_err(failed)?;
-                    Ok(OpenedLink {
-                        link: opened.link,
-                        local_address: opened.local_address,
-                        direct: None,
-                    })
-                }
-                None => Err(unavailable(t, kind)),
-            }
-        }
-    }
-}
-
 /// The error for a kind without a factory in this build: what to rebuild with, or what to use
-/// instead.
+/// instead (the registry's [`Registry::unavailable_hint`]).
 fn unavailable(t: &TransportDef, kind: TransportKind) -> OpenError {
-    let hint = match kind {
-        TransportKind::Ros1 => "rebuild with `--features ros1` to use a ROS master, or map the letter to an `inproc` or `emulated` transport in the fleet file's [letters] table to run without one".to_string(),
-        TransportKind::Bluetooth => "rebuild with `--features bluetooth` to use RFCOMM on a machine with Bluetooth, or use an `emulated` transport with profile = \"bluetooth-classic\" to simulate the radio".to_string(),
-        _ => match registry().feature_for(kind) {
-            Some(feature) => format!("rebuild with `--features {feature}`"),
-            None => "choose `inproc` (one process) or another available kind in the fleet file"
-                .to_string(),
-        },
-    };
     OpenError::KindUnavailable {
         transport: t.name.clone(),
         kind,
-        hint,
+        hint: registry().unavailable_hint(kind),
     }
 }

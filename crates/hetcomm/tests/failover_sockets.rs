@@ -23,9 +23,17 @@ fn free_tcp_port() -> u16 {
 }
 
 fn fleet(outage_start_ms: u64, outage_ms: u64) -> LocalFleet {
+    let text = fleet_text(outage_start_ms, outage_ms);
+    let fleet =
+        hetcomm::config::parse_str(&text, "failover.toml", None).unwrap_or_else(|e| panic!("{e}"));
+    LocalFleet::open(fleet).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The fleet file: A and B over `wifi` (UDP with an outage) first, `wired` (TCP) second.
+fn fleet_text(outage_start_ms: u64, outage_ms: u64) -> String {
     let (ua, ub) = (free_udp_port(), free_udp_port());
     let (ta, tb) = (free_tcp_port(), free_tcp_port());
-    let text = format!(
+    format!(
         r#"
 [systems]
 A = 0
@@ -48,10 +56,7 @@ columns = ["A", "B"]
 A = ["X", "wifi,wired"]
 B = ["wifi,wired", "X"]
 "#
-    );
-    let fleet =
-        hetcomm::config::parse_str(&text, "failover.toml", None).unwrap_or_else(|e| panic!("{e}"));
-    LocalFleet::open(fleet).unwrap_or_else(|e| panic!("{e}"))
+    )
 }
 
 #[test]
@@ -175,7 +180,25 @@ fn a_pair_s_transports_change_while_running() {
         t.transport().expect("names its transport").to_string()
     };
     assert_eq!(send(0), "wifi");
+    // Several consumers, each sees every switch: two watches (one read while switches
+    // happen), an observer, the stats, and `path_changes`.
+    let watch = a_sys.watch_paths();
+    let early = a_sys.watch_paths();
+    #[derive(Default)]
+    struct Seen(std::sync::Mutex<Vec<(String, String, String, u64)>>);
+    impl hetcomm::Observer for Seen {
+        fn on_path_change(&self, r: &hetcomm::observe::PathChangeRecord<'_>) {
+            let row = (r.to_name.into(), r.from.into(), r.now.into(), r.number);
+            self.0.lock().unwrap().push(row);
+        }
+    }
+    let seen = std::sync::Arc::new(Seen::default());
+    let _observing = a_sys.observe(seen.clone());
     a_sys.set_transports("B", &["wired"]).unwrap();
+    let first = early
+        .next_timeout(Duration::from_secs(1))
+        .expect("a switch");
+    assert_eq!((first.from.as_str(), first.now.as_str()), ("wifi", "wired"));
     assert_eq!(send(1), "wired");
     assert_eq!(a_sys.paths("B").len(), 1);
     a_sys.set_transports("B", &["wifi", "wired"]).unwrap();
@@ -188,6 +211,33 @@ fn a_pair_s_transports_change_while_running() {
     let expected =
         [("wifi", "wired"), ("wired", "wifi")].map(|(x, y)| (x.to_string(), y.to_string()));
     assert_eq!(moves, expected);
+    let watched: Vec<(String, String)> =
+        watch.drain().into_iter().map(|c| (c.from, c.now)).collect();
+    assert_eq!(watched, expected);
+    let rest: Vec<(String, String)> = early.drain().into_iter().map(|c| (c.from, c.now)).collect();
+    assert_eq!(rest, expected[1..]);
+    let observed = seen.0.lock().unwrap().clone();
+    assert_eq!(
+        observed,
+        [("B", "wifi", "wired", 1), ("B", "wired", "wifi", 2)].map(|(a, b, c, n)| (
+            a.to_string(),
+            b.to_string(),
+            c.to_string(),
+            n
+        ))
+    );
+    let in_stats: Vec<(String, String)> = a_sys
+        .stats()
+        .path_switches
+        .into_iter()
+        .map(|c| (c.from, c.now))
+        .collect();
+    assert_eq!(in_stats, expected);
+    assert!(
+        a_sys.path_changes().is_empty(),
+        "path_changes returns each switch once"
+    );
+    assert_eq!(watch.dropped(), 0);
     // Refused, and nothing changes: a transport outside the pair's cell, an unknown system.
     let err = a_sys.set_transports("B", &["udp"]).unwrap_err();
     assert!(
@@ -202,4 +252,117 @@ fn a_pair_s_transports_change_while_running() {
         let m = b.recv_raw_timeout(Some(Duration::from_secs(2))).unwrap();
         assert_eq!(m.payload, i.to_le_bytes());
     }
+}
+
+#[test]
+fn a_reloaded_fleet_applies_live_or_changes_nothing_and_says_why() {
+    let text = fleet_text(600_000, 1_000);
+    let parse = |t: &str| {
+        hetcomm::config::parse_str(t, "reloaded.toml", None).unwrap_or_else(|e| panic!("{e}"))
+    };
+    let f = LocalFleet::open(parse(&text)).unwrap();
+    // The same file with both cells changed to `cell`.
+    let with_cell = |cell: &str| text.replace("\"wifi,wired\"", &format!("\"{cell}\""));
+    let a_sys = f.system("A").unwrap();
+    let a = a_sys.module("M").unwrap();
+    let _b = f.system("B").unwrap().module("M").unwrap();
+    let send = |i: u32| {
+        let t = a
+            .send_raw("B", "M", TY, &i.to_le_bytes(), Default::default())
+            .unwrap();
+        let o = t.wait_timeout(Duration::from_secs(5)).expect("an outcome");
+        assert!(matches!(o, Outcome::Delivered { .. }), "send {i}: {o}");
+        t.transport().expect("names its transport").to_string()
+    };
+    assert_eq!(send(0), "wifi");
+    // Valid: the pair's cell reordered; applied live, the difference listed.
+    let r = a_sys
+        .reload_fleet(&parse(&with_cell("wired,wifi")))
+        .unwrap();
+    assert_eq!(
+        r.changes,
+        [
+            "pair A -> B: wifi,wired -> wired,wifi",
+            "pair B -> A: wifi,wired -> wired,wifi"
+        ]
+    );
+    assert_eq!(
+        r.applied,
+        [(
+            "B".to_string(),
+            vec!["wired".to_string(), "wifi".to_string()]
+        )]
+    );
+    assert_eq!(send(1), "wired");
+    assert_eq!(a_sys.paths("B")[0].transport, "wired");
+    // Invalid: a new system A would send to. Refused, nothing changes.
+    let with_c = with_cell("wifi,wired")
+        .replace("B = 1\n", "B = 1\nC = 2\n")
+        .replace(
+            "columns = [\"A\", \"B\"]",
+            "columns = [\"A\", \"B\", \"C\"]",
+        )
+        .replace(
+            "A = [\"X\", \"wifi,wired\"]",
+            "A = [\"X\", \"wifi,wired\", \"wired\"]",
+        )
+        .replace(
+            "B = [\"wifi,wired\", \"X\"]",
+            "B = [\"wifi,wired\", \"X\", \"X\"]\nC = [\"wired\", \"X\", \"X\"]",
+        )
+        .replace("B = \"127.0.0.1:", "C = \"127.0.0.1:1\", B = \"127.0.0.1:");
+    let err = a_sys.reload_fleet(&parse(&with_c)).unwrap_err();
+    let hetcomm::ReloadError::Refused { reasons, changes } = &err else {
+        panic!("{err}")
+    };
+    assert!(
+        reasons.iter().any(|r| r.contains("system `C` is new")),
+        "{reasons:?}"
+    );
+    assert!(
+        changes
+            .iter()
+            .any(|c| c.contains("system `C` (id 2) added")),
+        "{changes:?}"
+    );
+    assert!(
+        err.to_string().starts_with("refused, nothing changed"),
+        "{err}"
+    );
+    assert_eq!(send(2), "wired", "the refused reload moved nothing");
+    // A changed id; a transport not open for the pair: refused, each with its reason.
+    let err = a_sys
+        .reload_fleet(&parse(&text.replace("B = 1\n", "B = 7\n")))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("system `B` changes id (1 -> 7)"), "{err}");
+    let err = a_sys
+        .reload_fleet(&parse(&with_cell("wifi,udp")))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("`udp` not open for this pair here (it opened wifi,wired)"),
+        "{err}"
+    );
+    assert_eq!(send(3), "wired");
+    // A file that does not load: its errors, nothing changed.
+    let broken = std::env::temp_dir().join(format!("hetcomm-reload-{}.toml", std::process::id()));
+    std::fs::write(&broken, with_cell("wifi,nope")).unwrap();
+    let err = a_sys.reload(&broken).unwrap_err();
+    assert!(matches!(err, hetcomm::ReloadError::Config(_)), "{err}");
+    assert!(err.to_string().contains("nope"), "{err}");
+    std::fs::remove_file(&broken).ok();
+    assert_eq!(send(4), "wired");
+    // Compared with the last one applied: the first order again.
+    let r = a_sys.reload_fleet(&parse(&text)).unwrap();
+    assert_eq!(r.applied.len(), 1);
+    assert_eq!(send(5), "wifi");
+    let switches: Vec<(String, String)> = a_sys
+        .path_changes()
+        .into_iter()
+        .map(|c| (c.from, c.now))
+        .collect();
+    let expected =
+        [("wifi", "wired"), ("wired", "wifi")].map(|(x, y)| (x.to_string(), y.to_string()));
+    assert_eq!(switches, expected);
 }

@@ -225,7 +225,7 @@ fn judge_counting(p: &Params) -> (Vec<String>, Tally) {
         };
         tally[match outcome {
             Outcome::Delivered { .. } => 0,
-            Outcome::Sent { .. } => 1,
+            Outcome::Sent { .. } | Outcome::Relayed { .. } => 1,
             Outcome::Unconfirmed { .. } => 2,
             Outcome::Failed { .. } => 3,
         }] += 1;

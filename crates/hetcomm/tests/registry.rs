@@ -18,10 +18,12 @@ fn the_registry_holds_the_kinds_built_in() {
         cfg!(feature = "ros1"),
         "{kinds:?}"
     );
-    // The runtime opens these itself; the fleet file's raw kinds have no factory.
+    // `inproc` and `emulated` register like every other kind (hetcomm-link's factories).
+    for kind in [TransportKind::Inproc, TransportKind::Emulated] {
+        assert!(kinds.contains(&kind), "{kind} has no factory: {kinds:?}");
+    }
+    // The fleet file's raw kinds have no factory.
     for kind in [
-        TransportKind::Inproc,
-        TransportKind::Emulated,
         TransportKind::Zenoh,
         TransportKind::Mqtt,
         TransportKind::Dds,
@@ -57,7 +59,8 @@ Bravo = ["lan", "X"]
         .unwrap_err()
         .to_string();
     // The same error; the registry's help also names the kinds of link crates (compiled in
-    // or not: `ros1_bridge`, `ros2` and `ros2_bridge` are known by name either way).
+    // or not: `ros1_bridge`, `ros2`, `ros2_bridge`, `mqtt_bridge` and `shm` are known by
+    // name either way).
     for e in [&with_registry, &alone] {
         assert!(
             e.starts_with("f.toml:6:8: unknown transport kind `udpp`"),
@@ -67,7 +70,9 @@ Bravo = ["lan", "X"]
     assert_eq!(
         with_registry
             .replace(", ros1_bridge", "")
-            .replace(", ros2, ros2_bridge", ""),
+            .replace(", ros2, ros2_bridge", "")
+            .replace(", mqtt_bridge", "")
+            .replace(", shm", ""),
         alone,
         "{with_registry}"
     );

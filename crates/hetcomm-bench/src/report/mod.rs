@@ -185,6 +185,20 @@ impl Row {
         r
     }
 
+    /// A simulated star fleet's run: [`Row::sim`] with the fleet's opening (time, memory per
+    /// system) and the messages delivered per wall second.
+    pub fn sim_fleet(name: &str, s: &crate::scale::SimResult) -> Row {
+        let mut r = Row::sim(name, s.systems, s.simulated_s, s.wall_s, s.delivered);
+        r.metrics.push(("open_s", s.open_s));
+        r.metrics
+            .push(("rss_kib_per_system", s.rss_per_system / 1024.0));
+        if s.wall_s > 0.0 {
+            r.metrics
+                .push(("delivered_per_wall_s", s.delivered as f64 / s.wall_s));
+        }
+        r
+    }
+
     /// A named figure.
     pub fn get(&self, name: &str) -> Option<f64> {
         self.metrics
@@ -402,12 +416,23 @@ fn tables(rows: &[Row]) -> Vec<Table> {
             v.push(num(r.get("simulated_s"), 1));
             v.push(num(r.get("wall_s"), 3));
             v.push(num(r.get("sim_s_per_wall_s"), 1));
+            v.push(si(r.get("delivered_per_wall_s")));
+            v.push(num(r.get("open_s"), 3));
+            v.push(num(r.get("rss_kib_per_system"), 1));
             v
         })
         .collect();
     out.push((
         "Virtual-time simulator speed".into(),
-        vec!["run", "simulated s", "wall s", "simulated s / wall s"],
+        vec![
+            "run",
+            "simulated s",
+            "wall s",
+            "simulated s / wall s",
+            "messages delivered / wall s",
+            "open s",
+            "RSS KiB / system",
+        ],
         sim,
     ));
     let cfg: Vec<Vec<String>> = rows
@@ -435,6 +460,7 @@ fn tables(rows: &[Row]) -> Vec<Table> {
     out.extend(crate::secured::tables(rows));
     out.extend(crate::record_bench::tables(rows));
     out.extend(crate::harness_cost::tables(rows));
+    out.extend(crate::failover::tables(rows));
     out.retain(|(_, _, r)| !r.is_empty());
     out
 }

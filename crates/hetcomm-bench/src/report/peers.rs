@@ -1,5 +1,6 @@
 //! Targets against the peers measured in the same run (issue 22: the `zenoh` transport beside
-//! raw Zenoh; issue 23: the `ros2` transport beside Cyclone DDS's `ddsperf`) and the
+//! raw Zenoh; issue 23: the `ros2` transport beside Cyclone DDS's `ddsperf`; issue 37: the
+//! `mqtt` transport beside a raw rumqttc client) and the
 //! recorder's (issue 24: recording the demo, replaying a 1 GB recording).
 
 use super::targets::verdict;
@@ -81,6 +82,41 @@ pub fn zenoh(rows: &[Row]) -> Vec<Target> {
             WHY_ZENOH,
         ),
     ]
+}
+
+const WHY_MQTT: &str = "both paths go through the same mosquitto (started by the benchmark on a free port, `set_tcp_nodelay true`) at QoS 0, both ends in the benchmark's process: ours is systems A and B on an unsecured, unacknowledged `mqtt` transport, B's module echoing from a thread waiting in `recv` (the link's event-loop thread puts the frame in the inbox and wakes it, and the echo's publish wakes the event loop again: two thread wake-ups per round trip more than the raw rumqttc client, which echoes from its event loop), or from an inline callback on the link's event-loop thread (`Module::set_inline_callbacks`: the raw client's structure). The verdict is on the faster of the two; both are shown. Each publish carries our 48-byte header too. Figures on this shared 2-vCPU VM are noisy: compare rows of one run.";
+
+/// Issue 37's speed target: the `mqtt` transport's 64 B round trip against a raw rumqttc
+/// client through the same broker in the same run, judged on the faster of our two echo
+/// structures (a module waiting in `recv`; an inline callback on the link's thread, the raw
+/// client's structure), both shown.
+pub fn mqtt(rows: &[Row]) -> Vec<Target> {
+    const NAME: &str = "mqtt transport 64 B round trip p50: ≤ 1.2× a raw rumqttc client";
+    let raw = g(rows, "rtt", "raw-mqtt-rumqttc", 64, "p50_us");
+    let ours = [
+        ("echo waiting in recv", "hetcomm-mqtt-unack"),
+        ("echo from an inline callback", "hetcomm-mqtt-unack-inline"),
+    ];
+    let measured: Vec<(&str, f64)> = ours
+        .iter()
+        .filter_map(|(name, path)| Some((*name, g(rows, "rtt", path, 64, "p50_us")?)))
+        .collect();
+    let best = measured.iter().map(|m| m.1).min_by(f64::total_cmp);
+    match (best, raw) {
+        (Some(fastest), Some(r)) if r > 0.0 => {
+            let each: Vec<String> = measured
+                .iter()
+                .map(|(name, p)| format!("{name} {p:.1} µs = {:.2}×", p / r))
+                .collect();
+            vec![Target {
+                name: NAME,
+                status: verdict(fastest / r <= 1.2),
+                figure: format!("raw rumqttc {r:.1} µs; {}", each.join("; ")),
+                why: WHY_MQTT,
+            }]
+        }
+        _ => vec![unmeasured(NAME, WHY_MQTT)],
+    }
 }
 
 /// Issue 23's speed target: the `ros2` transport's 64 B round trip within 1.5× of ddsperf's,
@@ -194,6 +230,32 @@ mod tests {
         assert_eq!(t[0].status, "met", "{}", t[0].figure); // 1.09× ≤ 1.2×
         assert_eq!(t[1].status, "missed", "{}", t[1].figure); // 80% < 90%
         assert_eq!(t[2].status, "not measured");
+    }
+
+    #[test]
+    fn the_mqtt_target_compares_with_the_raw_client_of_the_same_run() {
+        let rows = [
+            row("rtt", "hetcomm-mqtt-unack", 64, &[("p50_us", 130.0)]),
+            row("rtt", "raw-mqtt-rumqttc", 64, &[("p50_us", 100.0)]),
+        ];
+        let t = mqtt(&rows);
+        assert_eq!(t[0].status, "missed", "{}", t[0].figure); // 1.3× > 1.2×
+        assert_eq!(mqtt(&rows[..1])[0].status, "not measured");
+        let mut with_inline = rows.to_vec();
+        with_inline.push(row(
+            "rtt",
+            "hetcomm-mqtt-unack-inline",
+            64,
+            &[("p50_us", 110.0)],
+        ));
+        let t = mqtt(&with_inline);
+        assert_eq!(t[0].status, "met", "{}", t[0].figure); // 1.1× on the faster row
+        assert!(
+            t[0].figure
+                .contains("echo waiting in recv 130.0 µs = 1.30×"),
+            "{}",
+            t[0].figure
+        );
     }
 
     #[test]

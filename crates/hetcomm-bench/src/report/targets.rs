@@ -219,12 +219,16 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
         ),
     });
     // 7. in-process ≥ 10 M msg/s and p50 hand-off < 1 µs.
+    // The faster of the two senders counts: one by one, or in batches (`send_many`).
     let rate = rows
         .iter()
-        .find(|r| {
-            r.section == "inproc" && r.path == "hetcomm-inproc-unack" && r.note == "saturated"
+        .filter(|r| {
+            r.section == "inproc"
+                && r.path == "hetcomm-inproc-unack"
+                && r.note.starts_with("saturated")
         })
-        .and_then(|r| r.get("msgs_per_s"));
+        .filter_map(|r| r.get("msgs_per_s"))
+        .reduce(f64::max);
     let paced_row = |note: &str| {
         rows.iter()
             .find(|r| r.section == "inproc" && r.path == "hetcomm-inproc-unack" && r.note == note)
@@ -327,6 +331,49 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
             "a run failed",
         ),
     });
+    // 9b. The 1000-system star delivers 5 M messages per wall second; the 10 000-system one
+    // opens and runs.
+    let star = |n: f64| {
+        rows.iter().find(|r| {
+            r.section == "sim" && r.path.ends_with("star fleet") && r.get("systems") == Some(n)
+        })
+    };
+    t.push(match star(1000.0) {
+        Some(r) if r.error.is_none() => {
+            let rate = r.get("delivered_per_wall_s").unwrap_or(0.0);
+            Target {
+                name:
+                    "1000-system star fleet in the simulator: >= 5 M messages delivered per wall s",
+                status: verdict(rate >= 5e6),
+                figure: format!("{:.2} M per wall s", rate / 1e6),
+                why: WHY_SIM,
+            }
+        }
+        _ => none(
+            "1000-system star fleet in the simulator: >= 5 M messages delivered per wall s",
+            "not run (quick run) or failed",
+        ),
+    });
+    t.push(match star(10_000.0) {
+        Some(r) => Target {
+            name: "10 000-system star fleet in the simulator: opens and runs",
+            status: verdict(r.error.is_none() && r.get("sim_s_per_wall_s").unwrap_or(0.0) > 0.0),
+            figure: match &r.error {
+                Some(e) => e.clone(),
+                None => format!(
+                    "open {:.2} s, {:.2} simulated s per wall s, {:.1} KiB per system",
+                    r.get("open_s").unwrap_or(0.0),
+                    r.get("sim_s_per_wall_s").unwrap_or(0.0),
+                    r.get("rss_kib_per_system").unwrap_or(0.0)
+                ),
+            },
+            why: WHY_SIM,
+        },
+        None => none(
+            "10 000-system star fleet in the simulator: opens and runs",
+            "not run (quick run)",
+        ),
+    });
     // 10. A 3 000-system fleet file validates in < 3 s and < 500 MB.
     const CONFIG_NAME: &str =
         "config validation at 3 000 systems (9 M cells): < 3 s, peak RSS < 500 MB";
@@ -388,9 +435,13 @@ pub fn targets(rows: &[Row], ctx: &Context) -> Vec<Target> {
     t.extend(crate::secured::targets(rows));
     t.extend(crate::harness_cost::targets(rows));
     t.extend(crate::latency_exp::targets(rows));
+    t.extend(crate::failover::targets(rows));
     t.extend(super::peers::record(rows));
     t.extend(super::peers::zenoh(rows));
+    t.extend(super::peers::mqtt(rows));
     t.extend(super::peers::ros2(rows));
+    #[cfg(feature = "shm")]
+    t.extend(crate::shm::targets(rows));
     t
 }
 

@@ -424,6 +424,48 @@ static void test_udp_outcomes(void) {
     hetcomm_comm_close(cpp);
 }
 
+static void test_path_switches(void) {
+    /* A pair with two transports: moved while running, each move seen by two watches;
+       refusals change nothing and say why. */
+    static const char *fleet =
+        "[systems]\nAlpha = 0\nCharlie = 1\n[modules]\nPlan = 0\n"
+        "[transports.wired]\nkind = \"inproc\"\n[transports.spare]\nkind = \"inproc\"\n"
+        "[table]\ncolumns = [\"Alpha\", \"Charlie\"]\n"
+        "Alpha = [\"X\", \"wired,spare\"]\nCharlie = [\"wired,spare\", \"X\"]\n";
+    hetcomm_comm *alpha, *charlie;
+    OK(hetcomm_comm_open_str(fleet, "paths.toml", "Alpha", &alpha));
+    OK(hetcomm_comm_open_str(fleet, "paths.toml", "Charlie", &charlie));
+    hetcomm_path_watch *w1, *w2;
+    OK(hetcomm_comm_watch_paths(alpha, &w1));
+    OK(hetcomm_comm_watch_paths(alpha, &w2));
+    hetcomm_path_switch s;
+    EXPECT_ERR(hetcomm_path_watch_poll(w1, 0, &s), HETCOMM_STATUS_EMPTY, "no path switch");
+    const char *spare[] = {"spare"};
+    const char *both[] = {"wired", "spare"};
+    OK(hetcomm_comm_set_transports(alpha, "Charlie", spare, 1));
+    OK(hetcomm_path_watch_poll(w1, 1000, &s));
+    CHECK(strcmp(s.to, "Charlie") == 0 && strcmp(s.from, "wired") == 0 && strcmp(s.now, "spare") == 0);
+    CHECK(s.number == 1);
+    OK(hetcomm_comm_set_transports(alpha, "Charlie", both, 2));
+    OK(hetcomm_path_watch_poll(w1, 1000, &s));
+    CHECK(strcmp(s.from, "spare") == 0 && strcmp(s.now, "wired") == 0 && s.number == 2);
+    OK(hetcomm_path_watch_poll(w2, 0, &s));
+    CHECK(s.number == 1);
+    OK(hetcomm_path_watch_poll(w2, 0, &s));
+    CHECK(s.number == 2);
+    const char *bad[] = {"radio"};
+    EXPECT_ERR(hetcomm_comm_set_transports(alpha, "Charlie", bad, 1), HETCOMM_STATUS_INVALID_ARGUMENT,
+               "lists `wired,spare`");
+    EXPECT_ERR(hetcomm_comm_set_transports(alpha, "Zulu", both, 2), HETCOMM_STATUS_UNKNOWN_SYSTEM, "Zulu");
+    EXPECT_ERR(hetcomm_comm_set_transports(alpha, "Charlie", NULL, 0), HETCOMM_STATUS_INVALID_ARGUMENT,
+               "at least one");
+    EXPECT_ERR(hetcomm_path_watch_poll(w1, 10, &s), HETCOMM_STATUS_EMPTY, "no path switch");
+    hetcomm_path_watch_free(w1);
+    hetcomm_path_watch_free(w2);
+    hetcomm_comm_close(alpha);
+    hetcomm_comm_close(charlie);
+}
+
 static char *read_file(const char *path) {
     FILE *f = fopen(path, "rb");
     CHECK(f != NULL);
@@ -448,6 +490,7 @@ int main(int argc, char **argv) {
     test_callbacks();
     test_inline_callbacks();
     test_udp_outcomes();
+    test_path_switches();
     free(template_text);
     printf("test_c_api: %d checks passed\n", checks);
     return 0;

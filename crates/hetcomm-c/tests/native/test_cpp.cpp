@@ -80,6 +80,10 @@ int main() {
     const std::uint8_t not_a_map[] = {0xa3, 'a', 'b', 'c'};
     CHECK(error_code([&] { hetcomm::decode<Wheels>(hetcomm::Bytes(not_a_map, sizeof not_a_map)); }) == HETCOMM_STATUS_CODEC);
 
+    // A refused send (a bridge that cannot convert it) says so, not "other".
+    hetcomm_outcome refused{HETCOMM_OUTCOME_KIND_FAILED, 1, 0, HETCOMM_FAIL_REASON_REFUSED};
+    CHECK(hetcomm::Outcome::from(refused).to_string() == "failed: refused by the link after 1 attempt(s)");
+
     // Errors are exceptions carrying the C status.
     CHECK(error_code([] { hetcomm::Comm::from_toml("[systems]\nA = -1\n", "A", "bad.toml"); }) == HETCOMM_STATUS_CONFIG);
     CHECK(error_code([] { hetcomm::Comm::from_toml(kFleet, "Zulu"); }) == HETCOMM_STATUS_UNKNOWN_SYSTEM);
@@ -185,6 +189,24 @@ int main() {
     for (int i = 0; i < 1000 && typed_calls < 7; i++) std::this_thread::sleep_for(1ms);
     CHECK(typed_calls == 7);
     kept.reset();
+    // A pair with two transports moved while running; the watch sees both moves.
+    {
+        const char* two = "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n"
+                          "[transports.wired]\nkind = \"inproc\"\n[transports.spare]\nkind = \"inproc\"\n"
+                          "[table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"wired,spare\"]\nB = [\"wired,spare\", \"X\"]\n";
+        auto a = hetcomm::Comm::from_toml(two, "A", "paths.toml");
+        auto b = hetcomm::Comm::from_toml(two, "B", "paths.toml");
+        auto watch = a.watch_paths();
+        CHECK(!watch.poll());
+        a.set_transports("B", {"spare"});
+        a.set_transports("B", {"wired", "spare"});
+        auto first = watch.poll(1000);
+        CHECK(first && first->to == "B" && first->from == "wired" && first->now == "spare" && first->number == 1);
+        auto second = watch.poll(1000);
+        CHECK(second && second->from == "spare" && second->now == "wired" && second->number == 2);
+        CHECK(error_code([&] { a.set_transports("B", {"radio"}); }) == HETCOMM_STATUS_INVALID_ARGUMENT);
+        CHECK(!watch.poll(10));
+    }
     std::cout << "test_cpp: " << checks << " checks passed" << std::endl;
     return 0;
 }

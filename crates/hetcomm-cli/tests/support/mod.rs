@@ -8,12 +8,13 @@
 
 #![allow(dead_code)] // each test binary uses a different subset
 
+use parking_lot::Mutex;
 use std::io::{BufRead, BufReader, Read};
 use std::net::{TcpListener, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// The `hetcomm` binary under test.
@@ -58,11 +59,11 @@ pub fn free_udp_port() -> u16 {
 
 /// Calls `pick` until it returns a port this process has not handed out yet.
 fn not_given_before(pick: impl Fn() -> u16) -> u16 {
-    static GIVEN: std::sync::Mutex<std::collections::BTreeSet<u16>> =
-        std::sync::Mutex::new(std::collections::BTreeSet::new());
+    static GIVEN: parking_lot::Mutex<std::collections::BTreeSet<u16>> =
+        parking_lot::Mutex::new(std::collections::BTreeSet::new());
     loop {
         let port = pick();
-        if GIVEN.lock().unwrap_or_else(|e| e.into_inner()).insert(port) {
+        if GIVEN.lock().insert(port) {
             return port;
         }
     }
@@ -116,7 +117,7 @@ impl TempDir {
     pub fn write(&self, name: &str, text: &str) -> PathBuf {
         let p = self.0.join(name);
         let mut text = text.to_string();
-        let leaves_process = ["\"udp\"", "\"tcp\"", "\"ros1\""]
+        let leaves_process = ["\"udp\"", "\"tcp\"", "\"ros1\"", "\"ros2\""]
             .iter()
             .any(|k| text.contains(&format!("kind = {k}")));
         // A fleet that already names `keys = "keys"` (a shipped example) gets its keys made,
@@ -252,7 +253,7 @@ fn pump(r: impl Read + Send + 'static, log: Arc<Mutex<Vec<String>>>) -> Receiver
                     let line = String::from_utf8_lossy(&buf)
                         .trim_end_matches(['\n', '\r'])
                         .to_string();
-                    log.lock().unwrap().push(line.clone());
+                    log.lock().push(line.clone());
                     // Nobody may wait for lines any more: keep draining into the log.
                     let _ = tx.send(Line::Text(line));
                 }
@@ -309,12 +310,12 @@ impl ChildGuard {
 
     /// Everything printed on stdout so far.
     pub fn stdout_lines(&self) -> Vec<String> {
-        self.stdout_log.lock().unwrap().clone()
+        self.stdout_log.lock().clone()
     }
 
     /// Everything printed on stderr so far.
     pub fn stderr_lines(&self) -> Vec<String> {
-        self.stderr_log.lock().unwrap().clone()
+        self.stderr_log.lock().clone()
     }
 
     fn describe(&self) -> String {
@@ -521,4 +522,43 @@ pub fn signal(child: &ChildGuard, signal: i32) {
     // SAFETY: kill(2) with the pid of our own, not yet reaped, child.
     let rc = unsafe { libc::kill(pid, signal) };
     assert_eq!(rc, 0, "kill {pid}: {}", std::io::Error::last_os_error());
+}
+
+/// `hetcomm send FLEET --as Alpha --to Tango --module Drive --type 40 --json JSON`: a
+/// geometry_msgs/Twist to a bridged robot Tango (the ROS bridge tests' fleets).
+pub fn send_twist(fleet: &Path, json: &str, deadline: Deadline) -> Finished {
+    let mut cmd = Command::new(HETCOMM);
+    cmd.arg("send")
+        .arg(fleet)
+        .args(["--as", "Alpha", "--to", "Tango", "--module", "Drive"])
+        .args(["--type", "40", "--json", json, "--timeout", "20"]);
+    run("send Twist to Tango", cmd, deadline)
+}
+
+/// A Twist's JSON with `linear.x = x`.
+pub fn twist(x: usize) -> String {
+    format!(r#"{{"linear":{{"x":{x},"y":0,"z":0}},"angular":{{"x":0,"y":0,"z":0}}}}"#)
+}
+
+/// A payload that is not a Twist, sent to Tango through a bridge: refused at once by the link
+/// with its own reason, one attempt, no wait for subscribers.
+pub fn assert_a_non_twist_is_refused_at_once(fleet: &Path, deadline: Deadline) {
+    let started = Instant::now();
+    let sent = send_twist(fleet, r#"{"speed":1}"#, deadline);
+    assert_eq!(sent.status.code(), Some(1), "{sent:?}");
+    let [line] = &sent.stdout[..] else {
+        panic!("one outcome line: {sent:?}");
+    };
+    assert!(
+        line.starts_with(
+            "Tango: failed: refused by the link: message type 40 for Drive does not convert to \
+             geometry_msgs/Twist: "
+        ) && line.ends_with("(attempts: 1)"),
+        "{line}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(3),
+        "{:?}",
+        started.elapsed()
+    );
 }

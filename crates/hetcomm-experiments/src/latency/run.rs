@@ -1,9 +1,10 @@
 //! Running the probes: which pairs run on which clock, the schedule, the echoing callbacks,
 //! and turning receipt times into samples.
 
+use parking_lot::Mutex;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm::config::{Fleet, TransportDef, TransportKind, TransportSettings};
@@ -157,12 +158,7 @@ impl Shared {
     }
 
     fn record(&self, key: Key, at: u64) {
-        let fresh = match self
-            .arrivals
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .entry(key)
-        {
+        let fresh = match self.arrivals.lock().entry(key) {
             std::collections::hash_map::Entry::Occupied(_) => false,
             std::collections::hash_map::Entry::Vacant(v) => {
                 v.insert(at);
@@ -170,12 +166,7 @@ impl Shared {
             }
         };
         if !fresh {
-            *self
-                .duplicates
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .entry((key.0, key.1))
-                .or_default() += 1;
+            *self.duplicates.lock().entry((key.0, key.1)).or_default() += 1;
         }
     }
 
@@ -193,12 +184,7 @@ impl Shared {
         }
         let module = match echo_from {
             Some(m) => Some(m.clone()),
-            None => self
-                .modules
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .get(&me)
-                .cloned(),
+            None => self.modules.lock().get(&me).cloned(),
         };
         if let Some(m) = module {
             let sent = m.send_raw(
@@ -209,12 +195,7 @@ impl Shared {
                 SendOptions::default(),
             );
             if sent.is_err() {
-                *self
-                    .echo_refused
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .entry((me, from))
-                    .or_default() += 1;
+                *self.echo_refused.lock().entry((me, from)).or_default() += 1;
             }
         }
     }
@@ -223,7 +204,6 @@ impl Shared {
     fn arrived(&self, pair: &Pair, seq: u32) -> bool {
         self.arrivals
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .contains_key(&(pair.from, pair.to, seq, Direction::RoundTrip))
     }
 
@@ -529,7 +509,6 @@ fn run_pass(
                 shared
                     .arrivals
                     .lock()
-                    .unwrap_or_else(|e| e.into_inner())
                     .keys()
                     .filter(|k| k.2 >= config.warmup)
                     .count()
@@ -552,11 +531,7 @@ fn run_pass(
             }
         }
     }
-    shared
-        .modules
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .clear();
+    shared.modules.lock().clear();
     drop(modules);
     drop(driver);
     Ok((sends, shared))
@@ -629,18 +604,9 @@ pub fn run(
         clock_methods.insert(clock.name().to_string(), clock.method().to_string());
         let pass: Vec<Pair> = idx.iter().map(|&i| all[i].clone()).collect();
         let (sends, shared) = run_pass(fleet, &pass, clock, config, &module, &mut notes)?;
-        let arrivals =
-            std::mem::take(&mut *shared.arrivals.lock().unwrap_or_else(|e| e.into_inner()));
-        let duplicates = shared
-            .duplicates
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
-        let echo_refused = shared
-            .echo_refused
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
+        let arrivals = std::mem::take(&mut *shared.arrivals.lock());
+        let duplicates = shared.duplicates.lock().clone();
+        let echo_refused = shared.echo_refused.lock().clone();
         for (k, pair) in pass.iter().enumerate() {
             let sent_at = &sends.sent_at[k];
             let start = sent_at.values().next().copied().unwrap_or(0);

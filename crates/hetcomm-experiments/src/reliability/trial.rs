@@ -452,9 +452,9 @@ fn run_mode(
                             *failure_reasons.entry(reason_name(reason)).or_insert(0) += 1;
                         }
                         Outcome::Unconfirmed { .. } => c.unconfirmed += 1,
-                        Outcome::Delivered { .. } | Outcome::Sent { .. } => {
-                            c.transmit_successes += 1
-                        }
+                        Outcome::Delivered { .. }
+                        | Outcome::Sent { .. }
+                        | Outcome::Relayed { .. } => c.transmit_successes += 1,
                     }
                 }
             }
@@ -597,6 +597,7 @@ fn reason_name(reason: &FailReason) -> String {
         FailReason::Link(_) => "link".into(),
         FailReason::Backpressure => "backpressure".into(),
         FailReason::Shutdown => "shutdown".into(),
+        FailReason::Relay(_) => "relay".into(),
         #[allow(unreachable_patterns)]
         _ => "other".into(),
     }

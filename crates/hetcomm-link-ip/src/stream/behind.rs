@@ -3,9 +3,9 @@
 //! security layer seals it) while the socket takes this one. See "Write-behind" in the
 //! [module docs](super).
 
+use parking_lot::MutexGuard;
 use std::collections::VecDeque;
 use std::io::{self, IoSlice};
-use std::sync::MutexGuard;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{FrameBuf, SystemId};
@@ -159,11 +159,7 @@ impl<T: StreamTransport> StreamLink<T> {
                 };
                 return (slot, Err(e));
             }
-            slot = entry
-                .room
-                .wait_timeout(slot, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            entry.room.wait_for(&mut slot, left);
         }
         let was_active = slot.behind.active();
         if !was_active && slot.conn.is_none() {

@@ -215,6 +215,9 @@ pub(super) fn new_reader<T: StreamTransport>(shared: &Shared<T>) -> RecordReader
     }
 }
 
+/// The most records handed to the sink in one `on_frames` call.
+const RUN_MAX: usize = 64;
+
 /// An accepted, identified connection and its record reader.
 pub(super) struct Connection<S> {
     pub(super) socket: S,
@@ -238,6 +241,11 @@ impl<S: StreamSocket> Connection<S> {
         T: StreamTransport<Socket = S>,
     {
         let mut n = 0;
+        // Records that one read brought in together go to the sink together (`on_frames`),
+        // as a UDP batch does: the router then handles them under one lock and answers them
+        // with one acknowledgement range. Only records already whole in the read buffer join
+        // a run (reading on could move the buffer under the ones collected).
+        let mut run = [(0usize, 0usize); RUN_MAX];
         while n < budget || self.reader.has_buffered_record() {
             let at = match self.reader.next_record(&mut self.socket) {
                 Ok(at) => at,
@@ -250,6 +258,42 @@ impl<S: StreamSocket> Connection<S> {
                 FrameAt::Large(_) if self.reader.hands_out() => shared
                     .sink
                     .on_frame_owned(self.reader.take_large(), self.from),
+                FrameAt::Buffered(from, to) if self.reader.has_buffered_record() => {
+                    run[0] = (from, to);
+                    let mut k = 1;
+                    let mut stop = None;
+                    while k < RUN_MAX && self.reader.has_buffered_record() {
+                        match self.reader.next_record(&mut self.socket) {
+                            Ok(FrameAt::Buffered(from, to)) => {
+                                n += 1;
+                                bump(&shared.counters.frames_received);
+                                run[k] = (from, to);
+                                k += 1;
+                            }
+                            Ok(other) => {
+                                // Not expected of a whole buffered record; handed on alone.
+                                n += 1;
+                                bump(&shared.counters.frames_received);
+                                stop = Some(Ok(other));
+                                break;
+                            }
+                            Err(end) => {
+                                stop = Some(Err(end));
+                                break;
+                            }
+                        }
+                    }
+                    let reader = &self.reader;
+                    let mut frames = run[..k]
+                        .iter()
+                        .map(|&(from, to)| reader.frame(FrameAt::Buffered(from, to)));
+                    shared.sink.on_frames(&mut frames, self.from);
+                    match stop {
+                        None => {}
+                        Some(Ok(at)) => shared.sink.on_frame(self.reader.frame(at), self.from),
+                        Some(Err(end)) => return (n, Err(end)),
+                    }
+                }
                 _ => shared.sink.on_frame(self.reader.frame(at), self.from),
             }
         }

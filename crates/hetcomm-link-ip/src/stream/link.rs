@@ -2,20 +2,22 @@
 //! one cached outgoing connection per peer made by a connector thread, batching of held
 //! frames, write failures, driven reading ([`Readable`]) and shutdown.
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::{self, Write};
-use std::os::fd::AsRawFd;
+use std::os::fd::{AsFd, AsRawFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::readiness::WakeFd;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Readable};
 
 use super::connection::accept_loop;
 use super::framing::{append_record, encode_hello, record_header, write_parts, FrameParts};
-use super::poller::{ConnSet, Poller, Waker};
+use super::poller::{ConnSet, Poller};
 use super::{
     add, bump, lock, raise, Backoff, IdentityMode, PeerEntry, PeerSlot, Shared, StreamConfig,
     StreamCounters, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
@@ -47,10 +49,8 @@ impl<T: StreamTransport> StreamLink<T> {
                 (id, entry)
             })
             .collect();
-        let polled = listener
-            .raw_fd()
-            .filter(|_| listener.set_nonblocking(true).is_ok());
-        let conns = if config.driven || polled.is_some() {
+        let polled = listener.raw_fd().is_some() && listener.set_nonblocking(true).is_ok();
+        let conns = if config.driven || polled {
             Some(ConnSet::new()?)
         } else {
             None
@@ -73,21 +73,18 @@ impl<T: StreamTransport> StreamLink<T> {
             let shared = shared.clone();
             let listener = listener.clone();
             let thread = std::thread::Builder::new();
-            match polled {
-                Some(fd) => {
-                    let waker = Arc::new(Waker::new()?);
-                    let poller = Poller::new(shared, listener, fd, waker.clone())?;
-                    let handle = thread
-                        .name(format!("hetcomm-{}-rx-{local}", T::NAME))
-                        .spawn(move || poller.run())?;
-                    (handle, Some(waker))
-                }
-                None => {
-                    let handle = thread
-                        .name(format!("hetcomm-{}-accept-{local}", T::NAME))
-                        .spawn(move || accept_loop(&shared, &listener))?;
-                    (handle, None)
-                }
+            if polled {
+                let waker = Arc::new(WakeFd::new()?);
+                let poller = Poller::new(shared, listener, waker.clone())?;
+                let handle = thread
+                    .name(format!("hetcomm-{}-rx-{local}", T::NAME))
+                    .spawn(move || poller.run())?;
+                (handle, Some(waker))
+            } else {
+                let handle = thread
+                    .name(format!("hetcomm-{}-accept-{local}", T::NAME))
+                    .spawn(move || accept_loop(&shared, &listener))?;
+                (handle, None)
             }
         };
         Ok(StreamLink {
@@ -542,7 +539,7 @@ impl<T: StreamTransport> Readable for StreamLink<T> {
     /// An epoll descriptor over every accepted connection (readable when any of them is).
     /// Without `driven`, a descriptor that never polls readable is not offered: -1.
     fn fd(&self) -> std::os::fd::RawFd {
-        self.driven().map_or(-1, |d| d.epoll.as_raw_fd())
+        self.driven().map_or(-1, |d| d.epoll.as_fd().as_raw_fd())
     }
 
     /// Reads up to `budget` records from each connection that has bytes (and then whatever

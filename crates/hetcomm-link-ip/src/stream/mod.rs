@@ -211,11 +211,12 @@ mod reader;
 #[cfg(test)]
 mod tests;
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -227,7 +228,8 @@ pub(crate) use crate::common::{add, bump, lock};
 use crate::common::{WriteBehind, Writer};
 use behind::Behind;
 pub use framing::{decode_hello, decode_record_header, encode_hello};
-use poller::{ConnSet, Waker};
+use hetcomm_link::readiness::WakeFd;
+use poller::ConnSet;
 
 // Named only by doc links.
 #[cfg(doc)]
@@ -286,7 +288,7 @@ pub trait StreamSocket: Read + Write + Send + Sized + 'static {
     /// [`Read`] does (no buffering or transformation in user space). The reader then reads
     /// large frames into fresh, not yet initialised buffers instead of zero-filling them
     /// first. `None` (the default) is always correct.
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
         None
     }
     /// Makes reads return [`io::ErrorKind::WouldBlock`] instead of waiting. Needed for
@@ -314,7 +316,7 @@ pub trait StreamListener: Send + Sync + 'static {
     /// [`set_nonblocking`](StreamListener::set_nonblocking). The link then accepts, reads
     /// hellos and receives on one thread for all connections (see "Receiving" in the module
     /// docs). `None` (the default): an accept thread and a thread per connection.
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
         None
     }
     /// Makes [`accept`](StreamListener::accept) return [`io::ErrorKind::WouldBlock`] instead
@@ -642,7 +644,7 @@ pub struct StreamLink<T: StreamTransport> {
     /// The poller thread, or the accept thread of a listener that cannot be polled.
     accept_thread: Option<JoinHandle<()>>,
     /// Wakes the poller thread (`None`: the accept thread, woken through the listener).
-    waker: Option<Arc<Waker>>,
+    waker: Option<Arc<WakeFd>>,
     /// The thread that writes behind streaming senders, once one has.
     writer: Arc<Writer>,
 }

@@ -11,15 +11,18 @@
 //! instead. Either way the number of threads does not grow with the number of connections,
 //! and a connection's descriptor is closed as soon as its peer's end of stream is read.
 
+use parking_lot::Mutex;
 use std::collections::{HashMap, VecDeque};
 use std::io::{self, Read};
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
+use hetcomm_link::readiness::{timespec, WakeFd};
 use hetcomm_link::Peer;
+use rustix::event::epoll::{self, EventData, EventFlags};
 
 use super::connection::{identify, new_reader, spawn_conn_reader, spawn_reader, Connection};
 use super::framing::decode_hello;
@@ -37,104 +40,58 @@ const ACCEPT_PAUSE: Duration = Duration::from_millis(10);
 /// The longest the poller blocks in one wait, so that a lost wake-up costs little.
 const MAX_WAIT: Duration = Duration::from_millis(500);
 
-/// An `epoll` instance.
+/// An `epoll` instance, level-triggered: a descriptor that still has bytes after a turn's
+/// budget is reported again on the next wait.
 pub(super) struct Epoll(OwnedFd);
 
 impl Epoll {
     pub(super) fn new() -> io::Result<Epoll> {
-        // SAFETY: no memory-safety preconditions; the result is checked.
-        let fd = unsafe { libc::epoll_create1(libc::EPOLL_CLOEXEC) };
-        if fd < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: a fresh descriptor that nothing else owns.
-        Ok(Epoll(unsafe { OwnedFd::from_raw_fd(fd) }))
-    }
-
-    fn ctl(&self, op: libc::c_int, fd: RawFd, token: u64, events: libc::c_int) -> io::Result<()> {
-        let mut ev = libc::epoll_event {
-            events: events as u32,
-            u64: token,
-        };
-        // SAFETY: `ev` is a valid event for the call; the kernel checks `fd`.
-        let rc = unsafe { libc::epoll_ctl(self.0.as_raw_fd(), op, fd, &mut ev) };
-        if rc == 0 {
-            Ok(())
-        } else {
-            Err(io::Error::last_os_error())
-        }
+        Ok(Epoll(epoll::create(epoll::CreateFlags::CLOEXEC)?))
     }
 
     /// Watches `fd` for `events`, reported with `token`.
-    pub(super) fn add(&self, fd: RawFd, token: u64, events: libc::c_int) -> io::Result<()> {
-        self.ctl(libc::EPOLL_CTL_ADD, fd, token, events)
+    pub(super) fn add(&self, fd: impl AsFd, token: u64, events: EventFlags) -> io::Result<()> {
+        Ok(epoll::add(&self.0, fd, EventData::new_u64(token), events)?)
     }
 
     /// Changes what `fd` is watched for.
-    fn modify(&self, fd: RawFd, token: u64, events: libc::c_int) -> io::Result<()> {
-        self.ctl(libc::EPOLL_CTL_MOD, fd, token, events)
+    fn modify(&self, fd: impl AsFd, token: u64, events: EventFlags) -> io::Result<()> {
+        Ok(epoll::modify(
+            &self.0,
+            fd,
+            EventData::new_u64(token),
+            events,
+        )?)
     }
 
     /// Stops watching `fd` (closing it would too; this is for descriptors that stay open).
-    pub(super) fn delete(&self, fd: RawFd) {
-        let _ = self.ctl(libc::EPOLL_CTL_DEL, fd, 0, 0);
+    pub(super) fn delete(&self, fd: impl AsFd) {
+        let _ = epoll::delete(&self.0, fd);
     }
 
     /// Waits up to `timeout` (zero: not at all) for events; an interrupted wait returns none.
-    pub(super) fn wait(
-        &self,
-        events: &mut [libc::epoll_event],
-        timeout: Duration,
-    ) -> io::Result<usize> {
-        let ms = timeout.as_nanos().div_ceil(1_000_000).min(i32::MAX as u128) as i32;
-        let max = events.len().min(i32::MAX as usize) as i32;
-        // SAFETY: `events` has room for `max` entries for the duration of the call.
-        let n = unsafe { libc::epoll_wait(self.0.as_raw_fd(), events.as_mut_ptr(), max, ms) };
-        if n >= 0 {
-            return Ok(n as usize);
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() == io::ErrorKind::Interrupted {
-            Ok(0)
-        } else {
-            Err(e)
+    pub(super) fn wait(&self, events: &mut [epoll::Event], timeout: Duration) -> io::Result<usize> {
+        // Whole milliseconds, rounded up, as `epoll_wait` takes them: a short timeout waits.
+        let ms = timeout.as_nanos().div_ceil(1_000_000).min(i32::MAX as u128) as u64;
+        match epoll::wait(&self.0, events, Some(&timespec(Duration::from_millis(ms)))) {
+            Ok(n) => Ok(n),
+            Err(rustix::io::Errno::INTR) => Ok(0),
+            Err(e) => Err(e.into()),
         }
     }
 }
 
-impl AsRawFd for Epoll {
-    fn as_raw_fd(&self) -> RawFd {
-        self.0.as_raw_fd()
+impl AsFd for Epoll {
+    fn as_fd(&self) -> BorrowedFd<'_> {
+        self.0.as_fd()
     }
 }
 
-/// An `eventfd` that makes the poller thread's wait return (the link is closing).
-pub(super) struct Waker(OwnedFd);
-
-impl Waker {
-    pub(super) fn new() -> io::Result<Waker> {
-        // SAFETY: no memory-safety preconditions; the result is checked.
-        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
-        if fd < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: a fresh descriptor that nothing else owns.
-        Ok(Waker(unsafe { OwnedFd::from_raw_fd(fd) }))
-    }
-
-    pub(super) fn wake(&self) {
-        let one: u64 = 1;
-        // SAFETY: writes 8 bytes from a valid u64 to our own eventfd. A full counter (EAGAIN)
-        // still leaves it readable, which is all a wake-up needs.
-        unsafe { libc::write(self.0.as_raw_fd(), (&one as *const u64).cast(), 8) };
-    }
-
-    fn drain(&self) {
-        let mut n: u64 = 0;
-        // SAFETY: reads at most 8 bytes into a valid u64; non-blocking.
-        unsafe { libc::read(self.0.as_raw_fd(), (&mut n as *mut u64).cast(), 8) };
-    }
-}
+/// An event slot for [`Epoll::wait`] to fill.
+const NO_EVENT: epoll::Event = epoll::Event {
+    flags: EventFlags::empty(),
+    data: EventData::new_u64(0),
+};
 
 /// One accepted connection's share of [`StreamConfig::max_connections`](super::StreamConfig):
 /// taken when it is accepted, given back when it is closed (dropped), whatever the path.
@@ -192,7 +149,7 @@ impl<S: StreamSocket> ConnSet<S> {
         let mut conns = lock(&self.conns);
         if self
             .epoll
-            .add(fd, token, libc::EPOLLIN | libc::EPOLLRDHUP)
+            .add(fd, token, EventFlags::IN | EventFlags::RDHUP)
             .is_err()
         {
             drop(conns);
@@ -211,12 +168,12 @@ impl<S: StreamSocket> ConnSet<S> {
         T: StreamTransport<Socket = S>,
     {
         const EVENTS: usize = 16;
-        let mut events = [libc::epoll_event { events: 0, u64: 0 }; EVENTS];
+        let mut events = [NO_EVENT; EVENTS];
         let n = self.epoll.wait(&mut events, Duration::ZERO)?;
         let mut frames = 0;
         let mut conns = lock(&self.conns);
         for ev in &events[..n] {
-            let token = ev.u64;
+            let token = ev.data.u64();
             let Some(conn) = conns.get_mut(&token) else {
                 continue;
             };
@@ -275,7 +232,7 @@ enum HelloRead {
 pub(super) struct Poller<T: StreamTransport> {
     shared: Arc<Shared<T>>,
     listener: Arc<T::Listener>,
-    waker: Arc<Waker>,
+    waker: Arc<WakeFd>,
     epoll: Epoll,
     hellos: HashMap<u64, Hello<T::Socket>>,
     /// When each waiting hello is due, in order (hellos all get the same timeout). Entries of
@@ -287,21 +244,21 @@ pub(super) struct Poller<T: StreamTransport> {
 }
 
 impl<T: StreamTransport> Poller<T> {
-    /// The poller of a link whose listener (already non-blocking) has descriptor
-    /// `listener_fd`. The poller reads the link's [`ConnSet`] itself unless the link is
-    /// driven.
+    /// The poller of a link whose listener is polled ([`StreamListener::raw_fd`]) and
+    /// already non-blocking. The poller reads the link's [`ConnSet`] itself unless the link
+    /// is driven.
     pub(super) fn new(
         shared: Arc<Shared<T>>,
         listener: Arc<T::Listener>,
-        listener_fd: RawFd,
-        waker: Arc<Waker>,
+        waker: Arc<WakeFd>,
     ) -> io::Result<Self> {
         let epoll = Epoll::new()?;
-        epoll.add(listener_fd, LISTENER, libc::EPOLLIN)?;
-        epoll.add(waker.0.as_raw_fd(), WAKER, libc::EPOLLIN)?;
+        let listener_fd = listener.raw_fd().ok_or(io::ErrorKind::Unsupported)?;
+        epoll.add(listener_fd, LISTENER, EventFlags::IN)?;
+        epoll.add(&*waker, WAKER, EventFlags::IN)?;
         if !shared.config.driven {
             if let Some(set) = &shared.conns {
-                epoll.add(set.epoll.as_raw_fd(), CONNS, libc::EPOLLIN)?;
+                epoll.add(&set.epoll, CONNS, EventFlags::IN)?;
             }
         }
         Ok(Poller {
@@ -319,7 +276,7 @@ impl<T: StreamTransport> Poller<T> {
     /// Runs until the link closes.
     pub(super) fn run(mut self) {
         const EVENTS: usize = 64;
-        let mut events = [libc::epoll_event { events: 0, u64: 0 }; EVENTS];
+        let mut events = [NO_EVENT; EVENTS];
         while !self.shared.closing.load(Ordering::SeqCst) {
             let now = Instant::now();
             let next = [
@@ -342,7 +299,7 @@ impl<T: StreamTransport> Poller<T> {
                 break;
             }
             for ev in &events[..n] {
-                match ev.u64 {
+                match ev.data.u64() {
                     LISTENER => self.accept(),
                     WAKER => self.waker.drain(),
                     CONNS => {
@@ -379,7 +336,7 @@ impl<T: StreamTransport> Poller<T> {
 
     fn pause_accepting(&mut self) {
         if let Some(fd) = self.listener.raw_fd() {
-            if self.epoll.modify(fd, LISTENER, 0).is_ok() {
+            if self.epoll.modify(fd, LISTENER, EventFlags::empty()).is_ok() {
                 self.accept_paused_until = Some(Instant::now() + ACCEPT_PAUSE);
             }
         }
@@ -415,7 +372,7 @@ impl<T: StreamTransport> Poller<T> {
         self.next_token += 1;
         if self
             .epoll
-            .add(fd, token, libc::EPOLLIN | libc::EPOLLRDHUP)
+            .add(fd, token, EventFlags::IN | EventFlags::RDHUP)
             .is_err()
         {
             let _ = socket.set_nonblocking(false);
@@ -515,7 +472,7 @@ impl<T: StreamTransport> Poller<T> {
         }
         if self.accept_paused_until.is_some_and(|t| t <= now) {
             if let Some(fd) = self.listener.raw_fd() {
-                if self.epoll.modify(fd, LISTENER, libc::EPOLLIN).is_ok() {
+                if self.epoll.modify(fd, LISTENER, EventFlags::IN).is_ok() {
                     self.accept_paused_until = None;
                 }
             }

@@ -50,7 +50,7 @@ pub(super) trait RecordSource: Read {
 
 impl<S: StreamSocket> RecordSource for S {
     fn fd(&self) -> Option<std::os::fd::RawFd> {
-        self.raw_fd()
+        self.raw_fd().map(|fd| std::os::fd::AsRawFd::as_raw_fd(&fd))
     }
 }
 

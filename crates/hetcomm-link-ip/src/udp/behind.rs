@@ -74,11 +74,7 @@ impl SendSide {
                 if left.is_zero() {
                     return Err(self.writer_stuck(to, peer, behind.queued_bytes));
                 }
-                behind = peer
-                    .room
-                    .wait_timeout(behind, left)
-                    .unwrap_or_else(|e| e.into_inner())
-                    .0;
+                peer.room.wait_for(&mut behind, left);
             }
             behind.queued_bytes += frame.len();
             behind.queued.push_back(frame);
@@ -115,11 +111,7 @@ impl SendSide {
                 let bytes = behind.queued_bytes + behind.sending_bytes;
                 return Err(self.writer_stuck(to, peer, bytes));
             }
-            behind = peer
-                .room
-                .wait_timeout(behind, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            peer.room.wait_for(&mut behind, left);
         }
         Ok(())
     }

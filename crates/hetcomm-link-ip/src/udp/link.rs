@@ -1,12 +1,13 @@
 //! [`UdpLink`]'s opening and sending side and its [`Link`] implementation: resolving peers,
 //! sending frames whole, batched or fragmented, the kernel's drop counter, and shutdown.
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::BTreeMap;
 use std::io::{self, IoSlice};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs, UdpSocket};
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::wire::HEADER_LEN;

@@ -173,10 +173,11 @@ mod receive;
 #[cfg(test)]
 mod tests;
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::BTreeMap;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -186,9 +187,12 @@ use hetcomm_core::SystemId;
 use crate::common::{add, lock, WriteBehind, Writer};
 use crate::OpenError;
 
-pub use batch::{batch_records, BatchFrames};
+// The batch framing is hetcomm-link's (shared with other links); named here as before.
 use behind::Behind;
 pub use fragment::{parse_fragment, FragmentError, FragmentHeader};
+pub use hetcomm_link::batch::{
+    batch_records, BatchFrames, BATCH_HEADER_LEN, BATCH_LENGTH_LEN, BATCH_MAGIC, BATCH_VERSION,
+};
 pub use reassembly::{
     Reassembler, Reassembly, MAX_PARTIALS_PER_SOURCE, MAX_REMEMBERED_COMPLETIONS,
 };
@@ -206,14 +210,6 @@ pub const FRAGMENT_MAGIC: [u8; 2] = *b"HF";
 pub const FRAGMENT_VERSION: u8 = 1;
 /// Size of the fragment header.
 pub const FRAGMENT_HEADER_LEN: usize = 20;
-/// Magic of a batch datagram: `"HB"`.
-pub const BATCH_MAGIC: [u8; 2] = *b"HB";
-/// Version of the batch header.
-pub const BATCH_VERSION: u8 = 1;
-/// Size of the batch header: magic, version, a reserved byte.
-pub const BATCH_HEADER_LEN: usize = 4;
-/// Size of the length (u32, little-endian) in front of each frame of a batch.
-pub const BATCH_LENGTH_LEN: usize = 4;
 /// The largest UDP payload over IPv4.
 pub const MAX_DATAGRAM_PAYLOAD: usize = 65_507;
 /// The default datagram payload: an Ethernet MTU of 1500 minus IPv4 and UDP headers.

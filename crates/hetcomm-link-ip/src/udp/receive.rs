@@ -2,22 +2,23 @@
 //! [`Readable::read_ready`], and [`RxState`], which turns datagrams into frames (whole,
 //! batched or reassembled from fragments) and counts what it drops.
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::io;
 use std::mem::MaybeUninit;
 use std::net::{SocketAddr, UdpSocket};
 use std::os::fd::RawFd;
 use std::sync::atomic::Ordering;
-use std::sync::{Arc, Mutex, TryLockError};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::{FrameSink, Peer, Readable};
 
-use super::batch::batch_records;
 use super::fragment::FragmentError;
 use super::reassembly::{pooled, recycle, Reassembler, Reassembly, POOLED_MIN};
 use super::{add, Shared, BATCH_MAGIC, FRAGMENT_MAGIC};
+use hetcomm_link::batch::batch_records;
 
 /// Large enough for any UDP datagram, so nothing is silently truncated.
 pub(super) const RECV_BUF_LEN: usize = 65_536;
@@ -290,11 +291,10 @@ impl Readable for DrivenReceiver {
 
     fn read_ready(&self, budget: usize) -> io::Result<usize> {
         let mut rx = match self.receiver.try_lock() {
-            Ok(rx) => rx,
-            Err(TryLockError::Poisoned(e)) => e.into_inner(),
+            Some(rx) => rx,
             // Another thread is reading (or a sink called back in): this call must not block,
             // and that reader hands on whatever has arrived.
-            Err(TryLockError::WouldBlock) => return Ok(0),
+            None => return Ok(0),
         };
         rx.read_ready(budget)
     }

@@ -1,22 +1,16 @@
 //! Driving a link's receive side ([`Readable`]) from a test, as a waiting runtime thread would.
 
-use std::os::fd::RawFd;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::Duration;
 
-use hetcomm_link::Link;
+use hetcomm_link::readiness::{readable_fd, wait_readable};
+use hetcomm_link::{Link, Readable};
 
-/// Waits up to `timeout_ms` for `fd` to poll readable.
-pub fn poll_readable(fd: RawFd, timeout_ms: i32) -> bool {
-    let mut p = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    // SAFETY: one valid, exclusively borrowed pollfd for the duration of the call.
-    let n = unsafe { libc::poll(&mut p, 1, timeout_ms) };
-    n > 0 && p.revents & libc::POLLIN != 0
+/// Waits up to `timeout_ms` for `rx` to poll readable.
+pub fn poll_readable(rx: &dyn Readable, timeout_ms: u64) -> bool {
+    wait_readable(readable_fd(rx), Duration::from_millis(timeout_ms))
 }
 
 /// A thread that drives a link's receive side the way a waiting runtime thread would: poll,
@@ -36,7 +30,7 @@ impl Driver {
             while !stopping.load(Ordering::SeqCst) {
                 // A short timeout so that a stop is noticed promptly; read_ready also does
                 // the link's upkeep.
-                poll_readable(rx.fd(), 20);
+                poll_readable(rx, 20);
                 handed_on += rx.read_ready(64).expect("read_ready");
             }
             handed_on

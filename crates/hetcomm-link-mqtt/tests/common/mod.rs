@@ -105,6 +105,26 @@ impl Mosquitto {
         let _ = self.child.wait();
     }
 
+    /// Freezes the broker (SIGSTOP): its connections stay open, nothing answers.
+    pub fn pause(&self) {
+        assert!(self.signal("-STOP"), "kill -STOP mosquitto");
+    }
+
+    /// Lets a frozen broker go on (SIGCONT).
+    pub fn resume(&self) {
+        assert!(self.signal("-CONT"), "kill -CONT mosquitto");
+    }
+
+    /// Sends the signal `which` to the broker; whether it was there to get it.
+    fn signal(&self, which: &str) -> bool {
+        Command::new("kill")
+            .arg(which)
+            .arg(self.child.id().to_string())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    }
+
     /// Starts it again on the same port, with the same configuration.
     pub fn restart(&mut self) {
         self.child = Self::spawn(&self.dir, self.port, &self.extra);
@@ -114,6 +134,8 @@ impl Mosquitto {
 
 impl Drop for Mosquitto {
     fn drop(&mut self) {
+        // A broker a failed test left frozen: let it go on, so it dies as a running one does.
+        let _ = self.signal("-CONT");
         self.kill();
         let _ = std::fs::remove_dir_all(&self.dir);
     }

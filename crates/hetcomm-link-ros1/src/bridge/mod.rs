@@ -9,8 +9,12 @@
 //!   converted by field name (`hetcomm_rosmsg::codec`, ROS 1 serialization) and published on
 //!   the topic, advertised with the ROS type's MD5 sum and definition. Nobody acknowledges it:
 //!   the transport must say `delivery = "unacknowledged"`, and the outcome is Sent (without
-//!   confirmation). A message that does not convert fails its send, naming both types and the
-//!   field.
+//!   confirmation). A message that does not convert fails its send at once
+//!   ([`LinkError::Refused`]), naming both types and the field. A send waits (at most
+//!   `connect_timeout_ms`) until the topic's subscribers that the master lists are connected
+//!   ([`subscribers`]); if none is, nothing is published and the send fails
+//!   ([`LinkError::Unreachable`], "no node subscribes to …"). A closing bridge waits (as long
+//!   again) until its subscribers have read what it published.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot. A system whose `[systems]` entry
 //!   lists its modules without `MODULE` does not subscribe to that topic.
@@ -28,11 +32,15 @@
 //! `security = "none"`.
 
 mod settings;
+mod subscribers;
 mod types;
 
+use parking_lot::Mutex;
 use std::collections::BTreeSet;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
+
+use subscribers::{Calls, Published};
 
 use hetcomm_config::{Fleet, SettingsReader, TransportKind};
 use hetcomm_core::{ModuleId, SystemId};
@@ -78,8 +86,18 @@ pub struct Ros1Bridge {
     outbound: Outbound<usize>,
     /// To the publishing task: (index of the publisher, TCPROS-framed message).
     publish: mpsc::Sender<(usize, Vec<u8>)>,
+    /// What is known of each published topic's subscribers, by publisher index.
+    published: Arc<Vec<Published>>,
+    calls: Arc<Calls>,
+    connect_timeout: Duration,
     tally: Arc<Tally>,
-    runtime: Option<tokio::runtime::Runtime>,
+    /// The runtime (one thread: see [`subscribers`]), driven by `driver` until `stop` fires.
+    runtime: Option<Arc<tokio::runtime::Runtime>>,
+    handle: tokio::runtime::Handle,
+    driver: Option<(
+        tokio::sync::oneshot::Sender<()>,
+        std::thread::JoinHandle<()>,
+    )>,
     node: Option<NodeHandle>,
 }
 
@@ -112,9 +130,8 @@ impl Ros1Bridge {
         for (index, m) in settings.publish.iter().enumerate() {
             outbound.insert(module_id(fleet, &m.module, &m.topic)?, m.clone(), index);
         }
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("hetcomm-ros1-bridge")
+        // One thread: see `subscribers` for why.
+        let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()?;
         let tally = Arc::new(Tally::new("ros1_bridge"));
@@ -130,6 +147,10 @@ impl Ros1Bridge {
                 let node = NodeHandle::new(&uri, &node_name)
                     .await
                     .map_err(|e| format!("the ROS master at {uri}: {e}"))?;
+                let node_uri = node
+                    .get_client_uri()
+                    .await
+                    .map_err(|e| format!("the bridge's node URI: {e}"))?;
                 let mut publishers = Vec::new();
                 for m in &settings.publish {
                     let d = description(m.schema);
@@ -140,7 +161,7 @@ impl Ros1Bridge {
                         .map_err(|e| format!("advertising {}: {e}", m.topic))?;
                     publishers.push(p);
                 }
-                Ok::<_, String>((node, publishers))
+                Ok::<_, String>((node, node_uri, publishers))
             })
             .await
             .unwrap_or_else(|_| {
@@ -150,7 +171,7 @@ impl Ros1Bridge {
                 ))
             })
         });
-        let (node, publishers) = match opened {
+        let (node, node_uri, publishers) = match opened {
             Ok(o) => o,
             Err(e) => {
                 runtime.shutdown_timeout(Duration::from_millis(500));
@@ -185,18 +206,44 @@ impl Ros1Bridge {
                 }
             })?;
         let (publish, publish_rx) = mpsc::channel(SEND_QUEUE);
+        let published: Arc<Vec<Published>> = Arc::new(
+            settings
+                .publish
+                .iter()
+                .map(|m| Published::new(&m.topic))
+                .collect(),
+        );
+        let calls = Arc::new(Calls {
+            http: reqwest::Client::new(),
+            master: settings.master_uri.clone(),
+            me: node_name,
+            uri: node_uri,
+        });
         runtime.spawn(publish_loop(publishers, publish_rx));
-        runtime.spawn(check_publisher_types(
-            settings.master_uri.clone(),
-            node_name,
+        runtime.spawn(check_topics(
+            calls.clone(),
             read,
+            published.clone(),
             tally.clone(),
         ));
+        let runtime = Arc::new(runtime);
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let driven = runtime.clone();
+        let driver = std::thread::Builder::new()
+            .name(format!("hetcomm-ros1-bridge-rt-{}", settings.robot))
+            .spawn(move || {
+                let _ = driven.block_on(stopped);
+            })?;
         Ok(Ros1Bridge {
             outbound,
             publish,
+            published,
+            calls,
+            connect_timeout: Duration::from_millis(settings.connect_timeout_ms),
             tally,
+            handle: runtime.handle().clone(),
             runtime: Some(runtime),
+            driver: Some((stop, driver)),
             node: Some(node),
         })
     }
@@ -217,25 +264,30 @@ async fn publish_loop(publishers: Vec<PublisherAny>, mut rx: mpsc::Receiver<(usi
     }
 }
 
-/// Reports publishers on a mapped topic whose type is not the mapped one: ROS 1 refuses
-/// their connection (MD5 mismatch), so their messages would otherwise vanish without a word.
-/// Each publishing node is asked once per topic.
-async fn check_publisher_types(
-    master: String,
-    me: String,
+/// Asks the master every [`CHECK_INTERVAL`] who is on the bridge's topics: reports
+/// publishers on a subscribed topic whose type is not the mapped one (ROS 1 refuses their
+/// connection, MD5 mismatch, so their messages would otherwise vanish without a word; each
+/// publishing node is asked once per topic), and has the next send on a published topic wait
+/// again when its subscribers changed.
+async fn check_topics(
+    calls: Arc<Calls>,
     subscribed: Vec<Mapping>,
+    published: Arc<Vec<Published>>,
     tally: Arc<Tally>,
 ) {
-    let http = reqwest::Client::new();
+    let (http, master, me) = (&calls.http, &calls.master, &calls.me);
     let mut checked = BTreeSet::new();
     loop {
         tokio::time::sleep(CHECK_INTERVAL).await;
         let args = vec![me.clone().into()];
-        let Ok(state) = xmlrpc::call(&http, &master, "getSystemState", args, CALL_TIMEOUT).await
+        let Ok(state) = xmlrpc::call(http, master, "getSystemState", args, CALL_TIMEOUT).await
         else {
             continue;
         };
         let graph = xmlrpc::Graph::from_value(&state);
+        for p in published.iter() {
+            p.recheck(&graph, me);
+        }
         for m in &subscribed {
             for node in graph.publishers(&m.topic) {
                 if checked.contains(&(m.topic.clone(), node.clone())) {
@@ -243,13 +295,13 @@ async fn check_publisher_types(
                 }
                 let args = vec![me.clone().into(), node.clone().into()];
                 let Ok(serde_xmlrpc::Value::String(uri)) =
-                    xmlrpc::call(&http, &master, "lookupNode", args, CALL_TIMEOUT).await
+                    xmlrpc::call(http, master, "lookupNode", args, CALL_TIMEOUT).await
                 else {
                     continue;
                 };
                 let args = vec![me.clone().into()];
                 let Ok(pubs) =
-                    xmlrpc::call(&http, &uri, "getPublications", args, CALL_TIMEOUT).await
+                    xmlrpc::call(http, &uri, "getPublications", args, CALL_TIMEOUT).await
                 else {
                     continue;
                 };
@@ -282,6 +334,12 @@ async fn check_publisher_types(
 }
 
 impl Link for Ros1Bridge {
+    /// True: the frames the router sends are read, and the frames it receives are made,
+    /// in this process (`hetcomm_rosmsg::bridge::FrameMaker`); only their headers need a CRC.
+    fn checksums_payload(&self) -> bool {
+        true
+    }
+
     fn caps(&self) -> LinkCaps {
         caps()
     }
@@ -291,12 +349,14 @@ impl Link for Ros1Bridge {
             return Ok(());
         };
         let (m, index, body) = (out.mapping, *out.publisher, out.body);
+        self.wait_subscribers(to, index)?;
         // TCPROS frames each message with its length.
         let mut framed = Vec::with_capacity(body.len() + 4);
         framed.extend_from_slice(&(body.len() as u32).to_le_bytes());
         framed.extend_from_slice(&body);
         match self.publish.try_send((index, framed)) {
             Ok(()) => {
+                self.published[index].count();
                 self.tally.sent();
                 Ok(())
             }
@@ -316,11 +376,67 @@ impl Link for Ros1Bridge {
     }
 }
 
+impl Ros1Bridge {
+    /// Waits (at most the connect timeout) until the subscribers of publisher `index`'s topic
+    /// are connected, unless they were at the last send and have not changed since.
+    fn wait_subscribers(&self, to: SystemId, index: usize) -> Result<(), LinkError> {
+        let p = &self.published[index];
+        if p.ready() {
+            return Ok(());
+        }
+        let _gate = p.gate();
+        if p.ready() {
+            return Ok(());
+        }
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (calls, published, timeout) = (
+            self.calls.clone(),
+            self.published.clone(),
+            self.connect_timeout,
+        );
+        self.handle.spawn(async move {
+            let _ = tx.send(calls.wait(&published[index], timeout).await);
+        });
+        // The task ends by its own deadline; the margin only covers a runtime that is gone.
+        match rx.recv_timeout(timeout + Duration::from_secs(2)) {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(reason)) => Err(LinkError::Unreachable { peer: to, reason }),
+            Err(_) => Err(LinkError::Closed),
+        }
+    }
+
+    /// Waits (at most the connect timeout) until what was queued is published and read by
+    /// the subscribers found connected.
+    fn flush(&self) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (calls, published, timeout) = (
+            self.calls.clone(),
+            self.published.clone(),
+            self.connect_timeout,
+        );
+        let publish = self.publish.clone();
+        self.handle.spawn(async move {
+            // The publishing task has taken everything queued before this marker's room.
+            let _ = tokio::time::timeout(timeout, publish.reserve_many(SEND_QUEUE)).await;
+            for p in published.iter() {
+                calls.flush(p, timeout).await;
+            }
+            let _ = tx.send(());
+        });
+        let _ = rx.recv_timeout(timeout * 2 + Duration::from_secs(1));
+    }
+}
+
 impl Drop for Ros1Bridge {
     fn drop(&mut self) {
+        self.flush();
         let (Some(runtime), node) = (self.runtime.take(), self.node.take()) else {
             return;
         };
+        if let Some((stop, driver)) = self.driver.take() {
+            let _ = stop.send(());
+            let _ = driver.join();
+        }
         // On a plain thread: this may run inside another async runtime, where blocking on
         // ours is not allowed; roslibrust unregisters a dropped node with blocking calls.
         let shutdown = std::thread::Builder::new()
@@ -330,7 +446,9 @@ impl Drop for Ros1Bridge {
                     let _guard = runtime.enter();
                     drop(node);
                 }
-                runtime.shutdown_timeout(Duration::from_secs(1));
+                if let Ok(runtime) = Arc::try_unwrap(runtime) {
+                    runtime.shutdown_timeout(Duration::from_secs(1));
+                }
             });
         if let Ok(handle) = shutdown {
             let _ = handle.join();

@@ -25,12 +25,20 @@ pub struct BridgeSettings {
     pub subscribe: Vec<Mapping>,
     /// `msg_paths`: directories searched for message definitions first.
     pub msg_paths: Vec<std::path::PathBuf>,
+    /// `connect_timeout_ms` (0–60000, default 500, as the `ros1` transport's): how long a
+    /// send waits for the subscribers of its topic to connect, and a closing bridge for them
+    /// to read what it published.
+    pub connect_timeout_ms: u64,
 }
 
+/// The default of `connect_timeout_ms`.
+pub const DEFAULT_CONNECT_TIMEOUT_MS: u64 = 500;
+
 /// The keys of a `ros1_bridge` table, besides the shared ones.
-pub const KEYS: [&str; 5] = [
+pub const KEYS: [&str; 6] = [
     COMMON_KEYS[0],
     "master_uri",
+    "connect_timeout_ms",
     COMMON_KEYS[1],
     COMMON_KEYS[2],
     COMMON_KEYS[3],
@@ -68,8 +76,18 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
         }
         false => hetcomm_config::default_master_uri(),
     };
-    let common = parse_common(s, Flavour::Ros1, "ros1_bridge", check_topic)?;
+    let mut connect_timeout_ms = DEFAULT_CONNECT_TIMEOUT_MS;
+    let mut ok = true;
+    if s.has("connect_timeout_ms") {
+        match s.int_in("connect_timeout_ms", 0, 60_000, "milliseconds, e.g. 500") {
+            Some(ms) => connect_timeout_ms = ms as u64,
+            None => ok = false,
+        }
+    }
+    let common = parse_common(s, Flavour::Ros1, "ros1_bridge", check_topic);
+    let common = common.filter(|_| ok)?;
     Some(BridgeSettings {
+        connect_timeout_ms,
         robot: common.robot,
         master_uri,
         publish: common.publish,

@@ -9,7 +9,8 @@
 //! redefine) has no slot: it is subscribed to with any MD5 sum (`*`, as `rostopic echo`
 //! does), and each message is checked against the definition as it is decoded.
 
-use std::sync::{Arc, Mutex};
+use parking_lot::Mutex;
+use std::sync::Arc;
 
 use hetcomm_rosmsg::bridge::{FrameMaker, Tally};
 use hetcomm_rosmsg::codec::{self, Wire};
@@ -175,11 +176,7 @@ async fn receive(
                 continue;
             }
         };
-        let frame = maker.lock().unwrap_or_else(|e| e.into_inner()).frame(
-            inb.module,
-            inb.mapping.message,
-            &value,
-        );
+        let frame = maker.lock().frame(inb.module, inb.mapping.message, &value);
         match frame {
             Ok(f) => {
                 tally.received();

@@ -7,8 +7,12 @@
 //! * **publish** (hetcomm → ROS): a message of type `TYPE_ID` sent to (robot, `MODULE`) is
 //!   converted by field name ([`crate::rostypes`]) and published on the topic. Nobody
 //!   acknowledges it: the transport must say `delivery = "unacknowledged"`, and the outcome
-//!   is Sent (without confirmation). A message that does not convert fails its send, naming
-//!   both types and the field.
+//!   is Sent (without confirmation). A message that does not convert fails its send at once
+//!   ([`LinkError::Refused`]), naming both types and the field. A send waits (at most
+//!   `connect_timeout_ms`) until the readers discovery knows on the topic are matched
+//!   ([`publish`]); if none is, nothing is written and the send fails
+//!   ([`LinkError::Unreachable`], "no subscriber of … matched"). A closing bridge waits (as
+//!   long again) for the matched readers' acknowledgements of what it wrote.
 //! * **subscribe** (ROS → hetcomm): a ROS message on the topic arrives in this system's
 //!   `MODULE` as a message of type `TYPE_ID` from the robot (the frame's source module is the
 //!   same module id). A system whose `[systems]` entry lists its modules without `MODULE`
@@ -20,6 +24,8 @@
 //! The bridge carries plain ROS messages, unauthenticated like any ROS 2 topic without SROS2:
 //! the transport must say `security = "none"`.
 
+pub mod dds;
+mod publish;
 mod settings;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -36,12 +42,12 @@ use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
 use rustdds::mio1::{Events, Interest, Poll, Token};
-use rustdds::no_key::{DataReader, DataWriter};
+use rustdds::no_key::DataReader;
 use rustdds::{DomainParticipant, TopicKind};
 
 pub use settings::{BridgeSettings, Mapping, KEYS};
 
-use crate::link::{participant, qos, OpenError};
+use crate::link::{participant, qos, retire, OpenError};
 use crate::names;
 use crate::raw::{RawAdapter, RawCdr};
 
@@ -63,11 +69,14 @@ struct Shared {
 
 /// A link to an external ROS 2 robot through typed topics.
 pub struct Ros2Bridge {
-    /// Each publish mapping with its DDS writer.
-    outbound: Outbound<DataWriter<RawCdr, RawAdapter>>,
+    /// Each publish mapping with the index of its topic in `published`.
+    outbound: Outbound<usize>,
+    published: Vec<publish::Published>,
+    connect_timeout: Duration,
     shared: Arc<Shared>,
     receiver: Option<JoinHandle<()>>,
-    _participant: DomainParticipant,
+    /// Retired last (`link::retire`): the writers and readers belong to it.
+    participant: Option<DomainParticipant>,
 }
 
 impl Ros2Bridge {
@@ -76,6 +85,17 @@ impl Ros2Bridge {
         fleet: &Fleet,
         local: SystemId,
         settings: &BridgeSettings,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<Ros2Bridge, OpenFailure> {
+        Self::open_named(fleet, local, settings, &Naming::Ros2, sink)
+    }
+
+    /// Like [`open`](Self::open), with the DDS topic and type names of `naming`.
+    pub(crate) fn open_named(
+        fleet: &Fleet,
+        local: SystemId,
+        settings: &BridgeSettings,
+        naming: &Naming,
         sink: Arc<dyn FrameSink>,
     ) -> Result<Ros2Bridge, OpenFailure> {
         let robot = robot_id(fleet, local, &settings.robot, Flavour::Ros2)?;
@@ -88,24 +108,26 @@ impl Ros2Bridge {
             }
         };
         let topic = |m: &Mapping| {
-            dp.create_topic(
-                names::dds_topic(&m.topic),
-                names::dds_type(m.ros_type()),
-                &qos,
-                TopicKind::NoKey,
-            )
-            .map_err(dds_err(format!("topic {}", m.topic)))
+            dp.create_topic(naming.topic(m), naming.type_name(m), &qos, TopicKind::NoKey)
+                .map_err(dds_err(format!("topic {}", m.topic)))
         };
         let publisher = dp
             .create_publisher(&qos)
             .map_err(dds_err("a publisher".into()))?;
         let mut outbound = Outbound::new("ros2_bridge", robot, &settings.robot, Wire::CDR);
+        let mut published = Vec::new();
         for m in &settings.publish {
             let module = module_id(fleet, &m.module, &m.topic)?;
             let writer = publisher
                 .create_datawriter_no_key::<RawCdr, RawAdapter>(&topic(m)?, Some(qos.clone()))
                 .map_err(dds_err(format!("the writer of {}", m.topic)))?;
-            outbound.insert(module, m.clone(), writer);
+            outbound.insert(module, m.clone(), published.len());
+            published.push(publish::Published::new(
+                &m.topic,
+                naming.topic(m),
+                naming.type_name(m),
+                writer,
+            ));
         }
         let subscriber = dp
             .create_subscriber(&qos)
@@ -130,6 +152,7 @@ impl Ros2Bridge {
             closed: AtomicBool::new(false),
         });
         let rx = Receiver {
+            naming: naming.clone(),
             dp: dp.clone(),
             inbound,
             robot,
@@ -142,9 +165,11 @@ impl Ros2Bridge {
             .spawn(move || rx.run())?;
         Ok(Ros2Bridge {
             outbound,
+            published,
+            connect_timeout: Duration::from_millis(settings.dds.connect_timeout_ms),
             shared,
             receiver: Some(receiver),
-            _participant: dp,
+            participant: Some(dp),
         })
     }
 
@@ -155,8 +180,40 @@ impl Ros2Bridge {
     }
 }
 
+/// How a bridge names its topics and types on DDS.
+#[derive(Clone, Debug)]
+pub(crate) enum Naming {
+    /// As ROS 2 does (`ros2_bridge`): `rt/` before the topic, `pkg::msg::dds_::Type_`.
+    Ros2,
+    /// Plain DDS (`dds`): the topic as written, the type `pkg::Type` unless the topic's entry
+    /// in this map (topic → DDS type name) says otherwise.
+    Plain(std::collections::BTreeMap<String, String>),
+}
+
+impl Naming {
+    /// The DDS topic of `m`.
+    pub(crate) fn topic(&self, m: &Mapping) -> String {
+        match self {
+            Naming::Ros2 => names::dds_topic(&m.topic),
+            Naming::Plain(_) => m.topic.clone(),
+        }
+    }
+
+    /// The DDS type name of `m`.
+    pub(crate) fn type_name(&self, m: &Mapping) -> String {
+        match self {
+            Naming::Ros2 => names::dds_type(m.ros_type()),
+            Naming::Plain(types) => types
+                .get(&m.topic)
+                .cloned()
+                .unwrap_or_else(|| dds::plain_type(m.ros_type())),
+        }
+    }
+}
+
 /// The bridge's receive side: every subscribed topic's reader, polled on one thread.
 struct Receiver {
+    naming: Naming,
     dp: DomainParticipant,
     inbound: Vec<Inbound>,
     robot: SystemId,
@@ -243,8 +300,8 @@ impl Receiver {
     fn check_publisher_types(&self) {
         let writers = self.dp.discovered_writers();
         for inb in &self.inbound {
-            let topic = names::dds_topic(&inb.mapping.topic);
-            let expected = names::dds_type(inb.mapping.ros_type());
+            let topic = self.naming.topic(&inb.mapping);
+            let expected = self.naming.type_name(&inb.mapping);
             for w in &writers {
                 let t = &w.publication_topic_data;
                 if t.topic_name == topic && t.type_name != expected {
@@ -264,6 +321,12 @@ impl Receiver {
 }
 
 impl Link for Ros2Bridge {
+    /// True: the frames the router sends are read, and the frames it receives are made,
+    /// in this process (`hetcomm_rosmsg::bridge::FrameMaker`); only their headers need a CRC.
+    fn checksums_payload(&self) -> bool {
+        true
+    }
+
     fn caps(&self) -> LinkCaps {
         caps()
     }
@@ -272,14 +335,20 @@ impl Link for Ros2Bridge {
         let Some(out) = self.outbound.convert(to, frame)? else {
             return Ok(());
         };
-        let (m, writer) = (out.mapping, out.publisher);
+        let (m, p) = (out.mapping, &self.published[*out.publisher]);
+        p.wait(
+            self.participant.as_ref().expect("open"),
+            self.connect_timeout,
+        )
+        .map_err(|reason| LinkError::Unreachable { peer: to, reason })?;
         let cdr = RawCdr {
             body: out.body,
             little: true,
             xcdr2: false,
         };
-        match writer.write(cdr, None) {
+        match p.writer.write(cdr, None) {
             Ok(()) => {
+                p.wrote();
                 self.shared.tally.sent();
                 Ok(())
             }
@@ -301,9 +370,18 @@ impl Link for Ros2Bridge {
 
 impl Drop for Ros2Bridge {
     fn drop(&mut self) {
+        // What was written reaches the readers matched before the participant goes.
+        let deadline = Instant::now() + self.connect_timeout;
+        for p in &self.published {
+            p.flush(deadline.saturating_duration_since(Instant::now()));
+        }
         self.shared.closed.store(true, Ordering::Relaxed);
         if let Some(t) = self.receiver.take() {
             let _ = t.join();
+        }
+        self.published.clear();
+        if let Some(dp) = self.participant.take() {
+            retire(dp);
         }
     }
 }

@@ -15,8 +15,9 @@ use crate::settings::{self as ros2, Ros2Settings};
 pub struct BridgeSettings {
     /// The external system (it runs ROS 2, not hetcomm): `robot = "Tango"`.
     pub robot: String,
-    /// DDS settings (`domain_id`, `reliability`, `history_depth`, `interface`, `same_host`);
-    /// `namespace` and `connect_timeout_ms` are not used by a bridge.
+    /// DDS settings (`domain_id`, `reliability`, `history_depth`, `interface`, `same_host`,
+    /// `connect_timeout_ms`: how long a send waits for its topic's readers to be matched, and
+    /// a closing bridge for their acknowledgements); `namespace` is not used by a bridge.
     pub dds: Ros2Settings,
     /// `[transports.x.publish]`: sends to (robot, module) of a message type become ROS
     /// messages on a topic.
@@ -29,13 +30,14 @@ pub struct BridgeSettings {
 }
 
 /// The keys of a `ros2_bridge` table, besides the shared ones.
-pub const KEYS: [&str; 9] = [
+pub const KEYS: [&str; 10] = [
     COMMON_KEYS[0],
     "domain_id",
     "reliability",
     "history_depth",
     "interface",
     "same_host",
+    "connect_timeout_ms",
     COMMON_KEYS[1],
     COMMON_KEYS[2],
     COMMON_KEYS[3],

@@ -5,8 +5,8 @@ use std::time::Instant;
 
 use hetcomm_config::model::EmulatedSettings;
 
-use crate::layer::{LayerContext, LayerError, LinkLayer};
-use crate::Link;
+use crate::layer::{LayerContext, LayerError, LinkLayer, OpenBelow};
+use crate::{FrameSink, Link};
 
 use super::link::EmulatedLink;
 use super::model::LinkModel;
@@ -67,11 +67,14 @@ impl LinkLayer for EmulationLayer {
         "emulation"
     }
 
-    fn wrap_link(
+    fn wrap(
         &self,
         ctx: &LayerContext,
-        link: Arc<dyn Link>,
+        sink: Arc<dyn FrameSink>,
+        open: OpenBelow<'_>,
     ) -> Result<Arc<dyn Link>, LayerError> {
+        // Received frames are not touched: the sender's model already judged them.
+        let link = open(sink)?;
         if ctx.virtual_time {
             return Ok(link);
         }

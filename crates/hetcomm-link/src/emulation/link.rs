@@ -1,10 +1,11 @@
 //! [`EmulatedLink`]: the real-time wrapper that applies a [`LinkModel`] to any [`Link`].
 
+use parking_lot::{Condvar, Mutex};
 use std::borrow::Cow;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -262,8 +263,8 @@ impl<L: Link + 'static> EmulatedLink<L> {
         d
     }
 
-    fn lock_state(&self) -> std::sync::MutexGuard<'_, SendState> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock_state(&self) -> parking_lot::MutexGuard<'_, SendState> {
+        self.state.lock()
     }
 
     /// Hands one copy to the inner link now, or to the delay thread.
@@ -283,7 +284,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
             None => Cow::Borrowed(frame),
         };
         if d.at <= now || self.delayer.is_none() {
-            let queue = self.shared.queue.lock().unwrap_or_else(|e| e.into_inner());
+            let queue = self.shared.queue.lock();
             // Going first is only allowed when nothing sent earlier is still waiting, or the
             // copy would overtake frames that are due before it.
             if queue.heap.is_empty() && queue.forwarding == 0 {
@@ -291,7 +292,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
                 return self.shared.forward(to, &bytes);
             }
         }
-        let mut queue = self.shared.queue.lock().unwrap_or_else(|e| e.into_inner());
+        let mut queue = self.shared.queue.lock();
         let seq = queue.next_seq;
         queue.next_seq += 1;
         queue.bytes += bytes.len();
@@ -309,7 +310,7 @@ impl<L: Link + 'static> EmulatedLink<L> {
 
 /// The delay thread: forwards each waiting copy when it falls due, until told to stop.
 fn deliver_when_due<L: Link>(shared: &Shared<L>) {
-    let mut queue = shared.queue.lock().unwrap_or_else(|e| e.into_inner());
+    let mut queue = shared.queue.lock();
     loop {
         if queue.stop {
             return;
@@ -318,14 +319,12 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
         let due = queue.heap.peek().map(|Reverse(p)| p.due_us);
         match due {
             None => {
-                queue = shared.wake.wait(queue).unwrap_or_else(|e| e.into_inner());
+                shared.wake.wait(&mut queue);
             }
             Some(due) if due > now => {
-                queue = shared
+                shared
                     .wake
-                    .wait_timeout(queue, Duration::from_micros(due - now))
-                    .unwrap_or_else(|e| e.into_inner())
-                    .0;
+                    .wait_for(&mut queue, Duration::from_micros(due - now));
             }
             Some(_) => {
                 let Some(Reverse(p)) = queue.heap.pop() else {
@@ -337,7 +336,7 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
                 if shared.forward(p.to, &p.bytes).is_err() {
                     shared.forward_failed.fetch_add(1, Ordering::Relaxed);
                 }
-                queue = shared.queue.lock().unwrap_or_else(|e| e.into_inner());
+                queue = shared.queue.lock();
                 queue.forwarding -= 1;
             }
         }
@@ -349,6 +348,11 @@ fn deliver_when_due<L: Link>(shared: &Shared<L>) {
 // held frames are sent at once and parts joined, since the model judges whole frames.
 crate::forward_link! {
     [impl<L: Link + 'static>] EmulatedLink<L> => shared.inner;
+
+    /// Held frames are sent at once, through `send`: the model judges each frame.
+    fn batches(&self) -> bool {
+        false
+    }
 
     /// The inner link's capabilities, limited by the model: unreliable if the model can lose
     /// frames, unordered if it can reorder them, `mtu`/`max_frame` capped at `mtu_bytes`,
@@ -421,7 +425,6 @@ crate::forward_link! {
             .shared
             .queue
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .bytes;
         stats.frames_sent = self.shared.forwarded.load(Ordering::Relaxed);
         stats.frames_dropped += lost + self.shared.forward_failed.load(Ordering::Relaxed);
@@ -438,11 +441,7 @@ crate::forward_link! {
 
 impl<L: Link + 'static> Drop for EmulatedLink<L> {
     fn drop(&mut self) {
-        self.shared
-            .queue
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .stop = true;
+        self.shared.queue.lock().stop = true;
         self.shared.wake.notify_all();
         if let Some(handle) = self.delayer.take() {
             let _ = handle.join();
@@ -596,10 +595,7 @@ mod tests {
 
     impl FrameSink for TimedSink {
         fn on_frame(&self, frame: &[u8], _from: Peer) {
-            self.arrivals
-                .lock()
-                .unwrap()
-                .push((Instant::now(), frame.to_vec()));
+            self.arrivals.lock().push((Instant::now(), frame.to_vec()));
         }
     }
 
@@ -624,24 +620,18 @@ mod tests {
         }
         assert!(a.stats().buffered_bytes > 0, "frames wait in the heap");
         let deadline = Instant::now() + Duration::from_secs(5);
-        while sink.arrivals.lock().unwrap().len() < 10 {
+        while sink.arrivals.lock().len() < 10 {
             assert!(Instant::now() < deadline, "delayed frames did not arrive");
             std::thread::sleep(Duration::from_millis(5));
         }
-        for (at, bytes) in sink.arrivals.lock().unwrap().iter() {
+        for (at, bytes) in sink.arrivals.lock().iter() {
             let i = bytes[0] as usize;
             let waited = at.duration_since(sent[i]);
             // The model's clock has 1 µs steps, so the send instant is known to 1 µs.
             let latency = Duration::from_millis(30) - Duration::from_micros(1);
             assert!(waited >= latency, "frame {i} after {waited:?}");
         }
-        let order: Vec<u8> = sink
-            .arrivals
-            .lock()
-            .unwrap()
-            .iter()
-            .map(|(_, b)| b[0])
-            .collect();
+        let order: Vec<u8> = sink.arrivals.lock().iter().map(|(_, b)| b[0]).collect();
         assert_eq!(order, (0..10).collect::<Vec<u8>>());
     }
 

@@ -75,12 +75,15 @@
 //! assert_eq!(v.drop_reason(), Some(DropReason::OutOfRange));
 //! ```
 
+mod factory;
 mod layer;
 mod link;
 mod model;
 mod params;
 mod positions;
+mod verdict;
 
+pub use factory::EmulatedFactory;
 pub use layer::EmulationLayer;
 pub use link::{DropCounts, EmulatedLink};
 pub use model::{direction_rng, Arrival, BitFlip, DropReason, LinkModel, Verdict};

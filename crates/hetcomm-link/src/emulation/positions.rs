@@ -1,8 +1,9 @@
 //! Where the systems are: a shared table the virtual environment updates while the fleet runs,
 //! and the emulated links read to compute distances for range and path loss.
 
+use parking_lot::RwLock;
 use std::collections::HashMap;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 
 use hetcomm_core::SystemId;
 
@@ -36,33 +37,23 @@ impl PositionTable {
 
     /// Records (or moves) `system` to `(x, y)` metres.
     pub fn set(&self, system: SystemId, x: f64, y: f64) {
-        self.inner
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(system, (x, y));
+        self.inner.write().insert(system, (x, y));
     }
 
     /// Forgets `system`'s position (it then counts as co-located with everyone).
     pub fn remove(&self, system: SystemId) {
-        self.inner
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&system);
+        self.inner.write().remove(&system);
     }
 
     /// `system`'s position, if known.
     pub fn position(&self, system: SystemId) -> Option<(f64, f64)> {
-        self.inner
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(&system)
-            .copied()
+        self.inner.read().get(&system).copied()
     }
 
     /// Euclidean distance between `a` and `b` in metres, or `None` if either position is
     /// unknown.
     pub fn distance(&self, a: SystemId, b: SystemId) -> Option<f64> {
-        let table = self.inner.read().unwrap_or_else(|e| e.into_inner());
+        let table = self.inner.read();
         let (ax, ay) = *table.get(&a)?;
         let (bx, by) = *table.get(&b)?;
         Some((ax - bx).hypot(ay - by))

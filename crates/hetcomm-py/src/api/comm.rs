@@ -14,7 +14,7 @@ pub struct Comm {
 
 impl Drop for Comm {
     fn drop(&mut self) {
-        if let Some(c) = self.inner.get_mut().ok().and_then(Option::take) {
+        if let Some(c) = self.inner.get_mut().take() {
             drop_detached(c);
         }
     }
@@ -30,7 +30,6 @@ impl Comm {
     fn get(&self) -> PyResult<hetcomm::Comm> {
         self.inner
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .clone()
             .ok_or_else(|| new_err("ClosedError", "the system is closed"))
     }
@@ -203,6 +202,7 @@ impl Comm {
             ("failed", r.failed),
             ("received", r.received),
             ("acks_sent", r.acks_sent),
+            ("ack_frames_sent", r.ack_frames_sent),
             ("acks_received", r.acks_received),
             ("stale_acks", r.stale_acks),
             ("duplicates", r.duplicates),
@@ -250,7 +250,48 @@ impl Comm {
         out.set_item("links", links)?;
         out.set_item("callback_failures", s.callback_failures)?;
         out.set_item("held_frames", s.held_frames)?;
+        let switches = s
+            .path_switches
+            .iter()
+            .map(|c| paths::switch_dict(py, c))
+            .collect::<PyResult<Vec<_>>>()?;
+        out.set_item("path_switches", switches)?;
         Ok(out)
+    }
+    /// Changes, while running, the transports that carry this system's traffic to
+    /// `system`, in order of preference: each must be one the pair's table cell lists (a
+    /// reorder or a subset of it). Raises ValueError with the reason, changing nothing,
+    /// otherwise (docs/failover.md).
+    fn set_transports(&self, system: &str, transports: Vec<String>) -> PyResult<()> {
+        let names: Vec<&str> = transports.iter().map(String::as_str).collect();
+        self.get()?
+            .set_transports(system, &names)
+            .map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+    /// The transports that may carry this system's traffic to `system`, in order of
+    /// preference: [{"transport", "up", "active", "srtt_s"}].
+    fn paths<'py>(&self, py: Python<'py>, system: &str) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.get()?
+            .paths(system)
+            .iter()
+            .map(|p| paths::path_dict(py, p))
+            .collect()
+    }
+    /// The path switches since the last call of this (on any handle of this system):
+    /// [{"to", "from", "now", "at_s", "number"}], oldest first.
+    fn path_changes<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.get()?
+            .path_changes()
+            .iter()
+            .map(|s| paths::switch_dict(py, s))
+            .collect()
+    }
+    /// A watch of this system's path switches from now on: every switch, whatever other
+    /// consumers read (`for s in watch`, `watch.recv(timeout)`).
+    fn watch_paths(&self) -> PyResult<PathWatch> {
+        Ok(PathWatch {
+            inner: self.get()?.watch_paths(),
+        })
     }
     /// Runs this system's callbacks until `timeout` seconds pass (None: until interrupted,
     /// e.g. by Ctrl-C, which raises KeyboardInterrupt) or this handle is closed, like rospy's
@@ -258,16 +299,11 @@ impl Comm {
     /// with the GIL released.
     #[pyo3(signature = (timeout=None))]
     fn spin(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
-        spin(py, timeout, || {
-            self.inner
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .is_some()
-        })
+        spin(py, timeout, || self.inner.lock().is_some())
     }
     /// Drops this handle to the system (it closes once no Module object of it is left).
     fn close(&self) {
-        let c = self.inner.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let c = self.inner.lock().take();
         if let Some(c) = c {
             drop_detached(c);
         }
@@ -297,7 +333,7 @@ pub struct LocalFleet {
 
 impl Drop for LocalFleet {
     fn drop(&mut self) {
-        if let Some(f) = self.inner.get_mut().ok().and_then(Option::take) {
+        if let Some(f) = self.inner.get_mut().take() {
             drop_detached(f);
         }
     }
@@ -305,7 +341,7 @@ impl Drop for LocalFleet {
 
 impl LocalFleet {
     fn with<R>(&self, f: impl FnOnce(&hetcomm::LocalFleet) -> PyResult<R>) -> PyResult<R> {
-        let guard = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let guard = self.inner.lock();
         match guard.as_ref() {
             Some(fleet) => f(fleet),
             None => Err(new_err("ClosedError", "the fleet is closed")),
@@ -370,16 +406,11 @@ impl LocalFleet {
     /// by Ctrl-C, which raises KeyboardInterrupt) or the fleet is closed; see `Comm.spin`.
     #[pyo3(signature = (timeout=None))]
     fn spin(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
-        spin(py, timeout, || {
-            self.inner
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .is_some()
-        })
+        spin(py, timeout, || self.inner.lock().is_some())
     }
     /// Drops this handle to the fleet (systems close once no Comm or Module of them is left).
     fn close(&self) {
-        let f = self.inner.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let f = self.inner.lock().take();
         if let Some(f) = f {
             drop_detached(f);
         }

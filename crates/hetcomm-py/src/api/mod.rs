@@ -8,19 +8,21 @@ mod comm;
 mod message;
 mod module;
 mod outcome;
+mod paths;
 
 pub use comm::{Comm, LocalFleet};
 pub use message::{Envelope, RawMessage, Received};
 pub use module::Module;
 pub use outcome::{BroadcastTicket, Outcome, Ticket};
+pub use paths::PathWatch;
 
 // Helpers the submodules share.
 use message::{raw_message, received, unpack};
 use module::inbox_stats;
 use outcome::spin;
 
+use parking_lot::Mutex;
 use std::path::PathBuf;
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -139,6 +141,7 @@ pub fn add_classes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Envelope>()?;
     m.add_class::<RawMessage>()?;
     m.add_class::<Received>()?;
+    m.add_class::<PathWatch>()?;
     m.add_function(wrap_pyfunction!(pack, m)?)?;
     m.add_function(wrap_pyfunction!(unpack_py, m)?)?;
     m.add_function(wrap_pyfunction!(decode_frame, m)?)?;

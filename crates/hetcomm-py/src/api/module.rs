@@ -13,7 +13,7 @@ pub struct Module {
 
 impl Drop for Module {
     fn drop(&mut self) {
-        if let Some(m) = self.inner.get_mut().ok().and_then(Option::take) {
+        if let Some(m) = self.inner.get_mut().take() {
             drop_detached(m);
         }
     }
@@ -23,7 +23,6 @@ impl Module {
     fn get(&self) -> PyResult<hetcomm::Module> {
         self.inner
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .clone()
             .ok_or_else(|| new_err("ClosedError", "the system is closed"))
     }

@@ -8,6 +8,8 @@ use super::*;
 /// - "delivered": the receiving router put the message in the destination module's inbox and
 ///   acknowledged it (in the inbox, not necessarily read yet);
 /// - "sent": an unacknowledged transport took it; it cannot confirm delivery;
+/// - "relayed": an unacknowledged transport took it and the broker it goes through (MQTT at
+///   QoS 1) confirmed it has it: still not known to be delivered;
 /// - "unconfirmed": frames left but no acknowledgement came back; it may or may not have
 ///   arrived (`reason` says why the sender stopped waiting);
 /// - "failed": certainly not delivered (`reason` says why).
@@ -19,12 +21,13 @@ pub struct Outcome {
 
 #[pymethods]
 impl Outcome {
-    /// "delivered", "sent", "unconfirmed" or "failed".
+    /// "delivered", "sent", "relayed", "unconfirmed" or "failed".
     #[getter]
     fn kind(&self) -> &'static str {
         match self.inner {
             hetcomm::Outcome::Delivered { .. } => "delivered",
             hetcomm::Outcome::Sent { .. } => "sent",
+            hetcomm::Outcome::Relayed { .. } => "relayed",
             hetcomm::Outcome::Unconfirmed { .. } => "unconfirmed",
             hetcomm::Outcome::Failed { .. } => "failed",
         }
@@ -34,7 +37,7 @@ impl Outcome {
     fn attempts(&self) -> u32 {
         self.inner.attempts()
     }
-    /// Delivered or sent.
+    /// Delivered, sent or relayed.
     #[getter]
     fn is_success(&self) -> bool {
         self.inner.is_success()
@@ -68,8 +71,9 @@ impl Outcome {
         self.inner.reason().map(|r| r.to_string())
     }
     /// Why it failed or went unconfirmed, as a short code: "no_acknowledgement",
-    /// "unreachable", "congested", "no_session", "inbox_full", "unknown_module", "link",
-    /// "backpressure", "shutdown".
+    /// "unreachable", "congested", "no_session", "inbox_full", "unknown_module", "link", "refused",
+    /// "relay" (what the broker said, or that it said nothing in time), "backpressure",
+    /// "shutdown".
     #[getter]
     fn reason_code(&self) -> Option<&'static str> {
         self.inner.reason().map(|reason| match reason {
@@ -78,6 +82,8 @@ impl Outcome {
             FailReason::InboxFull => "inbox_full",
             FailReason::UnknownModule => "unknown_module",
             FailReason::Link(_) => "link",
+            FailReason::Refused(_) => "refused",
+            FailReason::Relay(_) => "relay",
             FailReason::Backpressure => "backpressure",
             FailReason::Congested(_) => "congested",
             FailReason::NoSession(_) => "no_session",
@@ -162,6 +168,12 @@ impl Ticket {
     /// The outcome if the send has ended, else None.
     fn try_outcome(&self) -> Option<Outcome> {
         self.inner.try_outcome().map(outcome)
+    }
+    /// The transport (fleet-file name) that carried the send once it ended: for a delivery,
+    /// the one its acknowledgement came back on (docs/failover.md). None while pending.
+    #[getter]
+    fn transport(&self) -> Option<String> {
+        self.inner.transport().map(str::to_string)
     }
     /// Whether the send has ended.
     #[getter]

@@ -159,6 +159,9 @@ impl<T> Router<T> {
                     broadcast: Some(b),
                     unbuilt: true,
                     awaiting_ack: false,
+                    timed_out: false,
+                    to_untried: false,
+                    tried: 0,
                 },
             );
             self.stats.sends += 1;
@@ -199,6 +202,7 @@ impl<T> Router<T> {
     pub(super) fn poll_broadcast(&mut self, now: Time, b: u64) -> Option<Transmit> {
         let put = self.broadcasts.get_mut(&b)?;
         let frame = put.frame.take()?;
+        let link = put.link;
         for &to in &put.dests {
             let id = SendId {
                 to,
@@ -206,6 +210,7 @@ impl<T> Router<T> {
             };
             if let Some(p) = self.pending.get_mut(&id) {
                 p.attempts += 1;
+                p.tried |= link_bit(link);
                 p.first_sent.get_or_insert(now);
             }
         }

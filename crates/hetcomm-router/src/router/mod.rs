@@ -20,8 +20,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::wire::{
-    self, AckStatus, FLAG_ACK_REQUESTED, FLAG_BROADCAST, FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC,
-    FLAG_TO_ALL, HEADER_LEN, TO_ALL_SYSTEM,
+    self, AckPayload, AckStatus, ACK_RANGE_MAX, FLAG_ACK_REQUESTED, FLAG_BROADCAST,
+    FLAG_BROADCAST_SEQ, FLAG_HEADER_CRC, FLAG_TO_ALL, HEADER_LEN, TO_ALL_SYSTEM,
 };
 use hetcomm_core::{
     Address, FrameBuf, FrameKind, Header, PayloadBuf, PayloadSource, SystemId, Time,
@@ -74,6 +74,21 @@ struct Pending<T> {
     /// passing is an unconfirmed send on its path ([`Health::down_after`]), unlike a retry
     /// after a refusal.
     awaiting_ack: bool,
+    /// Its last frame's wait for an acknowledgement ran out: on a route the router judges,
+    /// the next frame goes on another healthy path when there is one (RFC 4960 s6.4).
+    timed_out: bool,
+    /// Its budget was spent and renewed for a path none of its frames took: the next frame
+    /// goes on such a path even when it is judged down (see `Router::untried_path`).
+    to_untried: bool,
+    /// The links its frames were offered on, one bit per link index (links from 64 on are
+    /// not tracked): a send whose budget is spent still gets one on a path of its route
+    /// that no frame of it took (see `Router::untried_path`).
+    tried: u64,
+}
+
+/// The bit of link `link` in [`Pending::tried`] (none for links from 64 on).
+fn link_bit(link: usize) -> u64 {
+    1u64.checked_shl(link as u32).unwrap_or(0)
 }
 
 impl<T> Pending<T> {
@@ -187,6 +202,34 @@ impl RouteState {
         }
     }
 
+    /// Where a send's next frame goes after its last one, on `last`, timed out: the first
+    /// healthy path other than `last` that none of its frames took (`tried`), else the
+    /// first healthy one other than `last`, else the active one. SCTP's rule (RFC 4960
+    /// s6.4): a retransmission goes to an alternate path, so a path that has just gone
+    /// silent costs a message one timeout, not the several it takes to judge the path down.
+    fn retry_path(&self, last: usize, tried: u64) -> Path {
+        let healthy = |p: &&PathState| p.up && !p.congested && p.path.link != last;
+        let mut alternates = self.paths.iter().filter(healthy);
+        let untried = self
+            .paths
+            .iter()
+            .filter(healthy)
+            .find(|p| tried & link_bit(p.path.link) == 0);
+        untried
+            .or_else(|| alternates.next())
+            .map_or(self.paths[self.active].path, |p| p.path)
+    }
+
+    /// The first path none of a send's frames took (`tried`), healthy ones first: where a
+    /// send whose budget was renewed for it goes (a path judged down may still carry it:
+    /// judging may have been wrong, and the send has nowhere else to go).
+    fn untried(&self, tried: u64) -> Option<Path> {
+        let fresh = |p: &&PathState| tried & link_bit(p.path.link) == 0;
+        let mut untried = self.paths.iter().filter(fresh);
+        let healthy = untried.clone().find(|p| p.up && !p.congested);
+        healthy.or_else(|| untried.next()).map(|p| p.path)
+    }
+
     /// The first path that is up and not congested, else the first that is up, else the
     /// active one (with every path down, sends keep trying where they are).
     fn best(&self) -> usize {
@@ -294,10 +337,16 @@ enum TransmitItem {
     Send(SendId),
     /// The one frame of a native broadcast.
     Broadcast(u64),
+    /// An acknowledgement, encoded when polled: until then the next acknowledgement of the
+    /// same sender's next frame, with the same status, widens it into a range
+    /// ([`AckPayload`]) instead of queueing a frame of its own.
     Ack {
         link: usize,
-        to: SystemId,
-        frame: Vec<u8>,
+        /// Its header; `seq` is the range's last number.
+        header: Header,
+        status: AckStatus,
+        /// The range's first number (`header.seq` for one frame).
+        first: u64,
     },
     /// A copy of a waiting send's frame, as a probe of a path that is down.
     Probe {
@@ -397,6 +446,10 @@ impl<T> Router<T> {
                 up: p.up,
                 congested: p.congested,
                 srtt: p.rtt.as_ref().and_then(|r| r.srtt()),
+                rto: p
+                    .rtt
+                    .as_ref()
+                    .map_or(self.config.timing.initial_rto, |r| r.rto()),
                 active: i == r.active,
                 bad_run: p.bad_run,
                 good_run: p.good_run,
@@ -447,6 +500,8 @@ impl<T> Router<T> {
     }
 }
 
+#[cfg(test)]
+mod ack_tests;
 #[cfg(test)]
 mod broadcast_tests;
 #[cfg(test)]

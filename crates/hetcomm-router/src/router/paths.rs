@@ -6,8 +6,9 @@
 //! comes back when its link says the peer is up, takes a frame, or delivers a frame from it.
 //! Under [`Health::failover`] the router also judges paths from what it sees (a run of
 //! unconfirmed sends or link errors takes a path down; a path that is down is probed and
-//! comes back after several acknowledgements on it and its hold time), see
-//! `docs/failover.md`. Each change of the path sends take is counted and reported
+//! comes back after several acknowledgements on it and its hold time), and a send whose
+//! acknowledgement timed out sends its next frame on another healthy path (SCTP's rule,
+//! RFC 4960 s6.4), getting a budget there when its own is spent; see `docs/failover.md`. Each change of the path sends take is counted and reported
 //! ([`Router::poll_path_change`]). A frame is written for the path it leaves on (tag and
 //! checksum flags), so a retransmission after a failover carries the new path's tag.
 
@@ -32,14 +33,8 @@ pub(super) enum Sign {
     /// sent on it and so proves both directions).
     Heard { ack: bool },
     /// A send's acknowledgement did not come back in time (`offered`: when its last frame
-    /// left; `waiting`: how long since its first), or its link failed otherwise (`offered`
-    /// is now). `exhausted`: it was the last attempt of the send's budget, and the whole
-    /// budget went unanswered on this path.
-    Unconfirmed {
-        offered: Time,
-        waiting: Duration,
-        exhausted: bool,
-    },
+    /// left), or its link failed otherwise (`offered` is now).
+    Unconfirmed { offered: Time },
 }
 
 impl<T> Router<T> {
@@ -155,12 +150,12 @@ impl<T> Router<T> {
             Err(TransmitError::Congested(_)) => Sign::Congested,
             Err(e) if e.unreachable() => Sign::Down { refused: true },
             // A missing session says nothing about the path: the handshake runs on it.
-            Err(TransmitError::TooLarge(_) | TransmitError::NoSession(_)) => return,
-            Err(_) if self.judging => Sign::Unconfirmed {
-                offered: now,
-                waiting: Duration::MAX,
-                exhausted: false,
-            },
+            Err(
+                TransmitError::TooLarge(_)
+                | TransmitError::Refused(_)
+                | TransmitError::NoSession(_),
+            ) => return,
+            Err(_) if self.judging => Sign::Unconfirmed { offered: now },
             Err(_) => return,
         };
         self.path_sign(now, peer, link, sign);
@@ -324,15 +319,67 @@ impl<T> Router<T> {
         }
     }
 
+    /// Where the next frame of a send to `to` goes, whose last frame was written for `last`:
+    /// the active path, or after a timeout on a route the router judges, an alternate one
+    /// ([`RouteState::retry_path`]); the route's settings on that path.
+    pub(super) fn next_path(
+        &self,
+        to: SystemId,
+        last: usize,
+        timed_out: bool,
+        to_untried: bool,
+        tried: u64,
+    ) -> Option<Route> {
+        let r = self.routes.get(&to)?;
+        let alternate = timed_out && self.judging && r.paths.len() > 1;
+        let untried = to_untried.then(|| r.untried(tried)).flatten();
+        let path = match (untried, alternate) {
+            (Some(path), _) => path,
+            (None, true) => r.retry_path(last, tried),
+            (None, false) => r.paths[r.active].path,
+        };
+        Some(Route {
+            link: path.link,
+            tag: path.tag,
+            ..r.route
+        })
+    }
+
+    /// Send `id`'s attempt budget is spent. When its route is judged and has a path that
+    /// none of its frames took (healthy or not: a path judged down on a stall may work),
+    /// the send gets the route's budget again (up to one budget per path in all) and its
+    /// next frame goes there: true. Otherwise false, and the send ends. So a send does not
+    /// end unconfirmed while a path that might carry it was never tried.
+    pub(super) fn untried_path(&mut self, id: SendId) -> bool {
+        if !self.judging {
+            return false;
+        }
+        let (Some(r), Some(p)) = (self.routes.get(&id.to), self.pending.get_mut(&id)) else {
+            return false;
+        };
+        let budget = r.route.attempts;
+        let most = budget.saturating_mul(r.paths.len() as u32);
+        if r.paths.len() < 2 || r.untried(p.tried).is_none() || p.attempts >= most {
+            return false;
+        }
+        p.route.attempts = p.attempts.saturating_add(budget).min(most);
+        p.timed_out = true;
+        p.to_untried = true;
+        true
+    }
+
     /// Sends to `to` that wait for an acknowledgement or a retry go again now (on the path
-    /// just taken), while attempts remain.
+    /// just taken), while attempts remain; those whose last frame left on that path and
+    /// wait for its acknowledgement (sent there after a timeout) keep waiting.
     fn retransmit_now(&mut self, now: Time, to: SystemId) {
+        let taken = self.route_link(to);
         let waiting: Vec<(SendId, Time)> = self
             .pending
             .iter()
             .filter(|(id, p)| {
                 id.to == to && (p.frame.is_some() || p.unbuilt) && p.attempts < p.route.attempts
             })
+            .filter(|(_, p)| !(p.awaiting_ack && Some(p.route.link) == taken))
             .filter_map(|(id, p)| p.deadline.map(|d| (*id, d)))
             .collect();
         for (id, deadline) in waiting {
@@ -447,21 +494,13 @@ fn judge(p: &mut PathState, sign: Sign, now: Time, health: &Health) {
         }
         // One direction only: a frame from the peer does not say ours arrive.
         Sign::Heard { ack: false } => {}
-        Sign::Unconfirmed {
-            offered,
-            waiting,
-            exhausted,
-        } => {
-            if p.up && exhausted {
-                // A whole budget unanswered: where a single path would give the send up, the
-                // path is down and the send goes on the next.
-                go_down(p, now, health);
-            } else if p.up {
-                // One count per round: sends whose frames all left before the last count
-                // timing out together (a stall of this process, a burst in flight) are one
-                // sign, not many; and a send counts only once it waited `patience`.
+        Sign::Unconfirmed { offered } => {
+            if p.up {
+                // One count per round, as SCTP counts a path's timeouts (RFC 4960 s8.2):
+                // sends whose frames all left before the last count timing out together (a
+                // stall of this process, a burst in flight) are one sign, not many.
                 let new_round = p.last_bad.is_none_or(|t| offered > t);
-                if new_round && waiting >= health.patience {
+                if new_round {
                     p.last_bad = Some(now);
                     p.bad_run += 1;
                     if p.bad_run >= health.down_after {

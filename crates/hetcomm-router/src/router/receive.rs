@@ -126,14 +126,29 @@ impl<T> Router<T> {
     }
 
     pub(super) fn handle_ack(&mut self, now: Time, link: usize, h: &Header, payload: &[u8]) {
-        let status = match payload {
-            [b] => AckStatus::from_u8(*b),
-            _ => None,
-        };
-        let Some(status) = status else {
+        let Some(AckPayload { status, first }) = AckPayload::parse(payload, h.seq) else {
             self.stats.malformed += 1;
             return;
         };
+        // One round-trip sample per acknowledgement frame: its oldest send taken once (the
+        // others' latencies overlap it).
+        let mut sampled = false;
+        for seq in first..=h.seq {
+            let one = Header { seq, ..*h };
+            sampled |= self.handle_ack_of(now, link, &one, status, !sampled);
+        }
+    }
+
+    /// The acknowledgement of the one send `h` names (a range's member, or a single ACK);
+    /// whether it took a round-trip sample (only when `sample`).
+    fn handle_ack_of(
+        &mut self,
+        now: Time,
+        link: usize,
+        h: &Header,
+        status: AckStatus,
+        sample: bool,
+    ) -> bool {
         let id = SendId {
             to: h.source.system,
             seq: space_seq(h),
@@ -142,14 +157,15 @@ impl<T> Router<T> {
             && self.pending.get(&id).is_some_and(|p| p.attempts > 0);
         if !matches {
             self.stats.stale_acks += 1;
-            return;
+            return false;
         }
         self.stats.acks_received += 1;
         let p = &self.pending[&id];
         let attempts = p.attempts;
         let latency = now.saturating_since(p.first_sent.unwrap_or(now));
         let sent_on = p.route.link;
-        if attempts == 1 && link == sent_on {
+        let sampled = sample && attempts == 1 && link == sent_on;
+        if sampled {
             // Karn: only unambiguous samples.
             self.rtt_sample(id.to, sent_on, latency);
         }
@@ -163,6 +179,7 @@ impl<T> Router<T> {
             }
         }
         self.finish(id, Outcome::acknowledged(status, attempts, latency));
+        sampled
     }
 
     pub(super) fn handle_data(
@@ -322,12 +339,38 @@ impl<T> Router<T> {
     }
 
     pub(super) fn queue_ack(&mut self, link: usize, header: Header, status: AckStatus) {
-        let frame = wire::encode(&header, &[status as u8]);
         self.stats.acks_sent += 1;
+        // The acknowledgement of the frame after the one the last queued acknowledgement
+        // covers, from and to the same modules with the same status: one frame for both.
+        // (Acknowledgements queue while a batch of deliveries is answered, and leave at the
+        // next poll: widening one delays nothing.)
+        if let Some(TransmitItem::Ack {
+            link: l,
+            header: last,
+            status: s,
+            first,
+        }) = self.transmits.back_mut()
+        {
+            let next = last.seq.checked_add(1) == Some(header.seq);
+            if next
+                && *l == link
+                && *s == status
+                && last.flags == header.flags
+                && last.source == header.source
+                && last.destination == header.destination
+                && last.incarnation == header.incarnation
+                && last.transport == header.transport
+                && header.seq - *first < ACK_RANGE_MAX
+            {
+                *last = header;
+                return;
+            }
+        }
         self.transmits.push_back(TransmitItem::Ack {
             link,
-            to: header.destination.system,
-            frame,
+            header,
+            status,
+            first: header.seq,
         });
     }
 

@@ -9,14 +9,22 @@ impl<T> Router<T> {
     pub fn poll_transmit(&mut self, now: Time) -> Option<Transmit> {
         while let Some(item) = self.transmits.pop_front() {
             match item {
-                TransmitItem::Ack { link, to, frame } => {
+                TransmitItem::Ack {
+                    link,
+                    header,
+                    status,
+                    first,
+                } => {
+                    let mut payload = [0u8; 9];
+                    let len = AckPayload { status, first }.write(header.seq, &mut payload);
+                    self.stats.ack_frames_sent += 1;
                     return Some(Transmit {
                         link,
-                        to,
-                        frame,
+                        to: header.destination.system,
+                        frame: wire::encode(&header, &payload[..len]),
                         send: None,
                         probe: None,
-                    })
+                    });
                 }
                 TransmitItem::Broadcast(b) => match self.poll_broadcast(now, b) {
                     Some(tx) => return Some(tx),
@@ -40,13 +48,16 @@ impl<T> Router<T> {
                     let Some(mut frame) = taken else {
                         continue;
                     };
-                    let Some(written_for) = self.pending.get(&id).map(|p| p.route.link) else {
+                    let Some(p) = self.pending.get(&id) else {
                         continue;
                     };
-                    // After a failover the frame leaves on another path than it was written
-                    // for: rewrite it for the path it takes now.
-                    let current = self.routes.get(&id.to).map(RouteState::current);
-                    let moved = current.filter(|c| c.link != written_for);
+                    let written_for = p.route.link;
+                    // After a failover, or a timeout that sends it on an alternate path, the
+                    // frame leaves on another path than it was written for: rewrite it for
+                    // the path it takes now.
+                    let (timed_out, to_untried) = (p.timed_out, p.to_untried);
+                    let next = self.next_path(id.to, written_for, timed_out, to_untried, p.tried);
+                    let moved = next.filter(|c| c.link != written_for);
                     if let Some(current) = moved {
                         frame = self.frame_for_path(&current, frame);
                     }
@@ -58,6 +69,9 @@ impl<T> Router<T> {
                         p.route.tag = current.tag;
                     }
                     p.attempts += 1;
+                    p.timed_out = false;
+                    p.to_untried = false;
+                    p.tried |= link_bit(p.route.link);
                     p.first_sent.get_or_insert(now);
                     p.offered = now;
                     self.stats.transmissions += 1;
@@ -139,24 +153,33 @@ impl<T> Router<T> {
                     self.finish(id, Outcome::Sent { attempts });
                 }
             }
-            Err(err @ TransmitError::TooLarge(_)) => {
+            Err(err @ (TransmitError::TooLarge(_) | TransmitError::Refused(_))) => {
                 let outcome = p.give_up(err.into());
                 self.finish(id, outcome);
             }
             Err(err) => {
-                if p.attempts < p.route.attempts {
-                    let factor = 1u32 << p.attempts.saturating_sub(1).min(16);
-                    let deadline = if moved {
-                        now
-                    } else {
-                        now + self.config.timing.link_retry * factor
-                    };
-                    p.deadline = Some(deadline);
-                    self.timers.insert((deadline, Timer::Retransmit(id)));
-                } else {
-                    let outcome = p.give_up(err.into());
-                    self.finish(id, outcome);
+                // Its frame did not get through: on a route the router judges, the retry
+                // goes on another healthy path when there is one, as after a timeout.
+                p.timed_out = true;
+                let left = p.attempts < p.route.attempts;
+                if !left && !self.untried_path(id) {
+                    if let Some(p) = self.pending.get(&id) {
+                        let outcome = p.give_up(err.into());
+                        self.finish(id, outcome);
+                    }
+                    return;
                 }
+                let Some(p) = self.pending.get_mut(&id) else {
+                    return;
+                };
+                let factor = 1u32 << p.attempts.saturating_sub(1).min(16);
+                let deadline = if moved {
+                    now
+                } else {
+                    now + self.config.timing.link_retry * factor
+                };
+                p.deadline = Some(deadline);
+                self.timers.insert((deadline, Timer::Retransmit(id)));
             }
         }
     }
@@ -258,7 +281,7 @@ impl<T> Router<T> {
             }
             match outcome {
                 Outcome::Delivered { .. } => self.stats.delivered += 1,
-                Outcome::Sent { .. } => self.stats.sent += 1,
+                Outcome::Sent { .. } | Outcome::Relayed { .. } => self.stats.sent += 1,
                 Outcome::Unconfirmed { .. } => self.stats.unconfirmed += 1,
                 Outcome::Failed { .. } => self.stats.failed += 1,
             }

@@ -84,6 +84,9 @@ impl<T> Router<T> {
                 broadcast: None,
                 unbuilt: false,
                 awaiting_ack: false,
+                timed_out: false,
+                to_untried: false,
+                tried: 0,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -167,7 +170,7 @@ impl<T> Router<T> {
         self.path_result(now, id.to, tx_link, &Err(err.clone()));
         let route = self.route(id.to);
         let retry = match (&err, route) {
-            (TransmitError::TooLarge(_), _) | (_, None) => None,
+            (TransmitError::TooLarge(_) | TransmitError::Refused(_), _) | (_, None) => None,
             (_, Some(route)) => Some(route).filter(|r| r.attempts > 1),
         };
         // The frame stays written for the path it was refused on; a retry on another path
@@ -201,6 +204,9 @@ impl<T> Router<T> {
                 broadcast: None,
                 unbuilt: false,
                 awaiting_ack: false,
+                timed_out: false,
+                to_untried: false,
+                tried: link_bit(tx_link),
             },
         );
         self.timers.insert((deadline, Timer::Retransmit(id)));

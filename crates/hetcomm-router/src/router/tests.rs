@@ -331,7 +331,23 @@ fn an_unqueued_send_fails_at_once_without_attempts_left_or_when_too_large() {
             attempts: 1
         })
     ));
-    for r in [&a, &a3] {
+    // Nor one whose content the link refuses (a bridge's conversion): its own reason.
+    let mut r3 = router_with(false, 3);
+    let tx = unqueued(&mut r3, now, b"x");
+    let err = Err(TransmitError::Refused("does not convert".into()));
+    let outcome = r3.unqueued_result(now, tx, err, || panic!("nothing to retry"));
+    assert_eq!(
+        outcome,
+        Some(Outcome::Failed {
+            reason: FailReason::Refused("does not convert".into()),
+            attempts: 1
+        })
+    );
+    assert_eq!(
+        FailReason::Refused("x".into()).to_string(),
+        "refused by the link: x"
+    );
+    for r in [&a, &a3, &r3] {
         let s = r.stats();
         assert_eq!(
             (s.sends, s.transmissions, s.failed, s.in_flight()),

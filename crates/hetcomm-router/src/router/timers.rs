@@ -36,23 +36,22 @@ impl<T> Router<T> {
             return; // superseded
         }
         p.deadline = None;
-        if std::mem::take(&mut p.awaiting_ack) && self.judging {
+        let timed_out = std::mem::take(&mut p.awaiting_ack);
+        if timed_out && self.judging {
             // Unconfirmed on the path its last frame took: that path's health hears of it
-            // (and may fail over, which gives this send a budget on the next path).
+            // (and may fail over, which gives this send a budget on the next path), and the
+            // next frame goes on another healthy path if there is one.
+            p.timed_out = true;
             let link = p.route.link;
-            let sign = paths::Sign::Unconfirmed {
-                offered: p.offered,
-                waiting: now.saturating_since(p.first_sent.unwrap_or(now)),
-                exhausted: p.attempts >= p.route.attempts,
-            };
+            let sign = paths::Sign::Unconfirmed { offered: p.offered };
             self.path_sign(now, id.to, link, sign);
         }
-        let Some(p) = self.pending.get_mut(&id) else {
+        let Some(p) = self.pending.get(&id) else {
             return;
         };
-        if p.attempts < p.route.attempts {
+        if p.attempts < p.route.attempts || self.untried_path(id) {
             self.transmits.push_back(TransmitItem::Send(id));
-        } else {
+        } else if let Some(p) = self.pending.get(&id) {
             let outcome = p.give_up(FailReason::NoAcknowledgement);
             self.finish(id, outcome);
         }

@@ -97,6 +97,9 @@ pub struct PathHealth {
     pub congested: bool,
     /// The smoothed round-trip time measured on this path, once measured.
     pub srtt: Option<Duration>,
+    /// Its retransmission timeout now (before back-off): from its RTT once measured
+    /// (RFC 6298), [`Timing::initial_rto`] until then.
+    pub rto: Duration,
     /// Whether sends take this path now.
     pub active: bool,
     /// Unconfirmed sends and link errors in a row on it (see [`Health::down_after`]).
@@ -166,15 +169,13 @@ impl Default for Timing {
 pub struct Health {
     /// Retransmission timeouts (a frame left on the path and no acknowledgement came back)
     /// and link errors in a row on a path, with no acknowledgement heard on it between them,
-    /// that make it unhealthy. 0: the router does not judge paths itself (the original rule;
-    /// the fields below are then unused). Counted once per round: timeouts of sends whose
-    /// frames all left before the last one counted are one sign (a stall of this process
-    /// times many sends out at once), and only sends that waited [`Health::patience`].
+    /// that make it unhealthy (SCTP's `Path.Max.Retrans`, RFC 4960 s8.2). 0: the router does
+    /// not judge paths itself (the original rule; the fields below are then unused). Counted
+    /// once per round: timeouts of sends whose frames all left before the last one counted
+    /// are one sign (a stall of this process times many sends out at once). Under judging,
+    /// a send whose acknowledgement timed out sends its next frame on another healthy path
+    /// when there is one, so a path going silent costs a message one timeout, not this many.
     pub down_after: u32,
-    /// How long a send must have waited for its acknowledgement (from its first frame)
-    /// before its timeout counts towards [`Health::down_after`]: a receiver that stalls for
-    /// less does not move the traffic.
-    pub patience: Duration,
     /// Acknowledgements heard on a path that is down (answers to its probes, or a
     /// [`LinkEvent::PeerUp`] from its link), in a row, before sends return to it. A probe left
     /// unanswered until the next one restarts the count.
@@ -195,7 +196,6 @@ impl Default for Health {
     fn default() -> Self {
         Health {
             down_after: 0,
-            patience: Duration::ZERO,
             up_after: 1,
             hold: Duration::ZERO,
             probe_interval: Duration::ZERO,
@@ -204,13 +204,14 @@ impl Default for Health {
 }
 
 impl Health {
-    /// The router judges paths too: down after 3 rounds of unconfirmed sends (each having
-    /// waited 50 ms) or link errors in a row, probed every 50 ms, back after 3
-    /// acknowledgements on it and a hold of 500 ms.
+    /// The router judges paths too: down after 5 rounds of unconfirmed sends or link errors
+    /// in a row (SCTP's default `Path.Max.Retrans`: a few losses in a row on a lossy radio do
+    /// not move the traffic, and the sends caught go on the other path at their first
+    /// timeout meanwhile), probed every 50 ms, back after 3 acknowledgements on it and a hold
+    /// of 500 ms.
     pub fn failover() -> Health {
         Health {
-            down_after: 3,
-            patience: Duration::from_millis(50),
+            down_after: 5,
             up_after: 3,
             hold: Duration::from_millis(500),
             probe_interval: Duration::from_millis(50),
@@ -419,6 +420,18 @@ pub enum FailReason {
     /// The link refused the frame for another reason.
     #[error("transport error: {0}")]
     Link(String),
+    /// An unacknowledged send on a link whose frames pass through an intermediary that
+    /// confirms taking them (an MQTT broker's PUBACK): the intermediary did not confirm the
+    /// frame in time (in [`Outcome::Unconfirmed`]), or said nobody would get it (in
+    /// [`Outcome::Failed`]). The text is the link's, naming the intermediary, e.g. "the
+    /// broker mqtt://127.0.0.1:1883 did not confirm it within 2000 ms".
+    #[error("{0}")]
+    Relay(String),
+    /// The link will never carry the message as it is (a bridge could not convert it to the
+    /// mapped ROS type, or no topic is mapped for it): failed on its first attempt, nothing
+    /// sent, never retried.
+    #[error("refused by the link: {0}")]
+    Refused(String),
     /// Not sent: the destination's [`Route::max_in_flight`] sends already awaited their
     /// outcome (a broadcast reports this per destination; a single send is refused with
     /// [`SendError::Backpressure`] instead).
@@ -435,6 +448,7 @@ pub enum FailReason {
 /// |---|---|
 /// | [`Delivered`](Outcome::Delivered) | in the destination module's inbox (not necessarily read yet) |
 /// | [`Sent`](Outcome::Sent) | handed to the transport, which cannot confirm (unacknowledged mode) |
+/// | [`Relayed`](Outcome::Relayed) | taken by the broker the transport goes through, which said so (unacknowledged mode); not known to be delivered |
 /// | [`Unconfirmed`](Outcome::Unconfirmed) | maybe delivered: frames left, no acknowledgement came back |
 /// | [`Failed`](Outcome::Failed) | certainly not delivered |
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -450,6 +464,15 @@ pub enum Outcome {
     /// The transport took the frame; it cannot confirm delivery (unacknowledged mode).
     Sent {
         /// Transmissions it took (more than one if the transport refused earlier ones).
+        attempts: u32,
+    },
+    /// The transport took the frame, and the intermediary it goes through (an MQTT broker,
+    /// with its QoS 1 PUBACK) confirmed it has it (unacknowledged mode). Not delivery: the
+    /// broker may still drop it (a restart without persistence, a subscriber's full queue).
+    /// Had the intermediary not confirmed in time, the send ends
+    /// [`Unconfirmed`](Outcome::Unconfirmed) with [`FailReason::Relay`].
+    Relayed {
+        /// Transmissions it took.
         attempts: u32,
     },
     /// At least one frame left this system but no acknowledgement came back before the
@@ -488,9 +511,13 @@ impl Outcome {
         }
     }
 
-    /// Delivered, or sent without confirmation on a transport that cannot confirm.
+    /// Delivered, sent without confirmation on a transport that cannot confirm, or relayed
+    /// (a broker confirmed it has the frame).
     pub fn is_success(&self) -> bool {
-        matches!(self, Outcome::Delivered { .. } | Outcome::Sent { .. })
+        matches!(
+            self,
+            Outcome::Delivered { .. } | Outcome::Sent { .. } | Outcome::Relayed { .. }
+        )
     }
 
     /// Maybe delivered: frames left but no acknowledgement came back.
@@ -503,11 +530,11 @@ impl Outcome {
         matches!(self, Outcome::Failed { .. })
     }
 
-    /// Why the send failed or went unconfirmed (`None` for the two successes).
+    /// Why the send failed or went unconfirmed (`None` for the successes).
     pub fn reason(&self) -> Option<&FailReason> {
         match self {
             Outcome::Unconfirmed { reason, .. } | Outcome::Failed { reason, .. } => Some(reason),
-            Outcome::Delivered { .. } | Outcome::Sent { .. } => None,
+            Outcome::Delivered { .. } | Outcome::Sent { .. } | Outcome::Relayed { .. } => None,
         }
     }
 
@@ -516,6 +543,7 @@ impl Outcome {
         match *self {
             Outcome::Delivered { attempts, .. }
             | Outcome::Sent { attempts }
+            | Outcome::Relayed { attempts }
             | Outcome::Unconfirmed { attempts, .. }
             | Outcome::Failed { attempts, .. } => attempts,
         }
@@ -534,6 +562,12 @@ impl std::fmt::Display for Outcome {
             }
             Outcome::Sent { attempts } => {
                 write!(f, "sent without confirmation (attempts: {attempts})")
+            }
+            Outcome::Relayed { attempts } => {
+                write!(
+                    f,
+                    "sent; the broker confirmed it has it, not that it was delivered (attempts: {attempts})"
+                )
             }
             Outcome::Unconfirmed { reason, attempts } => {
                 write!(
@@ -577,6 +611,10 @@ pub enum TransmitError {
     Congested(String),
     /// The frame can never fit (not retried).
     TooLarge(String),
+    /// The link will never carry this frame as it is: its content cannot be put on that
+    /// transport (a bridge's conversion to a ROS type failed). Not retried; says nothing about
+    /// the path's health. The text is the link's reason.
+    Refused(String),
     /// The link has no secure session with the peer yet and did not send the frame; it has
     /// started the handshake. The frame goes again when the link reports the session up
     /// ([`LinkEvent::PeerUp`]), else after a round trip's wait; such offers count as attempts
@@ -629,6 +667,7 @@ impl From<TransmitError> for FailReason {
             TransmitError::Unreachable(r) => FailReason::Unreachable(r),
             TransmitError::Congested(r) => FailReason::Congested(r),
             TransmitError::NoSession(r) => FailReason::NoSession(r),
+            TransmitError::Refused(r) => FailReason::Refused(r),
             TransmitError::Io { reason, .. } => FailReason::Link(reason),
             TransmitError::TooLarge(r) | TransmitError::Other(r) | TransmitError::Closed(r) => {
                 FailReason::Link(r)
@@ -725,7 +764,9 @@ pub struct RouterStats {
     /// Sends that ended delivered.
     pub delivered: u64,
     /// Sends that ended [`Outcome::Sent`]: taken by a transport that cannot confirm
-    /// (unacknowledged mode).
+    /// (unacknowledged mode). Counted when the link takes the frame, so this includes the
+    /// sends whose outcome a broker's confirmation turned into [`Outcome::Relayed`] (or its
+    /// silence into [`Outcome::Unconfirmed`]) afterwards, outside the router.
     pub sent: u64,
     /// Sends that ended [`Outcome::Unconfirmed`]: frames left, no acknowledgement came back.
     pub unconfirmed: u64,
@@ -733,9 +774,12 @@ pub struct RouterStats {
     pub failed: u64,
     /// Messages handed to local inboxes.
     pub received: u64,
-    /// Acknowledgements sent.
+    /// Messages acknowledged (one count per message, however many share an ACK frame).
     pub acks_sent: u64,
-    /// Acknowledgements received for a pending send.
+    /// ACK frames sent: one acknowledges a run of consecutive messages with the same status
+    /// (an ACK range, docs/wire-format.md), so this is at most [`RouterStats::acks_sent`].
+    pub ack_frames_sent: u64,
+    /// Acknowledgements received for a pending send (one count per message acknowledged).
     pub acks_received: u64,
     /// Acknowledgements for nothing pending (late duplicates): ignored.
     pub stale_acks: u64,

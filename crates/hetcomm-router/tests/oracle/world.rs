@@ -841,7 +841,7 @@ impl World {
         for o in self.records.iter().filter_map(|r| r.outcomes.first()) {
             let i = match o {
                 Outcome::Delivered { .. } => 0,
-                Outcome::Sent { .. } => 1,
+                Outcome::Sent { .. } | Outcome::Relayed { .. } => 1,
                 Outcome::Unconfirmed { .. } => 2,
                 Outcome::Failed { .. } => 3,
             };

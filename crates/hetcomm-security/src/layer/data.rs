@@ -5,23 +5,38 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use hetcomm_core::{FrameBuf, SystemId};
+use hetcomm_link::relay::RelayReceipt;
 use hetcomm_link::{FrameSink, LinkError, Peer};
 
 use super::*;
 use crate::envelope::{self, Kind, DATA_HEADER_LEN, OVERHEAD, RECORD_HEADER, TAG_LEN};
 use crate::session::Session;
 
+/// How a frame the router hands the security layer is to leave the link below.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(super) enum Leave {
+    /// At once ([`Link::send`], or [`Link::send_owned`] for a large frame).
+    Now,
+    /// It may wait to leave with the frames after it ([`Link::send_held`]).
+    Held,
+    /// At once, asking the link below for a receipt from its intermediary
+    /// ([`Link::send_relayed`]).
+    Relayed,
+}
+
 impl Secured {
-    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists; `held`:
-    /// the router lets it wait to leave with the frames after it (see [`Link::send_held`]).
+    /// Seals and sends `head` + `body` to `to`, or queues it until a session exists. The
+    /// receipt is the link below's, when `leave` is [`Leave::Relayed`] and the sealed frame
+    /// left at once; a frame that waits for a handshake has none (it has not left yet).
     pub(super) fn send(
         &self,
         below: &dyn Link,
         to: SystemId,
         head: &[u8],
         body: &[u8],
-        held: bool,
-    ) -> Result<(), LinkError> {
+        leave: Leave,
+    ) -> Result<Option<RelayReceipt>, LinkError> {
+        let held = leave == Leave::Held;
         let slot = self.peers.get(&to).ok_or_else(|| LinkError::Unreachable {
             peer: to,
             reason: format!(
@@ -41,7 +56,7 @@ impl Secured {
         // fits one datagram (`mtu`) of the link below.
         let limit = caps.mtu.min(BATCH_BYTES).saturating_sub(OVERHEAD);
         let record = RECORD_HEADER + head.len() + body.len();
-        let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
+        let mut h = slot.held.lock();
         // A batch starts only in a session (checked once per batch): without one, a frame
         // that wants an acknowledgement must be refused now, not reported taken and refused
         // later when its batch leaves.
@@ -54,15 +69,15 @@ impl Secured {
             h.frames += 1;
             if limit - h.records.len() < RECORD_HEADER + MIN_FRAME {
                 // No further frame can fit: holding these longer would only add latency.
-                return self.send_held_batch(below, to, slot, &mut h);
+                return self.send_held_batch(below, to, slot, &mut h).map(|()| None);
             }
-            return Ok(());
+            return Ok(None);
         }
         if h.frames > 0 {
             let _ = self.send_held_batch(below, to, slot, &mut h);
         }
         drop(h);
-        self.send_now(below, to, slot, head, body, held)
+        self.send_now(below, to, slot, head, body, leave)
     }
 
     /// Seals and sends the frames held for `to` as one data batch (a single frame as a data
@@ -79,7 +94,7 @@ impl Secured {
             return Ok(());
         }
         let frames = std::mem::take(&mut h.frames);
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         self.take_sim_session(to, &mut st);
         let result = match &st.current {
             Some(session) if !st.flushing => {
@@ -109,7 +124,7 @@ impl Secured {
                 drop(st);
                 let mut first = Ok(());
                 for r in envelope::records(&h.records) {
-                    let st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                    let st = slot.state.lock();
                     let queued = self.hold(below, to, slot, st, &h.records[r], &[]);
                     if queued.is_err() {
                         self.held_dropped.fetch_add(1, Ordering::Relaxed);
@@ -127,7 +142,7 @@ impl Secured {
 
     /// Whether frames to `to` are sealed now, rather than waiting for a handshake.
     fn sealing_to(&self, to: SystemId, slot: &PeerSlot) -> bool {
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         self.take_sim_session(to, &mut st);
         st.sealing()
     }
@@ -152,15 +167,15 @@ impl Secured {
         slot: &PeerSlot,
         head: &[u8],
         body: &[u8],
-        held: bool,
-    ) -> Result<(), LinkError> {
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        leave: Leave,
+    ) -> Result<Option<RelayReceipt>, LinkError> {
+        let mut st = slot.state.lock();
         self.take_sim_session(to, &mut st);
         match &st.current {
             // Sealed under the lock (it orders nothing: the counter is atomic), which spares
             // taking a reference to the session for every frame.
             Some(session) if !st.flushing => {
-                if !held && head.len() + body.len() >= GIVE_AWAY_FROM {
+                if leave == Leave::Now && head.len() + body.len() >= GIVE_AWAY_FROM {
                     // Sealed into a buffer of its own that the link may keep and write while
                     // the caller seals the next frame (a stream link writes behind a
                     // streaming sender).
@@ -169,20 +184,22 @@ impl Secured {
                         .take_reused(OVERHEAD + head.len() + body.len());
                     session.seal(&mut buf, self.policy.local, to, head, body);
                     drop(st);
-                    return below.send_owned(to, self.sealed_pool.wrap(buf));
+                    return below
+                        .send_owned(to, self.sealed_pool.wrap(buf))
+                        .map(|()| None);
                 }
                 let mut buf = take_scratch(&TX);
                 session.seal(&mut buf, self.policy.local, to, head, body);
                 drop(st);
-                let sent = if held {
-                    below.send_held(to, &buf)
-                } else {
-                    below.send(to, &buf)
+                let sent = match leave {
+                    Leave::Now => below.send(to, &buf).map(|()| None),
+                    Leave::Held => below.send_held(to, &buf).map(|()| None),
+                    Leave::Relayed => below.send_relayed(to, &buf, &[]),
                 };
                 give_scratch(&TX, buf);
                 sent
             }
-            _ => self.hold(below, to, slot, st, head, body),
+            _ => self.hold(below, to, slot, st, head, body).map(|()| None),
         }
     }
 
@@ -196,7 +213,7 @@ impl Secured {
         below: &dyn Link,
         to: SystemId,
         slot: &PeerSlot,
-        mut st: std::sync::MutexGuard<'_, PeerState>,
+        mut st: parking_lot::MutexGuard<'_, PeerState>,
         head: &[u8],
         body: &[u8],
     ) -> Result<(), LinkError> {
@@ -241,7 +258,7 @@ impl Secured {
                 // The link cannot reach the peer (no subscriber, no route): say so now, as
                 // the bare link would, instead of holding the frame for a handshake that
                 // cannot start. Later frames try again.
-                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                let mut st = slot.state.lock();
                 st.pending = None;
                 if let Some(frame) = st.queue.pop_back() {
                     st.queued_bytes -= frame.len();
@@ -262,7 +279,7 @@ impl Secured {
         below: &dyn Link,
         to: SystemId,
         slot: &PeerSlot,
-        mut st: std::sync::MutexGuard<'_, PeerState>,
+        mut st: parking_lot::MutexGuard<'_, PeerState>,
     ) -> Result<(), LinkError> {
         // Upkeep retries a handshake nothing is queued for while it was wanted within the
         // last TRIGGER_INTERVAL: the router's next attempt finds it complete, or still running.
@@ -281,7 +298,7 @@ impl Secured {
         if let Some(init) = init {
             if let Err(e) = try_send_handshake(below, to, &init) {
                 // The link cannot reach the peer: that is the better reason.
-                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                let mut st = slot.state.lock();
                 st.pending = None;
                 st.unanswered_since = None;
                 return Err(e);
@@ -298,7 +315,7 @@ impl Secured {
         let mut buf = Vec::new();
         loop {
             let batch = {
-                let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+                let mut st = slot.state.lock();
                 if st.queue.is_empty() {
                     st.flushing = false;
                     return;
@@ -454,7 +471,7 @@ impl Secured {
         slot: &PeerSlot,
         index: u32,
     ) -> Option<(Arc<Session>, bool)> {
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         if let Some(s) = st.session(index) {
             let unconfirmed = st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, &s));
             return Some((s, unconfirmed));

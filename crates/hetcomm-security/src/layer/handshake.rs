@@ -46,7 +46,7 @@ impl Secured {
     pub(super) fn upkeep(&self) {
         let Some(below) = self.below() else { return };
         for (&peer, slot) in self.connected() {
-            let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+            let mut st = slot.state.lock();
             if st.flushing {
                 continue;
             }
@@ -102,7 +102,7 @@ impl Secured {
     /// answered last, the peer holds it too, so it becomes current (and what waited for a
     /// session leaves in it).
     pub(super) fn confirmed(&self, sender: SystemId, slot: &PeerSlot, session: &Arc<Session>) {
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         if !st.unconfirmed.iter().any(|n| Arc::ptr_eq(n, session)) {
             return;
         }
@@ -127,7 +127,7 @@ impl Secured {
             bump(&self.counters.table);
             return;
         }
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         let index = loop {
             let i = rand::random::<u32>();
             if i != 0 && st.session(i).is_none() {
@@ -170,7 +170,7 @@ impl Secured {
     }
 
     pub(super) fn receive_response(&self, sender: SystemId, slot: &PeerSlot, bytes: &[u8]) {
-        let mut st = slot.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut st = slot.state.lock();
         let (initiation, at) = if st
             .pending
             .as_ref()

@@ -7,13 +7,15 @@
 //! the session, authentication, the replay window, then the inner frame's header against the
 //! authenticated sender and the communication table. Only then does the router see it.
 
+use parking_lot::Mutex;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::sync::{Arc, OnceLock, Weak};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
-use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer};
+use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer, OpenBelow};
+use hetcomm_link::readiness;
 use hetcomm_link::{
     forward_link, forward_sink, FrameSink, Link, LinkError, LinkEvent, Peer, SecurityStats,
 };
@@ -27,7 +29,7 @@ mod data;
 mod handshake;
 mod sim;
 
-use data::Incoming;
+use data::{Incoming, Leave};
 use handshake::{send_handshake, try_send_handshake};
 pub use sim::SimSessions;
 
@@ -60,12 +62,12 @@ pub enum Handshakes {
     InMemory(Arc<SimSessions>),
 }
 
-/// The security layer of one system's link on one transport. Build one per link opened.
+/// The security layer of one system's links on one transport: each [`LinkLayer::wrap`] makes
+/// the sessions of the link it opens.
 pub struct SecurityLayer {
     transport: String,
     policy: Policy,
     handshakes: Handshakes,
-    secured: OnceLock<Arc<Secured>>,
 }
 
 impl SecurityLayer {
@@ -75,7 +77,6 @@ impl SecurityLayer {
             transport: transport.to_string(),
             policy,
             handshakes,
-            secured: OnceLock::new(),
         }
     }
 }
@@ -228,7 +229,7 @@ impl Secured {
     fn queued_frames(&self) -> usize {
         self.connected()
             .map(|(_, p)| {
-                let st = p.state.lock().unwrap_or_else(|e| e.into_inner());
+                let st = p.state.lock();
                 st.queue.len() + usize::from(st.flushing)
             })
             .sum()
@@ -237,17 +238,8 @@ impl Secured {
     fn queued_bytes(&self) -> usize {
         self.connected()
             .map(|(_, p)| {
-                let held = p
-                    .held
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .records
-                    .len();
-                held + p
-                    .state
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .queued_bytes
+                let held = p.held.lock().records.len();
+                held + p.state.lock().queued_bytes
             })
             .sum()
     }
@@ -256,7 +248,7 @@ impl Secured {
     fn flush_held(&self, below: &dyn Link) -> Result<(), LinkError> {
         let mut first = Ok(());
         for (&to, slot) in self.connected() {
-            let mut h = slot.held.lock().unwrap_or_else(|e| e.into_inner());
+            let mut h = slot.held.lock();
             if let Err(e) = self.send_held_batch(below, to, slot, &mut h) {
                 if first.is_ok() {
                     first = Err(e);
@@ -328,13 +320,23 @@ forward_link! {
         caps
     }
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(&*self.below, to, frame, &[], false)
+        self.secured.send(&*self.below, to, frame, &[], Leave::Now).map(drop)
     }
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(&*self.below, to, head, body, false)
+        self.secured.send(&*self.below, to, head, body, Leave::Now).map(drop)
     }
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
-        self.secured.send(&*self.below, to, frame, &[], true)
+        self.secured.send(&*self.below, to, frame, &[], Leave::Held).map(drop)
+    }
+    // The sealed frame goes to the link below's `send_relayed`, so that a broker's receipt
+    // reaches the outcome of a secured send too.
+    fn send_relayed(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<Option<hetcomm_link::relay::RelayReceipt>, LinkError> {
+        self.secured.send(&*self.below, to, head, body, Leave::Relayed)
     }
     fn flush(&self) -> Result<(), LinkError> {
         let held = self.secured.flush_held(&*self.below);
@@ -373,13 +375,7 @@ impl Drop for SecureLink {
         while self.secured.queued_frames() > 0 && Instant::now() < deadline {
             match self.below.readable() {
                 Some(r) => {
-                    let mut p = libc::pollfd {
-                        fd: r.fd(),
-                        events: libc::POLLIN,
-                        revents: 0,
-                    };
-                    // SAFETY: one valid pollfd, exclusively borrowed for the call.
-                    unsafe { libc::poll(&mut p, 1, 5) };
+                    readiness::wait_readable(readiness::readable_fd(r), Duration::from_millis(5));
                     let _ = r.read_ready(64);
                 }
                 None => std::thread::sleep(Duration::from_millis(2)),
@@ -423,7 +419,6 @@ forward_sink! {
             && self.secured.peers.get(&event.peer()).is_none_or(|slot| {
                 slot.state
                     .lock()
-                    .unwrap_or_else(|e| e.into_inner())
                     .current
                     .is_none()
             });
@@ -438,7 +433,14 @@ impl LinkLayer for SecurityLayer {
         "security"
     }
 
-    fn wrap_sink(&self, _ctx: &LayerContext, sink: Arc<dyn FrameSink>) -> Arc<dyn FrameSink> {
+    /// The sessions of this link are made here, for it alone: the sink that opens what
+    /// arrives and the link that seals what leaves share them.
+    fn wrap(
+        &self,
+        _ctx: &LayerContext,
+        sink: Arc<dyn FrameSink>,
+        open: OpenBelow<'_>,
+    ) -> Result<Arc<dyn Link>, LayerError> {
         let peers = self
             .policy
             .peers
@@ -469,23 +471,9 @@ impl LinkLayer for SecurityLayer {
             held_dropped: AtomicU64::new(0),
             sealed_pool: BufferPool::new(SEALED_POOL_BYTES),
         });
-        let _ = self.secured.set(secured.clone());
-        Arc::new(SecureSink { secured })
-    }
-
-    fn wrap_link(
-        &self,
-        _ctx: &LayerContext,
-        link: Arc<dyn Link>,
-    ) -> Result<Arc<dyn Link>, LayerError> {
-        let secured = self
-            .secured
-            .get()
-            .cloned()
-            .ok_or_else(|| LayerError::Wrap {
-                layer: "security".into(),
-                source: "the security layer wraps a link's sink before the link".into(),
-            })?;
+        let link = open(Arc::new(SecureSink {
+            secured: secured.clone(),
+        }))?;
         let _ = secured.below.set(Arc::downgrade(&link));
         let mut upkeep = None;
         if matches!(secured.handshakes, Handshakes::OverTheLink) {

@@ -1,7 +1,8 @@
 //! Sessions made in memory for a simulated fleet.
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use hetcomm_core::SystemId;
 
@@ -45,7 +46,7 @@ impl SimSessions {
         peer: SystemId,
     ) -> Option<Arc<Session>> {
         let (lo, hi) = if me < peer { (me, peer) } else { (peer, me) };
-        let mut pairs = self.pairs.lock().unwrap_or_else(|e| e.into_inner());
+        let mut pairs = self.pairs.lock();
         let entry = pairs.entry((transport.to_string(), lo, hi)).or_default();
         if entry[0].is_none() && entry[1].is_none() {
             let seed = self.seed ^ ((lo.0 as u64) << 16) ^ ((hi.0 as u64) << 32);

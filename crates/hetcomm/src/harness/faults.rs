@@ -8,7 +8,7 @@
 //! the send ends `Failed` or `Unconfirmed` when the cut lasts), and acknowledgements are
 //! subject to the same faults as data.
 
-use std::sync::Mutex;
+use parking_lot::Mutex;
 use std::time::Duration;
 
 use hetcomm_core::{SystemId, Time};
@@ -61,7 +61,7 @@ impl Faults {
 
     /// A uniform number in [0, 1) (splitmix64).
     fn uniform(&self) -> f64 {
-        let mut s = self.rng.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.rng.lock();
         *s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = *s;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

@@ -28,7 +28,8 @@
 //! assert_eq!(run.faulted_systems(), 2);
 //! ```
 
-use std::sync::{Arc, Mutex, Weak};
+use parking_lot::Mutex;
+use std::sync::{Arc, Weak};
 use std::time::Duration;
 
 use hetcomm_config::scenario::{FaultEffect, Scenario, ScenarioTap, TapKind, TapSpec};
@@ -107,7 +108,7 @@ impl ScenarioRun {
 
     /// One line per injection: when, what, and its outcome so far.
     pub fn injection_report(&self) -> Vec<String> {
-        let log = self.injections.lock().unwrap_or_else(|e| e.into_inner());
+        let log = self.injections.lock();
         log.iter()
             .map(|r| {
                 let result = match &r.result {
@@ -209,7 +210,7 @@ pub(crate) fn install(
             continue;
         };
         let index = {
-            let mut log = run.injections.lock().unwrap_or_else(|e| e.into_inner());
+            let mut log = run.injections.lock();
             log.push(InjectionRecord {
                 at_s: inj.at_s,
                 what: format!(
@@ -250,7 +251,7 @@ pub(crate) fn install(
                     None => Err(SendError::UnknownModule(module.clone())),
                 };
                 if let Some(log) = log.upgrade() {
-                    let mut log = log.lock().unwrap_or_else(|e| e.into_inner());
+                    let mut log = log.lock();
                     log[index].result = match result {
                         Ok(t) => InjectionResult::Sent(t),
                         Err(e) => InjectionResult::Refused(e),

@@ -1,9 +1,9 @@
 //! A module's inbox: bounded, ordered by priority then arrival, with an explicit overflow
 //! policy and exact drop counters.
 
+use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU16, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use hetcomm_config::{InboxConfig, OverflowPolicy};
@@ -244,11 +244,11 @@ impl Inbox {
     }
 
     fn lock_stash(&self) -> MutexGuard<'_, Stash> {
-        self.stash.lock().unwrap_or_else(|e| e.into_inner())
+        self.stash.lock()
     }
 
     fn lock_intake(&self) -> MutexGuard<'_, Vec<Entry>> {
-        self.intake.queue.lock().unwrap_or_else(|e| e.into_inner())
+        self.intake.queue.lock()
     }
 
     fn is_closed(&self) -> bool {
@@ -313,6 +313,51 @@ impl Inbox {
     /// [`InboxStats::refused_from_link`]) instead of stopping the link's reader.
     pub(crate) fn push_from_link(&self, e: Entry) -> Result<(), PushError> {
         self.push_with(e, false)
+    }
+
+    /// Puts messages of this process in, in order, as [`push`](Inbox::push) would one by one,
+    /// through the intake lock once for as many as there is room for; `result` gets each
+    /// one's answer, in order.
+    pub(crate) fn push_many(
+        &self,
+        entries: impl ExactSizeIterator<Item = Entry>,
+        mut result: impl FnMut(Result<(), PushError>),
+    ) {
+        let mut entries = entries;
+        let mut queue = self.lock_intake();
+        if self.is_closed() {
+            drop(queue);
+            entries.for_each(|_| result(Err(PushError::Closed)));
+            return;
+        }
+        let room = self
+            .config
+            .capacity
+            .saturating_sub(queue.len() + self.shared.counted.load(Ordering::Acquire));
+        let fits = room.min(entries.len());
+        if fits > 0 {
+            queue.reserve(fits.max(INTAKE_FIRST));
+            let mut top = self.intake.top.load(Ordering::Relaxed);
+            for e in entries.by_ref().take(fits) {
+                top = top.max(u16::from(e.header.priority.0) + 1);
+                queue.push(e);
+                result(Ok(()));
+            }
+            if self.intake.top.load(Ordering::Relaxed) < top {
+                self.intake.top.store(top, Ordering::Release);
+            }
+        }
+        let wake = fits > 0 && self.shared.sleepers.load(Ordering::Relaxed) > 0;
+        drop(queue);
+        if wake {
+            // As in `push_with`.
+            drop(self.lock_stash());
+            self.not_empty.notify_one();
+        }
+        // The rest found the inbox full: the overflow policy, one by one.
+        for e in entries {
+            result(self.push_when_full(e, true));
+        }
     }
 
     fn push_with(&self, e: Entry, may_wait: bool) -> Result<(), PushError> {
@@ -424,11 +469,7 @@ impl Inbox {
             let deadline = *deadline.get_or_insert_with(|| Instant::now() + timeout);
             let left = deadline.saturating_duration_since(Instant::now());
             stash.full_waiters += 1;
-            stash = self
-                .not_full
-                .wait_timeout(stash, left)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            self.not_full.wait_for(&mut stash, left);
             stash.full_waiters -= 1;
         }
     }
@@ -577,18 +618,12 @@ impl Inbox {
                 sleep
             };
             if sleep {
-                stash = match left {
-                    None => self
-                        .not_empty
-                        .wait(stash)
-                        .unwrap_or_else(|e| e.into_inner()),
+                match left {
+                    None => self.not_empty.wait(&mut stash),
                     Some(left) => {
-                        self.not_empty
-                            .wait_timeout(stash, left)
-                            .unwrap_or_else(|e| e.into_inner())
-                            .0
+                        self.not_empty.wait_for(&mut stash, left);
                     }
-                };
+                }
                 self.shared.sleepers.fetch_sub(1, Ordering::Relaxed);
             }
         }

@@ -47,6 +47,7 @@ impl SystemCore {
         let mut attempts: SmallVec<[u32; 4]> = SmallVec::new();
         // While observed: the destinations of each native broadcast's frame among them.
         let mut broadcast_dests: SmallVec<[Vec<SystemId>; 1]> = SmallVec::new();
+        let mut switches: SmallVec<[hetcomm_router::PathChange; 1]> = SmallVec::new();
         let mut now = first_now;
         let mut first = true;
         loop {
@@ -75,9 +76,16 @@ impl SystemCore {
             while let Some(e) = router.poll_event() {
                 events.push(e);
             }
+            while let Some(c) = router.poll_path_change() {
+                switches.push(c);
+            }
             let next = router.poll_timeout();
             drop(router);
             self.timer.arm(next);
+            if !switches.is_empty() {
+                self.path_switched(&switches, now);
+                switches.clear();
+            }
             if transmits.is_empty() && deliveries.is_empty() && events.is_empty() {
                 return;
             }

@@ -24,7 +24,7 @@ impl SystemCore {
         }
         let d = self.direct.get()?;
         let name = d.names.get(link)?.as_ref()?;
-        let mut cache = d.cache.lock().unwrap_or_else(|e| e.into_inner());
+        let mut cache = d.cache.lock();
         if let Some(c) = cache.get(&to).and_then(Weak::upgrade) {
             if !c.is_closed() {
                 return Some(c);
@@ -125,5 +125,45 @@ impl SystemCore {
             return self.deliver_observed(module, header, payload, now, Source::SameProcess);
         }
         self.deliver_to(module, header, payload, now, Source::SameProcess)
+    }
+
+    /// [`SystemCore::deliver_direct`] for a batch of messages to one module, in order:
+    /// `status` gets each one's answer. The batch goes into the inbox through its lock once
+    /// when nothing watches or diverts these messages (observers, taps, callbacks); otherwise
+    /// each takes the one-message path.
+    pub(crate) fn deliver_direct_many(
+        &self,
+        module: Option<&ModuleCore>,
+        messages: impl ExactSizeIterator<Item = (Header, PayloadBuf)>,
+        now: Time,
+        mut status: impl FnMut(AckStatus),
+    ) {
+        let Some(m) = module
+            .filter(|m| !self.observers.active() && !self.harness.tapping() && !m.has_callbacks())
+        else {
+            for (header, payload) in messages {
+                status(self.deliver_direct(module, header, payload, now));
+            }
+            return;
+        };
+        self.direct_received
+            .fetch_add(messages.len() as u64, Ordering::Relaxed);
+        let received_at = self.clock.wall(now);
+        let entries = messages.map(|(header, payload)| Entry {
+            header,
+            payload,
+            received_at,
+        });
+        m.inbox.push_many(entries, |pushed| {
+            status(match pushed {
+                Ok(()) => AckStatus::Delivered,
+                Err(PushError::Full) | Err(PushError::Closed) => AckStatus::InboxFull,
+            })
+        });
+        if m.leading.load(Ordering::SeqCst) && !leading_here() {
+            if let Some(r) = self.reactor.get() {
+                r.kick();
+            }
+        }
     }
 }

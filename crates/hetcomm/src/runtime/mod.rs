@@ -3,10 +3,11 @@
 //! the link's receive thread (or the sender's thread for in-process links); a timer thread per
 //! system handles retransmission deadlines; callbacks run on a thread per module.
 
+use parking_lot::{Condvar, Mutex, MutexGuard, RwLock};
 use rustc_hash::FxHashMap as HashMap;
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, RwLock, Weak};
+use std::sync::{Arc, OnceLock, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -33,6 +34,7 @@ use crossbeam_utils::CachePadded;
 mod clock_tests;
 mod deliver;
 mod direct;
+mod relay;
 mod sink;
 mod transmit;
 
@@ -82,10 +84,7 @@ impl Clock for SystemClock {
 /// is bounded by the number of distinct names ever opened.
 pub(crate) fn intern(name: &str) -> &'static str {
     static NAMES: OnceLock<Mutex<rustc_hash::FxHashSet<&'static str>>> = OnceLock::new();
-    let mut names = NAMES
-        .get_or_init(Default::default)
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+    let mut names = NAMES.get_or_init(Default::default).lock();
     if let Some(known) = names.get(name) {
         return known;
     }
@@ -198,18 +197,14 @@ impl ModuleCore {
         }
     }
 
+    /// Whether any callback is registered (messages of some type may bypass the inbox).
+    pub(crate) fn has_callbacks(&self) -> bool {
+        self.has_callbacks.load(Ordering::Acquire)
+    }
+
     fn wants_callback(&self, ty: MessageType) -> bool {
         self.has_callbacks.load(Ordering::Acquire)
-            && (self
-                .callbacks
-                .read()
-                .unwrap_or_else(|e| e.into_inner())
-                .contains_key(&ty)
-                || self
-                    .callback_any
-                    .read()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .is_some())
+            && (self.callbacks.read().contains_key(&ty) || self.callback_any.read().is_some())
     }
 
     /// Registers a callback for one type (or every type when `ty` is None) and starts the
@@ -222,18 +217,15 @@ impl ModuleCore {
     ) {
         match ty {
             Some(ty) => {
-                self.callbacks
-                    .write()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .insert(ty, cb);
+                self.callbacks.write().insert(ty, cb);
             }
-            None => *self.callback_any.write().unwrap_or_else(|e| e.into_inner()) = Some(cb),
+            None => *self.callback_any.write() = Some(cb),
         }
         self.has_callbacks.store(true, Ordering::Release);
         if self.inline_callbacks {
             return;
         }
-        let mut dispatcher = self.dispatcher.lock().unwrap_or_else(|e| e.into_inner());
+        let mut dispatcher = self.dispatcher.lock();
         if dispatcher.is_none() {
             let module = Arc::downgrade(self);
             let name = format!("hetcomm-cb-{}", self.name);
@@ -283,15 +275,9 @@ impl ModuleCore {
         let cb = self
             .callbacks
             .read()
-            .unwrap_or_else(|e| e.into_inner())
             .get(&ty)
             .cloned()
-            .or_else(|| {
-                self.callback_any
-                    .read()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .clone()
-            });
+            .or_else(|| self.callback_any.read().clone());
         let Some(cb) = cb else { return };
         let raw = raw_message(directory, entry);
         // A panicking callback must not take the dispatcher (and every later message) down.
@@ -304,7 +290,7 @@ impl ModuleCore {
 /// Joins a helper thread taken out of its slot, unless that thread is the caller (a system
 /// closed from its own callback or timer thread cannot wait for itself).
 fn join_unless_current(slot: &Mutex<Option<JoinHandle<()>>>) {
-    let handle = slot.lock().unwrap_or_else(|e| e.into_inner()).take();
+    let handle = slot.lock().take();
     if let Some(h) = handle {
         if h.thread().id() != std::thread::current().id() {
             let _ = h.join();
@@ -362,15 +348,23 @@ struct TimerState {
 struct Timer {
     state: Mutex<TimerState>,
     wake: Condvar,
+    /// Under simulation: the simulator's queue of wake-ups, which takes the deadlines the
+    /// timer thread would otherwise wait for.
+    sim: OnceLock<crate::sim::SimWake>,
 }
 
 impl Timer {
     fn arm(&self, next: Option<Time>) {
         let Some(next) = next else { return };
-        let mut s = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.state.lock();
         if s.deadline.is_none_or(|d| next < d) {
             s.deadline = Some(next);
-            self.wake.notify_one();
+            match self.sim.get() {
+                Some(sim) => sim.timer(next),
+                None => {
+                    self.wake.notify_one();
+                }
+            }
         }
     }
 }
@@ -413,6 +407,8 @@ pub(crate) struct SystemCore {
     pub unknown_module: AtomicU64,
     /// Who sees every send, receipt and outcome ([`crate::observe`]).
     pub(crate) observers: Observers,
+    /// The last path switches ([`crate::switches`]).
+    pub(crate) path_log: crate::switches::PathLog,
     /// Taps, scheduled faults and topics ([`crate::harness`], [`crate::node`]).
     pub(crate) harness: crate::harness::SystemHarness,
 }
@@ -448,7 +444,7 @@ impl SystemCore {
                 (mid, Arc::new(module))
             })
             .collect();
-        let registry_id = registry.read().unwrap_or_else(|e| e.into_inner()).id();
+        let registry_id = registry.read().id();
         Arc::new(SystemCore {
             id,
             name: directory.system_name(id),
@@ -472,6 +468,7 @@ impl SystemCore {
             reactor: OnceLock::new(),
             reactor_thread: Mutex::new(None),
             observers: Observers::default(),
+            path_log: Default::default(),
             harness: Default::default(),
         })
     }
@@ -522,22 +519,49 @@ impl SystemCore {
             let handle = std::thread::Builder::new()
                 .name(format!("hetcomm-rx-{}", self.name))
                 .spawn(move || reactor.run_background(weak))?;
-            *self
-                .reactor_thread
-                .lock()
-                .unwrap_or_else(|e| e.into_inner()) = Some(handle);
+            *self.reactor_thread.lock() = Some(handle);
         }
         let weak = Arc::downgrade(self);
         let handle = std::thread::Builder::new()
             .name(format!("hetcomm-timer-{}", self.name))
             .spawn(move || run_timer(weak))?;
-        *self.timer_thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(handle);
+        *self.timer_thread.lock() = Some(handle);
         Ok(())
     }
 
     /// The router's next retransmission deadline.
     pub(crate) fn next_deadline(&self) -> Option<Time> {
         self.router().poll_timeout()
+    }
+
+    /// Hands this system's wake-ups to the simulator from now on: the deadlines it arms, and
+    /// the times its harness holds items until. What was armed before is forgotten (the
+    /// simulator asks for the current deadline itself).
+    pub(crate) fn attach_sim(&self, wake: crate::sim::SimWake) {
+        self.timer.state.lock().deadline = None;
+        let _ = self.timer.sim.set(wake);
+    }
+
+    /// Under simulation: tells the simulator that the harness holds an item until `at`.
+    pub(crate) fn sim_held(&self, at: Time) {
+        if let Some(sim) = self.timer.sim.get() {
+            sim.held(at);
+        }
+    }
+
+    /// Under simulation: the simulator took its wake-ups for this system up to `up_to`
+    /// (fired or found stale), so the next deadline armed is passed on again.
+    pub(crate) fn sim_timer_taken(&self, up_to: Time) {
+        let mut s = self.timer.state.lock();
+        if s.deadline.is_some_and(|d| d <= up_to) {
+            s.deadline = None;
+        }
+    }
+
+    /// Arms the timer for `next` (the router's deadline, or a batch's), unless it is
+    /// already armed for an earlier time.
+    pub(crate) fn arm_timer(&self, next: Option<Time>) {
+        self.timer.arm(next);
     }
 
     /// Runs due retransmission timers (the simulator's timer thread).
@@ -553,7 +577,7 @@ impl SystemCore {
     }
 
     pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
-        self.router.lock().unwrap_or_else(|e| e.into_inner())
+        self.router.lock()
     }
 
     pub(crate) fn is_closed(&self) -> bool {
@@ -585,7 +609,7 @@ impl SystemCore {
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
         {
-            let mut s = self.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+            let mut s = self.timer.state.lock();
             s.shutdown = true;
             self.timer.wake.notify_all();
         }
@@ -629,23 +653,28 @@ fn spin_on_links(reactor: &Reactor, module: &ModuleCore, left: Duration) -> bool
         return false;
     }
     let start = Instant::now();
-    loop {
-        reactor.poll_now();
+    // Links whose queue can be looked at directly are read without a system call, and their
+    // senders skip waking them meanwhile (`Readable::set_spinning`).
+    reactor.set_spinning(true);
+    let found = loop {
+        reactor.poll_spinning();
         if !module.inbox.is_empty() {
-            return true;
+            break true;
         }
         if start.elapsed() >= spin {
-            return false;
+            break false;
         }
         std::thread::yield_now();
-    }
+    };
+    reactor.set_spinning(false);
+    found
 }
 
 /// The timer thread: sleeps until the router's next deadline (or until [`Timer::arm`] brings
 /// it forward), then fires it. Shutdown sets the flag and wakes it.
 fn run_timer(core: Weak<SystemCore>) {
     while let Some(c) = core.upgrade() {
-        let mut s = c.timer.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = c.timer.state.lock();
         if s.shutdown {
             return;
         }
@@ -656,8 +685,10 @@ fn run_timer(core: Weak<SystemCore>) {
                 drop(s);
                 c.fire_timers();
             }
-            Some(d) => drop(c.timer.wake.wait_timeout(s, d.saturating_since(now))),
-            None => drop(c.timer.wake.wait(s)),
+            Some(d) => {
+                c.timer.wake.wait_for(&mut s, d.saturating_since(now));
+            }
+            None => c.timer.wake.wait(&mut s),
         }
     }
 }

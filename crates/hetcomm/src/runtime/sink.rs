@@ -63,7 +63,7 @@ impl Opening {
     /// Frames dropped on link `link` because they arrived while the system opened and did
     /// not fit the backlog.
     pub(crate) fn dropped(&self, link: usize) -> u64 {
-        let backlog = self.backlog.lock().unwrap_or_else(|e| e.into_inner());
+        let backlog = self.backlog.lock();
         backlog.dropped.get(link).copied().unwrap_or(0)
     }
 
@@ -76,7 +76,7 @@ impl Opening {
         at: Time,
         make: impl FnOnce(&mut dyn FnMut(Held)),
     ) -> bool {
-        let mut backlog = self.backlog.lock().unwrap_or_else(|e| e.into_inner());
+        let mut backlog = self.backlog.lock();
         // Checked again under the lock: `release` sets `ready` under it, once it is empty.
         if self.is_ready() {
             return false;
@@ -112,11 +112,7 @@ impl SystemCore {
     pub(super) fn release_opening_backlog(&self) {
         loop {
             let held = {
-                let mut backlog = self
-                    .opening
-                    .backlog
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner());
+                let mut backlog = self.opening.backlog.lock();
                 if backlog.frames.is_empty() {
                     // Under the lock, so no frame can be held after the last batch was taken.
                     self.opening.ready.store(true, Ordering::Release);

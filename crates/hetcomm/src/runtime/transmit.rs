@@ -103,6 +103,14 @@ impl SystemCore {
             .min()
     }
 
+    /// Whether frames for link `index` may be held back for batching (see [`Batching`]).
+    pub(super) fn holds_frames(&self, index: usize) -> bool {
+        self.batching
+            .get()
+            .and_then(|v| v.get(index))
+            .is_some_and(|b| b.linger_us > 0)
+    }
+
     /// Puts one frame, `frame` followed by `body`, on link `index`, holding it back to share a
     /// write with the next ones when the link batches and is busy (see [`Batching`]).
     #[allow(clippy::too_many_arguments)] // one frame's whole description
@@ -189,6 +197,7 @@ pub(super) fn transmit_error(directory: &Directory, e: LinkError) -> TransmitErr
     match e {
         LinkError::Unreachable { reason, .. } => TransmitError::Unreachable(reason),
         LinkError::TooLarge { .. } => TransmitError::TooLarge(e.to_string()),
+        LinkError::Refused { reason, .. } => TransmitError::Refused(reason),
         LinkError::Congested { peer, reason } => TransmitError::Congested(format!(
             "link to {} is congested: {reason}",
             directory.system_name(peer)

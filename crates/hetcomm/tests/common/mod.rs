@@ -14,11 +14,11 @@ pub fn free_udp_port() -> u16 {
 /// Calls `pick` until it returns a port this process has not handed out yet: the kernel can
 /// return a just-closed port again, and two systems of one fleet would share an endpoint.
 pub fn not_given_before(pick: impl Fn() -> u16) -> u16 {
-    static GIVEN: std::sync::Mutex<std::collections::BTreeSet<u16>> =
-        std::sync::Mutex::new(std::collections::BTreeSet::new());
+    static GIVEN: parking_lot::Mutex<std::collections::BTreeSet<u16>> =
+        parking_lot::Mutex::new(std::collections::BTreeSet::new());
     loop {
         let port = pick();
-        if GIVEN.lock().unwrap_or_else(|e| e.into_inner()).insert(port) {
+        if GIVEN.lock().insert(port) {
             return port;
         }
     }
