@@ -148,6 +148,8 @@ def read(args, dp, topic, qos, base):
     end = time.monotonic() + args.seconds
     while got < args.count and time.monotonic() < end:
         for m in reader.take(N=64):
+            if not hasattr(m, "header"):
+                continue  # an InvalidSample: the writer went away, no data
             now = time.time()
             k = int(m.header.frame_id)
             ok = m.data == base[k % 251 : k % 251 + size]

@@ -95,6 +95,8 @@ def main():
         if select.select([sys.stdin], [], [], 0)[0] and not sys.stdin.read(1):
             break
         for s in reader.take(N=256):
+            if not isinstance(s, kind):
+                continue  # an InvalidSample: a writer went away (a one-shot sender exited)
             if args.type == "twist":
                 print(int(s.linear.x), flush=True)
             else:
