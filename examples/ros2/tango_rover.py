@@ -14,7 +14,10 @@ type names (`geometry_msgs::msg::dds_::Twist_`), CDR payloads, ROS 2's default Q
 * with `--garbage N`, also publishes N samples on `<prefix>/odom` that claim to be
   `nav_msgs/Odometry` but hold only a few bytes, and with `--wrong-type` a
   `std_msgs/String` publisher on `<prefix>/odom`: input hetcomm's bridge must count and
-  report, not deliver.
+  report, not deliver;
+* with `--odom-hash HASH` and `--cmd-vel-hash HASH`, offers `typehash=HASH;` in the
+  USER_DATA of its odometry writer and its cmd_vel reader, as ROS 2 Iron and later do
+  (REP 2011), so that a test can offer the real type hashes or wrong ones.
 
 Discovery without multicast (loopback has none): unless CYCLONEDDS_URI is set, the script
 configures Cyclone DDS with unicast peer 127.0.0.1 on the loopback interface.
@@ -152,12 +155,13 @@ class NavSatStatus(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatStatus_"):
     service: uint16 = 1
 
 
-def ros2_qos():
-    """ROS 2's default topic QoS: reliable, volatile, keep last 10."""
+def ros2_qos(*extra):
+    """ROS 2's default topic QoS: reliable, volatile, keep last 10 (and `extra` policies)."""
     return Qos(
         Policy.Reliability.Reliable(duration(seconds=1)),
         Policy.Durability.Volatile,
         Policy.History.KeepLast(10),
+        *extra,
     )
 
 
@@ -169,6 +173,8 @@ def main():
     ap.add_argument("--period", type=float, default=0.05, help="odometry period (s)")
     ap.add_argument("--garbage", type=int, default=0)
     ap.add_argument("--wrong-type", action="store_true")
+    ap.add_argument("--odom-hash", default=None, help="RIHS01_... to offer on odom")
+    ap.add_argument("--cmd-vel-hash", default=None, help="RIHS01_... to offer on cmd_vel")
     args = ap.parse_args()
 
     dp = DomainParticipant(args.domain)
@@ -177,9 +183,14 @@ def main():
     def topic(name, ty):
         return Topic(dp, "rt" + args.prefix + "/" + name, ty, qos=qos)
 
-    cmd_reader = DataReader(dp, topic("cmd_vel", Twist), qos=qos)
+    def offering(type_hash):
+        if not type_hash:
+            return qos
+        return ros2_qos(Policy.Userdata(data=f"typehash={type_hash};".encode()))
+
+    cmd_reader = DataReader(dp, topic("cmd_vel", Twist), qos=offering(args.cmd_vel_hash))
     say_reader = DataReader(dp, topic("say", String), qos=qos)
-    odom_writer = DataWriter(dp, topic("odom", Odometry), qos=qos)
+    odom_writer = DataWriter(dp, topic("odom", Odometry), qos=offering(args.odom_hash))
     heard_writer = DataWriter(dp, topic("heard", String), qos=qos)
     if args.garbage:
         # A second participant: one participant cannot hold two types under one topic name.

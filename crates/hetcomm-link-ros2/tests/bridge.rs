@@ -227,3 +227,96 @@ fn the_registry_names_the_bridged_robot() {
     let fleet = hetcomm::parse_fleet(&plain, "p.toml", None).expect("valid");
     assert!(hetcomm::registry().bridged_robots(&fleet).is_empty());
 }
+
+/// The bridge of `fleet_text(prefix, domain)` opened on Alpha by itself, with a sink that
+/// keeps what it receives.
+fn open_bridge(
+    prefix: &str,
+    domain: u16,
+) -> (
+    hetcomm_link_ros2::bridge::Ros2Bridge,
+    std::sync::Arc<hetcomm_link::conformance::CollectSink>,
+) {
+    let fleet = hetcomm::parse_fleet(&fleet_text(prefix, domain, ""), "b.toml", None).unwrap();
+    let hetcomm::config::TransportSettings::Registered(s) = &fleet.transports[0].settings else {
+        panic!("registered settings expected");
+    };
+    let settings: &hetcomm_link_ros2::bridge::BridgeSettings = s.downcast_ref().unwrap();
+    let sink = hetcomm_link::conformance::CollectSink::new();
+    let bridge = hetcomm_link_ros2::bridge::Ros2Bridge::open(
+        &fleet,
+        hetcomm::SystemId(0),
+        settings,
+        sink.clone(),
+    )
+    .expect("open the bridge");
+    (bridge, sink)
+}
+
+/// What ROS 2 Jazzy offers for nav_msgs/msg/Odometry and geometry_msgs/msg/Twist.
+const ODOMETRY_HASH: &str =
+    "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0";
+const TWIST_HASH: &str = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a";
+
+#[test]
+fn peers_that_offer_the_definitions_type_hashes_are_received_without_a_word() {
+    let (p, domain) = (prefix("hash_ok"), 74);
+    let (bridge, sink) = open_bridge(&p, domain);
+    let _rover = rover(
+        &p,
+        domain,
+        &["--odom-hash", ODOMETRY_HASH, "--cmd-vel-hash", TWIST_HASH],
+    );
+    assert!(
+        sink.wait_for(10, Duration::from_secs(20)) >= 10,
+        "odometry from a rover that offers its type hash: {:?}",
+        bridge.problems()
+    );
+    // A second of the subscriber check having run (every 500 ms) on the matched cmd_vel.
+    std::thread::sleep(Duration::from_secs(1));
+    assert_eq!(bridge.problems(), Vec::<String>::new());
+    use hetcomm_link::Link;
+    assert_eq!(bridge.stats().frames_dropped, 0);
+}
+
+#[test]
+fn peers_that_offer_another_type_hash_are_reported_and_what_they_publish_is_dropped() {
+    let (p, domain) = (prefix("hash_bad"), 75);
+    let (bridge, sink) = open_bridge(&p, domain);
+    let wrong = format!("RIHS01_{}", "0".repeat(64));
+    let _rover = rover(
+        &p,
+        domain,
+        &["--odom-hash", &wrong, "--cmd-vel-hash", &wrong],
+    );
+    use hetcomm_link::Link;
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let expected = [
+        format!(
+            "a publisher on {p}/odom offers type hash {wrong} for nav_msgs/msg/Odometry, but \
+             the definition the bridge read hashes to {ODOMETRY_HASH}: the two definitions \
+             differ, so its messages are dropped"
+        ),
+        format!(
+            "a subscriber of {p}/cmd_vel expects type hash {wrong} for geometry_msgs/msg/Twist, \
+             but the definition the bridge read hashes to {TWIST_HASH}: the two definitions \
+             differ, so it may misread what the bridge publishes"
+        ),
+    ];
+    while bridge.stats().frames_dropped < 10 || bridge.problems().len() < 2 {
+        assert!(
+            Instant::now() < deadline,
+            "dropped {}, problems {:?}",
+            bridge.stats().frames_dropped,
+            bridge.problems()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let mut problems = bridge.problems();
+    problems.sort();
+    assert_eq!(problems, expected);
+    assert!(
+        sink.is_empty(),
+        "nothing of the mismatched publisher is received"
+    );
+}

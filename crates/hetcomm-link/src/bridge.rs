@@ -99,8 +99,9 @@ impl Tally {
         self.received.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Records `problem`; true (and printed to stderr) the first time it is seen.
-    fn report(&self, problem: String) -> bool {
+    /// Records `problem`, one that costs no message here (printed to stderr the first time
+    /// it is seen); true the first time.
+    pub fn report(&self, problem: String) -> bool {
         let mut seen = self.seen.lock();
         let new = seen.insert(problem.clone());
         if new {

@@ -14,6 +14,8 @@
 //! * [`msgs`]: Rust types of those messages whose serde names are the ROS names;
 //! * [`check`]: whether a declared message type's shape converts to or from a ROS type,
 //!   checked when the bridge opens;
+//! * [`typehash`]: ROS 2's type hash (RIHS01) of a definition, and the one a DDS endpoint
+//!   offers;
 //! * [`bridge`]: reading a bridge's fleet-file table, and the receive and report helpers.
 
 pub mod bridge;
@@ -23,3 +25,4 @@ pub mod msgfile;
 pub mod msgs;
 pub mod registry;
 pub mod schema;
+pub mod typehash;

@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 
 use crate::msgfile::{self, Array, Base, MsgFile, Prim};
 use crate::schema::{Flavour, RosType, Ty};
+use crate::typehash;
 
 mod shipped {
     include!(concat!(env!("OUT_DIR"), "/shipped.rs"));
@@ -310,11 +311,18 @@ impl Registry {
         }
         chain.pop();
         let definition = full_definition(&file.text, &deps);
-        let md5 = match self.flavour {
-            Flavour::Ros1 => format!("{:x}", md5::compute(md5_lines.join("\n"))),
-            Flavour::Ros2 => String::new(),
+        let (md5, identity) = match self.flavour {
+            Flavour::Ros1 => (
+                format!("{:x}", md5::compute(md5_lines.join("\n"))),
+                Identity::default(),
+            ),
+            Flavour::Ros2 => {
+                let description = typehash::description(full, &file.fields);
+                let hash = typehash::type_hash(&description, &deps);
+                (String::new(), Identity { hash, description })
+            }
         };
-        let t = intern(full, fields, &file, md5, definition);
+        let t = intern(full, fields, &file, md5, definition, identity);
         self.lock().insert(full.to_string(), t);
         Ok(t)
     }
@@ -384,18 +392,25 @@ fn own_text(t: &RosType) -> &str {
     }
 }
 
+/// What identifies a ROS 2 type besides its name: its type hash and the description hashed.
+#[derive(Default)]
+struct Identity {
+    hash: String,
+    description: String,
+}
+
 fn intern(
     full: &str,
     fields: Vec<(String, Ty)>,
     file: &MsgFile,
     md5: String,
     definition: String,
+    identity: Identity,
 ) -> &'static RosType {
     let mut all = INTERNED.lock();
-    if let Some(t) = all
-        .iter()
-        .find(|t| t.name == full && t.definition == definition && t.md5 == md5)
-    {
+    if let Some(t) = all.iter().find(|t| {
+        t.name == full && t.definition == definition && t.md5 == md5 && t.type_hash == identity.hash
+    }) {
         return t;
     }
     let fields: Vec<(&'static str, Ty)> = fields.into_iter().map(|(n, t)| (leak(n), t)).collect();
@@ -416,6 +431,8 @@ fn intern(
         constants: Box::leak(constants.into_boxed_slice()),
         md5: leak(md5),
         definition: leak(definition),
+        type_hash: leak(identity.hash),
+        description: leak(identity.description),
     }));
     all.push(t);
     t
@@ -441,6 +458,8 @@ pub mod ros1 {
         constants: &[],
         md5: "",
         definition: "",
+        type_hash: "",
+        description: "",
     };
 
     /// `duration`: `int32 secs`, `int32 nsecs`.
@@ -450,6 +469,8 @@ pub mod ros1 {
         constants: &[],
         md5: "",
         definition: "",
+        type_hash: "",
+        description: "",
     };
 }
 

@@ -60,6 +60,12 @@ pub struct RosType {
     /// The full definition ROS 1 sends in a connection header (the type's text, then each
     /// type it uses after a line of `=` and `MSG: pkg/Type`); for ROS 2, the type's text.
     pub definition: &'static str,
+    /// ROS 2's type hash (`RIHS01_…`, [`crate::typehash`]); empty for ROS 1 types and
+    /// builtins.
+    pub type_hash: &'static str,
+    /// ROS 2's individual type description, as hashed ([`crate::typehash::description`]);
+    /// empty for ROS 1 types and builtins.
+    pub description: &'static str,
 }
 
 /// Which ROS a schema is for.

@@ -28,6 +28,7 @@ pub mod dds;
 mod publish;
 mod settings;
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -41,9 +42,10 @@ use hetcomm_rosmsg::bridge::{caps, hosts, module_id, robot_id, FrameMaker, Outbo
 use hetcomm_rosmsg::bridge::{BridgeFactory, BridgeKind};
 use hetcomm_rosmsg::codec::Wire;
 use hetcomm_rosmsg::schema::Flavour;
+use hetcomm_rosmsg::typehash;
 use rustdds::mio1::{Events, Interest, Poll, Token};
 use rustdds::no_key::DataReader;
-use rustdds::{DomainParticipant, TopicKind};
+use rustdds::{DomainParticipant, TopicKind, GUID};
 
 pub use settings::{BridgeSettings, Mapping, KEYS};
 
@@ -60,6 +62,9 @@ struct Inbound {
     mapping: Mapping,
     module: ModuleId,
     reader: DataReader<RawCdr, RawAdapter>,
+    /// The writers seen on the topic, each with why its samples are dropped, if they are
+    /// (it offers a type hash that is not the mapped definition's).
+    writers: HashMap<GUID, Option<String>>,
 }
 
 struct Shared {
@@ -145,6 +150,7 @@ impl Ros2Bridge {
                 mapping: m.clone(),
                 module,
                 reader,
+                writers: HashMap::new(),
             });
         }
         let shared = Arc::new(Shared {
@@ -155,6 +161,7 @@ impl Ros2Bridge {
             naming: naming.clone(),
             dp: dp.clone(),
             inbound,
+            published: settings.publish.clone(),
             robot,
             sink,
             shared: shared.clone(),
@@ -174,7 +181,8 @@ impl Ros2Bridge {
     }
 
     /// The problems seen with input from ROS (undecodable samples, publishers of another
-    /// type on a mapped topic), each once.
+    /// type on a mapped topic, publishers and subscribers that offer another type hash), each
+    /// once.
     pub fn problems(&self) -> Vec<String> {
         self.shared.tally.problems()
     }
@@ -199,6 +207,15 @@ impl Naming {
         }
     }
 
+    /// The type hash (`RIHS01_…`) peers on `m`'s topic should offer, if they offer one:
+    /// ROS 2 names its types by ROS names and hashes them; a plain DDS topic does neither.
+    fn type_hash(&self, m: &Mapping) -> Option<&'static str> {
+        match self {
+            Naming::Ros2 if !m.schema.type_hash.is_empty() => Some(m.schema.type_hash),
+            _ => None,
+        }
+    }
+
     /// The DDS type name of `m`.
     pub(crate) fn type_name(&self, m: &Mapping) -> String {
         match self {
@@ -216,6 +233,8 @@ struct Receiver {
     naming: Naming,
     dp: DomainParticipant,
     inbound: Vec<Inbound>,
+    /// The publish mappings, to check their subscribers' type hashes.
+    published: Vec<Mapping>,
     robot: SystemId,
     sink: Arc<dyn FrameSink>,
     shared: Arc<Shared>,
@@ -245,6 +264,7 @@ impl Receiver {
             }
             if Instant::now() >= next_check {
                 self.check_publisher_types();
+                self.check_subscriber_hashes();
                 next_check = Instant::now() + Duration::from_millis(500);
             }
         }
@@ -257,8 +277,8 @@ impl Receiver {
     fn drain(&mut self, i: usize) {
         loop {
             let inb = &mut self.inbound[i];
-            let sample = match inb.reader.take_next_sample() {
-                Ok(Some(s)) => s.into_value(),
+            let (writer, sample) = match inb.reader.take_next_sample() {
+                Ok(Some(s)) => (s.sample_info().writer_guid(), s.into_value()),
                 Ok(None) => return,
                 Err(e) => {
                     let topic = inb.mapping.topic.clone();
@@ -266,6 +286,11 @@ impl Receiver {
                     continue;
                 }
             };
+            if let Some(why) = self.writer_refused(i, writer) {
+                self.drop_with(why);
+                continue;
+            }
+            let inb = &self.inbound[i];
             let (topic, schema) = (inb.mapping.topic.clone(), inb.mapping.schema);
             let value = match crate::rostypes::from_cdr(
                 &sample.body,
@@ -292,6 +317,61 @@ impl Receiver {
             };
             self.shared.tally.received();
             self.sink.on_frame(&frame, Peer::System(self.robot));
+        }
+    }
+
+    /// Why samples of `writer` on inbound topic `i` are dropped, if they are: it offers a
+    /// type hash that is not the mapped definition's (the same type name, another layout).
+    /// A writer is looked up in discovery once, when its first sample comes.
+    fn writer_refused(&mut self, i: usize, writer: GUID) -> Option<String> {
+        let expected = self.naming.type_hash(&self.inbound[i].mapping)?;
+        if !self.inbound[i].writers.contains_key(&writer) {
+            let offered = self
+                .dp
+                .discovered_writers()
+                .into_iter()
+                .find(|w| w.writer_proxy.remote_writer_guid == writer)
+                .and_then(|w| typehash::offered(&w.user_data).map(str::to_string));
+            let inb = &mut self.inbound[i];
+            let why = offered.filter(|h| h != expected).map(|h| {
+                format!(
+                    "a publisher on {} offers type hash {h} for {}, but the definition the \
+                     bridge read hashes to {expected}: the two definitions differ, so its \
+                     messages are dropped",
+                    inb.mapping.topic,
+                    typehash::ros2_name(inb.mapping.ros_type()),
+                )
+            });
+            inb.writers.insert(writer, why);
+        }
+        self.inbound[i].writers[&writer].clone()
+    }
+
+    /// Reports (once each) subscribers of a published topic that offer a type hash other
+    /// than the mapped definition's: DDS matches them by type name, but they may misread
+    /// what the bridge publishes. Nothing is dropped here, so nothing is counted.
+    fn check_subscriber_hashes(&self) {
+        let readers = self.dp.discovered_readers();
+        for m in &self.published {
+            let Some(expected) = self.naming.type_hash(m) else {
+                continue;
+            };
+            let (topic, ty) = (self.naming.topic(m), self.naming.type_name(m));
+            for r in &readers {
+                let t = &r.subscription_topic_data;
+                if *t.topic_name() != topic || *t.type_name() != ty {
+                    continue;
+                }
+                if let Some(h) = typehash::offered(&r.user_data).filter(|h| *h != expected) {
+                    self.shared.tally.report(format!(
+                        "a subscriber of {} expects type hash {h} for {}, but the definition \
+                         the bridge read hashes to {expected}: the two definitions differ, so \
+                         it may misread what the bridge publishes",
+                        m.topic,
+                        typehash::ros2_name(m.ros_type()),
+                    ));
+                }
+            }
         }
     }
 
