@@ -6,6 +6,8 @@
 //! transport is here, once:
 //!
 //! * [`msgfile`]: reading a `.msg` file (ROS 1 or ROS 2), with errors at `file:line`;
+//! * [`idlfile`]: reading a ROS 2 message from an `.idl` file, for packages that ship only
+//!   that;
 //! * [`registry`]: where definitions are found (`msg_paths`, an installed ROS, the shipped
 //!   common_interfaces) and how a type resolves into a schema, with ROS 1's MD5 sum;
 //! * [`schema`]: a ROS type's schema, for ROS 1 or ROS 2 (they differ in `std_msgs/Header`);
@@ -21,6 +23,7 @@
 pub mod bridge;
 pub mod check;
 pub mod codec;
+pub mod idlfile;
 pub mod msgfile;
 pub mod msgs;
 pub mod registry;

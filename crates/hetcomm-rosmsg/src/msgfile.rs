@@ -194,7 +194,7 @@ pub fn valid_message(name: &str, flavour: Flavour) -> bool {
     }
 }
 
-fn valid_field(name: &str, flavour: Flavour) -> bool {
+pub(crate) fn valid_field(name: &str, flavour: Flavour) -> bool {
     match flavour {
         Flavour::Ros1 => ros1_name(name),
         // rosidl: lower case, digits and single underscores, not ending in one.
@@ -338,7 +338,7 @@ fn parse_size(text: &str, whole: &str) -> Result<usize, String> {
     }
 }
 
-fn parse_type(text: &str, package: &str, flavour: Flavour) -> Result<FieldType, String> {
+pub(crate) fn parse_type(text: &str, package: &str, flavour: Flavour) -> Result<FieldType, String> {
     let (elem, array) = match text.find('[') {
         None if text.contains(']') => return Err(format!("`{text}` has `]` without `[`")),
         None => (text, Array::No),
@@ -440,7 +440,7 @@ fn parse_base(text: &str, package: &str, flavour: Flavour) -> Result<(Base, Stri
     Ok((Base::Msg(full.clone()), full))
 }
 
-fn constant_value(base: &Base, value: &str) -> Result<String, String> {
+pub(crate) fn constant_value(base: &Base, value: &str) -> Result<String, String> {
     let Base::Prim(p) = base else {
         // The rest of the line (ROS 2's quotes kept, as written).
         return Ok(value.trim().to_string());

@@ -15,6 +15,7 @@ use parking_lot::Mutex;
 use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 
+use crate::idlfile;
 use crate::msgfile::{self, Array, Base, MsgFile, Prim};
 use crate::schema::{Flavour, RosType, Ty};
 use crate::typehash;
@@ -155,14 +156,21 @@ impl Registry {
         let Ok(entries) = std::fs::read_dir(dir) else {
             return;
         };
+        // A ROS 2 package may ship a type as `.idl` only; where both are there, the `.msg`.
+        let mut found: Vec<(bool, String, PathBuf)> = Vec::new();
         for e in entries.filter_map(Result::ok) {
             let path = e.path();
-            if path.extension().is_some_and(|x| x == "msg") {
-                let stem = path.file_stem().unwrap_or_default().to_string_lossy();
-                self.index
-                    .entry(format!("{package}/{stem}"))
-                    .or_insert(Source::File(path));
-            }
+            let idl = match path.extension().and_then(|x| x.to_str()) {
+                Some("msg") => false,
+                Some("idl") if self.flavour == Flavour::Ros2 => true,
+                _ => continue,
+            };
+            let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+            found.push((idl, format!("{package}/{stem}"), path));
+        }
+        found.sort();
+        for (_, name, path) in found {
+            self.index.entry(name).or_insert(Source::File(path));
         }
     }
 
@@ -250,6 +258,9 @@ impl Registry {
                 )
             }
         };
+        if file.ends_with(".idl") {
+            return idlfile::parse(&text, &file, pkg, ty).map_err(|e| e.to_string());
+        }
         msgfile::parse(&text, &file, pkg, ty, self.flavour).map_err(|e| e.to_string())
     }
 
