@@ -14,8 +14,8 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-use hetcomm::{Comm, Message};
-use large::{Figures, Kind, Node, Pattern};
+use hetcomm::Comm;
+use large::{Kind, Node};
 use serde::{Deserialize, Serialize};
 
 /// `builtin_interfaces/Time`.
@@ -48,66 +48,20 @@ struct Header {
     frame_id: String,
 }
 
-/// `sensor_msgs/Image` by field name; the pixels as bytes (one copy each way).
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 60)]
-struct Image {
-    header: Header,
-    height: u32,
-    width: u32,
-    encoding: String,
-    is_bigendian: u8,
-    step: u32,
-    #[serde(with = "serde_bytes")]
-    data: Vec<u8>,
-}
-
-/// `sensor_msgs/PointCloud2` by field name.
-#[derive(Serialize, Deserialize, Message, Debug, Clone, PartialEq)]
-#[message(id = 61)]
-struct PointCloud2 {
-    header: Header,
-    height: u32,
-    width: u32,
-    fields: Vec<large::PointField>,
-    is_bigendian: bool,
-    point_step: u32,
-    row_step: u32,
-    #[serde(with = "serde_bytes")]
-    data: Vec<u8>,
-    is_dense: bool,
-}
-
-fn header(k: usize) -> Header {
-    Header {
-        stamp: Time::now(),
-        frame_id: k.to_string(),
+impl large::Stamp for Header {
+    fn for_message(k: usize) -> Header {
+        Header {
+            stamp: Time::now(),
+            frame_id: k.to_string(),
+        }
     }
-}
 
-fn image(k: usize, pattern: &Pattern) -> Image {
-    Image {
-        header: header(k),
-        height: large::HEIGHT,
-        width: large::WIDTH,
-        encoding: "rgb8".into(),
-        is_bigendian: 0,
-        step: large::WIDTH * 3,
-        data: pattern.of(k).to_vec(),
+    fn frame_id(&self) -> &str {
+        &self.frame_id
     }
-}
 
-fn cloud(k: usize, pattern: &Pattern) -> PointCloud2 {
-    PointCloud2 {
-        header: header(k),
-        height: 1,
-        width: large::POINTS,
-        fields: large::point_fields(),
-        is_bigendian: false,
-        point_step: large::POINT_STEP,
-        row_step: large::POINT_STEP * large::POINTS,
-        data: pattern.of(k).to_vec(),
-        is_dense: true,
+    fn secs(&self) -> f64 {
+        self.stamp.secs()
     }
 }
 
@@ -140,7 +94,7 @@ Tango = ["tango_ros", "X"]
 }
 
 /// `large_node.py ARGS --domain DOMAIN`.
-fn node(domain: u16, args: &[&str]) -> Node {
+fn node(domain: u16, args: &[String]) -> Node {
     let python = std::env::var("HETCOMM_ROS2_PYTHON").expect(
         "set HETCOMM_ROS2_PYTHON to a Python with the `cyclonedds` package \
          (scripts/ros2-test.sh does: target/py-venv/bin/python)",
@@ -168,29 +122,13 @@ fn to_python(kind: Kind) {
     let alpha = Comm::open_fleet(&fleet, "Alpha").expect("open Alpha");
     let count = large::count();
     let topic = format!("{prefix}/{}_out", kind.arg());
-    let n = count.to_string();
-    let node = node(
-        domain,
-        &[
-            "read",
-            "--topic",
-            &topic,
-            "--type",
-            kind.arg(),
-            "--count",
-            &n,
-        ],
-    );
+    let node = node(domain, &large::node_args("read", &topic, kind, count));
     assert_eq!(
         node.lines_until("ready", Duration::from_secs(30)),
         ["ready"]
     );
     let drive = alpha.module("Drive").unwrap();
-    let pattern = Pattern::new(kind);
-    match kind {
-        Kind::Image => large::send_at_30_hz(&drive, count, |k| image(k, &pattern)),
-        Kind::Cloud => large::send_at_30_hz(&drive, count, |k| cloud(k, &pattern)),
-    }
+    large::send_kind::<Header>(&drive, kind, count);
     let lines = node.lines_until("done", Duration::from_secs(30));
     large::check_read(
         &lines,
@@ -211,67 +149,15 @@ fn from_python(kind: Kind) {
     let world = alpha.module("World").unwrap();
     let count = large::count();
     let topic = format!("{prefix}/{}_in", kind.arg());
-    let n = count.to_string();
-    let node = node(
-        domain,
-        &[
-            "publish",
-            "--topic",
-            &topic,
-            "--type",
-            kind.arg(),
-            "--count",
-            &n,
-        ],
+    let node = node(domain, &large::node_args("publish", &topic, kind, count));
+    let arrivals = large::receive_in_order::<Header>(&world, kind, count, "the Python node");
+    large::check_received(
+        &arrivals,
+        count,
+        &format!("cyclonedds Python → hetcomm, {}", kind.arg()),
+        &node,
+        &alpha,
     );
-    let pattern = Pattern::new(kind);
-    let mut arrivals = Vec::new();
-    for _ in 0..count {
-        let (k, stamp, intact, at) = match kind {
-            Kind::Image => {
-                let got = world
-                    .recv_timeout::<Image>(Duration::from_secs(30))
-                    .expect("an Image from the Python node");
-                let k: usize = got.message.header.frame_id.parse().expect("K");
-                let m = &got.message;
-                let intact = m.data == pattern.of(k)
-                    && (m.width, m.height, m.step, m.encoding.as_str())
-                        == (large::WIDTH, large::HEIGHT, large::WIDTH * 3, "rgb8");
-                (k, m.header.stamp.secs(), intact, got.envelope.received_at)
-            }
-            Kind::Cloud => {
-                let got = world
-                    .recv_timeout::<PointCloud2>(Duration::from_secs(30))
-                    .expect("a PointCloud2 from the Python node");
-                let m = &got.message;
-                let k: usize = m.header.frame_id.parse().expect("K");
-                let intact = m.data == pattern.of(k)
-                    && m.fields == large::point_fields()
-                    && (m.width, m.point_step, m.is_dense)
-                        == (large::POINTS, large::POINT_STEP, true);
-                (k, m.header.stamp.secs(), intact, got.envelope.received_at)
-            }
-        };
-        assert_eq!(k, arrivals.len(), "messages arrive in order, none lost");
-        let at = at.as_micros() as f64 / 1e6;
-        arrivals.push((intact, Duration::from_secs_f64((at - stamp).max(0.0)), at));
-    }
-    let figures = Figures::of(&arrivals);
-    println!(
-        "{}",
-        figures.line(&format!("cyclonedds Python → hetcomm, {}", kind.arg()))
-    );
-    assert_eq!(figures.intact, count, "every byte of every message");
-    let sent = node.lines_until("", Duration::from_secs(10));
-    let prefix = format!("sent {count} ");
-    assert!(
-        sent.first().is_some_and(|l| l.starts_with(&prefix)),
-        "{sent:?}"
-    );
-    large::assert_rate(&figures);
-    let stats = alpha.stats();
-    let dropped: u64 = stats.links.iter().map(|(_, l)| l.frames_dropped).sum();
-    assert_eq!(dropped, 0, "{stats:?}");
 }
 
 #[test]

@@ -250,10 +250,12 @@ impl Parser<'_> {
                         default = Some(match self.next()? {
                             Tok::Str(s) => format!("\"{s}\""),
                             Tok::Num(n) | Tok::Word(n) => n,
-                            other => return Err(self.err(format!(
+                            other => {
+                                return Err(self.err(format!(
                                 "`@default` has value {}: expected a number, a name or a string",
                                 show(&other)
-                            ))),
+                            )))
+                            }
                         });
                     }
                     _ => {}

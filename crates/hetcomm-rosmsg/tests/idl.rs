@@ -273,7 +273,10 @@ fn every_cut_of_an_idl_file_is_an_error_never_a_panic() {
         (NAV_SAT_STATUS, "sensor_msgs", "NavSatStatus"),
     ] {
         assert!(hetcomm_rosmsg::idlfile::parse(text, "c.idl", pkg, name).is_ok());
-        for (cut, _) in text.char_indices().filter(|&(i, _)| i < text.trim_end().len()) {
+        for (cut, _) in text
+            .char_indices()
+            .filter(|&(i, _)| i < text.trim_end().len())
+        {
             // Every proper prefix lacks the struct or ends inside a declaration.
             let r = hetcomm_rosmsg::idlfile::parse(&text[..cut], "c.idl", pkg, name);
             assert!(r.is_err(), "{name} cut at {cut} parsed");

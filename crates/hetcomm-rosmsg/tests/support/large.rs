@@ -13,6 +13,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use hetcomm::{Message, Module, Outcome};
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 /// Image width and height (pixels), and bytes a pixel (rgb8).
@@ -282,4 +283,153 @@ pub fn assert_rate(figures: &Figures) {
         figures.rate_hz >= RATE_HZ / 3.0,
         "the stream did not keep up (less than a third of 30 Hz): {figures:?}"
     );
+}
+
+/// A ROS version's `std_msgs/Header` (ROS 1 has `seq` and `time`, ROS 2
+/// `builtin_interfaces/Time`), which is all the two versions' messages differ in.
+pub trait Stamp: Serialize + DeserializeOwned + Send + std::fmt::Debug + 'static {
+    /// The header of message `k`: its frame id is `k`, its stamp the wall clock now.
+    fn for_message(k: usize) -> Self;
+    /// The frame id.
+    fn frame_id(&self) -> &str;
+    /// The stamp, in seconds since the Unix epoch.
+    fn secs(&self) -> f64;
+}
+
+/// `sensor_msgs/Image` by field name; the pixels as bytes (one copy each way).
+#[derive(Serialize, Deserialize, Message, Debug)]
+#[message(id = 60)]
+#[serde(bound = "H: Stamp")]
+pub struct Image<H: Stamp> {
+    pub header: H,
+    pub height: u32,
+    pub width: u32,
+    pub encoding: String,
+    pub is_bigendian: u8,
+    pub step: u32,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+
+/// `sensor_msgs/PointCloud2` by field name.
+#[derive(Serialize, Deserialize, Message, Debug)]
+#[message(id = 61)]
+#[serde(bound = "H: Stamp")]
+pub struct PointCloud2<H: Stamp> {
+    pub header: H,
+    pub height: u32,
+    pub width: u32,
+    pub fields: Vec<PointField>,
+    pub is_bigendian: bool,
+    pub point_step: u32,
+    pub row_step: u32,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+    pub is_dense: bool,
+}
+
+/// Sends `count` messages of `kind` (message `k` carrying `pattern.of(k)`) at 30 Hz.
+pub fn send_kind<H: Stamp>(drive: &Module, kind: Kind, count: usize) {
+    let pattern = Pattern::new(kind);
+    match kind {
+        Kind::Image => send_at_30_hz(drive, count, |k| Image {
+            header: H::for_message(k),
+            height: HEIGHT,
+            width: WIDTH,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: WIDTH * 3,
+            data: pattern.of(k).to_vec(),
+        }),
+        Kind::Cloud => send_at_30_hz(drive, count, |k| PointCloud2 {
+            header: H::for_message(k),
+            height: 1,
+            width: POINTS,
+            fields: point_fields(),
+            is_bigendian: false,
+            point_step: POINT_STEP,
+            row_step: POINT_STEP * POINTS,
+            data: pattern.of(k).to_vec(),
+            is_dense: true,
+        }),
+    }
+}
+
+/// Receives `count` messages of `kind` from `peer` in `world`, which must come in order;
+/// each as (every field and byte as sent, latency from its stamp, arrival in s).
+pub fn receive_in_order<H: Stamp>(
+    world: &Module,
+    kind: Kind,
+    count: usize,
+    peer: &str,
+) -> Vec<(bool, Duration, f64)> {
+    let pattern = Pattern::new(kind);
+    let mut arrivals = Vec::new();
+    for _ in 0..count {
+        let within = Duration::from_secs(30);
+        let (header, intact, at) = match kind {
+            Kind::Image => {
+                let got = world
+                    .recv_timeout::<Image<H>>(within)
+                    .unwrap_or_else(|e| panic!("an Image from {peer}: {e:?}"));
+                let m = got.message;
+                let k: usize = m.header.frame_id().parse().expect("K");
+                let intact = m.data == pattern.of(k)
+                    && (m.width, m.height, m.step, m.encoding.as_str())
+                        == (WIDTH, HEIGHT, WIDTH * 3, "rgb8");
+                (m.header, intact, got.envelope.received_at)
+            }
+            Kind::Cloud => {
+                let got = world
+                    .recv_timeout::<PointCloud2<H>>(within)
+                    .unwrap_or_else(|e| panic!("a PointCloud2 from {peer}: {e:?}"));
+                let m = got.message;
+                let k: usize = m.header.frame_id().parse().expect("K");
+                let intact = m.data == pattern.of(k)
+                    && m.fields == point_fields()
+                    && (m.width, m.point_step, m.is_dense) == (POINTS, POINT_STEP, true);
+                (m.header, intact, got.envelope.received_at)
+            }
+        };
+        let k: usize = header.frame_id().parse().expect("K");
+        assert_eq!(k, arrivals.len(), "messages arrive in order, none lost");
+        let at = at.as_micros() as f64 / 1e6;
+        let latency = Duration::from_secs_f64((at - header.secs()).max(0.0));
+        arrivals.push((intact, latency, at));
+    }
+    arrivals
+}
+
+/// `large_node.py`'s arguments: `verb` (`read` or `publish`) `count` messages of `kind` on
+/// `topic`.
+pub fn node_args(verb: &str, topic: &str, kind: Kind, count: usize) -> Vec<String> {
+    let args = [verb, "--topic", topic, "--type", kind.arg(), "--count"];
+    let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+    args.push(count.to_string());
+    args
+}
+
+/// Checks a stream `system` received from `node`: every byte of every message, the node said
+/// it sent them all, the stream kept up, and the system dropped nothing. Prints the figures
+/// as `what`.
+pub fn check_received(
+    arrivals: &[(bool, Duration, f64)],
+    count: usize,
+    what: &str,
+    node: &Node,
+    system: &hetcomm::Comm,
+) {
+    let stats = system.stats();
+    let dropped: u64 = stats.links.iter().map(|(_, l)| l.frames_dropped).sum();
+    let figures = Figures::of(arrivals);
+    println!("{}", figures.line(what));
+    assert_eq!(figures.intact, count, "every byte of every message");
+    let sent = node.lines_until("", Duration::from_secs(10));
+    let prefix = format!("sent {count} ");
+    assert!(
+        sent.first().is_some_and(|l| l.starts_with(&prefix)),
+        "{sent:?}"
+    );
+    assert_rate(&figures);
+    assert_eq!(dropped, 0, "frames dropped by the system: {stats:?}");
 }
