@@ -131,3 +131,45 @@ grep -q 'Alpha → Charlie → Tango, .*R = mqtt' "$WORK/demo.err" || { cat "$WO
 awk '/^Table 11: Tango command data/{f=1} /^Table 12/{f=0} f && /Turn Left/{n++} END{exit n<2}' "$WORK/demo.out" \
     && test -s "$WORK/demo/NOTES.md" || { cat "$WORK/demo.out"; exit 1; }
 echo "hetcomm demo --r mqtt: ok"
+
+step "mqtt: the reliability experiment with R on the broker (real time, both modes)"
+# The thesis's three-system fleet with R on the group's broker (unsecured, a fleet level of
+# its own) and B in process; every message must be received once and every send accounted.
+cat >"$WORK/reliability.toml" <<TOML
+[systems]
+Bravo = 0
+Charlie = 1
+Delta = 2
+[modules]
+Plan = 0
+[transports.r]
+kind = "mqtt"
+letter = "R"
+broker = "127.0.0.1:$PLAIN"
+fleet = "hetcomm-reliability-$$"
+security = "none"
+[transports.b]
+kind = "inproc"
+letter = "B"
+[table]
+columns = ["Bravo", "Charlie", "Delta"]
+Bravo   = ["X", "R", "B"]
+Charlie = ["B", "X", "R"]
+Delta   = ["R", "B", "X"]
+TOML
+"$HETCOMM" experiment reliability --fleet "$WORK/reliability.toml" --realtime --trials 3 \
+    --format json --out "$WORK/reliability" >"$WORK/reliability.json" \
+    || { cat "$WORK/reliability.json"; exit 1; }
+python3 - "$WORK/reliability.json" <<'PY'
+import json, sys
+report = json.load(open(sys.argv[1]))
+for m in report["modes"]:
+    a = m["accounting"]
+    line = (f'{m["mode"]}: {m["messages"]} messages, {m["received"]} received, '
+            f'{m["duplicates_delivered"]} duplicates, {a["in_flight"]} in flight, '
+            f'balanced {a["balanced"]}')
+    print(line)
+    assert (m["messages"], m["received"]) == (63, 63), line
+    assert m["duplicates_delivered"] == 0 and a["in_flight"] == 0 and a["balanced"], line
+PY
+echo "hetcomm experiment reliability on mqtt: ok"
