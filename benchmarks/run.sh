@@ -68,6 +68,13 @@ ZSCALE_CMD="target/release/hetcomm-bench zenoh-scale 50 100 200"
 log "$ZSCALE_CMD"
 $ZSCALE_CMD >"$TMP/zenoh-scale.md" 2>"$TMP/zenoh-scale.err" || log "zenoh scale failed: $(tail -1 "$TMP/zenoh-scale.err")"
 
+# Large ROS messages through both bridges at 30 Hz, beside the peers alone (issue 40).
+if [ -z "${SKIP_ROS_LARGE:-}" ]; then
+    log "bash benchmarks/ros-large.sh"
+    bash benchmarks/ros-large.sh >"$TMP/ros-large.md" 2>"$TMP/ros-large.err" \
+        || log "ros-large failed: $(tail -1 "$TMP/ros-large.err")"
+fi
+
 CRIT_CMD="cargo bench -p hetcomm-bench --bench codec --bench router -- --warm-up-time 1 --measurement-time 3"
 if [ -z "${SKIP_CRITERION:-}" ]; then
     log "$CRIT_CMD"
@@ -124,6 +131,10 @@ fi
         echo "(also in that process) over one acknowledged \`zenoh\` transport (crates/hetcomm-bench/src/zenoh_scale.rs)."
         echo
         cat "$TMP/zenoh-scale.md"
+    fi
+    if [ -s "$TMP/ros-large.md" ]; then
+        echo
+        sed 's/^### /## /' "$TMP/ros-large.md"
     fi
     if [ -s "$TMP/criterion.txt" ]; then
         echo

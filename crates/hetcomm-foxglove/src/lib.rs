@@ -42,7 +42,8 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, OnceLock};
+use parking_lot::Mutex;
 
 use anyhow::Context as _;
 use foxglove::{
@@ -101,7 +102,7 @@ impl Channels {
         schema_name: &str,
         schema: impl FnOnce() -> String,
     ) -> anyhow::Result<Arc<RawChannel>> {
-        let mut channels = self.json.lock().unwrap_or_else(|e| e.into_inner());
+        let mut channels = self.json.lock();
         if let Some(c) = channels.get(topic) {
             return Ok(c.clone());
         }

@@ -10,7 +10,8 @@
 //!   `<rover>/trail`, the line it has driven so far.
 
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use parking_lot::Mutex;
 
 use foxglove::messages::{
     line_primitive, ArrowPrimitive, Color, CubePrimitive, FrameTransform, FrameTransforms,
@@ -112,7 +113,7 @@ pub(crate) struct Trails(Mutex<BTreeMap<String, Vec<Point3>>>);
 impl Trails {
     /// Adds the rovers' positions (where they moved far enough) and returns every trail.
     fn extend(&self, rovers: &[RoverPose<'_>]) -> Vec<(String, Vec<Point3>)> {
-        let mut trails = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut trails = self.0.lock();
         for r in rovers {
             let trail = trails.entry(r.name.to_string()).or_default();
             let far = trail

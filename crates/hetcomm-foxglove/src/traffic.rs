@@ -411,7 +411,7 @@ mod tests {
         let watch = Watch::start_with_queue(view.channels.clone(), fleet.systems(), 4).unwrap();
         let a = fleet.system("A").unwrap().module("M").unwrap();
         // The publishing thread blocks on its first new channel while the test holds them.
-        let held = view.channels.json.lock().unwrap();
+        let held = view.channels.json.lock();
         let started = Instant::now();
         for _ in 0..50 {
             let t = a

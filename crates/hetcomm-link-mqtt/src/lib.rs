@@ -71,7 +71,8 @@ mod tls;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
+use parking_lot::{Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -231,8 +232,8 @@ pub(crate) struct Shared {
 }
 
 impl Shared {
-    pub(crate) fn lock(&self) -> std::sync::MutexGuard<'_, Conn> {
-        self.conn.lock().unwrap_or_else(|e| e.into_inner())
+    pub(crate) fn lock(&self) -> parking_lot::MutexGuard<'_, Conn> {
+        self.conn.lock()
     }
 
     /// Waits until `settled` reads an answer off the connection's state, or `deadline`
@@ -241,7 +242,7 @@ impl Shared {
         &self,
         deadline: Instant,
         settled: impl FnMut(&Conn) -> Option<T>,
-    ) -> Result<T, std::sync::MutexGuard<'_, Conn>> {
+    ) -> Result<T, parking_lot::MutexGuard<'_, Conn>> {
         wait_until(&self.conn, &self.changed, deadline, settled)
     }
 }
@@ -254,8 +255,8 @@ pub(crate) fn wait_until<'a, S, T>(
     changed: &Condvar,
     deadline: Instant,
     mut settled: impl FnMut(&S) -> Option<T>,
-) -> Result<T, std::sync::MutexGuard<'a, S>> {
-    let mut state = lock.lock().unwrap_or_else(|e| e.into_inner());
+) -> Result<T, parking_lot::MutexGuard<'a, S>> {
+    let mut state = lock.lock();
     loop {
         if let Some(answer) = settled(&state) {
             return Ok(answer);
@@ -264,10 +265,7 @@ pub(crate) fn wait_until<'a, S, T>(
         if now >= deadline {
             return Err(state);
         }
-        state = changed
-            .wait_timeout(state, deadline - now)
-            .unwrap_or_else(|e| e.into_inner())
-            .0;
+        changed.wait_for(&mut state, deadline - now);
     }
 }
 
@@ -465,7 +463,7 @@ impl MqttLink {
     fn abandon(&self) {
         self.shared.closing.store(true, Ordering::SeqCst);
         let _ = self.client.try_disconnect();
-        self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.thread.lock().take();
     }
 
     /// The largest frame a publish to any destination may carry under the broker limit `limit`.
@@ -762,7 +760,7 @@ impl Drop for MqttLink {
         self.shared.receipts.close();
         self.shared.presence.close();
         self.shared.changed.notify_all();
-        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let thread = self.thread.lock().take();
         // Announce the close (retained), then disconnect normally: the broker then keeps the
         // last will to itself. Both go out in order before the loop ends (if the client is
         // disconnected, once it is connected again).

@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 use std::sync::mpsc;
-use std::sync::{Condvar, Mutex};
+use parking_lot::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -56,7 +56,6 @@ pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
     let (tx, rx) = mpsc::channel();
     EVERY_LINK
         .lock()
-        .unwrap_or_else(|e| e.into_inner())
         .push(tx);
     rx
 }
@@ -103,8 +102,8 @@ impl Presence {
         }
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, State> {
+        self.state.lock()
     }
 
     /// Records `id`'s announcement; what changed, if anything: `Joined` when it came online,
@@ -134,7 +133,6 @@ impl Presence {
         };
         EVERY_LINK
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .retain(|l| l.send((self.local, event)).is_ok());
         Some(event)
     }
@@ -155,11 +153,7 @@ impl Presence {
             if !wait || st.closed || now >= deadline {
                 return Verdict::NotAnnounced(st.seen.get(&id).map(|e| e.announced));
             }
-            st = self
-                .changed
-                .wait_timeout(st, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            self.changed.wait_for(&mut st, deadline - now);
         }
     }
 

@@ -13,7 +13,7 @@
 //! receipt's deadline ([`Receipts::run_expiry`]).
 
 use std::collections::{HashMap, VecDeque};
-use std::sync::{Condvar, Mutex, MutexGuard};
+use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use hetcomm_link::relay::{RelayPromise, RelayVerdict};
@@ -83,19 +83,18 @@ impl Receipts {
     }
 
     fn lock(&self) -> MutexGuard<'_, Book> {
-        self.book.lock().unwrap_or_else(|e| e.into_inner())
+        self.book.lock()
     }
 
     fn broker(&self) -> String {
         self.broker
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .clone()
     }
 
     /// The broker the client now talks to (one of several, in turn).
     pub(crate) fn set_broker(&self, broker: String) {
-        *self.broker.lock().unwrap_or_else(|e| e.into_inner()) = broker;
+        *self.broker.lock() = broker;
     }
 
     /// Queues a publish with `queue` (which returns whether it queued it), noting it when it
@@ -133,22 +132,19 @@ impl Receipts {
     pub(crate) fn run_expiry(&self) {
         let mut book = self.lock();
         while !book.closed {
-            book = match book.next_deadline() {
-                None => self.waiting.wait(book).unwrap_or_else(|e| e.into_inner()),
+            match book.next_deadline() {
+                None => self.waiting.wait(&mut book),
                 Some(d) => {
                     let left = d.saturating_duration_since(Instant::now());
                     if left.is_zero() {
                         drop(book);
                         self.expire(Instant::now());
-                        self.lock()
+                        book = self.lock();
                     } else {
-                        self.waiting
-                            .wait_timeout(book, left)
-                            .unwrap_or_else(|e| e.into_inner())
-                            .0
+                        self.waiting.wait_for(&mut book, left);
                     }
                 }
-            };
+            }
         }
     }
 

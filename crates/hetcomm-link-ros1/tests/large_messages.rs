@@ -105,8 +105,7 @@ fn node(master: &Master, args: &[String]) -> Node {
 
 fn to_rospy(kind: Kind) {
     let _one = large::ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+        .lock();
     common::require_ros();
     let master = Master::start();
     let prefix = format!("/hc_{}_large_out_{}", std::process::id(), kind.arg());
@@ -128,8 +127,7 @@ fn to_rospy(kind: Kind) {
 
 fn from_rospy(kind: Kind) {
     let _one = large::ONE_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+        .lock();
     common::require_ros();
     let master = Master::start();
     let prefix = format!("/hc_{}_large_in_{}", std::process::id(), kind.arg());

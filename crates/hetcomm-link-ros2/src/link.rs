@@ -3,7 +3,8 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use parking_lot::Mutex;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -71,7 +72,7 @@ pub fn qos(settings: &Ros2Settings) -> QosPolicies {
 /// [`retire`] when done: participants dropped elsewhere can take the process down at exit.
 pub fn participant(settings: &Ros2Settings) -> Result<DomainParticipant, OpenError> {
     // Participants retired earlier go now, on this thread (see `retire`).
-    let retired = std::mem::take(&mut *retired().lock().unwrap_or_else(|e| e.into_inner()));
+    let retired = std::mem::take(&mut *retired().lock());
     drop(retired);
     let mut builder =
         DomainParticipantBuilder::new(settings.domain_id).same_host_loopback(settings.same_host);
@@ -97,7 +98,7 @@ fn retired() -> &'static Mutex<Vec<DomainParticipant>> {
 /// its links never hits that; at most the participants retired since the last one opened are
 /// kept meanwhile.
 pub fn retire(dp: DomainParticipant) {
-    retired().lock().unwrap_or_else(|e| e.into_inner()).push(dp);
+    retired().lock().push(dp);
 }
 
 /// One destination: its topic's writer and whether a reader is matched to it.
@@ -122,7 +123,7 @@ impl Dest {
                 current, reader, ..
             } = status
             {
-                let mut readers = self.readers.lock().unwrap_or_else(|e| e.into_inner());
+                let mut readers = self.readers.lock();
                 if current.count_change() > 0 {
                     readers.insert(reader, Instant::now());
                 } else if current.count_change() < 0 {
@@ -135,7 +136,7 @@ impl Dest {
                         true => LinkEvent::PeerUp(self.id),
                         false => LinkEvent::PeerDown(self.id),
                     };
-                    events.lock().unwrap_or_else(|e| e.into_inner()).push(event);
+                    events.lock().push(event);
                 }
             }
         }
@@ -336,7 +337,7 @@ impl Ros2Link {
         let deadline = Instant::now() + self.connect_timeout;
         let mut pause = Duration::from_micros(200);
         loop {
-            let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
+            let writer = dest.writer.lock();
             let matched = dest.refresh(&writer, &self.shared.events);
             drop(writer);
             if matched > 0 && self.answers_matched(dest) {
@@ -362,7 +363,7 @@ impl Ros2Link {
     /// link's own topic that discovery knows, or the first such reader matched
     /// [`ANSWER_WAIT`] ago.
     fn answers_matched(&self, dest: &Dest) -> bool {
-        let readers = dest.readers.lock().unwrap_or_else(|e| e.into_inner());
+        let readers = dest.readers.lock();
         if readers.values().any(|at| at.elapsed() >= ANSWER_WAIT) {
             return true;
         }
@@ -412,10 +413,10 @@ impl Rx {
     /// or DDS discovery lost it).
     fn presence(&self, shared: &Shared) {
         for dest in self.dests.values() {
-            let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
+            let writer = dest.writer.lock();
             dest.refresh(&writer, &shared.events);
         }
-        let events = std::mem::take(&mut *shared.events.lock().unwrap_or_else(|e| e.into_inner()));
+        let events = std::mem::take(&mut *shared.events.lock());
         for event in events {
             self.sink.on_event(event);
         }
@@ -471,10 +472,8 @@ impl Readable for Driven {
     fn read_ready(&self, _budget: usize) -> std::io::Result<usize> {
         // Everything is taken at once: the registration is edge-triggered, so samples left
         // behind would wait for the next notification.
-        let mut rx = match self.rx.try_lock() {
-            Ok(rx) => rx,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return Ok(0),
+        let Some(mut rx) = self.rx.try_lock() else {
+            return Ok(0);
         };
         Ok(rx.read(Duration::ZERO, &self.shared))
     }
@@ -507,7 +506,7 @@ impl Link for Ros2Link {
         if dest.matched.load(Ordering::Relaxed) <= 0 {
             self.wait_matched(to, dest)?;
         }
-        let writer = dest.writer.lock().unwrap_or_else(|e| e.into_inner());
+        let writer = dest.writer.lock();
         dest.refresh(&writer, &self.shared.events);
         let message = FrameMessage {
             data: frame.to_vec(),

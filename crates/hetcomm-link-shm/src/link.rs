@@ -5,7 +5,8 @@ use std::collections::HashMap;
 use std::os::fd::RawFd;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use parking_lot::Mutex;
 
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
@@ -279,7 +280,7 @@ impl ShmLink {
     /// the spinning flags of destinations that had none yet (they started after this link).
     fn upkeep(&self) {
         if self.liveness.due() {
-            let node = self._node.lock().unwrap_or_else(|e| e.into_inner());
+            let node = self._node.lock();
             self.liveness.sweep(node.config(), Some(&*self.sink));
             for dest in self.dests.values() {
                 dest.spinning.try_open(&node, &dest.service_name);

@@ -4,7 +4,8 @@
 
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::Ordering;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use parking_lot::Mutex;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -57,8 +58,8 @@ impl Liveness {
     /// Whether the last look is `liveness_ms` old (and nobody else is looking).
     pub(crate) fn due(&self) -> bool {
         match self.state.try_lock() {
-            Ok(s) => s.last.map_or(true, |t| t.elapsed() >= self.interval),
-            Err(_) => false,
+            Some(s) => s.last.map_or(true, |t| t.elapsed() >= self.interval),
+            None => false,
         }
     }
 
@@ -66,7 +67,6 @@ impl Liveness {
     pub(crate) fn is_dead(&self, peer: SystemId) -> bool {
         self.state
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .dead
             .contains(&peer)
     }
@@ -76,7 +76,7 @@ impl Liveness {
     pub(crate) fn sweep(&self, config: &Config, sink: Option<&dyn FrameSink>) {
         // One look at a time (the reader's upkeep and a congested sender may both ask): two
         // looks racing would both find a dead node and fight over removing it.
-        let _one = self.sweeping.lock().unwrap_or_else(|e| e.into_inner());
+        let _one = self.sweeping.lock();
         let mut alive = HashSet::new();
         let mut dead_nodes = Vec::new();
         let _ = Node::<IpcService>::list(config, |state| {
@@ -108,7 +108,7 @@ impl Liveness {
                     .fetch_add(1, Ordering::Relaxed);
             }
         }
-        let mut s = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.state.lock();
         s.last = Some(Instant::now());
         let mut events = Vec::new();
         for id in died.into_iter().filter(|id| *id != self.local) {

@@ -76,7 +76,8 @@ pub mod router;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::Arc;
+use parking_lot::{Mutex, RwLock};
 use std::time::Duration;
 
 use hetcomm_core::wire::TO_ALL_SYSTEM;
@@ -570,10 +571,10 @@ impl ZenohLink {
     }
 
     fn publishers(&self, to: SystemId, dest: &Dest) -> Result<Arc<Publishers>, LinkError> {
-        if let Some(p) = &*dest.publishers.read().unwrap_or_else(|e| e.into_inner()) {
+        if let Some(p) = &*dest.publishers.read() {
             return Ok(p.clone());
         }
-        let mut slot = dest.publishers.write().unwrap_or_else(|e| e.into_inner());
+        let mut slot = dest.publishers.write();
         if let Some(p) = &*slot {
             return Ok(p.clone());
         }
@@ -620,7 +621,7 @@ impl Link for ZenohLink {
 
     fn send_parts(&self, to: SystemId, head: &[u8], body: &[u8]) -> Result<(), LinkError> {
         let dest = self.reachable(to, head.len() + body.len())?;
-        let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+        let mut held = dest.held.lock();
         if held.frames == 0 && !head.starts_with(&BATCH_MAGIC) {
             drop(held);
             // The one copy of the frame: Zenoh keeps the put's payload until it is sent.
@@ -644,7 +645,7 @@ impl Link for ZenohLink {
 
     fn send_held(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
         let dest = self.reachable(to, frame.len())?;
-        let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+        let mut held = dest.held.lock();
         held.push(frame, &[]);
         if held.put.len() < HELD_MAX {
             return Ok(());
@@ -655,7 +656,7 @@ impl Link for ZenohLink {
     fn flush(&self) -> Result<(), LinkError> {
         let mut first = Ok(());
         for (to, dest) in &self.dests {
-            let mut held = dest.held.lock().unwrap_or_else(|e| e.into_inner());
+            let mut held = dest.held.lock();
             let result = self.put_held(*to, dest, &mut held);
             if first.is_ok() {
                 first = result;
@@ -685,7 +686,6 @@ impl Drop for ZenohLink {
         for dest in self.dests.values() {
             dest.publishers
                 .write()
-                .unwrap_or_else(|e| e.into_inner())
                 .take();
         }
         // Closing undeclares the token (others see this system leave) and the subscription.

@@ -3,7 +3,7 @@
 
 use std::collections::HashMap;
 use std::sync::mpsc;
-use std::sync::{Condvar, Mutex};
+use parking_lot::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -54,7 +54,6 @@ pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
     let (tx, rx) = mpsc::channel();
     EVERY_LINK
         .lock()
-        .unwrap_or_else(|e| e.into_inner())
         .push(tx);
     rx
 }
@@ -85,8 +84,8 @@ impl Presence {
         }
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, State> {
+        self.state.lock()
     }
 
     /// Records a token appearing (`Present`) or going (`Left`); what changed, if anything.
@@ -107,7 +106,6 @@ impl Presence {
         drop(st);
         EVERY_LINK
             .lock()
-            .unwrap_or_else(|e| e.into_inner())
             .retain(|l| l.send((self.local, event)).is_ok());
         self.changed.notify_all();
         Some(event)
@@ -128,11 +126,7 @@ impl Presence {
             if now >= deadline {
                 return Seen::Never;
             }
-            st = self
-                .changed
-                .wait_timeout(st, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            self.changed.wait_for(&mut st, deadline - now);
         }
     }
 

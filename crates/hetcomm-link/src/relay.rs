@@ -9,7 +9,8 @@
 //! intermediary answers, or breaks it when it cannot (within a bound of its own).
 //! The runtime turns the [`RelayVerdict`] into the send's outcome.
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use parking_lot::Mutex;
 
 /// What the intermediary said about one frame.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -36,8 +37,8 @@ struct Shared {
 }
 
 impl Shared {
-    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, State> {
+        self.state.lock()
     }
 }
 

@@ -30,7 +30,8 @@ mod settings;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Arc;
+use parking_lot::{Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -86,8 +87,8 @@ struct Shared {
 }
 
 impl Shared {
-    fn lock(&self) -> std::sync::MutexGuard<'_, Conn> {
-        self.conn.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, Conn> {
+        self.conn.lock()
     }
 
     fn set(&self, f: impl FnOnce(&mut Conn)) {
@@ -100,7 +101,7 @@ impl Shared {
         &self,
         deadline: Instant,
         settled: impl FnMut(&Conn) -> Option<T>,
-    ) -> Result<T, std::sync::MutexGuard<'_, Conn>> {
+    ) -> Result<T, parking_lot::MutexGuard<'_, Conn>> {
         wait_until(&self.conn, &self.changed, deadline, settled)
     }
 }
@@ -263,7 +264,7 @@ impl MqttBridge {
             Err(e) => {
                 self.shared.closing.store(true, Ordering::SeqCst);
                 let _ = self.client.try_disconnect();
-                self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+                self.thread.lock().take();
                 Err(e.into())
             }
         }
@@ -417,7 +418,7 @@ impl Drop for MqttBridge {
         let ready = self.shared.lock().ready;
         self.shared.closing.store(true, Ordering::SeqCst);
         self.shared.changed.notify_all();
-        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let thread = self.thread.lock().take();
         let _ = self.client.try_disconnect();
         // Disconnected, the loop ends after its current attempt: nothing to wait for.
         if let (true, Some(t)) = (ready, thread) {

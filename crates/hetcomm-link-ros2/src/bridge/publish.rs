@@ -10,7 +10,7 @@
 //! before the participant goes makes a one-shot send arrive.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Mutex;
+use parking_lot::Mutex;
 use std::time::{Duration, Instant};
 
 use rustdds::no_key::DataWriter;
@@ -67,7 +67,7 @@ impl Published {
 
     /// Applies the writer's pending status events to the matched readers.
     fn refresh(&self) {
-        let mut matched = self.matched.lock().unwrap_or_else(|e| e.into_inner());
+        let mut matched = self.matched.lock();
         while let Some(status) = self.writer.try_recv_status() {
             if let DataWriterStatus::PublicationMatched {
                 current, reader, ..
@@ -78,7 +78,7 @@ impl Published {
                 } else if current.count_change() < 0 {
                     matched.remove(&reader);
                 }
-                *self.checked.lock().unwrap_or_else(|e| e.into_inner()) = None;
+                *self.checked.lock() = None;
             }
         }
     }
@@ -87,7 +87,7 @@ impl Published {
     /// its type that are not).
     fn state(&self, dp: &DomainParticipant) -> (usize, usize) {
         self.refresh();
-        let matched = self.matched.lock().unwrap_or_else(|e| e.into_inner());
+        let matched = self.matched.lock();
         let settled = |at: &Instant| at.elapsed() >= SETTLE;
         let unmatched = dp
             .discovered_readers()
@@ -104,11 +104,11 @@ impl Published {
     /// may be written.
     pub(super) fn wait(&self, dp: &DomainParticipant, timeout: Duration) -> Result<(), String> {
         {
-            let checked = self.checked.lock().unwrap_or_else(|e| e.into_inner());
+            let checked = self.checked.lock();
             if checked.is_some_and(|t| t.elapsed() < RECHECK) {
                 drop(checked);
                 self.refresh();
-                let fresh = self.checked.lock().unwrap_or_else(|e| e.into_inner());
+                let fresh = self.checked.lock();
                 if fresh.is_some() {
                     return Ok(());
                 }
@@ -118,7 +118,7 @@ impl Published {
         loop {
             let (matched, unmatched) = self.state(dp);
             if matched > 0 && (unmatched == 0 || Instant::now() >= deadline) {
-                *self.checked.lock().unwrap_or_else(|e| e.into_inner()) = Some(Instant::now());
+                *self.checked.lock() = Some(Instant::now());
                 return Ok(());
             }
             if Instant::now() >= deadline {

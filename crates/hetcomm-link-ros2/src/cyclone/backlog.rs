@@ -3,7 +3,7 @@
 //! thread reads (see "Delivering on the receive thread" in the [module docs](super)).
 
 use std::collections::VecDeque;
-use std::sync::{Condvar, Mutex};
+use parking_lot::{Condvar, Mutex};
 
 use hetcomm_core::SystemId;
 
@@ -63,7 +63,7 @@ impl Backlog {
                 q.bytes -= frame.len();
                 return Some((to, frame));
             }
-            q = self.ready.wait(q).unwrap_or_else(|e| e.into_inner());
+            self.ready.wait(&mut q);
         }
     }
 
@@ -78,8 +78,8 @@ impl Backlog {
         left
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Queue> {
-        self.queue.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, Queue> {
+        self.queue.lock()
     }
 }
 

@@ -10,7 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::ffi::{CStr, CString};
-use std::sync::Mutex;
+use parking_lot::Mutex;
 
 use cyclors::*;
 
@@ -80,7 +80,7 @@ impl Participant {
     pub fn new(settings: &Ros2Settings) -> Result<Participant, OpenError> {
         let id = u32::from(settings.domain_id);
         let config = config(settings);
-        let mut domains = DOMAINS.lock().unwrap_or_else(|e| e.into_inner());
+        let mut domains = DOMAINS.lock();
         match domains.get_mut(&id) {
             Some(open) if open.config != config => {
                 return Err(OpenError::Dds {
@@ -133,7 +133,7 @@ impl Drop for Participant {
             // topics); waits for listener calls in progress.
             unsafe { dds_delete(self.handle) };
         }
-        let mut domains = DOMAINS.lock().unwrap_or_else(|e| e.into_inner());
+        let mut domains = DOMAINS.lock();
         if let Some(open) = domains.get_mut(&self.domain) {
             open.users -= 1;
             if open.users == 0 {
