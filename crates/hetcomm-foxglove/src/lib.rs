@@ -40,10 +40,10 @@
 //!
 //! See docs/foxglove.md for opening the view and how it is tested.
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, OnceLock};
-use parking_lot::Mutex;
 
 use anyhow::Context as _;
 use foxglove::{

@@ -9,9 +9,9 @@
 //!   box, an arrow along its heading and its name; and one per rover in the `world` frame,
 //!   `<rover>/trail`, the line it has driven so far.
 
+use parking_lot::Mutex;
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use parking_lot::Mutex;
 
 use foxglove::messages::{
     line_primitive, ArrowPrimitive, Color, CubePrimitive, FrameTransform, FrameTransforms,

@@ -12,8 +12,8 @@
 //! within the bound ends unanswered, on a thread of the link's that sleeps until the next
 //! receipt's deadline ([`Receipts::run_expiry`]).
 
-use std::collections::{HashMap, VecDeque};
 use parking_lot::{Condvar, Mutex, MutexGuard};
+use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use hetcomm_link::relay::{RelayPromise, RelayVerdict};
@@ -87,9 +87,7 @@ impl Receipts {
     }
 
     fn broker(&self) -> String {
-        self.broker
-            .lock()
-            .clone()
+        self.broker.lock().clone()
     }
 
     /// The broker the client now talks to (one of several, in turn).

@@ -104,8 +104,7 @@ fn node(master: &Master, args: &[String]) -> Node {
 }
 
 fn to_rospy(kind: Kind) {
-    let _one = large::ONE_AT_A_TIME
-        .lock();
+    let _one = large::ONE_AT_A_TIME.lock();
     common::require_ros();
     let master = Master::start();
     let prefix = format!("/hc_{}_large_out_{}", std::process::id(), kind.arg());
@@ -126,8 +125,7 @@ fn to_rospy(kind: Kind) {
 }
 
 fn from_rospy(kind: Kind) {
-    let _one = large::ONE_AT_A_TIME
-        .lock();
+    let _one = large::ONE_AT_A_TIME.lock();
     common::require_ros();
     let master = Master::start();
     let prefix = format!("/hc_{}_large_in_{}", std::process::id(), kind.arg());

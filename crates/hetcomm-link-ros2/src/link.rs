@@ -1,10 +1,10 @@
 //! [`Ros2Link`]: one DDS participant per system, one reader on the system's own topic, one
 //! writer per other system of the fleet.
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 use std::sync::Arc;
-use parking_lot::Mutex;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 

@@ -112,8 +112,7 @@ fn domain(kind: Kind, out: bool) -> u16 {
 }
 
 fn to_python(kind: Kind) {
-    let _one = large::ONE_AT_A_TIME
-        .lock();
+    let _one = large::ONE_AT_A_TIME.lock();
     let domain = domain(kind, true);
     let prefix = format!("/hc_{}_large_out_{}", std::process::id(), kind.arg());
     let fleet = hetcomm::parse_fleet(&fleet_text(&prefix, domain), "large.toml", None)
@@ -137,8 +136,7 @@ fn to_python(kind: Kind) {
 }
 
 fn from_python(kind: Kind) {
-    let _one = large::ONE_AT_A_TIME
-        .lock();
+    let _one = large::ONE_AT_A_TIME.lock();
     let domain = domain(kind, false);
     let prefix = format!("/hc_{}_large_in_{}", std::process::id(), kind.arg());
     let fleet = hetcomm::parse_fleet(&fleet_text(&prefix, domain), "large.toml", None)

@@ -1,12 +1,12 @@
 //! The `shm` link: a publisher and notifier per destination, a subscriber and listener of its
 //! own (see the crate docs).
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::os::fd::RawFd;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
-use parking_lot::Mutex;
 
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};

@@ -2,10 +2,10 @@
 //! system whose process died is cleaned up (its ports and segments removed) and reported
 //! down; a node that appears is reported up.
 
+use parking_lot::Mutex;
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use parking_lot::Mutex;
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -65,10 +65,7 @@ impl Liveness {
 
     /// Whether `peer` was found dead or gone and has not come back.
     pub(crate) fn is_dead(&self, peer: SystemId) -> bool {
-        self.state
-            .lock()
-            .dead
-            .contains(&peer)
+        self.state.lock().dead.contains(&peer)
     }
 
     /// Lists the nodes: cleans up the fleet's dead ones, and tells `sink` (if any) who went

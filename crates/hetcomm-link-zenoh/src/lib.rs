@@ -74,10 +74,10 @@ pub mod factory;
 mod presence;
 pub mod router;
 
+use parking_lot::{Mutex, RwLock};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
-use parking_lot::{Mutex, RwLock};
 use std::time::Duration;
 
 use hetcomm_core::wire::TO_ALL_SYSTEM;
@@ -684,9 +684,7 @@ impl Drop for ZenohLink {
     fn drop(&mut self) {
         self.presence.close();
         for dest in self.dests.values() {
-            dest.publishers
-                .write()
-                .take();
+            dest.publishers.write().take();
         }
         // Closing undeclares the token (others see this system leave) and the subscription.
         let _ = self.session.close().wait();

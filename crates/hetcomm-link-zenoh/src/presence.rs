@@ -1,9 +1,9 @@
 //! Who is on the Zenoh network, from liveliness tokens: the table sends consult, and a feed of
 //! joins and leaves for tools.
 
+use parking_lot::{Condvar, Mutex};
 use std::collections::HashMap;
 use std::sync::mpsc;
-use parking_lot::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
@@ -52,9 +52,7 @@ static EVERY_LINK: Mutex<Vec<mpsc::Sender<(SystemId, PresenceEvent)>>> = Mutex::
 /// system whose link saw it (what `hetcomm listen` prints).
 pub fn watch_all() -> mpsc::Receiver<(SystemId, PresenceEvent)> {
     let (tx, rx) = mpsc::channel();
-    EVERY_LINK
-        .lock()
-        .push(tx);
+    EVERY_LINK.lock().push(tx);
     rx
 }
 

@@ -9,8 +9,8 @@
 //! intermediary answers, or breaks it when it cannot (within a bound of its own).
 //! The runtime turns the [`RelayVerdict`] into the send's outcome.
 
-use std::sync::Arc;
 use parking_lot::Mutex;
+use std::sync::Arc;
 
 /// What the intermediary said about one frame.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -9,8 +9,8 @@
 //! acknowledged it: waiting for the match before the write and for the acknowledgements
 //! before the participant goes makes a one-shot send arrive.
 
-use std::sync::atomic::{AtomicBool, Ordering};
 use parking_lot::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use rustdds::no_key::DataWriter;

@@ -2,8 +2,8 @@
 //! for a thread of the link's own, which may wait for the acknowledgements that the listener's
 //! thread reads (see "Delivering on the receive thread" in the [module docs](super)).
 
-use std::collections::VecDeque;
 use parking_lot::{Condvar, Mutex};
+use std::collections::VecDeque;
 
 use hetcomm_core::SystemId;
 

@@ -8,9 +8,9 @@
 //! its settings; later links must ask for the same discovery settings; the last one to close
 //! deletes it.
 
+use parking_lot::Mutex;
 use std::collections::BTreeMap;
 use std::ffi::{CStr, CString};
-use parking_lot::Mutex;
 
 use cyclors::*;
 
