@@ -14,8 +14,9 @@
 //!
 //! [`run`] drives it all in virtual time (repeatable for a seed) or in real time.
 
+use parking_lot::Mutex;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm::sim::{SimFleet, SimOptions};
@@ -329,8 +330,8 @@ impl std::fmt::Debug for Hooks {
 }
 
 impl Hooks {
-    fn lock(&self) -> std::sync::MutexGuard<'_, dyn RunHooks + 'static> {
-        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> parking_lot::MutexGuard<'_, dyn RunHooks + 'static> {
+        self.0.lock()
     }
 }
 

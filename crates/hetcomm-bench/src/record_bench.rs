@@ -2,8 +2,9 @@
 //! without a [`Recorder`] on every system), and how fast a dense recording replays into the
 //! simulator (recorded seconds per wall second, extrapolated to 1 GB).
 
+use parking_lot::Mutex;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hetcomm::sim::{SimFleet, SimOptions};

@@ -1,9 +1,10 @@
 //! `hetcomm record`, and recording / replaying / monitor statistics inside `hetcomm demo`
 //! (the demo's [`RunHooks`]).
 
+use parking_lot::Mutex;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::{mpsc, Arc, Mutex};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
