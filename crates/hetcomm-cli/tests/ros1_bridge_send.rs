@@ -25,36 +25,8 @@ const SENDS: usize = 20;
 
 /// Alpha and the ROS 1 robot Tango through a `ros1_bridge` publishing Twist on `topic`.
 fn bridge_fleet(dir: &TempDir, master: &ros::Master, topic: &str, extra: &str) -> PathBuf {
-    dir.write_plain(
-        "fleet.toml",
-        &format!(
-            r#"
-[systems]
-Alpha = 1
-Tango = 4
-
-[modules]
-Drive = 1
-
-[transports.tango_ros]
-kind = "ros1_bridge"
-robot = "Tango"
-master_uri = "{}"
-delivery = "unacknowledged"
-security = "none"
-{extra}
-
-[transports.tango_ros.publish]
-"{topic}" = "Drive 40 geometry_msgs/Twist"
-
-[table]
-columns = ["Alpha", "Tango"]
-Alpha   = ["X",     "tango_ros"]
-Tango   = ["tango_ros", "X"]
-"#,
-            master.uri()
-        ),
-    )
+    let link = format!("master_uri = \"{}\"", master.uri());
+    twist_bridge_fleet(dir, "ros1_bridge", &link, topic, extra)
 }
 
 /// `rostopic echo -p TOPIC`, its lines on a channel; killed when dropped.

@@ -98,38 +98,10 @@ Bravo   = ["dds",   "X"]
     let expected = format!("received {SENDS} messages; router: {SENDS} received, 0 duplicates, ");
     assert!(counters.starts_with(&expected), "{counters}");
 }
-
 /// Alpha and the ROS 2 robot Tango through a `ros2_bridge` publishing Twist on `topic`.
 fn bridge_fleet(dir: &TempDir, domain_id: u16, topic: &str, extra: &str) -> PathBuf {
-    dir.write_plain(
-        "fleet.toml",
-        &format!(
-            r#"
-[systems]
-Alpha = 1
-Tango = 4
-
-[modules]
-Drive = 1
-
-[transports.tango_ros]
-kind = "ros2_bridge"
-robot = "Tango"
-domain_id = {domain_id}
-delivery = "unacknowledged"
-security = "none"
-{extra}
-
-[transports.tango_ros.publish]
-"{topic}" = "Drive 40 geometry_msgs/Twist"
-
-[table]
-columns = ["Alpha", "Tango"]
-Alpha   = ["X",     "tango_ros"]
-Tango   = ["tango_ros", "X"]
-"#
-        ),
-    )
+    let link = format!("domain_id = {domain_id}");
+    twist_bridge_fleet(dir, "ros2_bridge", &link, topic, extra)
 }
 
 /// tests/py/typed_reader.py of the ros2 crate, its lines on a channel; killed when dropped.

@@ -524,6 +524,47 @@ pub fn signal(child: &ChildGuard, signal: i32) {
     assert_eq!(rc, 0, "kill {pid}: {}", std::io::Error::last_os_error());
 }
 
+/// Alpha and a ROS robot Tango through a bridge of `kind` (`ros1_bridge`, `ros2_bridge`)
+/// publishing Twist (type 40 from module Drive) on `topic`; `link` says where the ROS graph
+/// is (`master_uri = "…"` or `domain_id = N`), `extra` adds keys to the transport.
+pub fn twist_bridge_fleet(
+    dir: &TempDir,
+    kind: &str,
+    link: &str,
+    topic: &str,
+    extra: &str,
+) -> PathBuf {
+    dir.write_plain(
+        "fleet.toml",
+        &format!(
+            r#"
+[systems]
+Alpha = 1
+Tango = 4
+
+[modules]
+Drive = 1
+
+[transports.tango_ros]
+kind = "{kind}"
+robot = "Tango"
+{link}
+delivery = "unacknowledged"
+security = "none"
+{extra}
+
+[transports.tango_ros.publish]
+"{topic}" = "Drive 40 geometry_msgs/Twist"
+
+[table]
+columns = ["Alpha", "Tango"]
+Alpha   = ["X",     "tango_ros"]
+Tango   = ["tango_ros", "X"]
+"#
+        ),
+    )
+}
+
 /// `hetcomm send FLEET --as Alpha --to Tango --module Drive --type 40 --json JSON`: a
 /// geometry_msgs/Twist to a bridged robot Tango (the ROS bridge tests' fleets).
 pub fn send_twist(fleet: &Path, json: &str, deadline: Deadline) -> Finished {
