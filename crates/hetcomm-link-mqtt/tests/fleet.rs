@@ -180,9 +180,54 @@ fn unacknowledged_sends_are_sent_at_qos_0_and_relayed_at_qos_1() {
     }
 }
 
-/// Secured (the default: frames sealed inside the publishes), unacknowledged at QoS 1: once the
-/// pair's handshake is done, every send ends *relayed*, the security layer passing the
-/// broker's receipt for the sealed frame up to the outcome.
+/// An unacknowledged broadcast on an unsecured transport is one publish on `@all` (one frame
+/// for every destination): at QoS 1 the broker's PUBACK for it is every share's verdict, so
+/// each share ends *relayed*; at QoS 0 each ends *sent*. Every destination gets the message.
+#[test]
+fn a_broadcasts_shares_are_relayed_at_qos_1_and_sent_at_qos_0() {
+    for qos in [0, 1] {
+        let more = format!("qos = {qos}\ndelivery = \"unacknowledged\"");
+        let text = common::fleet::fleet_text(&keys(&broker(), &unique_fleet(), &more))
+            .replace("B = 1\n", "B = 1\nC = 2\n")
+            .replace(
+                "columns = [\"A\", \"B\"]\nA = [\"X\", \"m\"]\nB = [\"m\", \"X\"]",
+                "columns = [\"A\", \"B\", \"C\"]\nA = [\"X\", \"m\", \"m\"]\n\
+                 B = [\"m\", \"X\", \"m\"]\nC = [\"m\", \"m\", \"X\"]",
+            );
+        let fleet = hetcomm::parse_fleet(&text, "m.toml", None).expect("valid fleet");
+        let open = |s: &str| hetcomm::Comm::open_fleet(&fleet, s).expect("open");
+        let (a, b, c) = (open("A"), open("B"), open("C"));
+        let from = a.module("M").unwrap();
+        for i in 0..20u8 {
+            let shares = from
+                .broadcast_raw("M", MessageType(7), &[0x91, i], SendOptions::default())
+                .expect("broadcast")
+                .wait();
+            let names: Vec<&str> = shares.iter().map(|(n, _)| n.as_str()).collect();
+            assert_eq!(names, ["B", "C"], "broadcast {i}");
+            for (to, outcome) in shares {
+                let expected = match qos {
+                    0 => Outcome::Sent { attempts: 1 },
+                    _ => Outcome::Relayed { attempts: 1 },
+                };
+                assert_eq!(outcome, expected, "broadcast {i} to {to}: {outcome}");
+            }
+            for sys in [&b, &c] {
+                let got = sys
+                    .module("M")
+                    .unwrap()
+                    .recv_raw_timeout(Some(Duration::from_secs(5)));
+                assert_eq!(got.expect("the broadcast").payload, [0x91, i]);
+            }
+        }
+        // One frame per broadcast: the native path, not a send per destination.
+        assert_eq!(a.stats().links[0].1.frames_sent, 20, "qos {qos}");
+    }
+}
+
+/// Secured (the default: frames sealed inside the publishes), unacknowledged at QoS 1: every
+/// send ends *relayed*, the security layer passing the broker's receipt for the sealed frame up
+/// to the outcome, the first one's too, which waited for the pair's handshake.
 #[test]
 fn secured_unacknowledged_sends_at_qos_1_are_relayed() {
     let more = "qos = 1\ndelivery = \"unacknowledged\"";
@@ -192,13 +237,10 @@ fn secured_unacknowledged_sends_at_qos_1_are_relayed() {
     let local = hetcomm::LocalFleet::open(fleet).expect("open fleet");
     let (a, b) = (local.system("A").unwrap(), local.system("B").unwrap());
     let (from, to) = (a.module("M").unwrap(), b.module("M").unwrap());
-    // The first frame waits for the handshake: it has not left when the send returns, so no
-    // receipt can come for it, and it ends *sent*.
+    // The first frame waits in the security layer for the handshake: it has not left when the
+    // send returns; the layer's receipt for it is kept with the broker's when it leaves.
     let first = send(&from, 0);
-    assert!(
-        matches!(first, Outcome::Sent { .. } | Outcome::Relayed { .. }),
-        "{first}"
-    );
+    assert_eq!(first, Outcome::Relayed { attempts: 1 }, "{first}");
     let got = to.recv_raw_timeout(Some(Duration::from_secs(10)));
     assert_eq!(got.expect("the first message").payload, [0x91, 0]);
     for i in 1..50u8 {
@@ -218,6 +260,52 @@ fn secured_unacknowledged_sends_at_qos_1_are_relayed() {
         security.enabled && security.handshakes >= 1,
         "not sealed: {security:?}"
     );
+}
+
+/// A secured unacknowledged send whose pair's handshake never completes: the frame waits in
+/// the security layer, which gives up after 5 s, and the send ends *failed*, saying the frame
+/// never left (not *sent*: nothing left that anyone could receive). A raw client stands in for
+/// B: online, with keys in the fleet file, answering nothing.
+#[test]
+fn a_secured_send_whose_handshake_never_completes_fails_saying_it_never_left() {
+    let fleet = unique_fleet();
+    let dir = std::env::temp_dir().join(format!("hc-mqtt-keys-{}-{fleet}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("key dir");
+    for name in ["A", "B"] {
+        let pair = hetcomm_security::Keypair::generate().expect("a key pair");
+        pair.write(&dir, name).expect("writing keys");
+    }
+    let more = "qos = 1\ndelivery = \"unacknowledged\"";
+    let text = common::fleet::fleet_text(&keys(&broker(), &fleet, more))
+        .replace("security = \"none\"\n", "")
+        + &format!("[security]\nkeys = \"{}\"\n", dir.display());
+    let b = RawClient::connect(&broker(), &format!("raw-{fleet}-B"), None);
+    b.publish(&presence_topic("hetcomm", &fleet, "B"), b"online", true);
+    let parsed = hetcomm::parse_fleet(&text, "m.toml", None).expect("valid fleet");
+    let a = hetcomm::Comm::open_fleet(&parsed, "A").expect("open A");
+    // The retained `online` reaches A when it subscribes; give it that moment.
+    std::thread::sleep(Duration::from_millis(300));
+    let started = Instant::now();
+    let outcome = a
+        .module("M")
+        .unwrap()
+        .send_raw("B", "M", MessageType(7), &[0x91, 1], SendOptions::default())
+        .expect("send")
+        .wait_timeout(Duration::from_secs(20))
+        .expect("an outcome once the layer gives up");
+    let waited = started.elapsed();
+    let Outcome::Failed { reason, .. } = &outcome else {
+        panic!("a frame that never left ended {outcome}");
+    };
+    let text = reason.to_string();
+    assert!(
+        text.contains("no secure session with system 1") && text.contains("never left"),
+        "{text}"
+    );
+    assert!(waited >= Duration::from_secs(4), "gave up after {waited:?}");
+    assert_eq!(a.stats().links[0].1.security.handshake_timeouts, 1);
+    b.disconnect();
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -6,8 +6,13 @@
 //! confirms taking them (a broker's PUBACK at MQTT QoS 1) can say more, a broker round trip
 //! later: [`Link::send_relayed`](crate::Link::send_relayed) sends the frame and hands back a
 //! [`RelayReceipt`]; the link keeps the matching [`RelayPromise`] and keeps it when the
-//! intermediary answers, or breaks it when it cannot (within a bound of its own).
-//! The runtime turns the [`RelayVerdict`] into the send's outcome.
+//! intermediary answers, or breaks it when it cannot (within a bound of its own). A layer that
+//! holds a frame before it leaves (the security layer, during a handshake) gives a receipt of
+//! its own, kept with the link below's receipt when the frame leaves, or refused when it
+//! never does.
+//! The runtime turns the [`RelayVerdict`] into the send's outcome. A receipt may be cloned:
+//! a broadcast's one frame carries the share of every destination, each of which learns the
+//! one verdict.
 
 use parking_lot::Mutex;
 use std::sync::Arc;
@@ -23,12 +28,16 @@ pub enum RelayVerdict {
     /// No answer came in time, or the connection to it was lost before one did: the frame may
     /// or may not have arrived. The text says why, naming the intermediary.
     Unanswered(String),
+    /// The frame left later than the send returned (a layer held it, e.g. for a security
+    /// handshake) on a link that confirms nothing: the send is sent without confirmation.
+    Left,
 }
 
 type Callback = Box<dyn FnOnce(RelayVerdict) + Send>;
 
 enum State {
-    Waiting(Option<Callback>),
+    /// What the holders of the receipt (and its clones) asked for, in order.
+    Waiting(Vec<Callback>),
     Done(RelayVerdict),
 }
 
@@ -36,13 +45,8 @@ struct Shared {
     state: Mutex<State>,
 }
 
-impl Shared {
-    fn lock(&self) -> parking_lot::MutexGuard<'_, State> {
-        self.state.lock()
-    }
-}
-
-/// The sender's end: learns the verdict once.
+/// The sender's end: learns the verdict once (each clone once).
+#[derive(Clone)]
 pub struct RelayReceipt {
     shared: Arc<Shared>,
 }
@@ -56,7 +60,7 @@ pub struct RelayPromise {
 /// A receipt and the promise that completes it.
 pub fn relay_receipt() -> (RelayReceipt, RelayPromise) {
     let shared = Arc::new(Shared {
-        state: Mutex::new(State::Waiting(None)),
+        state: Mutex::new(State::Waiting(Vec::new())),
     });
     (
         RelayReceipt {
@@ -72,20 +76,20 @@ impl RelayReceipt {
     /// Calls `then` with the verdict: at once (on this thread) when it is known already,
     /// else on the thread that gives it (the link's).
     pub fn then(self, then: impl FnOnce(RelayVerdict) + Send + 'static) {
-        let mut state = self.shared.lock();
+        let mut state = self.shared.state.lock();
         match &mut *state {
             State::Done(verdict) => {
                 let verdict = verdict.clone();
                 drop(state);
                 then(verdict);
             }
-            State::Waiting(callback) => *callback = Some(Box::new(then)),
+            State::Waiting(callbacks) => callbacks.push(Box::new(then)),
         }
     }
 
     /// The verdict, if it is known.
     pub fn verdict(&self) -> Option<RelayVerdict> {
-        match &*self.shared.lock() {
+        match &*self.shared.state.lock() {
             State::Done(v) => Some(v.clone()),
             State::Waiting(_) => None,
         }
@@ -102,14 +106,14 @@ impl RelayPromise {
         let Some(shared) = self.shared.take() else {
             return;
         };
-        let mut state = shared.lock();
-        let callback = match std::mem::replace(&mut *state, State::Done(verdict.clone())) {
-            State::Waiting(callback) => callback,
-            State::Done(_) => None,
+        let mut state = shared.state.lock();
+        let callbacks = match std::mem::replace(&mut *state, State::Done(verdict.clone())) {
+            State::Waiting(callbacks) => callbacks,
+            State::Done(_) => Vec::new(),
         };
         drop(state);
-        if let Some(callback) = callback {
-            callback(verdict);
+        for callback in callbacks {
+            callback(verdict.clone());
         }
     }
 }
@@ -117,7 +121,7 @@ impl RelayPromise {
 impl Drop for RelayPromise {
     fn drop(&mut self) {
         self.give(RelayVerdict::Unanswered(
-            "the link closed before the broker answered".into(),
+            "the link closed before the frame's receipt came".into(),
         ));
     }
 }
@@ -153,6 +157,26 @@ mod tests {
             RelayVerdict::Refused("no subscribers".into())
         );
         assert!(rx.try_recv().is_err(), "given once");
+    }
+
+    #[test]
+    fn every_clone_of_a_receipt_learns_the_one_verdict() {
+        let (receipt, promise) = relay_receipt();
+        let (tx, rx) = mpsc::channel();
+        for share in 0..3 {
+            let tx = tx.clone();
+            receipt.clone().then(move |v| tx.send((share, v)).unwrap());
+        }
+        drop(receipt);
+        assert!(rx.try_recv().is_err(), "no verdict yet");
+        promise.keep(RelayVerdict::Confirmed);
+        let got: Vec<_> = rx.try_iter().collect();
+        assert_eq!(
+            got,
+            (0..3)
+                .map(|s| (s, RelayVerdict::Confirmed))
+                .collect::<Vec<_>>()
+        );
     }
 
     #[test]

@@ -235,7 +235,9 @@ impl Module {
                 // gave a receipt: the outcome says what the intermediary said.
                 let slot = match (receipt, &outcome) {
                     (Some(receipt), Outcome::Sent { attempts }) => {
-                        core.end_relayed(id, receipt, *attempts, transport)
+                        let slot = Arc::new(OutcomeSlot::default());
+                        core.end_relayed(id, receipt, *attempts, transport, slot.clone());
+                        TicketSlot::Pending(slot)
                     }
                     _ => core.end_send(id, outcome, transport, None, now),
                 };

@@ -198,6 +198,19 @@ impl<T> Router<T> {
             .collect()
     }
 
+    /// Whether the shares of native broadcast `b` still open are acknowledged (they share one
+    /// route's settings); None once all have ended.
+    pub(super) fn broadcast_acknowledged(&self, b: u64) -> Option<bool> {
+        let put = self.broadcasts.get(&b)?;
+        put.dests.iter().find_map(|&to| {
+            let id = SendId {
+                to,
+                seq: BROADCAST_SEND | b,
+            };
+            self.pending.get(&id).map(|p| p.route.acknowledged)
+        })
+    }
+
     /// The one frame of broadcast `b`, counted as an attempt of each share still open.
     pub(super) fn poll_broadcast(&mut self, now: Time, b: u64) -> Option<Transmit> {
         let put = self.broadcasts.get_mut(&b)?;

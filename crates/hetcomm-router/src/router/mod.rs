@@ -486,6 +486,17 @@ impl<T> Router<T> {
         self.pending.get(&id).map(|p| p.attempts)
     }
 
+    /// Whether send `id` (or, for a broadcast's frame, its shares) ends when its frame leaves,
+    /// unacknowledged: then a receipt from an intermediary the link passes it through may
+    /// say more than [`Outcome::Sent`]. False once it ended.
+    pub fn unacknowledged(&self, id: SendId) -> bool {
+        let acknowledged = match id.to == TO_ALL_SYSTEM {
+            true => self.broadcast_acknowledged(id.wire_seq()),
+            false => self.pending.get(&id).map(|p| p.route.acknowledged),
+        };
+        acknowledged == Some(false)
+    }
+
     /// Whether the frame of send `id` just polled repeats an offer the link refused for want
     /// of a secure session ([`TransmitError::NoSession`]): the same attempt again, which an
     /// observer has seen already.

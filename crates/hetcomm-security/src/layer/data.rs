@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use hetcomm_core::{FrameBuf, SystemId};
-use hetcomm_link::relay::RelayReceipt;
+use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt, RelayVerdict};
 use hetcomm_link::{FrameSink, LinkError, Peer};
 
 use super::*;
@@ -125,7 +125,7 @@ impl Secured {
                 let mut first = Ok(());
                 for r in envelope::records(&h.records) {
                     let st = slot.state.lock();
-                    let queued = self.hold(below, to, slot, st, &h.records[r], &[]);
+                    let queued = self.hold(below, to, slot, st, &h.records[r], &[], None);
                     if queued.is_err() {
                         self.held_dropped.fetch_add(1, Ordering::Relaxed);
                         if first.is_ok() {
@@ -199,7 +199,17 @@ impl Secured {
                 give_scratch(&TX, buf);
                 sent
             }
-            _ => self.hold(below, to, slot, st, head, body).map(|()| None),
+            // A frame that asked for a receipt gets one of this layer's: kept when the frame
+            // leaves after the handshake (with the link below's verdict), refused if it never
+            // does, so its send's outcome does not claim it left when it had not.
+            _ if leave == Leave::Relayed => {
+                let (receipt, promise) = relay_receipt();
+                self.hold(below, to, slot, st, head, body, Some(promise))
+                    .map(|()| Some(receipt))
+            }
+            _ => self
+                .hold(below, to, slot, st, head, body, None)
+                .map(|()| None),
         }
     }
 
@@ -207,7 +217,9 @@ impl Secured {
     /// needed), or behind the frames that waited for it while they leave. A data frame that
     /// requests an acknowledgement is refused instead ([`LinkError::NoSession`]): the router
     /// keeps it and tries again, so its outcome can say truthfully whether anything left. (A
-    /// queued copy could leave after the router gave up and reported it failed.)
+    /// queued copy could leave after the router gave up and reported it failed.) `promise`:
+    /// the frame's receipt's, if its send asked for one.
+    #[allow(clippy::too_many_arguments)] // one frame's whole description
     fn hold(
         &self,
         below: &dyn Link,
@@ -216,14 +228,18 @@ impl Secured {
         mut st: parking_lot::MutexGuard<'_, PeerState>,
         head: &[u8],
         body: &[u8],
+        promise: Option<RelayPromise>,
     ) -> Result<(), LinkError> {
-        if st.flushing {
-            // Behind the frames that waited for the handshake, which are leaving now.
+        let waiting = |promise| {
             let mut frame = Vec::with_capacity(head.len() + body.len());
             frame.extend_from_slice(head);
             frame.extend_from_slice(body);
-            st.queued_bytes += frame.len();
-            st.queue.push_back(frame);
+            Waiting { frame, promise }
+        };
+        if st.flushing {
+            // Behind the frames that waited for the handshake, which are leaving now.
+            st.queued_bytes += head.len() + body.len();
+            st.queue.push_back(waiting(promise));
             return Ok(());
         }
         if requests_ack(head, body) {
@@ -237,11 +253,8 @@ impl Secured {
                 reason: "frames waiting for the security handshake".into(),
             });
         }
-        let mut frame = Vec::with_capacity(head.len() + body.len());
-        frame.extend_from_slice(head);
-        frame.extend_from_slice(body);
-        st.queued_bytes += frame.len();
-        st.queue.push_back(frame);
+        st.queued_bytes += head.len() + body.len();
+        st.queue.push_back(waiting(promise));
         st.waiting_since.get_or_insert_with(Instant::now);
         let stale = st
             .pending
@@ -260,8 +273,8 @@ impl Secured {
                 // cannot start. Later frames try again.
                 let mut st = slot.state.lock();
                 st.pending = None;
-                if let Some(frame) = st.queue.pop_back() {
-                    st.queued_bytes -= frame.len();
+                if let Some(w) = st.queue.pop_back() {
+                    st.queued_bytes -= w.frame.len();
                 }
                 if st.queue.is_empty() {
                     st.waiting_since = None;
@@ -323,10 +336,19 @@ impl Secured {
                 st.queued_bytes = 0;
                 std::mem::take(&mut st.queue)
             };
-            for frame in batch {
+            for Waiting { frame, promise } in batch {
                 session.seal(&mut buf, self.policy.local, peer, &frame, &[]);
-                if let Some(below) = &below {
+                let Some(below) = &below else { continue };
+                let Some(promise) = promise else {
                     let _ = below.send(peer, &buf);
+                    continue;
+                };
+                match below.send_relayed(peer, &buf, &[]) {
+                    Ok(Some(receipt)) => receipt.then(move |verdict| promise.keep(verdict)),
+                    Ok(None) => promise.keep(RelayVerdict::Left),
+                    Err(e) => promise.keep(RelayVerdict::Refused(format!(
+                        "the frame waited for the security handshake, then the link refused it: {e}"
+                    ))),
                 }
             }
         }

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use hetcomm_core::SystemId;
+use hetcomm_link::relay::RelayVerdict;
 use hetcomm_link::{Link, LinkError};
 
 use super::*;
@@ -76,13 +77,22 @@ impl Secured {
                 .is_some_and(|t| t.elapsed() >= HANDSHAKE_GIVE_UP)
             {
                 let n = st.queue.len() as u64;
-                st.queue.clear();
+                let why = format!(
+                    "no secure session with system {peer} on transport `{}` within {} s: the frame never left",
+                    self.transport,
+                    HANDSHAKE_GIVE_UP.as_secs()
+                );
+                let receipts: Vec<_> = st.queue.drain(..).filter_map(|w| w.promise).collect();
                 st.queued_bytes = 0;
                 st.waiting_since = None;
                 st.pending = None;
                 st.earlier = None;
                 st.unanswered_since = None;
                 self.counters.timeouts.fetch_add(n, Ordering::Relaxed);
+                drop(st);
+                for promise in receipts {
+                    promise.keep(RelayVerdict::Refused(why.clone()));
+                }
                 continue;
             }
             if st

@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 use hetcomm_core::{BufferPool, FrameBuf, SystemId};
 use hetcomm_link::layer::{LayerContext, LayerError, LinkLayer, OpenBelow};
 use hetcomm_link::readiness;
+use hetcomm_link::relay::RelayPromise;
 use hetcomm_link::{
     forward_link, forward_sink, FrameSink, Link, LinkError, LinkEvent, Peer, SecurityStats,
 };
@@ -144,7 +145,7 @@ struct PeerState {
     /// (a round trip longer than the retry interval) and completes the handshake as well.
     earlier: Option<Initiation>,
     /// Frames waiting for the handshake, and since when the oldest waits.
-    queue: VecDeque<Vec<u8>>,
+    queue: VecDeque<Waiting>,
     /// The queue is being sent after a handshake: later frames join it, so nothing
     /// overtakes a frame that waited.
     flushing: bool,
@@ -156,6 +157,14 @@ struct PeerState {
     /// The newest initiation timestamp accepted from this peer.
     last_init: Option<u64>,
     last_trigger: Option<Instant>,
+}
+
+/// A frame waiting for its pair's handshake, with the promise of the receipt its send was
+/// given when it asked for one ([`Link::send_relayed`]): kept with the link below's verdict
+/// when the frame leaves, refused if it never does.
+struct Waiting {
+    frame: Vec<u8>,
+    promise: Option<RelayPromise>,
 }
 
 impl PeerSlot {

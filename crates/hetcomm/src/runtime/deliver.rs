@@ -3,6 +3,7 @@
 
 use super::*;
 use hetcomm_core::wire::TO_ALL_SYSTEM;
+use hetcomm_link::relay::RelayReceipt;
 
 /// Where a message being delivered comes from: it decides whether a full `block` inbox may
 /// make the deliverer wait.
@@ -15,6 +16,41 @@ pub(crate) enum Source {
     /// Put there by the harness (held back, duplicated or injected): refused at once when
     /// there is no room, as from a link.
     Harness,
+}
+
+/// Receipts of the unacknowledged frames one [`SystemCore::pump_at`] put on links that pass
+/// them through an intermediary which confirms them, kept until their sends' outcomes come
+/// (the router ends such a send *sent* when its link takes the frame; the receipt then says
+/// more). A broadcast's one receipt serves each of its shares.
+#[derive(Default)]
+struct Receipts(SmallVec<[(SendId, RelayReceipt); 1]>);
+
+impl Receipts {
+    fn put(&mut self, id: SendId, receipt: Option<RelayReceipt>) {
+        if let Some(receipt) = receipt {
+            self.0.push((id, receipt));
+        }
+    }
+
+    /// The receipt for send `id`'s frame: its own, or its broadcast's.
+    fn take(&mut self, id: SendId) -> Option<RelayReceipt> {
+        if self.0.is_empty() {
+            return None;
+        }
+        if id.is_broadcast() {
+            let frame = SendId {
+                to: TO_ALL_SYSTEM,
+                seq: id.seq,
+            };
+            return self
+                .0
+                .iter()
+                .find(|(i, _)| *i == frame)
+                .map(|(_, r)| r.clone());
+        }
+        let at = self.0.iter().position(|(i, _)| *i == id)?;
+        Some(self.0.swap_remove(at).1)
+    }
 }
 
 impl SystemCore {
@@ -48,6 +84,11 @@ impl SystemCore {
         // While observed: the destinations of each native broadcast's frame among them.
         let mut broadcast_dests: SmallVec<[Vec<SystemId>; 1]> = SmallVec::new();
         let mut switches: SmallVec<[hetcomm_router::PathChange; 1]> = SmallVec::new();
+        // Per transmit: whether its send ends when the frame leaves (a receipt is asked for).
+        let mut unacknowledged: SmallVec<[bool; 4]> = SmallVec::new();
+        // Receipts of frames an intermediary confirms, by send, until the send's outcome is
+        // known (see `SystemCore::relay_outcome`).
+        let mut receipts = Receipts::default();
         let mut now = first_now;
         let mut first = true;
         loop {
@@ -68,6 +109,7 @@ impl SystemCore {
                         broadcast_dests.push(router.broadcast_destinations(b));
                     }
                 }
+                unacknowledged.push(t.send.is_some_and(|id| router.unacknowledged(id)));
                 transmits.push(t);
             }
             while let Some(d) = router.poll_delivery() {
@@ -97,7 +139,14 @@ impl SystemCore {
             } in events.drain(..)
             {
                 let transport = path.and_then(|p| self.link_name(p.link));
-                self.end_send(id, outcome, transport, Some(token), now);
+                match (&outcome, receipts.take(id)) {
+                    (Outcome::Sent { attempts }, Some(receipt)) => {
+                        self.end_relayed(id, receipt, *attempts, transport, token);
+                    }
+                    _ => {
+                        self.end_send(id, outcome, transport, Some(token), now);
+                    }
+                }
             }
             for d in deliveries.drain(..) {
                 let token = d.token;
@@ -127,13 +176,19 @@ impl SystemCore {
                         attempt,
                     );
                 }
-                let result = self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic);
+                let result = match (tx.send, unacknowledged.get(i)) {
+                    (Some(id), Some(true)) => self
+                        .transmit_relayed_on(tx.link, tx.to, &tx.frame, &[], now)
+                        .map(|receipt| receipts.put(id, receipt)),
+                    _ => self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic),
+                };
                 if tx.send.is_some() || tx.probe.is_some() {
                     transmit_results.push((tx, result));
                 }
             }
             attempts.clear();
             broadcast_dests.clear();
+            unacknowledged.clear();
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
                 return;

@@ -371,6 +371,9 @@ impl Timer {
 
 /// One opened system.
 pub(crate) struct SystemCore {
+    /// This system itself, for what outlives a call (a relay receipt's verdict, given later
+    /// on a link's thread).
+    this: Weak<SystemCore>,
     pub id: SystemId,
     pub name: &'static str,
     pub directory: Arc<Directory>,
@@ -445,7 +448,8 @@ impl SystemCore {
             })
             .collect();
         let registry_id = registry.read().id();
-        Arc::new(SystemCore {
+        Arc::new_cyclic(|this| SystemCore {
+            this: this.clone(),
             id,
             name: directory.system_name(id),
             directory,

@@ -33,16 +33,17 @@ impl SystemCore {
     /// The ticket of an unacknowledged send whose frame the link took with a receipt: its
     /// outcome, reported as every outcome is ([`SystemCore::end_send`]), comes with the
     /// intermediary's verdict (on the link's thread, or at once if it is known already).
+    /// `slot`: the ticket's.
     pub(crate) fn end_relayed(
-        self: &Arc<Self>,
+        &self,
         id: SendId,
         receipt: RelayReceipt,
         attempts: u32,
         transport: Option<&'static str>,
-    ) -> TicketSlot {
-        let slot = Arc::new(OutcomeSlot::default());
-        let core = Arc::downgrade(self);
-        let filled = slot.clone();
+        slot: Arc<OutcomeSlot>,
+    ) {
+        let core = self.this.clone();
+        let filled = slot;
         receipt.then(move |verdict| {
             let outcome = relayed_outcome(verdict, attempts);
             match core.upgrade() {
@@ -53,7 +54,6 @@ impl SystemCore {
                 None => filled.complete(outcome, transport),
             }
         });
-        TicketSlot::Pending(slot)
     }
 }
 
@@ -69,5 +69,6 @@ fn relayed_outcome(verdict: RelayVerdict, attempts: u32) -> Outcome {
             reason: FailReason::Relay(why),
             attempts,
         },
+        RelayVerdict::Left => Outcome::Sent { attempts },
     }
 }
