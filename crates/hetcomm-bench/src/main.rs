@@ -333,7 +333,8 @@ fn run(o: &Options) -> Vec<Row> {
                     // Capped: a round trip through the broker takes tens of µs to ms.
                     let (warmup, iters) = (warmup.min(1000), iters.min(5000));
                     Box::new(move || match path {
-                        mqtt::RAW => mqtt::raw_rtt(&b, size, warmup, iters),
+                        mqtt::RAW => mqtt::raw_rtt(&b, false, size, warmup, iters),
+                        mqtt::RAW_THREAD => mqtt::raw_rtt(&b, true, size, warmup, iters),
                         mqtt::UNACK_INLINE => mqtt::rtt_inline(&b, size, warmup, iters),
                         _ => mqtt::rtt(&b, path == mqtt::ACK, size, warmup, iters),
                     })

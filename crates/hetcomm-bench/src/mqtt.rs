@@ -6,8 +6,9 @@
 //! and B opened on one unsecured `mqtt` transport at QoS 0 (`security = "none"`, since the raw
 //! client seals nothing), B's module echoing on a thread of its own waiting in `recv` (or, in
 //! [`UNACK_INLINE`], from an inline callback on its link's event-loop thread); and two
-//! rumqttc v5 clients, B echoing from its event loop (what a plain rumqttc program does), A's
-//! event loop handing each reply to the measuring thread. QoS 0 on both.
+//! rumqttc v5 clients, B echoing from its event loop (what a plain rumqttc program does) or, in
+//! [`RAW_THREAD`], from a thread of its own handed each publish (the structure of a module
+//! waiting in `recv`), A's event loop handing each reply to the measuring thread. QoS 0 on both.
 
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -31,8 +32,11 @@ pub const ACK: &str = "hetcomm-mqtt-ack";
 pub const UNACK_INLINE: &str = "hetcomm-mqtt-unack-inline";
 /// The raw rumqttc client's row.
 pub const RAW: &str = "raw-mqtt-rumqttc";
+/// The raw clients with B echoing from a thread of its own, handed each publish by its event
+/// loop through a channel: the structure of [`UNACK`] (a module waiting in `recv`).
+pub const RAW_THREAD: &str = "raw-mqtt-rumqttc-thread";
 /// The round-trip rows.
-pub const RTT_ROWS: [&str; 4] = [RAW, UNACK, UNACK_INLINE, ACK];
+pub const RTT_ROWS: [&str; 5] = [RAW, RAW_THREAD, UNACK, UNACK_INLINE, ACK];
 /// The one-way rows: unacknowledged only, as the raw client's QoS 0 publishes are.
 pub const ONEWAY_ROWS: [&str; 2] = [RAW, UNACK];
 /// The sizes the rows run at.
@@ -341,14 +345,35 @@ impl Drop for RawEnd {
     }
 }
 
-/// Ping-pong round trips between two raw rumqttc clients: B echoes from its event loop.
-pub fn raw_rtt(broker: &str, size: usize, warmup: u64, iters: u64) -> Result<Latency, String> {
+/// Ping-pong round trips between two raw rumqttc clients: B echoes from its event loop, or
+/// (`threaded`) from a thread of its own that the event loop hands each publish.
+pub fn raw_rtt(
+    broker: &str,
+    threaded: bool,
+    size: usize,
+    warmup: u64,
+    iters: u64,
+) -> Result<Latency, String> {
     let base = level();
     let (to_a, to_b) = (format!("{base}/a"), format!("{base}/b"));
     let echo_to = to_a.clone();
-    let _b = RawEnd::connect(broker, &format!("{base}-b"), &to_b, move |c, payload| {
-        let _ = c.try_publish(echo_to.clone(), QoS::AtMostOnce, false, payload.to_vec());
+    let (hand, handed) = mpsc::channel::<Vec<u8>>();
+    let b = RawEnd::connect(broker, &format!("{base}-b"), &to_b, move |c, payload| {
+        if threaded {
+            let _ = hand.send(payload.to_vec());
+        } else {
+            let _ = c.try_publish(echo_to.clone(), QoS::AtMostOnce, false, payload.to_vec());
+        }
     })?;
+    // The echo thread ends when B's event loop (and with it the channel's sender) is gone.
+    let echo = threaded.then(|| {
+        let (client, to) = (b.client.clone(), to_a.clone());
+        std::thread::spawn(move || {
+            for payload in handed {
+                let _ = client.publish(to.clone(), QoS::AtMostOnce, false, payload);
+            }
+        })
+    });
     let (tx, rx) = mpsc::channel::<()>();
     let tx = Mutex::new(tx);
     let a = RawEnd::connect(broker, &format!("{base}-a"), &to_a, move |_, _| {
@@ -375,7 +400,12 @@ pub fn raw_rtt(broker: &str, size: usize, warmup: u64, iters: u64) -> Result<Lat
             }
         }
     }
-    Ok(rec.summary())
+    let summary = rec.summary();
+    drop(b);
+    if let Some(echo) = echo {
+        let _ = echo.join();
+    }
+    Ok(summary)
 }
 
 /// One-way between two raw rumqttc clients: A publishes as fast as its client takes
