@@ -16,7 +16,11 @@
 # 4. interoperation on an unsecured transport: mosquitto_sub watches a `hetcomm send`'s frame,
 #    mosquitto_pub publishes a frame that `hetcomm listen` prints, and a Python paho-mqtt
 #    system (crates/hetcomm-link-mqtt/tests/python/mqtt_system.py, written from the docs)
-#    talks to `hetcomm listen` and `hetcomm send` both ways.
+#    talks to `hetcomm listen` and `hetcomm send` both ways;
+# 5. the demonstrations: `hetcomm demo --r mqtt`, and `hetcomm demo --fleet
+#    examples/mqtt/leader-follower-mqtt.toml` with Tango as a plain MQTT robot
+#    (examples/mqtt/tango_rover.py), checked against the simulated run; and the reliability
+#    experiment with R on the broker.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
@@ -117,6 +121,7 @@ step "mqtt: building the CLI"
 cargo build -q -p hetcomm-cli --features mqtt
 HETCOMM=$TARGET/debug/hetcomm
 "$HETCOMM" validate examples/mqtt/agv.toml
+"$HETCOMM" validate examples/mqtt/leader-follower-mqtt.toml
 
 step "mqtt: interoperation with mosquitto_sub, mosquitto_pub and a Python paho-mqtt system"
 bash scripts/mqtt-interop.sh "$HETCOMM" "$PY" "127.0.0.1:$PLAIN"
@@ -131,6 +136,27 @@ grep -q 'Alpha → Charlie → Tango, .*R = mqtt' "$WORK/demo.err" || { cat "$WO
 awk '/^Table 11: Tango command data/{f=1} /^Table 12/{f=0} f && /Turn Left/{n++} END{exit n<2}' "$WORK/demo.out" \
     && test -s "$WORK/demo/NOTES.md" || { cat "$WORK/demo.out"; exit 1; }
 echo "hetcomm demo --r mqtt: ok"
+
+step "mqtt: hetcomm demo with Tango as a plain MQTT robot (examples/mqtt/leader-follower-mqtt.toml)"
+# The shipped fleet on the group's broker and topics of this run's own; the rover is
+# examples/mqtt/tango_rover.py (paho-mqtt, no hetcomm). Tango must follow as in the simulated
+# run (scripts/tango-follows.py, as for the ROS rovers).
+LF=$WORK/lf
+mkdir -p "$LF"
+LFPREFIX=hc_lf_$$
+sed -e "s#mqtt://127.0.0.1:1883#mqtt://127.0.0.1:$PLAIN#" -e "s#\"tango/#\"$LFPREFIX/#" \
+    examples/mqtt/leader-follower-mqtt.toml > "$LF/fleet.toml"
+grep -q "\"$LFPREFIX/odom\"" "$LF/fleet.toml" && grep -q ":$PLAIN\"" "$LF/fleet.toml"
+"$PY" examples/mqtt/tango_rover.py --broker "127.0.0.1:$PLAIN" --prefix "$LFPREFIX" --seconds 60 \
+    > "$LF/rover.log" 2>&1 &
+ROVER=$!
+PIDS+=($ROVER)
+"$HETCOMM" demo --fleet "$LF/fleet.toml" --out "$LF/mqtt" > "$LF/mqtt.txt" 2> "$LF/mqtt.err" \
+    || { cat "$LF/mqtt.err" "$LF/rover.log"; exit 1; }
+kill $ROVER 2>/dev/null || true
+sed -n '/Table 11/,/^$/p' "$LF/mqtt.txt"
+"$HETCOMM" demo --out "$LF/sim" > /dev/null 2> "$LF/sim.err" || { cat "$LF/sim.err"; exit 1; }
+"$PY" scripts/tango-follows.py "$LF/mqtt" "$LF/sim"
 
 step "mqtt: the reliability experiment with R on the broker (real time, both modes)"
 # The thesis's three-system fleet with R on the group's broker (unsecured, a fleet level of

@@ -1,6 +1,6 @@
-//! Followers that run ROS, not hetcomm: robots a fleet file declares behind a bridge transport
-//! (`ros2_bridge`, or any kind whose factory names a robot,
-//! `hetcomm::link::registry::TransportFactory::bridged_robot`).
+//! Followers that run ROS or plain MQTT, not hetcomm: robots a fleet file declares behind a
+//! bridge transport (`ros1_bridge`, `ros2_bridge`, `mqtt_bridge`, or any kind whose factory
+//! names a robot, `hetcomm::link::registry::TransportFactory::bridged_robot`).
 //!
 //! Such a robot has no Plan or Act code of ours: it drives on velocity commands and reports
 //! odometry, as a ROS base does. So, for it,
@@ -14,8 +14,9 @@
 //!
 //! The fleet file maps the two types to the robot's topics, e.g.
 //! `"/tango/cmd_vel" = "Plan 40 geometry_msgs/Twist"` and
-//! `"/tango/odom" = "World 41 nav_msgs/Odometry"`. Nothing here depends on which ROS: the
-//! types carry the ROS field names, which the bridges convert by name.
+//! `"/tango/odom" = "World 41 nav_msgs/Odometry"` (or, for `mqtt_bridge`, JSON topics with
+//! the same members). Nothing here depends on which bridge: the types carry the ROS field
+//! names, which the bridges convert by name.
 
 use hetcomm::Message;
 use hetcomm_sim::report::{CommandKind, CommandRecord};

@@ -389,7 +389,7 @@ pub struct DemoReport {
     pub scenario: Vec<String>,
     /// When the scenario cut systems off (partitions, silences), shaded in the plots.
     pub bands: Vec<report::plot::Band>,
-    /// Robots that ran ROS behind a bridge transport ([`bridged`]): their poses come from
+    /// Robots that ran behind a bridge transport (ROS or plain MQTT) ([`bridged`]): their poses come from
     /// their odometry, their "received" commands from when their odometry showed them.
     pub bridged: Vec<String>,
 }

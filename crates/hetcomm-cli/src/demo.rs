@@ -202,7 +202,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     let bridged = hetcomm::registry().bridged_robots(&fleet);
     if !bridged.is_empty() && !args.realtime {
         eprintln!(
-            "{} runs ROS behind a bridge: running in real time (as with --realtime)",
+            "{} is a robot behind a bridge (it runs ROS or plain MQTT, not hetcomm): running in real time (as with --realtime)",
             bridged.join(", ")
         );
     }
@@ -276,7 +276,7 @@ pub fn run(args: DemoArgs<'_>) -> anyhow::Result<()> {
     );
     for robot in &report.bridged {
         println!(
-            "{robot} ran ROS behind a bridge: its commands went out as velocity (Twist) at the \
+            "{robot} ran behind a bridge (ROS or plain MQTT, not hetcomm): its commands went out as velocity (Twist) at the \
              control rate, its poses are its odometry placed at its starting pose, and its \
              \"received\" times are when its odometry first showed each command's velocity.\n"
         );

@@ -628,7 +628,7 @@ impl MqttLink {
             frame,
             (to, wait),
             &self.shared.closing,
-            Some((&self.shared.receipts, promise)),
+            (&self.shared.receipts, promise),
         )?;
         self.shared.counters.sent.fetch_add(1, Ordering::Relaxed);
         Ok(())
@@ -638,24 +638,20 @@ impl MqttLink {
 /// Queues a publish of `body` on `topic` for the event loop. While the client's queue is
 /// full it waits, backing off, up to `wait` (not at all on the event loop's own thread,
 /// which is the one that empties the queue); then the send is refused as congested. The
-/// link closing ends the wait. `receipts`: the client's, when it keeps them (the link's; the
-/// bridge's client keeps none), with the promise to keep with this publish's PUBACK.
+/// link closing ends the wait. `receipts`: the client's (the link's or the bridge's), with
+/// the promise to keep with this publish's PUBACK.
 pub(crate) fn queue_publish(
     client: &Client,
     (topic, qos): (String, QoS),
     body: Vec<u8>,
     (to, wait): (SystemId, Duration),
     closing: &AtomicBool,
-    receipts: Option<(&Receipts, Option<RelayPromise>)>,
+    (receipts, mut promise): (&Receipts, Option<RelayPromise>),
 ) -> Result<(), LinkError> {
     let deadline = Instant::now() + wait;
     let in_loop = IN_EVENT_LOOP.with(|c| c.get());
     let mut payload = bytes::Bytes::from(body);
     let mut pause = Duration::from_micros(20);
-    let (receipts, mut promise) = match receipts {
-        Some((r, p)) => (Some(r), p),
-        None => (None, None),
-    };
     loop {
         let mut refused = None;
         let attempt = || match client.try_publish(topic.clone(), qos, false, payload) {
@@ -665,10 +661,7 @@ pub(crate) fn queue_publish(
                 false
             }
         };
-        let queued = match receipts {
-            Some(r) => r.queue(qos, &mut promise, attempt),
-            None => attempt(),
-        };
+        let queued = receipts.queue(qos, &mut promise, attempt);
         match refused {
             None => {
                 debug_assert!(queued);

@@ -257,7 +257,9 @@ fn the_python_agv_exchanges_orders_actions_and_states_both_ways() {
         .send("Tango", "Drive", &order(&manufacturer, "o-1"))
         .expect("send")
         .wait();
-    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+    // QoS 1: the broker confirmed it has the order (the AGV subscribes to it), not that the
+    // AGV got it; its state says that.
+    assert_eq!(outcome, Outcome::Relayed { attempts: 1 }, "{outcome}");
     let deadline = Instant::now() + Duration::from_secs(10);
     let state = loop {
         let (s, _) = next::<State>(&world, 5);
@@ -284,7 +286,7 @@ fn the_python_agv_exchanges_orders_actions_and_states_both_ways() {
         }],
     };
     let outcome = drive.send("Tango", "Drive", &actions).expect("send").wait();
-    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+    assert_eq!(outcome, Outcome::Relayed { attempts: 1 }, "{outcome}");
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         let s = world
@@ -433,12 +435,21 @@ fn an_oversized_json_publish_is_refused_before_publishing() {
     let max = 2048 - hetcomm_link_mqtt::publish_overhead(&topic);
     assert!(reason.to_string().contains(&max.to_string()), "{reason}");
     assert_eq!(alpha.stats().links[0].1.frames_sent, 0, "nothing published");
-    // One that fits goes.
+    // One that fits goes; nobody subscribes to the order topic here, and the broker's
+    // PUBACK says so: the send fails, saying nobody received it (not *sent*).
     let outcome = drive
         .send("Tango", "Drive", &order(&manufacturer, "o-1"))
         .expect("send")
         .wait();
-    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+    let Outcome::Failed {
+        reason: hetcomm::FailReason::Relay(why),
+        attempts: 1,
+    } = &outcome
+    else {
+        panic!("{outcome}");
+    };
+    assert!(why.contains("no subscriber"), "{why}");
+    assert_eq!(alpha.stats().links[0].1.frames_sent, 1, "the one that fits");
 }
 
 #[test]
@@ -461,7 +472,12 @@ fn sends_that_do_not_convert_fail_naming_the_field() {
         )
         .expect("send")
         .wait();
-    let Outcome::Failed { reason, .. } = &outcome else {
+    // Refused by the link: failed at once (one attempt), not "unreachable", not retried.
+    let Outcome::Failed {
+        reason: reason @ hetcomm::FailReason::Refused(_),
+        attempts: 1,
+    } = &outcome
+    else {
         panic!("{outcome}");
     };
     let reason = reason.to_string();
@@ -626,8 +642,8 @@ fn a_broker_restart_fails_sends_while_it_is_gone_then_traffic_resumes() {
         alpha.module("World").unwrap(),
     );
     own.kill();
-    // Until the client sees the connection gone, a send is queued for it: Sent (without
-    // confirmation), as documented. Then sends fail, each after `reconnect_wait_ms`.
+    // Until the client sees the connection gone, a send is queued for it, and the broker
+    // never answers it: unconfirmed. Then sends fail, each after `reconnect_wait_ms`.
     let deadline = Instant::now() + Duration::from_secs(5);
     let (outcome, started) = loop {
         let started = Instant::now();
@@ -638,7 +654,7 @@ fn a_broker_restart_fails_sends_while_it_is_gone_then_traffic_resumes() {
         if outcome.is_failed() {
             break (outcome, started);
         }
-        assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+        assert!(matches!(outcome, Outcome::Unconfirmed { .. }), "{outcome}");
         assert!(
             Instant::now() < deadline,
             "no send failed with the broker gone"
@@ -677,10 +693,19 @@ fn a_broker_restart_fails_sends_while_it_is_gone_then_traffic_resumes() {
     };
     assert_eq!(got.order_id, "o-2");
     assert!(got.agv_position.is_none());
-    let outcome = drive
-        .send("Tango", "Drive", &order(&manufacturer, "o-3"))
-        .expect("send")
-        .wait();
-    assert!(matches!(outcome, Outcome::Sent { .. }), "{outcome}");
+    // And orders leave again: once a subscriber (the raw client standing in for the AGV) is
+    // there, the broker confirms them.
+    raw.subscribe(&format!("uagv/v2/{manufacturer}/tango/order"));
+    let mut last = None;
+    common::fleet::eventually(10, "an order relayed after the restart", || {
+        let outcome = drive
+            .send("Tango", "Drive", &order(&manufacturer, "o-3"))
+            .expect("send")
+            .wait();
+        let relayed = outcome == Outcome::Relayed { attempts: 1 };
+        last = Some(outcome);
+        relayed
+    });
+    assert!(last.is_some());
     raw.disconnect();
 }

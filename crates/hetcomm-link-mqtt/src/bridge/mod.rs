@@ -9,10 +9,13 @@
 //!   converted field by field from its MessagePack payload to a JSON object (its serde field
 //!   names are the JSON members), checked against the mapping's declared fields, and
 //!   published on the topic. Nobody acknowledges it: the transport must say
-//!   `delivery = "unacknowledged"`, and the outcome is Sent. A QoS 1 PUBACK is the broker
-//!   taking the publish, not the robot getting it: it is counted ([`MqttBridge::broker_stats`]),
-//!   never reported as delivery. A message that does not convert fails its send, naming the
-//!   field.
+//!   `delivery = "unacknowledged"`. At QoS 0 the outcome is *sent*; at QoS 1 the send's
+//!   outcome waits for the broker's PUBACK to that publish (a receipt,
+//!   [`hetcomm_link::relay`], as on the `mqtt` link): *relayed* (the broker has it, not that
+//!   the robot got it), failed when the broker had no subscriber for it, unconfirmed when it
+//!   said nothing within `reconnect_wait_ms`; PUBACKs are also counted
+//!   ([`MqttBridge::broker_stats`]). A message that does not convert is refused
+//!   ([`LinkError::Refused`]: its send fails at once, naming the field, and is not retried).
 //! * **subscribe** (MQTT → hetcomm): a JSON publish on the topic (a filter: `+` levels may be
 //!   captured into string fields, `+serialNumber`) arrives in this system's `MODULE` as a
 //!   message of type `TYPE_ID` from the robot, after checking it against the mapping's fields
@@ -41,15 +44,18 @@ use hetcomm_core::wire::{self, FrameKind};
 use hetcomm_core::{MessageType, ModuleId, SystemId};
 use hetcomm_link::bridge::{hosts, module_id, robot_id, FrameMaker, Tally};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt, RelayVerdict};
 use hetcomm_link::shape::{MessageShape, MessageShapes};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use rumqttc::v5::mqttbytes::v5::{Filter, Packet, PubAckReason, Publish, SubscribeReasonCode};
+use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, Connection, Event};
 use rumqttc::Outgoing;
 use serde_json::Value as Js;
 
 pub use settings::{check_topic, BridgeSettings, JsonMapping, KEYS};
 
+use crate::receipts::Receipts;
 use crate::IN_EVENT_LOOP;
 use crate::{
     event_loop, factory, overhead, queue_publish, wait_until, BrokerStats, Conn, OpenError,
@@ -84,6 +90,8 @@ struct Shared {
     broker_acks: AtomicU64,
     no_subscribers: AtomicU64,
     broker_refusals: AtomicU64,
+    /// What the broker said about each QoS 1 publish, for the sends that wait on it.
+    receipts: Receipts,
 }
 
 impl Shared {
@@ -204,6 +212,10 @@ impl MqttBridge {
             broker_acks: AtomicU64::new(0),
             no_subscribers: AtomicU64::new(0),
             broker_refusals: AtomicU64::new(0),
+            receipts: Receipts::new(
+                Duration::from_millis(connection.reconnect_wait_ms as u64),
+                connection.brokers[0].to_string(),
+            ),
         });
         let (client, conn) = Client::new(options[0].clone(), QUEUE);
         let receiver = Receiver {
@@ -220,6 +232,14 @@ impl MqttBridge {
                 .spawn(move || run(receiver, client, conn, options, brokers, filters))
                 .map_err(|e| format!("cannot start a thread: {e}"))?
         };
+        {
+            // Ends the broker's receipts that wait past their bound.
+            let shared = shared.clone();
+            std::thread::Builder::new()
+                .name(format!("mqtt-bridge-receipts-{}", settings.robot))
+                .spawn(move || shared.receipts.run_expiry())
+                .map_err(|e| format!("cannot start a thread: {e}"))?;
+        }
         let bridge = MqttBridge {
             shared,
             client,
@@ -295,25 +315,30 @@ impl MqttBridge {
 
     /// The JSON publish of `frame` for `to`, and its topic; None for frames that are not
     /// data (nobody on the MQTT side takes acknowledgements).
+    /// A frame that cannot be converted is refused ([`LinkError::Refused`]): a retry would
+    /// be refused the same way.
     fn convert(&self, to: SystemId, frame: &[u8]) -> Result<Option<(&str, Vec<u8>)>, LinkError> {
-        let unreachable = |reason: String| LinkError::Unreachable { peer: to, reason };
         if to != self.robot {
             let name = &self.robot_name;
-            return Err(unreachable(format!("this {NAME} reaches only {name}")));
+            return Err(LinkError::Unreachable {
+                peer: to,
+                reason: format!("this {NAME} reaches only {name}"),
+            });
         }
-        let f = wire::decode(frame).map_err(|e| unreachable(format!("not a frame: {e}")))?;
+        let refused = |reason: String| LinkError::Refused { peer: to, reason };
+        let f = wire::decode(frame).map_err(|e| refused(format!("not a frame: {e}")))?;
         if f.header.kind != FrameKind::Data {
             return Ok(None);
         }
         let key = (f.header.destination.module, f.header.message_type);
         let Some(m) = self.outbound.get(&key) else {
-            return Err(unreachable(format!(
+            return Err(refused(format!(
                 "no MQTT topic is mapped for message type {} to {}'s module {}",
                 key.1 .0, self.robot_name, key.0 .0
             )));
         };
         let refuse = |why: String| {
-            unreachable(format!(
+            refused(format!(
                 "message type {} for {} does not convert to the JSON of topic {}: {why}",
                 m.message, m.module, m.topic
             ))
@@ -378,7 +403,48 @@ impl Link for MqttBridge {
     }
 
     fn send(&self, to: SystemId, frame: &[u8]) -> Result<(), LinkError> {
+        self.publish(to, frame, None)
+    }
+
+    /// At QoS 1, a receipt kept with the broker's PUBACK for this publish (as on the `mqtt`
+    /// link); at QoS 0 none.
+    fn send_relayed(
+        &self,
+        to: SystemId,
+        head: &[u8],
+        body: &[u8],
+    ) -> Result<Option<RelayReceipt>, LinkError> {
+        let frame = [head, body].concat();
+        if self.settings.connection.qos.mqtt() == QoS::AtMostOnce {
+            return self.publish(to, &frame, None).map(|()| None);
+        }
+        let (receipt, promise) = relay_receipt();
+        self.publish(to, &frame, Some(promise))?;
+        Ok(Some(receipt))
+    }
+
+    fn stats(&self) -> LinkStats {
+        LinkStats {
+            connects: self.shared.connects.load(Ordering::Relaxed),
+            ..self.shared.tally.stats()
+        }
+    }
+}
+
+impl MqttBridge {
+    /// Converts `frame` and publishes it on its topic; `promise`: its receipt's, kept with the
+    /// broker's PUBACK. A frame that is not data (nobody on the MQTT side takes
+    /// acknowledgements) is taken and dropped; its receipt says it left.
+    fn publish(
+        &self,
+        to: SystemId,
+        frame: &[u8],
+        mut promise: Option<RelayPromise>,
+    ) -> Result<(), LinkError> {
         let Some((topic, body)) = self.convert(to, frame)? else {
+            if let Some(p) = promise.take() {
+                p.keep(RelayVerdict::Left);
+            }
             return Ok(());
         };
         if let Some(limit) = self.shared.lock().broker_max_packet {
@@ -399,17 +465,10 @@ impl Link for MqttBridge {
             body,
             (to, wait),
             &self.shared.closing,
-            None,
+            (&self.shared.receipts, promise),
         )?;
         self.shared.tally.sent();
         Ok(())
-    }
-
-    fn stats(&self) -> LinkStats {
-        LinkStats {
-            connects: self.shared.connects.load(Ordering::Relaxed),
-            ..self.shared.tally.stats()
-        }
     }
 }
 
@@ -417,6 +476,7 @@ impl Drop for MqttBridge {
     fn drop(&mut self) {
         let ready = self.shared.lock().ready;
         self.shared.closing.store(true, Ordering::SeqCst);
+        self.shared.receipts.close();
         self.shared.changed.notify_all();
         let thread = self.thread.lock().take();
         let _ = self.client.try_disconnect();
@@ -529,9 +589,14 @@ fn run(
     let (mut current, mut pause) = (0, RETRY_FIRST);
     loop {
         let Ok(event) = connection.recv() else { break };
+        match &event {
+            Ok(event) => shared.receipts.on_event(event),
+            Err(_) => shared.receipts.disconnected(&connection.eventloop.pending),
+        }
         match event {
             Ok(Event::Incoming(Packet::ConnAck(ack))) => {
                 pause = RETRY_FIRST;
+                shared.receipts.connected(ack.session_present);
                 shared.connects.fetch_add(1, Ordering::Relaxed);
                 let limit = ack.properties.as_ref().and_then(|p| p.max_packet_size);
                 let subscribe = !filters.is_empty();
@@ -596,6 +661,7 @@ fn run(
                     current = (current + 1) % options.len();
                     connection.eventloop.options = options[current].clone();
                     shared.lock().broker = brokers[current].to_string();
+                    shared.receipts.set_broker(brokers[current].to_string());
                 }
                 std::thread::sleep(pause);
                 pause = (pause * 2).min(RETRY_MAX);

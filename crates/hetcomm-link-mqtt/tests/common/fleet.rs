@@ -112,6 +112,14 @@ impl RawClient {
             .expect("publish");
     }
 
+    /// Subscribes to `filter` (what arrives is ignored); the broker has the subscription a
+    /// round trip later.
+    pub fn subscribe(&self, filter: &str) {
+        self.client
+            .subscribe(filter, QoS::AtLeastOnce)
+            .expect("subscribe");
+    }
+
     /// Leaves with a DISCONNECT (no last will), after what it published went out.
     pub fn disconnect(mut self) {
         let _ = self.client.disconnect();
