@@ -23,7 +23,10 @@ ZBUILD_CMD="cargo build --release --manifest-path benchmarks/zenoh-peer/Cargo.to
 log "$BUILD_CMD"
 $BUILD_CMD || { log "build failed"; exit 1; }
 log "$ZBUILD_CMD"
-$ZBUILD_CMD || log "zenoh peer build failed: the Zenoh baseline is skipped"
+# Its own target/ (the bench looks for benchmarks/zenoh-peer/target/release/..., also when
+# CARGO_TARGET_DIR points elsewhere).
+CARGO_TARGET_DIR=$ROOT/benchmarks/zenoh-peer/target $ZBUILD_CMD \
+    || log "zenoh peer build failed: the Zenoh baseline is skipped"
 IBUILD_CMD="cargo build --release --manifest-path benchmarks/iceoryx2-peer/Cargo.toml"
 log "$IBUILD_CMD"
 # Its own target/ (the bench looks for benchmarks/iceoryx2-peer/target/release/...).

@@ -87,7 +87,7 @@ impl SystemCore {
         // Per transmit: whether its send ends when the frame leaves (a receipt is asked for).
         let mut unacknowledged: SmallVec<[bool; 4]> = SmallVec::new();
         // Receipts of frames an intermediary confirms, by send, until the send's outcome is
-        // known (see `SystemCore::relay_outcome`).
+        // known (see `SystemCore::end_relayed`).
         let mut receipts = Receipts::default();
         let mut now = first_now;
         let mut first = true;
