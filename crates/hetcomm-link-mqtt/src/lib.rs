@@ -85,7 +85,7 @@ use rumqttc::v5::{Client, ClientError, Request};
 pub use presence::{watch_all as watch_presence, Announced, PresenceEvent};
 pub use settings::{validate_levels, Broker, MqttSettings, Qos};
 
-use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt};
+use hetcomm_link::relay::{RelayPromise, RelayReceipt};
 use presence::{Presence, Verdict};
 use receipts::Receipts;
 
@@ -719,12 +719,9 @@ impl Link for MqttLink {
         head: &[u8],
         body: &[u8],
     ) -> Result<Option<RelayReceipt>, LinkError> {
-        if self.qos == QoS::AtMostOnce {
-            return self.send_parts(to, head, body).map(|()| None);
-        }
-        let (receipt, promise) = relay_receipt();
-        self.publish(to, [head, body].concat(), Some(promise))?;
-        Ok(Some(receipt))
+        receipts::with_receipt(self.qos, |promise| {
+            self.publish(to, [head, body].concat(), promise)
+        })
     }
 
     /// True: the connections to and from the broker are TCP (or TLS over it), whose

@@ -16,7 +16,8 @@ use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use hetcomm_link::relay::{RelayPromise, RelayVerdict};
+use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt, RelayVerdict};
+use hetcomm_link::LinkError;
 use rumqttc::v5::mqttbytes::v5::{Packet, PubAck, PubAckReason};
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Event, Request};
@@ -59,6 +60,21 @@ impl Book {
             .chain(self.collided.as_ref().and_then(|(_, n)| deadline(n)))
             .min()
     }
+}
+
+/// Makes one publish through `publish`, at QoS 1 with the promise of the receipt returned
+/// (kept with the broker's PUBACK); at QoS 0 the broker confirms nothing: no receipt. What the
+/// `mqtt` link and the `mqtt_bridge` give [`hetcomm_link::Link::send_relayed`].
+pub(crate) fn with_receipt(
+    qos: QoS,
+    publish: impl FnOnce(Option<RelayPromise>) -> Result<(), LinkError>,
+) -> Result<Option<RelayReceipt>, LinkError> {
+    if qos == QoS::AtMostOnce {
+        return publish(None).map(|()| None);
+    }
+    let (receipt, promise) = relay_receipt();
+    publish(Some(promise))?;
+    Ok(Some(receipt))
 }
 
 /// The receipts of one MQTT client's publishes.

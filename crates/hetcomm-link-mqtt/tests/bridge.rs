@@ -696,16 +696,12 @@ fn a_broker_restart_fails_sends_while_it_is_gone_then_traffic_resumes() {
     // And orders leave again: once a subscriber (the raw client standing in for the AGV) is
     // there, the broker confirms them.
     raw.subscribe(&format!("uagv/v2/{manufacturer}/tango/order"));
-    let mut last = None;
     common::fleet::eventually(10, "an order relayed after the restart", || {
         let outcome = drive
             .send("Tango", "Drive", &order(&manufacturer, "o-3"))
             .expect("send")
             .wait();
-        let relayed = outcome == Outcome::Relayed { attempts: 1 };
-        last = Some(outcome);
-        relayed
+        outcome == Outcome::Relayed { attempts: 1 }
     });
-    assert!(last.is_some());
     raw.disconnect();
 }

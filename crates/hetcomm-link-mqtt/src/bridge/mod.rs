@@ -44,18 +44,17 @@ use hetcomm_core::wire::{self, FrameKind};
 use hetcomm_core::{MessageType, ModuleId, SystemId};
 use hetcomm_link::bridge::{hosts, module_id, robot_id, FrameMaker, Tally};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
-use hetcomm_link::relay::{relay_receipt, RelayPromise, RelayReceipt, RelayVerdict};
+use hetcomm_link::relay::{RelayPromise, RelayReceipt, RelayVerdict};
 use hetcomm_link::shape::{MessageShape, MessageShapes};
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer};
 use rumqttc::v5::mqttbytes::v5::{Filter, Packet, PubAckReason, Publish, SubscribeReasonCode};
-use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, Connection, Event};
 use rumqttc::Outgoing;
 use serde_json::Value as Js;
 
 pub use settings::{check_topic, BridgeSettings, JsonMapping, KEYS};
 
-use crate::receipts::Receipts;
+use crate::receipts::{self, Receipts};
 use crate::IN_EVENT_LOOP;
 use crate::{
     event_loop, factory, overhead, queue_publish, wait_until, BrokerStats, Conn, OpenError,
@@ -415,12 +414,9 @@ impl Link for MqttBridge {
         body: &[u8],
     ) -> Result<Option<RelayReceipt>, LinkError> {
         let frame = [head, body].concat();
-        if self.settings.connection.qos.mqtt() == QoS::AtMostOnce {
-            return self.publish(to, &frame, None).map(|()| None);
-        }
-        let (receipt, promise) = relay_receipt();
-        self.publish(to, &frame, Some(promise))?;
-        Ok(Some(receipt))
+        receipts::with_receipt(self.settings.connection.qos.mqtt(), |promise| {
+            self.publish(to, &frame, promise)
+        })
     }
 
     fn stats(&self) -> LinkStats {

@@ -30,10 +30,10 @@ impl SystemCore {
         }
     }
 
-    /// The ticket of an unacknowledged send whose frame the link took with a receipt: its
-    /// outcome, reported as every outcome is ([`SystemCore::end_send`]), comes with the
-    /// intermediary's verdict (on the link's thread, or at once if it is known already).
-    /// `slot`: the ticket's.
+    /// Ends an unacknowledged send whose frame the link took with a receipt, in its ticket's
+    /// `slot`: the outcome, reported as every outcome is ([`SystemCore::end_send`]), comes
+    /// with the intermediary's verdict (on the link's thread, or at once if it is known
+    /// already).
     pub(crate) fn end_relayed(
         &self,
         id: SendId,
@@ -43,15 +43,14 @@ impl SystemCore {
         slot: Arc<OutcomeSlot>,
     ) {
         let core = self.this.clone();
-        let filled = slot;
         receipt.then(move |verdict| {
             let outcome = relayed_outcome(verdict, attempts);
             match core.upgrade() {
                 Some(core) => {
                     let now = core.clock.now();
-                    core.end_send(id, outcome, transport, Some(filled), now);
+                    core.end_send(id, outcome, transport, Some(slot), now);
                 }
-                None => filled.complete(outcome, transport),
+                None => slot.complete(outcome, transport),
             }
         });
     }
