@@ -190,7 +190,7 @@ impl Module {
         // later (an acknowledged send, or a refused frame that is retried).
         let mut slot = None;
         let make_slot = |slot: &mut Option<Arc<OutcomeSlot>>| {
-            let s = Arc::new(OutcomeSlot::default());
+            let s = core.slots.take();
             *slot = Some(s.clone());
             s
         };

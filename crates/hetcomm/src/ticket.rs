@@ -61,6 +61,40 @@ impl OutcomeSlot {
     }
 }
 
+/// Outcome slots of ended sends whose tickets were dropped, for the next sends: a stream of
+/// acknowledged sends then allocates no slot per message. Slots end on the thread that
+/// received their acknowledgement and are made on the sending thread; without the pool each
+/// would be a trip to the shared heap (an allocator's per-thread cache keeps only a few
+/// blocks freed elsewhere).
+#[derive(Default)]
+pub(crate) struct SlotPool(Mutex<Vec<Arc<OutcomeSlot>>>);
+
+/// At most this many spare slots are kept (the default window of one destination).
+const SPARE_SLOTS: usize = 1024;
+
+impl SlotPool {
+    /// An empty slot: a spare one when there is one.
+    pub(crate) fn take(&self) -> Arc<OutcomeSlot> {
+        self.0.lock().pop().unwrap_or_default()
+    }
+
+    /// Keeps the slots that nobody else holds (their tickets were dropped), emptied, for
+    /// [`SlotPool::take`]; the others stay with their tickets.
+    pub(crate) fn give_back(&self, slots: impl IntoIterator<Item = Arc<OutcomeSlot>>) {
+        let mut spare = None;
+        for mut slot in slots {
+            let Some(s) = Arc::get_mut(&mut slot) else {
+                continue;
+            };
+            *s.state.get_mut() = SlotState::default();
+            let spare = spare.get_or_insert_with(|| self.0.lock());
+            if spare.len() < SPARE_SLOTS {
+                spare.push(slot);
+            }
+        }
+    }
+}
+
 /// The pending outcome of one send. Dropping it is fine: the outcome is still counted in the
 /// system's statistics.
 #[derive(Clone)]

@@ -317,14 +317,21 @@ pub struct Router<T> {
     link_checks_payload: Vec<bool>,
     /// Frame buffers of ended sends, reused by the next sends (see [`SPARE_FRAMES`]).
     spare_frames: Vec<Vec<u8>>,
+    /// The capacity of `spare_frames`' buffers, in bytes (at most [`SPARE_BYTES`]).
+    spare_bytes: usize,
     /// When a link last reported a secure session with each peer up ([`LinkEvent::PeerUp`]).
     session_up_at: HashMap<SystemId, Time>,
 }
 
 /// How many buffers of ended sends a router keeps for reuse: a sender that keeps sending
-/// large messages then neither allocates nor frees a frame per message (an allocation of tens
-/// of kilobytes, freed at once, is returned to the system and faulted in again each time).
-const SPARE_FRAMES: usize = 4;
+/// then neither allocates nor frees a frame per message. Large frames: an allocation of tens
+/// of kilobytes, freed at once, is returned to the system and faulted in again each time.
+/// Small ones: an acknowledgement ends tens of sends at once, on the thread that received it,
+/// and an allocator's per-thread cache holds only a few buffers freed by another thread, so
+/// the sending thread would otherwise go to the shared heap for every frame.
+const SPARE_FRAMES: usize = 1024;
+/// At most this many bytes of spare buffers are kept (4 large frames, or every small one).
+const SPARE_BYTES: usize = 16 << 20;
 /// Buffers larger than this are freed rather than kept.
 const SPARE_FRAME_MAX: usize = 4 << 20;
 /// Unacknowledged payloads this large, on a link that checksums payloads, are not copied into
@@ -400,6 +407,7 @@ impl<T> Router<T> {
             stats: RouterStats::default(),
             link_checks_payload: Vec::new(),
             spare_frames: Vec::new(),
+            spare_bytes: 0,
             session_up_at: HashMap::default(),
         }
     }

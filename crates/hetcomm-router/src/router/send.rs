@@ -46,11 +46,13 @@ impl<T> Router<T> {
             header.flags |= FLAG_HEADER_CRC;
         }
         let frame = match self.spare_frames.pop() {
-            Some(mut f) if f.capacity() >= len => {
+            Some(mut f) => {
+                self.spare_bytes -= f.capacity();
                 f.clear();
+                f.reserve(len);
                 f
             }
-            _ => Vec::with_capacity(len),
+            None => Vec::with_capacity(len),
         };
         (header, frame)
     }
@@ -228,7 +230,12 @@ impl<T> Router<T> {
 
     /// Keeps an ended send's frame buffer for the next sends (see [`SPARE_FRAMES`]).
     pub(super) fn recycle(&mut self, frame: Vec<u8>) {
-        if self.spare_frames.len() < SPARE_FRAMES && frame.capacity() <= SPARE_FRAME_MAX {
+        let cap = frame.capacity();
+        if self.spare_frames.len() < SPARE_FRAMES
+            && cap <= SPARE_FRAME_MAX
+            && self.spare_bytes + cap <= SPARE_BYTES
+        {
+            self.spare_bytes += cap;
             self.spare_frames.push(frame);
         }
     }

@@ -89,6 +89,8 @@ impl SystemCore {
         // Receipts of frames an intermediary confirms, by send, until the send's outcome is
         // known (see `SystemCore::end_relayed`).
         let mut receipts = Receipts::default();
+        // Slots of the sends that ended this round, for the pool.
+        let mut ended: SmallVec<[Arc<OutcomeSlot>; 4]> = SmallVec::new();
         let mut now = first_now;
         let mut first = true;
         loop {
@@ -144,10 +146,15 @@ impl SystemCore {
                         self.end_relayed(id, receipt, *attempts, transport, token);
                     }
                     _ => {
-                        self.end_send(id, outcome, transport, Some(token), now);
+                        if let TicketSlot::Pending(slot) =
+                            self.end_send(id, outcome, transport, Some(token), now)
+                        {
+                            ended.push(slot);
+                        }
                     }
                 }
             }
+            self.slots.give_back(ended.drain(..));
             for d in deliveries.drain(..) {
                 let token = d.token;
                 let status = self.deliver(d, now);
@@ -290,7 +297,11 @@ impl SystemCore {
                 if self.observers.active() {
                     self.observe_outcome(id, &outcome, now);
                 }
-                slot.complete(outcome, transport);
+                // Nobody holds a ticket for it (dropped, as a stream's sender does): nobody
+                // can read it, and writing it would pull its line to this core for nothing.
+                if Arc::strong_count(&slot) > 1 {
+                    slot.complete(outcome, transport);
+                }
                 TicketSlot::Pending(slot)
             }
             None => {

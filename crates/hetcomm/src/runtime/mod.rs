@@ -26,7 +26,7 @@ use crate::inbox::{Entry, Inbox, PushError};
 use crate::observe::{Observers, OutcomeRecord, ReceiptRecord, RouteKind, Via};
 use crate::reactor::{leading_here, Reactor};
 use crate::received::{Envelope, RawMessage};
-use crate::ticket::{OutcomeSlot, TicketSlot};
+use crate::ticket::{OutcomeSlot, SlotPool, TicketSlot};
 use crate::transports::Hubs;
 use crossbeam_utils::CachePadded;
 
@@ -344,21 +344,41 @@ struct TimerState {
     shutdown: bool,
 }
 
-#[derive(Default)]
 struct Timer {
     state: Mutex<TimerState>,
+    /// `state.deadline` in nanoseconds (`u64::MAX`: none), readable without the lock: nearly
+    /// every pump finds the timer already armed for an earlier time, and taking the lock to
+    /// see that moves its line between the cores of the sending and the receiving thread.
+    /// Written only under the lock; a reader that sees a stale value at worst takes the lock.
+    armed: AtomicU64,
     wake: Condvar,
     /// Under simulation: the simulator's queue of wake-ups, which takes the deadlines the
     /// timer thread would otherwise wait for.
     sim: OnceLock<crate::sim::SimWake>,
 }
 
+impl Default for Timer {
+    fn default() -> Timer {
+        Timer {
+            state: Mutex::default(),
+            armed: AtomicU64::new(u64::MAX),
+            wake: Condvar::new(),
+            sim: OnceLock::new(),
+        }
+    }
+}
+
 impl Timer {
     fn arm(&self, next: Option<Time>) {
         let Some(next) = next else { return };
+        // Armed for no later (the timer thread clears a deadline before it pumps the router,
+        // so a deadline the router had before that pump is in what the pump re-arms).
+        if self.armed.load(Ordering::Acquire) <= next.0 {
+            return;
+        }
         let mut s = self.state.lock();
         if s.deadline.is_none_or(|d| next < d) {
-            s.deadline = Some(next);
+            self.set_deadline(&mut s, Some(next));
             match self.sim.get() {
                 Some(sim) => sim.timer(next),
                 None => {
@@ -366,6 +386,13 @@ impl Timer {
                 }
             }
         }
+    }
+
+    /// Sets the deadline, under its lock, and its lock-free mirror.
+    fn set_deadline(&self, s: &mut TimerState, deadline: Option<Time>) {
+        s.deadline = deadline;
+        self.armed
+            .store(deadline.map_or(u64::MAX, |d| d.0), Ordering::Release);
     }
 }
 
@@ -383,6 +410,8 @@ pub(crate) struct SystemCore {
     pub modules: HashMap<ModuleId, Arc<ModuleCore>>,
     pub clock: Arc<dyn Clock>,
     router: Mutex<Router<Arc<OutcomeSlot>>>,
+    /// Outcome slots of ended sends, for the next ones ([`SlotPool`]).
+    pub(crate) slots: SlotPool,
     /// Frames that arrived before `start`, held for the router ([`Opening`]).
     pub(crate) opening: Opening,
     links: OnceLock<Vec<Arc<dyn Link>>>,
@@ -458,6 +487,7 @@ impl SystemCore {
             modules,
             clock,
             router: Mutex::new(router),
+            slots: SlotPool::default(),
             opening: Opening::default(),
             links: OnceLock::new(),
             link_names: OnceLock::new(),
@@ -542,7 +572,7 @@ impl SystemCore {
     /// the times its harness holds items until. What was armed before is forgotten (the
     /// simulator asks for the current deadline itself).
     pub(crate) fn attach_sim(&self, wake: crate::sim::SimWake) {
-        self.timer.state.lock().deadline = None;
+        self.timer.set_deadline(&mut self.timer.state.lock(), None);
         let _ = self.timer.sim.set(wake);
     }
 
@@ -558,7 +588,7 @@ impl SystemCore {
     pub(crate) fn sim_timer_taken(&self, up_to: Time) {
         let mut s = self.timer.state.lock();
         if s.deadline.is_some_and(|d| d <= up_to) {
-            s.deadline = None;
+            self.timer.set_deadline(&mut s, None);
         }
     }
 
@@ -685,7 +715,7 @@ fn run_timer(core: Weak<SystemCore>) {
         let now = c.clock.now();
         match s.deadline {
             Some(d) if d <= now => {
-                s.deadline = None;
+                c.timer.set_deadline(&mut s, None);
                 drop(s);
                 c.fire_timers();
             }
