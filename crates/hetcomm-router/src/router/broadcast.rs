@@ -162,6 +162,7 @@ impl<T> Router<T> {
                     timed_out: false,
                     to_untried: false,
                     tried: 0,
+                    presettled_from: None,
                 },
             );
             self.stats.sends += 1;
@@ -237,6 +238,7 @@ impl<T> Router<T> {
                 seq: BROADCAST_SEND | b,
             }),
             probe: None,
+            presettled: false,
         })
     }
 

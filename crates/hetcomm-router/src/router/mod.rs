@@ -80,6 +80,9 @@ struct Pending<T> {
     /// Its budget was spent and renewed for a path none of its frames took: the next frame
     /// goes on such a path even when it is judged down (see `Router::untried_path`).
     to_untried: bool,
+    /// While its frame is out with the driver in a [`Transmit::presettled`]: what
+    /// `transmitted` was before that attempt (restored if the link refuses the frame).
+    presettled_from: Option<bool>,
     /// The links its frames were offered on, one bit per link index (links from 64 on are
     /// not tracked): a send whose budget is spent still gets one on a path of its route
     /// that no frame of it took (see `Router::untried_path`).
@@ -523,5 +526,7 @@ impl<T> Router<T> {
 mod ack_tests;
 #[cfg(test)]
 mod broadcast_tests;
+#[cfg(test)]
+mod presettle_tests;
 #[cfg(test)]
 mod tests;

@@ -24,6 +24,7 @@ impl<T> Router<T> {
                         frame: wire::encode(&header, &payload[..len]),
                         send: None,
                         probe: None,
+                        presettled: false,
                     });
                 }
                 TransmitItem::Broadcast(b) => match self.poll_broadcast(now, b) {
@@ -78,12 +79,29 @@ impl<T> Router<T> {
                     if p.attempts > 1 {
                         self.stats.retransmissions += 1;
                     }
+                    // What the link's `Ok` would do, done now (see `Transmit::presettled`):
+                    // nothing else to judge while every path is healthy, and a send that waits
+                    // for a secure session takes the longer way.
+                    let presettled =
+                        p.route.acknowledged && p.session_waits == 0 && self.unhealthy_paths == 0;
+                    let (link, attempts) = (p.route.link, p.attempts);
+                    if presettled {
+                        let deadline = now + self.rto_for(id.to, link, attempts);
+                        if let Some(p) = self.pending.get_mut(&id) {
+                            p.presettled_from = Some(p.transmitted);
+                            p.transmitted = true;
+                            p.awaiting_ack = true;
+                            p.deadline = Some(deadline);
+                            self.timers.insert((deadline, Timer::Retransmit(id)));
+                        }
+                    }
                     return Some(Transmit {
-                        link: p.route.link,
+                        link,
                         to: id.to,
                         frame,
                         send: Some(id),
                         probe: None,
+                        presettled,
                     });
                 }
             }
@@ -108,9 +126,19 @@ impl<T> Router<T> {
         }
         let Some(id) = tx.send else { return };
         let Some(p) = self.pending.get_mut(&id) else {
-            return; // already ended (an ack overtook the result)
+            return self.recycle(tx.frame); // already ended (an ack overtook the result)
         };
         p.frame = Some(tx.frame);
+        if let Some(transmitted) = p.presettled_from.take().filter(|_| tx.presettled) {
+            if result.is_ok() {
+                return; // settled when it was handed out
+            }
+            // Refused after all: undo what `poll_transmit` assumed, then settle as usual.
+            p.transmitted = transmitted;
+            if let Some(deadline) = p.deadline.take() {
+                self.timers.remove(&(deadline, Timer::Retransmit(id)));
+            }
+        }
         self.settle(now, id, tx.link, result);
     }
 
@@ -260,6 +288,7 @@ impl<T> Router<T> {
             frame,
             send: None,
             probe: Some(id),
+            presettled: false,
         })
     }
 

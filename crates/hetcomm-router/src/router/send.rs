@@ -89,6 +89,7 @@ impl<T> Router<T> {
                 timed_out: false,
                 to_untried: false,
                 tried: 0,
+                presettled_from: None,
             },
         );
         self.transmits.push_back(TransmitItem::Send(id));
@@ -209,6 +210,7 @@ impl<T> Router<T> {
                 timed_out: false,
                 to_untried: false,
                 tried: link_bit(tx_link),
+                presettled_from: None,
             },
         );
         self.timers.insert((deadline, Timer::Retransmit(id)));

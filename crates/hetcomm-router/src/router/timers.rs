@@ -35,6 +35,14 @@ impl<T> Router<T> {
         if p.deadline != Some(deadline) {
             return; // superseded
         }
+        if p.presettled_from.is_some() {
+            // Its frame is still with the driver, which has not said whether the link took
+            // it: look again shortly rather than judge an attempt that may not have left.
+            let again = now + self.config.timing.link_retry;
+            p.deadline = Some(again);
+            self.timers.insert((again, Timer::Retransmit(id)));
+            return;
+        }
         p.deadline = None;
         let timed_out = std::mem::take(&mut p.awaiting_ack);
         if timed_out && self.judging {

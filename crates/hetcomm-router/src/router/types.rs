@@ -599,6 +599,15 @@ pub struct Transmit {
     /// [`Router::transmit_result`] too: whether its link took it decides whether a copy of
     /// the message may have left.
     pub probe: Option<SendId>,
+    /// The router has already counted this frame as taken by its link: an attempt of an
+    /// acknowledged send on a route with every path healthy, whose retransmission is armed
+    /// as [`Router::transmit_result`] with `Ok` would arm it. A refusal is reported through
+    /// `transmit_result` as for any frame (the router undoes what it assumed); a frame the
+    /// link took may be handed back later (`transmit_result` with `Ok`, with the time it
+    /// was handed to the link), e.g. at the driver's next call into the router, so that a
+    /// stream of acknowledged sends locks the router once per send rather than twice. Until
+    /// it is back, a retransmission that falls due waits for it ([`Timing::link_retry`]).
+    pub presettled: bool,
 }
 
 /// Why a link refused a frame, as the router needs to know it.

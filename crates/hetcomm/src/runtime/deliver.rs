@@ -89,6 +89,8 @@ impl SystemCore {
         // Receipts of frames an intermediary confirms, by send, until the send's outcome is
         // known (see `SystemCore::end_relayed`).
         let mut receipts = Receipts::default();
+        // Presettled frames the links took, for the router at its next lock.
+        let mut taken: SmallVec<[(Transmit, Time); 4]> = SmallVec::new();
         // Slots of the sends that ended this round, for the pool.
         let mut ended: SmallVec<[Arc<OutcomeSlot>; 4]> = SmallVec::new();
         let mut now = first_now;
@@ -189,9 +191,14 @@ impl SystemCore {
                         .map(|receipt| receipts.put(id, receipt)),
                     _ => self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic),
                 };
-                if tx.send.is_some() || tx.probe.is_some() {
+                if tx.presettled && result.is_ok() {
+                    taken.push((tx, now));
+                } else if tx.send.is_some() || tx.probe.is_some() {
                     transmit_results.push((tx, result));
                 }
+            }
+            if !taken.is_empty() {
+                self.taken_back.push(taken.drain(..));
             }
             attempts.clear();
             broadcast_dests.clear();

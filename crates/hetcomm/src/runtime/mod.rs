@@ -396,6 +396,38 @@ impl Timer {
     }
 }
 
+/// Frames of presettled transmits ([`hetcomm_router::Transmit::presettled`]) that their links
+/// took, with the time each was handed over, until whoever next locks the router hands them
+/// back (every lock goes through [`SystemCore::router`]). A stream of acknowledged sends then
+/// takes the router's lock once per send instead of twice; the second lock was the one the
+/// thread reading acknowledgements contended for. This lock is taken by the sending thread
+/// and the next router holder only, and not at all while nothing is waiting.
+#[derive(Default)]
+struct TakenBack {
+    frames: Mutex<Vec<(Transmit, Time)>>,
+    /// Whether `frames` may hold any (set and cleared under its lock).
+    waiting: AtomicBool,
+}
+
+impl TakenBack {
+    fn push(&self, taken: impl IntoIterator<Item = (Transmit, Time)>) {
+        let mut frames = self.frames.lock();
+        frames.extend(taken);
+        self.waiting.store(true, Ordering::Release);
+    }
+
+    fn return_to(&self, router: &mut Router<Arc<OutcomeSlot>>) {
+        if !self.waiting.load(Ordering::Acquire) {
+            return;
+        }
+        let mut frames = self.frames.lock();
+        for (tx, at) in frames.drain(..) {
+            router.transmit_result(at, tx, Ok(()));
+        }
+        self.waiting.store(false, Ordering::Release);
+    }
+}
+
 /// One opened system.
 pub(crate) struct SystemCore {
     /// This system itself, for what outlives a call (a relay receipt's verdict, given later
@@ -412,6 +444,9 @@ pub(crate) struct SystemCore {
     router: Mutex<Router<Arc<OutcomeSlot>>>,
     /// Outcome slots of ended sends, for the next ones ([`SlotPool`]).
     pub(crate) slots: SlotPool,
+    /// Frames of presettled transmits their links took, on their way back to the router
+    /// ([`TakenBack`]).
+    taken_back: TakenBack,
     /// Frames that arrived before `start`, held for the router ([`Opening`]).
     pub(crate) opening: Opening,
     links: OnceLock<Vec<Arc<dyn Link>>>,
@@ -488,6 +523,7 @@ impl SystemCore {
             clock,
             router: Mutex::new(router),
             slots: SlotPool::default(),
+            taken_back: TakenBack::default(),
             opening: Opening::default(),
             links: OnceLock::new(),
             link_names: OnceLock::new(),
@@ -611,7 +647,9 @@ impl SystemCore {
     }
 
     pub(crate) fn router(&self) -> MutexGuard<'_, Router<Arc<OutcomeSlot>>> {
-        self.router.lock()
+        let mut router = self.router.lock();
+        self.taken_back.return_to(&mut router);
+        router
     }
 
     pub(crate) fn is_closed(&self) -> bool {
