@@ -66,8 +66,10 @@
 //! callback's reply) never waits for presence: to a system never seen it puts anyway (that
 //! system has just sent a frame), to one seen leaving it fails at once. A sink that blocks
 //! (an inbox full under the `block` policy) holds Zenoh's reader: backpressure, not loss.
-//! [`Link::send`] puts on the caller's thread: `express` after the destination was idle for
-//! 50 µs, left to Zenoh's batching when frames follow closer.
+//! [`Link::send`] puts on the caller's thread, `express`: the runtime sends a frame on its own
+//! only when none came just before it (a stream's frames are held, [`Link::send_held`], and
+//! put together). Only a put of held frames that filled up, with more on the way, is left to
+//! Zenoh's batching; the put that ends a burst ([`Link::flush`]) is express again.
 
 mod config;
 pub mod factory;
@@ -166,15 +168,13 @@ pub enum OpenError {
     Zenoh(String),
 }
 
-/// One destination: its name, the publishers on its data key (declared on first use) and when
-/// the last frame was put to it.
+/// One destination: its name, the publishers on its data key (declared on first use) and the
+/// frames held for it.
 struct Dest {
     name: String,
     /// The key its frames are put on.
     key: String,
     publishers: RwLock<Option<Arc<Publishers>>>,
-    /// [`micros`] at the last put to this destination.
-    last_put_us: AtomicU64,
     /// Frames held back by [`Link::send_held`], for one put.
     held: Mutex<Held>,
 }
@@ -191,12 +191,21 @@ struct Publishers {
     batched: Publisher<'static>,
 }
 
-/// A frame put to a destination that has had nothing for this long goes `express`: the
-/// destination is probably waiting for it (a request, a reply, an acknowledgement), and
-/// express saves the Zenoh transmitter's look for more frames to batch with it. Frames that
-/// follow closer than this are a stream and are batched (express for every frame cuts 64 B
-/// throughput 25-fold).
-const EXPRESS_AFTER_IDLE_US: u64 = 50;
+/// Whether more frames to the same destination are on the way right behind a put: only then
+/// may Zenoh hold it back to share a batch. Anything else goes `express`, since the
+/// destination may be waiting for it (a request, a reply, an acknowledgement) and a
+/// non-express put waits in Zenoh's batch until something else moves it (up to its
+/// `batching/time_limit`, 1 ms, in every peer and router on the way; an acknowledgement and a
+/// reply put back to back used to leave the reply there). Express for every frame of a
+/// stream would cost 64 B throughput 25-fold; the runtime holds a stream's frames and puts
+/// them together, so a stream's puts are few and large.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Put {
+    /// The end of a burst, or a frame on its own: express.
+    Last,
+    /// A full put of held frames, more coming: Zenoh may batch it.
+    MoreFollow,
+}
 
 /// Capacity of received large frames a link keeps for reuse ([`BufferPool`]).
 const RECEIVE_POOL_BYTES: usize = 4 << 20;
@@ -297,15 +306,6 @@ fn receiver(
         }
         IN_CALLBACK.with(|c| c.set(false));
     })
-}
-
-/// Microseconds since the first call in this process.
-fn micros() -> u64 {
-    static EPOCH: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
-    EPOCH
-        .get_or_init(std::time::Instant::now)
-        .elapsed()
-        .as_micros() as u64
 }
 
 #[derive(Default)]
@@ -426,7 +426,6 @@ impl ZenohLink {
             name: name.to_string(),
             key,
             publishers: RwLock::new(None),
-            last_put_us: AtomicU64::new(0),
             held: Mutex::new(Held::default()),
         };
         let mut dests: HashMap<SystemId, Dest> = config
@@ -531,21 +530,20 @@ impl ZenohLink {
         Ok(dest)
     }
 
-    /// Puts `payload` (one frame or several back to back) on `dest`'s data key: `express` when
-    /// nothing went to it for [`EXPRESS_AFTER_IDLE_US`], batched by Zenoh otherwise.
+    /// Puts `payload` (one frame or several back to back) on `dest`'s data key: `express`
+    /// unless more frames follow right behind it ([`Put`]).
     fn put(
         &self,
         to: SystemId,
         dest: &Dest,
         payload: Vec<u8>,
         frames: u64,
+        kind: Put,
     ) -> Result<(), LinkError> {
         let publishers = self.publishers(to, dest)?;
-        let now = micros();
-        let last = dest.last_put_us.swap(now, Ordering::Relaxed);
-        let publisher = match now.saturating_sub(last) >= EXPRESS_AFTER_IDLE_US {
-            true => &publishers.express,
-            false => &publishers.batched,
+        let publisher = match kind {
+            Put::Last => &publishers.express,
+            Put::MoreFollow => &publishers.batched,
         };
         if let Err(e) = publisher.put(payload).wait() {
             return Err(LinkError::Unreachable {
@@ -558,12 +556,18 @@ impl ZenohLink {
     }
 
     /// Puts what is held for `dest` now; the frames of a put that fails are counted dropped.
-    fn put_held(&self, to: SystemId, dest: &Dest, held: &mut Held) -> Result<(), LinkError> {
+    fn put_held(
+        &self,
+        to: SystemId,
+        dest: &Dest,
+        held: &mut Held,
+        kind: Put,
+    ) -> Result<(), LinkError> {
         if held.frames == 0 {
             return Ok(());
         }
         let (put, frames) = held.take();
-        let result = self.put(to, dest, put, frames);
+        let result = self.put(to, dest, put, frames, kind);
         if result.is_err() {
             self.counters.dropped.fetch_add(frames, Ordering::Relaxed);
         }
@@ -628,11 +632,11 @@ impl Link for ZenohLink {
             let mut frame = Vec::with_capacity(head.len() + body.len());
             frame.extend_from_slice(head);
             frame.extend_from_slice(body);
-            return self.put(to, dest, frame, 1);
+            return self.put(to, dest, frame, 1, Put::Last);
         }
         // After the frames held for the same destination, in the same put.
         held.push(head, body);
-        self.put_held(to, dest, &mut held)
+        self.put_held(to, dest, &mut held, Put::Last)
     }
 
     /// True: this build carries Zenoh over TCP only, whose checksummed connections deliver
@@ -650,14 +654,14 @@ impl Link for ZenohLink {
         if held.put.len() < HELD_MAX {
             return Ok(());
         }
-        self.put_held(to, dest, &mut held)
+        self.put_held(to, dest, &mut held, Put::MoreFollow)
     }
 
     fn flush(&self) -> Result<(), LinkError> {
         let mut first = Ok(());
         for (to, dest) in &self.dests {
             let mut held = dest.held.lock();
-            let result = self.put_held(*to, dest, &mut held);
+            let result = self.put_held(*to, dest, &mut held, Put::Last);
             if first.is_ok() {
                 first = result;
             }
