@@ -68,8 +68,9 @@
 //! (an inbox full under the `block` policy) holds Zenoh's reader: backpressure, not loss.
 //! [`Link::send`] puts on the caller's thread, `express`: the runtime sends a frame on its own
 //! only when none came just before it (a stream's frames are held, [`Link::send_held`], and
-//! put together). Only a put of held frames that filled up, with more on the way, is left to
-//! Zenoh's batching; the put that ends a burst ([`Link::flush`]) is express again.
+//! put together). Only a put of held frames that filled up, with more on the way, and a large
+//! frame right behind another put (a stream of large frames, never held) are left to Zenoh's
+//! batching; the put that ends a burst ([`Link::flush`]) is express again.
 
 mod config;
 pub mod factory;
@@ -205,7 +206,7 @@ struct Publishers {
 /// [`STREAM_GAP_US`] is taken for a stream's and may share Zenoh's last batch of the one
 /// before (express would cost a 64 KiB stream about 15%: a small batch for each frame's last
 /// fragment).
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy)]
 enum Put {
     /// The end of a burst, or a frame on its own: express.
     Last,
@@ -565,7 +566,9 @@ impl ZenohLink {
         let now = micros();
         let last = dest.last_put_us.swap(now, Ordering::Relaxed);
         let kind = match kind {
-            Put::Last if payload.len() >= LARGE_FRAME && now - last < STREAM_GAP_US => {
+            Put::Last
+                if payload.len() >= LARGE_FRAME && now.saturating_sub(last) < STREAM_GAP_US =>
+            {
                 Put::MoreFollow
             }
             kind => kind,

@@ -235,7 +235,7 @@ impl Module {
                 // gave a receipt: the outcome says what the intermediary said.
                 let slot = match (receipt, &outcome) {
                     (Some(receipt), Outcome::Sent { attempts }) => {
-                        let slot = Arc::new(OutcomeSlot::default());
+                        let slot = core.slots.take();
                         core.end_relayed(id, receipt, *attempts, transport, slot.clone());
                         TicketSlot::Pending(slot)
                     }
@@ -505,7 +505,7 @@ impl Module {
             }
             let mut slots = Vec::with_capacity(group.len());
             let sent = router.send_broadcast(now, req, &group, |to| {
-                let slot = Arc::new(OutcomeSlot::default());
+                let slot = core.slots.take();
                 slots.push((to, slot.clone()));
                 slot
             });

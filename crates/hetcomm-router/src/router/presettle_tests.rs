@@ -8,11 +8,16 @@ use hetcomm_core::{MessageType, ModuleId};
 const A: SystemId = SystemId(0);
 const B: SystemId = SystemId(1);
 
+/// A router with one acknowledged route to B.
 fn router(attempts: u32) -> Router<u32> {
+    router_on(true, attempts)
+}
+
+fn router_on(acknowledged: bool, attempts: u32) -> Router<u32> {
     let route = Route {
         link: 0,
         tag: b'T',
-        acknowledged: true,
+        acknowledged,
         attempts,
         max_frame: 1 << 20,
         max_in_flight: 1024,
@@ -80,21 +85,32 @@ fn a_refused_presettled_frame_is_undone_and_fails_as_never_sent() {
     assert_eq!(a.pending_to(B), 0);
 }
 
-#[test]
-fn a_retransmission_due_while_the_frame_is_out_waits_for_it() {
+/// A router with `attempts` whose one send's presettled frame is still with the driver when
+/// its retransmission falls due: the router, the frame and that deadline.
+fn frame_out_past_its_deadline(attempts: u32) -> (Router<u32>, Transmit, Time) {
     let t0 = Time::from_micros(1_000);
-    let mut a = router(1);
+    let mut a = router(attempts);
     send(&mut a, t0, 3);
     let tx = a.poll_transmit(t0).unwrap();
     let deadline = a.poll_timeout().unwrap();
-    // The driver still holds the frame when the deadline passes: with its only attempt
-    // spent the send would give up as unconfirmed, but whether the frame left is unknown.
     a.handle_timeout(deadline);
+    assert!(
+        a.poll_transmit(deadline).is_none(),
+        "the frame is still out"
+    );
+    (a, tx, deadline)
+}
+
+#[test]
+fn a_retransmission_due_while_the_frame_is_out_waits_for_it() {
+    let t0 = Time::from_micros(1_000);
+    // With its only attempt spent the send would give up as unconfirmed, but whether the
+    // frame left is unknown.
+    let (mut a, tx, deadline) = frame_out_past_its_deadline(1);
     assert!(
         outcomes(&mut a).is_empty(),
         "no verdict while the frame is out"
     );
-    assert!(a.poll_transmit(deadline).is_none());
     let again = a.poll_timeout().expect("looks again later");
     assert_eq!(again, deadline + Timing::default().link_retry);
     // The link refused it after all: failed, never unconfirmed.
@@ -108,15 +124,7 @@ fn a_retransmission_due_while_the_frame_is_out_waits_for_it() {
 #[test]
 fn a_frame_that_left_is_judged_at_the_next_look_once_it_is_back() {
     let t0 = Time::from_micros(1_000);
-    let mut a = router(2);
-    send(&mut a, t0, 4);
-    let tx = a.poll_transmit(t0).unwrap();
-    let deadline = a.poll_timeout().unwrap();
-    a.handle_timeout(deadline);
-    assert!(
-        a.poll_transmit(deadline).is_none(),
-        "the frame is still out"
-    );
+    let (mut a, tx, _) = frame_out_past_its_deadline(2);
     a.transmit_result(t0, tx, Ok(()));
     let look = a.poll_timeout().unwrap();
     a.handle_timeout(look);
@@ -133,18 +141,9 @@ fn a_frame_that_left_is_judged_at_the_next_look_once_it_is_back() {
 }
 
 #[test]
-fn unacknowledged_and_unhealthy_routes_are_not_presettled() {
+fn unacknowledged_routes_are_not_presettled() {
     let t0 = Time::from_micros(1_000);
-    let route = Route {
-        link: 0,
-        tag: b'T',
-        acknowledged: false,
-        attempts: 1,
-        max_frame: 1 << 20,
-        max_in_flight: 1024,
-        max_in_flight_bytes: usize::MAX,
-    };
-    let mut a: Router<u32> = Router::new(RouterConfig::new(A, 1, vec![(B, route)]));
+    let mut a = router_on(false, 1);
     send(&mut a, t0, 1);
     assert!(!a.poll_transmit(t0).unwrap().presettled);
 }

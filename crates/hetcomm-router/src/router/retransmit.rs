@@ -129,7 +129,7 @@ impl<T> Router<T> {
             return self.recycle(tx.frame); // already ended (an ack overtook the result)
         };
         p.frame = Some(tx.frame);
-        if let Some(transmitted) = p.presettled_from.take().filter(|_| tx.presettled) {
+        if let Some(transmitted) = p.presettled_from.take() {
             if result.is_ok() {
                 return; // settled when it was handed out
             }
