@@ -12,12 +12,13 @@ use hetcomm_core::{ModuleId, SystemId};
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::error::{ConfigErrors, Diag, Loc};
+use crate::kinds::{Addresses, Kinds};
 use crate::legacy::check_id;
 use crate::model::*;
 use crate::{names, suggest};
 
-use crate::table::table_pairs;
 pub(crate) use crate::table::RawTable;
+use crate::table::{table_pairs, DefaultLetters};
 
 /// One `<id> <name>` line of a legacy id file.
 pub(crate) struct IdLine {
@@ -73,16 +74,6 @@ pub(crate) struct ModSpec {
     pub inbox: InboxConfig,
 }
 
-/// Where a Bluetooth transport's addresses came from, so a missing one can be fixed in the
-/// right place.
-#[derive(Clone)]
-pub(crate) enum AddrSource {
-    /// `addresses = { … }` in the fleet file.
-    Inline,
-    /// A file in the Table 3 format.
-    File(Rc<str>),
-}
-
 /// A transport before letters and the table are resolved.
 pub(crate) struct TransportSpec {
     pub name: String,
@@ -101,7 +92,9 @@ pub(crate) struct TransportSpec {
     pub settings: Option<TransportSettings>,
     /// The `over` name of an emulated transport, with its location.
     pub over: Option<(String, Loc)>,
-    pub addr_source: AddrSource,
+    /// The systems it has an address for, when its kind needs one per system (checked
+    /// against the table's pairs); None for kinds that need none.
+    pub addresses: Option<Addresses>,
 }
 
 /// One `[letters]` entry.
@@ -491,16 +484,8 @@ pub(crate) fn bt_addresses(
     out
 }
 
-/// The ROS master URI when the file gives none: the environment's, as ROS tools do.
-pub fn default_master_uri() -> String {
-    std::env::var("ROS_MASTER_URI")
-        .ok()
-        .filter(|s| !s.trim().is_empty())
-        .unwrap_or_else(|| "http://localhost:11311".to_string())
-}
-
 /// Resolves the table, letters and transport cross-references, and builds the [`Fleet`].
-pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
+pub(crate) fn finish(p: Parts, kinds: &Kinds, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
     let Parts {
         name,
         source,
@@ -576,7 +561,11 @@ pub(crate) fn finish(p: Parts, mut diag: Diag) -> Result<Fleet, ConfigErrors> {
             &letter_map,
             &mut transports,
             &mut tag_of,
-            (legacy_bt.as_ref(), b_help),
+            DefaultLetters {
+                legacy_bt: legacy_bt.as_ref(),
+                b_help,
+                kinds,
+            },
             &mut diag,
         );
     }

@@ -1,10 +1,10 @@
 //! Transport kinds from outside this crate: the settings half of a transport factory.
 //!
-//! The fleet loader knows the keys of the kinds it models itself (`inproc`, `udp`, `tcp`,
-//! `ros1`, `bluetooth`, `emulated`; their settings are in [`crate::model`] because `hetcomm
-//! validate` must check them in every build and the legacy table files name them). Any other
-//! kind is described by a [`KindSpec`], written in the kind's own crate: its name, its keys and
-//! a `parse` function. A program collects the specs of the kinds compiled into it in a
+//! The fleet loader knows the keys of the kinds it models itself (`inproc`, which has none,
+//! and `emulated`, whose `over` the loader follows; their settings are in [`crate::model`]).
+//! Every other kind, `udp`, `tcp`, `ros1` and `bluetooth` included, is described by a [`KindSpec`], written in the kind's own crate: its name,
+//! its keys, a `parse` function and what the table check needs to know of its settings
+//! ([`KindSpec::addresses`]). A program collects the specs of the kinds compiled into it in a
 //! [`Kinds`] table (the `hetcomm` crate does this from its transport registry, one line per
 //! kind) and passes it to [`crate::load_with`] / [`crate::parse_str_with`].
 //!
@@ -17,9 +17,11 @@
 //!
 //! The loader itself checks the keys every transport shares (`kind`, `delivery`, `attempts`,
 //! …) and reports keys that are neither shared nor in [`KindSpec::keys`], with a "did you
-//! mean". `zenoh`, `mqtt` and `dds` are known names without a spec: their keys are kept raw
+//! mean". The other names of [`TransportKind::ALL`] (`udp`, `tcp`, `ros1`, `bluetooth`,
+//! `zenoh`, `mqtt`, `dds`) are known without a spec: their keys are kept raw
 //! ([`crate::TransportSettings::Raw`]) until a crate registers a spec for them, which then
-//! takes over.
+//! takes over. A program that opens links loads through its registry's [`Kinds`] (the
+//! `hetcomm` crate's `hetcomm::config::parse_str` does), so it sees every kind compiled in.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -41,6 +43,56 @@ pub trait KindSpec: Send + Sync {
     /// locates them) and return None when there was one; the loader then keeps the transport
     /// as defined but without settings, so the table does not report it again.
     fn parse(&self, settings: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings>;
+
+    /// The systems a transport of this kind has an address for, when the kind needs one for
+    /// every system it carries (`udp`'s `endpoints`): the loader then reports each system at
+    /// an end of a table pair that has none, in the kind's words. The default, None, is for
+    /// kinds that need no address per system (a broker, a master, a shared segment).
+    fn addresses(&self, settings: &RegisteredSettings) -> Option<Addresses> {
+        let _ = settings;
+        None
+    }
+
+    /// The settings of the transport a legacy table's default letter stands for when the
+    /// fleet defines no transport of that name (`R`: `ros1` on the default master; `B`:
+    /// `bluetooth` with the addresses of the thesis's address file; see
+    /// [`crate::load_legacy`]). The default, None, is for kinds no legacy letter names.
+    fn implicit(&self, legacy: &LegacyFiles<'_>) -> Option<RegisteredSettings> {
+        let _ = legacy;
+        None
+    }
+}
+
+/// What the thesis's files give the transport of a default letter ([`KindSpec::implicit`]).
+#[derive(Clone, Copy, Debug)]
+pub struct LegacyFiles<'a> {
+    /// The Bluetooth address file's addresses (Tables 3, 8, 18), and the file's name as
+    /// errors give it; None when no such file was given.
+    pub bluetooth: Option<(&'a BTreeMap<hetcomm_core::SystemId, crate::BdAddr>, &'a str)>,
+}
+
+/// What [`KindSpec::addresses`] tells the loader: which systems a transport can address and
+/// how to tell a user to add one.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Addresses {
+    /// The systems the transport has an address for.
+    pub systems: BTreeSet<hetcomm_core::SystemId>,
+    /// What one address is called in the error, e.g. "endpoint".
+    pub what: &'static str,
+    /// How to add one, with `{system}` standing for the system's name, `{id}` for its number
+    /// and `{transport}` for the transport's name, e.g. "add `{system} = \"host:port\"` to
+    /// `endpoints` of transport `{transport}`".
+    pub help: String,
+}
+
+impl Addresses {
+    /// The help for `system` (named `name`) on transport `transport`.
+    pub fn help_for(&self, system: hetcomm_core::SystemId, name: &str, transport: &str) -> String {
+        self.help
+            .replace("{system}", name)
+            .replace("{id}", &system.0.to_string())
+            .replace("{transport}", transport)
+    }
 }
 
 /// The kinds a program knows beyond the built-in ones: one [`KindSpec`] per kind.
@@ -52,14 +104,7 @@ pub struct Kinds {
 }
 
 /// Kinds whose settings the loader models itself; a spec for one of them is never consulted.
-pub(crate) const MODELLED: [TransportKind; 6] = [
-    TransportKind::Inproc,
-    TransportKind::Udp,
-    TransportKind::Tcp,
-    TransportKind::Ros1,
-    TransportKind::Bluetooth,
-    TransportKind::Emulated,
-];
+pub(crate) const MODELLED: [TransportKind; 2] = [TransportKind::Inproc, TransportKind::Emulated];
 
 impl Kinds {
     /// Only the built-in kinds.
@@ -67,9 +112,9 @@ impl Kinds {
         Kinds::default()
     }
 
-    /// Adds a kind's spec, replacing an earlier one of the same kind. A spec for `zenoh`,
-    /// `mqtt` or `dds` replaces their raw keys; a spec for a kind the loader models itself
-    /// (`inproc`, `udp`, `tcp`, `ros1`, `bluetooth`, `emulated`) is ignored.
+    /// Adds a kind's spec, replacing an earlier one of the same kind. A spec for a built-in
+    /// name (`udp`, `zenoh`, …) replaces its raw keys; a spec for a kind the loader models
+    /// itself (`inproc`, `emulated`) is ignored.
     pub fn add(&mut self, spec: Arc<dyn KindSpec>) {
         self.specs.insert(spec.kind(), spec);
     }
@@ -173,22 +218,21 @@ mod tests {
     #[test]
     fn a_spec_for_a_modelled_kind_is_ignored_and_new_names_are_listed_last() {
         let mut kinds = Kinds::new();
-        kinds.add(Arc::new(Broker(TransportKind::Udp)));
+        kinds.add(Arc::new(Broker(TransportKind::Emulated)));
         kinds.add(Arc::new(Broker(TransportKind::new("ros2"))));
-        assert!(kinds.spec(TransportKind::Udp).is_none());
+        assert!(kinds.spec(TransportKind::Emulated).is_none());
         assert_eq!(TransportKind::new("udp"), TransportKind::Udp);
         assert_eq!(
             kinds.names().join(", "),
             "inproc, udp, tcp, ros1, bluetooth, zenoh, mqtt, dds, emulated, ros2"
         );
-        // udp keeps its own keys and errors.
-        let errors = crate::parse_str_with(&fleet("udp", "broker = \"b\""), "u.toml", None, &kinds)
-            .unwrap_err()
-            .to_string();
+        // emulated keeps its own keys and errors.
+        let errors =
+            crate::parse_str_with(&fleet("emulated", "broker = \"b\""), "u.toml", None, &kinds)
+                .unwrap_err()
+                .to_string();
         assert!(
-            errors.starts_with(
-                "u.toml:4:1: transport `t` (kind udp) is missing required setting `endpoints`"
-            ),
+            errors.starts_with("u.toml:6:1: unknown key `broker` in `transports.t`"),
             "{errors}"
         );
         let errors = crate::parse_str_with(&fleet("ros3", ""), "r.toml", None, &kinds)

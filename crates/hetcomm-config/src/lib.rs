@@ -72,11 +72,10 @@ mod table;
 use std::path::Path;
 use std::rc::Rc;
 
-pub use assemble::default_master_uri;
 pub use error::{ConfigError, ConfigErrors};
 pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
 pub use keys::{apply_keys_dir, insecure, KEY_LEN};
-pub use kinds::{KindSpec, Kinds, SettingsReader};
+pub use kinds::{Addresses, KindSpec, Kinds, LegacyFiles, SettingsReader};
 pub use model::*;
 
 use crate::assemble::{LegacyBt, ModSpec, Parts, SysSpec, Systems, DEFAULT_MODULES};
@@ -154,13 +153,24 @@ pub fn parse_str_with(
 
 /// Loads the thesis's files alone: the id file (Tables 1, 6, 16), the communication table
 /// (Tables 2, 7, 17) and optionally the Bluetooth address file (Tables 3, 8, 18). Letters keep
-/// their thesis meanings: `R` is ROS 1 (master from `ROS_MASTER_URI`, else
-/// `http://localhost:11311`) and `B` is Bluetooth with the given addresses; modules are the
-/// defaults (Sense = 0, Plan = 1, Act = 2, World = 3) with default inboxes.
+/// their thesis meanings: `R` is ROS 1 (with the `ros1` kind's crate among `kinds`: master
+/// from `ROS_MASTER_URI`, else `http://localhost:11311`) and `B` is Bluetooth with the given
+/// addresses; modules are the defaults (Sense = 0, Plan = 1, Act = 2, World = 3) with default
+/// inboxes.
 pub fn load_legacy(
     ids: &Path,
     table: &Path,
     bluetooth: Option<&Path>,
+) -> Result<Fleet, ConfigErrors> {
+    load_legacy_with(ids, table, bluetooth, &Kinds::new())
+}
+
+/// [`load_legacy`], knowing the kinds in `kinds` besides the built-in ones.
+pub fn load_legacy_with(
+    ids: &Path,
+    table: &Path,
+    bluetooth: Option<&Path>,
+    kinds: &Kinds,
 ) -> Result<Fleet, ConfigErrors> {
     let mut diag = Diag::default();
     let ids_name: Rc<str> = Rc::from(ids.display().to_string());
@@ -233,6 +243,7 @@ pub fn load_legacy(
             b_help: "give the Bluetooth addresses in a third file (the Table 3 format): \
                      `hetcomm validate --ids … --table … --bluetooth bt.txt`",
         },
+        kinds,
         diag,
     )
 }

@@ -260,19 +260,24 @@ pub const DEFAULT_MAX_IN_FLIGHT_BYTES: usize = 2 << 20;
 pub enum TransportSettings {
     /// `inproc`: none.
     Inproc,
-    /// `udp` / `tcp`: where each system listens.
-    Ip(IpSettings),
-    /// `ros1`.
-    Ros1(Ros1Settings),
-    /// `bluetooth`.
-    Bluetooth(BluetoothSettings),
     /// `emulated`.
     Emulated(EmulatedSettings),
-    /// Kinds whose settings are not modelled yet (`zenoh`, `mqtt`, `dds`): the raw keys,
-    /// stringified.
+    /// A kind known by name whose crate is not compiled into this program (or, loaded
+    /// without the program's kinds, any kind but the two above): the raw keys, stringified.
     Raw(BTreeMap<String, String>),
     /// A kind registered by a link crate: the settings its [`crate::kinds::KindSpec`] parsed.
     Registered(RegisteredSettings),
+}
+
+impl TransportSettings {
+    /// The settings of a registered kind as the type its [`crate::kinds::KindSpec`] built;
+    /// None for another type, or for settings the loader models itself.
+    pub fn registered<T: KindSettings>(&self) -> Option<&T> {
+        match self {
+            TransportSettings::Registered(s) => s.downcast_ref(),
+            _ => None,
+        }
+    }
 }
 
 /// The typed settings of a registered kind, as its [`crate::kinds::KindSpec`] built them. The
@@ -326,31 +331,9 @@ where
     }
 }
 
-/// Settings of `udp` and `tcp` transports.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct IpSettings {
-    /// Each system's listening endpoint, `host:port` (port 0: pick a free port).
-    pub endpoints: BTreeMap<SystemId, String>,
-    /// Largest message accepted for sending, bytes (None: the codec's limit).
-    pub max_message_bytes: Option<usize>,
-    /// `tcp` only: most inbound connections a system's listener keeps open at once; further
-    /// ones are refused and counted (None: the link's default, 256).
-    pub max_connections: Option<usize>,
-}
-
-/// Settings of a `ros1` transport.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Ros1Settings {
-    /// The master's XML-RPC URI, e.g. `http://127.0.0.1:11311`.
-    pub master_uri: String,
-    /// Optional topic namespace prepended to each system's topic.
-    pub namespace: Option<String>,
-    /// `connect_timeout_ms`: how long a send waits for the destination's subscriber to connect
-    /// to a new publisher (None: the link's default, 500 ms).
-    pub connect_timeout_ms: Option<u64>,
-}
-
-/// A Bluetooth device address, `XX:XX:XX:XX:XX:XX`.
+/// A Bluetooth device address, `XX:XX:XX:XX:XX:XX`, as fleet files and the thesis's address
+/// files write it (read by [`crate::SettingsReader::bluetooth_addresses`] for the `bluetooth`
+/// kind's crate).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct BdAddr(pub [u8; 6]);
 
@@ -363,15 +346,6 @@ impl std::fmt::Display for BdAddr {
             b[0], b[1], b[2], b[3], b[4], b[5]
         )
     }
-}
-
-/// Settings of a `bluetooth` transport.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct BluetoothSettings {
-    /// RFCOMM channel (1–30).
-    pub channel: u8,
-    /// Each system's adapter address.
-    pub addresses: BTreeMap<SystemId, BdAddr>,
 }
 
 /// Settings of an `emulated` transport: a built-in profile, overridden key by key. The model

@@ -10,8 +10,9 @@ use std::rc::Rc;
 use hetcomm_core::SystemId;
 use rustc_hash::{FxHashMap, FxHashSet};
 
-use crate::assemble::{default_master_uri, AddrSource, Label, LegacyBt, Systems, TransportSpec};
+use crate::assemble::{Label, LegacyBt, Systems, TransportSpec};
 use crate::error::{Diag, Loc};
+use crate::kinds::{Kinds, LegacyFiles};
 use crate::model::*;
 use crate::{names, suggest};
 
@@ -110,6 +111,15 @@ impl RawTable {
     }
 }
 
+/// What the default letters stand for when no transport of their name is defined: `R` is a
+/// `ros1` transport (settings from its kind's spec among `kinds`), `B` a `bluetooth` one with
+/// the legacy Bluetooth file's addresses (and how to give them when there are none).
+pub(crate) struct DefaultLetters<'a> {
+    pub legacy_bt: Option<&'a LegacyBt>,
+    pub b_help: &'static str,
+    pub kinds: &'a Kinds,
+}
+
 /// The table's pairs: each (source, destination) with its first transport, in file order,
 /// and the pairs whose cell lists more than one transport with the ones after the first.
 pub(crate) type TablePairs = (
@@ -128,10 +138,14 @@ pub(crate) fn table_pairs(
     letter_map: &BTreeMap<u8, (usize, Loc)>,
     transports: &mut Vec<TransportSpec>,
     tag_of: &mut Vec<Option<u8>>,
-    // The legacy Bluetooth file's addresses for the implicit `B`, and how to give them.
-    (legacy_bt, b_help): (Option<&LegacyBt>, &'static str),
+    defaults: DefaultLetters<'_>,
     diag: &mut Diag,
 ) -> TablePairs {
+    let DefaultLetters {
+        legacy_bt,
+        b_help,
+        kinds,
+    } = defaults;
     let cols: Vec<Option<SystemId>> = table
         .columns
         .iter()
@@ -269,6 +283,7 @@ pub(crate) fn table_pairs(
                         implicit: &mut implicit,
                         legacy_bt,
                         b_missing: &mut b_missing,
+                        kinds,
                         diag,
                     };
                     let resolved_now = resolve_list(table.text(cell), &table.loc(cell), &mut cx);
@@ -372,27 +387,8 @@ impl AddressCheck {
                     continue;
                 }
                 let sname = systems.name(sys);
-                let (what, help) = match &t.settings {
-                    Some(TransportSettings::Bluetooth(_)) => (
-                        "Bluetooth address",
-                        match &t.addr_source {
-                            AddrSource::File(f) => {
-                                format!("add a line `{} XX:XX:XX:XX:XX:XX` to {f}", sys.0)
-                            }
-                            AddrSource::Inline => format!(
-                                "add `{sname} = \"XX:XX:XX:XX:XX:XX\"` to `addresses` of transport `{}`",
-                                t.name
-                            ),
-                        },
-                    ),
-                    _ => (
-                        "endpoint",
-                        format!(
-                            "add `{sname} = \"host:port\"` to `endpoints` of transport `{}`",
-                            t.name
-                        ),
-                    ),
-                };
+                let Some(book) = &t.addresses else { continue };
+                let (what, help) = (book.what, book.help_for(sys, sname, &t.name));
                 diag.err_help(
                     &loc,
                     format!(
@@ -428,11 +424,7 @@ fn chain(first: usize, transports: &[TransportSpec]) -> Vec<usize> {
 
 /// Whether a transport has an endpoint / address for `sys`; None for kinds that need none.
 fn has_address(t: &TransportSpec, sys: SystemId) -> Option<bool> {
-    match &t.settings {
-        Some(TransportSettings::Ip(ip)) => Some(ip.endpoints.contains_key(&sys)),
-        Some(TransportSettings::Bluetooth(bt)) => Some(bt.addresses.contains_key(&sys)),
-        _ => None,
-    }
+    t.addresses.as_ref().map(|book| book.systems.contains(&sys))
 }
 
 /// "Letter B needs Bluetooth addresses", said once per table, with the loader's help.
@@ -450,6 +442,8 @@ struct CellContext<'a, 'b> {
     implicit: &'a mut HashMap<&'static str, usize>,
     legacy_bt: Option<&'b LegacyBt>,
     b_missing: &'a mut BMissing,
+    /// The registered kinds, for the settings of the implicit `R` and `B`.
+    kinds: &'a Kinds,
     diag: &'a mut Diag,
 }
 
@@ -510,6 +504,7 @@ fn resolve_cell(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<u
         implicit,
         legacy_bt,
         b_missing,
+        kinds,
         diag,
     } = cx;
     let legacy_bt = *legacy_bt;
@@ -556,34 +551,34 @@ fn resolve_cell(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<u
     if let Some(&i) = implicit.get(key) {
         return Some(i);
     }
-    let settings = if key == "R" {
-        TransportSettings::Ros1(Ros1Settings {
-            master_uri: default_master_uri(),
-            namespace: None,
-            connect_timeout_ms: None,
-        })
-    } else {
-        let Some(bt) = legacy_bt else {
-            if !b_missing.reported {
-                b_missing.reported = true;
-                diag.err_help(
-                    loc,
-                    "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
-                    b_missing.help,
-                );
-            }
-            return None;
-        };
-        TransportSettings::Bluetooth(BluetoothSettings {
-            channel: 1,
-            addresses: bt.addresses.clone(),
-        })
-    };
     let kind = if key == "R" {
         TransportKind::Ros1
     } else {
         TransportKind::Bluetooth
     };
+    if key == "B" && legacy_bt.is_none() {
+        if !b_missing.reported {
+            b_missing.reported = true;
+            diag.err_help(
+                loc,
+                "letter `B` means a Bluetooth transport, which needs Bluetooth addresses, but none are given",
+                b_missing.help,
+            );
+        }
+        return None;
+    }
+    // The kinds' settings are their crates': without the crate compiled in, the transport is
+    // known by name only (opening it says how to build it in), as a fleet file's would be.
+    let legacy = LegacyFiles {
+        bluetooth: legacy_bt.map(|bt| (&bt.addresses, &*bt.file)),
+    };
+    let mut addresses = None;
+    let settings = kinds.spec(kind).and_then(|spec| {
+        let settings = spec.implicit(&legacy)?;
+        addresses = spec.addresses(&settings);
+        Some(TransportSettings::Registered(settings))
+    });
+    let settings = settings.unwrap_or_else(|| TransportSettings::Raw(BTreeMap::new()));
     transports.push(TransportSpec {
         name: key.to_string(),
         name_loc: loc.clone(),
@@ -598,10 +593,7 @@ fn resolve_cell(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<u
         security: SecurityMode::Keys,
         settings: Some(settings),
         over: None,
-        addr_source: match legacy_bt {
-            Some(bt) => AddrSource::File(bt.file.clone()),
-            None => AddrSource::Inline,
-        },
+        addresses,
     });
     tag_of.push(Some(key.as_bytes()[0]));
     let i = transports.len() - 1;

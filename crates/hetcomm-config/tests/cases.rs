@@ -5,6 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+use common::load;
+
 fn toml_files(dir: &str) -> Vec<PathBuf> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap_or_else(|e| panic!("cannot list {dir}: {e}"))
@@ -32,7 +35,7 @@ fn invalid_cases_fail_with_their_pinned_messages() {
     for f in &files {
         let want = expected(f);
         assert!(!want.is_empty(), "{} has no `# expect:` line", f.display());
-        match hetcomm_config::load(f) {
+        match load(f) {
             Ok(_) => failures.push(format!("{}: loaded, expected an error", f.display())),
             Err(e) => {
                 let got = e.to_string();
@@ -53,7 +56,7 @@ fn valid_cases_load() {
     let files = toml_files("tests/cases/valid");
     assert!(files.len() >= 3, "only {} valid cases", files.len());
     for f in &files {
-        if let Err(e) = hetcomm_config::load(f) {
+        if let Err(e) = load(f) {
             panic!("{} should load:\n{e}", f.display());
         }
     }

@@ -5,6 +5,9 @@ use std::path::Path;
 
 use hetcomm_config::*;
 
+mod common;
+use common::{load, load_legacy, parse_str};
+
 #[test]
 fn all_errors_are_collected_and_sorted_by_position() {
     let text = "\

@@ -3,9 +3,11 @@
 //! what to fix, on both of the loader's ways of reading `[table]` (the fast scan of a plain
 //! table and the ordinary one).
 
-use hetcomm_config::parse_str;
 use hetcomm_config::scenario::{TapKind, TapSpec};
 use hetcomm_core::MessageType;
+
+mod common;
+use common::parse_str;
 
 /// A fleet whose `[table]` the fast scanner reads (plain rows); Tango hosts only Plan.
 const FLEET: &str = r#"[systems]

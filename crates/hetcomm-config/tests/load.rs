@@ -6,6 +6,12 @@ use std::time::Duration;
 
 use hetcomm_config::*;
 use hetcomm_core::{ModuleId, SystemId};
+use hetcomm_link_bluetooth::BluetoothSettings;
+use hetcomm_link_ip::IpSettings;
+use hetcomm_link_ros1::Ros1Settings;
+
+mod common;
+use common::{load, load_legacy, parse_str};
 
 fn fixture(name: &str) -> std::path::PathBuf {
     Path::new("tests/fixtures").join(name)
@@ -69,8 +75,8 @@ fn tables_1_2_3_load() {
     let r = f.transport("R").expect("implicit R");
     assert_eq!((r.kind, r.tag, r.attempts), (TransportKind::Ros1, b'R', 3));
     assert_eq!(
-        r.settings,
-        TransportSettings::Ros1(Ros1Settings {
+        r.settings.registered(),
+        Some(&Ros1Settings {
             master_uri: expected_master(),
             namespace: None,
             connect_timeout_ms: None
@@ -81,7 +87,7 @@ fn tables_1_2_3_load() {
         (b.kind, b.tag, b.delivery),
         (TransportKind::Bluetooth, b'B', DeliveryMode::Acknowledged)
     );
-    let TransportSettings::Bluetooth(bt) = &b.settings else {
+    let Some(bt) = b.settings.registered::<BluetoothSettings>() else {
         panic!("not bluetooth")
     };
     assert_eq!(bt.channel, 1);
@@ -139,7 +145,12 @@ fn tables_16_17_18_load_with_crlf_and_lower_case_addresses() {
     );
     assert_eq!(pairs_of(&f, "B"), [(0, 2), (1, 0), (2, 1)]);
     assert_eq!(pairs_of(&f, "R"), [(0, 1), (1, 2), (2, 0)]);
-    let TransportSettings::Bluetooth(bt) = &f.transport("B").expect("B").settings else {
+    let Some(bt) = f
+        .transport("B")
+        .expect("B")
+        .settings
+        .registered::<BluetoothSettings>()
+    else {
         panic!()
     };
     assert_eq!(
@@ -180,8 +191,8 @@ fn legacy_section_with_explicit_ros_transport() {
     let ros = f.transport("ros").expect("ros");
     assert_eq!(ros.tag, b'R');
     assert_eq!(
-        ros.settings,
-        TransportSettings::Ros1(Ros1Settings {
+        ros.settings.registered(),
+        Some(&Ros1Settings {
             master_uri: "http://10.0.0.1:11311".into(),
             namespace: Some("/reliability".into()),
             connect_timeout_ms: None
@@ -262,16 +273,14 @@ fn every_key_reaches_the_model() {
         (b'w', DeliveryMode::Unacknowledged, 1, 64)
     );
     assert_eq!(f.transports[1].max_in_flight, DEFAULT_MAX_IN_FLIGHT);
-    let TransportSettings::Ip(ip) = &f.transports[1].settings else {
-        panic!()
-    };
+    let ip: &IpSettings = f.transports[1].settings.registered().expect("udp settings");
     assert_eq!(ip.endpoints[&SystemId(7)], "10.0.0.7:7402");
     assert_eq!(ip.endpoints[&SystemId(1)], "[::1]:7401");
     assert_eq!(ip.max_message_bytes, None);
     assert_eq!(f.transports[2].tag, b'R');
     let radio = f.transport("radio").expect("radio");
     assert_eq!(radio.tag, b'B', "named by [letters] B");
-    let TransportSettings::Bluetooth(bt) = &radio.settings else {
+    let Some(bt) = radio.settings.registered::<BluetoothSettings>() else {
         panic!()
     };
     assert_eq!(bt.channel, 3);

@@ -1,8 +1,10 @@
 //! Big fleets validate, and what they validate to is right. How fast, and in how much memory,
 //! is measured by `hetcomm-bench --only config` (`benchmarks/run.sh`), not here.
 
-use hetcomm_config::*;
 use hetcomm_core::SystemId;
+
+mod common;
+use common::parse_str;
 
 fn fleet(n: usize, table: bool) -> String {
     hetcomm_config::synthetic::scale_fleet_text(n, table)

@@ -2,7 +2,10 @@
 //! `file:line:column` with what is wrong, all of them in one pass.
 
 use hetcomm_config::scenario::{parse_scenario, FaultEffect, TapKind, TapSpec};
-use hetcomm_config::{parse_str, Fleet};
+use hetcomm_config::Fleet;
+
+mod common;
+use common::parse_str;
 
 fn fleet() -> Fleet {
     parse_str(

@@ -9,6 +9,9 @@ use std::path::{Path, PathBuf};
 use hetcomm_config::*;
 use hetcomm_core::SystemId;
 
+mod common;
+use common::{load, parse_str};
+
 /// `AAECAwQFBgcICQoLDA0ODxAREhMUFRYXGBkaGxwdHh8=`, in `tests/keys/good/Alpha.pub`.
 const ALPHA: [u8; 32] = {
     let mut k = [0; 32];
@@ -493,11 +496,11 @@ fn in_process_security_is_read_and_checked() {
             "[systems]\nA = 0\nB = 1\n[modules]\nM = 0\n[transports.t]\nkind = \"inproc\"\n[table]\ncolumns = [\"A\", \"B\"]\nA = [\"X\", \"t\"]\nB = [\"t\", \"X\"]\n[security]\nin_process = {v}\n"
         )
     };
-    let fleet = hetcomm_config::parse_str(&text("true"), "f.toml", None).unwrap();
+    let fleet = parse_str(&text("true"), "f.toml", None).unwrap();
     assert!(fleet.secure_in_process);
-    let fleet = hetcomm_config::parse_str(&text("false"), "f.toml", None).unwrap();
+    let fleet = parse_str(&text("false"), "f.toml", None).unwrap();
     assert!(!fleet.secure_in_process);
-    let err = hetcomm_config::parse_str(&text("\"yes\""), "f.toml", None)
+    let err = parse_str(&text("\"yes\""), "f.toml", None)
         .unwrap_err()
         .to_string();
     assert!(

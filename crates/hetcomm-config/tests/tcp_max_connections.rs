@@ -1,7 +1,10 @@
 //! The `tcp` transport's `max_connections` key (issue 20): parsed into the model, checked
 //! for range, and refused on `udp`, where it means nothing.
 
-use hetcomm_config::*;
+use hetcomm_link_ip::IpSettings;
+
+mod common;
+use common::parse_str;
 
 fn fleet(kind: &str, extra: &str) -> String {
     format!(
@@ -20,9 +23,9 @@ endpoints = {{ Alpha = \"127.0.0.1:7400\", Bravo = \"127.0.0.1:7401\" }}
 
 fn ip_settings(text: &str) -> IpSettings {
     let f = parse_str(text, "tcp.toml", None).expect("valid fleet");
-    match &f.transports[0].settings {
-        TransportSettings::Ip(ip) => ip.clone(),
-        other => panic!("not ip settings: {other:?}"),
+    match f.transports[0].settings.registered::<IpSettings>() {
+        Some(ip) => ip.clone(),
+        None => panic!("not ip settings: {:?}", f.transports[0].settings),
     }
 }
 

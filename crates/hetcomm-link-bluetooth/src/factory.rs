@@ -1,12 +1,13 @@
 //! The `bluetooth` transport factory: how the runtime opens a fleet's `bluetooth` transport.
-//! Its settings (`channel`, `addresses`, `addresses_file`) are read by the fleet loader itself
-//! ([`BluetoothSettings`]: the legacy Table 3 files name them too), so it only opens.
+//! Its settings (`channel`, `addresses`, `addresses_file`: [`BluetoothSettings`]) are read by
+//! its spec in [`crate::settings`].
 
 use std::sync::Arc;
 
-use hetcomm_config::{BluetoothSettings, TransportKind, TransportSettings};
+use hetcomm_config::{KindSpec, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
+use crate::settings::BluetoothSettings;
 use crate::BluetoothLink;
 
 /// Opens `bluetooth` transports as RFCOMM [`BluetoothLink`]s.
@@ -17,10 +18,14 @@ impl TransportFactory for BluetoothFactory {
         TransportKind::Bluetooth
     }
 
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
+    }
+
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let bt: &BluetoothSettings = match &request.transport.settings {
-            TransportSettings::Bluetooth(bt) => bt,
-            other => return Err(format!("expected bluetooth settings, found {other:?}").into()),
+        let settings = &request.transport.settings;
+        let Some(bt) = settings.registered::<BluetoothSettings>() else {
+            return Err(format!("expected bluetooth settings, found {settings:?}").into());
         };
         let config = BluetoothLink::default_config();
         let link = BluetoothLink::open(request.local, bt, request.sink, config)?;

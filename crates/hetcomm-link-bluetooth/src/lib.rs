@@ -53,10 +53,9 @@
 //!
 //! ```
 //! use std::collections::BTreeMap;
-//! use hetcomm_config::{BdAddr, BluetoothSettings};
 //! use hetcomm_core::SystemId;
 //! use hetcomm_link::conformance::CollectSink;
-//! use hetcomm_link_bluetooth::{BluetoothLink, OpenError};
+//! use hetcomm_link_bluetooth::{BdAddr, BluetoothLink, BluetoothSettings, OpenError};
 //!
 //! let settings = BluetoothSettings {
 //!     channel: 1,
@@ -64,6 +63,7 @@
 //!         (SystemId(1), BdAddr([0x68, 0xA3, 0xC4, 0x4A, 0xB3, 0xBA])),
 //!         (SystemId(2), BdAddr([0xE4, 0xB3, 0x18, 0x09, 0x09, 0x06])),
 //!     ]),
+//!     addresses_file: None,
 //! };
 //! let config = BluetoothLink::default_config();
 //! match BluetoothLink::open(SystemId(1), &settings, CollectSink::new(), config) {
@@ -74,6 +74,7 @@
 //! ```
 
 pub mod factory;
+pub mod settings;
 pub mod socket;
 
 /// Registers the `bluetooth` transport factory ([`factory::BluetoothFactory`]).
@@ -86,12 +87,13 @@ use std::io;
 use std::sync::Arc;
 use std::time::Duration;
 
-use hetcomm_config::{BdAddr, BluetoothSettings};
+pub use hetcomm_config::BdAddr;
 use hetcomm_core::SystemId;
 use hetcomm_link::FrameSink;
 use hetcomm_link_ip::stream::{
     IdentityMode, StreamConfig, StreamLink, StreamStats, StreamTransport,
 };
+pub use settings::BluetoothSettings;
 use socket2::SockAddr;
 
 pub use socket::{AddressFamily, Rfcomm, RfcommListener, RfcommStream};

@@ -3,10 +3,10 @@
 
 use std::time::{Duration, Instant};
 
-use hetcomm_config::{BdAddr, BluetoothSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::CollectSink;
 use hetcomm_link_bluetooth::{validate, BluetoothLink, OpenError, Rfcomm};
+use hetcomm_link_bluetooth::{BdAddr, BluetoothSettings};
 
 const CHARLIE: BdAddr = BdAddr([0x68, 0xA3, 0xC4, 0x4A, 0xB3, 0xBA]);
 const TANGO: BdAddr = BdAddr([0xE4, 0xB3, 0x18, 0x09, 0x09, 0x06]);
@@ -15,6 +15,7 @@ fn table8(channel: u8) -> BluetoothSettings {
     BluetoothSettings {
         channel,
         addresses: [(SystemId(1), CHARLIE), (SystemId(2), TANGO)].into(),
+        addresses_file: None,
     }
 }
 

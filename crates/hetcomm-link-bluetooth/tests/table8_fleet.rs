@@ -4,14 +4,19 @@
 
 use std::path::Path;
 
-use hetcomm_config::{BdAddr, TransportKind, TransportSettings};
+use hetcomm_config::TransportKind;
 use hetcomm_core::SystemId;
-use hetcomm_link_bluetooth::validate;
+use hetcomm_link::registry::Registry;
+use hetcomm_link_bluetooth::{validate, BdAddr, BluetoothSettings};
 
 #[test]
 fn table8_fleet_file_loads_and_maps_b_to_bluetooth() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/table8-fleet.toml");
-    let fleet = match hetcomm_config::load(&path) {
+    // Loaded as a program with this kind compiled in loads it.
+    let mut registry = Registry::new();
+    hetcomm_link_ip::register_transports(&mut registry);
+    hetcomm_link_bluetooth::register_transports(&mut registry);
+    let fleet = match hetcomm_config::load_with(&path, registry.kinds()) {
         Ok(f) => f,
         Err(e) => panic!("{e}"),
     };
@@ -43,7 +48,7 @@ fn table8_fleet_file_loads_and_maps_b_to_bluetooth() {
     assert_eq!(fleet.table.len(), 10, "Table 7 has ten non-X cells");
 
     // Table 8's addresses, on the default channel.
-    let TransportSettings::Bluetooth(settings) = &bt.settings else {
+    let Some(settings) = bt.settings.registered::<BluetoothSettings>() else {
         panic!(
             "bluetooth transport without bluetooth settings: {:?}",
             bt.settings

@@ -1,12 +1,15 @@
 //! The `udp` and `tcp` transport factories: how the runtime opens a fleet's `udp` or `tcp`
-//! transport. Their settings (`endpoints`, `max_message_bytes`, `max_connections`) are read
-//! by the fleet loader itself ([`IpSettings`]), so these factories only open.
+//! transport. Their settings (`endpoints`, `max_message_bytes`, `max_connections`:
+//! [`IpSettings`]) are read by their spec in [`crate::settings`].
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use hetcomm_core::SystemId;
-use hetcomm_link::registry::config::{IpSettings, TransportKind, TransportSettings};
+use hetcomm_link::registry::config::{KindSpec, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
+
+use crate::settings::{IpSettings, IpSpec};
 
 use crate::stream::StreamConfig;
 use crate::{TcpLink, UdpConfig, UdpLink};
@@ -18,15 +21,19 @@ pub struct UdpFactory;
 pub struct TcpFactory;
 
 fn ip_settings<'a>(request: &OpenRequest<'a>) -> Result<&'a IpSettings, String> {
-    match &request.transport.settings {
-        TransportSettings::Ip(ip) => Ok(ip),
-        other => Err(format!("expected udp/tcp settings, found {other:?}")),
-    }
+    let settings = &request.transport.settings;
+    settings
+        .registered()
+        .ok_or_else(|| format!("expected udp/tcp settings, found {settings:?}"))
 }
 
 impl TransportFactory for UdpFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Udp
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(Arc::new(IpSpec(TransportKind::Udp)))
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
@@ -55,6 +62,10 @@ impl TransportFactory for UdpFactory {
 impl TransportFactory for TcpFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Tcp
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(Arc::new(IpSpec(TransportKind::Tcp)))
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {

@@ -41,6 +41,7 @@
 
 mod common;
 pub mod factory;
+pub mod settings;
 pub mod stream;
 pub mod tcp;
 pub mod udp;
@@ -48,6 +49,7 @@ pub mod udp;
 pub mod unix;
 
 pub use common::WriteBehind;
+pub use settings::IpSettings;
 pub use tcp::TcpLink;
 pub use udp::{UdpConfig, UdpLink};
 #[cfg(unix)]

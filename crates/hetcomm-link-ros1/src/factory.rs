@@ -1,12 +1,13 @@
 //! The `ros1` transport factory: how the runtime opens a fleet's `ros1` transport. Its
-//! settings (`master_uri`, `namespace`) are read by the fleet loader itself ([`Ros1Settings`]:
-//! the legacy table's `R` names it too), so it only opens.
+//! settings (`master_uri`, `namespace`, `connect_timeout_ms`: [`Ros1Settings`]) are read by
+//! its spec in [`crate::settings`].
 
 use std::sync::Arc;
 
-use hetcomm_config::{Ros1Settings, TransportKind, TransportSettings};
+use hetcomm_config::{KindSpec, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
+use crate::settings::Ros1Settings;
 use crate::{Ros1Config, Ros1Link};
 
 /// Opens `ros1` transports as [`Ros1Link`]s through the transport's ROS master.
@@ -17,10 +18,14 @@ impl TransportFactory for Ros1Factory {
         TransportKind::Ros1
     }
 
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
+    }
+
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let ros: &Ros1Settings = match &request.transport.settings {
-            TransportSettings::Ros1(ros) => ros,
-            other => return Err(format!("expected ros1 settings, found {other:?}").into()),
+        let settings = &request.transport.settings;
+        let Some(ros) = settings.registered::<Ros1Settings>() else {
+            return Err(format!("expected ros1 settings, found {settings:?}").into());
         };
         let names = request
             .fleet

@@ -115,7 +115,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm_config::Ros1Settings;
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkEvent, LinkStats, Peer};
 use roslibrust::ros1::{MasterClient, NodeHandle, Publisher, Subscriber};
@@ -123,6 +122,9 @@ use tokio::sync::{mpsc, oneshot};
 
 pub mod bridge;
 pub mod factory;
+pub mod settings;
+
+pub use settings::{default_master_uri, Ros1Settings};
 
 /// Registers the `ros1` transport factory ([`factory::Ros1Factory`]) and the `ros1_bridge`
 /// kind ([`bridge::Ros1BridgeFactory`]).

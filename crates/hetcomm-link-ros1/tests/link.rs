@@ -9,10 +9,10 @@ use std::sync::{Arc, Condvar, Mutex, Weak};
 use std::time::{Duration, Instant};
 
 use common::Master;
-use hetcomm_config::Ros1Settings;
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::{self, CollectSink, Harness, Layered};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
+use hetcomm_link_ros1::Ros1Settings;
 use hetcomm_link_ros1::{MasterState, OpenError, Ros1Config, Ros1Link};
 
 const WAIT: Duration = Duration::from_secs(15);

@@ -11,9 +11,9 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use common::Master;
-use hetcomm_config::Ros1Settings;
 use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkEvent, Peer};
+use hetcomm_link_ros1::Ros1Settings;
 use hetcomm_link_ros1::{Ros1Config, Ros1Link};
 
 const A: SystemId = SystemId(1);

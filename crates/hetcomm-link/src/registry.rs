@@ -134,10 +134,10 @@ pub trait TransportFactory: Send + Sync {
     /// The kind it opens.
     fn kind(&self) -> TransportKind;
 
-    /// The kind's settings half, for a kind the fleet loader does not model itself. A
-    /// factory usually implements [`KindSpec`] too and returns itself here (see
-    /// [`Registry::register`]). The default, None, is for `udp`, `tcp`, `ros1` and
-    /// `bluetooth`, whose settings the loader reads.
+    /// The kind's settings half, for a kind the fleet loader does not model itself (every kind
+    /// but `inproc` and `emulated`). A factory usually implements [`KindSpec`] too and returns
+    /// itself here (see [`Registry::register`]). The default, None, is for a kind without
+    /// settings of its own.
     fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
         None
     }

@@ -86,9 +86,52 @@ pub use hetcomm_derive::Message;
 pub use hetcomm_link::{LinkStats, SecurityStats};
 pub use hetcomm_router::{FailReason, Outcome, RouterStats, SendId};
 
-/// The fleet file: loading, validation and the validated model.
+/// The fleet file: loading, validation and the validated model. The loaders here know every
+/// transport kind compiled into this program (its registry, `hetcomm::transports`), so a
+/// `udp` or `ros1` transport's settings are read and checked as the kind's crate says;
+/// `hetcomm_config`'s own loaders know only the kinds that crate models itself.
 pub mod config {
     pub use hetcomm_config::*;
+    /// The settings of `bluetooth` transports (their crate's, `hetcomm-link-bluetooth`).
+    #[cfg(feature = "bluetooth")]
+    pub use hetcomm_link_bluetooth::BluetoothSettings;
+    /// The settings of `udp` and `tcp` transports (their crate's, `hetcomm-link-ip`).
+    pub use hetcomm_link_ip::IpSettings;
+    /// The settings of `ros1` transports (their crate's, `hetcomm-link-ros1`).
+    #[cfg(feature = "ros1")]
+    pub use hetcomm_link_ros1::Ros1Settings;
+
+    use std::path::Path;
+
+    /// Reads and validates the fleet file at `path` with every kind compiled in (see
+    /// `hetcomm_config::load`).
+    pub fn load(path: &Path) -> Result<Fleet, ConfigErrors> {
+        crate::transports::load_fleet(path)
+    }
+
+    /// Validates fleet-file text with every kind compiled in (see `hetcomm_config::parse_str`).
+    pub fn parse_str(
+        text: &str,
+        origin: &str,
+        base_dir: Option<&Path>,
+    ) -> Result<Fleet, ConfigErrors> {
+        crate::transports::parse_fleet(text, origin, base_dir)
+    }
+
+    /// Loads the thesis's files alone with every kind compiled in (see
+    /// `hetcomm_config::load_legacy`): `R` is a `ros1` transport when that kind is built in.
+    pub fn load_legacy(
+        ids: &Path,
+        table: &Path,
+        bluetooth: Option<&Path>,
+    ) -> Result<Fleet, ConfigErrors> {
+        hetcomm_config::load_legacy_with(
+            ids,
+            table,
+            bluetooth,
+            crate::transports::registry().kinds(),
+        )
+    }
 }
 
 /// Links: the transport trait, the in-process link and the conformance suite.

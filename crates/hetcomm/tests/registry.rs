@@ -33,7 +33,7 @@ fn the_registry_holds_the_kinds_built_in() {
 }
 
 #[test]
-fn a_fleet_loads_with_the_built_in_kinds_as_the_loader_alone_reads_it() {
+fn a_fleet_loads_with_the_kinds_compiled_in_and_the_loader_alone_keeps_theirs_raw() {
     let text = r#"[systems]
 Alpha = 0
 Bravo = 1
@@ -47,15 +47,40 @@ columns = ["Alpha", "Bravo"]
 Alpha = ["X", "lan"]
 Bravo = ["lan", "X"]
 "#;
+    // `hetcomm::config`'s loaders are the registry's.
     let with_registry = hetcomm::parse_fleet(text, "f.toml", None).expect("valid");
-    let alone = hetcomm::config::parse_str(text, "f.toml", None).expect("valid");
-    assert_eq!(with_registry, alone);
+    let through_config = hetcomm::config::parse_str(text, "f.toml", None).expect("valid");
+    assert_eq!(with_registry, through_config);
+    let ip: &hetcomm::config::IpSettings = with_registry.transports[0]
+        .settings
+        .registered()
+        .expect("udp's settings, read by its crate's spec");
+    assert_eq!(ip.endpoints.len(), 2);
+    // The loader alone knows udp by name only: its keys are kept raw.
+    let alone = hetcomm_config::parse_str(text, "f.toml", None).expect("valid");
+    assert!(
+        matches!(
+            &alone.transports[0].settings,
+            hetcomm::config::TransportSettings::Raw(keys) if keys.contains_key("endpoints")
+        ),
+        "{:?}",
+        alone.transports[0].settings
+    );
+    // A kind the loader models itself reads the same either way.
+    let inproc = text.replace("\"udp\"", "\"inproc\"").replace(
+        "endpoints = { Alpha = \"127.0.0.1:0\", Bravo = \"127.0.0.1:0\" }\n",
+        "",
+    );
+    assert_eq!(
+        hetcomm::parse_fleet(&inproc, "f.toml", None).expect("valid"),
+        hetcomm_config::parse_str(&inproc, "f.toml", None).expect("valid")
+    );
 
     let bad = text.replace("udp", "udpp");
     let with_registry = hetcomm::parse_fleet(&bad, "f.toml", None)
         .unwrap_err()
         .to_string();
-    let alone = hetcomm::config::parse_str(&bad, "f.toml", None)
+    let alone = hetcomm_config::parse_str(&bad, "f.toml", None)
         .unwrap_err()
         .to_string();
     // The same error; the registry's help also names the kinds of link crates (compiled in

@@ -26,8 +26,8 @@ use rustc_hash::FxHashMap;
 use toml_edit::{ImDocument, Item, TableLike, Value};
 
 use crate::assemble::{
-    self, AddrSource, BtLine, Label, LegacyBt, LetterSpec, ModSpec, Parts, RawTable, SysSpec,
-    Systems, TransportSpec, DEFAULT_MODULES,
+    self, BtLine, Label, LegacyBt, LetterSpec, ModSpec, Parts, RawTable, SysSpec, Systems,
+    TransportSpec, DEFAULT_MODULES,
 };
 use crate::error::{ConfigErrors, Diag, LineIndex, Loc};
 use crate::kinds::Kinds;
@@ -78,14 +78,6 @@ pub(crate) const COMMON_KEYS: [&str; 9] = [
     "batch_linger_us",
     "security",
 ];
-/// Keys of `udp` / `tcp` transports besides the common ones.
-pub(crate) const IP_KEYS: [&str; 2] = ["endpoints", "max_message_bytes"];
-/// Keys of `tcp` transports besides the common ones.
-pub(crate) const TCP_KEYS: [&str; 3] = ["endpoints", "max_message_bytes", "max_connections"];
-/// Keys of `ros1` transports besides the common ones.
-pub(crate) const ROS1_KEYS: [&str; 3] = ["master_uri", "namespace", "connect_timeout_ms"];
-/// Keys of `bluetooth` transports besides the common ones.
-pub(crate) const BLUETOOTH_KEYS: [&str; 3] = ["channel", "addresses", "addresses_file"];
 /// Non-numeric keys of `emulated` transports besides the common ones.
 pub(crate) const EMULATED_KEYS: [&str; 3] = ["profile", "over", "seed"];
 /// Numeric model parameters an `emulated` transport accepts (kept in
@@ -218,7 +210,7 @@ fn parse_with(
                     endpoints_seen: FxHashMap::default(),
                 };
                 let parts = p.walk(root, source, Some(scanned.table));
-                let fleet = assemble::finish(parts, p.diag);
+                let fleet = assemble::finish(parts, kinds, p.diag);
                 return (with_taps(fleet, root, &scanned.rest, origin), true);
             }
         }
@@ -256,7 +248,7 @@ fn parse_with(
         }
     };
     let parts = p.walk(doc.as_table(), source, None);
-    let fleet = assemble::finish(parts, p.diag);
+    let fleet = assemble::finish(parts, kinds, p.diag);
     (with_taps(fleet, doc.as_table(), text, origin), false)
 }
 

@@ -3,6 +3,7 @@
 //! kinds' errors.
 
 use super::*;
+use hetcomm_core::SystemId;
 
 /// One transport's table, as a registered kind's [`crate::kinds::KindSpec::parse`] reads it.
 /// Every read reports a problem at the `file:line:column` of the value (or of the transport's
@@ -149,13 +150,50 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
     /// `key = { System = "host:port", … }`, checked as `udp` and `tcp` endpoints are: known
     /// systems, well-formed `host:port`, and no two systems of this kind on one address and
     /// port (port 0 excepted).
-    pub fn endpoints(&mut self, key: &str) -> Option<BTreeMap<hetcomm_core::SystemId, String>> {
+    pub fn endpoints(&mut self, key: &str) -> Option<BTreeMap<SystemId, String>> {
         let v = self.t.get(key)?;
         let path = format!("{}.{key}", self.path);
         Some(
             self.p
                 .endpoints(v, &path, &self.tloc, (self.name, self.kind), self.systems),
         )
+    }
+
+    /// `key = { System = "XX:XX:XX:XX:XX:XX", … }`: each system's Bluetooth device address,
+    /// checked as the thesis's address files are: known systems, well-formed addresses, one
+    /// per system, none used twice.
+    pub fn bluetooth_addresses(&mut self, key: &str) -> Option<BTreeMap<SystemId, BdAddr>> {
+        let v = self.t.get(key)?;
+        let path = format!("{}.{key}", self.path);
+        Some(self.p.addresses(v, &path, &self.tloc, self.systems))
+    }
+
+    /// `key = "bt.txt"`: a file of Bluetooth device addresses in the thesis's Table 3 format
+    /// (`<id> <address>` per line), relative to the fleet file, checked as
+    /// [`bluetooth_addresses`](Self::bluetooth_addresses) are; with the file's name as errors
+    /// give it. None when the key is absent or not a string; a file that cannot be read is
+    /// reported and gives no addresses.
+    pub fn bluetooth_address_file(
+        &mut self,
+        key: &str,
+    ) -> Option<(BTreeMap<SystemId, BdAddr>, String)> {
+        let (v, vl, path) = self.item(key)?;
+        let help = "write a path in quotes, relative to the fleet file";
+        let written = self.p.string(v, &path, &vl, help)?;
+        let file = self.path(written);
+        let lp = LegacyPath {
+            display: Rc::from(file.display().to_string()),
+            path: file,
+            loc: vl,
+        };
+        let addresses = match self.p.read_legacy(&lp) {
+            Some(text) => {
+                let lines = legacy::parse_bluetooth(&lp.display, &text, &mut self.p.diag);
+                assemble::bt_addresses(lines, self.systems, &lp.display, &mut self.p.diag)
+            }
+            None => BTreeMap::new(),
+        };
+        Some((addresses, lp.display.to_string()))
     }
 
     /// Reports a required key that is absent, at the transport's table, as the built-in kinds

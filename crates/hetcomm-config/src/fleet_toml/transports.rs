@@ -1,7 +1,7 @@
-//! `[transports.<name>]`: the keys every kind shares, and the settings of `udp`, `tcp`,
-//! `ros1`, `bluetooth` and the raw kinds (`emulated` is in `emulation.rs`). A kind registered
-//! by a link crate (`crate::kinds::KindSpec`) reads its own keys through a
-//! [`SettingsReader`] handed out here, after its unknown keys were reported.
+//! `[transports.<name>]`: the keys every kind shares, and the raw keys of a kind without a
+//! spec (`emulated`'s settings are in `emulation.rs`). A kind registered by a link crate
+//! (`crate::kinds::KindSpec`: `udp`, `tcp`, `ros1`, `bluetooth`, …) reads its own keys
+//! through a [`SettingsReader`] handed out here, after its unknown keys were reported.
 
 use super::*;
 
@@ -191,7 +191,7 @@ impl P<'_> {
             security,
             settings: None,
             over: None,
-            addr_source: AddrSource::Inline,
+            addresses: None,
         };
         let Some(kind) = kind else {
             return Some(spec); // kind already reported; its keys cannot be judged
@@ -209,18 +209,14 @@ impl P<'_> {
                 SettingsReader::new(self, t, (path.clone(), tloc.clone()), (name, kind), systems);
             let settings = registered.parse(&mut reader);
             if self.diag.errors.len() == errors_before {
+                spec.addresses = settings.as_ref().and_then(|s| registered.addresses(s));
                 spec.settings = settings.map(TransportSettings::Registered);
             }
             return Some(spec);
         }
         let extra: &[&str] = match kind {
-            TransportKind::Inproc => &[],
-            TransportKind::Udp => &IP_KEYS,
-            TransportKind::Tcp => &TCP_KEYS,
-            TransportKind::Ros1 => &ROS1_KEYS,
-            TransportKind::Bluetooth => &BLUETOOTH_KEYS,
             TransportKind::Emulated => &EMULATED_KEYS,
-            _ => &[], // zenoh, mqtt, dds: kept raw
+            _ => &[], // inproc has none; the others without a spec are kept raw
         };
         let raw_kind = !crate::kinds::MODELLED.contains(&kind);
         if !raw_kind {
@@ -232,170 +228,9 @@ impl P<'_> {
         }
         let settings = match kind {
             TransportKind::Inproc => TransportSettings::Inproc,
-            TransportKind::Udp | TransportKind::Tcp => {
-                let endpoints = match t.get("endpoints") {
-                    None => {
-                        self.diag.err_help(
-                            &tloc,
-                            format!("transport `{name}` (kind {kind}) is missing required setting `endpoints`"),
-                            "add `endpoints = { Alpha = \"127.0.0.1:7400\", … }`: one \"host:port\" per system it carries",
-                        );
-                        BTreeMap::new()
-                    }
-                    Some(v) => self.endpoints(
-                        v,
-                        &format!("{path}.endpoints"),
-                        &tloc,
-                        (&spec.name, kind),
-                        systems,
-                    ),
-                };
-                let max_message_bytes = t.get("max_message_bytes").and_then(|v| {
-                    let vl = self.vloc(v, &tloc);
-                    self.int_in(
-                        v,
-                        &format!("{path}.max_message_bytes"),
-                        &vl,
-                        1,
-                        i64::MAX,
-                        "a size in bytes, e.g. 1048576",
-                    )
-                    .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
-                });
-                let max_connections = t.get("max_connections").and_then(|v| {
-                    let vl = self.vloc(v, &tloc);
-                    let help = "a number of connections, e.g. 256";
-                    let n =
-                        self.int_in(v, &format!("{path}.max_connections"), &vl, 1, 1 << 20, help);
-                    n.map(|n| n as usize)
-                });
-                TransportSettings::Ip(IpSettings {
-                    endpoints,
-                    max_message_bytes,
-                    max_connections,
-                })
-            }
-            TransportKind::Ros1 => {
-                let master_uri = match t.get("master_uri") {
-                    None => assemble::default_master_uri(),
-                    Some(v) => {
-                        let vl = self.vloc(v, &tloc);
-                        let help =
-                            "write the master's XML-RPC URI, e.g. \"http://127.0.0.1:11311\"";
-                        let s = self
-                            .string(v, &format!("{path}.master_uri"), &vl, help)
-                            .unwrap_or_default();
-                        if !(s.starts_with("http://") || s.starts_with("https://")) && v.is_str() {
-                            self.diag.err_help(
-                                &vl,
-                                format!("`{path}.master_uri` must be an http:// URI, found `{s}`"),
-                                help,
-                            );
-                        }
-                        s.to_string()
-                    }
-                };
-                let namespace = t.get("namespace").and_then(|v| {
-                    let vl = self.vloc(v, &tloc);
-                    self.string(
-                        v,
-                        &format!("{path}.namespace"),
-                        &vl,
-                        "write a ROS namespace in quotes, e.g. \"/hetcomm\"",
-                    )
-                    .map(str::to_string)
-                });
-                let connect_timeout_ms = t.get("connect_timeout_ms").and_then(|v| {
-                    let (vl, p) = (self.vloc(v, &tloc), format!("{path}.connect_timeout_ms"));
-                    let help = "milliseconds a send waits for the subscriber, e.g. 500";
-                    self.int_in(v, &p, &vl, 1, 600_000, help)
-                        .map(|ms| ms as u64)
-                });
-                TransportSettings::Ros1(Ros1Settings {
-                    master_uri,
-                    namespace,
-                    connect_timeout_ms,
-                })
-            }
-            TransportKind::Bluetooth => {
-                let channel = t.get("channel").map_or(1, |v| {
-                    let vl = self.vloc(v, &tloc);
-                    self.int_in(
-                        v,
-                        &format!("{path}.channel"),
-                        &vl,
-                        1,
-                        30,
-                        "RFCOMM channels are 1 to 30",
-                    )
-                    .map_or(1, |c| u8::try_from(c).unwrap_or(1))
-                });
-                let addresses = match (t.get("addresses"), t.get("addresses_file")) {
-                    (Some(_), Some(f)) => {
-                        let fl = self.vloc(f, &tloc);
-                        self.diag.err_help(
-                            &fl,
-                            format!("transport `{name}` has both `addresses` and `addresses_file`"),
-                            "keep one of them",
-                        );
-                        BTreeMap::new()
-                    }
-                    (Some(a), None) => {
-                        self.addresses(a, &format!("{path}.addresses"), &tloc, systems)
-                    }
-                    (None, Some(f)) => {
-                        let fl = self.vloc(f, &tloc);
-                        match self.string(
-                            f,
-                            &format!("{path}.addresses_file"),
-                            &fl,
-                            "write a path in quotes, relative to the fleet file",
-                        ) {
-                            Some(s) => {
-                                let p = match self.base_dir {
-                                    Some(d) => d.join(s),
-                                    None => PathBuf::from(s),
-                                };
-                                let lp = LegacyPath {
-                                    display: Rc::from(p.display().to_string()),
-                                    path: p,
-                                    loc: fl,
-                                };
-                                spec.addr_source = AddrSource::File(lp.display.clone());
-                                match self.read_legacy(&lp) {
-                                    Some(text) => {
-                                        let lines = legacy::parse_bluetooth(
-                                            &lp.display,
-                                            &text,
-                                            &mut self.diag,
-                                        );
-                                        assemble::bt_addresses(
-                                            lines,
-                                            systems,
-                                            &lp.display,
-                                            &mut self.diag,
-                                        )
-                                    }
-                                    None => BTreeMap::new(),
-                                }
-                            }
-                            None => BTreeMap::new(),
-                        }
-                    }
-                    (None, None) => {
-                        self.diag.err_help(
-                            &tloc,
-                            format!("transport `{name}` (kind bluetooth) is missing required setting `addresses`"),
-                            "add `addresses = { Alpha = \"68:A3:C4:4A:B3:BA\", … }`, or `addresses_file = \"bt.txt\"` in the Table 3 format",
-                        );
-                        BTreeMap::new()
-                    }
-                };
-                TransportSettings::Bluetooth(BluetoothSettings { channel, addresses })
-            }
             TransportKind::Emulated => self.emulated(t, &path, &tloc, &mut spec),
             _ => {
-                // zenoh, mqtt, dds without a registered spec.
+                // A kind without a registered spec (not compiled into this program).
                 let raw = t
                     .iter()
                     .filter(|(k, _)| !COMMON_KEYS.contains(k))

@@ -7,7 +7,9 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm::config::{Fleet, TransportDef, TransportKind, TransportSettings};
+use hetcomm::config::{
+    Fleet, IpSettings, RegisteredSettings, TransportDef, TransportKind, TransportSettings,
+};
 use hetcomm::sim::{SimFleet, SimOptions};
 use hetcomm::{Comm, LocalFleet, MessageType, Module, RawMessage, SendOptions, SystemId, Time};
 
@@ -91,7 +93,7 @@ fn assign_free_ports(fleet: &mut Fleet) -> Result<Vec<String>, ExperimentError> 
         .collect();
     for t in &mut fleet.transports {
         let udp = t.kind == TransportKind::Udp;
-        let TransportSettings::Ip(ip) = &mut t.settings else {
+        let Some(mut ip) = t.settings.registered::<IpSettings>().cloned() else {
             continue;
         };
         for (id, endpoint) in ip.endpoints.iter_mut() {
@@ -125,6 +127,7 @@ fn assign_free_ports(fleet: &mut Fleet) -> Result<Vec<String>, ExperimentError> 
                 names.get(id).map(String::as_str).unwrap_or("?")
             ));
         }
+        t.settings = TransportSettings::Registered(RegisteredSettings::new(ip));
     }
     Ok(notes)
 }

@@ -16,11 +16,11 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hetcomm_config::{BdAddr, BluetoothSettings};
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::Harness;
 use hetcomm_link::{FrameSink, Link};
 use hetcomm_link_bluetooth::{AddressFamily, BluetoothLink};
+use hetcomm_link_bluetooth::{BdAddr, BluetoothSettings};
 use hetcomm_link_ip::stream::StreamConfig;
 use socket2::{Domain, SockAddr, Socket, Type};
 
@@ -153,6 +153,7 @@ pub fn settings(channel: u8, addresses: &[(SystemId, BdAddr)]) -> BluetoothSetti
     BluetoothSettings {
         channel,
         addresses: addresses.iter().copied().collect::<BTreeMap<_, _>>(),
+        addresses_file: None,
     }
 }
 

@@ -74,7 +74,7 @@ pub fn parse(s: &mut SettingsReader<'_, '_>) -> Option<BridgeSettings> {
             }
             uri
         }
-        false => hetcomm_config::default_master_uri(),
+        false => crate::default_master_uri(),
     };
     let mut connect_timeout_ms = DEFAULT_CONNECT_TIMEOUT_MS;
     let mut ok = true;
