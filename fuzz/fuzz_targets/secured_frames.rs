@@ -36,7 +36,6 @@
 #![no_main]
 
 #[path = "common/mod.rs"]
-#[allow(dead_code)]
 mod common;
 
 use std::collections::{HashMap, HashSet, VecDeque};

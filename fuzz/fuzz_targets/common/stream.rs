@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 use std::io::{self, Read, Write};
 use std::marker::PhantomData;
-use std::os::fd::AsRawFd;
+use std::os::fd::AsFd;
 use std::os::unix::net::UnixStream;
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
@@ -288,8 +288,8 @@ impl StreamSocket for UnixSocket {
     fn set_read_timeout(&self, t: Option<Duration>) -> io::Result<()> {
         self.0.set_read_timeout(t)
     }
-    fn raw_fd(&self) -> Option<std::os::fd::RawFd> {
-        Some(self.0.as_raw_fd())
+    fn raw_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
+        Some(self.0.as_fd())
     }
     fn set_nonblocking(&self, on: bool) -> io::Result<()> {
         self.0.set_nonblocking(on)
