@@ -440,7 +440,10 @@ fn run(command: Command) -> anyhow::Result<ExitCode> {
                     // One line per transport. A kind's settings are read by its crate: one not
                     // compiled in is known by name only, and its line says so rather than
                     // letting "ok" claim more was checked than was.
-                    for (line, t) in fleet.security_lines().iter().zip(&fleet.transports) {
+                    for (line, t) in hetcomm::security_lines(&fleet)
+                        .iter()
+                        .zip(&fleet.transports)
+                    {
                         match hetcomm::registry().feature_for(t.kind) {
                             Some(feature) => println!(
                                 "  {line}; not compiled into this build, so its own settings \

@@ -224,8 +224,28 @@ impl Fleet {
 
     /// One line per transport, in file order, on its security: whether it is secured and
     /// whether every system it carries (sends or receives on it, by the table) has a public
-    /// key. What `hetcomm validate` prints after the summary.
+    /// key; judged by this crate alone ([`Fleet::leaves_process`], which knows no kind
+    /// registered by a link crate). A program that opens links says it as its registry
+    /// decides (`hetcomm::security_lines`, what `hetcomm validate` prints), through
+    /// [`Fleet::security_lines_with`].
     pub fn security_lines(&self) -> Vec<String> {
+        self.security_lines_with(|i| {
+            let t = &self.transports[i];
+            match self.leaves_process(t) {
+                true => Protection {
+                    reach: Reach::Network,
+                    sealed: t.security == SecurityMode::Keys,
+                },
+                false => Protection {
+                    reach: Reach::Process,
+                    sealed: false,
+                },
+            }
+        })
+    }
+
+    /// [`Fleet::security_lines`], with what protects each transport (by index) as `of` says.
+    pub fn security_lines_with(&self, of: impl Fn(usize) -> Protection) -> Vec<String> {
         let mut carried: Vec<BTreeSet<SystemId>> = vec![BTreeSet::new(); self.transports.len()];
         for (src, dst, i) in self.table_entries() {
             if let Some(set) = carried.get_mut(i) {
@@ -236,22 +256,37 @@ impl Fleet {
         self.transports
             .iter()
             .zip(carried)
-            .map(|(t, systems)| {
+            .enumerate()
+            .map(|(i, (t, systems))| {
                 let head = format!("transport `{}` ({})", t.name, t.kind);
-                let state = match (t.security, self.leaves_process(t)) {
-                    (SecurityMode::None, true) => {
+                let Protection { reach, sealed } = of(i);
+                let state = match (sealed, t.security, reach) {
+                    (true, _, _) => "secured",
+                    (false, SecurityMode::None, Reach::Network) => {
                         return format!(
                             "{head}: NOT SECURED (security = \"none\"): anyone who can reach \
                              it can pose as any system"
                         )
                     }
-                    (SecurityMode::None, false) => {
+                    (false, SecurityMode::None, Reach::Process) => {
                         return format!("{head}: in-process, not secured (security = \"none\")")
                     }
-                    (SecurityMode::Keys, false) => {
+                    (false, SecurityMode::None, Reach::Host) => {
+                        return format!("{head}: on this host, not secured (security = \"none\")")
+                    }
+                    (false, SecurityMode::Keys, Reach::Process) => {
                         return format!("{head}: in-process: frames never leave the process")
                     }
-                    (SecurityMode::Keys, true) => "secured",
+                    (false, SecurityMode::Keys, Reach::Host) => {
+                        return format!(
+                            "{head}: host-local, not sealed: frames never leave this host and \
+                             the operating system's permissions guard them (`[security] \
+                             in_process = true` seals them)"
+                        )
+                    }
+                    (false, SecurityMode::Keys, Reach::Network) => {
+                        return format!("{head}: NOT SECURED although it leaves the process")
+                    }
                 };
                 if systems.is_empty() {
                     return format!("{head}: {state}; carries no traffic");
@@ -281,4 +316,25 @@ impl Fleet {
             })
             .collect()
     }
+}
+
+/// Where a transport's frames can go, for [`Fleet::security_lines_with`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reach {
+    /// They stay in the process (`inproc`, a private `emulated` link).
+    Process,
+    /// They stay on this host (shared memory).
+    Host,
+    /// They cross a network.
+    Network,
+}
+
+/// What protects a transport's frames, for [`Fleet::security_lines_with`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Protection {
+    /// Where its frames can go.
+    pub reach: Reach,
+    /// Whether a security layer seals them (its own, or that of the transport it is layered
+    /// over).
+    pub sealed: bool,
 }

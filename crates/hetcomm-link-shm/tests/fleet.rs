@@ -90,6 +90,14 @@ fn send(comm: &Comm, i: u8) -> Outcome {
 fn shm_is_unsealed_by_default_and_delivers() {
     let name = common::unique_fleet("facade");
     let fleet = hetcomm::parse_fleet(&fleet_text(&name, "", ""), "s.toml", None).unwrap();
+    // What `hetcomm validate` says of it: not "secured" (the config crate alone would say so).
+    assert_eq!(
+        hetcomm::security_lines(&fleet),
+        [
+            "transport `s` (shm): host-local, not sealed: frames never leave this host and the \
+          operating system's permissions guard them (`[security] in_process = true` seals them)"
+        ]
+    );
     let a = Comm::open_fleet(&fleet, "A").expect("open A without keys");
     let b = Comm::open_fleet(&fleet, "B").expect("open B without keys");
     for i in 0..5 {
@@ -118,6 +126,11 @@ fn in_process_security_seals_shm() {
     let text = fleet_text(&name, "", "[security]\nin_process = true");
     let mut fleet = hetcomm::parse_fleet(&text, "s.toml", None).unwrap();
     assert!(fleet.secure_in_process);
+    assert!(
+        hetcomm::security_lines(&fleet)[0].starts_with("transport `s` (shm): secured; "),
+        "{:?}",
+        hetcomm::security_lines(&fleet)
+    );
     let refused = Comm::open_fleet(&fleet, "A")
         .err()
         .expect("no key: refused");

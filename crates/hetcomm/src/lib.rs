@@ -73,7 +73,7 @@ pub use observe::{Observer, ObserverHandle};
 pub use received::{Envelope, RawMessage, Received};
 pub use reload::{describe_reload, Reload, ReloadError};
 pub use runtime::{Clock, SystemClock};
-pub use security::OpenOptions;
+pub use security::{security_lines, OpenOptions};
 pub use switches::PathWatch;
 pub use ticket::{BroadcastTicket, Ticket};
 pub use transports::{load_fleet, parse_fleet, registry};

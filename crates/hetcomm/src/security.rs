@@ -16,7 +16,7 @@ use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use hetcomm_config::{Fleet, SecurityMode};
+use hetcomm_config::{Fleet, Protection, Reach, SecurityMode};
 use hetcomm_core::SystemId;
 use hetcomm_link::layer::LinkLayer;
 use hetcomm_security::{Handshakes, Policy, SecurityLayer, SimSessions};
@@ -91,6 +91,40 @@ pub(crate) fn secured(fleet: &Fleet, index: usize, simulated: bool) -> bool {
                 .is_some_and(|i| secured(fleet, i, true));
     }
     registry.leaves_process(t.kind) && !registry.host_local(t.kind)
+}
+
+/// One line per transport of `fleet`, in file order, on what protects its frames when this
+/// program opens it: sealed or not as [`secured`] decides for a real-time run (a transport
+/// layered over another travels on that one's link, and its line says that one's
+/// protection), where the frames can go (the registry's `leaves_process` and `host_local`),
+/// and which systems it carries lack a public key. What `hetcomm validate` prints; the
+/// config crate's own `Fleet::security_lines` knows no kind registered by a link crate (it
+/// would call `shm` secured).
+pub fn security_lines(fleet: &Fleet) -> Vec<String> {
+    let registry = crate::transports::registry();
+    fleet.security_lines_with(|index| {
+        // The transport whose link the frames travel on (the loader rejects loops; the bound
+        // is for safety).
+        let mut link = index;
+        for _ in 0..fleet.transports.len() {
+            match registry.over(fleet, &fleet.transports[link]) {
+                Some(next) => link = next,
+                None => break,
+            }
+        }
+        let kind = fleet.transports[link].kind;
+        let reach = if registry.host_local(kind) {
+            Reach::Host
+        } else if registry.leaves_process(kind) {
+            Reach::Network
+        } else {
+            Reach::Process
+        };
+        Protection {
+            reach,
+            sealed: secured(fleet, link, false),
+        }
+    })
 }
 
 /// The transports whose traffic a link of transport `index` carries: itself, and every

@@ -1,0 +1,66 @@
+//! `hetcomm::security_lines`, what `hetcomm validate` prints: each transport's protection as
+//! this program opens it (the registry's answer), not as the config crate alone would guess.
+
+fn fleet(extra: &str) -> hetcomm::config::Fleet {
+    let text = format!(
+        r#"[systems]
+A = 0
+B = 1
+
+[transports.w]
+kind = "inproc"
+
+[transports.e]
+kind = "emulated"
+over = "u"
+profile = "wifi"
+
+[transports.u]
+kind = "udp"
+endpoints = {{ A = "127.0.0.1:0", B = "127.0.0.1:0" }}
+
+[transports.open]
+kind = "tcp"
+security = "none"
+endpoints = {{ A = "127.0.0.1:0", B = "127.0.0.1:0" }}
+
+[table]
+columns = ["A", "B"]
+A = ["X", "w"]
+B = ["e", "X"]
+{extra}"#
+    );
+    hetcomm::parse_fleet(&text, "f.toml", None).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn each_transport_line_says_what_protects_it_where_it_is_opened() {
+    let f = fleet("");
+    assert_eq!(
+        hetcomm::security_lines(&f),
+        [
+            "transport `w` (inproc): in-process: frames never leave the process",
+            // An emulated transport over `u` travels on `u`'s sealed link.
+            "transport `e` (emulated): secured; 2 of the 2 systems it carries have no public key: A, B",
+            "transport `u` (udp): secured; carries no traffic",
+            "transport `open` (tcp): NOT SECURED (security = \"none\"): anyone who can reach it can pose as any system",
+        ]
+    );
+    // The config crate's own lines agree where it knows the kinds.
+    assert_eq!(hetcomm::security_lines(&f), f.security_lines());
+}
+
+#[test]
+fn in_process_security_makes_in_process_lines_secured() {
+    let f = fleet("\n[security]\nin_process = true\n");
+    let lines = hetcomm::security_lines(&f);
+    assert_eq!(
+        lines[0],
+        "transport `w` (inproc): secured; 2 of the 2 systems it carries have no public key: A, B"
+    );
+    // The config crate alone does not know that `inproc` is then sealed.
+    assert_eq!(
+        f.security_lines()[0],
+        "transport `w` (inproc): in-process: frames never leave the process"
+    );
+}
