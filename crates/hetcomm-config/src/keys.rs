@@ -235,10 +235,12 @@ impl Fleet {
                 true => Protection {
                     reach: Reach::Network,
                     sealed: t.security == SecurityMode::Keys,
+                    carries: Vec::new(),
                 },
                 false => Protection {
                     reach: Reach::Process,
                     sealed: false,
+                    carries: Vec::new(),
                 },
             }
         })
@@ -246,20 +248,31 @@ impl Fleet {
 
     /// [`Fleet::security_lines`], with what protects each transport (by index) as `of` says.
     pub fn security_lines_with(&self, of: impl Fn(usize) -> Protection) -> Vec<String> {
-        let mut carried: Vec<BTreeSet<SystemId>> = vec![BTreeSet::new(); self.transports.len()];
+        let mut by_table: Vec<BTreeSet<SystemId>> = vec![BTreeSet::new(); self.transports.len()];
         for (src, dst, i) in self.table_entries() {
-            if let Some(set) = carried.get_mut(i) {
+            if let Some(set) = by_table.get_mut(i) {
                 set.insert(src);
                 set.insert(dst);
             }
         }
         self.transports
             .iter()
-            .zip(carried)
             .enumerate()
-            .map(|(i, (t, systems))| {
+            .map(|(i, t)| {
                 let head = format!("transport `{}` ({})", t.name, t.kind);
-                let Protection { reach, sealed } = of(i);
+                let Protection {
+                    reach,
+                    sealed,
+                    carries,
+                } = of(i);
+                // The systems whose frames this transport's link carries: its own pairs', and
+                // those of the transports whose frames travel on it.
+                let systems: BTreeSet<SystemId> = std::iter::once(i)
+                    .chain(carries)
+                    .filter_map(|j| by_table.get(j))
+                    .flatten()
+                    .copied()
+                    .collect();
                 let state = match (sealed, t.security, reach) {
                     (true, _, _) => "secured",
                     (false, SecurityMode::None, Reach::Network) => {
@@ -330,11 +343,14 @@ pub enum Reach {
 }
 
 /// What protects a transport's frames, for [`Fleet::security_lines_with`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Protection {
     /// Where its frames can go.
     pub reach: Reach,
     /// Whether a security layer seals them (its own, or that of the transport it is layered
     /// over).
     pub sealed: bool,
+    /// The other transports (by index) whose frames travel on this one's link, so that the
+    /// systems of their pairs need keys here too (an `emulated` transport over this one).
+    pub carries: Vec<usize>,
 }

@@ -97,7 +97,8 @@ pub(crate) fn secured(fleet: &Fleet, index: usize, simulated: bool) -> bool {
 /// program opens it: sealed or not as [`secured`] decides for a real-time run (a transport
 /// layered over another travels on that one's link, and its line says that one's
 /// protection), where the frames can go (the registry's `leaves_process` and `host_local`),
-/// and which systems it carries lack a public key. What `hetcomm validate` prints; the
+/// and which systems whose frames its link carries (its pairs', and those of the transports
+/// layered over it) lack a public key. What `hetcomm validate` prints; the
 /// config crate's own `Fleet::security_lines` knows no kind registered by a link crate (it
 /// would call `shm` secured).
 pub fn security_lines(fleet: &Fleet) -> Vec<String> {
@@ -120,9 +121,15 @@ pub fn security_lines(fleet: &Fleet) -> Vec<String> {
         } else {
             Reach::Process
         };
+        let mut carries: Vec<usize> = carried(fleet, index)
+            .into_iter()
+            .filter(|&other| other != index)
+            .collect();
+        carries.sort_unstable();
         Protection {
             reach,
             sealed: secured(fleet, link, false),
+            carries,
         }
     })
 }
