@@ -2,9 +2,9 @@
 //!
 //! The fleet loader knows the keys of the kinds it models itself (`inproc`, which has none,
 //! and `emulated`, whose `over` the loader follows; their settings are in [`crate::model`]).
-//! Every other kind, `udp`, `tcp`, `ros1` and `bluetooth` included, is described by a [`KindSpec`], written in the kind's own crate: its name,
-//! its keys, a `parse` function and what the table check needs to know of its settings
-//! ([`KindSpec::addresses`]). A program collects the specs of the kinds compiled into it in a
+//! Every other kind, `udp`, `tcp`, `ros1` and `bluetooth` included, is described by a
+//! [`KindSpec`], written in the kind's own crate: its name, its keys, a `parse` function and
+//! what the table check needs to know of its settings ([`KindSpec::addresses`]). A program collects the specs of the kinds compiled into it in a
 //! [`Kinds`] table (the `hetcomm` crate does this from its transport registry, one line per
 //! kind) and passes it to [`crate::load_with`] / [`crate::parse_str_with`].
 //!
