@@ -298,7 +298,11 @@ impl Fleet {
                         )
                     }
                     (false, SecurityMode::Keys, Reach::Network) => {
-                        return format!("{head}: NOT SECURED although it leaves the process")
+                        // Only a transport layered over one that says `security = "none"`.
+                        return format!(
+                            "{head}: NOT SECURED: its frames travel on a transport with \
+                             `security = \"none\"`"
+                        )
                     }
                 };
                 if systems.is_empty() {

@@ -69,3 +69,36 @@ fn in_process_security_makes_in_process_lines_secured() {
         "transport `w` (inproc): in-process: frames never leave the process"
     );
 }
+
+#[test]
+fn a_layered_transport_over_an_unsecured_one_is_said_not_secured() {
+    let text = r#"[systems]
+A = 0
+B = 1
+
+[transports.e]
+kind = "emulated"
+over = "t"
+profile = "wifi"
+
+[transports.t]
+kind = "tcp"
+security = "none"
+endpoints = { A = "127.0.0.1:0", B = "127.0.0.1:0" }
+
+[table]
+columns = ["A", "B"]
+A = ["X", "e"]
+B = ["e", "X"]
+"#;
+    let f = hetcomm::parse_fleet(text, "f.toml", None).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(
+        hetcomm::security_lines(&f),
+        [
+            "transport `e` (emulated): NOT SECURED: its frames travel on a transport with \
+             `security = \"none\"`",
+            "transport `t` (tcp): NOT SECURED (security = \"none\"): anyone who can reach it can \
+             pose as any system",
+        ]
+    );
+}
