@@ -23,10 +23,7 @@ impl TransportFactory for BluetoothFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let settings = &request.transport.settings;
-        let Some(bt) = settings.registered::<BluetoothSettings>() else {
-            return Err(format!("expected bluetooth settings, found {settings:?}").into());
-        };
+        let bt: &BluetoothSettings = request.settings()?;
         let config = BluetoothLink::default_config();
         let link = BluetoothLink::open(request.local, bt, request.sink, config)?;
         let local_address = Some(format!("rfcomm://[{}]:{}", link.device(), link.channel()));

@@ -20,13 +20,6 @@ pub struct UdpFactory;
 /// Opens `tcp` transports as [`TcpLink`]s read by the runtime's reactor (`driven`).
 pub struct TcpFactory;
 
-fn ip_settings<'a>(request: &OpenRequest<'a>) -> Result<&'a IpSettings, String> {
-    let settings = &request.transport.settings;
-    settings
-        .registered()
-        .ok_or_else(|| format!("expected udp/tcp settings, found {settings:?}"))
-}
-
 impl TransportFactory for UdpFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Udp
@@ -37,7 +30,7 @@ impl TransportFactory for UdpFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let ip = ip_settings(&request)?;
+        let ip: &IpSettings = request.settings()?;
         let mut config = if all_loopback(&ip.endpoints) {
             // Loopback has a 64 KiB MTU: fewer, larger datagrams.
             UdpConfig::loopback()
@@ -69,7 +62,7 @@ impl TransportFactory for TcpFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let ip = ip_settings(&request)?;
+        let ip: &IpSettings = request.settings()?;
         // Read by the waiting module (or the system's background thread), as UDP is.
         let mut config = StreamConfig {
             driven: true,

@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use hetcomm_config::TransportSettings;
 use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
@@ -308,23 +307,14 @@ impl TransportFactory for MqttFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let mut settings: MqttSettings = match &request.transport.settings {
-            TransportSettings::Registered(r) => r
-                .downcast_ref::<MqttSettings>()
-                .ok_or("the transport's settings are not mqtt settings")?
-                .clone(),
-            other => return Err(format!("expected mqtt settings, found {other:?}").into()),
-        };
+        let mut settings: MqttSettings = request.settings::<MqttSettings>()?.clone();
         resolve_files(&mut settings, request.fleet);
         let fleet = fleet_level(&settings, request.fleet.name.as_deref())?;
         // Two transports on one broker under the same topics would each carry every frame of
         // the other (a system's links both subscribe to its one topic), and their clients would
         // share an id and push each other off.
         for other in &request.fleet.transports {
-            let TransportSettings::Registered(r) = &other.settings else {
-                continue;
-            };
-            let Some(o) = r.downcast_ref::<MqttSettings>() else {
+            let Some(o) = other.settings.registered::<MqttSettings>() else {
                 continue;
             };
             if other.name != request.transport.name

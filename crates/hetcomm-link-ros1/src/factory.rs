@@ -23,10 +23,7 @@ impl TransportFactory for Ros1Factory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let settings = &request.transport.settings;
-        let Some(ros) = settings.registered::<Ros1Settings>() else {
-            return Err(format!("expected ros1 settings, found {settings:?}").into());
-        };
+        let ros: &Ros1Settings = request.settings()?;
         let names = request
             .fleet
             .systems

@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::TransportSettings;
 use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_core::SystemId;
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
@@ -77,16 +76,7 @@ impl TransportFactory for Ros2Factory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err(format!(
-                "expected ros2 settings, found {:?}",
-                request.transport.settings
-            )
-            .into());
-        };
-        let ros: &Ros2Settings = s
-            .downcast_ref()
-            .ok_or("the transport's settings are not ros2 settings")?;
+        let ros: &Ros2Settings = request.settings()?;
         let names: Vec<_> = request
             .fleet
             .systems

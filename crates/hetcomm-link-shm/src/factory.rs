@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::TransportSettings;
 use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
@@ -156,13 +155,7 @@ impl TransportFactory for ShmFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let settings: ShmSettings = match &request.transport.settings {
-            TransportSettings::Registered(r) => r
-                .downcast_ref::<ShmSettings>()
-                .ok_or("the transport's settings are not shm settings")?
-                .clone(),
-            other => return Err(format!("expected shm settings, found {other:?}").into()),
-        };
+        let settings: ShmSettings = request.settings::<ShmSettings>()?.clone();
         let fleet = settings
             .fleet
             .clone()

@@ -3,7 +3,6 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::TransportSettings;
 use hetcomm_config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 
@@ -138,13 +137,7 @@ impl TransportFactory for ZenohFactory {
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let settings: ZenohSettings = match &request.transport.settings {
-            TransportSettings::Registered(r) => r
-                .downcast_ref::<ZenohSettings>()
-                .ok_or("the transport's settings are not zenoh settings")?
-                .clone(),
-            other => return Err(format!("expected zenoh settings, found {other:?}").into()),
-        };
+        let settings: ZenohSettings = request.settings::<ZenohSettings>()?.clone();
         let systems = request
             .fleet
             .systems

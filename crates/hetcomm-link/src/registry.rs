@@ -39,7 +39,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Instant;
 
-use hetcomm_config::{Fleet, KindSpec, Kinds, TransportDef, TransportKind};
+use hetcomm_config::{Fleet, KindSettings, KindSpec, Kinds, TransportDef, TransportKind};
 use hetcomm_core::SystemId;
 
 use crate::emulation::{LinkModel, PositionTable};
@@ -68,6 +68,22 @@ pub struct OpenRequest<'a> {
     pub shapes: &'a MessageShapes,
     /// What the program opening the link offers a factory ([`STANDALONE`] outside a runtime).
     pub host: &'a dyn OpenHost,
+}
+
+impl<'a> OpenRequest<'a> {
+    /// The transport's settings as the type its kind's [`KindSpec`] built
+    /// (`TransportSettings::registered`); an error naming the transport for any other
+    /// settings, which only a fleet built by hand rather than loaded could hold.
+    pub fn settings<T: KindSettings>(&self) -> Result<&'a T, OpenFailure> {
+        let t = self.transport;
+        t.settings.registered().ok_or_else(|| {
+            format!(
+                "transport `{}` (kind {}) holds settings its kind did not read: {:?}",
+                t.name, t.kind, t.settings
+            )
+            .into()
+        })
+    }
 }
 
 /// What the program that opens links offers their factories beyond the fleet: the in-process

@@ -12,7 +12,7 @@ use std::marker::PhantomData;
 use std::sync::Arc;
 
 use hetcomm_config::{Fleet, KindSettings, KindSpec, RegisteredSettings, SettingsReader};
-use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
+use hetcomm_config::{TransportDef, TransportKind};
 use hetcomm_core::wire::{self, FrameKind};
 use hetcomm_core::{MessageType, ModuleId, SystemId};
 pub use hetcomm_link::bridge::{hosts, module_id, Tally};
@@ -438,21 +438,12 @@ impl<K: BridgeKind> TransportFactory for BridgeFactory<K> {
     }
 
     fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
-        let TransportSettings::Registered(s) = &transport.settings else {
-            return None;
-        };
-        s.downcast_ref::<K::Settings>()
-            .map(|b| K::robot(b).to_string())
+        let settings = transport.settings.registered::<K::Settings>()?;
+        Some(K::robot(settings).to_string())
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let name = K::NAME;
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err(format!("expected {name} settings").into());
-        };
-        let settings: &K::Settings = s
-            .downcast_ref()
-            .ok_or_else(|| format!("the transport's settings are not {name} settings"))?;
+        let settings: &K::Settings = request.settings()?;
         let (publish, subscribe) = K::mappings(settings);
         check_declared(publish, subscribe, request.shapes)?;
         let (link, address) = K::open(request.fleet, request.local, settings, request.sink)?;

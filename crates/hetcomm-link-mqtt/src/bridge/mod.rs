@@ -38,8 +38,8 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use hetcomm_config::TransportKind;
 use hetcomm_config::{Fleet, KindSpec, RegisteredSettings, SettingsReader, TransportDef};
-use hetcomm_config::{TransportKind, TransportSettings};
 use hetcomm_core::wire::{self, FrameKind};
 use hetcomm_core::{MessageType, ModuleId, SystemId};
 use hetcomm_link::bridge::{hosts, module_id, robot_id, FrameMaker, Tally};
@@ -694,19 +694,12 @@ impl TransportFactory for MqttBridgeFactory {
     }
 
     fn bridged_robot(&self, transport: &TransportDef) -> Option<String> {
-        let TransportSettings::Registered(s) = &transport.settings else {
-            return None;
-        };
-        s.downcast_ref::<BridgeSettings>().map(|b| b.robot.clone())
+        let settings = transport.settings.registered::<BridgeSettings>()?;
+        Some(settings.robot.clone())
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
-        let TransportSettings::Registered(s) = &request.transport.settings else {
-            return Err(format!("expected {NAME} settings").into());
-        };
-        let settings: &BridgeSettings = s
-            .downcast_ref()
-            .ok_or_else(|| format!("the transport's settings are not {NAME} settings"))?;
+        let settings: &BridgeSettings = request.settings()?;
         let bridge = MqttBridge::open(
             request.fleet,
             request.local,
