@@ -8,14 +8,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hetcomm_core::{payload, Address, Message, MessageType, PayloadSource, Priority, Time};
-use hetcomm_router::{Admitted, DirectLane, Outcome, SendId, SendRequest};
+use hetcomm_router::{Admitted, DirectLane, Outcome, SendRequest};
 
 use crate::comm::SystemHandle;
 use crate::error::{RecvError, SendError};
 use crate::inbox::{Entry, InboxStats};
 use crate::observe::RouteKind;
 use crate::received::{RawMessage, Received};
-use crate::runtime::{raw_message, Directory, ModuleCore, SystemCore};
+use crate::runtime::{raw_message, Directory, Leaving, ModuleCore, Seen, SystemCore, Traffic};
 use crate::ticket::{BroadcastTicket, OutcomeSlot, Ticket, TicketSlot};
 
 mod senders;
@@ -215,17 +215,24 @@ impl Module {
         // nothing else queued; the frame goes out without a trip through `pump`, and its
         // outcome is known when the link answers.
         drop(router);
-        if core.observers.active() {
-            core.observers
-                .send_frame(&tx.frame, tx.body, now, RouteKind::Unqueued, tx.link, 1);
-        }
         let id = tx.id();
         let tx_link = tx.link;
-        let (result, receipt) =
-            match core.transmit_relayed_on(tx.link, tx.to, &tx.frame, tx.body, now) {
-                Ok(receipt) => (Ok(()), receipt),
-                Err(e) => (Err(e), None),
-            };
+        let out = Leaving {
+            link: tx.link,
+            to: tx.to,
+            frame: &tx.frame,
+            body: tx.body,
+            traffic: Traffic::Data,
+            wants_receipt: true,
+            seen: Seen::Attempt {
+                route: RouteKind::Unqueued,
+                attempt: 1,
+            },
+        };
+        let (result, receipt) = match core.leave(out, now) {
+            Ok(receipt) => (Ok(()), receipt),
+            Err(e) => (Err(e), None),
+        };
         let mut router = core.router();
         match router.unqueued_result(now, tx, result, || make_slot(&mut slot)) {
             Some(outcome) => {
@@ -264,66 +271,23 @@ impl Module {
         payload: PayloadSource<'_>,
         now: hetcomm_core::Time,
     ) -> Result<Ticket, SendError> {
-        if self.sys.core.observers.active() {
-            // Decided once per send: a send is observed whole (send and outcome) or not at
-            // all, and the unobserved path below stays what it was before observers existed.
-            return self.hand_over_observed(to, what, payload, now);
-        }
-        let req = what.request(
-            self.core.id,
-            payload.as_slice(),
-            self.sys.core.clock.wall(now),
-        );
-        let header = to
-            .lane
-            .send(&req)
-            .map_err(|e| send_error(&self.sys.core.directory, e))?;
-        let status = to
-            .peer
-            .deliver_direct(to.module, header, payload.into_buf(), now);
-        Ok(Ticket {
-            slot: TicketSlot::Ready(to.lane.result(&header, status), to.lane_transport),
-            destination: to.name,
-        })
-    }
-
-    /// [`Module::hand_over`] while this system is observed: the send and its outcome are
-    /// reported (the outcome through [`SystemCore::end_send`], as every outcome is).
-    #[cold]
-    #[inline(never)]
-    fn hand_over_observed(
-        &self,
-        to: DirectTarget<'_>,
-        what: Outgoing,
-        payload: PayloadSource<'_>,
-        now: hetcomm_core::Time,
-    ) -> Result<Ticket, SendError> {
         let core = &self.sys.core;
-        let req = what.request(
-            self.core.id,
-            payload.as_slice(),
-            self.sys.core.clock.wall(now),
-        );
+        let req = what.request(self.core.id, payload.as_slice(), core.clock.wall(now));
         let header = to
             .lane
             .send(&req)
             .map_err(|e| send_error(&core.directory, e))?;
-        core.observers.send_direct(&header, payload.as_slice(), now);
-        let status = to
-            .peer
-            .deliver_direct(to.module, header, payload.into_buf(), now);
-        let id = SendId {
-            to: header.destination.system,
-            seq: header.seq,
-        };
+        let slot = core.hand_over(
+            to.peer,
+            to.module,
+            header,
+            payload,
+            now,
+            |status| to.lane.result(&header, status),
+            to.lane_transport,
+        );
         Ok(Ticket {
-            slot: core.end_send(
-                id,
-                to.lane.result(&header, status),
-                to.lane_transport,
-                None,
-                now,
-            ),
+            slot,
             destination: to.name,
         })
     }

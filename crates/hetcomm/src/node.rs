@@ -298,16 +298,9 @@ impl<T: Message + Sync> Publisher<T> {
         self.topic.published.fetch_add(1, Ordering::Relaxed);
         let now = core.clock.now();
         let value: TopicValue = value;
-        if core.harness.topic_tapped() {
-            if let Some((value, copies)) = core.harness.on_publish(&self.topic.name, value, now) {
-                for _ in 0..copies {
-                    deliver_to(&self.topic, value.clone(), now);
-                }
-                deliver_to(&self.topic, value, now);
-            }
-            return Ok(());
-        }
-        deliver_to(&self.topic, value, now);
+        core.publish(&self.topic.name, value, now, |v| {
+            deliver_to(&self.topic, v, now)
+        });
         Ok(())
     }
 

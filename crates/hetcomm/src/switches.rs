@@ -83,17 +83,15 @@ impl SystemCore {
                 });
                 number
             };
-            if self.observers.active() {
-                self.observers.path_change(&PathChangeRecord {
-                    to: c.to,
-                    to_name,
-                    from,
-                    now: to_transport,
-                    links: (c.from.link, c.now.link),
-                    time: now,
-                    number,
-                });
-            }
+            self.observe_path_change(&PathChangeRecord {
+                to: c.to,
+                to_name,
+                from,
+                now: to_transport,
+                links: (c.from.link, c.now.link),
+                time: now,
+                number,
+            });
         }
     }
 }

@@ -1,17 +1,21 @@
-//! Scheduled network faults as a pure model: given the time and a frame's pair of systems,
-//! pass it, drop it, or hold it back. No I/O, no clock of its own; the randomness (loss,
-//! jitter) comes from a seeded generator per system, so a simulation is repeatable.
+//! Scheduled network faults: given the time and a frame's pair of systems, pass it, drop it,
+//! or hold it back. No I/O, no clock of its own. A degradation is judged by the emulation's
+//! own [`LinkModel`] (one loss model, one family of seeded ChaCha8 streams, one per
+//! direction), so a simulation is repeatable and a scenario's `loss`, `latency_ms` and
+//! `jitter_ms` mean what an `emulated` transport's do.
 //!
-//! Applied where every frame of a system leaves (`SystemCore::transmit_on`), so the same model
-//! acts on real links in real time and on simulated links in virtual time, before any link
-//! sees the frame: a frame dropped here is lost as on a cut radio (the router retransmits and
-//! the send ends `Failed` or `Unconfirmed` when the cut lasts), and acknowledgements are
-//! subject to the same faults as data.
+//! Applied where every frame of a system leaves (the interception point,
+//! `SystemCore::leave`), before any link sees the frame, so the same schedule acts on real
+//! links in real time and on simulated links in virtual time, whichever transport carries
+//! the pair: a frame dropped here is lost as on a cut radio (the router retransmits and the
+//! send ends `Failed` or `Unconfirmed` when the cut lasts), and acknowledgements are subject
+//! to the same faults as data.
 
 use parking_lot::Mutex;
 use std::time::Duration;
 
 use hetcomm_core::{SystemId, Time};
+use hetcomm_link::emulation::{LinkModel, ModelParams, Verdict};
 
 /// What a fault does to the frames of a pair while it lasts.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +28,30 @@ pub(crate) enum Effect {
         latency: Duration,
         jitter: Duration,
     },
+}
+
+impl Effect {
+    /// The link model of a degradation: `latency` plus a uniform share of `jitter` is the
+    /// model's `latency_ms` ± `jitter_ms` around the window's middle.
+    fn model(&self, seed: u64) -> Option<LinkModel> {
+        let Effect::Degrade {
+            loss,
+            latency,
+            jitter,
+        } = *self
+        else {
+            return None;
+        };
+        let half_jitter_ms = jitter.as_secs_f64() * 1e3 / 2.0;
+        let params = ModelParams {
+            loss_percent: loss * 100.0,
+            latency_ms: latency.as_secs_f64() * 1e3 + half_jitter_ms,
+            jitter_ms: half_jitter_ms,
+            ..ModelParams::default()
+        };
+        // The scenario loader checked the ranges (loss in 0..=1, times ≥ 0 and finite).
+        LinkModel::new(params, seed).ok()
+    }
 }
 
 /// One scheduled fault on frames from `from` to `to` (None: any system), from `start` to `end`.
@@ -44,71 +72,59 @@ pub(crate) enum FaultVerdict {
     Delay(Duration),
 }
 
-/// A system's fault schedule and its random generator.
+/// A system's fault schedule, each degradation with its link model.
 pub(crate) struct Faults {
-    rules: Vec<FaultRule>,
-    rng: Mutex<u64>,
+    rules: Vec<(FaultRule, Option<Mutex<LinkModel>>)>,
 }
 
 impl Faults {
-    /// The rules that concern frames leaving `system`, seeded by `seed`.
-    pub(crate) fn new(rules: Vec<FaultRule>, seed: u64, system: SystemId) -> Faults {
-        Faults {
-            rules,
-            rng: Mutex::new(seed ^ (u64::from(system.0) + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
-        }
+    /// The rules that concern frames leaving a system, their models seeded by `seed` (each
+    /// rule's on its own seed, each direction on its own stream).
+    pub(crate) fn new(rules: Vec<FaultRule>, seed: u64) -> Faults {
+        let rules = rules
+            .into_iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let model = r.effect.model(seed.wrapping_add(i as u64));
+                (r, model.map(Mutex::new))
+            })
+            .collect();
+        Faults { rules }
     }
 
-    /// A uniform number in [0, 1) (splitmix64).
-    fn uniform(&self) -> f64 {
-        let mut s = self.rng.lock();
-        *s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// The verdict for a frame from `from` to `to` at `now`: a cut wins over everything; of
-    /// degradations, the first rule in force applies (the scenario loader refuses two that
-    /// overlap on one pair).
-    pub(crate) fn verdict(&self, now: Time, from: SystemId, to: SystemId) -> FaultVerdict {
+    /// The verdict for a frame of `len` bytes from `from` to `to` at `now`: a cut wins over
+    /// everything; of degradations, the first rule in force applies (the scenario loader
+    /// refuses two that overlap on one pair).
+    pub(crate) fn verdict(
+        &self,
+        now: Time,
+        from: SystemId,
+        to: SystemId,
+        len: usize,
+    ) -> FaultVerdict {
         let mut degrade = None;
-        for r in &self.rules {
+        for (r, model) in &self.rules {
             if now < r.start || now >= r.end {
                 continue;
             }
             if r.from.is_some_and(|f| f != from) || r.to.is_some_and(|t| t != to) {
                 continue;
             }
-            match r.effect {
-                Effect::Cut => return FaultVerdict::Drop,
-                Effect::Degrade { .. } if degrade.is_none() => degrade = Some(r.effect),
-                Effect::Degrade { .. } => {}
+            match (r.effect, model) {
+                (Effect::Cut, _) => return FaultVerdict::Drop,
+                (Effect::Degrade { .. }, Some(model)) if degrade.is_none() => degrade = Some(model),
+                (Effect::Degrade { .. }, _) => {}
             }
         }
-        let Some(Effect::Degrade {
-            loss,
-            latency,
-            jitter,
-        }) = degrade
-        else {
+        let Some(model) = degrade else {
             return FaultVerdict::Pass;
         };
-        if loss > 0.0 && self.uniform() < loss {
-            return FaultVerdict::Drop;
-        }
-        let extra = if jitter.is_zero() {
-            Duration::ZERO
-        } else {
-            jitter.mul_f64(self.uniform())
-        };
-        let d = latency + extra;
-        if d.is_zero() {
-            FaultVerdict::Pass
-        } else {
-            FaultVerdict::Delay(d)
+        match model.lock().on_frame(now, from, to, len, None) {
+            Verdict::Drop(_) => FaultVerdict::Drop,
+            Verdict::Deliver { first, .. } => match first.at.saturating_since(now) {
+                d if d.is_zero() => FaultVerdict::Pass,
+                d => FaultVerdict::Delay(d),
+            },
         }
     }
 }
@@ -132,22 +148,21 @@ mod tests {
                 effect: Effect::Cut,
             }],
             7,
-            SystemId(1),
         );
         assert_eq!(
-            f.verdict(t(0.5), SystemId(1), SystemId(2)),
+            f.verdict(t(0.5), SystemId(1), SystemId(2), 64),
             FaultVerdict::Pass
         );
         assert_eq!(
-            f.verdict(t(1.0), SystemId(1), SystemId(2)),
+            f.verdict(t(1.0), SystemId(1), SystemId(2), 64),
             FaultVerdict::Drop
         );
         assert_eq!(
-            f.verdict(t(1.5), SystemId(1), SystemId(3)),
+            f.verdict(t(1.5), SystemId(1), SystemId(3), 64),
             FaultVerdict::Pass
         );
         assert_eq!(
-            f.verdict(t(2.0), SystemId(1), SystemId(2)),
+            f.verdict(t(2.0), SystemId(1), SystemId(2), 64),
             FaultVerdict::Pass
         );
     }
@@ -166,9 +181,9 @@ mod tests {
             },
         };
         let run = || {
-            let f = Faults::new(vec![rule], 42, SystemId(0));
+            let f = Faults::new(vec![rule], 42);
             (0..4000)
-                .map(|_| f.verdict(t(1.0), SystemId(0), SystemId(1)))
+                .map(|_| f.verdict(t(1.0), SystemId(0), SystemId(1), 64))
                 .collect::<Vec<_>>()
         };
         let a = run();
@@ -177,7 +192,7 @@ mod tests {
         assert!((900..1100).contains(&lost), "lost {lost} of 4000 at 25%");
         for v in a {
             if let FaultVerdict::Delay(d) = v {
-                assert!(d >= Duration::from_millis(5) && d < Duration::from_millis(7));
+                assert!(d >= Duration::from_millis(5) && d <= Duration::from_millis(7));
             }
         }
     }

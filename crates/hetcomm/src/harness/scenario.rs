@@ -201,7 +201,7 @@ pub(crate) fn install(
         }
         if !rules.is_empty() {
             let core = &comm.handle.core;
-            core.harness.set_faults(Faults::new(rules, seed, core.id));
+            core.harness.set_faults(Faults::new(rules, seed));
             run.faulted += 1;
         }
     }

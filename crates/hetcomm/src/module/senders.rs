@@ -83,7 +83,7 @@ impl Route {
     ) -> Vec<Result<Ticket, SendError>> {
         let core = &self.from.sys.core;
         let d = match &self.direct {
-            Some(d) if !d.peer.is_closed() && !core.is_closed() && !core.observers.active() => d,
+            Some(d) if !d.peer.is_closed() && !core.is_closed() && !core.sends_observed() => d,
             // Observed sends are reported one by one; other routes take the general path.
             _ => {
                 return payloads

@@ -1,5 +1,5 @@
-//! Carrying out what the router decided: transmissions, deliveries into inboxes (through the
-//! harness's taps and the observers), and ended sends.
+//! Carrying out what the router decided: transmissions, deliveries into inboxes and ended
+//! sends, each through the interception point (`intercept.rs`).
 
 use super::*;
 use hetcomm_core::wire::TO_ALL_SYSTEM;
@@ -79,10 +79,8 @@ impl SystemCore {
         let mut delivery_results: SmallVec<[(DeliveryToken, AckStatus); 2]> = SmallVec::new();
         let mut transmit_results: SmallVec<[(Transmit, Result<(), TransmitError>); 4]> =
             SmallVec::new();
-        // Per transmit, while observed: which attempt of its send it is (0 for an ack).
-        let mut attempts: SmallVec<[u32; 4]> = SmallVec::new();
-        // While observed: the destinations of each native broadcast's frame among them.
-        let mut broadcast_dests: SmallVec<[Vec<SystemId>; 1]> = SmallVec::new();
+        // What the observers need of each transmit (nothing while nobody observes).
+        let mut notes = RoundNotes::default();
         let mut switches: SmallVec<[hetcomm_router::PathChange; 1]> = SmallVec::new();
         // Per transmit: whether its send ends when the frame leaves (a receipt is asked for).
         let mut unacknowledged: SmallVec<[bool; 4]> = SmallVec::new();
@@ -101,18 +99,9 @@ impl SystemCore {
                 now = self.clock.now();
             }
             first = false;
-            let observed = self.observers.active();
+            notes.begin(self);
             while let Some(t) = router.poll_transmit(now) {
-                if observed {
-                    // A frame that waited for a secure session was seen when first offered.
-                    let seen = t.send.is_some_and(|id| router.repeats_refused_offer(id));
-                    let attempt = t.send.and_then(|id| router.attempts(id)).unwrap_or(0);
-                    attempts.push(if seen { 0 } else { attempt });
-                    if t.to == TO_ALL_SYSTEM {
-                        let b = t.send.map_or(0, |id| id.wire_seq());
-                        broadcast_dests.push(router.broadcast_destinations(b));
-                    }
-                }
+                notes.note(&router, &t);
                 unacknowledged.push(t.send.is_some_and(|id| router.unacknowledged(id)));
                 transmits.push(t);
             }
@@ -171,26 +160,21 @@ impl SystemCore {
                     Some(_) => Traffic::Data,
                     None => Traffic::Ack,
                 };
-                if tx.to == TO_ALL_SYSTEM && !broadcast_dests.is_empty() {
-                    let dests = broadcast_dests.remove(0);
-                    self.observers
-                        .send_broadcast_frame(&tx.frame, &dests, now, tx.link);
-                } else if let Some(&attempt) = attempts.get(i).filter(|&&a| a > 0) {
-                    self.observers.send_frame(
-                        &tx.frame,
-                        &[],
-                        now,
-                        RouteKind::Routed,
-                        tx.link,
-                        attempt,
-                    );
-                }
-                let result = match (tx.send, unacknowledged.get(i)) {
-                    (Some(id), Some(true)) => self
-                        .transmit_relayed_on(tx.link, tx.to, &tx.frame, &[], now)
-                        .map(|receipt| receipts.put(id, receipt)),
-                    _ => self.transmit_on(tx.link, tx.to, &tx.frame, &[], now, traffic),
+                let wants_receipt = tx.send.is_some() && unacknowledged.get(i) == Some(&true);
+                let out = Leaving {
+                    link: tx.link,
+                    to: tx.to,
+                    frame: &tx.frame,
+                    body: &[],
+                    traffic,
+                    wants_receipt,
+                    seen: notes.seen(i, &tx),
                 };
+                let result = self.leave(out, now).map(|receipt| {
+                    if let Some(id) = tx.send {
+                        receipts.put(id, receipt);
+                    }
+                });
                 if tx.presettled && result.is_ok() {
                     taken.push((tx, now));
                 } else if tx.send.is_some() || tx.probe.is_some() {
@@ -200,8 +184,6 @@ impl SystemCore {
             if !taken.is_empty() {
                 self.taken_back.push(taken.drain(..));
             }
-            attempts.clear();
-            broadcast_dests.clear();
             unacknowledged.clear();
             if delivery_results.is_empty() && transmit_results.is_empty() {
                 // Nothing to feed back (timers were armed above).
@@ -220,27 +202,14 @@ impl SystemCore {
     /// Puts a delivery that came through the router (from a link) into its module's inbox
     /// (or callback queue).
     pub(super) fn deliver(&self, d: Delivery, now: Time) -> AckStatus {
-        let module = self.modules.get(&d.header.destination.module);
-        let source = Source::Link(d.link);
-        if self.harness.tapped_for(&d.header) {
-            return self.harness.on_delivery(
-                self,
-                module.map(|m| &**m),
-                d.header,
-                d.payload,
-                now,
-                source,
-            );
-        }
-        if self.observers.active() {
-            return self.deliver_observed(module.map(|m| &**m), d.header, d.payload, now, source);
-        }
-        self.deliver_to(module.map(|m| &**m), d.header, d.payload, now, source)
+        let module = self.modules.get(&d.header.destination.module).map(|m| &**m);
+        self.arrive(module, d.header, d.payload, now, Source::Link(d.link))
     }
 
     /// Puts a message that passed this system's taps (or that the harness injected or held
-    /// back) into its module's inbox. `link`: the link it came on (None: from this process,
-    /// or from the harness, which never waits for room).
+    /// back) into its module's inbox, through [`SystemCore::arrive_untapped`]. `link`: the
+    /// link it came on (None: from this process, or from the harness, which never waits for
+    /// room).
     pub(crate) fn deliver_untapped(
         &self,
         header: Header,
@@ -253,23 +222,7 @@ impl SystemCore {
             Some(l) => Source::Link(l),
             None => Source::Harness,
         };
-        self.deliver_passed(module, header, payload, now, source)
-    }
-
-    /// [`SystemCore::deliver_untapped`] with the module already looked up and the message's
-    /// own source (a message that passed its taps unchanged in time).
-    pub(crate) fn deliver_passed(
-        &self,
-        module: Option<&ModuleCore>,
-        header: Header,
-        payload: PayloadBuf,
-        now: Time,
-        source: Source,
-    ) -> AckStatus {
-        if self.observers.active() {
-            return self.deliver_observed(module, header, payload, now, source);
-        }
-        self.deliver_to(module, header, payload, now, source)
+        self.arrive_untapped(module, header, payload, now, source)
     }
 
     /// Puts a frame the harness held back (a scheduled latency) on link `index`.
@@ -288,84 +241,9 @@ impl SystemCore {
         }
     }
 
-    /// Where every send's outcome goes, whichever way the send went: the observers see it,
-    /// then the ticket gets it (`slot`, or a ticket made ready with it, returned).
-    #[inline(always)]
-    pub(crate) fn end_send(
-        &self,
-        id: SendId,
-        outcome: Outcome,
-        transport: Option<&'static str>,
-        slot: Option<Arc<OutcomeSlot>>,
-        now: Time,
-    ) -> TicketSlot {
-        match slot {
-            Some(slot) => {
-                if self.observers.active() {
-                    self.observe_outcome(id, &outcome, now);
-                }
-                // Nobody holds a ticket for it (dropped, as a stream's sender does): nobody
-                // can read it, and writing it would pull its line to this core for nothing.
-                if Arc::strong_count(&slot) > 1 {
-                    slot.complete(outcome, transport);
-                }
-                TicketSlot::Pending(slot)
-            }
-            None => {
-                // Made first, so the outcome is not moved again after the observers saw it.
-                let ready = TicketSlot::Ready(outcome, transport);
-                if self.observers.active() {
-                    if let TicketSlot::Ready(outcome, _) = &ready {
-                        self.observe_outcome(id, outcome, now);
-                    }
-                }
-                ready
-            }
-        }
-    }
-
-    /// [`SystemCore::end_send`]'s report, out of the way of the unobserved path.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn observe_outcome(&self, id: SendId, outcome: &Outcome, now: Time) {
-        self.observers.outcome(&OutcomeRecord {
-            id,
-            outcome,
-            time: now,
-        });
-    }
-
-    /// [`SystemCore::deliver_to`] and a report of the receipt to the observers (every
-    /// receipt, from a link or handed over directly, is reported here). The payload is
-    /// copied for the observers: the inbox takes the message.
-    #[cold]
-    #[inline(never)]
-    pub(super) fn deliver_observed(
-        &self,
-        module: Option<&ModuleCore>,
-        header: Header,
-        payload: PayloadBuf,
-        now: Time,
-        source: Source,
-    ) -> AckStatus {
-        let copy = payload.clone();
-        let status = self.deliver_to(module, header, payload, now, source);
-        self.observers.receipt(&ReceiptRecord {
-            header,
-            payload: &copy,
-            time: now,
-            via: match source {
-                Source::Link(link) => Via::Link(link),
-                Source::SameProcess | Source::Harness => Via::Direct,
-            },
-            status,
-        });
-        status
-    }
-
     /// Puts a message into `module`'s inbox, or hands it to the module's callbacks (None:
     /// there is no such module). Only a sender of this process waits for room under the
-    /// `block` policy; a link is never stopped. (Callers report it: [`Self::deliver_observed`].)
+    /// `block` policy; a link is never stopped. (It is reached through [`SystemCore::arrive`].)
     pub(super) fn deliver_to(
         &self,
         module: Option<&ModuleCore>,

@@ -18,8 +18,7 @@ impl SystemCore {
 
     /// The destination system when a send to `to` over `link` can be handed over directly.
     pub(crate) fn direct_peer(&self, link: usize, to: SystemId) -> Option<Arc<SystemCore>> {
-        if self.harness.faulted() {
-            // Scheduled faults act on frames: every send takes the link.
+        if !self.may_skip_links() {
             return None;
         }
         let d = self.direct.get()?;
@@ -100,9 +99,9 @@ impl SystemCore {
     }
 
     /// Puts a message handed over directly by another system of this process into its
-    /// module's inbox. `now` is the sender's clock reading: one process, one clock.
-    /// `module`: this system's module the message is for, looked up by the caller (None:
-    /// there is no such module).
+    /// module's inbox, through this system's way in ([`SystemCore::arrive`]). `now` is the
+    /// sender's clock reading: one process, one clock. `module`: this system's module the
+    /// message is for, looked up by the caller (None: there is no such module).
     pub(crate) fn deliver_direct(
         &self,
         module: Option<&ModuleCore>,
@@ -111,20 +110,7 @@ impl SystemCore {
         now: Time,
     ) -> AckStatus {
         self.direct_received.fetch_add(1, Ordering::Relaxed);
-        if self.harness.tapped_for(&header) {
-            return self.harness.on_delivery(
-                self,
-                module,
-                header,
-                payload,
-                now,
-                Source::SameProcess,
-            );
-        }
-        if self.observers.active() {
-            return self.deliver_observed(module, header, payload, now, Source::SameProcess);
-        }
-        self.deliver_to(module, header, payload, now, Source::SameProcess)
+        self.arrive(module, header, payload, now, Source::SameProcess)
     }
 
     /// [`SystemCore::deliver_direct`] for a batch of messages to one module, in order:
@@ -138,9 +124,7 @@ impl SystemCore {
         now: Time,
         mut status: impl FnMut(AckStatus),
     ) {
-        let Some(m) = module
-            .filter(|m| !self.observers.active() && !self.harness.tapping() && !m.has_callbacks())
-        else {
+        let Some(m) = module.filter(|m| self.arrivals_plain(m)) else {
             for (header, payload) in messages {
                 status(self.deliver_direct(module, header, payload, now));
             }

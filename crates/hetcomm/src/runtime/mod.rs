@@ -34,11 +34,14 @@ use crossbeam_utils::CachePadded;
 mod clock_tests;
 mod deliver;
 mod direct;
+mod intercept;
 mod relay;
 mod sink;
 mod transmit;
 
 pub(crate) use deliver::Source;
+use intercept::RoundNotes;
+pub(crate) use intercept::{Leaving, Seen};
 pub(crate) use sink::Opening;
 use sink::SystemSink;
 pub(crate) use transmit::Batching;

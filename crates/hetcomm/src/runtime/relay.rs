@@ -6,22 +6,16 @@ use hetcomm_link::relay::{RelayReceipt, RelayVerdict};
 use hetcomm_router::FailReason;
 
 impl SystemCore {
-    /// Puts an unacknowledged send's frame on link `index` (see [`SystemCore::transmit_on`]),
-    /// asking the link for a receipt from its intermediary. Frames held back for batching and
-    /// frames a scheduled fault acts on get none.
-    pub(crate) fn transmit_relayed_on(
+    /// Puts an unacknowledged send's frame on link `index`, asking the link for a receipt from
+    /// its intermediary (frames reach it through [`SystemCore::leave`], which sends frames
+    /// held back for batching, and frames a scheduled fault acts on, without one).
+    pub(super) fn put_relayed_on_link(
         &self,
         index: usize,
         to: SystemId,
         frame: &[u8],
         body: &[u8],
-        now: Time,
     ) -> Result<Option<RelayReceipt>, TransmitError> {
-        if self.harness.faulted() || self.holds_frames(index) {
-            return self
-                .transmit_on(index, to, frame, body, now, Traffic::Data)
-                .map(|()| None);
-        }
         match self.links().get(index) {
             Some(link) => link
                 .send_relayed(to, frame, body)

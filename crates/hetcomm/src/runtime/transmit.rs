@@ -164,8 +164,8 @@ impl SystemCore {
     }
 
     /// Puts the frame `frame` + `body` on link `index` (see [`SystemCore::transmit`]), in the
-    /// router's terms.
-    pub(crate) fn transmit_on(
+    /// router's terms. Frames reach it through [`SystemCore::leave`].
+    pub(super) fn put_on_link(
         &self,
         index: usize,
         to: SystemId,
@@ -174,13 +174,6 @@ impl SystemCore {
         now: Time,
         traffic: Traffic,
     ) -> Result<(), TransmitError> {
-        if self.harness.faulted()
-            && self
-                .harness
-                .fault_frame(self.id, index, to, frame, body, now)
-        {
-            return Ok(());
-        }
         match self.links().get(index) {
             Some(link) => self
                 .transmit(index, &**link, to, frame, body, now, traffic)

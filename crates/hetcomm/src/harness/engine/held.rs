@@ -18,10 +18,11 @@ impl SystemHarness {
         }
     }
 
-    /// What the scheduled faults do with a frame from this system to `to` at `now`.
-    pub(crate) fn fault_verdict(&self, now: Time, from: SystemId, to: SystemId) -> FaultVerdict {
+    /// What the scheduled faults do with a frame of `len` bytes from this system to `to` at
+    /// `now`.
+    fn fault_verdict(&self, now: Time, from: SystemId, to: SystemId, len: usize) -> FaultVerdict {
         match self.faults.get() {
-            Some(f) => f.verdict(now, from, to),
+            Some(f) => f.verdict(now, from, to, len),
             None => FaultVerdict::Pass,
         }
     }
@@ -39,7 +40,7 @@ impl SystemHarness {
         body: &[u8],
         now: Time,
     ) -> bool {
-        match self.fault_verdict(now, from, to) {
+        match self.fault_verdict(now, from, to, frame.len() + body.len()) {
             FaultVerdict::Pass => false,
             FaultVerdict::Drop => {
                 bump(&self.counters.fault_dropped, 1);

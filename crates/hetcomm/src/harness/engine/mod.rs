@@ -438,7 +438,7 @@ impl SystemHarness {
             }
         }
         let (header, payload) = match (msg, payload) {
-            (None, Some(p)) => return core.deliver_passed(module, header, p, now, source),
+            (None, Some(p)) => return core.arrive_untapped(module, header, p, now, source),
             (Some(m), _) => match m.body {
                 Body::Bytes(b) => (m.header.unwrap_or(header), b),
                 Body::Value(_) => {
@@ -457,7 +457,7 @@ impl SystemHarness {
             if m_header_changed(&header, module) {
                 core.deliver_untapped(header, payload, now, None)
             } else {
-                core.deliver_passed(module, header, payload, now, source)
+                core.arrive_untapped(module, header, payload, now, source)
             }
         } else {
             bump(&self.counters.delayed, 1);
