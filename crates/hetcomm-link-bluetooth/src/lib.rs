@@ -23,7 +23,7 @@
 //!
 //! On a kernel without Bluetooth support (no `AF_BLUETOOTH`, errno 97 `EAFNOSUPPORT`, as on
 //! most CI machines and containers) [`BluetoothLink::open`] fails at once with
-//! [`OpenError::NoKernelSupport`], whose message suggests the `emulated` transport with
+//! [`BluetoothOpenError::NoKernelSupport`], whose message suggests the `emulated` transport with
 //! `profile = "bluetooth-classic"` for simulation.
 //!
 //! ## Why raw sockets rather than `bluer`
@@ -55,7 +55,7 @@
 //! use std::collections::BTreeMap;
 //! use hetcomm_core::SystemId;
 //! use hetcomm_link::conformance::CollectSink;
-//! use hetcomm_link_bluetooth::{BdAddr, BluetoothLink, BluetoothSettings, OpenError};
+//! use hetcomm_link_bluetooth::{BdAddr, BluetoothLink, BluetoothSettings, BluetoothOpenError};
 //!
 //! let settings = BluetoothSettings {
 //!     channel: 1,
@@ -68,7 +68,7 @@
 //! let config = BluetoothLink::default_config();
 //! match BluetoothLink::open(SystemId(1), &settings, CollectSink::new(), config) {
 //!     Ok(link) => println!("listening on RFCOMM channel {}", link.channel()),
-//!     Err(e @ OpenError::NoKernelSupport { .. }) => println!("{e}"),
+//!     Err(e @ BluetoothOpenError::NoKernelSupport { .. }) => println!("{e}"),
 //!     Err(e) => println!("cannot open: {e}"),
 //! }
 //! ```
@@ -106,7 +106,7 @@ pub const SIMULATION_HINT: &str =
 /// Why a Bluetooth link could not be opened.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum BluetoothOpenError {
     /// The kernel cannot create Bluetooth sockets at all (`EAFNOSUPPORT`).
     #[error(
         "this kernel has no Bluetooth (AF_BLUETOOTH) support: creating an RFCOMM socket failed \
@@ -178,17 +178,17 @@ pub enum OpenError {
     Io(#[from] io::Error),
 }
 
-impl OpenError {
+impl BluetoothOpenError {
     /// Classifies a failure to create a socket: no kernel support, no RFCOMM, no permission,
     /// or another error.
-    pub fn from_socket_error(source: io::Error) -> OpenError {
+    pub fn from_socket_error(source: io::Error) -> BluetoothOpenError {
         match source.raw_os_error() {
-            Some(libc::EAFNOSUPPORT) => OpenError::NoKernelSupport { source },
+            Some(libc::EAFNOSUPPORT) => BluetoothOpenError::NoKernelSupport { source },
             Some(libc::EPROTONOSUPPORT) | Some(libc::ESOCKTNOSUPPORT) => {
-                OpenError::NoRfcomm { source }
+                BluetoothOpenError::NoRfcomm { source }
             }
-            Some(libc::EPERM) | Some(libc::EACCES) => OpenError::Permission { source },
-            _ => OpenError::Io(source),
+            Some(libc::EPERM) | Some(libc::EACCES) => BluetoothOpenError::Permission { source },
+            _ => BluetoothOpenError::Io(source),
         }
     }
 }
@@ -196,9 +196,9 @@ impl OpenError {
 /// Checks `settings` for system `local` without touching any socket: the channel is 1–30,
 /// `local` has an address, no address is used twice, and no address is reserved
 /// (`00:00:00:00:00:00` "any", `00:00:00:FF:FF:FF` "local", `FF:FF:FF:FF:FF:FF` "all").
-pub fn validate(local: SystemId, settings: &BluetoothSettings) -> Result<(), OpenError> {
+pub fn validate(local: SystemId, settings: &BluetoothSettings) -> Result<(), BluetoothOpenError> {
     if !(MIN_CHANNEL..=MAX_CHANNEL).contains(&settings.channel) {
-        return Err(OpenError::BadConfig {
+        return Err(BluetoothOpenError::BadConfig {
             field: "channel",
             reason: format!(
                 "RFCOMM channels are {MIN_CHANNEL} to {MAX_CHANNEL}, got {}",
@@ -209,7 +209,7 @@ pub fn validate(local: SystemId, settings: &BluetoothSettings) -> Result<(), Ope
     let mut by_addr: BTreeMap<BdAddr, SystemId> = BTreeMap::new();
     for (&system, &addr) in &settings.addresses {
         if is_reserved(addr) {
-            return Err(OpenError::BadConfig {
+            return Err(BluetoothOpenError::BadConfig {
                 field: "addresses",
                 reason: format!(
                     "system {system} has the reserved address {addr}, which no adapter has"
@@ -217,7 +217,7 @@ pub fn validate(local: SystemId, settings: &BluetoothSettings) -> Result<(), Ope
             });
         }
         if let Some(other) = by_addr.insert(addr, system) {
-            return Err(OpenError::BadConfig {
+            return Err(BluetoothOpenError::BadConfig {
                 field: "addresses",
                 reason: format!(
                     "systems {other} and {system} both have address {addr}, so a connection \
@@ -227,7 +227,7 @@ pub fn validate(local: SystemId, settings: &BluetoothSettings) -> Result<(), Ope
         }
     }
     if !settings.addresses.contains_key(&local) {
-        return Err(OpenError::NoLocalAddress { system: local });
+        return Err(BluetoothOpenError::NoLocalAddress { system: local });
     }
     Ok(())
 }
@@ -378,14 +378,14 @@ impl BluetoothLink<Rfcomm> {
     /// frames go to `sink`, labelled with the sender found from its device address.
     ///
     /// On a kernel without Bluetooth this fails at once with
-    /// [`OpenError::NoKernelSupport`]. [`BluetoothLink::default_config`] gives timeouts suited
+    /// [`BluetoothOpenError::NoKernelSupport`]. [`BluetoothLink::default_config`] gives timeouts suited
     /// to radio links.
     pub fn open(
         local: SystemId,
         settings: &BluetoothSettings,
         sink: Arc<dyn FrameSink>,
         config: StreamConfig,
-    ) -> Result<BluetoothLink<Rfcomm>, OpenError> {
+    ) -> Result<BluetoothLink<Rfcomm>, BluetoothOpenError> {
         BluetoothLink::open_with_family(Rfcomm, local, settings, sink, config)
     }
 }
@@ -398,20 +398,20 @@ impl<F: AddressFamily> BluetoothLink<F> {
         settings: &BluetoothSettings,
         sink: Arc<dyn FrameSink>,
         config: StreamConfig,
-    ) -> Result<BluetoothLink<F>, OpenError> {
+    ) -> Result<BluetoothLink<F>, BluetoothOpenError> {
         validate(local, settings)?;
         let Some(&device) = settings.addresses.get(&local) else {
-            return Err(OpenError::NoLocalAddress { system: local });
+            return Err(BluetoothOpenError::NoLocalAddress { system: local });
         };
         let channel = settings.channel;
         let socket = family
             .stream_socket()
-            .map_err(OpenError::from_socket_error)?;
+            .map_err(BluetoothOpenError::from_socket_error)?;
         let listen_err = |source: io::Error| {
             if source.kind() == io::ErrorKind::AddrInUse {
-                OpenError::ChannelBusy { channel, source }
+                BluetoothOpenError::ChannelBusy { channel, source }
             } else {
-                OpenError::Listen { channel, source }
+                BluetoothOpenError::Listen { channel, source }
             }
         };
         let addr = family.listen_addr(device, channel).map_err(listen_err)?;
@@ -506,17 +506,20 @@ mod tests {
 
     #[test]
     fn socket_errors_are_classified() {
-        let e = |n| OpenError::from_socket_error(io::Error::from_raw_os_error(n));
+        let e = |n| BluetoothOpenError::from_socket_error(io::Error::from_raw_os_error(n));
         assert!(matches!(
             e(libc::EAFNOSUPPORT),
-            OpenError::NoKernelSupport { .. }
+            BluetoothOpenError::NoKernelSupport { .. }
         ));
         assert!(matches!(
             e(libc::EPROTONOSUPPORT),
-            OpenError::NoRfcomm { .. }
+            BluetoothOpenError::NoRfcomm { .. }
         ));
-        assert!(matches!(e(libc::EACCES), OpenError::Permission { .. }));
-        assert!(matches!(e(libc::EMFILE), OpenError::Io(_)));
+        assert!(matches!(
+            e(libc::EACCES),
+            BluetoothOpenError::Permission { .. }
+        ));
+        assert!(matches!(e(libc::EMFILE), BluetoothOpenError::Io(_)));
         let msg = e(libc::EAFNOSUPPORT).to_string();
         assert!(msg.contains("no Bluetooth (AF_BLUETOOTH) support"), "{msg}");
         assert!(msg.contains("profile = \"bluetooth-classic\""), "{msg}");

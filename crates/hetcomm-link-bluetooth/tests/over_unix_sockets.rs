@@ -12,7 +12,7 @@ use common::{
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::{self, CollectSink, Layered};
 use hetcomm_link::{Link, LinkError, Peer};
-use hetcomm_link_bluetooth::{BluetoothLink, OpenError};
+use hetcomm_link_bluetooth::{BluetoothLink, BluetoothOpenError};
 use hetcomm_link_ip::stream::{StreamConfig, RECORD_HEADER_LEN, RECORD_MAGIC, STREAM_VERSION};
 
 const A: SystemId = SystemId(1);
@@ -140,7 +140,7 @@ fn a_system_with_no_address_is_refused_and_cannot_be_sent_to() {
     )
     .err()
     .expect("system 3 has no address");
-    assert!(matches!(e, OpenError::NoLocalAddress { system } if system == SystemId(3)));
+    assert!(matches!(e, BluetoothOpenError::NoLocalAddress { system } if system == SystemId(3)));
     assert!(e.to_string().contains("bluetoothctl show"), "{e}");
 }
 
@@ -200,7 +200,7 @@ fn a_busy_channel_is_reported() {
     .err()
     .expect("the channel is taken");
     assert!(
-        matches!(e, OpenError::ChannelBusy { channel: 1, .. }),
+        matches!(e, BluetoothOpenError::ChannelBusy { channel: 1, .. }),
         "{e:?}"
     );
     assert!(e.to_string().contains("already in use"), "{e}");

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use hetcomm_core::SystemId;
 use hetcomm_link::conformance::CollectSink;
-use hetcomm_link_bluetooth::{validate, BluetoothLink, OpenError, Rfcomm};
+use hetcomm_link_bluetooth::{validate, BluetoothLink, BluetoothOpenError, Rfcomm};
 use hetcomm_link_bluetooth::{BdAddr, BluetoothSettings};
 
 const CHARLIE: BdAddr = BdAddr([0x68, 0xA3, 0xC4, 0x4A, 0xB3, 0xBA]);
@@ -19,7 +19,7 @@ fn table8(channel: u8) -> BluetoothSettings {
     }
 }
 
-fn open(local: SystemId, s: &BluetoothSettings) -> Result<BluetoothLink, OpenError> {
+fn open(local: SystemId, s: &BluetoothSettings) -> Result<BluetoothLink, BluetoothOpenError> {
     BluetoothLink::open(
         local,
         s,
@@ -43,7 +43,10 @@ fn opening_without_kernel_support_fails_at_once_with_advice() {
                 Some(libc_eafnosupport()),
                 "unexpected probe error: {probe}"
             );
-            assert!(matches!(e, OpenError::NoKernelSupport { .. }), "{e:?}");
+            assert!(
+                matches!(e, BluetoothOpenError::NoKernelSupport { .. }),
+                "{e:?}"
+            );
             let msg = e.to_string();
             eprintln!("open on this machine: {msg}");
             assert!(msg.contains("no Bluetooth (AF_BLUETOOTH) support"), "{msg}");
@@ -59,7 +62,10 @@ fn opening_without_kernel_support_fails_at_once_with_advice() {
         (Ok(()), Err(e)) => {
             // Bluetooth exists but this open failed for a local reason (channel taken, …):
             // acceptable, but never the "no kernel support" answer.
-            assert!(!matches!(e, OpenError::NoKernelSupport { .. }), "{e}");
+            assert!(
+                !matches!(e, BluetoothOpenError::NoKernelSupport { .. }),
+                "{e}"
+            );
         }
         (Err(probe), Ok(_)) => panic!("probe failed ({probe}) but open succeeded"),
     }
@@ -75,7 +81,7 @@ fn channel_must_be_1_to_30() {
     for bad in [0u8, 31, 255] {
         let e = open(SystemId(1), &table8(bad)).err().expect("bad channel");
         match &e {
-            OpenError::BadConfig { field, reason } => {
+            BluetoothOpenError::BadConfig { field, reason } => {
                 assert_eq!(*field, "channel");
                 assert!(reason.contains("1 to 30"), "{reason}");
             }
@@ -93,13 +99,13 @@ fn settings_are_checked_before_any_socket() {
     let e = open(SystemId(0), &table8(1))
         .err()
         .expect("no local address");
-    assert!(matches!(e, OpenError::NoLocalAddress { system } if system == SystemId(0)));
+    assert!(matches!(e, BluetoothOpenError::NoLocalAddress { system } if system == SystemId(0)));
 
     // The same address for two systems: connections from it could not be attributed.
     let mut dup = table8(1);
     dup.addresses.insert(SystemId(3), CHARLIE);
     match open(SystemId(1), &dup).err().expect("duplicate") {
-        OpenError::BadConfig { field, reason } => {
+        BluetoothOpenError::BadConfig { field, reason } => {
             assert_eq!(field, "addresses");
             assert!(reason.contains("68:A3:C4:4A:B3:BA"), "{reason}");
         }
@@ -113,7 +119,7 @@ fn settings_are_checked_before_any_socket() {
         assert!(
             matches!(
                 validate(SystemId(1), &s),
-                Err(OpenError::BadConfig {
+                Err(BluetoothOpenError::BadConfig {
                     field: "addresses",
                     ..
                 })

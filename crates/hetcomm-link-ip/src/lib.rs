@@ -66,7 +66,7 @@ pub fn register_transports(registry: &mut hetcomm_link::registry::Registry) {
 /// Why a link could not be opened.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum IpOpenError {
     /// The endpoint map has no entry for the system being opened.
     #[error("system {system} has no endpoint in the endpoint map")]
     NoLocalEndpoint {

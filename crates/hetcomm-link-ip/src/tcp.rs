@@ -22,7 +22,7 @@ use hetcomm_link::FrameSink;
 use crate::stream::{
     StreamConfig, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
 };
-use crate::OpenError;
+use crate::IpOpenError;
 
 impl StreamSocket for TcpStream {
     fn try_clone(&self) -> io::Result<Self> {
@@ -132,14 +132,15 @@ impl TcpLink {
         endpoints: &BTreeMap<SystemId, String>,
         sink: Arc<dyn FrameSink>,
         config: StreamConfig,
-    ) -> Result<TcpLink, OpenError> {
+    ) -> Result<TcpLink, IpOpenError> {
         let endpoint = endpoints
             .get(&local)
-            .ok_or(OpenError::NoLocalEndpoint { system: local })?;
-        let listener = TcpListener::bind(endpoint.as_str()).map_err(|source| OpenError::Bind {
-            endpoint: endpoint.clone(),
-            source,
-        })?;
+            .ok_or(IpOpenError::NoLocalEndpoint { system: local })?;
+        let listener =
+            TcpListener::bind(endpoint.as_str()).map_err(|source| IpOpenError::Bind {
+                endpoint: endpoint.clone(),
+                source,
+            })?;
         TcpLink::with_listener(local, listener, endpoints, sink, config)
     }
 
@@ -154,7 +155,7 @@ impl TcpLink {
         endpoints: &BTreeMap<SystemId, String>,
         sink: Arc<dyn FrameSink>,
         config: StreamConfig,
-    ) -> Result<TcpLink, OpenError> {
+    ) -> Result<TcpLink, IpOpenError> {
         let local_addr = listener.local_addr()?;
         // A burst of connects must not overflow the listen backlog (std's is 128), or the
         // connects that do wait for SYN retries. Listening again only changes the backlog.

@@ -18,7 +18,7 @@ use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Readable};
 use crate::stream::{
     StreamConfig, StreamLink, StreamListener, StreamSocket, StreamStats, StreamTransport,
 };
-use crate::OpenError;
+use crate::IpOpenError;
 
 impl StreamSocket for UnixStream {
     fn try_clone(&self) -> io::Result<Self> {
@@ -112,18 +112,18 @@ pub struct UnixLink {
 impl UnixLink {
     /// Listens on `local`'s path from `paths` and starts the link; the other entries are the
     /// peers. A stale socket file left by a crashed process (nobody accepting on it) is
-    /// replaced; a live one is an [`OpenError::Bind`] error.
+    /// replaced; a live one is an [`IpOpenError::Bind`] error.
     pub fn bind(
         local: SystemId,
         paths: &BTreeMap<SystemId, PathBuf>,
         sink: Arc<dyn FrameSink>,
         config: StreamConfig,
-    ) -> Result<UnixLink, OpenError> {
+    ) -> Result<UnixLink, IpOpenError> {
         let path = paths
             .get(&local)
-            .ok_or(OpenError::NoLocalEndpoint { system: local })?
+            .ok_or(IpOpenError::NoLocalEndpoint { system: local })?
             .clone();
-        let bind_err = |source| OpenError::Bind {
+        let bind_err = |source| IpOpenError::Bind {
             endpoint: path.display().to_string(),
             source,
         };

@@ -264,7 +264,7 @@ fn bind_reports_the_real_port_and_oversize_is_refused() {
     ));
     assert!(matches!(
         TcpLink::bind(B, &endpoints, CollectSink::new(), StreamConfig::default()),
-        Err(hetcomm_link_ip::OpenError::NoLocalEndpoint { system: B })
+        Err(hetcomm_link_ip::IpOpenError::NoLocalEndpoint { system: B })
     ));
 }
 

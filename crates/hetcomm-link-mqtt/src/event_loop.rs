@@ -17,7 +17,7 @@ use rumqttc::{Outgoing, TlsConfiguration, Transport};
 
 use crate::presence::{Announced, PresenceEvent};
 use crate::settings::{Broker, MqttSettings, Qos};
-use crate::{OpenError, Shared, Topics, IN_EVENT_LOOP, MAX_FRAME};
+use crate::{MqttOpenError, Shared, Topics, IN_EVENT_LOOP, MAX_FRAME};
 
 /// The client's options for each broker, in `brokers` order.
 pub(crate) fn options(
@@ -25,7 +25,7 @@ pub(crate) fn options(
     fleet: &str,
     name: &str,
     topics: &Topics,
-) -> Result<Vec<MqttOptions>, OpenError> {
+) -> Result<Vec<MqttOptions>, MqttOpenError> {
     let client_id = format!("{}{fleet}-{name}", s.client_id_prefix).replace('/', "-");
     let will = LastWill::new(
         topics.own_presence.clone(),
@@ -43,9 +43,9 @@ pub(crate) fn connect_options(
     s: &MqttSettings,
     client_id: &str,
     will: Option<LastWill>,
-) -> Result<Vec<MqttOptions>, OpenError> {
+) -> Result<Vec<MqttOptions>, MqttOpenError> {
     let tls = match s.tls() {
-        true => Some(crate::tls::client_config(s).map_err(OpenError::Setting)?),
+        true => Some(crate::tls::client_config(s).map_err(MqttOpenError::Setting)?),
         false => None,
     };
     Ok(s.brokers

@@ -143,7 +143,7 @@ pub struct MqttLinkConfig {
 /// Why an `mqtt` link could not open.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum MqttOpenError {
     /// The local system is not among the configured systems.
     #[error("system {0} is not a system of this fleet")]
     UnknownSystem(SystemId),
@@ -316,19 +316,22 @@ impl MqttLink {
     /// topic to `sink`. Fails within `open_timeout_ms` when no broker answers, naming them,
     /// and at once when a broker refuses the client (its reason: bad username or password, not
     /// authorised, …).
-    pub fn open(config: MqttLinkConfig, sink: Arc<dyn FrameSink>) -> Result<MqttLink, OpenError> {
+    pub fn open(
+        config: MqttLinkConfig,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<MqttLink, MqttOpenError> {
         let s = &config.settings;
         let local_name = config
             .systems
             .get(&config.local)
-            .ok_or(OpenError::UnknownSystem(config.local))?
+            .ok_or(MqttOpenError::UnknownSystem(config.local))?
             .clone();
         if s.brokers.is_empty() {
-            return Err(OpenError::Setting("no broker".into()));
+            return Err(MqttOpenError::Setting("no broker".into()));
         }
         for (what, level) in [("prefix", &s.prefix), ("fleet", &config.fleet)] {
             validate_levels(level)
-                .map_err(|why| OpenError::Setting(format!("`{what}` `{level}`: {why}")))?;
+                .map_err(|why| MqttOpenError::Setting(format!("`{what}` `{level}`: {why}")))?;
         }
         let (prefix, fleet) = (&s.prefix, &config.fleet);
         let broadcast = !config.systems.contains_key(&TO_ALL_SYSTEM);
@@ -397,7 +400,7 @@ impl MqttLink {
                 .spawn(move || {
                     event_loop::run(shared, client, connection, options, brokers, filters)
                 })
-                .map_err(|e| OpenError::Setting(format!("cannot start a thread: {e}")))?
+                .map_err(|e| MqttOpenError::Setting(format!("cannot start a thread: {e}")))?
         };
         {
             // Ends the broker's receipts that wait past their bound (`receipts`).
@@ -405,7 +408,7 @@ impl MqttLink {
             std::thread::Builder::new()
                 .name(format!("mqtt-receipts-{local_name}"))
                 .spawn(move || shared.receipts.run_expiry())
-                .map_err(|e| OpenError::Setting(format!("cannot start a thread: {e}")))?;
+                .map_err(|e| MqttOpenError::Setting(format!("cannot start a thread: {e}")))?;
         }
         let link = MqttLink {
             shared,
@@ -423,14 +426,14 @@ impl MqttLink {
 
     /// Waits for the first connection (connected and subscribed), or fails as the docs of
     /// [`MqttLink::open`] say.
-    fn wait_open(mut self) -> Result<MqttLink, OpenError> {
+    fn wait_open(mut self) -> Result<MqttLink, MqttOpenError> {
         let timeout_ms = self.settings.open_timeout_ms;
         let deadline = Instant::now() + Duration::from_millis(timeout_ms as u64);
         let shared = self.shared.clone();
         let settled = shared.wait_for(deadline, |c| match c.ready {
             true => Some(Ok(c.broker_max_packet)),
             false => c.refused.clone().map(|reason| {
-                Err(OpenError::Refused {
+                Err(MqttOpenError::Refused {
                     broker: c.broker.clone(),
                     reason,
                 })
@@ -438,7 +441,7 @@ impl MqttLink {
         });
         let result = match settled {
             Ok(result) => result,
-            Err(conn) => Err(OpenError::Unreachable {
+            Err(conn) => Err(MqttOpenError::Unreachable {
                 brokers: self.settings.broker_list(),
                 timeout_ms,
                 reason: conn

@@ -57,7 +57,7 @@
 //!
 //! ## The master
 //!
-//! * Opening fails within [`Ros1Config::open_timeout`] with [`OpenError::MasterUnreachable`]
+//! * Opening fails within [`Ros1Config::open_timeout`] with [`Ros1OpenError::MasterUnreachable`]
 //!   (naming the URI) when the master does not answer.
 //! * While the link runs, a supervision task asks the master every
 //!   [`Ros1Config::supervise_interval`] whether this link's subscription is still registered.
@@ -206,7 +206,7 @@ impl Default for Ros1Config {
 /// Why a `ros1` link could not be opened.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum Ros1OpenError {
     /// The master did not answer (or refused) within the open timeout.
     #[error("ROS master at {uri} is unreachable: {reason} (is `roscore` / `rosmaster --core` running? check the transport's `master_uri` or ROS_MASTER_URI)")]
     MasterUnreachable {
@@ -249,9 +249,9 @@ fn valid_segment(s: &str) -> bool {
 /// The topic of the system named `name`: `/<namespace>/<name>`, or `/<name>` without a
 /// namespace. The namespace may have several segments (`fleet/hetcomm`) and leading or
 /// trailing slashes, which are ignored. Fails on names that are not ROS name segments.
-pub fn topic_name(namespace: Option<&str>, name: &str) -> Result<String, OpenError> {
+pub fn topic_name(namespace: Option<&str>, name: &str) -> Result<String, Ros1OpenError> {
     if !valid_segment(name) {
-        return Err(OpenError::InvalidName {
+        return Err(Ros1OpenError::InvalidName {
             name: name.to_string(),
         });
     }
@@ -259,7 +259,7 @@ pub fn topic_name(namespace: Option<&str>, name: &str) -> Result<String, OpenErr
     if let Some(ns) = namespace {
         for seg in ns.split('/').filter(|s| !s.is_empty()) {
             if !valid_segment(seg) {
-                return Err(OpenError::InvalidName {
+                return Err(Ros1OpenError::InvalidName {
                     name: ns.to_string(),
                 });
             }

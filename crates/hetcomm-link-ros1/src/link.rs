@@ -14,14 +14,14 @@ impl Ros1Link {
         settings: &Ros1Settings,
         sink: Arc<dyn FrameSink>,
         mut config: Ros1Config,
-    ) -> Result<Ros1Link, OpenError> {
+    ) -> Result<Ros1Link, Ros1OpenError> {
         if let Some(ms) = settings.connect_timeout_ms {
             config.connect_timeout = Duration::from_millis(ms);
         }
         let namespace = settings.namespace.as_deref();
         let local_name = systems
             .get(&local)
-            .ok_or(OpenError::UnknownLocalSystem { system: local })?
+            .ok_or(Ros1OpenError::UnknownLocalSystem { system: local })?
             .clone();
         let own_topic = topic_name(namespace, &local_name)?;
         let mut peer_topics = BTreeMap::new();
@@ -64,7 +64,7 @@ impl Ros1Link {
             tokio::time::timeout(timeout, register(&plan, wiring.clone(), counters.clone()))
                 .await
                 .unwrap_or_else(|_| {
-                    Err(OpenError::MasterUnreachable {
+                    Err(Ros1OpenError::MasterUnreachable {
                         uri: plan.master_uri.clone(),
                         reason: format!("no answer within {timeout:?}"),
                     })
@@ -100,7 +100,7 @@ impl Ros1Link {
             Err(e) => {
                 drop(registration);
                 runtime.shutdown_timeout(Duration::from_millis(500));
-                return Err(OpenError::Runtime(e));
+                return Err(Ros1OpenError::Runtime(e));
             }
         };
         let (stop, stop_rx) = oneshot::channel();

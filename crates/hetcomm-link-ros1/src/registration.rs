@@ -75,7 +75,7 @@ pub(super) async fn register(
     plan: &Plan,
     wiring: Arc<Wiring>,
     counters: Arc<Counters>,
-) -> Result<Registration, OpenError> {
+) -> Result<Registration, Ros1OpenError> {
     let uri = &plan.master_uri;
     let node_name = format!(
         "{NODE_PREFIX}{}_{}_{}",
@@ -87,17 +87,17 @@ pub(super) async fn register(
         let reason = e.to_string();
         match e {
             roslibrust::ros1::NodeError::RosMasterError(_)
-            | roslibrust::ros1::NodeError::IoError(_) => OpenError::MasterUnreachable {
+            | roslibrust::ros1::NodeError::IoError(_) => Ros1OpenError::MasterUnreachable {
                 uri: uri.clone(),
                 reason,
             },
-            _ => OpenError::Registration {
+            _ => Ros1OpenError::Registration {
                 uri: uri.clone(),
                 reason,
             },
         }
     })?;
-    let registration = |what: &str, e: &dyn std::fmt::Display| OpenError::Registration {
+    let registration = |what: &str, e: &dyn std::fmt::Display| Ros1OpenError::Registration {
         uri: uri.clone(),
         reason: format!("{what}: {e}"),
     };
@@ -107,7 +107,7 @@ pub(super) async fn register(
         .map_err(|e| registration("node URI", &e))?;
     let client = MasterClient::new(uri.as_str(), client_uri, node_name.as_str())
         .await
-        .map_err(|e| OpenError::MasterUnreachable {
+        .map_err(|e| Ros1OpenError::MasterUnreachable {
             uri: uri.clone(),
             reason: e.to_string(),
         })?;

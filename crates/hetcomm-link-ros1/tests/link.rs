@@ -13,7 +13,7 @@ use hetcomm_core::SystemId;
 use hetcomm_link::conformance::{self, CollectSink, Harness, Layered};
 use hetcomm_link::{FrameSink, Link, LinkError, Peer};
 use hetcomm_link_ros1::Ros1Settings;
-use hetcomm_link_ros1::{MasterState, OpenError, Ros1Config, Ros1Link};
+use hetcomm_link_ros1::{MasterState, Ros1Config, Ros1Link, Ros1OpenError};
 
 const WAIT: Duration = Duration::from_secs(15);
 
@@ -195,7 +195,7 @@ fn unreachable_master_fails_at_once_naming_the_uri() {
         started.elapsed()
     );
     assert!(
-        matches!(err, OpenError::MasterUnreachable { .. }),
+        matches!(err, Ros1OpenError::MasterUnreachable { .. }),
         "{err:?}"
     );
     let text = err.to_string();
@@ -205,7 +205,7 @@ fn unreachable_master_fails_at_once_naming_the_uri() {
 #[test]
 fn bad_names_are_refused() {
     let err = hetcomm_link_ros1::topic_name(Some("ok"), "no-dash").unwrap_err();
-    assert!(matches!(err, OpenError::InvalidName { .. }));
+    assert!(matches!(err, Ros1OpenError::InvalidName { .. }));
     assert_eq!(
         hetcomm_link_ros1::topic_name(Some("/a/b/"), "Charlie").unwrap(),
         "/a/b/Charlie"

@@ -9,7 +9,7 @@ use hetcomm_link::registry::{OpenFailure, OpenRequest, Opened, TransportFactory}
 use hetcomm_link::{FrameSink, Link};
 
 use crate::settings::{self, Backend, Ros2Settings};
-use crate::{OpenError, Ros2Link};
+use crate::{Ros2Link, Ros2OpenError};
 
 /// Opens system `local`'s `ros2` link on the DDS implementation its settings name (`dds`):
 /// read through [`Link::readable`] by whoever drives it when `driven`, else by a thread of
@@ -20,7 +20,7 @@ pub fn open_link(
     settings: &Ros2Settings,
     sink: Arc<dyn FrameSink>,
     driven: bool,
-) -> Result<Box<dyn Link>, OpenError> {
+) -> Result<Box<dyn Link>, Ros2OpenError> {
     match (settings.dds, driven) {
         (Backend::RustDds, true) => Ok(Box::new(Ros2Link::open_driven(
             local, names, settings, sink,
@@ -35,7 +35,7 @@ pub fn open_link(
             local, names, settings, sink,
         )?)),
         #[cfg(not(feature = "cyclone"))]
-        (Backend::Cyclone, _) => Err(OpenError::Dds {
+        (Backend::Cyclone, _) => Err(Ros2OpenError::Dds {
             what: "the participant".into(),
             reason: "`dds = \"cyclone\"` needs the cargo feature `cyclone` of \
                      hetcomm-link-ros2 (`ros2-cyclone` of hetcomm)"

@@ -55,7 +55,7 @@ pub mod rostypes;
 pub mod settings;
 
 pub use factory::Ros2Factory;
-pub use link::{OpenError, Ros2Link, MAX_FRAME};
+pub use link::{Ros2Link, Ros2OpenError, MAX_FRAME};
 pub use settings::{Backend, Reliability, Ros2Settings};
 
 /// Registers the `ros2` transport kind, the `ros2_bridge` and the plain-DDS bridge `dds`

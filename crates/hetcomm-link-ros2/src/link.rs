@@ -29,7 +29,7 @@ pub const MAX_FRAME: usize = 4 * 1024 * 1024;
 
 /// Why a `ros2` link did not open.
 #[derive(Debug, thiserror::Error)]
-pub enum OpenError {
+pub enum Ros2OpenError {
     /// The local system is not in the fleet's name list.
     #[error("system {0} has no name in the fleet")]
     UnknownLocal(SystemId),
@@ -43,9 +43,9 @@ pub enum OpenError {
     },
 }
 
-fn dds_err(what: impl Into<String>) -> impl FnOnce(rustdds::dds::CreateError) -> OpenError {
+fn dds_err(what: impl Into<String>) -> impl FnOnce(rustdds::dds::CreateError) -> Ros2OpenError {
     let what = what.into();
-    move |e| OpenError::Dds {
+    move |e| Ros2OpenError::Dds {
         what,
         reason: e.to_string(),
     }
@@ -70,7 +70,7 @@ pub fn qos(settings: &Ros2Settings) -> QosPolicies {
 
 /// Opens the DDS participant a `ros2` transport (or bridge) uses. Give it back with
 /// [`retire`] when done: participants dropped elsewhere can take the process down at exit.
-pub fn participant(settings: &Ros2Settings) -> Result<DomainParticipant, OpenError> {
+pub fn participant(settings: &Ros2Settings) -> Result<DomainParticipant, Ros2OpenError> {
     // Participants retired earlier go now, on this thread (see `retire`).
     let retired = std::mem::take(&mut *retired().lock());
     drop(retired);
@@ -187,7 +187,7 @@ impl Ros2Link {
         names: &[(SystemId, String)],
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
-    ) -> Result<Ros2Link, OpenError> {
+    ) -> Result<Ros2Link, Ros2OpenError> {
         Self::open_with(local, names, settings, sink, false)
     }
 
@@ -199,7 +199,7 @@ impl Ros2Link {
         names: &[(SystemId, String)],
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
-    ) -> Result<Ros2Link, OpenError> {
+    ) -> Result<Ros2Link, Ros2OpenError> {
         Self::open_with(local, names, settings, sink, true)
     }
 
@@ -209,11 +209,11 @@ impl Ros2Link {
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
         driven: bool,
-    ) -> Result<Ros2Link, OpenError> {
+    ) -> Result<Ros2Link, Ros2OpenError> {
         let own = names
             .iter()
             .find(|(id, _)| *id == local)
-            .ok_or(OpenError::UnknownLocal(local))?;
+            .ok_or(Ros2OpenError::UnknownLocal(local))?;
         let dp = participant(settings)?;
         let qos = qos(settings);
         let type_name = names::dds_type(FRAME_TYPE);
@@ -235,7 +235,7 @@ impl Ros2Link {
             .create_datareader_no_key_cdr::<FrameMessage>(&topic, Some(qos.clone()))
             .map_err(dds_err(format!("the reader of {own_topic}")))?;
 
-        let io_err = |e: std::io::Error| OpenError::Dds {
+        let io_err = |e: std::io::Error| Ros2OpenError::Dds {
             what: "the receive side".into(),
             reason: e.to_string(),
         };

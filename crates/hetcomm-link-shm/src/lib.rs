@@ -84,7 +84,7 @@ pub struct ShmLinkConfig {
 /// Why an `shm` link could not open.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum ShmOpenError {
     /// The local system is not among the configured systems.
     #[error("system {0} is not a system of this fleet")]
     UnknownSystem(SystemId),

@@ -22,7 +22,7 @@ use crate::liveness::Liveness;
 use crate::memory::{self, SHM_DIR};
 use crate::settings::{service_name, BORROWED, LOANS};
 use crate::spinning::{OwnFlag, PeerFlag};
-use crate::{IpcService, OpenError, ShmLinkConfig};
+use crate::{IpcService, ShmLinkConfig, ShmOpenError};
 
 type Pub = Publisher<IpcService, [u8], ()>;
 type Sub = Subscriber<IpcService, [u8], ()>;
@@ -95,7 +95,7 @@ pub struct ShmLink {
 }
 
 /// Says what an iceoryx2 error means for a user, from its name.
-fn explain(what: &str, service: &str, e: impl std::fmt::Debug) -> OpenError {
+fn explain(what: &str, service: &str, e: impl std::fmt::Debug) -> ShmOpenError {
     let code = format!("{e:?}");
     let hint = if code.contains("InsufficientPermissions") {
         "its files belong to another user (shared memory is owner-only): run every process of \
@@ -120,7 +120,7 @@ fn explain(what: &str, service: &str, e: impl std::fmt::Debug) -> OpenError {
     } else {
         "see the cause; docs/shm.md lists what iceoryx2 needs"
     };
-    OpenError::Iceoryx(format!("shm {what} `{service}`: {code}: {hint}"))
+    ShmOpenError::Iceoryx(format!("shm {what} `{service}`: {code}: {hint}"))
 }
 
 impl ShmLink {
@@ -128,21 +128,21 @@ impl ShmLink {
     /// the subscriber and listener on its own service, a publisher and notifier on every
     /// other system's. Fails with what to do when shared memory is missing, too small or
     /// another user's, or when a service of the same name is not a compatible one.
-    pub fn open(config: ShmLinkConfig, sink: Arc<dyn FrameSink>) -> Result<ShmLink, OpenError> {
+    pub fn open(config: ShmLinkConfig, sink: Arc<dyn FrameSink>) -> Result<ShmLink, ShmOpenError> {
         let s = &config.settings;
         let local_name = config
             .systems
             .iter()
             .find(|(id, _)| *id == config.local)
             .map(|(_, n)| n.clone())
-            .ok_or(OpenError::UnknownSystem(config.local))?;
+            .ok_or(ShmOpenError::UnknownSystem(config.local))?;
         quiet_iceoryx();
         let publishers = s.max_publishers.unwrap_or(config.systems.len() + 1);
         let dests_n = config.systems.len().saturating_sub(1) as u64;
         // What opening maps: a publisher's segment per destination, and its own service's
         // queues (small); grows later up to `publisher_bound` per publisher.
         let needed = (dests_n + 1) * s.publisher_initial() as u64;
-        memory::check(Path::new(SHM_DIR), needed).map_err(OpenError::Memory)?;
+        memory::check(Path::new(SHM_DIR), needed).map_err(ShmOpenError::Memory)?;
         let name = |system: &str| service_name(&s.prefix, &config.fleet, system);
         let local_service = name(&local_name);
         let node_name =
@@ -164,7 +164,7 @@ impl ShmLink {
         // services (and its subscriber the only subscriber's); remove them first.
         liveness.sweep(node.config(), None);
         let open_service =
-            |service: &str| -> Result<PubSubFactory<IpcService, [u8], ()>, OpenError> {
+            |service: &str| -> Result<PubSubFactory<IpcService, [u8], ()>, ShmOpenError> {
                 let sn =
                     ServiceName::new(service).map_err(|e| explain("service name", service, e))?;
                 node.service_builder(&sn)

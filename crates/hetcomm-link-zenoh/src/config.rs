@@ -2,7 +2,7 @@
 
 use zenoh::Wait;
 
-use crate::OpenError;
+use crate::ZenohOpenError;
 
 /// How a system's session takes part in the Zenoh network.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,16 +111,17 @@ fn json_list(items: &[String]) -> String {
 }
 
 /// The Zenoh configuration for `s`.
-pub(crate) fn zenoh_config(s: &ZenohSettings) -> Result<zenoh::Config, OpenError> {
+pub(crate) fn zenoh_config(s: &ZenohSettings) -> Result<zenoh::Config, ZenohOpenError> {
     let mut c = zenoh::Config::default();
     let mut set = |key: &str, value: String| {
-        c.insert_json5(key, &value).map_err(|e| OpenError::Setting {
-            key: key.to_string(),
-            reason: e.to_string(),
-        })
+        c.insert_json5(key, &value)
+            .map_err(|e| ZenohOpenError::Setting {
+                key: key.to_string(),
+                reason: e.to_string(),
+            })
     };
     for e in s.connect.iter().chain(&s.listen) {
-        check_endpoint(e).map_err(|reason| OpenError::Setting {
+        check_endpoint(e).map_err(|reason| ZenohOpenError::Setting {
             key: "endpoint".into(),
             reason,
         })?;
@@ -152,8 +153,8 @@ pub(crate) fn without_source_location(text: &str) -> String {
     }
 }
 
-/// Opens the session for `s`, turning a connect failure into [`OpenError::Unreachable`].
-pub(crate) fn open_session(s: &ZenohSettings) -> Result<zenoh::Session, OpenError> {
+/// Opens the session for `s`, turning a connect failure into [`ZenohOpenError::Unreachable`].
+pub(crate) fn open_session(s: &ZenohSettings) -> Result<zenoh::Session, ZenohOpenError> {
     let config = zenoh_config(s)?;
     zenoh::open(config).wait().map_err(|e| {
         let reason = without_source_location(&e.to_string());
@@ -163,9 +164,9 @@ pub(crate) fn open_session(s: &ZenohSettings) -> Result<zenoh::Session, OpenErro
             s.connect.join(", ")
         };
         if endpoints.is_empty() {
-            OpenError::Zenoh(format!("open: {reason}"))
+            ZenohOpenError::Zenoh(format!("open: {reason}"))
         } else {
-            OpenError::Unreachable {
+            ZenohOpenError::Unreachable {
                 mode: s.mode.as_str(),
                 endpoints,
                 timeout_ms: s.open_timeout_ms,

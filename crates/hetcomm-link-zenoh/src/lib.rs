@@ -139,7 +139,7 @@ pub struct ZenohLinkConfig {
 /// Why a `zenoh` link could not open.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum OpenError {
+pub enum ZenohOpenError {
     /// The local system is not among the configured systems.
     #[error("system {0} is not a system of this fleet")]
     UnknownSystem(SystemId),
@@ -365,21 +365,24 @@ impl ZenohLink {
     /// Opens `config.local`'s session and starts delivering the frames put on its data key to
     /// `sink`. Fails within `open_timeout_ms` when a `connect` endpoint (a router) does not
     /// answer, naming it.
-    pub fn open(config: ZenohLinkConfig, sink: Arc<dyn FrameSink>) -> Result<ZenohLink, OpenError> {
+    pub fn open(
+        config: ZenohLinkConfig,
+        sink: Arc<dyn FrameSink>,
+    ) -> Result<ZenohLink, ZenohOpenError> {
         let s = &config.settings;
         let local_name = config
             .systems
             .get(&config.local)
-            .ok_or(OpenError::UnknownSystem(config.local))?
+            .ok_or(ZenohOpenError::UnknownSystem(config.local))?
             .clone();
-        validate_prefix(&s.prefix).map_err(|reason| OpenError::Setting {
+        validate_prefix(&s.prefix).map_err(|reason| ZenohOpenError::Setting {
             key: s.prefix.clone(),
             reason,
         })?;
         let session = config::open_session(s)?;
         let zerr = |what: &str| {
             let what = what.to_string();
-            move |e: zenoh::Error| OpenError::Zenoh(format!("{what}: {e}"))
+            move |e: zenoh::Error| ZenohOpenError::Zenoh(format!("{what}: {e}"))
         };
 
         let names: HashMap<String, SystemId> = config

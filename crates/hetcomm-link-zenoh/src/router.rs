@@ -6,7 +6,7 @@
 use zenoh::Wait;
 
 use crate::config::check_endpoint;
-use crate::OpenError;
+use crate::ZenohOpenError;
 
 /// Zenoh's runtime settings for a router process, in the syntax of Zenoh's `ZENOH_RUNTIME`
 /// environment variable: 32 `rx` threads instead of Zenoh's 2.
@@ -39,7 +39,10 @@ pub struct ZenohRouter {
 impl ZenohRouter {
     /// Starts a router listening on `listen` (e.g. `tcp/0.0.0.0:7447`), with multicast scouting
     /// on or off. Fails, naming the endpoint, when it cannot listen there.
-    pub fn start(listen: &[String], multicast_scouting: bool) -> Result<ZenohRouter, OpenError> {
+    pub fn start(
+        listen: &[String],
+        multicast_scouting: bool,
+    ) -> Result<ZenohRouter, ZenohOpenError> {
         Self::start_with_lease(listen, multicast_scouting, 10_000)
     }
 
@@ -52,22 +55,23 @@ impl ZenohRouter {
         listen: &[String],
         multicast_scouting: bool,
         lease_ms: u32,
-    ) -> Result<ZenohRouter, OpenError> {
+    ) -> Result<ZenohRouter, ZenohOpenError> {
         if listen.is_empty() {
-            return Err(OpenError::Setting {
+            return Err(ZenohOpenError::Setting {
                 key: "listen".into(),
                 reason: "a router needs at least one endpoint to listen on".into(),
             });
         }
         let mut c = zenoh::Config::default();
         let mut set = |key: &str, value: String| {
-            c.insert_json5(key, &value).map_err(|e| OpenError::Setting {
-                key: key.to_string(),
-                reason: e.to_string(),
-            })
+            c.insert_json5(key, &value)
+                .map_err(|e| ZenohOpenError::Setting {
+                    key: key.to_string(),
+                    reason: e.to_string(),
+                })
         };
         for e in listen {
-            check_endpoint(e).map_err(|reason| OpenError::Setting {
+            check_endpoint(e).map_err(|reason| ZenohOpenError::Setting {
                 key: "listen".into(),
                 reason,
             })?;
@@ -79,12 +83,14 @@ impl ZenohRouter {
         set("connect/endpoints", "[]".into())?;
         set("transport/link/tx/lease", lease_ms.to_string())?;
         set("scouting/multicast/enabled", multicast_scouting.to_string())?;
-        let session = zenoh::open(c).wait().map_err(|e| OpenError::Unreachable {
-            mode: "router",
-            endpoints: listen.join(", "),
-            timeout_ms: 0,
-            reason: e.to_string(),
-        })?;
+        let session = zenoh::open(c)
+            .wait()
+            .map_err(|e| ZenohOpenError::Unreachable {
+                mode: "router",
+                endpoints: listen.join(", "),
+                timeout_ms: 0,
+                reason: e.to_string(),
+            })?;
         Ok(ZenohRouter {
             session: Some(session),
             listen: listen.to_vec(),

@@ -23,7 +23,7 @@ use super::{
     add, lock, Batch, KernelDrops, RxSide, SendSide, Shared, UdpConfig, UdpCounters, UdpLink,
     UdpPeer, UdpStats, BATCH_HEADER_LEN, BATCH_LENGTH_LEN, FRAGMENT_HEADER_LEN,
 };
-use crate::OpenError;
+use crate::IpOpenError;
 
 impl UdpLink {
     /// Binds `local`'s endpoint from `endpoints` (port 0 picks a free port; see
@@ -35,11 +35,11 @@ impl UdpLink {
         endpoints: &BTreeMap<SystemId, String>,
         sink: Arc<dyn FrameSink>,
         config: UdpConfig,
-    ) -> Result<UdpLink, OpenError> {
+    ) -> Result<UdpLink, IpOpenError> {
         let endpoint = endpoints
             .get(&local)
-            .ok_or(OpenError::NoLocalEndpoint { system: local })?;
-        let socket = UdpSocket::bind(endpoint.as_str()).map_err(|source| OpenError::Bind {
+            .ok_or(IpOpenError::NoLocalEndpoint { system: local })?;
+        let socket = UdpSocket::bind(endpoint.as_str()).map_err(|source| IpOpenError::Bind {
             endpoint: endpoint.clone(),
             source,
         })?;
@@ -54,7 +54,7 @@ impl UdpLink {
         endpoints: &BTreeMap<SystemId, String>,
         sink: Arc<dyn FrameSink>,
         config: UdpConfig,
-    ) -> Result<UdpLink, OpenError> {
+    ) -> Result<UdpLink, IpOpenError> {
         config.check()?;
         let local_addr = socket.local_addr()?;
         let mut peer_addrs = BTreeMap::new();
@@ -359,8 +359,8 @@ fn clock_seed() -> u32 {
     nanos ^ std::process::id().rotate_left(8)
 }
 
-fn resolve(id: SystemId, endpoint: &str, prefer_v4: bool) -> Result<SocketAddr, OpenError> {
-    let bad = |reason: String| OpenError::BadEndpoint {
+fn resolve(id: SystemId, endpoint: &str, prefer_v4: bool) -> Result<SocketAddr, IpOpenError> {
+    let bad = |reason: String| IpOpenError::BadEndpoint {
         system: id,
         endpoint: endpoint.to_string(),
         reason,

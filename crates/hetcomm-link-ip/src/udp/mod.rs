@@ -185,7 +185,7 @@ use hetcomm_core::wire::{HEADER_LEN, MAX_PAYLOAD};
 use hetcomm_core::SystemId;
 
 use crate::common::{add, lock, WriteBehind, Writer};
-use crate::OpenError;
+use crate::IpOpenError;
 
 // The batch framing is hetcomm-link's (shared with other links); named here as before.
 use behind::Behind;
@@ -281,9 +281,9 @@ impl UdpConfig {
             .max(self.datagram_payload.min(by_message))
     }
 
-    fn check(&self) -> Result<(), OpenError> {
+    fn check(&self) -> Result<(), IpOpenError> {
         if !(FRAGMENT_HEADER_LEN + 1..=MAX_DATAGRAM_PAYLOAD).contains(&self.datagram_payload) {
-            return Err(OpenError::BadConfig {
+            return Err(IpOpenError::BadConfig {
                 field: "datagram_payload",
                 reason: format!(
                     "{} is outside {}..={MAX_DATAGRAM_PAYLOAD}",
@@ -293,7 +293,7 @@ impl UdpConfig {
             });
         }
         if self.reassembly_timeout.is_zero() {
-            return Err(OpenError::BadConfig {
+            return Err(IpOpenError::BadConfig {
                 field: "reassembly_timeout",
                 reason: "must be longer than zero".into(),
             });

@@ -57,7 +57,7 @@ pub use settings::{check_topic, BridgeSettings, JsonMapping, KEYS};
 use crate::receipts::{self, Receipts};
 use crate::IN_EVENT_LOOP;
 use crate::{
-    event_loop, factory, overhead, queue_publish, wait_until, BrokerStats, Conn, OpenError,
+    event_loop, factory, overhead, queue_publish, wait_until, BrokerStats, Conn, MqttOpenError,
 };
 
 /// The kind's name in fleet files.
@@ -261,7 +261,7 @@ impl MqttBridge {
         let settled = shared.wait_for(deadline, |c| match c.ready {
             true => Some(Ok(())),
             false => c.refused.clone().map(|reason| {
-                Err(OpenError::Refused {
+                Err(MqttOpenError::Refused {
                     broker: c.broker.clone(),
                     reason,
                 })
@@ -269,7 +269,7 @@ impl MqttBridge {
         });
         let result = match settled {
             Ok(r) => r,
-            Err(conn) => Err(OpenError::Unreachable {
+            Err(conn) => Err(MqttOpenError::Unreachable {
                 brokers: s.broker_list(),
                 timeout_ms: s.open_timeout_ms,
                 reason: conn

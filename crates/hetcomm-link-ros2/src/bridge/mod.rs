@@ -49,7 +49,7 @@ use rustdds::{DomainParticipant, TopicKind, GUID};
 
 pub use settings::{BridgeSettings, Mapping, KEYS};
 
-use crate::link::{participant, qos, retire, OpenError};
+use crate::link::{participant, qos, retire, Ros2OpenError};
 use crate::names;
 use crate::raw::{RawAdapter, RawCdr};
 
@@ -107,7 +107,7 @@ impl Ros2Bridge {
         let dp = participant(&settings.dds)?;
         let qos = qos(&settings.dds);
         let dds_err = |what: String| {
-            move |e: rustdds::dds::CreateError| OpenError::Dds {
+            move |e: rustdds::dds::CreateError| Ros2OpenError::Dds {
                 what,
                 reason: e.to_string(),
             }

@@ -14,7 +14,7 @@ use std::ffi::{CStr, CString};
 
 use cyclors::*;
 
-use crate::link::OpenError;
+use crate::link::Ros2OpenError;
 use crate::settings::{Reliability, Ros2Settings};
 
 /// Cyclone DDS's text for return code `rc` (negative).
@@ -24,9 +24,9 @@ pub fn retcode(rc: dds_return_t) -> String {
     format!("{} ({rc})", text.to_string_lossy())
 }
 
-/// An [`OpenError`] for a failed creation of `what`.
-pub fn dds_err(what: impl Into<String>, rc: dds_return_t) -> OpenError {
-    OpenError::Dds {
+/// An [`Ros2OpenError`] for a failed creation of `what`.
+pub fn dds_err(what: impl Into<String>, rc: dds_return_t) -> Ros2OpenError {
+    Ros2OpenError::Dds {
         what: what.into(),
         reason: retcode(rc),
     }
@@ -77,13 +77,13 @@ pub struct Participant {
 
 impl Participant {
     /// Creates (or joins) the settings' domain and a participant on it.
-    pub fn new(settings: &Ros2Settings) -> Result<Participant, OpenError> {
+    pub fn new(settings: &Ros2Settings) -> Result<Participant, Ros2OpenError> {
         let id = u32::from(settings.domain_id);
         let config = config(settings);
         let mut domains = DOMAINS.lock();
         match domains.get_mut(&id) {
             Some(open) if open.config != config => {
-                return Err(OpenError::Dds {
+                return Err(Ros2OpenError::Dds {
                     what: format!("the participant on domain {id}"),
                     reason: format!(
                         "Cyclone DDS runs one instance of a domain per process, and domain {id} \
@@ -95,7 +95,7 @@ impl Participant {
             }
             Some(open) => open.users += 1,
             None => {
-                let text = CString::new(config.clone()).map_err(|_| OpenError::Dds {
+                let text = CString::new(config.clone()).map_err(|_| Ros2OpenError::Dds {
                     what: format!("domain {id}"),
                     reason: "CYCLONEDDS_URI holds a NUL byte".into(),
                 })?;
@@ -213,8 +213,8 @@ pub fn blob_topic(
     participant: dds_entity_t,
     topic: &str,
     type_name: &str,
-) -> Result<dds_entity_t, OpenError> {
-    let bad = |_| OpenError::Dds {
+) -> Result<dds_entity_t, Ros2OpenError> {
+    let bad = |_| Ros2OpenError::Dds {
         what: format!("topic {topic}"),
         reason: "the name holds a NUL byte".into(),
     };

@@ -45,7 +45,7 @@ use hetcomm_core::SystemId;
 use hetcomm_link::{FrameSink, Link, LinkCaps, LinkError, LinkStats, Peer, Readable};
 
 use crate::frame_cdr;
-use crate::link::{OpenError, MAX_FRAME};
+use crate::link::{Ros2OpenError, MAX_FRAME};
 use crate::msg::FRAME_TYPE;
 use crate::names;
 use crate::settings::Ros2Settings;
@@ -126,7 +126,7 @@ impl CycloneLink {
         names: &[(SystemId, String)],
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
-    ) -> Result<CycloneLink, OpenError> {
+    ) -> Result<CycloneLink, Ros2OpenError> {
         Self::open_with(local, names, settings, sink, false)
     }
 
@@ -136,7 +136,7 @@ impl CycloneLink {
         names: &[(SystemId, String)],
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
-    ) -> Result<CycloneLink, OpenError> {
+    ) -> Result<CycloneLink, Ros2OpenError> {
         Self::open_with(local, names, settings, sink, true)
     }
 
@@ -146,12 +146,12 @@ impl CycloneLink {
         settings: &Ros2Settings,
         sink: Arc<dyn FrameSink>,
         driven: bool,
-    ) -> Result<CycloneLink, OpenError> {
+    ) -> Result<CycloneLink, Ros2OpenError> {
         let own = names
             .iter()
             .find(|(id, _)| *id == local)
-            .ok_or(OpenError::UnknownLocal(local))?;
-        let io_err = |e: std::io::Error| OpenError::Dds {
+            .ok_or(Ros2OpenError::UnknownLocal(local))?;
+        let io_err = |e: std::io::Error| Ros2OpenError::Dds {
             what: "the receive side".into(),
             reason: e.to_string(),
         };
