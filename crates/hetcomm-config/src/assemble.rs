@@ -90,8 +90,11 @@ pub(crate) struct TransportSpec {
     /// None when the transport had errors; it still counts as defined so the table does not
     /// report it a second time as unknown.
     pub settings: Option<TransportSettings>,
-    /// The `over` name of an emulated transport, with its location.
+    /// The transport it is layered over (`over`, read by its kind's spec through
+    /// [`crate::SettingsReader::layered_over`]), with its location.
     pub over: Option<(String, Loc)>,
+    /// Its own link never leaves the process (its kind says so).
+    pub in_process: bool,
     /// The systems it has an address for, when its kind needs one per system (checked
     /// against the table's pairs); None for kinds that need none.
     pub addresses: Option<Addresses>,
@@ -537,7 +540,7 @@ pub(crate) fn finish(p: Parts, kinds: &Kinds, mut diag: Diag) -> Result<Fleet, C
         tag_of[i].get_or_insert(l.letter);
     }
 
-    // Emulated transports must wrap a defined, non-emulated-cycle transport.
+    // A transport layered over another must name a defined one, and the chain must end.
     check_over(&transports, &mut diag);
 
     // The table. Pairs are collected in file order (so that each problem is reported at the
@@ -634,6 +637,8 @@ pub(crate) fn finish(p: Parts, kinds: &Kinds, mut diag: Diag) -> Result<Fleet, C
             batch_linger_us: t.batch_linger_us,
             security: t.security,
             settings,
+            over: t.over.map(|(name, _)| name),
+            in_process: t.in_process,
         });
     }
     // Sorting is linear when the rows and columns are already in id order; building the map
@@ -678,8 +683,8 @@ fn define_letter(
     }
 }
 
-/// Checks every emulated transport's `over`: it names a transport, not itself, and the chain
-/// of wrappers ends.
+/// Checks every layered transport's `over`: it names a transport, not itself, and the chain
+/// of layers ends.
 fn check_over(transports: &[TransportSpec], diag: &mut Diag) {
     let index = |n: &str| transports.iter().position(|t| t.name == n);
     for (i, t) in transports.iter().enumerate() {

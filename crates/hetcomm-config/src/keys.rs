@@ -201,22 +201,16 @@ pub fn insecure(fleet: &mut Fleet) {
 }
 
 impl Fleet {
-    /// Whether frames on `t` leave the process: false for `inproc` and for an `emulated`
-    /// transport without `over` (a private in-process link), the wrapped transport's answer
-    /// for an `emulated` one with `over`, true for every other kind.
+    /// Whether frames on `t` leave the process: for a transport layered `over` another, that
+    /// one's answer; else whether its own link does (false for `inproc` and for an `emulated`
+    /// transport's private hub: [`TransportDef::in_process`]).
     pub fn leaves_process(&self, t: &TransportDef) -> bool {
         let mut cur = t;
-        // A chain of wrappers is at most as long as the list (the loader rejects loops).
+        // A chain of layers is at most as long as the list (the loader rejects loops).
         for _ in 0..=self.transports.len() {
-            match (cur.kind, &cur.settings) {
-                (TransportKind::Inproc, _) => return false,
-                (TransportKind::Emulated, TransportSettings::Emulated(e)) => {
-                    match e.over.as_deref().and_then(|o| self.transport(o)) {
-                        Some(inner) => cur = inner,
-                        None => return false,
-                    }
-                }
-                _ => return true,
+            match cur.over.as_deref().and_then(|o| self.transport(o)) {
+                Some(inner) => cur = inner,
+                None => return !cur.in_process,
             }
         }
         true

@@ -1,9 +1,8 @@
 //! Transport kinds from outside this crate: the settings half of a transport factory.
 //!
-//! The fleet loader knows the keys of the kinds it models itself (`inproc`, which has none,
-//! and `emulated`, whose `over` the loader follows; their settings are in [`crate::model`]).
-//! Every other kind, `udp`, `tcp`, `ros1` and `bluetooth` included, is described by a
-//! [`KindSpec`], written in the kind's own crate: its name, its keys, a `parse` function and
+//! The fleet loader models no kind itself. Every kind, `inproc`, `emulated`, `udp`, `tcp`,
+//! `ros1` and `bluetooth` included, is described by a [`KindSpec`], written in the kind's own
+//! crate: its name, its keys, a `parse` function and
 //! what the table check needs to know of its settings ([`KindSpec::addresses`]). A program collects the specs of the kinds compiled into it in a
 //! [`Kinds`] table (the `hetcomm` crate does this from its transport registry, one line per
 //! kind) and passes it to [`crate::load_with`] / [`crate::parse_str_with`].
@@ -61,6 +60,14 @@ pub trait KindSpec: Send + Sync {
         let _ = legacy;
         None
     }
+
+    /// Whether a transport of this kind, unless layered over another
+    /// ([`SettingsReader::layered_over`]), keeps its frames in the process (`emulated`'s
+    /// private hub): the fleet's [`crate::Fleet::leaves_process`] and the default of its
+    /// security follow it. The default, false, is for kinds whose frames leave the process.
+    fn in_process(&self) -> bool {
+        false
+    }
 }
 
 /// What the thesis's files give the transport of a default letter ([`KindSpec::implicit`]).
@@ -103,9 +110,6 @@ pub struct Kinds {
     unbuilt: BTreeSet<TransportKind>,
 }
 
-/// Kinds whose settings the loader models itself; a spec for one of them is never consulted.
-pub(crate) const MODELLED: [TransportKind; 2] = [TransportKind::Inproc, TransportKind::Emulated];
-
 impl Kinds {
     /// Only the built-in kinds.
     pub fn new() -> Kinds {
@@ -113,8 +117,7 @@ impl Kinds {
     }
 
     /// Adds a kind's spec, replacing an earlier one of the same kind. A spec for a built-in
-    /// name (`udp`, `zenoh`, …) replaces its raw keys; a spec for a kind the loader models
-    /// itself (`inproc`, `emulated`) is ignored.
+    /// name (`inproc`, `udp`, `emulated`, …) replaces its raw keys.
     pub fn add(&mut self, spec: Arc<dyn KindSpec>) {
         self.specs.insert(spec.kind(), spec);
     }
@@ -128,9 +131,6 @@ impl Kinds {
 
     /// The spec that reads `kind`'s settings, if a crate registered one.
     pub fn spec(&self, kind: TransportKind) -> Option<&dyn KindSpec> {
-        if MODELLED.contains(&kind) {
-            return None;
-        }
         self.specs.get(&kind).map(|s| &**s)
     }
 
@@ -216,25 +216,34 @@ mod tests {
     }
 
     #[test]
-    fn a_spec_for_a_modelled_kind_is_ignored_and_new_names_are_listed_last() {
+    fn every_kind_takes_its_spec_and_new_names_are_listed_last() {
         let mut kinds = Kinds::new();
-        kinds.add(Arc::new(Broker(TransportKind::Emulated)));
         kinds.add(Arc::new(Broker(TransportKind::new("ros2"))));
-        assert!(kinds.spec(TransportKind::Emulated).is_none());
         assert_eq!(TransportKind::new("udp"), TransportKind::Udp);
         assert_eq!(
             kinds.names().join(", "),
             "inproc, udp, tcp, ros1, bluetooth, zenoh, mqtt, dds, emulated, ros2"
         );
-        // emulated keeps its own keys and errors.
-        let errors =
-            crate::parse_str_with(&fleet("emulated", "broker = \"b\""), "u.toml", None, &kinds)
-                .unwrap_err()
-                .to_string();
-        assert!(
-            errors.starts_with("u.toml:6:1: unknown key `broker` in `transports.t`"),
-            "{errors}"
-        );
+        // No kind is modelled by the loader: `inproc` and `emulated` too are read by their
+        // crate's spec, and kept raw without one.
+        for kind in ["inproc", "emulated"] {
+            let raw =
+                crate::parse_str(&fleet(kind, "broker = \"b\""), "u.toml", None).expect("raw keys");
+            assert!(
+                matches!(&raw.transports[0].settings, crate::TransportSettings::Raw(k) if k.contains_key("broker")),
+                "{kind}: {:?}",
+                raw.transports[0].settings
+            );
+            let mut with = kinds.clone();
+            with.add(Arc::new(Broker(TransportKind::new(kind))));
+            assert!(with.spec(TransportKind::new(kind)).is_some(), "{kind}");
+            let ok = crate::parse_str_with(&fleet(kind, "broker = \"b\""), "u.toml", None, &with)
+                .expect("valid");
+            assert_eq!(
+                ok.transports[0].settings,
+                crate::TransportSettings::Registered(RegisteredSettings::new("b".to_string()))
+            );
+        }
         let errors = crate::parse_str_with(&fleet("ros3", ""), "r.toml", None, &kinds)
             .unwrap_err()
             .to_string();

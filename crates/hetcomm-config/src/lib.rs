@@ -73,7 +73,6 @@ use std::path::Path;
 use std::rc::Rc;
 
 pub use error::{ConfigError, ConfigErrors};
-pub use fleet_toml::{emulated_profile, EMULATED_PARAMS};
 pub use keys::{apply_keys_dir, insecure, Protection, Reach, KEY_LEN};
 pub use kinds::{Addresses, KindSpec, Kinds, LegacyFiles, SettingsReader};
 pub use model::*;

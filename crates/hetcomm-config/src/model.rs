@@ -229,6 +229,14 @@ pub struct TransportDef {
     pub security: SecurityMode,
     /// Kind-specific settings.
     pub settings: TransportSettings,
+    /// The transport this one is layered over (an `emulated` transport's `over`): its frames
+    /// travel on that one's link. None for a transport with a link of its own.
+    pub over: Option<String>,
+    /// Whether its own link never leaves the process (`inproc`, the private hub of an
+    /// `emulated` transport without `over`), as its kind says
+    /// ([`crate::KindSpec::in_process`]). A transport layered `over` another is judged by
+    /// that one ([`Fleet::leaves_process`]).
+    pub in_process: bool,
 }
 
 /// How a transport protects its frames (`security = ...` in its fleet-file section).
@@ -258,12 +266,8 @@ pub const DEFAULT_MAX_IN_FLIGHT_BYTES: usize = 2 << 20;
 /// Kind-specific settings, checked against each kind's schema.
 #[derive(Clone, Debug, PartialEq)]
 pub enum TransportSettings {
-    /// `inproc`: none.
-    Inproc,
-    /// `emulated`.
-    Emulated(EmulatedSettings),
     /// A kind known by name whose crate is not compiled into this program (or, loaded
-    /// without the program's kinds, any kind but the two above): the raw keys, stringified.
+    /// without the program's kinds, any kind): the raw keys, stringified.
     Raw(BTreeMap<String, String>),
     /// A kind registered by a link crate: the settings its [`crate::kinds::KindSpec`] parsed.
     Registered(RegisteredSettings),
@@ -346,21 +350,6 @@ impl std::fmt::Display for BdAddr {
             b[0], b[1], b[2], b[3], b[4], b[5]
         )
     }
-}
-
-/// Settings of an `emulated` transport: a built-in profile, overridden key by key. The model
-/// keys (`loss_percent`, `latency_ms`, …) are kept as given; the emulation layer interprets
-/// them.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EmulatedSettings {
-    /// The transport it wraps (a name in `transports`), or None for a private in-process link.
-    pub over: Option<String>,
-    /// Built-in profile name (`wired`, `wifi`, `bluetooth-classic`), if any.
-    pub profile: Option<String>,
-    /// Seed for the emulation's random choices.
-    pub seed: u64,
-    /// Model parameters, by key, as numbers.
-    pub params: BTreeMap<String, f64>,
 }
 
 impl Fleet {

@@ -593,6 +593,7 @@ fn resolve_cell(text: &str, loc: &Loc, cx: &mut CellContext<'_, '_>) -> Option<u
         security: SecurityMode::Keys,
         settings: Some(settings),
         over: None,
+        in_process: false,
         addresses,
     });
     tag_of.push(Some(key.as_bytes()[0]));

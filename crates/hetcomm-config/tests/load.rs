@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use hetcomm_config::*;
 use hetcomm_core::{ModuleId, SystemId};
+use hetcomm_link::emulation::EmulatedSettings;
 use hetcomm_link_bluetooth::BluetoothSettings;
 use hetcomm_link_ip::IpSettings;
 use hetcomm_link_ros1::Ros1Settings;
@@ -213,10 +214,9 @@ fn letters_remap_legacy_tables() {
     assert_eq!(f.transport("wired").map(|t| t.tag), Some(b'R'));
     let sim = f.transport("sim-bt").expect("sim-bt");
     assert_eq!(sim.tag, b'B');
-    let TransportSettings::Emulated(e) = &sim.settings else {
-        panic!()
-    };
+    let e: &EmulatedSettings = sim.settings.registered().expect("emulated settings");
     assert_eq!(e.over.as_deref(), Some("wired"));
+    assert_eq!(sim.over.as_deref(), Some("wired"));
     assert_eq!(e.profile.as_deref(), Some("bluetooth-classic"));
     assert_eq!(e.seed, 0);
     assert_eq!(pairs_of(&f, "sim-bt"), [(0, 2), (1, 0), (2, 1)]);
@@ -289,9 +289,8 @@ fn every_key_reaches_the_model() {
         bt.addresses.contains_key(&SystemId(1)),
         "numeric key taken as an id"
     );
-    let TransportSettings::Emulated(e) = &f.transport("sim").expect("sim").settings else {
-        panic!()
-    };
+    let sim = f.transport("sim").expect("sim");
+    let e: &EmulatedSettings = sim.settings.registered().expect("emulated settings");
     assert_eq!(e.seed, 42);
     assert_eq!(e.params.get("loss_percent"), Some(&1.0));
     assert_eq!(e.params.get("tx_power_dbm"), Some(&-3.5));

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use hetcomm_core::{wire::HEADER_LEN, wire::MAX_PAYLOAD, SystemId};
 
-use crate::registry::config::TransportKind;
+use crate::registry::config::{KindSpec, RegisteredSettings, SettingsReader, TransportKind};
 use crate::registry::{OpenFailure, OpenRequest, Opened, TransportFactory};
 use crate::{FrameSink, Link, LinkCaps, LinkError, Peer};
 
@@ -101,11 +101,40 @@ impl Drop for InprocLink {
 /// The `inproc` transport factory: a system's link of an in-process transport is its place on
 /// the hub the program keeps for that transport ([`OpenHost::hub`]). Its systems may hand
 /// messages over directly ([`TransportFactory::hands_over`]); nothing leaves the process.
+///
+/// [`OpenHost::hub`]: crate::registry::OpenHost::hub
 pub struct InprocFactory;
+
+/// Settings of an `inproc` transport: it has no keys of its own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InprocSettings;
+
+/// Its settings half: no keys, and frames that stay in the process.
+impl KindSpec for InprocFactory {
+    fn kind(&self) -> TransportKind {
+        TransportKind::Inproc
+    }
+
+    fn keys(&self) -> &[&'static str] {
+        &[]
+    }
+
+    fn parse(&self, _: &mut SettingsReader<'_, '_>) -> Option<RegisteredSettings> {
+        Some(RegisteredSettings::new(InprocSettings))
+    }
+
+    fn in_process(&self) -> bool {
+        true
+    }
+}
 
 impl TransportFactory for InprocFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Inproc
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(self)
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {

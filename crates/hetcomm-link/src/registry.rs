@@ -18,18 +18,15 @@
 //!
 //! The two halves are split by the crates' dependency direction: the fleet loader
 //! (`hetcomm-config`) sits below this crate, so it knows the spec half only, through a
-//! [`Kinds`] table; opening needs the [`Link`] trait, which lives here. The kinds the loader
-//! models itself (`udp`, `tcp`, `ros1`, `bluetooth`, `inproc`, `emulated`: `hetcomm validate`
-//! checks them in every build, and the legacy table files name them) have no spec; their
-//! factories only open. `inproc` and `emulated` are factories too (this crate's
-//! [`register_transports`](crate::register_transports)): what they need of the program that
-//! opens them (its in-process hubs, opening the transport an `emulated` one wraps) comes
-//! through the request's [`OpenHost`].
+//! [`Kinds`] table; opening needs the [`Link`] trait, which lives here. The loader models no
+//! kind itself: `inproc` and `emulated` are this crate's factories and specs
+//! ([`register_transports`](crate::register_transports)), registered like every other kind;
+//! what they need of the program that opens them (its in-process hubs, opening the transport
+//! an `emulated` one is layered over) comes through the request's [`OpenHost`].
 //!
 //! A factory also answers what the runtime and the security layer ask of a kind, so that
 //! neither names a kind: whether its frames leave the process
-//! ([`TransportFactory::leaves_process`]), which transport it is layered over
-//! ([`TransportFactory::over`]), the layer it puts over its link
+//! ([`TransportFactory::leaves_process`]), the layer it puts over its link
 //! ([`TransportFactory::layer`]) and whether its systems may skip the link and hand messages
 //! over directly ([`TransportFactory::hands_over`]).
 //!
@@ -150,10 +147,9 @@ pub trait TransportFactory: Send + Sync {
     /// The kind it opens.
     fn kind(&self) -> TransportKind;
 
-    /// The kind's settings half, for a kind the fleet loader does not model itself (every kind
-    /// but `inproc` and `emulated`). A factory usually implements [`KindSpec`] too and returns
-    /// itself here (see [`Registry::register`]). The default, None, is for a kind without
-    /// settings of its own.
+    /// The kind's settings half. A factory usually implements [`KindSpec`] too and returns
+    /// itself here (see [`Registry::register`]). The default, None, leaves the kind's keys
+    /// raw, unchecked (a test factory's).
     fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
         None
     }
@@ -178,14 +174,6 @@ pub trait TransportFactory: Send + Sync {
     /// kind's; `inproc` and `emulated` (whose own link is a private in-process hub) say false.
     fn leaves_process(&self) -> bool {
         true
-    }
-
-    /// For a kind layered over another transport of the fleet: that transport's name, from
-    /// `transport`'s settings. Its frames then travel on that transport's link, and are
-    /// secured by its layer. The default, None, is for a kind with a link of its own.
-    fn over<'t>(&self, transport: &'t TransportDef) -> Option<&'t str> {
-        let _ = transport;
-        None
     }
 
     /// The layer this kind puts over its link (the top of the link's stack, nearest the
@@ -356,17 +344,18 @@ impl Registry {
         self.factory(kind).is_none_or(|f| f.leaves_process())
     }
 
-    /// The index in `fleet` of the transport `t` is layered over ([`TransportFactory::over`]),
-    /// if its kind is layered over one and that one exists.
+    /// The index in `fleet` of the transport `t` is layered over ([`TransportDef::over`], which
+    /// its kind's spec read), if it is layered over one and that one exists. Its frames then
+    /// travel on that transport's link, and are secured by its layer.
     pub fn over(&self, fleet: &Fleet, t: &TransportDef) -> Option<usize> {
-        let name = self.factory(t.kind)?.over(t)?;
+        let name = t.over.as_deref()?;
         fleet.transports.iter().position(|o| o.name == name)
     }
 
-    /// Whether `t` names a transport it is layered over ([`TransportFactory::over`]), whether
-    /// or not the fleet has it.
+    /// Whether `t` names a transport it is layered over ([`TransportDef::over`]), whether or
+    /// not the fleet has it.
     pub fn is_layered(&self, t: &TransportDef) -> bool {
-        self.factory(t.kind).is_some_and(|f| f.over(t).is_some())
+        t.over.is_some()
     }
 
     /// Opens `request.transport`'s link through its kind's factory; None when the kind is not

@@ -89,9 +89,13 @@ pub use hetcomm_router::{FailReason, Outcome, RouterStats, SendId};
 /// The fleet file: loading, validation and the validated model. The loaders here know every
 /// transport kind compiled into this program (its registry, `hetcomm::transports`), so a
 /// `udp` or `ros1` transport's settings are read and checked as the kind's crate says;
-/// `hetcomm_config`'s own loaders know only the kinds that crate models itself.
+/// `hetcomm_config`'s own loaders know every kind by name only and keep its keys raw.
 pub mod config {
     pub use hetcomm_config::*;
+    /// The settings of `emulated` transports (their crate's, `hetcomm-link`).
+    pub use hetcomm_link::emulation::EmulatedSettings;
+    /// The settings of `inproc` transports (none; their crate's, `hetcomm-link`).
+    pub use hetcomm_link::inproc::InprocSettings;
     /// The settings of `bluetooth` transports (their crate's, `hetcomm-link-bluetooth`).
     #[cfg(feature = "bluetooth")]
     pub use hetcomm_link_bluetooth::BluetoothSettings;

@@ -66,15 +66,29 @@ Bravo = ["lan", "X"]
         "{:?}",
         alone.transports[0].settings
     );
-    // A kind the loader models itself reads the same either way.
+    // `inproc` registers like every other kind: its crate's spec says it has no keys and
+    // that its frames stay in the process; the loader alone keeps it raw, as any kind.
     let inproc = text.replace("\"udp\"", "\"inproc\"").replace(
         "endpoints = { Alpha = \"127.0.0.1:0\", Bravo = \"127.0.0.1:0\" }\n",
         "",
     );
-    assert_eq!(
-        hetcomm::parse_fleet(&inproc, "f.toml", None).expect("valid"),
-        hetcomm_config::parse_str(&inproc, "f.toml", None).expect("valid")
+    let with_registry = hetcomm::parse_fleet(&inproc, "f.toml", None).expect("valid");
+    let t = &with_registry.transports[0];
+    assert!(t
+        .settings
+        .registered::<hetcomm::link::inproc::InprocSettings>()
+        .is_some());
+    assert!(!with_registry.leaves_process(t));
+    let alone = hetcomm_config::parse_str(&inproc, "f.toml", None).expect("valid");
+    assert!(
+        matches!(
+            &alone.transports[0].settings,
+            hetcomm::config::TransportSettings::Raw(keys) if keys.is_empty()
+        ),
+        "{:?}",
+        alone.transports[0].settings
     );
+    assert_eq!(with_registry.table, alone.table);
 
     let bad = text.replace("udp", "udpp");
     let with_registry = hetcomm::parse_fleet(&bad, "f.toml", None)

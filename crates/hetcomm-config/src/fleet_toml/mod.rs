@@ -2,7 +2,6 @@
 //! checks every key by hand instead of deriving serde structs: derived errors can neither
 //! collect more than one problem nor say "did you mean", and their wording is not ours.
 
-mod emulation;
 mod modules;
 mod reader;
 mod scan;
@@ -12,7 +11,6 @@ mod table;
 mod transports;
 mod values;
 
-pub use emulation::emulated_profile;
 use modules::policy;
 pub use reader::SettingsReader;
 
@@ -78,40 +76,6 @@ pub(crate) const COMMON_KEYS: [&str; 9] = [
     "batch_linger_us",
     "security",
 ];
-/// Non-numeric keys of `emulated` transports besides the common ones.
-pub(crate) const EMULATED_KEYS: [&str; 3] = ["profile", "over", "seed"];
-/// Numeric model parameters an `emulated` transport accepts (kept in
-/// `EmulatedSettings::params`; the emulation layer interprets them and documents their units
-/// in docs/emulation.md). The last four were added by the emulation layer beyond the
-/// original list, so a fleet file may use every key that layer understands.
-pub const EMULATED_PARAMS: [&str; 24] = [
-    "loss_percent",
-    "burst_loss_percent",
-    "burst_length_mean",
-    "latency_ms",
-    "jitter_ms",
-    "bandwidth_kbps",
-    "queue_frames",
-    "mtu_bytes",
-    "duplicate_percent",
-    "reorder_percent",
-    "corrupt_percent",
-    "range_m",
-    "path_loss_exponent",
-    "reference_loss_db",
-    "reference_distance_m",
-    "tx_power_dbm",
-    "sensitivity_dbm",
-    "outage_start_ms",
-    "outage_duration_ms",
-    "outage_period_ms",
-    "delay_tail_ms",
-    "preserve_order",
-    "reorder_delay_ms",
-    "margin_slope_db",
-];
-/// Built-in emulation profiles.
-pub(crate) const PROFILES: [&str; 3] = ["wired", "wifi", "bluetooth-classic"];
 /// Overflow policy names.
 pub(crate) const OVERFLOWS: [&str; 3] = ["drop-oldest", "drop-newest", "block"];
 /// Delivery mode names.

@@ -17,6 +17,8 @@ pub struct SettingsReader<'r, 'f> {
     name: &'r str,
     kind: TransportKind,
     systems: &'r Systems,
+    /// What [`SettingsReader::layered_over`] read, for the loader.
+    over: Option<(String, Loc)>,
 }
 
 impl<'r, 'f> SettingsReader<'r, 'f> {
@@ -35,7 +37,13 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
             name,
             kind,
             systems,
+            over: None,
         }
+    }
+
+    /// The transport named by [`SettingsReader::layered_over`], with its location.
+    pub(super) fn take_over(&mut self) -> Option<(String, Loc)> {
+        self.over.take()
     }
 
     /// The transport's name.
@@ -75,6 +83,43 @@ impl<'r, 'f> SettingsReader<'r, 'f> {
     pub fn string(&mut self, key: &str, help: &str) -> Option<String> {
         let (v, vl, path) = self.item(key)?;
         self.p.string(v, &path, &vl, help).map(str::to_string)
+    }
+
+    /// A number, written as an integer or a float (`5` or `5.0`); `help` says what to write
+    /// instead of something else.
+    pub fn number(&mut self, key: &str, help: &str) -> Option<f64> {
+        let (v, vl, path) = self.item(key)?;
+        match v.as_value() {
+            Some(Value::Integer(i)) => Some(*i.value() as f64),
+            Some(Value::Float(f)) => Some(*f.value()),
+            _ => {
+                self.p.wrong_type(&vl, &path, "a number", v, help);
+                None
+            }
+        }
+    }
+
+    /// `key`'s dotted path as errors name it, e.g. `transports.radio.loss_percent`.
+    pub fn key_path(&self, key: &str) -> String {
+        format!("{}.{key}", self.path)
+    }
+
+    /// `key`'s value as the file writes it, for an error that quotes it.
+    pub fn written(&self, key: &str) -> Option<String> {
+        let (v, _, _) = self.item(key)?;
+        Some(self.p.raw(v))
+    }
+
+    /// The name of the transport this one is layered over (`over = "lan"`): its frames travel
+    /// on that transport's link. The loader checks that it names another transport, rejects
+    /// loops, follows it for the table's address check and for
+    /// [`Fleet::leaves_process`](crate::Fleet::leaves_process), whatever the kind, and keeps
+    /// it as [`TransportDef::over`](crate::TransportDef::over).
+    pub fn layered_over(&mut self, key: &str, help: &str) -> Option<String> {
+        let (v, vl, path) = self.item(key)?;
+        let name = crate::names::nfc(self.p.string(v, &path, &vl, help)?).into_owned();
+        self.over = Some((name.clone(), vl));
+        Some(name)
     }
 
     /// An integer from `min` to `max`.

@@ -191,6 +191,7 @@ impl P<'_> {
             security,
             settings: None,
             over: None,
+            in_process: false,
             addresses: None,
         };
         let Some(kind) = kind else {
@@ -208,37 +209,22 @@ impl P<'_> {
             let mut reader =
                 SettingsReader::new(self, t, (path.clone(), tloc.clone()), (name, kind), systems);
             let settings = registered.parse(&mut reader);
+            spec.over = reader.take_over();
+            spec.in_process = registered.in_process();
             if self.diag.errors.len() == errors_before {
                 spec.addresses = settings.as_ref().and_then(|s| registered.addresses(s));
                 spec.settings = settings.map(TransportSettings::Registered);
             }
             return Some(spec);
         }
-        let extra: &[&str] = match kind {
-            TransportKind::Emulated => &EMULATED_KEYS,
-            _ => &[], // inproc has none; the others without a spec are kept raw
-        };
-        let raw_kind = !crate::kinds::MODELLED.contains(&kind);
-        if !raw_kind {
-            let mut allowed: Vec<&str> = COMMON_KEYS.iter().chain(extra).copied().collect();
-            if kind == TransportKind::Emulated {
-                allowed.extend(EMULATED_PARAMS);
-            }
-            self.unknown_keys(t, &allowed, Some(&path), &tloc);
-        }
-        let settings = match kind {
-            TransportKind::Inproc => TransportSettings::Inproc,
-            TransportKind::Emulated => self.emulated(t, &path, &tloc, &mut spec),
-            _ => {
-                // A kind without a registered spec (not compiled into this program).
-                let raw = t
-                    .iter()
-                    .filter(|(k, _)| !COMMON_KEYS.contains(k))
-                    .map(|(k, v)| (k.to_string(), self.stringify(v, false)))
-                    .collect();
-                TransportSettings::Raw(raw)
-            }
-        };
+        // A kind without a registered spec (not compiled into this program): its keys are
+        // kept raw.
+        let raw = t
+            .iter()
+            .filter(|(k, _)| !COMMON_KEYS.contains(k))
+            .map(|(k, v)| (k.to_string(), self.stringify(v, false)))
+            .collect();
+        let settings = TransportSettings::Raw(raw);
         if self.diag.errors.len() == errors_before {
             spec.settings = Some(settings);
         }

@@ -2,6 +2,8 @@
 
 // The parent's imports and types.
 use super::*;
+use hetcomm::config::RegisteredSettings;
+use hetcomm::link::emulation::EmulatedSettings;
 
 /// What runs a trial: the virtual-time simulator, or the real transports in real time.
 enum Driver {
@@ -97,7 +99,7 @@ pub fn fleet_for_mode(
         if config.loss == LossModel::Profile || t.tag != letter as u8 {
             continue;
         }
-        let TransportSettings::Emulated(settings) = &mut t.settings else {
+        let Some(mut settings) = t.settings.registered::<EmulatedSettings>().cloned() else {
             return Err(ExperimentError::Invalid(format!(
                 "the loss options apply to the transport of letter {letter}, but `{}` is a {} \
                  transport, not an emulated one",
@@ -120,9 +122,10 @@ pub fn fleet_for_mode(
                 p.insert("burst_length_mean".into(), burst_length);
             }
         }
-        hetcomm::link::emulation::ModelParams::from_settings(settings).map_err(|e| {
+        hetcomm::link::emulation::ModelParams::from_settings(&settings).map_err(|e| {
             ExperimentError::Invalid(format!("transport `{}` with the loss options: {e}", t.name))
         })?;
+        t.settings = TransportSettings::Registered(RegisteredSettings::new(settings));
         found = true;
     }
     if !found {
@@ -200,9 +203,9 @@ fn letter_of(fleet: &Fleet, index: usize) -> String {
 
 fn transport_info(fleet: &Fleet, index: usize) -> TransportInfo {
     let t = &fleet.transports[index];
-    let (profile, params) = match &t.settings {
-        TransportSettings::Emulated(s) => (s.profile.clone(), s.params.clone()),
-        _ => (None, BTreeMap::new()),
+    let (profile, params) = match t.settings.registered::<EmulatedSettings>() {
+        Some(s) => (s.profile.clone(), s.params.clone()),
+        None => (None, BTreeMap::new()),
     };
     TransportInfo {
         letter: letter_of(fleet, index),

@@ -3,13 +3,13 @@
 
 use std::sync::Arc;
 
-use hetcomm_config::model::EmulatedSettings;
-use hetcomm_config::{TransportDef, TransportKind, TransportSettings};
+use hetcomm_config::{KindSpec, TransportDef, TransportKind};
 
 use crate::layer::LinkLayer;
 use crate::registry::{OpenFailure, OpenHost, OpenRequest, Opened, TransportFactory};
 
-use super::{EmulationLayer, LinkModel};
+use super::settings::EmulatedSpec;
+use super::{EmulatedSettings, EmulationLayer, LinkModel};
 
 /// Opens `emulated` transports: the link under the model is the `over` transport's (opened by
 /// the program, with its own layers) or a hub of its own; the model is the kind's
@@ -17,15 +17,22 @@ use super::{EmulationLayer, LinkModel};
 pub struct EmulatedFactory;
 
 fn settings(t: &TransportDef) -> Result<&EmulatedSettings, OpenFailure> {
-    match &t.settings {
-        TransportSettings::Emulated(s) => Ok(s),
-        other => Err(format!("expected emulated settings, found {other:?}").into()),
-    }
+    t.settings.registered().ok_or_else(|| {
+        format!(
+            "transport `{}` has no emulated settings (it was not loaded with this program's kinds)",
+            t.name
+        )
+        .into()
+    })
 }
 
 impl TransportFactory for EmulatedFactory {
     fn kind(&self) -> TransportKind {
         TransportKind::Emulated
+    }
+
+    fn spec(self: Arc<Self>) -> Option<Arc<dyn KindSpec>> {
+        Some(Arc::new(EmulatedSpec))
     }
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
@@ -56,16 +63,9 @@ impl TransportFactory for EmulatedFactory {
     }
 
     /// Its own link is a private in-process hub; over another transport, that one's
-    /// answer counts (the registry follows [`TransportFactory::over`]).
+    /// answer counts (the registry follows [`TransportDef::over`]).
     fn leaves_process(&self) -> bool {
         false
-    }
-
-    fn over<'t>(&self, transport: &'t TransportDef) -> Option<&'t str> {
-        match &transport.settings {
-            TransportSettings::Emulated(s) => s.over.as_deref(),
-            _ => None,
-        }
     }
 
     fn sim_model(

@@ -3,7 +3,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use hetcomm_config::model::EmulatedSettings;
+use super::settings::EmulatedSettings;
 
 use crate::layer::{LayerContext, LayerError, LinkLayer, OpenBelow};
 use crate::{FrameSink, Link};

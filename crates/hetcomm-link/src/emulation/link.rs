@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use hetcomm_config::model::EmulatedSettings;
+use super::settings::EmulatedSettings;
 use hetcomm_core::{SystemId, Time};
 
 use super::model::{Arrival, DropReason, LinkModel, Verdict};

@@ -81,6 +81,7 @@ mod link;
 mod model;
 mod params;
 mod positions;
+mod settings;
 mod verdict;
 
 pub use factory::EmulatedFactory;
@@ -89,3 +90,4 @@ pub use link::{DropCounts, EmulatedLink};
 pub use model::{direction_rng, Arrival, BitFlip, DropReason, LinkModel, Verdict};
 pub use params::{profile, EmulationError, ModelParams, Outage, PathLoss, KEYS, PROFILES};
 pub use positions::PositionTable;
+pub use settings::EmulatedSettings;

@@ -4,7 +4,7 @@
 
 use std::collections::{BTreeMap, VecDeque};
 
-use hetcomm_config::model::EmulatedSettings;
+use super::settings::EmulatedSettings;
 use hetcomm_core::{SystemId, Time};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
