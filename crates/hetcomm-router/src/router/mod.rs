@@ -32,6 +32,7 @@ use crate::lane::DirectLane;
 use crate::rtt::RttEstimator;
 
 mod broadcast;
+mod outcome;
 mod paths;
 mod receive;
 mod retransmit;
