@@ -379,3 +379,38 @@ end = 4.0
         }
     }
 }
+
+/// An unacknowledged send leaves by the unqueued path, not the router's loop: the scheduled
+/// faults act there too (one interception point), in real time, and the send says only what
+/// it knows: *sent*, the frame having left, not *delivered*.
+#[test]
+fn a_partition_takes_unacknowledged_frames_on_the_unqueued_path_too() {
+    let fleet = FLEET.replace(
+        "[transports.net]\nkind = \"inproc\"\n",
+        "[transports.net]\nkind = \"inproc\"\ndelivery = \"unacknowledged\"\n",
+    );
+    let fleet = hetcomm::parse_fleet(&fleet, "fleet.toml", None).unwrap();
+    let sc = parse_scenario(
+        "[[partition]]\nbetween = [\"A\", \"B\"]\nstart = 0.0\nend = 30.0\n",
+        "scenario.toml",
+        &fleet,
+    )
+    .unwrap();
+    let local = LocalFleet::open(fleet).unwrap();
+    let _run = local.apply_scenario(&sc, 1).unwrap();
+    let a = local.system("A").unwrap().module("Plan").unwrap();
+    let b = local.system("B").unwrap().module("Act").unwrap();
+    for n in 0..5 {
+        let ticket = a.send("B", "Act", &Ping { n }).unwrap();
+        assert!(
+            matches!(ticket.wait(), Outcome::Sent { attempts: 1 }),
+            "ping {n}"
+        );
+    }
+    assert!(matches!(
+        b.recv_timeout::<Ping>(Duration::from_millis(300)),
+        Err(hetcomm::RecvError::Timeout(_))
+    ));
+    let stats = local.system("A").unwrap().harness_stats();
+    assert_eq!(stats.fault_dropped, 5, "{stats:?}");
+}
