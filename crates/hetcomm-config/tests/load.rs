@@ -215,7 +215,6 @@ fn letters_remap_legacy_tables() {
     let sim = f.transport("sim-bt").expect("sim-bt");
     assert_eq!(sim.tag, b'B');
     let e: &EmulatedSettings = sim.settings.registered().expect("emulated settings");
-    assert_eq!(e.over.as_deref(), Some("wired"));
     assert_eq!(sim.over.as_deref(), Some("wired"));
     assert_eq!(e.profile.as_deref(), Some("bluetooth-classic"));
     assert_eq!(e.seed, 0);

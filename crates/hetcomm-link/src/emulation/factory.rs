@@ -37,7 +37,7 @@ impl TransportFactory for EmulatedFactory {
 
     fn open(&self, request: OpenRequest<'_>) -> Result<Opened, OpenFailure> {
         let t = request.transport;
-        match &settings(t)?.over {
+        match &t.over {
             Some(over) => {
                 let index = request
                     .fleet

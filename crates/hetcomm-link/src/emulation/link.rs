@@ -726,7 +726,6 @@ mod tests {
     fn from_settings_rejects_an_unknown_profile() {
         let hub = InprocHub::new();
         let settings = EmulatedSettings {
-            over: None,
             profile: Some("zigbee".into()),
             seed: 0,
             params: BTreeMap::new(),

@@ -15,11 +15,10 @@ use super::params::{profile, KEYS, PROFILES};
 ///
 /// [`ModelParams::from_settings`]: super::ModelParams::from_settings
 #[derive(Clone, Debug, PartialEq)]
+///
+/// The transport it is layered over (`over`) is not kept here: the loader keeps it, for every
+/// kind alike, as [`TransportDef::over`](hetcomm_config::TransportDef::over).
 pub struct EmulatedSettings {
-    /// The transport it is layered over (a name in `transports`), or None for a private
-    /// in-process link. The fleet keeps the same name as the transport's
-    /// [`TransportDef::over`](hetcomm_config::TransportDef::over).
-    pub over: Option<String>,
     /// Built-in profile name (`wired`, `wifi`, `bluetooth-classic`), if any.
     pub profile: Option<String>,
     /// Seed for the emulation's random choices.
@@ -33,8 +32,8 @@ const OWN_KEYS: [&str; 3] = ["profile", "over", "seed"];
 
 /// Every key of an `emulated` transport besides the ones every transport has: its own and the
 /// model's parameters ([`KEYS`], which docs/emulation.md explains).
-const ALL_KEYS: [&str; 27] = {
-    let mut all = [""; 27];
+const ALL_KEYS: [&str; OWN_KEYS.len() + KEYS.len()] = {
+    let mut all = [""; OWN_KEYS.len() + KEYS.len()];
     let mut i = 0;
     while i < OWN_KEYS.len() {
         all[i] = OWN_KEYS[i];
@@ -68,7 +67,8 @@ impl KindSpec for EmulatedSpec {
         let profile = s
             .choice("profile", ("profile", "profiles"), &PROFILES)
             .map(|i| PROFILES[i].to_string());
-        let over = s.layered_over("over", "write the wrapped transport's name in quotes");
+        // Kept by the loader as the transport's `TransportDef::over`.
+        s.layered_over("over", "write the wrapped transport's name in quotes");
         let seed = s
             .int_in("seed", 0, i64::MAX, "a whole number, e.g. 1")
             .map_or(0, i64::unsigned_abs);
@@ -107,7 +107,6 @@ impl KindSpec for EmulatedSpec {
         }
         fits(s, profile.as_deref(), &params);
         Some(RegisteredSettings::new(EmulatedSettings {
-            over,
             profile,
             seed,
             params,

@@ -201,37 +201,21 @@ impl SystemCore {
         outcome: impl FnOnce(AckStatus) -> Outcome,
         transport: Option<&'static str>,
     ) -> TicketSlot {
-        if self.observers.active() {
-            // Decided once per send: a send is observed whole (send and outcome) or not at
-            // all.
-            return self.hand_over_observed(peer, module, header, payload, now, outcome, transport);
+        // Decided once per send: a send is observed whole (send and outcome) or not at all.
+        let observed = self.observers.active();
+        if observed {
+            self.observers.send_direct(&header, payload.as_slice(), now);
         }
         let status = peer.deliver_direct(module, header, payload.into_buf(), now);
-        TicketSlot::Ready(outcome(status), transport)
-    }
-
-    /// [`SystemCore::hand_over`] while this system is observed: the send and its outcome are
-    /// reported (the outcome through [`SystemCore::end_send`], as every outcome is).
-    #[allow(clippy::too_many_arguments)]
-    #[cold]
-    #[inline(never)]
-    fn hand_over_observed(
-        &self,
-        peer: &SystemCore,
-        module: Option<&ModuleCore>,
-        header: Header,
-        payload: PayloadSource<'_>,
-        now: Time,
-        outcome: impl FnOnce(AckStatus) -> Outcome,
-        transport: Option<&'static str>,
-    ) -> TicketSlot {
-        self.observers.send_direct(&header, payload.as_slice(), now);
-        let status = peer.deliver_direct(module, header, payload.into_buf(), now);
-        let id = SendId {
-            to: header.destination.system,
-            seq: header.seq,
-        };
-        self.end_send(id, outcome(status), transport, None, now)
+        let outcome = outcome(status);
+        if observed {
+            let id = SendId {
+                to: header.destination.system,
+                seq: header.seq,
+            };
+            self.observe_outcome(id, &outcome, now);
+        }
+        TicketSlot::Ready(outcome, transport)
     }
 
     /// The way out of a value published on a topic of this process: the harness's topic taps
